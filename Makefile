@@ -1,0 +1,35 @@
+# One command each: `make test` (set up, then pass the tests), `make run` (set up, then run the cell).
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+UV := $(VENV)/bin/uv
+STAMP := $(VENV)/.installed
+TMP := $(CURDIR)/.test-tmp
+
+# Nothing depends on the caller's ROS environment: logs and ROS home inside the checkout,
+# discovery limited to this machine, the venv as the ament prefix.
+RUN_ENV := ROS_LOG_DIR=$(TMP)/ros_log ROS_HOME=$(TMP)/ros_home \
+	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) \
+	MPLBACKEND=Agg PYTHONDONTWRITEBYTECODE=1
+
+.PHONY: test setup clean bench
+
+setup: $(STAMP)
+
+# Reinstalls only when the package metadata changes; the package itself is editable.
+$(STAMP): setup.py setup.cfg package.xml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	test -x $(UV) || $(PY) -m pip install --quiet --disable-pip-version-check uv==0.13.9
+	$(UV) pip install --quiet --python $(PY) -e '.[cell,test]'
+	touch $(STAMP)
+
+test: $(STAMP)
+	mkdir -p $(TMP)
+	env $(RUN_ENV) $(PY) -m pytest
+
+bench: $(STAMP)
+	mkdir -p $(TMP)
+	for b in benchmarks/*.py; do env $(RUN_ENV) $(PY) $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) $(TMP) build install log

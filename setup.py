@@ -1,0 +1,58 @@
+"""positioning_cell: ament_python package; installs the same way under colcon and pip."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'positioning_cell'
+
+# Executables: `ros2 run positioning_cell <name>` on a ROS install, `<name>` on PATH in a venv.
+CONSOLE_SCRIPTS = [
+]
+
+# ROS 2 Jazzy from PyPI wheels and the pinned libraries the cell runs on (make run / make test).
+CELL = [
+    'ros-jazzy-rclpy==7.1.6',
+    'ros-jazzy-common-interfaces==5.3.6',
+    'ros-jazzy-rmw-fastrtps-cpp==8.4.3',
+    'numpy==2.4.6',
+    'scipy==1.17.1',
+    'PyYAML==6.0.3',
+    'rosbags==0.11.9',
+    'mcap==1.6.0',
+    'mcap-ros2-support==0.6.0',
+    'matplotlib==3.11.2',
+]
+TEST = [
+    'pytest==9.2.0',
+    'pytest-timeout==2.4.0',
+    'hypothesis==6.170.15',
+    'ruff==0.17.6',
+    'mypy==2.4.1',
+    'types-PyYAML==6.0.12.20261113',
+    'colcon-common-extensions==0.3.0',
+]
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
+        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+        (f'share/{PACKAGE}/launch', glob('launch/*.py')),
+    ],
+    # Kept loose so that a ROS install's system numpy / scipy / yaml satisfy it; the exact
+    # versions this project tests with are the `cell` extra.
+    install_requires=['setuptools', 'numpy>=1.24', 'scipy>=1.11', 'PyYAML>=6'],
+    extras_require={'cell': CELL, 'test': TEST},
+    zip_safe=True,
+    maintainer='positioning_cell developers',
+    maintainer_email='positioning-cell@example.org',
+    description='3-UPS aircraft-panel positioner cell: kinematics, clearance compensation, '
+                'simulated drives and tracker, ISO 9283 monitoring, MCAP recording',
+    license='Apache-2.0',
+    python_requires='>=3.10',
+    entry_points={'console_scripts': CONSOLE_SCRIPTS},
+)
