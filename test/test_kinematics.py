@@ -1,0 +1,179 @@
+"""Inverse and forward kinematics and the Jacobian, verified independently: round trips, a
+second FK solver (scipy least squares on the full closure in pose space), finite differences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import assume, given
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from workspace import MECH, poses, random_poses
+
+from positioning_cell import kinematics
+from positioning_cell.errors import InputError
+from positioning_cell.limits import check_poses
+from positioning_cell.mechanism import Mechanism
+
+
+def rotation_error(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    return (Rotation.from_quat(q1).inv() * Rotation.from_quat(q2)).magnitude()
+
+
+@given(poses())
+def test_ik_fk_round_trip_property(pose: tuple[np.ndarray, np.ndarray]) -> None:
+    p, q = pose
+    assume(check_poses(MECH, p, q).ok)
+    joints = kinematics.inverse(MECH, p, q)
+    fk = kinematics.forward(MECH, joints.lengths, joints.thetas)
+    assert fk.converged.all()
+    assert np.abs(fk.position[0] - p).max() <= 1e-12
+    assert rotation_error(fk.quaternion, q).max() <= 1e-12
+    np.testing.assert_allclose(fk.phis, joints.phis, atol=1e-10)
+
+
+def test_ik_fk_round_trip_batch() -> None:
+    p, q = random_poses(5000, np.random.default_rng(1))
+    joints = kinematics.inverse(MECH, p, q)
+    fk = kinematics.forward(MECH, joints.lengths, joints.thetas)
+    assert fk.converged.all()
+    assert np.abs(fk.position - p).max() <= 1e-12
+    assert rotation_error(fk.quaternion, q).max() <= 1e-12
+
+
+def test_fk_ik_round_trip_from_joints() -> None:
+    """Joint space → pose → joint space, for joints drawn around home."""
+    rng = np.random.default_rng(2)
+    home = kinematics.inverse(MECH, MECH.home_position, MECH.home_quaternion)
+    lengths = home.lengths + rng.uniform(-0.01, 0.01, (2000, 3))
+    thetas = rng.uniform(-0.1, 0.1, (2000, 3))
+    fk = kinematics.forward(MECH, lengths, thetas)
+    assert fk.converged.all()
+    back = kinematics.inverse(MECH, fk.position, fk.quaternion)
+    np.testing.assert_allclose(back.lengths, lengths, atol=1e-12)
+    np.testing.assert_allclose(back.thetas, thetas, atol=1e-12)
+
+
+def closure_fk(mech: Mechanism, lengths: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+    """Independent FK: least squares over the pose (p, rotation vector) on the full closure
+    l_i = |p + R b_i − A_i| and θ_i = asin(u_i · e_t,i); no passive angles, no triangle."""
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        rot = Rotation.from_rotvec(x[3:]).as_matrix()
+        d = x[:3] + mech.platform_joints @ rot.T - mech.base_joints
+        length = np.linalg.norm(d, axis=1)
+        theta = np.arcsin(np.sum(d * mech.tangential, axis=1) / length)
+        return np.concatenate([length - lengths, (theta - thetas) * mech.platform_radius])
+
+    x0 = np.concatenate([mech.home_position, np.zeros(3)])
+    sol = least_squares(residual, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15, method='lm')
+    return sol.x
+
+
+def test_fk_matches_independent_solver() -> None:
+    p, q = random_poses(20, np.random.default_rng(3))
+    joints = kinematics.inverse(MECH, p, q)
+    fk = kinematics.forward(MECH, joints.lengths, joints.thetas)
+    for i in range(len(p)):
+        x = closure_fk(MECH, joints.lengths[i], joints.thetas[i])
+        assert np.abs(x[:3] - fk.position[i]).max() <= 1e-11
+        other = Rotation.from_rotvec(x[3:]).as_quat()
+        assert rotation_error(other[None], fk.quaternion[i:i + 1])[0] <= 1e-10
+
+
+def test_jacobian_matches_finite_differences() -> None:
+    p, q = random_poses(10, np.random.default_rng(4))
+    jac = kinematics.jacobian(MECH, p, q)
+    joints = kinematics.inverse(MECH, p, q)
+    q_act = np.hstack([joints.lengths, joints.thetas])
+    h = 1e-7
+    for k in range(6):
+        step = np.zeros(6)
+        step[k] = h
+        plus = kinematics.forward(MECH, (q_act + step)[:, :3], (q_act + step)[:, 3:], joints.phis)
+        minus = kinematics.forward(MECH, (q_act - step)[:, :3], (q_act - step)[:, 3:],
+                                   joints.phis)
+        v = (plus.position - minus.position) / (2 * h)
+        w = (Rotation.from_quat(plus.quaternion) * Rotation.from_quat(minus.quaternion).inv()
+             ).as_rotvec() / (2 * h)
+        np.testing.assert_allclose(jac.matrix[:, :3, k], v, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(jac.matrix[:, 3:, k], w, rtol=1e-5, atol=1e-5)
+
+
+def test_inverse_jacobian_is_the_inverse() -> None:
+    p, q = random_poses(50, np.random.default_rng(5))
+    product = kinematics.inverse_jacobian(MECH, p, q) @ kinematics.jacobian(MECH, p, q).matrix
+    np.testing.assert_allclose(product, np.broadcast_to(np.eye(6), product.shape), atol=1e-9)
+
+
+def test_conditioning_in_unit_interval_and_home_well_conditioned() -> None:
+    p, q = random_poses(200, np.random.default_rng(6))
+    cond = kinematics.jacobian(MECH, p, q).conditioning
+    assert np.all((cond > 0.0) & (cond <= 1.0))
+    home = kinematics.jacobian(MECH, MECH.home_position, MECH.home_quaternion).conditioning[0]
+    assert home > MECH.min_conditioning
+
+
+def test_single_pose_is_a_batch_of_one() -> None:
+    joints = kinematics.inverse(MECH, MECH.home_position, MECH.home_quaternion)
+    assert joints.lengths.shape == joints.thetas.shape == joints.phis.shape == (1, 3)
+    np.testing.assert_allclose(joints.lengths, MECH.home_length, atol=1e-15)
+    np.testing.assert_allclose(joints.thetas, 0.0, atol=1e-15)
+    fk = kinematics.forward(MECH, joints.lengths[0], joints.thetas[0])
+    assert fk.position.shape == (1, 3) and fk.quaternion.shape == (1, 4)
+
+
+def test_branch_continuity_from_previous_solution() -> None:
+    """A warm start from the previous φ converges to the same pose as a start from home."""
+    p, q = random_poses(200, np.random.default_rng(7))
+    joints = kinematics.inverse(MECH, p, q)
+    warm = kinematics.forward(MECH, joints.lengths, joints.thetas, joints.phis + 1e-3)
+    assert warm.converged.all()
+    assert np.abs(warm.position - p).max() <= 1e-12
+
+
+def test_fk_reports_non_convergence_never_a_pose() -> None:
+    # Legs of 30 mm cannot bring base points 173 mm apart to a 104 mm triangle.
+    fk = kinematics.forward(MECH, np.full((2, 3), 0.03), np.zeros((2, 3)))
+    assert not fk.converged.any()
+    assert np.isnan(fk.position).all() and np.isnan(fk.quaternion).all()
+
+
+def test_fk_mixed_batch_keeps_good_poses() -> None:
+    joints = kinematics.inverse(MECH, MECH.home_position, MECH.home_quaternion)
+    lengths = np.vstack([joints.lengths, np.full((1, 3), 0.03), joints.lengths])
+    fk = kinematics.forward(MECH, lengths, np.zeros((3, 3)))
+    assert fk.converged.tolist() == [True, False, True]
+    np.testing.assert_allclose(fk.position[[0, 2]], np.tile(MECH.home_position, (2, 1)),
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize(('position', 'quaternion', 'words'), [
+    ([0.0, np.nan, 0.2], [0, 0, 0, 1], 'not finite'),
+    ([0.0, 0.0, np.inf], [0, 0, 0, 1], 'not finite'),
+    ([0.0, 0.0, 0.2], [0, 0, 0, 0], 'is zero'),
+    ([0.0, 0.0, 0.2], [0, 0, 0, 1.01], 'norm 1.01'),
+    ([0.0, 0.0, 0.2], [0, 0, np.nan, 1], 'not finite'),
+    ([0.0, 0.2], [0, 0, 0, 1], 'position: expected shape'),
+    ([0.0, 0.0, 0.2], [0, 0, 1], 'quaternion: expected shape'),
+    ([[0.0, 0.0, 0.2]] * 2, [0, 0, 0, 1], 'position has 2 poses but quaternion has 1'),
+    ('abc', [0, 0, 0, 1], 'position'),
+])
+def test_bad_input_is_named(position: object, quaternion: object, words: str) -> None:
+    with pytest.raises(InputError, match=words):
+        kinematics.inverse(MECH, position, quaternion)  # type: ignore[arg-type]
+
+
+def test_nearly_unit_quaternion_is_normalised() -> None:
+    q = np.array([0.0, 0.0, 0.0, 1.0 + 5e-7])
+    joints = kinematics.inverse(MECH, MECH.home_position, q)
+    np.testing.assert_allclose(joints.lengths, MECH.home_length, atol=1e-15)
+
+
+def test_forward_bad_input() -> None:
+    with pytest.raises(InputError, match='lengths has 2 rows but thetas has 1'):
+        kinematics.forward(MECH, np.full((2, 3), 0.2), np.zeros((1, 3)))
+    with pytest.raises(InputError, match='must be > 0'):
+        kinematics.forward(MECH, [0.2, -0.2, 0.2], [0, 0, 0])
+    with pytest.raises(InputError, match='not finite'):
+        kinematics.forward(MECH, [0.2, np.nan, 0.2], [0, 0, 0])

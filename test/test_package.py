@@ -1,0 +1,127 @@
+"""The package builds with colcon as on a ROS install: ament index marker, share files, and
+every declared executable where `ros2 run` looks (<prefix>/lib/positioning_cell/<exe>),
+each of which starts."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from importlib.metadata import distribution
+from pathlib import Path
+
+import pytest
+from cell_harness import REPO, Client, isolated_domain, wait_until
+
+PACKAGE = 'positioning_cell'
+# Node names of the executables (design/interfaces.md).
+NODE_NAMES = {
+    'kinematics_node': 'positioner',
+    'leg_driver_node': 'leg_driver',
+    'pose_measurement_node': 'pose_measurement',
+    'accuracy_monitor_node': 'accuracy_monitor',
+    'recorder_node': 'recorder',
+    'bag_player_node': 'bag_player',
+}
+
+
+def declared_executables() -> dict[str, str]:
+    """console_scripts of the installed distribution: name → 'module:function'."""
+    eps = distribution(PACKAGE).entry_points
+    return {ep.name: ep.value for ep in eps if ep.group == 'console_scripts'}
+
+
+@pytest.fixture(scope='module')
+def colcon_install(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp('colcon')
+    env = dict(os.environ, COLCON_HOME=str(root / 'colcon_home'))
+    colcon = Path(sys.executable).parent / 'colcon'
+    result = subprocess.run(
+        [str(colcon), 'build', '--base-paths', str(REPO), '--packages-select', PACKAGE,
+         '--build-base', str(root / 'build'), '--install-base', str(root / 'install'),
+         '--event-handlers', 'console_direct-'],
+        cwd=root, env=env, capture_output=True, text=True, check=False, timeout=300)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return root / 'install'
+
+
+def ament_lookup(install: Path, code: str) -> str:
+    """Run ament_index_python in a child with the colcon prefix first on AMENT_PREFIX_PATH."""
+    prefix = f'{install / PACKAGE}{os.pathsep}{os.environ.get("AMENT_PREFIX_PATH", "")}'
+    env = dict(os.environ, AMENT_PREFIX_PATH=prefix)
+    result = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                            text=True, check=True)
+    return result.stdout.strip()
+
+
+def test_share_files_and_index(colcon_install: Path) -> None:
+    share = Path(ament_lookup(colcon_install, (
+        'from ament_index_python.packages import get_package_share_directory as g\n'
+        f'print(g("{PACKAGE}"))')))
+    assert share == colcon_install / PACKAGE / 'share' / PACKAGE
+    assert (share / 'package.xml').is_file()
+    assert (share / 'config' / 'cell.yaml').is_file()
+    shipped_launch = sorted(p.name for p in (REPO / 'launch').glob('*.py'))
+    assert sorted(p.name for p in (share / 'launch').glob('*.py')) == shipped_launch
+    marker = (colcon_install / PACKAGE / 'share' / 'ament_index' / 'resource_index' /
+              'packages' / PACKAGE)
+    assert marker.is_file()
+
+
+def test_config_found_through_the_index(colcon_install: Path) -> None:
+    found = ament_lookup(colcon_install, (
+        'from positioning_cell.config import config_path\nprint(config_path())'))
+    assert found == str(colcon_install / PACKAGE / 'share' / PACKAGE / 'config' / 'cell.yaml')
+
+
+def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Path,
+                                                              tmp_path: Path) -> None:
+    executables = declared_executables()
+    prefix = Path(ament_lookup(colcon_install, (
+        'from ament_index_python.packages import get_package_prefix as g\n'
+        f'print(g("{PACKAGE}"))')))
+    lib = prefix / 'lib' / PACKAGE
+    for name in executables:
+        assert os.access(lib / name, os.X_OK), f'{name} missing from {lib}'
+    nodes = {n: v for n, v in executables.items() if '.nodes.' in v}
+    tools = {n: v for n, v in executables.items() if '.nodes.' not in v}
+    for name in tools:  # command-line tools answer --help
+        result = subprocess.run([str(lib / name), '--help'], capture_output=True, text=True,
+                                check=False, timeout=60)
+        assert result.returncode == 0, f'{name} --help: {result.stderr}'
+    if not nodes:
+        return
+    with isolated_domain() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+        env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
+        procs = {}
+        try:
+            for name in nodes:
+                log = open(tmp_path / f'{name}.log', 'wb')  # noqa: SIM115
+                procs[name] = (subprocess.Popen(
+                    [str(lib / name), '--ros-args', '--params-file',
+                     str(REPO / 'config' / 'cell.yaml'), '-p', 'use_sim_time:=false'],
+                    stdout=log, stderr=subprocess.STDOUT, env=env,
+                    cwd=tmp_path, start_new_session=True), log)
+            expected = {NODE_NAMES.get(n, n) for n in nodes}
+            with Client(domain, 'package_test_client') as client:
+                def all_up() -> bool:
+                    return expected <= set(client.node.get_node_names())
+                wait_until(all_up, 60.0, f'nodes {sorted(expected)} in the graph')
+        finally:
+            for proc, _ in procs.values():
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGINT)
+            deadline = time.monotonic() + 20
+            codes = {}
+            for name, (proc, log) in procs.items():
+                try:
+                    codes[name] = proc.wait(timeout=max(deadline - time.monotonic(), 0.1))
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    codes[name] = proc.wait()
+                log.close()
+        logs = {n: (tmp_path / f'{n}.log').read_text(errors='replace')[-2000:] for n in nodes}
+        assert all(code == 0 for code in codes.values()), (codes, logs)

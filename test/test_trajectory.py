@@ -1,0 +1,112 @@
+"""Moves: exact end points, straight line and SLERP, within speed and acceleration limits,
+joint rates consistent with the joint commands, every sample checked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from workspace import MECH
+
+from positioning_cell import clearance as cl
+from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.trajectory import MotionLimits, plan_move
+
+LIMITS = MotionLimits(linear_speed=0.01, linear_acceleration=0.05, angular_speed=0.1,
+                      angular_acceleration=0.5)
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def goal(dp: list[float], rv: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    return MECH.home_position + dp, Rotation.from_rotvec(rv).as_quat()
+
+
+@pytest.mark.parametrize(('dp', 'rv'), [
+    ([0.005, 0.0, 0.0], [0.0, 0.0, 0.0]),      # short: no cruise phase
+    ([0.0, 0.0, 0.012], [0.0, 0.0, 0.0]),      # long: cruises at the speed limit
+    ([0.0, 0.0, 0.0], [0.05, -0.02, 0.03]),    # rotation only
+    ([0.003, -0.004, 0.002], [0.02, 0.0, -0.04]),
+])
+def test_move_respects_limits_and_ends_on_goal(dp: list[float], rv: list[float]) -> None:
+    period = 0.002
+    p_goal, q_goal = goal(dp, rv)
+    traj = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                     limits=LIMITS)
+    assert traj.limits.ok
+    np.testing.assert_allclose(traj.position[0], MECH.home_position, atol=1e-15)
+    np.testing.assert_allclose(traj.position[-1], p_goal, atol=1e-15)
+    rot_end = Rotation.from_quat(traj.quaternion[-1]) * Rotation.from_quat(q_goal).inv()
+    assert rot_end.magnitude() < 1e-12
+    assert np.all(np.diff(traj.times) > 0) and np.diff(traj.times).max() <= period + 1e-12
+    # Straight line: every sample lies on the segment start → goal.
+    d = np.asarray(dp)
+    if np.linalg.norm(d) > 0:
+        rel = traj.position - MECH.home_position
+        along = rel @ d / (d @ d)
+        np.testing.assert_allclose(rel, along[:, None] * d, atol=1e-15)
+        assert np.all(np.diff(along) >= -1e-15)
+    # Speeds and accelerations by finite differences of the samples.
+    dt = np.diff(traj.times)
+    v = np.linalg.norm(np.diff(traj.position, axis=0), axis=1) / dt
+    w = (Rotation.from_quat(traj.quaternion[1:]) *
+         Rotation.from_quat(traj.quaternion[:-1]).inv()).magnitude() / dt
+    assert v.max() <= LIMITS.linear_speed * (1 + 1e-6)
+    assert w.max() <= LIMITS.angular_speed * (1 + 1e-6)
+    inner = slice(0, -1)  # the last interval may be shorter than the period
+    a = np.abs(np.diff(v[inner])) / dt[1:-1]
+    alpha = np.abs(np.diff(w[inner])) / dt[1:-1]
+    assert a.max() <= LIMITS.linear_acceleration * 1.01
+    assert alpha.max() <= LIMITS.angular_acceleration * 1.01
+    # One of the two limits is reached (the profile is not needlessly slow).
+    reached = max(v.max() / LIMITS.linear_speed, w.max() / LIMITS.angular_speed,
+                  a.max() / LIMITS.linear_acceleration,
+                  alpha.max() / LIMITS.angular_acceleration)
+    assert reached > 0.95
+    # The profile starts and ends at rest.
+    assert np.abs(traj.length_rates[[0, -1]]).max() < 1e-12
+    assert np.abs(traj.theta_rates[[0, -1]]).max() < 1e-12
+
+
+def test_joint_rates_match_finite_differences_of_joint_commands() -> None:
+    p_goal, q_goal = goal([0.004, 0.002, -0.003], [0.02, 0.01, 0.03])
+    traj = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=0.001,
+                     limits=LIMITS)
+    t = traj.times[:-1]
+    for cmd, rate in ((traj.lengths, traj.length_rates), (traj.thetas, traj.theta_rates)):
+        fd = np.gradient(cmd[:-1], t, axis=0)
+        np.testing.assert_allclose(fd[1:-1], rate[1:-2], atol=2e-6)
+
+
+def test_compensated_move_ends_on_goal_with_the_model() -> None:
+    model = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(0))
+    p_goal, q_goal = goal([0.005, 0.0, 0.0], [0.0, 0.0, 0.0])
+    traj = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=0.01,
+                     limits=LIMITS, clearance=model)
+    att = cl.attained_pose(MECH, model, traj.lengths[-1:], traj.thetas[-1:])
+    np.testing.assert_allclose(att.position[0], p_goal, atol=1e-12)
+
+
+def test_path_outside_limits_reports_first_bad_sample() -> None:
+    p_goal, q_goal = goal([0.0, 0.0, 0.03], [0.0, 0.0, 0.0])
+    traj = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=0.01,
+                     limits=LIMITS)
+    assert not traj.limits.ok
+    first = traj.limits.first_bad_sample
+    assert first is not None and 0 < first < len(traj.times) - 1
+    assert traj.limits.violations[0].constraint == 'length_max'
+
+
+def test_zero_move_is_one_sample_pair() -> None:
+    traj = plan_move(MECH, MECH.home_position, IDENTITY, MECH.home_position, IDENTITY,
+                     period=0.01)
+    assert traj.duration == 0.0
+    np.testing.assert_allclose(traj.position, MECH.home_position[None].repeat(2, 0))
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(InputError, match='period'):
+        plan_move(MECH, MECH.home_position, IDENTITY, MECH.home_position, IDENTITY, period=0.0)
+    with pytest.raises(InputError, match='not finite'):
+        plan_move(MECH, MECH.home_position, IDENTITY, [np.nan, 0, 0.2], IDENTITY, period=0.01)
+    with pytest.raises(ConfigError, match='linear_speed'):
+        MotionLimits(linear_speed=-1.0)
