@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
+import yaml
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -89,13 +90,22 @@ class ProcessGroup:
         self.env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
 
     def start(self, exe: str, *ros_args: str, params: Path | None = CELL_YAML,
-              label: str | None = None,
+              overrides: dict[str, dict[str, Any]] | None = None, label: str | None = None,
               extra_args: tuple[str, ...] = ()) -> subprocess.Popen[bytes]:
-        """Start ``exe`` with ``--ros-args --params-file params`` plus ``ros_args``."""
+        """Start ``exe`` with ``--ros-args --params-file params`` plus ``ros_args``.
+
+        ``overrides`` ({node_name: {nested params}}) go in a second params file after the
+        first: a node-specific key in a file beats a ``-p`` override, a later file beats both.
+        """
         label = label or exe
         args = [executable(exe), *extra_args, '--ros-args']
         if params is not None:
             args += ['--params-file', str(params)]
+        if overrides:
+            extra = self.log_dir / f'{label}.overrides.yaml'
+            extra.write_text(yaml.safe_dump(
+                {node: {'ros__parameters': values} for node, values in overrides.items()}))
+            args += ['--params-file', str(extra)]
         args += list(ros_args)
         log = open(self.log_dir / f'{label}.log', 'wb')  # noqa: SIM115 - closed in stop()
         proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, env=self.env,

@@ -4,6 +4,7 @@ parameters, and message <-> numpy conversions. No mathematics lives here."""
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -13,6 +14,7 @@ import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped, Vector3Stamped
+from numpy.typing import ArrayLike
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
@@ -42,7 +44,8 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
         *, threads: int = 4) -> int:
     """The Jazzy main() idiom: init, spin until Ctrl-C / SIGTERM / shutdown, clean up.
 
-    A multi-threaded executor, so a service callback can wait for topic data.
+    A multi-threaded executor, so a service callback can wait for topic data. Invalid
+    parameters at start: the reason on stderr and exit code 2.
     """
     rclpy.init(args=list(args) if args is not None else None)
     node: Node | None = None
@@ -53,6 +56,9 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except ConfigError as err:
+        print(f'invalid parameters: {err}', file=sys.stderr)
+        return 2
     finally:
         if node is not None:
             close = getattr(node, 'close', None)
@@ -107,7 +113,7 @@ class Parameters:
     whole-set validator that may raise ConfigError), and keeps the current values."""
 
     def __init__(self, node: Node, specs: Iterable[ParamSpec],
-                 validate: Callable[[dict[str, Any]], None] | None = None,
+                 validate: Callable[[dict[str, Any]], object] | None = None,
                  on_change: Callable[[dict[str, Any]], None] | None = None) -> None:
         self._specs = {s.name: s for s in specs}
         self._validate = validate
@@ -199,16 +205,16 @@ def pose_arrays(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     return np.array([p.x, p.y, p.z]), np.array([o.x, o.y, o.z, o.w])
 
 
-def pose_msg(position: Sequence[float], quaternion: Sequence[float]) -> Pose:
+def pose_msg(position: ArrayLike, quaternion: ArrayLike) -> Pose:
     """geometry_msgs/Pose from a position (m) and a quaternion x, y, z, w."""
     msg = Pose()
-    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in position)
+    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in np.ravel(position))
     (msg.orientation.x, msg.orientation.y, msg.orientation.z,
-     msg.orientation.w) = (float(v) for v in quaternion)
+     msg.orientation.w) = (float(v) for v in np.ravel(quaternion))
     return msg
 
 
-def pose_stamped(position: Sequence[float], quaternion: Sequence[float], stamp: Time,
+def pose_stamped(position: ArrayLike, quaternion: ArrayLike, stamp: Time,
                  frame: str = BASE_FRAME) -> PoseStamped:
     """geometry_msgs/PoseStamped in ``frame``."""
     msg = PoseStamped()
@@ -218,25 +224,25 @@ def pose_stamped(position: Sequence[float], quaternion: Sequence[float], stamp: 
     return msg
 
 
-def vector3_stamped(vector: Sequence[float], stamp: Time,
+def vector3_stamped(vector: ArrayLike, stamp: Time,
                     frame: str = BASE_FRAME) -> Vector3Stamped:
     """geometry_msgs/Vector3Stamped in ``frame``."""
     msg = Vector3Stamped()
     msg.header.stamp = stamp
     msg.header.frame_id = frame
-    msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in vector)
+    msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in np.ravel(vector))
     return msg
 
 
-def joint_state(names: Sequence[str], stamp: Time, position: Sequence[float],
-                velocity: Sequence[float] = (), effort: Sequence[float] = ()) -> JointState:
+def joint_state(names: Sequence[str], stamp: Time, position: ArrayLike,
+                velocity: ArrayLike = (), effort: ArrayLike = ()) -> JointState:
     """sensor_msgs/JointState (SI: m, rad, m/s, rad/s, N, N·m)."""
     msg = JointState()
     msg.header.stamp = stamp
     msg.name = list(names)
-    msg.position = [float(v) for v in position]
-    msg.velocity = [float(v) for v in velocity]
-    msg.effort = [float(v) for v in effort]
+    msg.position = [float(v) for v in np.ravel(position)]
+    msg.velocity = [float(v) for v in np.ravel(velocity)]
+    msg.effort = [float(v) for v in np.ravel(effort)]
     return msg
 
 

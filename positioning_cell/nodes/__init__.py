@@ -1,0 +1,1 @@
+"""rclpy nodes of the cell: thin layers over the pure library."""
