@@ -1,0 +1,37 @@
+"""Start the positioning cell on a ROS 2 Jazzy install: `ros2 launch positioning_cell
+cell.launch.py [params_file:=...] [record:=true]`. (Here, without ros2launch, `make run` starts
+the same processes.)"""
+
+from pathlib import Path
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+CELL_NODES = [
+    ('kinematics_node', 'positioner'),
+    ('leg_driver_node', 'leg_driver'),
+    ('pose_measurement_node', 'pose_measurement'),
+    ('accuracy_monitor_node', 'accuracy_monitor'),
+]
+
+
+def generate_launch_description() -> LaunchDescription:
+    default_params = str(Path(get_package_share_directory('positioning_cell')) / 'config' /
+                         'cell.yaml')
+    params = LaunchConfiguration('params_file')
+    nodes = [Node(package='positioning_cell', executable=exe, name=name, output='screen',
+                  parameters=[params]) for exe, name in CELL_NODES]
+    nodes.append(Node(package='positioning_cell', executable='recorder_node', name='recorder',
+                      output='screen', parameters=[params],
+                      condition=IfCondition(LaunchConfiguration('record'))))
+    return LaunchDescription([
+        DeclareLaunchArgument('params_file', default_value=default_params,
+                              description='ROS 2 parameter file of the cell'),
+        DeclareLaunchArgument('record', default_value='true',
+                              description='record the run to an MCAP bag'),
+        *nodes,
+    ])
