@@ -9,6 +9,7 @@ baseline. Prints what it measured; exits non-zero only if results are wrong, nev
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import time
 
@@ -58,10 +59,8 @@ def main() -> int:
     parser.add_argument('--n', type=int, default=100_000)
     parser.add_argument('--baseline-poses', type=int, default=200)
     args = parser.parse_args()
-    try:
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})  # one core
-    except (AttributeError, OSError):
-        pass
+    with contextlib.suppress(AttributeError, OSError):  # one core
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     rng = np.random.default_rng(0)
     p, q = workspace_poses(args.n, rng)
 

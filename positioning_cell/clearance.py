@@ -73,10 +73,14 @@ class EffectiveLengthClearance:
                       phi0: ArrayLike | None = None) -> ForwardResult:
         """FK with l_eff = l + Δl(φ, θ); since Δl depends on the φ it produces, iterated to a
         fixed point (|ΔΔl| ≤ 1e-15 m; each pass one warm-started FK)."""
-        result = forward(mech, lengths, thetas, phi0)
         lengths_arr = np.asarray(lengths, dtype=float).reshape(-1, 3)
         thetas_arr = np.asarray(thetas, dtype=float).reshape(-1, 3)
-        delta = np.zeros_like(lengths_arr)
+        # Start from Δl at the warm-start φ (or none): near the solution that leaves one or
+        # two passes.
+        delta = (np.zeros_like(lengths_arr) if phi0 is None else
+                 self.length_delta(np.broadcast_to(np.asarray(phi0, dtype=float),
+                                                   lengths_arr.shape), thetas_arr))
+        result = forward(mech, lengths_arr + delta, thetas_arr, phi0)
         for _ in range(20):
             phis = np.where(np.isfinite(result.phis), result.phis, home_phis(mech))
             new_delta = self.length_delta(phis, thetas_arr)
@@ -180,17 +184,20 @@ def model_from_params(params: Mapping[str, Any], mech: Mechanism,
                       rng: np.random.Generator | None = None) -> ClearanceModel:
     """A clearance model from a parameter block (nested or dotted keys, prefix ``clearance.``).
 
-    Keys: ``model`` ('none' | 'effective_length' | 'vector'); r_a, r_b (m; default the
+    Keys: ``model`` ('none' | 'effective_length' | 'vector' | 'load'); r_a, r_b (m; default the
     mechanism's joint clearance); for effective_length delta_a1, delta_a2, delta_b1, delta_b2
     (3 angles each, rad); for vector u_offsets, s_offsets (9 numbers each, m). Directions not
-    given are drawn from ``rng`` (required then). Bad values raise ConfigError naming the key.
+    given are drawn from ``rng`` (required then). For ``model: load`` seating_force (N) and
+    the ``payload`` and ``structure`` blocks, nested or dotted (defaults: config/cell.yaml);
+    see :class:`positioning_cell.load_clearance.LoadAwareClearance`. Bad values raise
+    ConfigError naming the key.
     """
     flat = {k.removeprefix('clearance.'): v for k, v in params.items()}
     kind = str(flat.get('model', 'effective_length'))
     known = {'model', 'r_a', 'r_b', 'delta_a1', 'delta_a2', 'delta_b1', 'delta_b2',
-             'u_offsets', 's_offsets', 'seed'}
+             'u_offsets', 's_offsets', 'seed', 'seating_force', 'payload', 'structure'}
     for key in flat:
-        if key not in known:
+        if key not in known and key.split('.')[0] not in ('payload', 'structure'):
             raise ConfigError(f'clearance: unknown parameter {key!r}')
     if kind == 'none':
         return None
@@ -218,8 +225,11 @@ def model_from_params(params: Mapping[str, Any], mech: Mechanism,
             u = u if u is not None else drawn_v.u_offsets
             s = s if s is not None else drawn_v.s_offsets
         return VectorClearance(u, s)
+    if kind == 'load':  # closed by the joint forces (positioning_cell.load_clearance)
+        from positioning_cell.load_clearance import LoadAwareClearance
+        return LoadAwareClearance.from_params(flat, r_a, r_b)
     raise ConfigError(
-        f'clearance.model = {kind!r}: expected one of none, effective_length, vector')
+        f'clearance.model = {kind!r}: expected one of none, effective_length, vector, load')
 
 
 def _length(flat: Mapping[str, Any], key: str, default: float) -> float:

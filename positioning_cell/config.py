@@ -26,7 +26,8 @@ def share_directory() -> Path:
     else:
         try:
             share = Path(get_package_share_directory(PACKAGE))
-        except (PackageNotFoundError, LookupError, ValueError, KeyError):
+        except (PackageNotFoundError, LookupError, ValueError, KeyError, OSError):
+            # OSError: AMENT_PREFIX_PATH unset (ament_index_python raises EnvironmentError).
             pass
         else:
             if (share / 'config').is_dir():

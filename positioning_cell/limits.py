@@ -97,6 +97,15 @@ class LimitReport:
         tail = f' (+{more} more)' if more > 0 else ''
         return 'outside limits: ' + '; '.join(lines) + tail
 
+    def merged(self, other: LimitReport) -> LimitReport:
+        """One report of two checks of the same samples, violations ordered by sample."""
+        if other.n_samples != self.n_samples:
+            raise ValueError(f'cannot merge reports of {self.n_samples} and '
+                             f'{other.n_samples} samples')
+        found = sorted(self.violations + other.violations, key=lambda v: v.sample)
+        return LimitReport(self.n_samples, tuple(found[:MAX_LISTED]),
+                           self.n_violations + other.n_violations)
+
     def raise_if_violated(self) -> None:
         """Raise :class:`LimitError` carrying this report when anything is violated."""
         if not self.ok:

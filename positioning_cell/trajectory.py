@@ -1,6 +1,6 @@
 """Point-to-point moves: a straight line in position and SLERP in orientation, timed by a
 smooth (sinusoidal-acceleration) law within speed and acceleration limits, sampled at a fixed
-period, every sample checked against the mechanism's limits."""
+period, every sample checked against the mechanism's limits and the singularity margin."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from positioning_cell.kinematics import _inverse_jacobian
 from positioning_cell.limits import LimitReport, check_poses
 from positioning_cell.mechanism import Mechanism
 from positioning_cell.poses import as_pose_batch
+from positioning_cell.singularity import check_path
 
 FloatArray = NDArray[np.float64]
 
@@ -143,6 +144,9 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
     omega_axis = rotations[0].apply(rotvec)
     twist = np.hstack([sd[:, None] * delta_p, sd[:, None] * omega_axis])
     rates = np.einsum('nij,nj->ni', _inverse_jacobian(mech, position, quaternion), twist)
-    report = check_poses(mech, position, quaternion)
+    # Joint, stroke and collision limits, and the singularity margin of the actuation and
+    # constraint wrench system (seed 001) along the whole path.
+    report = check_poses(mech, position, quaternion).merged(
+        check_path(mech, position, quaternion).as_limit_report())
     return Trajectory(times, position, quaternion, joints.lengths, joints.thetas,
                       rates[:, :3], rates[:, 3:], report)

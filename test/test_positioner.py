@@ -11,7 +11,13 @@ from positioning_cell import clearance as cl
 from positioning_cell import kinematics
 from positioning_cell.errors import InputError
 from positioning_cell.positioner import (
-    Tolerance, corrected_command, deviation, joints_arrived, mean_pose, validate_goal)
+    Tolerance,
+    corrected_command,
+    deviation,
+    joints_arrived,
+    mean_pose,
+    validate_goal,
+)
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -45,7 +51,7 @@ def test_correction_converges_on_a_machine_with_clearance() -> None:
     for _ in range(4):
         joints = kinematics.inverse(MECH, *command)
         att = truth.attained_pose(MECH, joints.lengths, joints.thetas)
-        e_p, e_r = deviation(att.position[0], att.quaternion[0], p_des, q_des)
+        e_p, _ = deviation(att.position[0], att.quaternion[0], p_des, q_des)
         errors.append(np.linalg.norm(e_p))
         command = corrected_command(*command, p_des, q_des, att.position[0], att.quaternion[0])
     assert errors[0] > 20e-6

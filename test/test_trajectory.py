@@ -110,3 +110,20 @@ def test_bad_arguments() -> None:
         plan_move(MECH, MECH.home_position, IDENTITY, [np.nan, 0, 0.2], IDENTITY, period=0.01)
     with pytest.raises(ConfigError, match='linear_speed'):
         MotionLimits(linear_speed=-1.0)
+
+
+def test_path_near_a_singularity_is_refused_with_the_sample() -> None:
+    """A path that turns the platform toward the π/2-about-z singularity (seed 001 rank loss)
+    is refused at the first sample past the margin, even with joint limits relaxed."""
+    from positioning_cell.mechanism import Mechanism
+
+    mech = Mechanism(theta_min=-1.5, theta_max=1.5, phi_min=-1.5, phi_max=1.5, tilt_max=1.5,
+                     length_min=0.05, length_max=0.4, min_leg_distance=0.0,
+                     min_conditioning=0.0)
+    q_goal = Rotation.from_rotvec([0.0, 0.0, 1.55]).as_quat()
+    traj = plan_move(mech, mech.home_position, IDENTITY, mech.home_position, q_goal,
+                     period=0.05, limits=LIMITS)
+    assert not traj.limits.ok
+    first = traj.limits.violations[0]
+    assert first.constraint == 'conditioning_min' and 0 < first.sample < len(traj.times) - 1
+    assert 'conditioning' in traj.limits.message()

@@ -1,0 +1,402 @@
+"""positioning_cell.accuracy: ISO 9283 figures against hand-computed examples, settle detection on
+synthetic series, streaming == batch, tolerance verdicts and bad input. No ROS."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from positioning_cell import accuracy as acc
+from positioning_cell.errors import ConfigError, InputError
+
+ID = np.array([0.0, 0.0, 0.0, 1.0])
+HOME = np.array([0.0, 0.0, 0.19596])
+Arr = NDArray[np.float64]
+
+
+def quat_abc(abc: Arr) -> Arr:
+    """Quaternions from ISO angles a, b, c (roll, pitch, yaw about fixed x, y, z)."""
+    return np.asarray(Rotation.from_euler('xyz', np.atleast_2d(abc)).as_quat())
+
+
+# -- ISO 9283 formulas -----------------------------------------------------------------------
+def test_iso_figures_match_a_hand_computed_example() -> None:
+    c = np.array([0.01, 0.02, 0.2])
+    unit = 1e-5
+    # Attained positions c + (0,0,0), c + (0,0,0), c + (3,0,0)·unit, then shifted by (1, 2, −1)
+    # units so the barycentre is off the commanded point.
+    shift = np.array([1.0, 2.0, -1.0]) * unit
+    p = c + shift + np.array([[0.0, 0, 0], [0, 0, 0], [3.0, 0, 0]]) * unit
+    # Roll 1, 2, 6 mrad about x, no pitch or yaw; commanded roll 0.
+    q = quat_abc(np.array([[1e-3, 0, 0], [2e-3, 0, 0], [6e-3, 0, 0]]))
+    f = acc.iso9283(c, ID, p, q, key=7)
+    # Barycentre c + shift + (1, 0, 0) units: AP = (2, 2, −1) units, AP_p = 3 units.
+    assert f.key == 7 and f.n == 3
+    np.testing.assert_allclose([f.ap_x, f.ap_y, f.ap_z], np.array([2.0, 2.0, -1.0]) * unit,
+                               atol=1e-15)
+    assert f.ap_p == pytest.approx(3.0 * unit, rel=1e-12)
+    np.testing.assert_allclose(f.barycentre, c + shift + [unit, 0, 0], atol=1e-15)
+    # l_j = 1, 1, 2 units; l̄ = 4/3; S_l = √((1/9 + 1/9 + 4/9)/2) = √(1/3); RP_l = 4/3 + √3.
+    assert f.l_mean == pytest.approx(4.0 / 3.0 * unit, rel=1e-12)
+    assert f.s_l == pytest.approx(math.sqrt(1.0 / 3.0) * unit, rel=1e-9)
+    assert f.rp_l == pytest.approx((4.0 / 3.0 + math.sqrt(3.0)) * unit, rel=1e-9)
+    # a_j − a_c = 1, 2, 6 mrad: AP_a = 3 mrad; S_a = √((4 + 1 + 9)/2) = √7 mrad; RP_a = 3 S_a.
+    assert f.ap_a == pytest.approx(3e-3, rel=1e-9)
+    assert f.s_a == pytest.approx(math.sqrt(7.0) * 1e-3, rel=1e-9)
+    assert f.rp_a == pytest.approx(3.0 * math.sqrt(7.0) * 1e-3, rel=1e-9)
+    assert abs(f.ap_b) < 1e-12 and abs(f.ap_c) < 1e-12
+    assert f.rp_b is not None and f.rp_b < 1e-12
+
+
+def test_ap_zero_and_rp_l_for_a_symmetric_set() -> None:
+    d = 2e-5
+    offsets = np.vstack([np.eye(3), -np.eye(3)]) * d
+    f = acc.iso9283(HOME, ID, HOME + offsets, np.tile(ID, (6, 1)))
+    assert f.ap_p < 1e-15
+    # Every l_j = d, so S_l = 0 and RP_l = l̄ = d.
+    assert f.l_mean == pytest.approx(d, rel=1e-9)
+    assert f.s_l is not None and f.s_l < 1e-15
+    assert f.rp_l == pytest.approx(d, rel=1e-9)
+
+
+def test_rp_l_follows_the_formula_on_a_random_set() -> None:
+    rng = np.random.default_rng(3)
+    p = HOME + rng.normal(0.0, 1e-5, (30, 3))
+    f = acc.iso9283(HOME, ID, p, np.tile(ID, (30, 1)))
+    # The standard's sums written out term by term.
+    n = len(p)
+    xb, yb, zb = (sum(p[j, k] for j in range(n)) / n for k in range(3))
+    lj = [math.sqrt((p[j, 0] - xb) ** 2 + (p[j, 1] - yb) ** 2 + (p[j, 2] - zb) ** 2)
+          for j in range(n)]
+    lb = sum(lj) / n
+    sl = math.sqrt(sum((x - lb) ** 2 for x in lj) / (n - 1))
+    assert f.rp_l == pytest.approx(lb + 3.0 * sl, rel=1e-9)
+    ap_p = math.sqrt((xb - HOME[0]) ** 2 + (yb - HOME[1]) ** 2 + (zb - HOME[2]) ** 2)
+    assert f.ap_p == pytest.approx(ap_p, rel=1e-9)
+
+
+def test_single_visit_has_no_repeatability() -> None:
+    f = acc.iso9283(HOME, ID, HOME + [1e-5, 0, 0], ID)
+    assert f.n == 1 and f.ap_p == pytest.approx(1e-5)
+    assert f.s_l is None and f.rp_l is None and f.rp_a is None and f.rp_c is None
+    assert acc.PoseFigures.from_dict(json.loads(json.dumps(f.to_dict()))) == f
+
+
+@pytest.mark.parametrize('axis', [0, 2])
+def test_orientation_terms_wrap_near_pi(axis: int) -> None:
+    # Commanded roll (axis 0) or yaw (axis 2) at π − 1 mrad; attained at −3, +2 (past π, so
+    # reported near −π) and +1 mrad from it.
+    c_angle = math.pi - 1e-3
+    dev = np.array([-3e-3, 2e-3, 1e-3])
+    abc_c = np.zeros(3)
+    abc_c[axis] = c_angle
+    abc = np.zeros((3, 3))
+    abc[:, axis] = c_angle + dev
+    q = quat_abc(abc)
+    assert acc.orientation_angles(q)[1, axis] < 0.0  # the wrapped one
+    f = acc.iso9283(HOME, quat_abc(abc_c)[0], np.tile(HOME, (3, 1)), q)
+    ap = (f.ap_a, f.ap_b, f.ap_c)[axis]
+    s = (f.s_a, f.s_b, f.s_c)[axis]
+    assert ap == pytest.approx(dev.mean(), abs=1e-12)
+    assert s == pytest.approx(dev.std(ddof=1), rel=1e-9)
+    assert (f.rp_a, f.rp_b, f.rp_c)[axis] == pytest.approx(3.0 * dev.std(ddof=1), rel=1e-9)
+
+
+def test_pose_figures_json_round_trip() -> None:
+    rng = np.random.default_rng(5)
+    p = HOME + rng.normal(0, 1e-5, (5, 3))
+    q = Rotation.from_rotvec(rng.normal(0, 1e-4, (5, 3))).as_quat()
+    f = acc.iso9283(HOME, ID, p, q, key=2)
+    assert acc.PoseFigures.from_dict(json.loads(json.dumps(f.to_dict()))) == f
+    assert f.for_people()['n'] == '5'
+    with pytest.raises(InputError, match='expected keys'):
+        acc.PoseFigures.from_dict({'key': 1})
+
+
+# -- settle detection ------------------------------------------------------------------------
+RATE = 100.0  # Hz
+
+
+def approach(start: Arr, goal: Arr, t: Arr, move: float, overshoot: float,
+             noise: float, rng: np.random.Generator) -> Arr:
+    """Positions (N, 3): a smooth move of ``move`` s from start to goal, then a decaying
+    oscillation of amplitude ``overshoot`` (m, along the move) and white noise ``noise`` (m)."""
+    s = np.clip(t / move, 0.0, 1.0)
+    s = s - np.sin(2 * np.pi * s) / (2 * np.pi)
+    direction = (goal - start) / max(np.linalg.norm(goal - start), 1e-12)
+    ring = overshoot * np.exp(-(t - move) / 0.15) * np.sin(2 * np.pi * 3.0 * (t - move))
+    ring[t < move] = 0.0
+    return (start + s[:, None] * (goal - start) + ring[:, None] * direction
+            + rng.normal(0.0, noise, (t.size, 3)))
+
+
+def reference_settle(t: Arr, p: Arr, rv: Arr, target_time: float,
+                     settings: acc.SettleSettings) -> int | None:
+    """Index of the last sample of the first stable window of one segment, by brute force."""
+    for i in range(t.size):
+        if t[i] - settings.window < target_time + settings.dwell:
+            continue
+        j = [k for k in range(i + 1) if t[k] > t[i] - settings.window]
+        if len(j) < settings.min_samples:
+            continue
+        box_p = np.linalg.norm(p[j].max(axis=0) - p[j].min(axis=0))
+        box_r = np.linalg.norm(rv[j].max(axis=0) - rv[j].min(axis=0))
+        if box_p <= settings.position_threshold and box_r <= settings.angle_threshold:
+            return i
+    return None
+
+
+def test_settle_after_a_move_with_overshoot_and_noise() -> None:
+    rng = np.random.default_rng(11)
+    settings = acc.SettleSettings()
+    t = np.arange(0, 3.0, 1.0 / RATE)
+    goal = HOME + [0.004, -0.002, 0.001]
+    offset = np.array([30e-6, -20e-6, 10e-6])
+    p = approach(HOME, goal + offset, t, move=0.6, overshoot=0.4e-3, noise=5e-6, rng=rng)
+    q = Rotation.from_rotvec(rng.normal(0, 2e-5, (t.size, 3))).as_quat()
+    visits = acc.settled_visits(t, p, q, [0.0], goal, ID, settings)
+    assert len(visits) == 1
+    v = visits[0]
+    _, rv = acc.measurement_error(p, q, goal, ID)
+    i = reference_settle(t, p, rv, 0.0, settings)
+    assert i is not None and v.settle_time == t[i]
+    # The ring decays by e per 0.15 s: 0.4 mm needs ~0.6 s to fall inside the threshold, so the
+    # window cannot start before the move has ended and the ring has died down.
+    assert v.window_start > 0.6 + 0.15 * math.log(0.4e-3 / settings.position_threshold)
+    assert v.samples == round(settings.window * RATE)
+    # Attained pose = the window mean: goal + offset within what is left of the ring (its
+    # mean over the window, ~10 µm along the move) and the noise of the mean.
+    np.testing.assert_allclose(v.position, goal + offset, atol=15e-6)
+    np.testing.assert_allclose(v.position, p[t.searchsorted(v.window_start):i + 1].mean(axis=0),
+                               rtol=0, atol=1e-15)
+    dp, _ = v.error()
+    np.testing.assert_allclose(dp, offset, atol=15e-6)
+
+
+def test_no_settle_while_noise_exceeds_the_threshold() -> None:
+    rng = np.random.default_rng(12)
+    t = np.arange(0, 3.0, 1.0 / RATE)
+    p = HOME + rng.normal(0, 1e-4, (t.size, 3))  # 0.1 mm noise: bounding box ≫ 0.15 mm
+    q = np.tile(ID, (t.size, 1))
+    assert acc.settled_visits(t, p, q, [0.0], HOME, ID) == []
+    # The same with quiet positions but a drifting orientation: 4 mrad/s, 2 mrad per window.
+    rv = np.outer(t, [4e-3, 0, 0])
+    assert acc.settled_visits(t, np.tile(HOME, (t.size, 1)),
+                              Rotation.from_rotvec(rv).as_quat(), [0.0], HOME, ID) == []
+
+
+def test_dwell_and_window_bound_the_earliest_settle() -> None:
+    t = np.arange(0, 2.0, 1.0 / RATE) + 10.0
+    p, q = np.tile(HOME, (t.size, 1)), np.tile(ID, (t.size, 1))
+    settings = acc.SettleSettings(window=0.3, dwell=0.4, min_samples=5)
+    (v,) = acc.settled_visits(t, p, q, [10.0], HOME, ID, settings)
+    # Already at the target: the first complete window ends at target + dwell + window.
+    first = int(np.flatnonzero(t - 0.3 >= 10.0 + 0.4)[0])
+    assert v.settle_time == t[first] and v.window_start > 10.0 + 0.4
+    assert acc.settled_visits(t[:first], p[:first], q[:first], [10.0], HOME, ID,
+                              settings) == []
+
+
+def cycle_series(n_cycles: int, rng: np.random.Generator, rate: float = RATE,
+                 period: float = 1.6) -> tuple[Arr, Arr, Arr, Arr, Arr, Arr]:
+    """Targets A, B, C visited ``n_cycles`` times with moves, overshoot and noise."""
+    goals = HOME + np.array([[0.0, 0, 0], [0.004, 0, 0.002], [0, -0.003, -0.001]])
+    goal_rv = np.array([[0.0, 0, 0], [0.01, 0, 0], [0, 0.02, -0.01]])
+    tt, tp, tq, ts, ps, qs = [], [], [], [], [], []
+    start_p, start_rv, now = goals[0], goal_rv[0], 0.0
+    for _ in range(n_cycles):
+        for k in range(3):
+            tt.append(now)
+            tp.append(goals[k])
+            tq.append(Rotation.from_rotvec(goal_rv[k]).as_quat())
+            t = np.arange(1, int(period * rate)) / rate
+            off = rng.normal(0, 20e-6, 3)
+            ps.append(approach(start_p, goals[k] + off, t, 0.5, 0.3e-3, 4e-6, rng))
+            s = np.clip(t / 0.5, 0, 1)[:, None]
+            qs.append(Rotation.from_rotvec(start_rv + s * (goal_rv[k] - start_rv)
+                                           + rng.normal(0, 2e-5, (t.size, 3))).as_quat())
+            ts.append(now + t)
+            start_p, start_rv, now = goals[k] + off, goal_rv[k], now + period
+    return (np.concatenate(ts), np.vstack(ps), np.vstack(qs), np.array(tt), np.array(tp),
+            np.array(tq))
+
+
+def test_visits_are_grouped_per_commanded_pose() -> None:
+    t, p, q, tt, tp, tq = cycle_series(3, np.random.default_rng(21))
+    # A repeated target 0.1 µm off the current one is the same command: no new segment.
+    tt = np.insert(tt, 1, tt[0] + 0.05)
+    tp = np.insert(tp, 1, tp[0] + 1e-7, axis=0)
+    tq = np.insert(tq, 1, tq[0], axis=0)
+    visits = acc.settled_visits(t, p, q, tt, tp, tq)
+    assert [(v.key, v.cycle) for v in visits] == [(k, c) for c in (1, 2, 3) for k in (0, 1, 2)]
+    assert visits[0].target_time == 0.0
+    result = acc.analyse(t, p, q, tt, tp, tq)
+    assert [f.n for f in result.poses] == [3, 3, 3]
+    # Offsets drawn with σ = 20 µm per axis: the barycentre error is tens of µm at most.
+    assert all(f.ap_p < 100e-6 and f.rp_l is not None for f in result.poses)
+
+
+def feed(stream: acc.AccuracyAccumulator, t: Arr, p: Arr, q: Arr, tt: Arr, tp: Arr,
+         tq: Arr) -> list[acc.SampleUpdate]:
+    """Drive the accumulator with the events in time order (a target before samples of its
+    time), as a node receives them."""
+    events = sorted([(x, 0, i) for i, x in enumerate(tt)] + [(x, 1, i) for i, x in enumerate(t)])
+    updates = []
+    for _, kind, i in events:
+        if kind == 0:
+            stream.add_target(tt[i], tp[i], tq[i])
+        else:
+            updates.append(stream.add_sample(t[i], p[i], q[i]))
+    return updates
+
+
+def test_streaming_accumulator_equals_batch() -> None:
+    rng = np.random.default_rng(31)
+    t, p, q, tt, tp, tq = cycle_series(4, rng)
+    # Samples before the first target are ignored by both.
+    t, tt = t + 0.2, tt + 0.3
+    stream = acc.AccuracyAccumulator()
+    updates = feed(stream, t, p, q, tt, tp, tq)
+    batch = acc.analyse(t, p, q, tt, tp, tq)
+    assert len(batch.visits) == 12
+    assert stream.result() == batch  # exactly, not approximately
+    assert stream.result().to_dict() == batch.to_dict()
+    settled = [u.visit for u in updates if u.visit is not None]
+    assert settled == list(batch.visits)
+    # Per-sample errors against the target in force.
+    seg = np.searchsorted(tt, t, side='right') - 1
+    have = seg >= 0
+    dp, rv = acc.measurement_error(p[have], q[have], tp[seg[have]], tq[seg[have]])
+    assert all(u.position_error is None for u, h in zip(updates, have, strict=True) if not h)
+    np.testing.assert_allclose([u.position_error for u in updates if u.position_error is not None],
+                               dp, atol=1e-15)
+    np.testing.assert_allclose([u.orientation_error for u in updates
+                                if u.orientation_error is not None], rv, atol=1e-15)
+
+
+def test_reset_keeps_the_target_and_forgets_the_rest() -> None:
+    t, p, q, tt, tp, tq = cycle_series(1, np.random.default_rng(41))
+    stream = acc.AccuracyAccumulator()
+    feed(stream, t, p, q, tt, tp, tq)
+    assert len(stream.visits) == 3
+    last = stream.target
+    stream.reset(keep_target=True)
+    assert stream.visits == () and stream.result().poses == ()
+    assert stream.target is not None and last is not None and stream.target[0] == last[0]
+    assert stream.target[3] == 0  # keys start again
+    assert stream.add_sample(t[-1] + 0.01, p[-1], q[-1]).position_error is not None
+    stream.reset()
+    assert stream.target is None and stream.add_sample(0.0, p[0], q[0]).position_error is None
+
+
+def test_tracker_errors_streaming_equals_batch() -> None:
+    rng = np.random.default_rng(51)
+    t = np.arange(200) / 50.0
+    pt = HOME + rng.normal(0, 1e-3, (200, 3))
+    qt = Rotation.from_rotvec(rng.normal(0, 1e-2, (200, 3))).as_quat()
+    pm = pt + rng.normal(0, 10e-6, (200, 3))
+    qm = (Rotation.from_quat(qt) * Rotation.from_rotvec(rng.normal(0, 1e-5, (200, 3)))).as_quat()
+    tm = t + rng.uniform(-2e-4, 2e-4, 200)  # within the 1 ms pairing tolerance
+    keep = np.ones(200, dtype=bool)
+    keep[::7] = False  # some measurements have no truth
+    batch = acc.tracker_errors(tm, pm, qm, t[keep], pt[keep], qt[keep], 1e-3)
+    assert batch is not None and batch.samples == int(keep.sum())
+    assert 5e-6 < batch.rms_position_error < 30e-6
+    for truth_first in (True, False):
+        stream = acc.TrackerErrorAccumulator(1e-3)
+        for i in range(200):
+            if truth_first and keep[i]:
+                stream.add_truth(t[i], pt[i], qt[i])
+            stream.add_measured(tm[i], pm[i], qm[i])
+            if not truth_first and keep[i]:
+                stream.add_truth(t[i], pt[i], qt[i])
+        assert stream.statistics() == batch
+    assert acc.TrackerErrorAccumulator(1e-3).statistics() is None
+
+
+# -- verdicts --------------------------------------------------------------------------------
+def test_verdicts_at_the_tolerance_boundary() -> None:
+    tol = acc.Tolerances()
+    assert tol.position == 0.05e-3 and tol.orientation == pytest.approx(math.radians(0.01))
+    assert acc.judge(tol.position, tol.orientation, tol).ok
+    above_p = float(np.nextafter(tol.position, 1.0))
+    above_o = float(np.nextafter(tol.orientation, 1.0))
+    v = acc.judge(above_p, 0.0, tol)
+    assert not v.ok and not v.position_ok and v.orientation_ok
+    v = acc.judge(0.0, above_o, tol)
+    assert not v.ok and v.position_ok and not v.orientation_ok
+    assert 'OUT OF TOLERANCE' in v.message() and '0.0100°' in v.message()
+    assert '50.0 µm' in acc.judge(0.0, 0.0).message()
+    # Through a settled visit: exactly the tolerance off along x.
+    visit = acc.Visit(0, 1, 0.0, 1.0, 1.5, 50, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0),
+                      (tol.position, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    assert acc.judge_visit(visit, tol).ok
+    tight = acc.Tolerances(position=float(np.nextafter(tol.position, 0.0)))
+    assert not acc.judge_visit(visit, tight).ok
+
+
+@pytest.mark.parametrize('kwargs', [{'position': 0.0}, {'position': -1e-5},
+                                    {'orientation': math.nan}, {'orientation': math.inf}])
+def test_bad_tolerances_are_refused(kwargs: dict[str, float]) -> None:
+    with pytest.raises(ConfigError, match='tolerance'):
+        acc.Tolerances(**kwargs)
+
+
+# -- bad input -------------------------------------------------------------------------------
+@pytest.mark.parametrize('kwargs, match', [
+    ({'window': 0.0}, 'settle.window'), ({'dwell': -1.0}, 'settle.dwell'),
+    ({'min_samples': 1}, 'min_samples'), ({'position_threshold': math.nan}, 'threshold'),
+])
+def test_bad_settle_settings_are_refused(kwargs: dict[str, float], match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        acc.SettleSettings(**kwargs)  # type: ignore[arg-type]
+
+
+def test_settle_settings_from_params() -> None:
+    s = acc.SettleSettings.from_params({'window': 1, 'min_samples': 3})
+    assert s.window == 1.0 and s.min_samples == 3 and s.dwell == acc.SettleSettings().dwell
+    assert acc.SettleSettings.from_params(s.to_params()) == s
+    with pytest.raises(ConfigError, match='unknown'):
+        acc.SettleSettings.from_params({'windw': 1.0})
+
+
+def test_bad_series_raise_clear_errors() -> None:
+    t = np.array([0.0, 0.1, 0.2])
+    p, q = np.tile(HOME, (3, 1)), np.tile(ID, (3, 1))
+    with pytest.raises(InputError, match=r'times\[2\].*non-decreasing'):
+        acc.settled_visits([0.0, 0.2, 0.1], p, q, [0.0], HOME, ID)
+    with pytest.raises(InputError, match='3 times for 2 poses'):
+        acc.settled_visits(t, p[:2], q[:2], [0.0], HOME, ID)
+    with pytest.raises(InputError, match='norm'):
+        acc.settled_visits(t, p, q * 1.1, [0.0], HOME, ID)
+    bad = p.copy()
+    bad[1, 2] = np.nan
+    with pytest.raises(InputError, match=r'position\[1\].*not finite'):
+        acc.settled_visits(t, bad, q, [0.0], HOME, ID)
+    with pytest.raises(InputError, match='one commanded pose'):
+        acc.iso9283(p, q, p, q)
+    with pytest.raises(InputError, match='must be a finite number'):
+        acc.judge(-1e-6, 0.0)
+
+
+def test_stream_refuses_out_of_order_events_and_changes_nothing() -> None:
+    stream = acc.AccuracyAccumulator()
+    stream.add_target(1.0, HOME, ID)
+    stream.add_sample(2.0, HOME, ID)
+    with pytest.raises(InputError, match='earlier than the previous sample'):
+        stream.add_sample(1.5, HOME, ID)
+    with pytest.raises(InputError, match='not after the last sample'):
+        stream.add_target(2.0, HOME + [1e-3, 0, 0], ID)
+    assert stream.target is not None and stream.target[0] == 1.0
+    # With clamp the late target takes effect just after the last sample.
+    assert stream.add_target(1.9, HOME + [1e-3, 0, 0], ID, clamp=True) == np.nextafter(2.0, 3.0)
+    with pytest.raises(InputError, match='norm'):
+        stream.add_sample(3.0, HOME, [0.0, 0.0, 0.0, 2.0])
+    with pytest.raises(InputError, match='not finite'):
+        stream.add_target(math.nan, HOME, ID)
+    assert stream.target is not None and stream.target[3] == 1
