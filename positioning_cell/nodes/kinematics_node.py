@@ -70,7 +70,7 @@ SPECS = [
     ParamSpec('compensation.max_iterations', 5, 'closed-loop corrections per move', 0, 50),
     ParamSpec('compensation.samples', 10, 'tracker samples averaged per correction', 1, 200),
     ParamSpec('tolerance.position', 10e-6, 'settle tolerance (position), m', 0.0, 0.01),
-    ParamSpec('tolerance.orientation', 2e-5, 'settle tolerance (orientation), rad', 0.0, 0.1),
+    ParamSpec('tolerance.orientation', 1e-4, 'settle tolerance (orientation), rad', 0.0, 0.1),
     ParamSpec('motion.linear_speed', 0.01, 'm/s', 1e-5, 1.0),
     ParamSpec('motion.linear_acceleration', 0.05, 'm/s^2', 1e-5, 10.0),
     ParamSpec('motion.angular_speed', 0.1, 'rad/s', 1e-5, 10.0),
@@ -201,9 +201,7 @@ class Positioner(Node):
         if self.path_log is not None:
             self.path_log.append(msg)
         self.pub_markers.publish(self._markers(fk.position[0], fk.quaternion[0], msg.header))
-        if self.command is None:
-            with self.cond:
-                self.command = (fk.position[0], fk.quaternion[0])
+        if self.state is State.IDLE and self.reason == 'waiting for encoder readings':
             self._set_state(State.IDLE, 'ready')
 
     def _markers(self, p: np.ndarray, q: np.ndarray, header: Any) -> MarkerArray:
@@ -275,11 +273,16 @@ class Positioner(Node):
 
     def _plan(self, p: np.ndarray, q: np.ndarray) -> Trajectory:
         with self.cond:
-            driver, command = dict(self.driver), self.command
-        if command is None:
-            raise MoveAbortedError('no encoder readings yet from /legs/joint_states')
+            driver, command, estimate = dict(self.driver), self.command, self.estimate
+        if command is None:  # at start and after an aborted move: where the encoders are
+            if estimate is None:
+                raise MoveAbortedError('no encoder readings yet from /legs/joint_states')
+            command = (estimate[0], estimate[1])
         if driver.get('enabled', 'true').lower() == 'false':
             raise MoveAbortedError('drives disabled: enable them with /leg_driver/enable')
+        if driver.get('state') == 'fault':
+            raise MoveAbortedError(f'drive fault: {driver.get("message", "")}; clear it '
+                                   'with /leg_driver/enable')
         limits = MotionLimits(*(self.params[f'motion.{k}'] for k in (
             'linear_speed', 'linear_acceleration', 'angular_speed', 'angular_acceleration')))
         model = None if self.mode is CompensationMode.NONE else self.model
@@ -301,6 +304,10 @@ class Positioner(Node):
                 reason = self._correct(command, p, q, tol)
             self._set_state(State.SETTLED, reason)
             path = Path(poses=self.path_log)
+        except MoveAbortedError:
+            with self.cond:
+                self.command = None  # the axes stopped somewhere else: re-plan from them
+            raise
         finally:
             self.path_log = None
         path.header.frame_id, path.header.stamp = 'base', self._now()
