@@ -8,6 +8,11 @@ PACKAGE = 'positioning_cell'
 
 # Executables: `ros2 run positioning_cell <name>` on a ROS install, `<name>` on PATH in a venv.
 CONSOLE_SCRIPTS = [
+    'predict_accuracy = positioning_cell.tools.predict_accuracy:main',
+    'leg_driver_node = positioning_cell.nodes.leg_driver_node:main',
+    'pose_measurement_node = positioning_cell.nodes.pose_measurement_node:main',
+    'kinematics_node = positioning_cell.nodes.kinematics_node:main',
+    'accuracy_monitor_node = positioning_cell.nodes.accuracy_monitor_node:main',
 ]
 
 # ROS 2 Jazzy from PyPI wheels and the pinned libraries the cell runs on (make run / make test).

@@ -173,15 +173,22 @@ def _same_kind(default: Any, value: Any) -> bool:
     return isinstance(value, type(default))
 
 
-def mechanism_specs() -> list[ParamSpec]:
-    """Read-only ``mechanism.*`` parameters with the seed 000 defaults (config/cell.yaml)."""
+def block_specs(prefix: str, defaults: Mapping[str, Any], what: str) -> list[ParamSpec]:
+    """Read-only ``prefix.*`` parameters from a value type's ``to_params()`` defaults; nested
+    sequences are flattened (row-major), as a ROS parameter array must be."""
     specs = []
-    for key, value in Mechanism.default().to_params().items():
-        default = [float(x) for row in value for x in row] if key.endswith('_offsets') else value
-        specs.append(ParamSpec(f'mechanism.{key}', default,
-                               f'3-UPS geometry: {key} (SI units; design/kinematics.md)',
+    for key, value in defaults.items():
+        default = (np.asarray(value, dtype=float).ravel().tolist()
+                   if isinstance(value, (list, tuple)) else value)
+        specs.append(ParamSpec(f'{prefix}.{key}', default, f'{what}: {key} (SI units)',
                                read_only=True))
     return specs
+
+
+def mechanism_specs() -> list[ParamSpec]:
+    """Read-only ``mechanism.*`` parameters with the seed 000 defaults (config/cell.yaml)."""
+    return block_specs('mechanism', Mechanism.default().to_params(),
+                       '3-UPS geometry (design/kinematics.md)')
 
 
 def mechanism_from(values: Mapping[str, Any]) -> Mechanism:

@@ -1,0 +1,99 @@
+"""Monte Carlo throughput of the accuracy prediction (issue 5): samples per second.
+
+Measures, at the home pose with the shipped tolerance spec:
+- the vectorised nonlinear Monte Carlo (:func:`positioning_cell.prediction.montecarlo.monte_carlo`,
+  draws + exact closure solve) on 10⁶ samples, wall clock and process CPU time;
+- the linear model alone (draws + T·x), for reference;
+- a baseline in the same run: one ``kinematics.forward(mech.with_offsets(...))`` per sample in a
+  Python loop over a small subset, and the agreement of the two on that subset.
+
+Run: ``.venv/bin/python benchmarks/montecarlo.py [samples]``. Prints what it measured; the
+target is ≥ 10⁶ samples/s. The machine is shared: CPU time is the steadier figure.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from positioning_cell.kinematics import forward, inverse
+from positioning_cell.mechanism import Mechanism
+from positioning_cell.poses import pose_error
+from positioning_cell.prediction.montecarlo import monte_carlo
+from positioning_cell.prediction.sensitivity import linearise
+from positioning_cell.prediction.sources import ToleranceSpec, draw_sources, load_tolerance_spec
+from positioning_cell.tools.predict_accuracy import shipped_config
+
+R = TypeVar('R')
+TARGET = 1e6
+BASELINE_SAMPLES = 300
+
+
+def timed(fn: Callable[..., R], *args: object) -> tuple[R, float, float]:
+    """(result, wall s, CPU s) of one call."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    out = fn(*args)
+    return out, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def baseline(mech: Mechanism, spec: ToleranceSpec,
+             x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """One forward kinematics per sample on the displaced mechanism (the slow, obvious way)."""
+    p, q = mech.home_position, mech.home_quaternion
+    lin = linearise(mech, spec, p, q)
+    joints = inverse(mech, p, q)
+    out = np.empty((x.shape[0], 6))
+    for k, xs in enumerate(x):
+        prim = lin.source_map[0] @ xs
+        m = mech.with_offsets(prim[6:15].reshape(3, 3), prim[15:24].reshape(3, 3))
+        r = forward(m, joints.lengths + prim[0:3], joints.thetas + prim[3:6], joints.phis)
+        dp, drot = pose_error(r.position, r.quaternion, p[None], q[None])
+        out[k] = np.concatenate([dp[0], drot[0]])
+    return out
+
+
+def main() -> int:
+    samples = int(sys.argv[1]) if len(sys.argv) > 1 else 1_000_000
+    mech = Mechanism.default()
+    spec = load_tolerance_spec(shipped_config('tolerances.yaml'), mech)
+    p, q = mech.home_position, mech.home_quaternion
+    print(f'machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} '
+          '(other processes share it)')
+    monte_carlo(mech, spec, p, q, 20_000, np.random.default_rng(0))  # warm-up
+
+    result, wall, cpu = timed(monte_carlo, mech, spec, p, q, samples, np.random.default_rng(1))
+    assert result.converged.all()
+    print(f'nonlinear Monte Carlo, {samples} samples ({len(spec.sources)} sources): '
+          f'{wall:.2f} s wall = {samples / wall:,.0f} samples/s; {cpu:.2f} s CPU = '
+          f'{samples / cpu:,.0f} samples/s')
+
+    lin = linearise(mech, spec, p, q)
+    _, lwall, lcpu = timed(lambda: draw_sources(spec, samples, np.random.default_rng(1))
+                           @ lin.matrix[0].T)
+    print(f'linear model (draws + T.x), {samples} samples: {samples / lwall:,.0f} samples/s '
+          f'wall, {samples / lcpu:,.0f} samples/s CPU')
+
+    x = draw_sources(spec, BASELINE_SAMPLES, np.random.default_rng(2))
+    slow, bwall, bcpu = timed(baseline, mech, spec, x)
+    print(f'baseline, per-sample forward() loop, {BASELINE_SAMPLES} samples: '
+          f'{BASELINE_SAMPLES / bwall:,.0f} samples/s wall, {BASELINE_SAMPLES / bcpu:,.0f} '
+          'samples/s CPU')
+    print(f'ratio vectorised / baseline: {(samples / wall) / (BASELINE_SAMPLES / bwall):.0f}x '
+          f'wall, {(samples / cpu) / (BASELINE_SAMPLES / bcpu):.0f}x CPU')
+    fast = monte_carlo(mech, spec, p, q, BASELINE_SAMPLES, np.random.default_rng(2),
+                       chunk=BASELINE_SAMPLES)
+    print(f'agreement on the subset: max |difference| = '
+          f'{np.abs(fast.deviations - slow).max():.2e} (m or rad)')
+    met = samples / cpu >= TARGET
+    print(f'target >= {TARGET:,.0f} samples/s (CPU): {"met" if met else "NOT met"}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

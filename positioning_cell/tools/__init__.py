@@ -1,0 +1,1 @@
+"""Command-line tools of the cell: thin wrappers around the pure library (no rclpy)."""

@@ -1,0 +1,104 @@
+"""predict_accuracy: the work function, the workspace maps, the command line and its refusals."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from positioning_cell.mechanism import Mechanism
+from positioning_cell.prediction.maps import workspace_maps
+from positioning_cell.prediction.montecarlo import estimate_yield, inside_requirement
+from positioning_cell.prediction.sensitivity import linearise, split_norms, worst_case
+from positioning_cell.prediction.sources import load_tolerance_spec
+from positioning_cell.tools.predict_accuracy import main, predict, shipped_config
+
+MECH = Mechanism.default()
+
+
+def test_predict_writes_figures_and_a_consistent_summary(tmp_path: Path) -> None:
+    report = predict(tmp_path, samples=3000, seed=4, grid=5, half_width=0.04,
+                     stacked_runs=200, global_runs=10)
+    names = {f.name for f in report.files}
+    assert names == {'angle_fit.png', 'map_position.png', 'map_orientation.png',
+                     'stacked_stages.png', 'summary.txt'}
+    assert all(f.stat().st_size > 1000 for f in report.files)
+    assert report.converged == 3000
+    for words in ('sensitivity T', 'worst case (eq. 15)', 'MC 3 sigma', 'yield (nonlinear',
+                  'Rice(nu', 'GEV(c', 'direct, n = 8'):
+        assert words in report.text
+    assert (tmp_path / 'summary.txt').read_text() == report.text
+    c = report.comparison
+    assert np.all(c.rss <= c.worst_case)
+    assert np.all(c.mc_max <= c.worst_case * 1.05)
+    y = report.yield_nonlinear
+    assert y.trials == 3000 and y.low <= y.probability <= y.high
+
+
+def test_workspace_maps_agree_with_the_pose_by_pose_prediction() -> None:
+    spec = load_tolerance_spec(shipped_config('tolerances.yaml'), MECH)
+    maps = workspace_maps(MECH, spec, 0.06, 5)
+    assert maps.worst_position.shape == (5, 5)
+    assert not maps.feasible.all() and maps.feasible.any()  # corners are outside the limits
+    assert np.all(np.isnan(maps.worst_position[~maps.feasible]))
+    assert np.all(maps.dominant_position[~maps.feasible] == -1)
+    i, j = 1, 3
+    assert maps.feasible[i, j]
+    p = np.array([maps.x[j], maps.y[i], maps.z])
+    lin = linearise(MECH, spec, p, maps.quaternion)
+    expected = split_norms(worst_case(lin.matrix[0], spec.bounds))
+    assert (maps.worst_position[i, j], maps.worst_orientation[i, j]) == pytest.approx(
+        tuple(expected))
+    assert maps.kinds[maps.dominant_position[i, j]] in ('u_clearance', 's_clearance')
+
+
+@pytest.mark.parametrize(('tolerances', 'words'), [
+    ({'u_centre': 1e-5, 'wheel_wobble': 1e-5}, "unknown source 'wheel_wobble'"),
+    ({'leg_length': -2e-6}, 'tolerances.leg_length = -2e-06'),
+])
+def test_main_refuses_bad_specs_with_a_clear_message(tmp_path: Path, tolerances: dict[str, float],
+                                                     words: str,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    spec = tmp_path / 'spec.yaml'
+    spec.write_text(yaml.safe_dump({'tolerances': tolerances, 'requirement': {
+        'position': 1e-4, 'orientation': 1e-3}}))
+    code = main(['--spec', str(spec), '--out', str(tmp_path / 'out'), '--samples', '100'])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert words in err and str(spec) in err
+
+
+def test_main_runs_and_the_yield_can_be_recounted(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(['--out', str(tmp_path), '--samples', '2000', '--grid', '0',
+                 '--stacked-runs', '0', '--position', '0.005', '0.0', str(MECH.home_height)])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert 'yield (nonlinear model)' in out and 'summary.txt' in out
+    report = predict(tmp_path, samples=2000, grid=0, stacked_runs=0,
+                     position=(0.005, 0.0, MECH.home_height))
+    assert f'{report.yield_nonlinear.probability * 100:.3f} %' in out  # same seed, same result
+    # pose outside the limits: refused, not a traceback
+    assert main(['--out', str(tmp_path), '--samples', '100', '--position', '0', '0', '0.3']) == 2
+
+
+def test_yield_recount_from_deviations_is_consistent() -> None:
+    rng = np.random.default_rng(0)
+    dev = rng.normal(0, 1e-4, size=(1000, 6))
+    spec = load_tolerance_spec(shipped_config('tolerances.yaml'), MECH)
+    inside = inside_requirement(dev, spec.requirement)
+    manual = sum(1 for d in dev if np.linalg.norm(d[:3]) <= spec.requirement.position
+                 and np.linalg.norm(d[3:]) <= spec.requirement.orientation)
+    assert estimate_yield(inside).inside == manual
+
+
+def test_library_and_tool_import_without_rclpy() -> None:
+    code = ('import sys\n'
+            'import positioning_cell.prediction.angular, positioning_cell.prediction.figures\n'
+            'import positioning_cell.tools.predict_accuracy\n'
+            'assert "rclpy" not in sys.modules, "rclpy imported"\n')
+    subprocess.run([sys.executable, '-c', code], check=True, timeout=120)
