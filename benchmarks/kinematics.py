@@ -14,10 +14,10 @@ import os
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from positioning_cell import kinematics
+from positioning_cell.kinematics_reference import reference_forward
 from positioning_cell.mechanism import Mechanism
 
 MECH = Mechanism.default()
@@ -38,20 +38,6 @@ def best_of(fn, repeats: int) -> float:  # type: ignore[no-untyped-def]
         fn()
         times.append(time.perf_counter() - t0)
     return min(times)
-
-
-def baseline_fk(lengths: np.ndarray, thetas: np.ndarray) -> np.ndarray:
-    """Per-pose FK by scipy least squares over (p, rotation vector) on the full closure."""
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        rot = Rotation.from_rotvec(x[3:]).as_matrix()
-        d = x[:3] + MECH.platform_joints @ rot.T - MECH.base_joints
-        length = np.linalg.norm(d, axis=1)
-        theta = np.arcsin(np.sum(d * MECH.tangential, axis=1) / length)
-        return np.concatenate([length - lengths, (theta - thetas) * MECH.platform_radius])
-
-    x0 = np.concatenate([MECH.home_position, np.zeros(3)])
-    return least_squares(residual, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15, method='lm').x
 
 
 def main() -> int:
@@ -80,9 +66,9 @@ def main() -> int:
 
     m = args.baseline_poses
     t0 = time.perf_counter()
-    sols = [baseline_fk(joints.lengths[i], joints.thetas[i]) for i in range(m)]
+    sols = [reference_forward(MECH, joints.lengths[i], joints.thetas[i]) for i in range(m)]
     base_time = (time.perf_counter() - t0) / m
-    base_err = max(float(np.abs(s[:3] - p[i]).max()) for i, s in enumerate(sols))
+    base_err = max(float(np.abs(s[0] - p[i]).max()) for i, s in enumerate(sols))
 
     fk_rate = args.n / fk_time
     print(f'poses: N = {args.n} in the workspace box; one core; best of 5 runs')

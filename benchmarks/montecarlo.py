@@ -22,10 +22,8 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from positioning_cell.kinematics import forward, inverse
 from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import pose_error
-from positioning_cell.prediction.montecarlo import monte_carlo
+from positioning_cell.prediction.montecarlo import monte_carlo, per_sample_deviations
 from positioning_cell.prediction.sensitivity import linearise
 from positioning_cell.prediction.sources import ToleranceSpec, draw_sources, load_tolerance_spec
 from positioning_cell.tools.predict_accuracy import shipped_config
@@ -45,17 +43,7 @@ def timed(fn: Callable[..., R], *args: object) -> tuple[R, float, float]:
 def baseline(mech: Mechanism, spec: ToleranceSpec,
              x: NDArray[np.float64]) -> NDArray[np.float64]:
     """One forward kinematics per sample on the displaced mechanism (the slow, obvious way)."""
-    p, q = mech.home_position, mech.home_quaternion
-    lin = linearise(mech, spec, p, q)
-    joints = inverse(mech, p, q)
-    out = np.empty((x.shape[0], 6))
-    for k, xs in enumerate(x):
-        prim = lin.source_map[0] @ xs
-        m = mech.with_offsets(prim[6:15].reshape(3, 3), prim[15:24].reshape(3, 3))
-        r = forward(m, joints.lengths + prim[0:3], joints.thetas + prim[3:6], joints.phis)
-        dp, drot = pose_error(r.position, r.quaternion, p[None], q[None])
-        out[k] = np.concatenate([dp[0], drot[0]])
-    return out
+    return per_sample_deviations(mech, spec, mech.home_position, mech.home_quaternion, x)
 
 
 def main() -> int:

@@ -6,14 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from hypothesis import assume, given
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from workspace import MECH, poses, random_poses
 
 from positioning_cell import kinematics
 from positioning_cell.errors import InputError
+from positioning_cell.kinematics_reference import reference_forward
 from positioning_cell.limits import check_poses
-from positioning_cell.mechanism import Mechanism
 
 
 def rotation_error(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
@@ -54,30 +53,13 @@ def test_fk_ik_round_trip_from_joints() -> None:
     np.testing.assert_allclose(back.thetas, thetas, atol=1e-12)
 
 
-def closure_fk(mech: Mechanism, lengths: np.ndarray, thetas: np.ndarray) -> np.ndarray:
-    """Independent FK: least squares over the pose (p, rotation vector) on the full closure
-    l_i = |p + R b_i − A_i| and θ_i = asin(u_i · e_t,i); no passive angles, no triangle."""
-
-    def residual(x: np.ndarray) -> np.ndarray:
-        rot = Rotation.from_rotvec(x[3:]).as_matrix()
-        d = x[:3] + mech.platform_joints @ rot.T - mech.base_joints
-        length = np.linalg.norm(d, axis=1)
-        theta = np.arcsin(np.sum(d * mech.tangential, axis=1) / length)
-        return np.concatenate([length - lengths, (theta - thetas) * mech.platform_radius])
-
-    x0 = np.concatenate([mech.home_position, np.zeros(3)])
-    sol = least_squares(residual, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15, method='lm')
-    return sol.x
-
-
 def test_fk_matches_independent_solver() -> None:
     p, q = random_poses(20, np.random.default_rng(3))
     joints = kinematics.inverse(MECH, p, q)
     fk = kinematics.forward(MECH, joints.lengths, joints.thetas)
     for i in range(len(p)):
-        x = closure_fk(MECH, joints.lengths[i], joints.thetas[i])
-        assert np.abs(x[:3] - fk.position[i]).max() <= 1e-11
-        other = Rotation.from_rotvec(x[3:]).as_quat()
+        position, other = reference_forward(MECH, joints.lengths[i], joints.thetas[i])
+        assert np.abs(position - fk.position[i]).max() <= 1e-11
         assert rotation_error(other[None], fk.quaternion[i:i + 1])[0] <= 1e-10
 
 

@@ -8,14 +8,13 @@ import pytest
 from scipy import stats
 
 from positioning_cell.errors import InputError
-from positioning_cell.kinematics import forward, inverse
 from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import pose_error
 from positioning_cell.prediction.montecarlo import (
     compare,
     estimate_yield,
     inside_requirement,
     monte_carlo,
+    per_sample_deviations,
     solve_closure,
 )
 from positioning_cell.prediction.sensitivity import linearise
@@ -38,16 +37,7 @@ def shipped_spec() -> ToleranceSpec:
 
 def brute_force_deviations(spec: ToleranceSpec, x: np.ndarray) -> np.ndarray:
     """One kinematics.forward per sample on mech.with_offsets: slow and independent."""
-    lin = linearise(MECH, spec, P, Q)
-    joints = inverse(MECH, P, Q)
-    out = np.empty((x.shape[0], 6))
-    for k, xs in enumerate(x):
-        prim = lin.source_map[0] @ xs
-        mech = MECH.with_offsets(prim[6:15].reshape(3, 3), prim[15:24].reshape(3, 3))
-        r = forward(mech, joints.lengths + prim[0:3], joints.thetas + prim[3:6], joints.phis)
-        dp, drot = pose_error(r.position, r.quaternion, P[None], Q[None])
-        out[k] = np.concatenate([dp[0], drot[0]])
-    return out
+    return per_sample_deviations(MECH, spec, P, Q, x)
 
 
 def test_closure_solve_agrees_with_forward_kinematics_sample_by_sample() -> None:

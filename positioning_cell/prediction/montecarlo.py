@@ -22,9 +22,9 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import binomtest
 
 from positioning_cell.errors import InputError
-from positioning_cell.kinematics import inverse
+from positioning_cell.kinematics import forward, inverse
 from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import matrix_from_quaternion
+from positioning_cell.poses import matrix_from_quaternion, pose_error
 from positioning_cell.prediction.sensitivity import (
     COORDINATES,
     Linearisation,
@@ -206,3 +206,25 @@ def compare(lin: Linearisation, spec: ToleranceSpec, result: MonteCarloResult) -
 
 __all__ = ['COORDINATES', 'Comparison', 'MonteCarloResult', 'YieldEstimate', 'compare',
            'estimate_yield', 'inside_requirement', 'monte_carlo', 'solve_closure']
+
+
+def per_sample_deviations(mech: Mechanism, spec: ToleranceSpec, position: ArrayLike,
+                          quaternion: ArrayLike, samples: ArrayLike) -> FloatArray:
+    """Reference: pose deviations (n, 6) (m, rad) for source samples (n, S), one
+    :func:`positioning_cell.kinematics.forward` per sample on the displaced mechanism. Slow and
+    independent of :func:`solve_closure`: what tests check it against and the benchmark's
+    baseline."""
+    p = np.asarray(position, dtype=float).reshape(3)
+    q = np.asarray(quaternion, dtype=float).reshape(4)
+    x = np.asarray(samples, dtype=float)
+    lin = linearise(mech, spec, p, q)
+    joints = inverse(mech, p, q)
+    out = np.empty((x.shape[0], 6))
+    for k, xs in enumerate(x):  # deliberately one pose at a time
+        prim = lin.source_map[0] @ xs
+        displaced = mech.with_offsets(prim[6:15].reshape(3, 3), prim[15:24].reshape(3, 3))
+        r = forward(displaced, joints.lengths + prim[0:3], joints.thetas + prim[3:6],
+                    joints.phis)
+        dp, drot = pose_error(r.position, r.quaternion, p[None], q[None])
+        out[k] = np.concatenate([dp[0], drot[0]])
+    return out
