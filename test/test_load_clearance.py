@@ -117,3 +117,18 @@ def test_model_from_params_registers_load() -> None:
         cl.model_from_params({'model': 'load', 'seating_force': -1.0}, MECH)
     with pytest.raises(ConfigError, match='load'):
         cl.model_from_params({'model': 'loaded'}, MECH)
+
+
+def test_nodes_can_select_the_load_model_by_parameter() -> None:
+    """The simulator's truth and the positioner's compensation both build it from a
+    `clearance.model: load` parameter block (as in config/cell.yaml)."""
+    from positioning_cell.clearance import model_from_params
+    from positioning_cell.load_clearance import LoadAwareClearance
+    from positioning_cell.mechanism import Mechanism
+    from positioning_cell.metrology import truth_from_params
+
+    mech = Mechanism.default()
+    truth = truth_from_params({'truth': {'clearance': {'model': 'load', 'seed': 0}}}, mech)
+    assert isinstance(truth.clearance, LoadAwareClearance)
+    positioner = model_from_params({'model': 'load', 'r_a': 1.6e-4, 'r_b': 1.6e-4}, mech)
+    assert isinstance(positioner, LoadAwareClearance)

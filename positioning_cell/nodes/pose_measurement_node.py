@@ -50,7 +50,7 @@ def _specs() -> list[ParamSpec]:
     return [
         *mechanism_specs(),
         ParamSpec('truth.clearance.model', 'effective_length', truth + 'clearance model',
-                  choices=('effective_length', 'vector', 'none'), read_only=True),
+                  choices=('effective_length', 'vector', 'load', 'none'), read_only=True),
         ParamSpec('truth.clearance.r_a', Parameter.Type.DOUBLE,
                   truth + 'U-joint clearance, m (unset: mechanism.joint_clearance_u)',
                   read_only=True),
