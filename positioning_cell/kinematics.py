@@ -9,6 +9,7 @@ Every function works on batches; a single pose is a batch of one.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -111,8 +112,15 @@ def _inverse_validated(mech: Mechanism, p: FloatArray, q: FloatArray) -> Inverse
 
 def home_phis(mech: Mechanism) -> FloatArray:
     """Passive angles φ (3,) at the home pose, rad."""
+    phis: FloatArray = _home_phis(mech).copy()
+    return phis
+
+
+@functools.lru_cache(maxsize=64)
+def _home_phis(mech: Mechanism) -> FloatArray:
     home = _inverse_validated(mech, mech.home_position[None], mech.home_quaternion[None])
-    phis: FloatArray = home.phis[0].copy()
+    phis: FloatArray = home.phis[0]
+    phis.setflags(write=False)
     return phis
 
 
@@ -137,7 +145,7 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
         i = int(np.flatnonzero((lengths_arr <= 0.0).any(axis=1))[0])
         raise InputError(f'lengths[{i}] = {lengths_arr[i].tolist()}: leg lengths must be > 0 m')
     if phi0 is None:
-        start = np.broadcast_to(home_phis(mech), (n, 3))
+        start = np.broadcast_to(_home_phis(mech), (n, 3))
     else:
         start = as_vectors(phi0, 3, 'phi0')
         if start.shape[0] not in (1, n):
@@ -145,7 +153,7 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
         start = np.broadcast_to(start, (n, 3))
     phis, points, converged = solve_passive_angles(
         mech, lengths_arr, thetas_arr, start, tolerance=tolerance, max_iterations=max_iterations)
-    position, rot = rigid_pose_from_points(mech.platform_joints, points)
+    position, rot = _place(_body_frame(mech), points)
     # The closure equations fix the triangle up to a mirror image: keep the branch whose platform
     # normal points away from the base, as at home.
     with np.errstate(invalid='ignore'):
@@ -260,7 +268,18 @@ def rigid_pose_from_points(body_points: FloatArray,
                            base_points: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Position (N, 3) and rotation (N, 3, 3) placing three body-frame points (3, 3) on their
     base-frame images (N, 3, 3); exact for congruent triangles (seed 000 eqs. 15-18)."""
-    c_body, f_body = _triangle_frame(body_points)
+    return _place(_triangle_frame(body_points), base_points)
+
+
+@functools.lru_cache(maxsize=64)
+def _body_frame(mech: Mechanism) -> tuple[FloatArray, FloatArray]:
+    """Centroid and frame of the platform's S-joint triangle (constant per mechanism)."""
+    return _triangle_frame(mech.platform_joints)
+
+
+def _place(body: tuple[FloatArray, FloatArray],
+           base_points: FloatArray) -> tuple[FloatArray, FloatArray]:
+    c_body, f_body = body
     c_base, f_base = _triangle_frame(base_points)
     rot = f_base @ f_body.T
     return c_base - rot @ c_body, rot
