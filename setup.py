@@ -8,6 +8,9 @@ PACKAGE = 'positioning_cell'
 
 # Executables: `ros2 run positioning_cell <name>` on a ROS install, `<name>` on PATH in a venv.
 CONSOLE_SCRIPTS = [
+    'recorder_node = positioning_cell.nodes.recorder_node:main',
+    'bag_player_node = positioning_cell.nodes.bag_player_node:main',
+    'recover_bag = positioning_cell.tools.recover_bag:main',
     'predict_accuracy = positioning_cell.tools.predict_accuracy:main',
     'leg_driver_node = positioning_cell.nodes.leg_driver_node:main',
     'pose_measurement_node = positioning_cell.nodes.pose_measurement_node:main',

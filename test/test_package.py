@@ -47,6 +47,23 @@ def colcon_install(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root / 'install'
 
 
+def one_message_bag(path: Path) -> Path:
+    """A bag holding one /diagnostics message."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from positioning_cell.bag import BagWriter
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    msgtype = 'diagnostic_msgs/msg/DiagnosticArray'
+    cls = store.types[msgtype]
+    header = store.types['std_msgs/msg/Header'](
+        stamp=store.types['builtin_interfaces/msg/Time'](sec=1, nanosec=0), frame_id='')
+    with BagWriter(path) as writer:
+        writer.write('/diagnostics', msgtype,
+                     bytes(store.serialize_cdr(cls(header=header, status=[]), msgtype)), 10**9)
+    return path
+
+
 def ament_lookup(install: Path, code: str) -> str:
     """Run ament_index_python in a child with the colcon prefix first on AMENT_PREFIX_PATH."""
     prefix = f'{install / PACKAGE}{os.pathsep}{os.environ.get("AMENT_PREFIX_PATH", "")}'
@@ -93,6 +110,10 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
         assert result.returncode == 0, f'{name} --help: {result.stderr}'
     if not nodes:
         return
+    # Nodes that need an argument to run get one: the player a one-message bag, looped.
+    # (`-p node:name:=value`: a node-specific rule, which beats the file's node section.)
+    node_args = {'bag_player_node': ['-p', f'bag_player:bag:={one_message_bag(tmp_path / "bag")}',
+                                     '-p', 'bag_player:loop:=true']}
     with isolated_domain() as domain:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
         env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
@@ -102,7 +123,7 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
                 log = open(tmp_path / f'{name}.log', 'wb')  # noqa: SIM115
                 procs[name] = (subprocess.Popen(
                     [str(lib / name), '--ros-args', '--params-file',
-                     str(REPO / 'config' / 'cell.yaml'), '-p', 'use_sim_time:=false'],
+                     str(REPO / 'config' / 'cell.yaml'), *node_args.get(name, [])],
                     stdout=log, stderr=subprocess.STDOUT, env=env,
                     cwd=tmp_path, start_new_session=True), log)
             expected = {NODE_NAMES.get(n, n) for n in nodes}

@@ -1,0 +1,222 @@
+"""Recovering a bag whose recorder was killed: every complete chunk of a truncated ``.mcap``
+is rewritten into a valid, indexed file and ``metadata.yaml`` is rebuilt from the files.
+
+A recording killed with SIGKILL leaves ``.mcap`` files without their summary section (and the
+last one cut in the middle of a record) and no ``metadata.yaml``. The MCAP record stream is
+self-describing (schemas and channels precede the messages that use them), so reading it from
+the start until the first incomplete or corrupt record yields exactly the readable prefix.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import MAGIC_SIZE, CRCValidationError, StreamReader
+from rosbags.rosbag2.errors import ReaderError
+from ruamel.yaml import YAML
+from ruamel.yaml.error import YAMLError
+
+from positioning_cell.bag.errors import BagError
+from positioning_cell.bag.metadata import (
+    METADATA_FILE,
+    FileSummary,
+    TopicMeta,
+    parse_qos_yaml,
+    write_metadata,
+)
+from positioning_cell.bag.writer import McapFile
+
+MCAP_MAGIC = b'\x89MCAP0\r\n'
+#: Everything a damaged record stream can raise while being parsed.
+_STREAM_ERRORS = (McapError, CRCValidationError, struct.error, ValueError, UnicodeDecodeError,
+                  EOFError, IndexError, KeyError, MemoryError)
+_INDEX = re.compile(r'_(\d+)\.mcap$')
+RECOVER_CHUNK_BYTES = 1024 * 1024
+
+
+@dataclass(frozen=True)
+class FileRecovery:
+    """What happened to one storage file: ``complete`` (already valid, untouched), ``recovered``
+    (rewritten from its readable prefix; the damaged original kept as ``backup``)."""
+
+    path: Path
+    status: str
+    message_count: int
+    backup: Path | None = None
+
+
+@dataclass(frozen=True)
+class RecoveryReport:
+    """Outcome of :func:`recover_bag`: the bag directory, each file, whether metadata.yaml was
+    (re)written."""
+
+    bag: Path
+    files: tuple[FileRecovery, ...]
+    metadata_written: bool
+
+    @property
+    def message_count(self) -> int:
+        """Messages in the bag after recovery."""
+        return sum(f.message_count for f in self.files)
+
+    @property
+    def changed(self) -> bool:
+        """True when anything on disk was rewritten."""
+        return self.metadata_written or any(f.status == 'recovered' for f in self.files)
+
+
+@dataclass(frozen=True)
+class _Inspection:
+    path: Path
+    complete: bool
+    topics: tuple[TopicMeta, ...] = ()
+    summary: FileSummary | None = None
+
+
+def storage_files(bag: Path) -> list[Path]:
+    """The ``.mcap`` files of a bag directory in split order (``name_0``, ``name_1``, ...)."""
+    def key(p: Path) -> tuple[int, str]:
+        m = _INDEX.search(p.name)
+        return (int(m.group(1)) if m else -1, p.name)
+    return sorted((p for p in bag.glob('*.mcap') if p.is_file()), key=key)
+
+
+def _topic(channel: Channel, schema: Schema | None, path: Path) -> TopicMeta:
+    meta = channel.metadata
+    return TopicMeta(channel.topic, schema.name if schema is not None else '',
+                     parse_qos_yaml(meta.get('offered_qos_profiles', ''), path),
+                     meta.get('topic_type_hash', ''), channel.message_encoding)
+
+
+def _inspect(path: Path) -> _Inspection:
+    """Is ``path`` an MCAP file (else BagError), and is it complete (footer, summary and
+    statistics readable)? For a complete file, its topics and counts from the summary."""
+    size = path.stat().st_size
+    with path.open('rb') as stream:
+        head = stream.read(MAGIC_SIZE)
+        if size and head != MCAP_MAGIC[:len(head)]:
+            raise BagError(path, 'not an MCAP file (wrong magic bytes); nothing changed')
+        if size < 2 * MAGIC_SIZE:
+            return _Inspection(path, False)
+        stream.seek(-MAGIC_SIZE, os.SEEK_END)
+        if stream.read(MAGIC_SIZE) != MCAP_MAGIC:
+            return _Inspection(path, False)
+        stream.seek(0)
+        try:
+            summary = SeekingReader(stream).get_summary()
+        except _STREAM_ERRORS:
+            return _Inspection(path, False)
+    if summary is None or summary.statistics is None:
+        return _Inspection(path, False)
+    stats = summary.statistics
+    topics = tuple(_topic(c, summary.schemas.get(c.schema_id), path)
+                   for c in summary.channels.values())
+    counts = {c.topic: stats.channel_message_counts.get(c.id, 0)
+              for c in summary.channels.values()}
+    count = stats.message_count
+    return _Inspection(path, True, topics, FileSummary(
+        path.name, stats.message_start_time if count else 0,
+        stats.message_end_time if count else 0, count, counts))
+
+
+def _readable_records(path: Path) -> Iterator[Schema | Channel | Message]:
+    """Schemas, channels and messages of ``path`` in file order, up to the first incomplete or
+    corrupt record (chunk CRCs are checked, so a damaged chunk ends the prefix)."""
+    with path.open('rb') as stream:
+        records = StreamReader(stream, validate_crcs=True).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except _STREAM_ERRORS:
+                return
+            if isinstance(record, (Schema, Channel, Message)):
+                yield record
+
+
+def _rewrite(path: Path, compression: str) -> tuple[FileSummary, tuple[TopicMeta, ...]]:
+    """Write the readable prefix of ``path`` to ``path.recovering``; its summary and topics."""
+    target = path.with_name(path.name + '.recovering')
+    target.unlink(missing_ok=True)
+    out = McapFile(target, compression, RECOVER_CHUNK_BYTES)
+    schemas: dict[int, Schema] = {}
+    topics: dict[int, TopicMeta] = {}
+    try:
+        for record in _readable_records(path):
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                schema = schemas.get(record.schema_id)
+                if schema is None:
+                    continue
+                topics[record.id] = _topic(record, schema, path)
+                out.add_topic(topics[record.id], schema.data.decode('utf-8', 'replace'),
+                              schema.encoding)
+            elif record.channel_id in topics:
+                out.write(topics[record.channel_id].name, record.data, record.log_time)
+        summary = out.close(list(topics.values()))
+    except BaseException:
+        target.unlink(missing_ok=True)
+        raise
+    return FileSummary(path.name, summary.start_ns, summary.end_ns, summary.message_count,
+                       summary.topic_counts), tuple(topics.values())
+
+
+def _listed_files(bag: Path) -> list[str] | None:
+    """``relative_file_paths`` of an existing, parseable metadata.yaml, else None."""
+    try:
+        data = YAML(typ='safe').load((bag / METADATA_FILE).read_text(encoding='utf-8'))
+        return [Path(p).name for p in data['rosbag2_bagfile_information']['relative_file_paths']]
+    except (OSError, YAMLError, KeyError, TypeError, ReaderError):
+        return None
+
+
+def recover_bag(path: str | Path, compression: str = 'zstd') -> RecoveryReport:
+    """Make the bag at ``path`` (its directory, or one of its ``.mcap`` files) valid again.
+
+    Complete files are left as they are; each truncated one is rewritten from its readable
+    prefix (``compression``: ``zstd`` or ``none``) and the damaged original kept beside it as
+    ``<name>.mcap.truncated``; metadata.yaml is rebuilt when missing, stale or after any
+    rewrite. A bag that is already complete is not touched. Input that is not a bag (missing
+    path, no ``.mcap``, a file that is not MCAP) raises BagError before anything is changed.
+    """
+    path = Path(path)
+    bag = path.parent if path.suffix == '.mcap' and path.is_file() else path
+    if not bag.is_dir():
+        raise BagError(path, 'does not exist or is not a bag directory')
+    files = storage_files(bag)
+    if not files:
+        raise BagError(bag, 'no .mcap storage files: not an MCAP rosbag2 bag')
+    inspections = [_inspect(f) for f in files]  # raises before any change
+
+    results: list[FileRecovery] = []
+    summaries: list[FileSummary] = []
+    topics: dict[str, TopicMeta] = {}
+    for item in inspections:
+        if item.complete and item.summary is not None:
+            summary, found = item.summary, item.topics
+            results.append(FileRecovery(item.path, 'complete', summary.message_count))
+        else:
+            summary, found = _rewrite(item.path, compression)
+            backup = item.path.with_name(item.path.name + '.truncated')
+            os.replace(item.path, backup)
+            os.replace(item.path.with_name(item.path.name + '.recovering'), item.path)
+            results.append(FileRecovery(item.path, 'recovered', summary.message_count, backup))
+        summaries.append(summary)
+        for topic in found:
+            topics.setdefault(topic.name, topic)
+
+    rewritten = any(r.status == 'recovered' for r in results)
+    stale = _listed_files(bag) != [f.name for f in files]
+    if rewritten or stale:
+        write_metadata(bag, list(topics.values()), summaries)
+    return RecoveryReport(bag, tuple(results), rewritten or stale)

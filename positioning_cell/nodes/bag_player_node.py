@@ -1,0 +1,127 @@
+"""bag_player: publishes a recorded bag back onto its topics with the recorded timing.
+
+Each selected topic gets a publisher of its recorded type with the QoS its publishers offered
+(reliable; transient-local for latched topics such as /positioner/target). Playback waits up
+to ``wait_for_subscribers_s`` for every topic to have a subscriber, then publishes the stored
+CDR bytes at bag time / ``rate`` (a monotonic clock, waiting for each due time), from
+``start_offset_s`` into the bag, looping if asked. At the end of a non-looping playback the
+node waits for the subscribers to acknowledge and exits (status 0).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+
+from positioning_cell.bag import (
+    BagError,
+    BagReader,
+    PlaybackTiming,
+    RawMessage,
+    message_class,
+    play,
+    playback_qos,
+    qos_kwargs,
+)
+from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.nodes.common import Parameters, ParamSpec, run
+
+SPECS = [
+    ParamSpec('bag', '', 'bag directory to play (required)', read_only=True),
+    ParamSpec('rate', 1.0, 'replay speed factor (2 = twice as fast)', low=0.01, high=100.0,
+              read_only=True),
+    ParamSpec('start_offset_s', 0.0, 'start this far into the bag, s of bag time', low=0.0,
+              high=1e9, read_only=True),
+    ParamSpec('loop', False, 'start over at the end', read_only=True),
+    ParamSpec('topics', [''], 'topics to play; empty: every topic of the bag', read_only=True),
+    ParamSpec('queue_depth', 1000, 'publisher history of streamed topics, messages', low=1,
+              high=1_000_000, read_only=True),
+    ParamSpec('wait_for_subscribers_s', 2.0, 'wait up to this long for every topic to have a '
+              'subscriber before playing, s', low=0.0, high=600.0, read_only=True),
+]
+ACK_TIMEOUT_S = 5.0
+
+
+class BagPlayerNode(Node):
+    """Node ``bag_player``: see the module docstring."""
+
+    def __init__(self) -> None:
+        super().__init__('bag_player')
+        self.params = p = Parameters(self, SPECS)
+        if not p['bag']:
+            raise ConfigError('bag: the bag directory to play is required')
+        self._reader = BagReader(p['bag'])
+        try:
+            self._topics = [t for t in p['topics'] if t] or sorted(self._reader.topics)
+            self._timing = PlaybackTiming.starting(self._reader.start_ns, p['rate'],
+                                                   p['start_offset_s'])
+            self._outputs = {t: self._publisher(t) for t in self._topics}
+        except (InputError, BagError) as err:
+            self._reader.close()
+            raise ConfigError(f'{p["bag"]}: {err}') from err
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._playback, name='playback', daemon=True)
+        self._thread.start()
+
+    def _publisher(self, topic: str) -> Any:
+        info = self._reader.topics.get(topic)
+        if info is None:
+            raise InputError(f'no topic {topic} in the bag (it has: '
+                             f'{", ".join(sorted(self._reader.topics))})')
+        qos = QoSProfile(**qos_kwargs(playback_qos(info.qos, self.params['queue_depth'])))
+        return self.create_publisher(message_class(info.msgtype), topic, qos)
+
+    def _publish(self, message: RawMessage) -> None:
+        self._outputs[message.topic].publish(message.data)
+
+    def _playback(self) -> None:
+        log = self.get_logger()
+        deadline = time.monotonic() + self.params['wait_for_subscribers_s']
+        while (any(pub.get_subscription_count() == 0 for pub in self._outputs.values())
+               and time.monotonic() < deadline):
+            if self._stop.wait(0.02):
+                return
+        try:
+            while not self._stop.is_set():
+                count = play(self._reader.raw_messages(self._topics, self._timing.origin_ns),
+                             self._timing, self._publish, self._stop.wait)
+                log.info(f'played {count} messages of {self._reader.path} '
+                         f'at rate {self._timing.rate}')
+                if not self.params['loop']:
+                    break
+            for pub in self._outputs.values():
+                pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
+        except BagError as err:
+            log.error(f'playback stopped: {err}')
+        except Exception as err:  # a shutdown mid-publish (rclpy raises several types)
+            if not self._stop.is_set():
+                log.error(f'playback stopped: {err!r}')
+        if not self._stop.is_set():
+            rclpy.try_shutdown(context=self.context)  # done: the node exits
+
+    def close(self) -> None:
+        """Stop playback and release the bag (idempotent)."""
+        self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=ACK_TIMEOUT_S + 1.0)
+        self._reader.close()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Play until the end of the bag (or Ctrl-C / SIGTERM when looping)."""
+    try:
+        return run(BagPlayerNode, args)
+    except (ConfigError, BagError) as err:
+        print(f'bag_player: {err}', file=sys.stderr)
+        return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,64 @@
+"""``recover_bag BAG``: make a bag whose recorder was killed readable again.
+
+Each truncated ``.mcap`` of the bag directory is rewritten from its readable prefix (every
+complete chunk) into a valid, indexed file, the damaged original kept as
+``<name>.mcap.truncated``, and ``metadata.yaml`` is rebuilt. A complete bag is left untouched.
+Exit status: 0 recovered or already complete, 1 not a bag / unrecoverable (nothing changed).
+:func:`recover` does the work (tests call it); :func:`main` parses the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from positioning_cell.bag import BagError, RecoveryReport, recover_bag
+
+
+def recover(bag: Path, compression: str = 'zstd') -> RecoveryReport:
+    """Recover ``bag`` (see :func:`positioning_cell.bag.recover_bag`)."""
+    return recover_bag(bag, compression)
+
+
+def describe(report: RecoveryReport) -> str:
+    """A few human-readable lines about what :func:`recover` did."""
+    lines = []
+    for item in report.files:
+        if item.status == 'recovered':
+            lines.append(f'{item.path.name}: recovered {item.message_count} messages '
+                         f'(damaged original kept as {item.backup.name if item.backup else "-"})')
+        else:
+            lines.append(f'{item.path.name}: complete, {item.message_count} messages')
+    if report.metadata_written:
+        lines.append(f'wrote {report.bag / "metadata.yaml"}')
+    if not report.changed:
+        lines.append('the bag was complete: nothing changed')
+    lines.append(f'{report.bag}: {report.message_count} messages')
+    return '\n'.join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line: ``recover_bag BAG [--compression zstd|none]``."""
+    parser = argparse.ArgumentParser(
+        prog='recover_bag', description='Rewrite the readable prefix of a truncated rosbag2 '
+                                        'MCAP bag into a valid, indexed bag with metadata.yaml.')
+    parser.add_argument('bag', type=Path, help='bag directory (or one of its .mcap files)')
+    parser.add_argument('--compression', choices=('zstd', 'none'), default='zstd',
+                        help='chunk compression of rewritten files (default zstd)')
+    args = parser.parse_args(argv)
+    try:
+        report = recover(args.bag, args.compression)
+    except BagError as err:
+        print(f'recover_bag: {err}', file=sys.stderr)
+        return 1
+    except OSError as err:
+        print(f'recover_bag: {args.bag}: {err}', file=sys.stderr)
+        return 1
+    print(describe(report))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

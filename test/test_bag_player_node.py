@@ -1,0 +1,102 @@
+"""bag_player_node as a separate process: a small bag written by the library is played to a test
+client, every message arrives in order, with its timing roughly kept at rates 1 and 2."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from cell_harness import Client, ProcessGroup, isolated_domain, wait_until
+from geometry_msgs.msg import PoseStamped
+from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+from sensor_msgs.msg import JointState
+
+from positioning_cell.bag import BagWriter
+from positioning_cell.bag.metadata import make_qos
+from positioning_cell.bag.writer import jazzy_typestore
+from positioning_cell.nodes.common import LATCHED_QOS, STREAM_QOS
+
+pytestmark = pytest.mark.nodes
+
+T0 = 1_790_000_000_000_000_000
+JOINTS_PERIOD_NS = 50_000_000  # 20 joint states over 0.95 s
+TS = jazzy_typestore()
+
+
+def _serialized(msgtype: str, i: int) -> bytes:
+    header = TS.types['std_msgs/msg/Header'](TS.types['builtin_interfaces/msg/Time'](i, 0),
+                                             'base')
+    if msgtype == 'sensor_msgs/msg/JointState':
+        msg = TS.types[msgtype](header, ['leg1_length'], np.array([0.2]), np.array([], float),
+                                np.array([], float))
+    else:
+        pose = TS.types['geometry_msgs/msg/Pose'](
+            TS.types['geometry_msgs/msg/Point'](0.0, 0.0, 0.197),
+            TS.types['geometry_msgs/msg/Quaternion'](0.0, 0.0, 0.0, 1.0))
+        msg = TS.types[msgtype](header, pose)
+    return bytes(TS.serialize_cdr(msg, msgtype))
+
+
+def _bag(path: Path) -> Path:
+    """A 1 s run: a latched target, 20 joint states at 20 Hz, 10 poses at 10 Hz."""
+    latched = make_qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
+                       QosDurability.TRANSIENT_LOCAL)
+    with BagWriter(path) as writer:
+        writer.add_topic('/positioner/target', 'geometry_msgs/msg/PoseStamped', [latched])
+        writer.write('/positioner/target', 'geometry_msgs/msg/PoseStamped',
+                     _serialized('geometry_msgs/msg/PoseStamped', 99), T0)
+        for i in range(20):
+            t = T0 + i * JOINTS_PERIOD_NS
+            writer.write('/legs/joint_states', 'sensor_msgs/msg/JointState',
+                         _serialized('sensor_msgs/msg/JointState', i), t)
+            if i % 2 == 0:
+                writer.write('/positioner/pose', 'geometry_msgs/msg/PoseStamped',
+                             _serialized('geometry_msgs/msg/PoseStamped', i // 2), t)
+    return path
+
+
+def _receive(client: Client, msg_type: Any, topic: str, qos: Any) -> list[tuple[float, int]]:
+    """(monotonic receive time, header stamp sec) of every message on ``topic``."""
+    received: list[tuple[float, int]] = []
+    client.node.create_subscription(
+        msg_type, topic, lambda m: received.append((time.monotonic(), m.header.stamp.sec)), qos)
+    return received
+
+
+@pytest.mark.parametrize('rate', [1.0, 2.0])
+def test_plays_every_message_in_order_with_its_timing(tmp_path: Path, rate: float) -> None:
+    bag = _bag(tmp_path / 'bag')
+    override = tmp_path / 'player.yaml'
+    override.write_text(f'bag_player:\n  ros__parameters:\n    bag: {bag}\n    rate: {rate}\n'
+                        '    wait_for_subscribers_s: 20.0\n')
+    with isolated_domain() as domain, ProcessGroup(domain, tmp_path) as group, \
+            Client(domain) as client:
+        joints = _receive(client, JointState, '/legs/joint_states', STREAM_QOS)
+        poses = _receive(client, PoseStamped, '/positioner/pose', STREAM_QOS)
+        target = _receive(client, PoseStamped, '/positioner/target', LATCHED_QOS)
+        player = group.start('bag_player_node', '--params-file', str(override), label='player')
+        wait_until(lambda: len(joints) == 20 and len(poses) == 10 and target, 30,
+                   'every recorded message')
+        assert player.wait(timeout=30) == 0  # not looping: exits at the end
+        assert 'played 31 messages' in group.log('player')
+
+    assert [s for _, s in joints] == list(range(20))
+    assert [s for _, s in poses] == list(range(10))
+    assert [s for _, s in target] == [99]
+    expected = 19 * JOINTS_PERIOD_NS * 1e-9 / rate
+    span = joints[-1][0] - joints[0][0]
+    # Loose: a message is never published before its due time, so the span cannot shrink
+    # much (the first one may be a little late); the upper bound leaves room for VM jitter.
+    assert 0.8 * expected <= span <= 1.5 * expected + 0.3
+
+
+def test_refuses_a_missing_bag(tmp_path: Path) -> None:
+    override = tmp_path / 'player.yaml'
+    override.write_text(f'bag_player:\n  ros__parameters:\n    bag: {tmp_path / "none"}\n')
+    with isolated_domain() as domain, ProcessGroup(domain, tmp_path) as group:
+        player = group.start('bag_player_node', '--params-file', str(override), label='player')
+        assert player.wait(timeout=30) == 2
+        assert 'does not exist' in group.log('player')
