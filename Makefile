@@ -12,7 +12,7 @@ RUN_ENV := ROS_LOG_DIR=$(TMP)/ros_log ROS_HOME=$(TMP)/ros_home \
 	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) \
 	MPLBACKEND=Agg PYTHONDONTWRITEBYTECODE=1
 
-.PHONY: test setup clean bench
+.PHONY: test setup clean bench run
 
 setup: $(STAMP)
 
@@ -26,6 +26,12 @@ $(STAMP): setup.py setup.cfg package.xml
 test: $(STAMP)
 	mkdir -p $(TMP)
 	env $(RUN_ENV) $(PY) -m pytest
+
+# The cell's main job: start the nodes, record, drive config/program.yaml once per compensation
+# mode, stop, analyse; results in runs/<timestamp>/.
+run: $(STAMP)
+	mkdir -p $(TMP)
+	env $(RUN_ENV) $(PY) -m positioning_cell.tools.run_cell
 
 bench: $(STAMP)
 	mkdir -p $(TMP)

@@ -16,6 +16,8 @@ CONSOLE_SCRIPTS = [
     'pose_measurement_node = positioning_cell.nodes.pose_measurement_node:main',
     'kinematics_node = positioning_cell.nodes.kinematics_node:main',
     'accuracy_monitor_node = positioning_cell.nodes.accuracy_monitor_node:main',
+    'analyze_bag = positioning_cell.tools.analyze_bag:main',
+    'run_cell = positioning_cell.tools.run_cell:main',
 ]
 
 # ROS 2 Jazzy from PyPI wheels and the pinned libraries the cell runs on (make run / make test).

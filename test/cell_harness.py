@@ -8,7 +8,6 @@ after a grace period).
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import shutil
 import signal
@@ -16,8 +15,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -28,33 +26,10 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
+from positioning_cell.domains import free_domain as isolated_domain  # noqa: F401 - for tests
+
 REPO = Path(__file__).resolve().parent.parent
 CELL_YAML = REPO / 'config' / 'cell.yaml'
-_LOCK_DIR = Path('/tmp/positioning_cell_domains')
-# Usable domain IDs (platform.md): 0-101 and 215-232; 0 is everyone's default, so skip it.
-_DOMAINS = [*range(1, 102), *range(215, 233)]
-
-
-@contextmanager
-def isolated_domain() -> Iterator[int]:
-    """A ROS_DOMAIN_ID no other test process on this machine holds while the block runs."""
-    _LOCK_DIR.mkdir(exist_ok=True)
-    start = os.getpid() % len(_DOMAINS)
-    for k in range(len(_DOMAINS)):
-        domain = _DOMAINS[(start + k) % len(_DOMAINS)]
-        fd = os.open(_LOCK_DIR / f'{domain}.lock', os.O_CREAT | os.O_RDWR, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            continue
-        try:
-            yield domain
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
-        return
-    raise RuntimeError('no free ROS domain id')
 
 
 def executable(name: str) -> str:

@@ -24,6 +24,7 @@ CELL_TOPICS = (
     '/accuracy/position_error',
     '/accuracy/orientation_error',
     '/diagnostics',
+    '/cell/program',  # the run driver's current step (make run): mode, cycle, pose
 )
 
 

@@ -1,0 +1,103 @@
+"""The run program of ``make run`` (``config/program.yaml``): named commanded poses, visited in
+order for a number of cycles, once per compensation mode; checked against the mechanism's
+limits before anything moves."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from positioning_cell.config import load_parameter_file
+from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.limits import check_poses
+from positioning_cell.mechanism import Mechanism
+from positioning_cell.poses import as_pose_batch
+
+FloatArray = NDArray[np.float64]
+MODES = ('none', 'model', 'measured')
+
+
+@dataclass(frozen=True)
+class Program:
+    """``names`` of the poses, their positions (K, 3) m and quaternions (K, 4) x, y, z, w in
+    the base frame; ``cycles`` passes over them per mode in ``modes``; ``tolerance`` the settle
+    tolerance of a move, m (0: the positioner's configured one); ``settle_timeout`` how long to
+    wait for the monitor to see a move settle, s."""
+
+    names: tuple[str, ...]
+    position: FloatArray
+    quaternion: FloatArray
+    cycles: int
+    modes: tuple[str, ...]
+    tolerance: float = 0.0
+    settle_timeout: float = 5.0
+
+    @property
+    def moves(self) -> int:
+        """Moves in the whole program."""
+        return len(self.modes) * self.cycles * len(self.names)
+
+    def steps(self) -> Iterator[tuple[str, int, int]]:
+        """(mode, cycle from 1, pose index) of every move, in order."""
+        for mode in self.modes:
+            for cycle in range(1, self.cycles + 1):
+                for k in range(len(self.names)):
+                    yield mode, cycle, k
+
+
+def _number(block: Mapping[str, Any], key: str, default: float, low: float) -> float:
+    value = block.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+            math.isfinite(value) and value >= low):
+        raise ConfigError(f'program.{key} = {value!r}: must be a number >= {low}')
+    return float(value)
+
+
+def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
+    """The program in a parsed program file (``program:`` block, see config/program.yaml),
+    every pose checked with :func:`positioning_cell.limits.check_poses`. ConfigError names
+    what is wrong."""
+    block = data.get('program')
+    if not isinstance(block, Mapping):
+        raise ConfigError('program file: no "program:" mapping')
+    poses = block.get('poses')
+    if not isinstance(poses, Mapping) or not poses:
+        raise ConfigError('program.poses: expected a mapping of pose names to poses')
+    cycles = block.get('cycles', 1)
+    if isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 1:
+        raise ConfigError(f'program.cycles = {cycles!r}: must be an integer >= 1')
+    modes = block.get('modes', list(MODES))
+    if (not isinstance(modes, list) or not modes
+            or any(m not in MODES for m in modes) or len(set(modes)) != len(modes)):
+        raise ConfigError(f'program.modes = {modes!r}: a list of distinct modes from {MODES}')
+    names, positions, quaternions = [], [], []
+    for name, pose in poses.items():
+        if not isinstance(pose, Mapping) or 'position' not in pose:
+            raise ConfigError(f'program.poses.{name}: expected {{position: [x, y, z], '
+                              f'orientation: [x, y, z, w]}}')
+        names.append(str(name))
+        positions.append(pose['position'])
+        quaternions.append(pose.get('orientation', [0.0, 0.0, 0.0, 1.0]))
+    try:
+        p, q = as_pose_batch(positions, quaternions)
+    except InputError as err:
+        raise ConfigError(f'program.poses: {err}') from err
+    report = check_poses(mech, p, q)
+    if not report.ok:
+        bad = report.first_bad_sample
+        raise ConfigError(f'program.poses.{names[bad or 0]} is outside the workspace: '
+                          f'{report.message()}')
+    return Program(tuple(names), p, q, cycles, tuple(modes),
+                   _number(block, 'tolerance', 0.0, 0.0),
+                   _number(block, 'settle_timeout', 5.0, 0.1))
+
+
+def load_program(path: str | Path, mech: Mechanism) -> Program:
+    """Read and check a program file (:func:`program_from`)."""
+    return program_from(load_parameter_file(path), mech)

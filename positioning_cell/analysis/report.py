@@ -1,0 +1,142 @@
+"""The analysis of a run for people (Markdown, µm and degrees) and for programs (JSON, SI)."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from positioning_cell.accuracy import ErrorStatistics
+from positioning_cell.analysis.summary import ModeSummary, RunAnalysis
+
+REPORT_FILE = 'report.md'
+SUMMARY_FILE = 'summary.json'
+
+
+def _um(value: float | None) -> str:
+    return 'n/a' if value is None else f'{value * 1e6:.1f}'
+
+
+def _deg(value: float | None) -> str:
+    return 'n/a' if value is None else f'{math.degrees(value):.4f}'
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    """A Markdown table (a ``|`` inside a cell is escaped)."""
+    def row(cells: Sequence[str]) -> str:
+        return '| ' + ' | '.join(c.replace('|', r'\|') for c in cells) + ' |'
+
+    return [row(header), '|' + '---|' * len(header), *(row(r) for r in rows)]
+
+
+COMPARISON_HEADER = ('mode', 'visits', 'in tol.', 'max |Δp| µm', 'RMS |Δp| µm',
+                     'max angle °', 'RMS angle °', 'worst AP_p µm', 'worst RP_l µm',
+                     'worst AP_abc °', 'worst RP_abc °', 'settle s (mean/max)')
+
+
+def comparison_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
+    """One row per mode: the comparison table (µm, degrees, s)."""
+    return [[m.mode, str(m.extremes.n), f'{m.extremes.within_tolerance}/{m.extremes.n}',
+             _um(m.extremes.position_error_max), _um(m.extremes.position_error_rms),
+             _deg(m.extremes.orientation_error_max), _deg(m.extremes.orientation_error_rms),
+             _um(m.ap_p_max), _um(m.rp_l_max), _deg(m.ap_angle_max), _deg(m.rp_angle_max),
+             f'{m.extremes.settle_time_mean:.2f}/{m.extremes.settle_time_max:.2f}']
+            for m in modes]
+
+
+def comparison_table(modes: Sequence[ModeSummary]) -> str:
+    """The per-mode comparison as fixed-width text (for a terminal)."""
+    rows = [list(COMPARISON_HEADER), *comparison_rows(modes)]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(COMPARISON_HEADER))]
+    return '\n'.join('  '.join(c.rjust(w) if i else c.ljust(w)
+                               for i, (c, w) in enumerate(zip(r, widths, strict=True)))
+                     for r in rows) + '\n'
+
+
+def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
+    rows = []
+    for m in modes:
+        for p in m.poses:
+            f, e = p.figures, p.extremes
+            rows.append([m.mode, p.pose, str(f.n),
+                         ', '.join(f'{v * 1e3:.3f}' for v in f.commanded_position),
+                         _um(f.ap_p), _um(f.ap_x), _um(f.ap_y), _um(f.ap_z), _um(f.rp_l),
+                         _deg(f.ap_a), _deg(f.ap_b), _deg(f.ap_c), _deg(f.rp_a), _deg(f.rp_b),
+                         _deg(f.rp_c), _um(e.position_error_max), _um(e.position_error_rms),
+                         _deg(e.orientation_error_max), _deg(e.orientation_error_rms),
+                         f'{e.settle_time_mean:.2f}/{e.settle_time_max:.2f}',
+                         f'{e.within_tolerance}/{e.n}'])
+    return rows
+
+
+POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p µm', 'AP_x', 'AP_y', 'AP_z',
+               'RP_l µm', 'AP_a °', 'AP_b °', 'AP_c °', 'RP_a ±°', 'RP_b ±°', 'RP_c ±°',
+               'max |Δp| µm', 'RMS |Δp| µm', 'max angle °', 'RMS angle °', 'settle s',
+               'in tol.')
+
+
+def _tracker_line(label: str, stats: ErrorStatistics | None) -> str:
+    if stats is None:
+        return f'- {label}: no measurement paired with a true pose'
+    return (f'- {label}: {stats.samples} pairs, |Δp| RMS {_um(stats.rms_position_error)} µm, '
+            f'max {_um(stats.max_position_error)} µm; angle RMS '
+            f'{_deg(stats.rms_orientation_error)}°, max {_deg(stats.max_orientation_error)}°')
+
+
+def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
+    """The Markdown report."""
+    a, s = analysis, analysis.settings
+    out = [f'# Positioning cell run: {a.bag.name}', '',
+           f'Bag `{a.bag}`: {a.message_count} messages, {len(a.topics)} topics.',
+           f'Tolerances: position {_um(s.tolerances.position)} µm, orientation '
+           f'{_deg(s.tolerances.orientation)}°. Settle: window {s.settle.window} s, dwell '
+           f'{s.settle.dwell} s, ≥ {s.settle.min_samples} samples, spread ≤ '
+           f'{_um(s.settle.position_threshold)} µm / {_deg(s.settle.angle_threshold)}°.', '']
+    if a.problems:
+        out += ['## Problems', '', *(f'- {p}' for p in a.problems), '']
+    if a.missing_optional:
+        out += [f'Not in the bag (figures that need them are left out): '
+                f'{", ".join(a.missing_optional)}.', '']
+    if a.replay.notes:
+        out += ['## Notes', '', *(f'- {n}' for n in a.replay.notes), '']
+    if a.ignored:
+        out += [f'{len(a.ignored)} message(s) ignored as the live monitor ignores them; '
+                f'first: {a.ignored[0].topic}: {a.ignored[0].reason}.', '']
+    out += ['## Comparison of compensation modes (measured by the tracker)', '']
+    if a.modes:
+        out += _table(COMPARISON_HEADER, comparison_rows(a.modes))
+    else:
+        out += ['No commanded pose settled: nothing to compare.']
+    out += ['', 'AP, RP: ISO 9283:1998 §7.2.1 pose accuracy and §7.2.2 repeatability over the '
+            'cycles of each pose (RP needs two cycles); Δp and angle: attained (settle-window '
+            'mean) minus commanded pose; settle: target to end of the settle window.', '']
+    if a.modes:
+        out += ['## Per commanded pose', '', *_table(POSE_HEADER, _pose_rows(a.modes)), '']
+    if a.truth_modes:
+        out += ['## Simulation truth', '', 'The true platform pose against the target (what '
+                'the tracker measures, without its error):', '',
+                *_table(COMPARISON_HEADER, comparison_rows(a.truth_modes)), '',
+                'The tracker against the truth (measured minus true pose):', '',
+                _tracker_line('whole run', a.tracker),
+                *(_tracker_line(m.mode, m.tracker) for m in a.modes), '']
+    monitor = a.monitor['verdicts']
+    out += ['## Monitor', '', f'Replaying the bag through the accuracy monitor\'s rules gives '
+            f'{monitor["ok"] + monitor["error"]} verdicts: {monitor["ok"]} within tolerance, '
+            f'{monitor["error"]} out of tolerance (the JSON summary holds the monitor\'s '
+            f'report).', '']
+    if plots:
+        out += ['## Plots', '', *(f'![{p.stem}]({p.name})' for p in plots), '']
+    return '\n'.join(out)
+
+
+def write_report(analysis: RunAnalysis, out_dir: Path, plots: Sequence[Path] = ()
+                 ) -> tuple[Path, Path]:
+    """Write ``report.md`` and ``summary.json`` into ``out_dir`` (created); their paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    md = out_dir / REPORT_FILE
+    md.write_text(markdown(analysis, plots), encoding='utf-8')
+    js = out_dir / SUMMARY_FILE
+    doc = {**analysis.to_dict(), 'plots': [p.name for p in plots]}
+    js.write_text(json.dumps(doc, indent=1), encoding='utf-8')
+    return md, js

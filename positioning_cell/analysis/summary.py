@@ -1,0 +1,226 @@
+"""Per compensation mode and per commanded pose: ISO 9283 figures, error extremes, settle times
+and tolerance verdicts of a recorded run; the whole analysis of a bag (:func:`analyse_bag`).
+
+Errors of a visit are those of its attained pose (the settle-window mean, see
+positioning_cell.accuracy) against its commanded pose: |Δp| (m) and the rotation angle of
+R_cmdᵀ·R (rad). Max and RMS are over the visits (the ISO 9283 cycles); the settle time of a
+visit is from the target taking effect to the last sample of its settle window (s).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from positioning_cell import accuracy
+from positioning_cell.analysis.monitor import Ignored, MonitorSettings
+from positioning_cell.analysis.reading import read_bag
+from positioning_cell.analysis.replay import (
+    OPTIONAL_TOPICS,
+    REQUIRED_TOPICS,
+    LabelledVisit,
+    Replay,
+    replay,
+)
+from positioning_cell.bag import BagError
+
+
+@dataclass(frozen=True)
+class Extremes:
+    """Over a set of visits: max and RMS of |Δp| (m) and of the rotation angle (rad), mean
+    and max settle time (s), and how many were within tolerance."""
+
+    n: int
+    position_error_max: float
+    position_error_rms: float
+    orientation_error_max: float
+    orientation_error_rms: float
+    settle_time_mean: float
+    settle_time_max: float
+    within_tolerance: int
+
+    @classmethod
+    def of(cls, visits: Sequence[LabelledVisit]) -> Extremes:
+        """Of ``visits`` (at least one)."""
+        d = np.array([v.verdict.position_error for v in visits])
+        a = np.array([v.verdict.orientation_error for v in visits])
+        s = np.array([v.visit.settle_time - v.visit.target_time for v in visits])
+        return cls(len(visits), float(d.max()), float(np.sqrt((d * d).mean())),
+                   float(a.max()), float(np.sqrt((a * a).mean())), float(s.mean()),
+                   float(s.max()), sum(v.verdict.ok for v in visits))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (SI)."""
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class PoseSummary:
+    """One commanded pose under one mode: its ISO 9283 figures and extremes."""
+
+    mode: str
+    pose: str
+    figures: accuracy.PoseFigures
+    extremes: Extremes
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (SI)."""
+        return {'mode': self.mode, 'pose': self.pose, 'iso9283': self.figures.to_dict(),
+                **self.extremes.to_dict()}
+
+
+@dataclass(frozen=True)
+class ModeSummary:
+    """One compensation mode: every visit's extremes, the worst pose accuracy AP_p (m) and
+    repeatability RP_l (m; None below two cycles), the worst orientation AP (largest |AP_a|,
+    |AP_b|, |AP_c|, rad) and RP half-width (rad), and the per-pose summaries."""
+
+    mode: str
+    extremes: Extremes
+    ap_p_max: float
+    rp_l_max: float | None
+    ap_angle_max: float
+    rp_angle_max: float | None
+    poses: tuple[PoseSummary, ...]
+    tracker: accuracy.ErrorStatistics | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (SI)."""
+        return {'mode': self.mode, **self.extremes.to_dict(), 'ap_p_max': self.ap_p_max,
+                'rp_l_max': self.rp_l_max, 'ap_angle_max': self.ap_angle_max,
+                'rp_angle_max': self.rp_angle_max,
+                'tracker': None if self.tracker is None else self.tracker.to_dict(),
+                'poses': [p.to_dict() for p in self.poses]}
+
+
+def _worst(values: Sequence[float | None]) -> float | None:
+    known = [v for v in values if v is not None]
+    return max(known) if known else None
+
+
+def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
+    """Group labelled visits by mode (order of first appearance) and pose (order of the pose
+    key), with the ISO 9283 figures of each group (:func:`accuracy.iso9283`; the commanded
+    pose of a group is that of its first visit)."""
+    out = []
+    for mode in dict.fromkeys(v.mode for v in visits):
+        mine = [v for v in visits if v.mode == mode]
+        poses = []
+        for pose in sorted(dict.fromkeys(v.pose for v in mine),
+                           key=lambda name: min(v.visit.key for v in mine if v.pose == name)):
+            group = [v for v in mine if v.pose == pose]
+            first = group[0].visit
+            figures = accuracy.iso9283(first.commanded_position, first.commanded_quaternion,
+                                       [v.visit.position for v in group],
+                                       [v.visit.quaternion for v in group], first.key)
+            poses.append(PoseSummary(mode, pose, figures, Extremes.of(group)))
+        out.append(ModeSummary(
+            mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
+            _worst([p.figures.rp_l for p in poses]),
+            max(max(abs(p.figures.ap_a), abs(p.figures.ap_b), abs(p.figures.ap_c))
+                for p in poses),
+            _worst([_worst([p.figures.rp_a, p.figures.rp_b, p.figures.rp_c])
+                    for p in poses]),
+            tuple(poses)))
+    return tuple(out)
+
+
+def _with_tracker(modes: tuple[ModeSummary, ...], result: Replay,
+                  tolerance: float) -> tuple[ModeSummary, ...]:
+    """Each mode with the tracker's error against the truth over that mode's samples
+    (:func:`accuracy.tracker_errors`)."""
+    m, t = result.measured, result.truth
+    if t.count == 0 or m.count == 0:
+        return modes
+    seg_mode = np.array([s.mode for s in result.segments] + [''], dtype=object)
+    out = []
+    for mode in modes:
+        im = seg_mode[m.segment] == mode.mode
+        it = seg_mode[t.segment] == mode.mode
+        stats = accuracy.tracker_errors(m.time[im], m.position[im], m.quaternion[im],
+                                        t.time[it], t.position[it], t.quaternion[it],
+                                        tolerance) if im.any() and it.any() else None
+        out.append(ModeSummary(mode.mode, mode.extremes, mode.ap_p_max, mode.rp_l_max,
+                               mode.ap_angle_max, mode.rp_angle_max, mode.poses, stats))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class RunAnalysis:
+    """The analysis of one recorded run (see the module docstring and :func:`analyse_bag`)."""
+
+    bag: Path
+    message_count: int
+    topics: dict[str, tuple[str, int]]
+    settings: MonitorSettings
+    replay: Replay
+    modes: tuple[ModeSummary, ...]
+    truth_modes: tuple[ModeSummary, ...]
+    problems: tuple[str, ...] = ()
+    missing_optional: tuple[str, ...] = ()
+    ignored: tuple[Ignored, ...] = field(default_factory=tuple)
+
+    @property
+    def monitor(self) -> dict[str, Any]:
+        """What the live monitor's /accuracy_monitor/report gave at the end of the run."""
+        return self.replay.monitor.report()
+
+    @property
+    def tracker(self) -> accuracy.ErrorStatistics | None:
+        """The tracker against the simulation truth over the whole run (the monitor's)."""
+        return self.replay.monitor.tracker.statistics()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON summary (SI: m, rad, s)."""
+        s = self.settings
+        tracker = self.tracker
+        return {
+            'bag': str(self.bag), 'messages': self.message_count,
+            'topics': {k: {'type': v[0], 'count': v[1]} for k, v in self.topics.items()},
+            'problems': list(self.problems), 'missing_optional_topics':
+                list(self.missing_optional),
+            'notes': list(self.replay.notes),
+            'samples': {'measured': self.replay.measured.count,
+                        'truth': self.replay.truth.count},
+            'settings': {'settle': s.settle.to_params(),
+                         'tolerances': {'position': s.tolerances.position,
+                                        'orientation': s.tolerances.orientation},
+                         'max_stamp_difference': s.max_stamp_difference},
+            'modes': [m.to_dict() for m in self.modes],
+            'truth_modes': [m.to_dict() for m in self.truth_modes],
+            'tracker': None if tracker is None else tracker.to_dict(),
+            'visits': [{'mode': v.mode, 'pose': v.pose, 'ok': v.verdict.ok,
+                        'position_error': v.verdict.position_error,
+                        'orientation_error': v.verdict.orientation_error,
+                        **v.visit.to_dict()} for v in self.replay.visits],
+            'ignored': [i.__dict__ for i in self.ignored],
+            'monitor': self.monitor,
+        }
+
+
+def analyse_bag(path: str | Path, settings: MonitorSettings | None = None) -> RunAnalysis:
+    """Read the bag at ``path``, replay it through the monitor's rules and summarise it per
+    mode and pose. BagError when it is not a readable bag or lacks a topic of
+    :data:`REQUIRED_TOPICS`; a truncated bag is analysed as far as it is readable
+    (``problems`` says what was lost)."""
+    settings = settings or MonitorSettings()
+    contents = read_bag(path, (*REQUIRED_TOPICS, *OPTIONAL_TOPICS))
+    missing = [t for t in REQUIRED_TOPICS if t not in contents.topics]
+    if missing:
+        have = ', '.join(sorted(contents.topics)) or 'none'
+        raise BagError(Path(path), f'lacks {", ".join(missing)}, which the analysis needs '
+                                   f'(the bag has: {have})')
+    result = replay(contents.messages, settings)
+    truth = bool(result.truth.count)
+    return RunAnalysis(
+        bag=Path(path), message_count=contents.message_count, topics=contents.topics,
+        settings=settings, replay=result,
+        modes=_with_tracker(summarise(result.visits), result, settings.max_stamp_difference),
+        truth_modes=summarise(result.truth_visits) if truth else (),
+        problems=(*contents.problems, *result.problems),
+        missing_optional=tuple(t for t in OPTIONAL_TOPICS if t not in contents.topics),
+        ignored=tuple(result.monitor.ignored))

@@ -1,0 +1,95 @@
+"""``analyze_bag BAG [--out DIR] [--config F]``: the offline analysis of a recorded cell run.
+
+Reads the bag with rosbags (no ROS graph), replays it through the accuracy monitor's rules
+with the monitor's settings from ``config/cell.yaml`` (or ``--config``), and writes
+``report.md``, ``summary.json`` and PNG plots into ``--out`` (default: ``<bag>_analysis``
+beside the bag). Exit status: 0 analysed; 2 nothing analysed (not a bag, a bag without the
+needed topics, a bad config); 3 analysed only in part (a truncated bag: what was missing is
+printed and in the report). :func:`analyze` does the work; :func:`main` parses the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from positioning_cell.analysis.monitor import MonitorSettings
+from positioning_cell.analysis.plots import write_plots
+from positioning_cell.analysis.report import comparison_table, write_report
+from positioning_cell.analysis.summary import RunAnalysis, analyse_bag
+from positioning_cell.config import config_path
+from positioning_cell.errors import PositioningError
+
+EXIT_OK, EXIT_FAILED, EXIT_PARTIAL = 0, 2, 3
+
+
+@dataclass(frozen=True)
+class AnalysisOutput:
+    """The analysis and the files written: report, JSON summary, plots."""
+
+    analysis: RunAnalysis
+    report: Path
+    summary: Path
+    plots: tuple[Path, ...]
+
+
+def default_out_dir(bag: Path) -> Path:
+    """``<bag>_analysis`` beside the bag (a bag folder, or an .mcap file without suffix)."""
+    bag = bag.resolve()
+    return bag.with_name(f'{bag.stem if bag.is_file() else bag.name}_analysis')
+
+
+def analyze(bag: str | Path, out_dir: str | Path | None = None,
+            config: str | Path | None = None) -> AnalysisOutput:
+    """Analyse the bag and write the report, summary and plots into ``out_dir``. Raises
+    PositioningError (BagError, ConfigError) when nothing can be analysed."""
+    bag = Path(bag)
+    settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
+    analysis = analyse_bag(bag, settings)
+    out = Path(out_dir) if out_dir is not None else default_out_dir(bag)
+    plots = write_plots(analysis, out)
+    report, summary = write_report(analysis, out, plots)
+    return AnalysisOutput(analysis, report, summary, tuple(plots))
+
+
+def describe(output: AnalysisOutput) -> str:
+    """What to print after an analysis: problems, the comparison table, the files."""
+    a = output.analysis
+    lines = [f'analyze_bag: problem: {p}' for p in a.problems]
+    if a.modes:
+        lines.append(comparison_table(a.modes).rstrip('\n'))
+    else:
+        lines.append('analyze_bag: no commanded pose settled in this bag')
+    lines += [f'report:  {output.report}', f'summary: {output.summary}',
+              'plots:   ' + ', '.join(str(p) for p in output.plots)]
+    return '\n'.join(lines) + '\n'
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line; see the module docstring for the exit status."""
+    parser = argparse.ArgumentParser(
+        prog='analyze_bag', description='Offline analysis of a recorded positioning cell run: '
+        'ISO 9283 figures per pose and compensation mode, tracker error, report and plots.')
+    parser.add_argument('bag', type=Path, help='the bag: a rosbag2 folder or an .mcap file')
+    parser.add_argument('--out', type=Path, help='output folder (default: <bag>_analysis)')
+    parser.add_argument('--config', type=Path, help='ROS 2 parameter file with the monitor\'s '
+                        'settings (default: the shipped config/cell.yaml)')
+    args = parser.parse_args(argv)
+    try:
+        output = analyze(args.bag, args.out, args.config)
+    except PositioningError as err:
+        print(f'analyze_bag: error: {err}', file=sys.stderr)
+        return EXIT_FAILED
+    text = describe(output)
+    if output.analysis.problems:
+        sys.stderr.write(text)
+        return EXIT_PARTIAL
+    sys.stdout.write(text)
+    return EXIT_OK
+
+
+if __name__ == '__main__':
+    sys.exit(main())

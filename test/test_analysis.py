@@ -1,0 +1,253 @@
+"""analyze_bag and the analysis library on synthetic bags written with rosbags' writer: the
+figures equal the batch functions of positioning_cell.accuracy on the same samples, the report
+and plots are written, and bad input (not a bag, missing topics, a truncated file) gives a
+clear message and a non-zero exit. No ROS graph."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from positioning_cell import accuracy
+from positioning_cell.analysis import MonitorReplay, MonitorSettings, analyse_bag
+from positioning_cell.analysis.program import load_program
+from positioning_cell.analysis.synthetic import SyntheticRun, synthetic_run, write_run_bag
+from positioning_cell.config import config_path
+from positioning_cell.errors import ConfigError
+from positioning_cell.mechanism import Mechanism
+from positioning_cell.tools.analyze_bag import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL, analyze, main
+
+SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
+POSITIONS = np.array([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2], [-0.004, -0.004, 0.2],
+                      [-0.004, -0.004, 0.192], [0.004, 0.004, 0.192]])
+QUATERNIONS = np.tile([0.0, 0.0, 0.0, 1.0], (5, 1))
+QUATERNIONS[1] = [0.0, 0.0, math.sin(0.005), math.cos(0.005)]  # one pose turned 0.57° about z
+
+
+@pytest.fixture(scope='module')
+def run() -> SyntheticRun:
+    return synthetic_run(POSITIONS, QUATERNIONS, cycles=2, dwell_time=1.5, seed=7)
+
+
+@pytest.fixture(scope='module')
+def bag(run: SyntheticRun, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp('bags') / 'run'
+    write_run_bag(path, run, joint_state_rate=50.0)
+    return path
+
+
+def _batch(run: SyntheticRun, n: int | None = None) -> accuracy.AccuracyResult:
+    return accuracy.analyse(run.time[:n], run.position[:n], run.quaternion[:n], run.target_time,
+                            run.target_position, run.target_quaternion, SETTINGS.settle)
+
+
+def _numbers(doc: dict[str, object]) -> np.ndarray:
+    """The numbers of a to_dict() document in key order (None as NaN)."""
+    out: list[float] = []
+    for key in sorted(doc):
+        value = doc[key]
+        out.extend(float(v) for v in value) if isinstance(value, list) else out.append(
+            math.nan if value is None else float(value))  # type: ignore[arg-type]
+    return np.array(out)
+
+
+def _same_figures(a: dict[str, object], b: dict[str, object]) -> None:
+    assert sorted(a) == sorted(b)
+    np.testing.assert_allclose(_numbers(a), _numbers(b), rtol=1e-12, atol=1e-15)
+
+
+def _same_visit(a: accuracy.Visit, b: accuracy.Visit) -> None:
+    assert (a.key, a.cycle, a.samples) == (b.key, b.cycle, b.samples)
+    assert a.target_time == pytest.approx(b.target_time, abs=1e-6)  # ns stamps
+    assert a.settle_time == pytest.approx(b.settle_time, abs=1e-6)
+    np.testing.assert_allclose(a.position, b.position, atol=1e-12)
+    np.testing.assert_allclose(a.quaternion, b.quaternion, atol=1e-12)
+
+
+def test_figures_equal_the_batch_analysis_of_the_same_samples(run: SyntheticRun,
+                                                               bag: Path) -> None:
+    analysis = analyse_bag(bag, SETTINGS)
+    batch = _batch(run)
+    visits = analysis.replay.visits
+    assert len(visits) == len(batch.visits) == len(run.steps) == 30
+    for mine, theirs in zip(visits, batch.visits, strict=True):
+        _same_visit(mine.visit, theirs)
+    # labels from /cell/program: the step whose move each visit settled
+    step_of = {round(t, 3): s for t, s in zip(run.target_time, run.steps, strict=True)}
+    for v in visits:
+        step = step_of[round(v.visit.target_time, 3)]
+        assert (v.mode, v.pose) == (step.mode, step.pose)
+    assert [m.mode for m in analysis.modes] == ['none', 'model', 'measured']
+    for mode in analysis.modes:
+        assert [p.pose for p in mode.poses] == ['P1', 'P2', 'P3', 'P4', 'P5']
+        for pose in mode.poses:
+            mine = [b for b, v in zip(batch.visits, visits, strict=True)
+                    if (v.mode, v.pose) == (mode.mode, pose.pose)]
+            expected = accuracy.iso9283(mine[0].commanded_position,
+                                        mine[0].commanded_quaternion,
+                                        [b.position for b in mine], [b.quaternion for b in mine],
+                                        mine[0].key)
+            _same_figures(pose.figures.to_dict(), expected.to_dict())
+            errors = [accuracy.judge_visit(b, SETTINGS.tolerances) for b in mine]
+            d = np.array([e.position_error for e in errors])
+            assert pose.extremes.n == 2
+            assert pose.extremes.position_error_max == pytest.approx(d.max(), abs=1e-12)
+            assert pose.extremes.position_error_rms == pytest.approx(
+                np.sqrt((d ** 2).mean()), abs=1e-12)
+            assert pose.extremes.within_tolerance == sum(e.ok for e in errors)
+    # the whole-run monitor figures, as the live node reports them
+    report = analysis.monitor
+    assert len(report['measured']['poses']) == len(batch.poses) == 5
+    for mine_pose, theirs_pose in zip(report['measured']['poses'], batch.poses, strict=True):
+        _same_figures(mine_pose, theirs_pose.to_dict())
+    truth = accuracy.analyse(run.time, run.true_position, run.true_quaternion, run.target_time,
+                             run.target_position, run.target_quaternion, SETTINGS.settle)
+    assert len(analysis.replay.truth_visits) == len(truth.visits) == 30
+    for mine_truth, theirs_truth in zip(analysis.replay.truth_visits, truth.visits,
+                                        strict=True):
+        _same_visit(mine_truth.visit, theirs_truth)
+    expected_tracker = accuracy.tracker_errors(run.time, run.position, run.quaternion, run.time,
+                                               run.true_position, run.true_quaternion,
+                                               SETTINGS.max_stamp_difference)
+    assert analysis.tracker is not None and expected_tracker is not None
+    _same_figures(analysis.tracker.to_dict(), expected_tracker.to_dict())
+    # the modes differ as the synthetic biases say: none far off, measured best
+    worst = {m.mode: m.extremes.position_error_rms for m in analysis.modes}
+    assert worst['none'] > 300e-6
+    assert 40e-6 > worst['model'] > worst['measured']
+    assert analysis.problems == () and analysis.ignored == ()
+
+
+def test_analyze_writes_report_summary_and_plots(bag: Path, tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / 'out'
+    assert main([str(bag), '--out', str(out)]) == EXIT_OK
+    printed = capsys.readouterr().out
+    assert 'worst AP_p µm' in printed and 'measured' in printed and str(out) in printed
+    text = (out / 'report.md').read_text()
+    for words in ('## Comparison of compensation modes', '## Per commanded pose',
+                  '## Simulation truth', 'ISO 9283', '| none |', '| measured | P5 |'):
+        assert words in text
+    summary = json.loads((out / 'summary.json').read_text())
+    assert [m['mode'] for m in summary['modes']] == ['none', 'model', 'measured']
+    assert summary['modes'][0]['poses'][1]['iso9283']['n'] == 2
+    assert summary['tracker']['samples'] > 0
+    pngs = {'error_over_time.png', 'axis_errors.png', 'clusters.png', 'error_distribution.png'}
+    assert set(summary['plots']) == pngs
+    for name in pngs:
+        assert (out / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+        assert (out / name).stat().st_size > 10_000
+        assert f'({name})' in text
+
+
+def test_without_program_topic_the_modes_come_from_the_positioner_diagnostics(
+        run: SyntheticRun, tmp_path: Path) -> None:
+    path = tmp_path / 'bag'
+    write_run_bag(path, run, program=False, truth=False)
+    analysis = analyse_bag(path, SETTINGS)
+    assert [m.mode for m in analysis.modes] == ['none', 'model', 'measured']
+    assert [p.pose for p in analysis.modes[0].poses] == ['P1', 'P2', 'P3', 'P4', 'P5']
+    assert analysis.truth_modes == () and analysis.tracker is None
+    assert set(analysis.missing_optional) == {'/sim/platform/true_pose', '/cell/program'}
+
+
+def test_a_truncated_bag_is_analysed_as_far_as_it_is_readable(
+        run: SyntheticRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / 'cut'
+    write_run_bag(path, run, joint_state_rate=400.0, truncate_to=0.5)
+    original = sorted(p.name for p in path.iterdir())
+    out = tmp_path / 'out'
+    assert main([str(path), '--out', str(out)]) == EXIT_PARTIAL
+    err = capsys.readouterr().err
+    assert 'not complete' in err and 'truncated' in err
+    assert sorted(p.name for p in path.iterdir()) == original  # the bag is left as it was
+    summary = json.loads((out / 'summary.json').read_text())
+    assert any('truncated' in p for p in summary['problems'])
+    assert 'truncated' in (out / 'report.md').read_text()
+    n = summary['samples']['measured']
+    assert 0 < n < run.time.size
+    visits = summary['visits']
+    assert 5 <= len(visits) < 30
+    batch = _batch(run, n)  # the same figures as the readable prefix of the samples gives
+    for mine, theirs in zip(visits, batch.visits, strict=False):
+        _same_visit(accuracy.Visit(**{k: (tuple(v) if isinstance(v, list) else v)
+                                      for k, v in mine.items()
+                                      if k in accuracy.Visit.__dataclass_fields__}), theirs)
+
+
+def test_not_a_bag_and_missing_topics_fail_with_a_clear_message(
+        run: SyntheticRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = tmp_path / 'notes.txt'
+    text.write_text('not a bag\n')
+    fake = tmp_path / 'fake.mcap'
+    fake.write_bytes(b'PK\x03\x04 zip, not mcap' * 10)
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    for path in (text, fake, empty, tmp_path / 'missing'):
+        assert main([str(path), '--out', str(tmp_path / 'o')]) == EXIT_FAILED
+        err = capsys.readouterr().err
+        assert err.startswith('analyze_bag: error: ') and str(path) in err
+    assert not (tmp_path / 'o').exists()
+    # a bag with the targets but no measurements
+    only = synthetic_run(POSITIONS[:2], QUATERNIONS[:2], modes=('none',), cycles=1)
+    lean = tmp_path / 'lean'
+    write_run_bag(lean, SyntheticRun(only.target_time, only.target_position,
+                                     only.target_quaternion, only.steps, only.time[:0],
+                                     only.position[:0], only.quaternion[:0],
+                                     only.true_position[:0], only.true_quaternion[:0]),
+                  truth=False)
+    assert main([str(lean)]) == EXIT_FAILED
+    err = capsys.readouterr().err
+    assert 'lacks /metrology/pose' in err and '/positioner/target' in err
+
+
+def test_the_replay_ignores_what_the_live_monitor_ignores() -> None:
+    replay = MonitorReplay(SETTINGS)
+    assert not replay.target(1.0, 'tracker', [0, 0, 0.2], [0, 0, 0, 1])
+    assert replay.measured.target is None
+    assert replay.target(1.0, 'base', [0, 0, 0.2], [0, 0, 0, 1])
+    assert replay.measurement(1.1, 'base', [0, 0, 0.2], [0, 0, 0, 2.0]) is None
+    update = replay.measurement(1.2, 'base', [0, 0, 0.2001], [0, 0, 0, 1])
+    assert update is not None and update.position_error is not None
+    assert update.position_error[2] == pytest.approx(1e-4)
+    assert replay.measurement(1.15, 'base', [0, 0, 0.2], [0, 0, 0, 1]) is None  # older
+    assert [i.topic for i in replay.ignored] == ['/positioner/target', '/metrology/pose',
+                                                 '/metrology/pose']
+    assert "frame_id 'tracker'" in replay.ignored[0].reason
+    report = replay.report()
+    assert report['verdicts'] == {'ok': 0, 'error': 0} and report['truth'] is None
+
+
+def test_monitor_settings_come_from_the_config(tmp_path: Path) -> None:
+    cell = yaml.safe_load(config_path('cell.yaml').read_text())
+    section = cell['accuracy_monitor']['ros__parameters']
+    assert SETTINGS.settle.window == section['settle']['window']
+    assert SETTINGS.settle.min_samples == section['settle']['min_samples']
+    assert SETTINGS.tolerances.position == section['tolerance']['position']
+    assert SETTINGS.max_stamp_difference == section['truth']['max_stamp_difference']
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(yaml.safe_dump({'accuracy_monitor': {'ros__parameters': {
+        'settle': {'windw': 1.0}}}}))
+    with pytest.raises(ConfigError, match='windw'):
+        MonitorSettings.from_file(bad)
+    assert analyze  # the work function the command line uses
+
+
+def test_the_shipped_program_is_an_iso_cube_inside_the_workspace(tmp_path: Path) -> None:
+    mech = Mechanism.default()
+    program = load_program(config_path('program.yaml'), mech)
+    assert program.names == ('P1', 'P2', 'P3', 'P4', 'P5')
+    assert program.modes == ('none', 'model', 'measured') and program.cycles >= 2
+    corners = program.position[1:] - program.position[0]
+    np.testing.assert_allclose(np.abs(corners), 0.004, atol=1e-12)  # 0.8 x the half edge
+    assert np.allclose(program.position[1:].mean(axis=0), program.position[0])
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(yaml.safe_dump({'program': {'cycles': 1, 'poses': {
+        'P1': {'position': [0.0, 0.0, 0.196]}, 'far': {'position': [0.0, 0.0, 0.30]}}}}))
+    with pytest.raises(ConfigError, match='far is outside the workspace'):
+        load_program(bad, mech)

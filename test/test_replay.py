@@ -1,0 +1,61 @@
+"""A bag replayed by bag_player_node into a live accuracy_monitor_node gives the figures
+analyze_bag computes from that bag offline."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from cell_harness import Client, ProcessGroup, isolated_domain
+from std_srvs.srv import Trigger
+
+from positioning_cell.analysis import MonitorSettings, analyse_bag
+from positioning_cell.analysis.replay import MEASURED_TOPIC, TARGET_TOPIC, TRUTH_TOPIC
+from positioning_cell.analysis.synthetic import synthetic_run, write_run_bag
+from positioning_cell.config import config_path
+
+
+def _numbers(poses: list[dict[str, object]]) -> np.ndarray:
+    out: list[float] = []
+    for pose in poses:
+        for key in sorted(pose):
+            value = pose[key]
+            if isinstance(value, list):
+                out.extend(float(v) for v in value)
+            else:
+                out.append(math.nan if value is None else float(value))  # type: ignore[arg-type]
+    return np.array(out)
+
+
+def test_the_live_monitor_fed_by_the_player_reports_the_offline_figures(tmp_path: Path) -> None:
+    positions = [[0.0, 0.0, 0.196], [0.004, 0.004, 0.2]]
+    quaternions = [[0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0]]
+    run = synthetic_run(positions, quaternions, modes=('model',), cycles=2, dwell_time=1.5,
+                        seed=3)
+    bag = tmp_path / 'bag'
+    write_run_bag(bag, run)
+    offline = analyse_bag(bag, MonitorSettings.from_file(config_path('cell.yaml'))).monitor
+    assert sum(offline['verdicts'].values()) == 4 and len(offline['measured']['poses']) == 2
+
+    with isolated_domain() as domain, ProcessGroup(domain, tmp_path) as group, \
+            Client(domain) as client:
+        group.start('accuracy_monitor_node')
+        client.call(Trigger, '/accuracy_monitor/report', Trigger.Request())  # it is up
+        player = group.start('bag_player_node', overrides={'bag_player': {
+            'bag': str(bag), 'rate': 2.0,
+            'topics': [TARGET_TOPIC, MEASURED_TOPIC, TRUTH_TOPIC]}})
+        assert player.wait(timeout=60.0) == 0, group.log('bag_player_node')
+        live = json.loads(client.call(Trigger, '/accuracy_monitor/report',
+                                      Trigger.Request()).message)
+
+    assert live['verdicts'] == offline['verdicts']
+    for source in ('measured', 'truth'):
+        assert len(live[source]['visits']) == len(offline[source]['visits']) == 4
+        np.testing.assert_allclose(_numbers(live[source]['poses']),
+                                   _numbers(offline[source]['poses']), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(_numbers(live[source]['visits']),
+                                   _numbers(offline[source]['visits']), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(_numbers([live['tracker']]), _numbers([offline['tracker']]),
+                               rtol=1e-12)
