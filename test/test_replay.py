@@ -6,9 +6,10 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from cell_harness import Client, ProcessGroup, isolated_domain
+from cell_harness import Client, ProcessGroup, isolated_domain, wait_until
 from std_srvs.srv import Trigger
 
 from positioning_cell.analysis import MonitorSettings, analyse_bag
@@ -47,8 +48,22 @@ def test_the_live_monitor_fed_by_the_player_reports_the_offline_figures(tmp_path
             'bag': str(bag), 'rate': 2.0,
             'topics': [TARGET_TOPIC, MEASURED_TOPIC, TRUTH_TOPIC]}})
         assert player.wait(timeout=60.0) == 0, group.log('bag_player_node')
-        live = json.loads(client.call(Trigger, '/accuracy_monitor/report',
-                                      Trigger.Request()).message)
+
+        def report() -> dict[str, Any]:
+            return json.loads(client.call(Trigger, '/accuracy_monitor/report',
+                                          Trigger.Request()).message)
+
+        # The player is done once DDS has delivered; the monitor may still be working through
+        # its queue: wait until it has paired every measurement with its truth.
+        pairs = offline['tracker']['samples']
+        latest: dict[str, Any] = {}
+
+        def all_paired() -> bool:
+            latest.update(report())
+            return bool(latest['tracker']) and latest['tracker']['samples'] >= pairs
+
+        wait_until(all_paired, 30.0, f'the monitor to have paired all {pairs} tracker samples')
+        live = latest
 
     assert live['verdicts'] == offline['verdicts']
     for source in ('measured', 'truth'):
