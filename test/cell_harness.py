@@ -95,7 +95,7 @@ class ProcessGroup:
         return path.read_text(errors='replace') if path.exists() else ''
 
     def stop(self, label: str | None = None, sig: int = signal.SIGINT,
-             grace: float = 10.0) -> dict[str, int]:
+             grace: float = 20.0) -> dict[str, int]:
         """Signal processes (all by default), wait, SIGKILL what is left; exit codes."""
         labels = [label] if label else list(self.procs)
         for name in labels:
