@@ -14,8 +14,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +25,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from positioning_cell.domains import free_domain as isolated_domain  # noqa: F401 - for tests
+from positioning_cell.polling import wait_until
 
 REPO = Path(__file__).resolve().parent.parent
 CELL_YAML = REPO / 'config' / 'cell.yaml'
@@ -38,19 +37,6 @@ def executable(name: str) -> str:
     if found is None:
         raise FileNotFoundError(f'{name} is not installed next to {sys.executable}')
     return found
-
-
-def wait_until(condition: Callable[[], Any], timeout: float, what: str,
-               poll: float = 0.02) -> Any:
-    """Poll ``condition`` until it returns something truthy; fail with ``what`` on timeout."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise TimeoutError(f'timed out after {timeout} s waiting for {what}')
-        time.sleep(poll)
 
 
 class ProcessGroup:

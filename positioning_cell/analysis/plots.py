@@ -94,10 +94,7 @@ def plot_error_over_time(analysis: RunAnalysis, path: Path) -> Path:
     axes[1].set_xlabel('time since the first measurement, s')
     fig.suptitle('Measured pose minus commanded pose (lines: moves; dots: settled poses)',
                  y=0.995)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
@@ -130,10 +127,7 @@ def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
             ax.legend(fontsize=7)
     fig.suptitle('Error per axis per pose (attained minus commanded; bars: mean over cycles, '
                  'whiskers: std)', fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
@@ -167,10 +161,7 @@ def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
         axes[0, 0].legend(fontsize=7)
     fig.suptitle('Attained poses around each commanded pose (+: commanded, x: barycentre)',
                  fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
@@ -196,10 +187,7 @@ def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
         ax.grid(True, which='both', alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle('Settled pose error per compensation mode', fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def write_plots(analysis: RunAnalysis, out_dir: Path) -> list[Path]:
@@ -212,3 +200,11 @@ def write_plots(analysis: RunAnalysis, out_dir: Path) -> list[Path]:
                   plot_clusters(analysis, out_dir / 'clusters.png'),
                   plot_error_distribution(analysis, out_dir / 'error_distribution.png')]
     return paths
+
+
+def _save(fig: Any, path: Path) -> Path:
+    """Lay out, write as PNG (110 dpi) and release a figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _pyplot().close(fig)
+    return path

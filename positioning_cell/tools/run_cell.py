@@ -44,6 +44,7 @@ from positioning_cell.config import config_path, load_parameter_file, node_param
 from positioning_cell.domains import DomainError, free_domain
 from positioning_cell.errors import PositioningError
 from positioning_cell.mechanism import Mechanism
+from positioning_cell.polling import wait_until
 from positioning_cell.tools.analyze_bag import EXIT_OK, analyze, describe
 
 #: (executable, node name) of the cell, in start order.
@@ -125,14 +126,10 @@ class Processes:
 
 
 def _wait(condition: Callable[[], Any], timeout: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise StartError(f'timed out after {timeout:.0f} s waiting for {what}')
-        time.sleep(0.02)
+    try:
+        return wait_until(condition, timeout, what)
+    except TimeoutError as err:
+        raise StartError(str(err)) from err
 
 
 def _node_plumbing() -> Any:

@@ -1,0 +1,21 @@
+"""Bounded waits for a condition (no fixed sleeps): used by the run driver and the tests."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+
+def wait_until(condition: Callable[[], Any], timeout: float, what: str,
+               poll: float = 0.02) -> Any:
+    """Poll ``condition`` every ``poll`` s until it returns something truthy and return that;
+    TimeoutError naming ``what`` after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise TimeoutError(f'timed out after {timeout:.1f} s waiting for {what}')
+        time.sleep(poll)
