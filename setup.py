@@ -27,6 +27,8 @@ CELL = [
     'ros-jazzy-rmw-fastrtps-cpp==8.4.3',
     'numpy==2.4.6',
     'scipy==1.17.1',
+    'numba==0.68.1',
+    'llvmlite==0.50.0',
     'PyYAML==6.0.3',
     'rosbags==0.11.9',
     'mcap==1.6.0',
@@ -55,7 +57,8 @@ setup(
     ],
     # Kept loose so that a ROS install's system numpy / scipy / yaml satisfy it; the exact
     # versions this project tests with are the `cell` extra.
-    install_requires=['setuptools', 'numpy>=1.24', 'scipy>=1.11', 'PyYAML>=6'],
+    install_requires=['setuptools', 'numpy>=1.25', 'scipy>=1.11', 'numba>=0.59',
+                      'PyYAML>=6'],
     extras_require={'cell': CELL, 'test': TEST},
     zip_safe=True,
     maintainer='positioning_cell developers',

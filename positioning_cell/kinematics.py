@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from positioning_cell.compiled import kernel, kernel_array
 from positioning_cell.errors import InputError
 from positioning_cell.mechanism import Mechanism
 from positioning_cell.poses import (
@@ -130,11 +131,11 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
     """Platform poses from actuated joints: lengths (N, 3) m, thetas (N, 3) rad.
 
     Solves the closure equations |B_i(φ_i) − B_j(φ_j)|² = |b_i − b_j|² (seed 000 eq. 14) for the
-    passive φ by batched Newton with the analytic Jacobian, started from ``phi0`` ((3,) or
-    (N, 3) rad; branch continuity) or from home, to ``tolerance`` in side length (m). The pose
-    follows from the three B_i by an exact rigid construction. A pose that does not converge,
-    or lands on the mirrored assembly branch, has converged = False and NaN position and
-    quaternion: it is never returned as a pose.
+    passive φ by Newton with the analytic Jacobian, started from ``phi0`` ((3,) or (N, 3) rad;
+    branch continuity) or from home, to ``tolerance`` in side length (m). The pose follows from
+    the three B_i by an exact rigid construction. A pose that does not converge, or lands on the
+    mirrored assembly branch, has converged = False and NaN position and quaternion: it is never
+    returned as a pose.
     """
     lengths_arr = as_vectors(lengths, 3, 'lengths')
     thetas_arr = as_vectors(thetas, 3, 'thetas')
@@ -144,145 +145,171 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
     if np.any(lengths_arr <= 0.0):
         i = int(np.flatnonzero((lengths_arr <= 0.0).any(axis=1))[0])
         raise InputError(f'lengths[{i}] = {lengths_arr[i].tolist()}: leg lengths must be > 0 m')
+    if not (np.isfinite(tolerance) and tolerance > 0.0):
+        raise InputError(f'tolerance = {tolerance!r}: must be a finite number > 0 m')
+    if max_iterations < 1:
+        raise InputError(f'max_iterations = {max_iterations}: must be >= 1')
     if phi0 is None:
-        start = np.broadcast_to(_home_phis(mech), (n, 3))
+        start = _home_phis(mech)[None]
     else:
         start = as_vectors(phi0, 3, 'phi0')
         if start.shape[0] not in (1, n):
             raise InputError(f'phi0 has {start.shape[0]} rows, expected 1 or {n}')
-        start = np.broadcast_to(start, (n, 3))
-    phis, points, converged = solve_passive_angles(
-        mech, lengths_arr, thetas_arr, start, tolerance=tolerance, max_iterations=max_iterations)
-    position, rot = _place(_body_frame(mech), points)
-    # The closure equations fix the triangle up to a mirror image: keep the branch whose platform
-    # normal points away from the base, as at home.
-    with np.errstate(invalid='ignore'):
-        converged &= rot[:, 2, 2] > 0.0
-    quaternion = np.full((n, 4), np.nan)
-    quaternion[converged] = quaternion_from_matrix(rot[converged], orthonormal=True)
-    position[~converged] = np.nan
+    constants = _closure_constants(mech)
+    phis = np.empty((n, 3))
+    position = np.empty((n, 3))
+    rot = np.empty((n, 3, 3))
+    converged = np.empty(n, dtype=bool)
+    _forward_kernel(kernel_array(lengths_arr), kernel_array(thetas_arr), kernel_array(start),
+                    *constants, float(tolerance), int(max_iterations), phis, position, rot,
+                    converged)
+    if converged.all():
+        quaternion = quaternion_from_matrix(rot, orthonormal=True)
+    else:
+        quaternion = np.full((n, 4), np.nan)
+        quaternion[converged] = quaternion_from_matrix(rot[converged], orthonormal=True)
     return ForwardResult(position, quaternion, phis, converged)
 
 
-def solve_passive_angles(mech: Mechanism, lengths: FloatArray, thetas: FloatArray,
-                         phi_start: FloatArray, *, tolerance: float = FK_TOLERANCE,
-                         max_iterations: int = 40) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Newton on the closure equations (seed 000 eq. 14) for the passive angles.
-
-    lengths, thetas, phi_start (N, 3) in m and rad. Returns φ (N, 3) rad, the S-joint centres
-    B (N, 3 legs, 3) m at that φ, and converged (N,) (side-length residual ≤ ``tolerance`` m).
-    """
-    side_sq = np.sum((mech.platform_joints[PAIRS_I] - mech.platform_joints[PAIRS_J]) ** 2, axis=1)
-    limit = (2.0 * np.sqrt(side_sq) * tolerance)[:, None]
-    side_sq = side_sq[:, None]
-    n = lengths.shape[0]
-    # Leg-major (3 legs, N) so that every operation runs over contiguous rows; the unknown is
-    # the half-angle tangent τ = tan(φ/2), which makes cos φ and sin φ rational in τ (no trig
-    # inside the loop). B_i = A_i + l sinθ e_t + l cosθ (sin φ e_r + cos φ e_z): the first two
-    # terms do not change while iterating.
-    tau_all = np.tan(0.5 * np.asarray(phi_start, dtype=float)).T.copy()
-    lc_all = (lengths * np.cos(thetas)).T.copy()
-    ls = (lengths * np.sin(thetas)).T
-    erx, ery = mech.radial[:, 0, None], mech.radial[:, 1, None]
-    cx_all = mech.base_joints[:, 0, None] + ls * mech.tangential[:, 0, None]
-    cy_all = mech.base_joints[:, 1, None] + ls * mech.tangential[:, 1, None]
-    az = mech.base_joints[:, 2, None]
-    erx_j, ery_j = erx[PAIRS_J], ery[PAIRS_J]
-    points = np.full((3, 3, n), np.nan)  # (xyz, leg, pose)
-    converged = np.zeros(n, dtype=bool)
-    active = np.arange(n)
-    tau, lc, cx, cy = tau_all, lc_all, cx_all, cy_all
-    for _ in range(max_iterations):
-        t2 = tau * tau
-        w = 1.0 / (1.0 + t2)
-        lw = lc * w
-        lcc = lw - lw * t2  # l cosθ cos φ
-        lcs = 2.0 * tau * lw  # l cosθ sin φ
-        bx = cx + lcs * erx
-        by = cy + lcs * ery
-        bz = az + lcc
-        dx, dy, dz = bx - bx[PAIRS_J], by - by[PAIRS_J], bz - bz[PAIRS_J]
-        residual = dx * dx + dy * dy + dz * dz - side_sq
-        done = np.all(np.abs(residual) <= limit, axis=0)
-        if done.any():
-            idx = active[done]
-            converged[idx] = True
-            tau_all[:, idx] = tau[:, done]
-            points[:, :, idx] = np.stack([bx[:, done], by[:, done], bz[:, done]])
-            keep = ~done
-            active = active[keep]
-            if active.size == 0:
-                break
-            tau, lc, cx, cy, lcc, lcs, w = (v[:, keep] for v in (tau, lc, cx, cy, lcc, lcs, w))
-            dx, dy, dz, residual = dx[:, keep], dy[:, keep], dz[:, keep], residual[:, keep]
-        # ∂B_i/∂τ_i = (l cosθ cos φ e_r − l cosθ sin φ e_z)·dφ/dτ with dφ/dτ = 2/(1 + τ²).
-        # Row k of the Jacobian holds +a_k at column k and −c_k at column k+1, where
-        # a_k = 2 D_k·∂B_k and c_k = 2 D_k·∂B_{k+1}, D_k = B_k − B_{k+1}.
-        w4 = 4.0 * w
-        gr, gz = lcc * w4, lcs * w4
-        a = gr * (dx * erx + dy * ery) - gz * dz
-        c = gr[PAIRS_J] * (dx * erx_j + dy * ery_j) - gz[PAIRS_J] * dz
-        step = _solve_cyclic(a, c, -residual)
-        np.minimum(step, _MAX_STEP, out=step)
-        np.maximum(step, -_MAX_STEP, out=step)
-        tau = tau + step
-        # Drop what diverged (NaN step at a singular Jacobian, or |φ| beyond π/2).
-        lost = ~(np.abs(tau) < 1.0).all(axis=0)
-        if lost.any():
-            tau_all[:, active[lost]] = tau[:, lost]
-            keep = ~lost
-            active = active[keep]
-            tau, lc, cx, cy = tau[:, keep], lc[:, keep], cx[:, keep], cy[:, keep]
-    else:
-        tau_all[:, active] = tau
-    phis = 2.0 * np.arctan(tau_all.T)
-    return phis, points.transpose(2, 1, 0), converged
-
-
-def _solve_cyclic(a: FloatArray, c: FloatArray, r: FloatArray) -> FloatArray:
-    """Solve a_k x_k − c_k x_{k+1} = r_k (k cyclic mod 3) for x, batched (3, N), closed form."""
-    a0, a1, a2 = a
-    c0, c1, c2 = c
-    r0, r1, r2 = r
-    with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
-        inv_det = 1.0 / (a0 * a1 * a2 - c0 * c1 * c2)
-        x0 = (r0 * a1 * a2 + c0 * r1 * a2 + c0 * c1 * r2) * inv_det
-        x1 = (r1 * a2 * a0 + c1 * r2 * a0 + c1 * c2 * r0) * inv_det
-        x2 = (r2 * a0 * a1 + c2 * r0 * a1 + c2 * c0 * r1) * inv_det
-    return np.stack([x0, x1, x2])
-
-
-def _triangle_frame(points: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Centroid (..., 3) and orthonormal frame (..., 3, 3) (columns x, y, z) of three points
-    (..., 3, 3): x along P3 − P2, y toward P1 in the triangle's plane."""
-    centroid = points.mean(axis=-2)
-    x = points[..., 2, :] - points[..., 1, :]
-    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
-    v = points[..., 0, :] - centroid
-    y = v - np.sum(v * x, axis=-1, keepdims=True) * x
-    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
-    return centroid, np.stack([x, y, np.cross(x, y)], axis=-1)
-
-
-def rigid_pose_from_points(body_points: FloatArray,
-                           base_points: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Position (N, 3) and rotation (N, 3, 3) placing three body-frame points (3, 3) on their
-    base-frame images (N, 3, 3); exact for congruent triangles (seed 000 eqs. 15-18)."""
-    return _place(_triangle_frame(body_points), base_points)
+def warm_up() -> None:
+    """Compile the forward-kinematics kernel now, or load it from numba's on-disk cache (about a
+    second the first time on a machine, milliseconds after): a node calls this while starting,
+    so that its first :func:`forward` in operation does not pause for it."""
+    mech = Mechanism.default()
+    home = _inverse_validated(mech, mech.home_position[None], mech.home_quaternion[None])
+    forward(mech, home.lengths, home.thetas)
 
 
 @functools.lru_cache(maxsize=64)
-def _body_frame(mech: Mechanism) -> tuple[FloatArray, FloatArray]:
-    """Centroid and frame of the platform's S-joint triangle (constant per mechanism)."""
-    return _triangle_frame(mech.platform_joints)
+def _closure_constants(mech: Mechanism) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray,
+                                                  FloatArray, FloatArray]:
+    """What the forward kernel needs of a mechanism, as contiguous arrays: A_i, e_r,i, e_t,i
+    (3, 3) m and unit, squared platform side lengths |b_i − b_{i+1}|² (3,) m², and the
+    centroid (3,) m and frame (3, 3) of the platform's S-joint triangle."""
+    b = mech.platform_joints
+    side_sq = np.sum((b - np.roll(b, -1, axis=0)) ** 2, axis=1)
+    body_centroid, body_frame = np.empty(3), np.empty((3, 3))
+    _triangle_frame(kernel_array(b), body_centroid, body_frame)
+    base, radial, tangential = (kernel_array(a)
+                                for a in (mech.base_joints, mech.radial, mech.tangential))
+    return base, radial, tangential, side_sq, body_centroid, body_frame
 
 
-def _place(body: tuple[FloatArray, FloatArray],
-           base_points: FloatArray) -> tuple[FloatArray, FloatArray]:
-    c_body, f_body = body
-    c_base, f_base = _triangle_frame(base_points)
-    rot = f_base @ f_body.T
-    return c_base - rot @ c_body, rot
+@kernel
+def _forward_kernel(lengths: FloatArray, thetas: FloatArray, start: FloatArray,
+                    base: FloatArray, radial: FloatArray, tangential: FloatArray,
+                    side_sq: FloatArray, body_centroid: FloatArray, body_frame: FloatArray,
+                    tolerance: float, max_iterations: int, phis: FloatArray,
+                    position: FloatArray, rot: FloatArray, converged: BoolArray) -> None:
+    """Forward kinematics of N poses into ``phis`` (N, 3), ``position`` (N, 3), ``rot``
+    (N, 3, 3), ``converged`` (N,); ``start`` holds one or N rows of starting φ (rad)."""
+    n = lengths.shape[0]
+    one_start = start.shape[0] == 1
+    tau, w, lc, lcc, lcs = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    fixed, points = np.empty((3, 3)), np.empty((3, 3))
+    residual, limit, a, c = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    centroid, frame = np.empty(3), np.empty((3, 3))
+    for k in range(3):
+        limit[k] = 2.0 * np.sqrt(side_sq[k]) * tolerance
+    tau_start = np.tan(0.5 * start[0])
+    for s in range(n):
+        if not one_start:
+            for i in range(3):
+                tau_start[i] = np.tan(0.5 * start[s, i])
+        # The unknown is the half-angle tangent τ = tan(φ/2): cos φ and sin φ are rational in τ,
+        # no trigonometry inside the iteration. B_i = A_i + l sinθ e_t + l cosθ (sinφ e_r +
+        # cosφ e_z) (design/kinematics.md); the first two terms do not change while iterating.
+        for i in range(3):
+            tau[i] = tau_start[i]
+            lc[i] = lengths[s, i] * np.cos(thetas[s, i])
+            ls = lengths[s, i] * np.sin(thetas[s, i])
+            for x in range(3):
+                fixed[i, x] = base[i, x] + ls * tangential[i, x]
+        solved = False
+        for iteration in range(max_iterations + 1):
+            for i in range(3):
+                t2 = tau[i] * tau[i]
+                w[i] = 1.0 / (1.0 + t2)  # dφ/dτ = 2w
+                lw = lc[i] * w[i]
+                lcc[i] = lw - lw * t2  # l cosθ cos φ
+                lcs[i] = 2.0 * tau[i] * lw  # l cosθ sin φ
+                for x in range(3):
+                    points[i, x] = fixed[i, x] + lcs[i] * radial[i, x]
+                points[i, 2] += lcc[i]
+            solved = True
+            for k in range(3):
+                j = (k + 1) % 3
+                dx = points[k, 0] - points[j, 0]
+                dy = points[k, 1] - points[j, 1]
+                dz = points[k, 2] - points[j, 2]
+                residual[k] = dx * dx + dy * dy + dz * dz - side_sq[k]
+                solved = solved and abs(residual[k]) <= limit[k]
+                # Jacobian row k of the closure (seed 000 eq. 14): +a_k at column k, −c_k at
+                # column k+1, a_k = 2 D_k·∂B_k/∂τ_k, c_k = 2 D_k·∂B_{k+1}/∂τ_{k+1}, D_k = B_k −
+                # B_{k+1}, ∂B_i/∂τ_i = (l cosθ cos φ e_r − l cosθ sin φ e_z)·2/(1 + τ_i²).
+                a[k] = 4.0 * w[k] * (
+                    lcc[k] * (dx * radial[k, 0] + dy * radial[k, 1] + dz * radial[k, 2])
+                    - lcs[k] * dz)
+                c[k] = 4.0 * w[j] * (
+                    lcc[j] * (dx * radial[j, 0] + dy * radial[j, 1] + dz * radial[j, 2])
+                    - lcs[j] * dz)
+            if solved or iteration == max_iterations:
+                break
+            # a_k x_k − c_k x_{k+1} = −residual_k, k cyclic: closed form (Cramer's rule).
+            inv_det = 1.0 / (a[0] * a[1] * a[2] - c[0] * c[1] * c[2])
+            r0, r1, r2 = -residual[0], -residual[1], -residual[2]
+            step0 = (r0 * a[1] * a[2] + c[0] * r1 * a[2] + c[0] * c[1] * r2) * inv_det
+            step1 = (r1 * a[2] * a[0] + c[1] * r2 * a[0] + c[1] * c[2] * r0) * inv_det
+            step2 = (r2 * a[0] * a[1] + c[2] * r0 * a[1] + c[2] * c[0] * r1) * inv_det
+            # Bounded steps keep the iteration on the branch it starts on; a NaN step (singular
+            # Jacobian) or |φ| beyond π/2 ends it unsolved.
+            tau[0] += min(max(step0, -_MAX_STEP), _MAX_STEP)
+            tau[1] += min(max(step1, -_MAX_STEP), _MAX_STEP)
+            tau[2] += min(max(step2, -_MAX_STEP), _MAX_STEP)
+            if not (abs(tau[0]) < 1.0 and abs(tau[1]) < 1.0 and abs(tau[2]) < 1.0):
+                break
+        for i in range(3):
+            phis[s, i] = 2.0 * np.arctan(tau[i])
+        if solved:
+            _triangle_frame(points, centroid, frame)
+            # R = F_base·F_bodyᵀ maps the body triangle's frame onto the base one; p = c − R·c_b.
+            for x in range(3):
+                for y in range(3):
+                    rot[s, x, y] = (frame[x, 0] * body_frame[y, 0]
+                                    + frame[x, 1] * body_frame[y, 1]
+                                    + frame[x, 2] * body_frame[y, 2])
+            for x in range(3):
+                position[s, x] = centroid[x] - (rot[s, x, 0] * body_centroid[0]
+                                                + rot[s, x, 1] * body_centroid[1]
+                                                + rot[s, x, 2] * body_centroid[2])
+            # The closure fixes the triangle up to a mirror image: keep the branch whose
+            # platform normal points away from the base, as at home.
+            solved = rot[s, 2, 2] > 0.0
+        converged[s] = solved
+        if not solved:
+            position[s] = np.nan
+            rot[s] = np.nan
+
+
+@kernel
+def _triangle_frame(points: FloatArray, centroid: FloatArray, frame: FloatArray) -> None:
+    """Centroid (3,) and orthonormal frame (3, 3) (columns x, y, z) of three points (3, 3) m:
+    x along P3 − P2, y toward P1 in the triangle's plane (seed 000 eqs. 15-18)."""
+    for i in range(3):
+        centroid[i] = (points[0, i] + points[1, i] + points[2, i]) / 3.0
+    x0 = points[2, 0] - points[1, 0]
+    x1 = points[2, 1] - points[1, 1]
+    x2 = points[2, 2] - points[1, 2]
+    norm = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    x0, x1, x2 = x0 / norm, x1 / norm, x2 / norm
+    v0, v1, v2 = points[0, 0] - centroid[0], points[0, 1] - centroid[1], points[0, 2] - centroid[2]
+    along = v0 * x0 + v1 * x1 + v2 * x2
+    y0, y1, y2 = v0 - along * x0, v1 - along * x1, v2 - along * x2
+    norm = np.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+    y0, y1, y2 = y0 / norm, y1 / norm, y2 / norm
+    frame[0, 0], frame[1, 0], frame[2, 0] = x0, x1, x2
+    frame[0, 1], frame[1, 1], frame[2, 1] = y0, y1, y2
+    frame[0, 2], frame[1, 2], frame[2, 2] = x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0
 
 
 def inverse_jacobian(mech: Mechanism, position: ArrayLike,

@@ -159,3 +159,42 @@ def test_forward_bad_input() -> None:
         kinematics.forward(MECH, [0.2, -0.2, 0.2], [0, 0, 0])
     with pytest.raises(InputError, match='not finite'):
         kinematics.forward(MECH, [0.2, np.nan, 0.2], [0, 0, 0])
+    with pytest.raises(InputError, match='tolerance'):
+        kinematics.forward(MECH, [0.2, 0.2, 0.2], [0, 0, 0], tolerance=0.0)
+    with pytest.raises(InputError, match='max_iterations'):
+        kinematics.forward(MECH, [0.2, 0.2, 0.2], [0, 0, 0], max_iterations=0)
+
+
+def test_forward_takes_any_array_layout_with_one_compiled_kernel() -> None:
+    """Read-only, strided and Fortran-ordered inputs give the very poses plain arrays give, and
+    the compiled kernel is never specialised again for them (no compile pause in a node)."""
+    p, q = random_poses(50, np.random.default_rng(3))
+    joints = kinematics.inverse(MECH, p, q)
+    plain = kinematics.forward(MECH, joints.lengths, joints.thetas, joints.phis + 1e-3)
+    strided = np.repeat(joints.lengths, 2, axis=1)[:, ::2]
+    read_only = joints.thetas.copy()
+    read_only.setflags(write=False)
+    other = kinematics.forward(MECH, strided, read_only, np.asfortranarray(joints.phis + 1e-3))
+    home_start = kinematics.forward(MECH, strided, read_only)
+    for result in (other, home_start):
+        np.testing.assert_array_equal(result.converged, plain.converged)
+        np.testing.assert_allclose(result.position, plain.position, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(other.phis, plain.phis)
+    assert len(kinematics._forward_kernel.signatures) == 1
+
+
+def test_compiled_kernel_computes_what_its_python_source_says() -> None:
+    """The kernel run as plain Python (numba's py_func) and compiled agree: compilation changes
+    speed, not results."""
+    p, q = random_poses(20, np.random.default_rng(4))
+    joints = kinematics.inverse(MECH, p, q)
+    n = len(p)
+    outputs = []
+    for run in (kinematics._forward_kernel, kinematics._forward_kernel.py_func):
+        out = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3, 3)), np.empty(n, dtype=bool))
+        run(joints.lengths.copy(), joints.thetas.copy(), kinematics.home_phis(MECH)[None],
+            *kinematics._closure_constants(MECH), kinematics.FK_TOLERANCE, 40, *out)
+        outputs.append(out)
+    for compiled, interpreted in zip(*outputs, strict=True):
+        np.testing.assert_allclose(compiled, interpreted, rtol=0, atol=1e-15)
+    assert outputs[0][3].all()

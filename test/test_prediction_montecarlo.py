@@ -6,10 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy import stats
+from scipy.spatial.transform import Rotation
 
 from positioning_cell.errors import InputError
 from positioning_cell.mechanism import Mechanism
 from positioning_cell.prediction.montecarlo import (
+    _rotation_from_rotvec,
+    _sin_cos_small,
     compare,
     estimate_yield,
     inside_requirement,
@@ -72,9 +75,11 @@ def test_yield_equals_an_independent_brute_force_count() -> None:
 
 
 def _same_draws(spec: ToleranceSpec, n: int, seed: int, chunk: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
+    """The samples monte_carlo draws: chunk k from the k-th generator spawned from the seed."""
+    starts = range(0, n, chunk)
+    streams = np.random.default_rng(seed).spawn(len(starts))
     return np.concatenate([draw_sources(spec, min(chunk, n - s), rng)
-                           for s in range(0, n, chunk)])
+                           for s, rng in zip(starts, streams, strict=True)])
 
 
 def test_monte_carlo_stays_within_worst_case_and_matches_linear_sigma() -> None:
@@ -100,7 +105,46 @@ def test_bad_inputs_are_refused() -> None:
     spec = shipped_spec()
     with pytest.raises(InputError, match='n_samples'):
         monte_carlo(MECH, spec, P, Q, 0, np.random.default_rng(0))
+    with pytest.raises(InputError, match='workers'):
+        monte_carlo(MECH, spec, P, Q, 10, np.random.default_rng(0), workers=0)
     with pytest.raises(InputError, match='no samples'):
         estimate_yield(np.zeros(0, dtype=bool))
     with pytest.raises(InputError, match='confidence'):
         estimate_yield(np.ones(3, dtype=bool), confidence=1.5)
+
+
+def test_result_depends_on_the_generator_and_chunk_never_on_the_threads() -> None:
+    spec = shipped_spec()
+    runs = [monte_carlo(MECH, spec, P, Q, 3000, np.random.default_rng(9), chunk=256,
+                        workers=w) for w in (1, 3)]
+    np.testing.assert_array_equal(runs[0].deviations, runs[1].deviations)
+    np.testing.assert_array_equal(runs[0].linear, runs[1].linear)
+    other = monte_carlo(MECH, spec, P, Q, 3000, np.random.default_rng(10), chunk=256)
+    assert not np.array_equal(other.deviations, runs[0].deviations)
+
+
+def test_linear_part_is_the_sensitivity_matrix_times_the_draws() -> None:
+    spec = shipped_spec()
+    result = monte_carlo(MECH, spec, P, Q, 500, np.random.default_rng(6), chunk=200)
+    x = _same_draws(spec, 500, 6, 200)
+    matrix = linearise(MECH, spec, P, Q).matrix[0]
+    np.testing.assert_allclose(result.linear, x @ matrix.T, rtol=0, atol=1e-15)
+
+
+def test_compiled_rotation_from_rotation_vector_matches_scipy() -> None:
+    """Rodrigues' formula in the kernel, across its small-angle series and the libm branch."""
+    rng = np.random.default_rng(12)
+    axes = rng.normal(size=(9, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.array([0.0, 1e-12, 1e-6, 1e-3, 0.049999, 0.050001, 0.3, 2.0, 3.1])
+    out = np.empty((3, 3))
+    for w in axes * angles[:, None]:
+        _rotation_from_rotvec(w[0], w[1], w[2], out)
+        np.testing.assert_allclose(out, Rotation.from_rotvec(w).as_matrix(), rtol=0, atol=1e-15)
+
+
+def test_compiled_small_angle_sine_and_cosine_match_libm() -> None:
+    for d in np.concatenate([np.linspace(-0.2, 0.2, 4001), [-0.05, 0.05, 1e-300, 0.0]]):
+        sin_d, cos_d = _sin_cos_small(d)
+        assert abs(sin_d - np.sin(d)) <= 2e-17 + 1e-16 * abs(d)
+        assert abs(cos_d - np.cos(d)) <= 2.3e-16

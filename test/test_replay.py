@@ -45,7 +45,7 @@ def test_the_live_monitor_fed_by_the_player_reports_the_offline_figures(tmp_path
         group.start('accuracy_monitor_node')
         client.call(Trigger, '/accuracy_monitor/report', Trigger.Request())  # it is up
         player = group.start('bag_player_node', overrides={'bag_player': {
-            'bag': str(bag), 'rate': 2.0,
+            'bag': str(bag), 'rate': 2.0, 'wait_for_subscribers_s': 20.0,
             'topics': [TARGET_TOPIC, MEASURED_TOPIC, TRUTH_TOPIC]}})
         assert player.wait(timeout=60.0) == 0, group.log('bag_player_node')
 

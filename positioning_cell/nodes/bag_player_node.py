@@ -43,7 +43,7 @@ SPECS = [
     ParamSpec('topics', [''], 'topics to play; empty: every topic of the bag', read_only=True),
     ParamSpec('queue_depth', 1000, 'publisher history of streamed topics, messages', low=1,
               high=1_000_000, read_only=True),
-    ParamSpec('wait_for_subscribers_s', 2.0, 'wait up to this long for every topic to have a '
+    ParamSpec('wait_for_subscribers_s', 5.0, 'wait up to this long for every topic to have a '
               'subscriber before playing, s', low=0.0, high=600.0, read_only=True),
 ]
 ACK_TIMEOUT_S = 5.0
@@ -88,6 +88,10 @@ class BagPlayerNode(Node):
                and time.monotonic() < deadline):
             if self._stop.wait(0.02):
                 return
+        missing = [t for t, pub in self._outputs.items() if pub.get_subscription_count() == 0]
+        if missing:
+            log.warning(f'no subscriber after {self.params["wait_for_subscribers_s"]} s on '
+                        f'{", ".join(missing)}: playing anyway')
         try:
             while not self._stop.is_set():
                 count = play(self._reader.raw_messages(self._topics, self._timing.origin_ns),

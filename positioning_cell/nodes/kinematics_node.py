@@ -100,6 +100,7 @@ class Positioner(Node):
         super().__init__('positioner')
         self.params = Parameters(self, SPECS, validate=self._model_from)
         self.mech = mechanism_from(self.params.values)
+        kinematics.warm_up()  # compiled FK ready before the first command
         self.model = self._model_from(self.params.values)
         self.cond = threading.Condition()
         self.busy = threading.Lock()

@@ -105,6 +105,7 @@ class LegDriverNode(Node):
         values = self.params.values
         self.settings, encoder = settings_from_params(values)
         mech = mechanism_from(values)
+        kinematics.warm_up()  # compiled FK ready before the first command
         home = kinematics.inverse(mech, mech.home_position, mech.home_quaternion)
         start = (np.concatenate([home.lengths[0], home.thetas[0]]) if values['initial_at_home']
                  else np.asarray(values['initial_positions'], dtype=float))

@@ -18,6 +18,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 
+from positioning_cell import kinematics
 from positioning_cell.errors import ConvergenceError, InputError
 from positioning_cell.mechanism import JOINT_NAMES
 from positioning_cell.metrology import (
@@ -106,6 +107,7 @@ class PoseMeasurementNode(Node):
         super().__init__(NAME)
         self._params = Parameters(self, _specs(), validate=check, on_change=self._configure)
         self._setup = Simulation.from_params(self._params.values)
+        kinematics.warm_up()  # compiled FK ready before the first truth update
         self._rng = np.random.default_rng(self._params['seed'])
         self._latest: tuple[np.ndarray, Any] | None = None  # joints (6,), stamp
         self._joints = np.full(6, np.nan)  # joints of the current truth (NaN: none)
