@@ -155,6 +155,10 @@ def test_accuracy_monitor_node(tmp_path: Any) -> None:
                             and node.count_publishers('/diagnostics') > 0), 20.0,
                    'discovery of accuracy_monitor')
         assert cell.report()['target'] is None
+        # The monitor's own view: every input has matched this client's publisher.
+        inputs = ('/positioner/target', '/metrology/pose', '/sim/platform/true_pose')
+        wait_until(lambda: all(cell.report()['publishers'][t] == 1 for t in inputs), 20.0,
+                   'the monitor to match the three input publishers')
 
         for name in ('A', 'B', 'A', 'B'):
             cell.visit(name)

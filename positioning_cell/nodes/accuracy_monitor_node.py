@@ -105,12 +105,13 @@ class AccuracyMonitor(Node):
         self.pub_orientation = self.create_publisher(
             Vector3Stamped, '/accuracy/orientation_error', STREAM_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', COMMAND_QOS)
-        self.create_subscription(PoseStamped, '/positioner/target', self._on_target,
-                                 LATCHED_QOS)
-        self.create_subscription(PoseWithCovarianceStamped, '/metrology/pose',
-                                 self._on_measured, STREAM_QOS)
-        self.create_subscription(PoseStamped, '/sim/platform/true_pose', self._on_truth,
-                                 STREAM_QOS)
+        self.inputs = {
+            '/positioner/target': self.create_subscription(
+                PoseStamped, '/positioner/target', self._on_target, LATCHED_QOS),
+            '/metrology/pose': self.create_subscription(
+                PoseWithCovarianceStamped, '/metrology/pose', self._on_measured, STREAM_QOS),
+            '/sim/platform/true_pose': self.create_subscription(
+                PoseStamped, '/sim/platform/true_pose', self._on_truth, STREAM_QOS)}
         self.create_service(Trigger, '/accuracy_monitor/report', self._report)
         self.create_service(Trigger, '/accuracy_monitor/reset', self._reset)
 
@@ -186,6 +187,9 @@ class AccuracyMonitor(Node):
             'measured': self.measured.result().to_dict(),
             'truth': self.truth.result().to_dict() if self.truth_seen else None,
             'tracker': None if stats is None else stats.to_dict(),
+            # Publishers each input subscription has matched: a driver waits for these before
+            # the first command, so that no early message reaches the monitor out of order.
+            'publishers': {t: sub.get_publisher_count() for t, sub in self.inputs.items()},
         }
         response.success = True
         response.message = json.dumps(doc)

@@ -59,6 +59,7 @@ CELL_NODES = (
 RECORDED = ('/positioner/target', '/metrology/pose', '/sim/platform/true_pose', '/diagnostics',
             PROGRAM_TOPIC)
 MONITORED = ('/positioner/target', '/metrology/pose')
+MONITOR_INPUTS = (*MONITORED, '/sim/platform/true_pose')
 VERDICT_STATUS = 'accuracy_monitor: settled pose'
 # Usable domain IDs (platform.md): 1-101 and 215-232 (0 is everyone's default). The lock
 # files are those of test/cell_harness.py, so runs and tests never share a domain.
@@ -338,6 +339,14 @@ def _start(procs: Processes, driver: Driver, config: Path, overrides: Path,
     _wait(up(lambda: all(driver.subscribed(t, 'recorder') for t in RECORDED)
              and all(driver.subscribed(t, 'accuracy_monitor') for t in MONITORED)), 60.0,
           'the recorder and the monitor to subscribe')
+    # The monitor's own subscriptions must have matched the publishers (the graph above shows
+    # only that they exist): a first target matched late would reach it after the tracker
+    # samples that follow it, and the live figures of the first visit would differ from the
+    # offline analysis of the bag.
+    _wait(up(lambda: all(driver.report()['publishers'].get(t, 0) > 0
+                         for t in MONITOR_INPUTS)), 60.0,
+          'the monitor to match the target, tracker and truth publishers')
+
     def ready() -> bool:
         return driver.plan('/positioner/check_pose', program.position[0],
                            program.quaternion[0], 0.0, 30.0)
