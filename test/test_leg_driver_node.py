@@ -133,11 +133,13 @@ def test_follows_a_trajectory_and_publishes_encoders_and_truth(cell: Cell) -> No
     # It moved through intermediate positions (a trajectory, not a jump).
     path = np.array([m.position for m in list(cell.truth)])
     assert ((path[:, 0] > goal[0] - 0.9 * MOVE[0]) & (path[:, 0] < goal[0] - 0.1 * MOVE[0])).any()
-    # Publication rate from the header stamps (200 Hz nominal; this VM's timers jitter).
+    # Publication rate from the header stamps (200 Hz nominal; this VM's timers jitter, and a
+    # stall of the shared VM can hold up this test's subscriber: the median interval is the
+    # rate, not the mean over a gap).
     stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
                        for m in list(cell.states)])
     assert stamps[-1] - stamps[0] > 0.5
-    assert (len(stamps) - 1) / (stamps[-1] - stamps[0]) > 100.0
+    assert np.median(np.diff(stamps)) < 1.0 / 100.0
     cell.status(lambda s: s.level == DiagnosticStatus.OK and values(s)['state'] == 'holding',
                 'diagnostics: holding')
 
