@@ -2,7 +2,8 @@
 
 A kernel is a plain Python function over float64 arrays and scalars, compiled by numba to
 machine code on its first call and cached on disk (``__pycache__`` beside the module, or
-numba's user-wide cache where that is read-only), so later processes load it in milliseconds.
+numba's user-wide cache where that is read-only), so later processes load it in a fraction
+of a second instead of compiling for several.
 Kernels are serial (one core), release the GIL, and follow numpy's floating-point rules
 (division by zero gives inf or NaN, never an exception); no fast-math, so results match the
 order of operations written.

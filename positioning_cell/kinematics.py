@@ -172,8 +172,8 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
 
 
 def warm_up() -> None:
-    """Compile the forward-kinematics kernel now, or load it from numba's on-disk cache (about a
-    second the first time on a machine, milliseconds after): a node calls this while starting,
+    """Compile the forward-kinematics kernel now, or load it from numba's on-disk cache (several
+    seconds the first time on a machine, about 0.3 s after): a node calls this while starting,
     so that its first :func:`forward` in operation does not pause for it."""
     mech = Mechanism.default()
     home = _inverse_validated(mech, mech.home_position[None], mech.home_quaternion[None])
