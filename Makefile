@@ -22,7 +22,7 @@ $(STAMP): setup.py setup.cfg package.xml
 	test -x $(UV) || $(PY) -m pip install --quiet --disable-pip-version-check uv==0.13.9
 	$(UV) pip install --quiet --compile-bytecode --python $(PY) -e '.[cell,test]'
 	# Compile the numba kernels once now (cached on disk), not in the first process that needs them.
-	$(PY) -c 'from positioning_cell import kinematics; kinematics.warm_up()'
+	$(PY) -c 'from positioning_cell.core import kinematics; kinematics.warm_up()'
 	touch $(STAMP)
 
 test: $(STAMP)

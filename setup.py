@@ -31,6 +31,7 @@ CELL = [
     'llvmlite==0.50.0',
     'PyYAML==6.0.3',
     'rosbags==0.11.9',
+    'ruamel.yaml==0.19.1',
     'mcap==1.6.0',
     'mcap-ros2-support==0.6.0',
     'matplotlib==3.11.2',
@@ -55,10 +56,13 @@ setup(
         (f'share/{PACKAGE}/config', glob('config/*.yaml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.py')),
     ],
-    # Kept loose so that a ROS install's system numpy / scipy / yaml satisfy it; the exact
-    # versions this project tests with are the `cell` extra.
+    # Every third-party runtime import (test/test_dependencies.py checks it against the code),
+    # kept loose so that a ROS install's system packages satisfy it; the exact versions this
+    # project tests with are the `cell` extra. ROS 2 itself (rclpy, the message packages)
+    # comes from the ROS install or the `cell` extra's wheels.
     install_requires=['setuptools', 'numpy>=1.25', 'scipy>=1.11', 'numba>=0.59',
-                      'PyYAML>=6'],
+                      'PyYAML>=6', 'rosbags>=0.10', 'ruamel.yaml>=0.17', 'mcap>=1.1',
+                      'matplotlib>=3.6'],
     extras_require={'cell': CELL, 'test': TEST},
     zip_safe=True,
     maintainer='positioning_cell developers',

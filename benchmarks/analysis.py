@@ -2,7 +2,7 @@
 2-core VMs; see platform.md).
 
 The bag is a long synthetic cell run written with rosbags' writer
-(positioning_cell.analysis.synthetic): the ISO cube's five poses visited under the three
+(positioning_cell.testing.synthetic_run): the ISO cube's five poses visited under the three
 compensation modes, a move every 2.5 s, the tracker at 20 Hz with the true pose at the same
 stamps, the program steps and the positioner's mode diagnostics, and /legs/joint_states
 filler so that the analysed topics are the share of the messages they are in a recorded run
@@ -28,7 +28,7 @@ import numpy as np
 
 from positioning_cell.analysis.reading import read_bag
 from positioning_cell.analysis.replay import OPTIONAL_TOPICS, REQUIRED_TOPICS
-from positioning_cell.analysis.synthetic import synthetic_run, write_run_bag
+from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 from positioning_cell.tools.analyze_bag import analyze
 
 POSITIONS = np.array([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2], [-0.004, -0.004, 0.2],

@@ -15,8 +15,9 @@ import time
 
 import numpy as np
 
-from positioning_cell import clearance, kinematics
-from positioning_cell.mechanism import Mechanism
+from positioning_cell import clearance
+from positioning_cell.core import kinematics
+from positioning_cell.core.mechanism import Mechanism
 
 
 def main() -> int:

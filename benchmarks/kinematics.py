@@ -16,9 +16,9 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from positioning_cell import kinematics
-from positioning_cell.kinematics_reference import reference_forward
-from positioning_cell.mechanism import Mechanism
+from positioning_cell.core import kinematics
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.testing.reference_kinematics import reference_forward
 
 MECH = Mechanism.default()
 

@@ -24,8 +24,8 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from positioning_cell.compiled import available_cpus
-from positioning_cell.mechanism import Mechanism
+from positioning_cell.core.compiled import available_cpus
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.prediction.montecarlo import monte_carlo, per_sample_deviations
 from positioning_cell.prediction.sensitivity import linearise
 from positioning_cell.prediction.sources import ToleranceSpec, draw_sources, load_tolerance_spec

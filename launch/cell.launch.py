@@ -11,13 +11,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
-
-CELL_NODES = [
-    ('kinematics_node', 'positioner'),
-    ('leg_driver_node', 'leg_driver'),
-    ('pose_measurement_node', 'pose_measurement'),
-    ('accuracy_monitor_node', 'accuracy_monitor'),
-]
+from positioning_cell.names import CELL_NODES, RECORDER
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -26,8 +20,8 @@ def generate_launch_description() -> LaunchDescription:
     params = LaunchConfiguration('params_file')
     nodes = [Node(package='positioning_cell', executable=exe, name=name, output='screen',
                   parameters=[params]) for exe, name in CELL_NODES]
-    nodes.append(Node(package='positioning_cell', executable='recorder_node', name='recorder',
-                      output='screen', parameters=[params],
+    nodes.append(Node(package='positioning_cell', executable=RECORDER.executable,
+                      name=RECORDER.name, output='screen', parameters=[params],
                       condition=IfCondition(LaunchConfiguration('record'))))
     return LaunchDescription([
         DeclareLaunchArgument('params_file', default_value=default_params,

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from positioning_cell.limits import LimitReport
+    from positioning_cell.core.limits import LimitReport
 
 
 class PositioningError(Exception):

@@ -5,8 +5,11 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, settings
 
 _TMP = Path(os.environ.get('POSITIONING_CELL_TEST_TMP', tempfile.gettempdir())) / (
@@ -22,3 +25,13 @@ os.environ.pop('RMW_IMPLEMENTATION', None)
 settings.register_profile('ci', derandomize=True, deadline=None, max_examples=150,
                           suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile('ci')
+
+
+@pytest.fixture
+def ros() -> Iterator[Any]:
+    """The in-process tier's rclpy context: nodes built in the test process on a private
+    domain (cell_harness.InProcess), all stopped at the end."""
+    from cell_harness import in_process
+
+    with in_process() as context:
+        yield context

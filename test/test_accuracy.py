@@ -343,14 +343,17 @@ def test_verdicts_at_the_tolerance_boundary() -> None:
 @pytest.mark.parametrize('kwargs', [{'position': 0.0}, {'position': -1e-5},
                                     {'orientation': math.nan}, {'orientation': math.inf}])
 def test_bad_tolerances_are_refused(kwargs: dict[str, float]) -> None:
-    with pytest.raises(ConfigError, match='tolerance'):
+    name = next(iter(kwargs))
+    with pytest.raises(ConfigError, match=f'{name} = .*: must be '):
         acc.Tolerances(**kwargs)
 
 
 # -- bad input -------------------------------------------------------------------------------
 @pytest.mark.parametrize('kwargs, match', [
-    ({'window': 0.0}, 'settle.window'), ({'dwell': -1.0}, 'settle.dwell'),
-    ({'min_samples': 1}, 'min_samples'), ({'position_threshold': math.nan}, 'threshold'),
+    ({'window': 0.0}, r'window = 0.0: must be in \(0, 60\] s'),
+    ({'dwell': -1.0}, r'dwell = -1.0: must be in \[0, 600\] s'),
+    ({'min_samples': 1}, r'min_samples = 1: must be in \[2, 100000\]'),
+    ({'position_threshold': math.nan}, 'position_threshold = nan: must be finite'),
 ])
 def test_bad_settle_settings_are_refused(kwargs: dict[str, float], match: str) -> None:
     with pytest.raises(ConfigError, match=match):

@@ -1,6 +1,6 @@
-"""accuracy_monitor_node as its own process: error topics, settled-pose verdicts on /diagnostics,
-the report equal to the library's batch analysis of the same samples, reset, and validated
-tolerance parameters."""
+"""The accuracy_monitor node in the test process: error topics, settled-pose verdicts on
+/diagnostics, the report equal to the library's batch analysis of the same samples, reset, and
+validated tolerance parameters."""
 
 from __future__ import annotations
 
@@ -10,17 +10,18 @@ from typing import Any
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
-from cell_harness import CELL_YAML, Client, ProcessGroup, isolated_domain, wait_until
+from cell_harness import CELL_YAML, Client, InProcess, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, Vector3Stamped
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import GetParameters, SetParameters
+from rcl_interfaces.srv import GetParameters
 from scipy.spatial.transform import Rotation
 from std_srvs.srv import Trigger
 
 from positioning_cell import accuracy as acc
 from positioning_cell.config import load_parameter_file, node_parameters
-from positioning_cell.nodes.common import LATCHED_QOS, STREAM_QOS, pose_msg, pose_stamped
+from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
+from positioning_cell.nodes.messages import pose_msg, pose_stamped
+from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.nodes
 
@@ -59,7 +60,7 @@ class Cell:
                                               STREAM_QOS)
         self.orientation_errors = client.collect(Vector3Stamped, '/accuracy/orientation_error',
                                                  STREAM_QOS)
-        self.diagnostics = client.collect(DiagnosticArray, '/diagnostics', 100)
+        self.diagnostics = client.collect(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
         self.rng = np.random.default_rng(7)
         self.now = 1_000_000_000_000  # ns
         self.clear()
@@ -123,9 +124,7 @@ class Cell:
 
 
 def set_parameter(client: Client, name: str, value: float) -> Any:
-    request = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
-        type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
-    return client.call(SetParameters, '/accuracy_monitor/set_parameters', request).results[0]
+    return client.set_parameter('accuracy_monitor', name, value)
 
 
 def get_parameter(client: Client, name: str) -> float:
@@ -142,105 +141,102 @@ def jsonable(value: Any) -> Any:
     return json.loads(json.dumps(value))
 
 
-def test_accuracy_monitor_node(tmp_path: Any) -> None:
-    with (isolated_domain() as domain, ProcessGroup(domain, tmp_path) as procs,
-          Client(domain) as client):
-        procs.start('accuracy_monitor_node')
-        cell = Cell(client)
-        node = client.node
-        wait_until(lambda: (cell.pub_meas.get_subscription_count() > 0
-                            and cell.pub_target.get_subscription_count() > 0
-                            and cell.pub_truth.get_subscription_count() > 0
-                            and node.count_publishers('/accuracy/position_error') > 0
-                            and node.count_publishers('/diagnostics') > 0), 20.0,
-                   'discovery of accuracy_monitor')
-        assert cell.report()['target'] is None
-        # The monitor's own view: every input has matched this client's publisher.
-        inputs = ('/positioner/target', '/metrology/pose', '/sim/platform/true_pose')
-        wait_until(lambda: all(cell.report()['publishers'][t] == 1 for t in inputs), 20.0,
-                   'the monitor to match the three input publishers')
+def test_accuracy_monitor_node(ros: InProcess) -> None:
+    client = ros.client
+    ros.start(AccuracyMonitorNode)
+    cell = Cell(client)
+    node = client.node
+    wait_until(lambda: (cell.pub_meas.get_subscription_count() > 0
+                        and cell.pub_target.get_subscription_count() > 0
+                        and cell.pub_truth.get_subscription_count() > 0
+                        and node.count_publishers('/accuracy/position_error') > 0
+                        and node.count_publishers('/diagnostics') > 0), 20.0,
+               'discovery of accuracy_monitor')
+    assert cell.report()['target'] is None
+    # The monitor's own view: every input has matched this client's publisher.
+    inputs = ('/positioner/target', '/metrology/pose', '/sim/platform/true_pose')
+    wait_until(lambda: all(cell.report()['publishers'][t] == 1 for t in inputs), 20.0,
+               'the monitor to match the three input publishers')
 
-        for name in ('A', 'B', 'A', 'B'):
-            cell.visit(name)
+    for name in ('A', 'B', 'A', 'B'):
+        cell.visit(name)
 
-        # Error topics: one per measurement, equal to the library's error against the target.
-        wait_until(lambda: len(cell.orientation_errors) >= len(cell.meas), 10.0,
-                   'the orientation errors')
-        assert len(cell.position_errors) == len(cell.meas)
-        t, p, q = (np.array(x) for x in zip(*cell.meas, strict=True))
-        tt, tp, tq = (np.array(x) for x in zip(*cell.targets, strict=True))
-        seg = np.searchsorted(tt, t, side='right') - 1
-        dp, rv = acc.measurement_error(p, q, tp[seg], tq[seg])
-        got_dp = [[m.vector.x, m.vector.y, m.vector.z] for m in cell.position_errors]
-        got_rv = [[m.vector.x, m.vector.y, m.vector.z] for m in cell.orientation_errors]
-        np.testing.assert_allclose(got_dp, dp, rtol=0, atol=1e-15)
-        np.testing.assert_allclose(got_rv, rv, rtol=0, atol=1e-15)
-        assert all(m.header.frame_id == 'base' for m in cell.position_errors)
-        # At rest the position error is the offset (noise 3 µm per axis).
-        np.testing.assert_allclose(got_dp[-1], OFFSETS['B'], atol=15e-6)
+    # Error topics: one per measurement, equal to the library's error against the target.
+    wait_until(lambda: len(cell.orientation_errors) >= len(cell.meas), 10.0,
+               'the orientation errors')
+    assert len(cell.position_errors) == len(cell.meas)
+    t, p, q = (np.array(x) for x in zip(*cell.meas, strict=True))
+    tt, tp, tq = (np.array(x) for x in zip(*cell.targets, strict=True))
+    seg = np.searchsorted(tt, t, side='right') - 1
+    dp, rv = acc.measurement_error(p, q, tp[seg], tq[seg])
+    got_dp = [[m.vector.x, m.vector.y, m.vector.z] for m in cell.position_errors]
+    got_rv = [[m.vector.x, m.vector.y, m.vector.z] for m in cell.orientation_errors]
+    np.testing.assert_allclose(got_dp, dp, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(got_rv, rv, rtol=0, atol=1e-15)
+    assert all(m.header.frame_id == 'base' for m in cell.position_errors)
+    # At rest the position error is the offset (noise 3 µm per axis).
+    np.testing.assert_allclose(got_dp[-1], OFFSETS['B'], atol=15e-6)
 
-        # One verdict per settled pose: A within tolerance, B (80 µm) outside.
-        verdicts = wait_until(lambda: (v := statuses(cell, 'accuracy_monitor: settled pose'))
-                              and len(v) >= 4 and v, 10.0, 'four verdicts')
-        assert [s.level for s in verdicts] == [DiagnosticStatus.OK, DiagnosticStatus.ERROR] * 2
-        assert 'pose 1 cycle 2' in verdicts[3].message and 'µm' in verdicts[3].message
-        values = {kv.key: kv.value for kv in verdicts[3].values}
-        assert float(values['position_error_um']) == pytest.approx(80.0, abs=10.0)
-        assert values['n'] == '2' and values['RP_l_um'] != 'n/a'
+    # One verdict per settled pose: A within tolerance, B (80 µm) outside.
+    verdicts = wait_until(lambda: (v := statuses(cell, 'accuracy_monitor: settled pose'))
+                          and len(v) >= 4 and v, 10.0, 'four verdicts')
+    assert [s.level for s in verdicts] == [DiagnosticStatus.OK, DiagnosticStatus.ERROR] * 2
+    assert 'pose 1 cycle 2' in verdicts[3].message and 'µm' in verdicts[3].message
+    values = {kv.key: kv.value for kv in verdicts[3].values}
+    assert float(values['position_error_um']) == pytest.approx(80.0, abs=10.0)
+    assert values['n'] == '2' and values['RP_l_um'] != 'n/a'
 
-        # The report: exactly the library's batch computation on the same samples.
-        report = cell.report()
-        batch = cell.batch(cell.meas)
-        assert [(v.key, v.cycle) for v in batch.visits] == [(0, 1), (1, 1), (0, 2), (1, 2)]
-        assert report['measured'] == jsonable(batch.to_dict())
-        assert report['verdicts'] == {'ok': 2, 'error': 2}
-        assert report['truth'] == jsonable(cell.batch(cell.truth).to_dict())
-        tm, pm, qm = (np.array(x) for x in zip(*cell.meas, strict=True))
-        tt_, pt, qt = (np.array(x) for x in zip(*cell.truth, strict=True))
-        tracker = acc.tracker_errors(tm, pm, qm, tt_, pt, qt, 1e-3)
-        assert tracker is not None and report['tracker'] == jsonable(tracker.to_dict())
-        np.testing.assert_allclose(report['tracker']['mean_position_error'], TRACKER_BIAS,
-                                   atol=2e-6)
-        truth_b = next(f for f in report['truth']['poses'] if f['key'] == 1)
-        assert truth_b['ap_p'] == pytest.approx(
-            float(np.linalg.norm(OFFSETS['B'] - TRACKER_BIAS)), rel=1e-6)
+    # The report: exactly the library's batch computation on the same samples.
+    report = cell.report()
+    batch = cell.batch(cell.meas)
+    assert [(v.key, v.cycle) for v in batch.visits] == [(0, 1), (1, 1), (0, 2), (1, 2)]
+    assert report['measured'] == jsonable(batch.to_dict())
+    assert report['verdicts'] == {'ok': 2, 'error': 2}
+    assert report['truth'] == jsonable(cell.batch(cell.truth).to_dict())
+    tm, pm, qm = (np.array(x) for x in zip(*cell.meas, strict=True))
+    tt_, pt, qt = (np.array(x) for x in zip(*cell.truth, strict=True))
+    tracker = acc.tracker_errors(tm, pm, qm, tt_, pt, qt, 1e-3)
+    assert tracker is not None and report['tracker'] == jsonable(tracker.to_dict())
+    np.testing.assert_allclose(report['tracker']['mean_position_error'], TRACKER_BIAS,
+                               atol=2e-6)
+    truth_b = next(f for f in report['truth']['poses'] if f['key'] == 1)
+    assert truth_b['ap_p'] == pytest.approx(
+        float(np.linalg.norm(OFFSETS['B'] - TRACKER_BIAS)), rel=1e-6)
 
-        # A bad message is refused with a reason on /diagnostics; the node keeps running.
-        bad = PoseWithCovarianceStamped()
-        bad.header.frame_id = 'tracker'
-        bad.pose.pose.orientation.w = 1.0
-        cell.pub_meas.publish(bad)
-        warning = wait_until(lambda: statuses(cell, 'accuracy_monitor: input'), 10.0,
-                             'the bad-input warning')
-        assert warning[0].level == DiagnosticStatus.WARN and "'tracker'" in warning[0].message
+    # A bad message is refused with a reason on /diagnostics; the node keeps running.
+    bad = PoseWithCovarianceStamped()
+    bad.header.frame_id = 'tracker'
+    bad.pose.pose.orientation.w = 1.0
+    cell.pub_meas.publish(bad)
+    warning = wait_until(lambda: statuses(cell, 'accuracy_monitor: input'), 10.0,
+                         'the bad-input warning')
+    assert warning[0].level == DiagnosticStatus.WARN and "'tracker'" in warning[0].message
 
-        # Reset clears the figures but keeps the current target.
-        response = client.call(Trigger, '/accuracy_monitor/reset', Trigger.Request())
-        assert response.success
-        report = cell.report()
-        assert report['measured'] == {'visits': [], 'poses': []}
-        assert report['verdicts'] == {'ok': 0, 'error': 0}
-        assert report['truth'] is None and report['tracker'] is None
-        assert report['target']['time'] == cell.targets[-1][0]
+    # Reset clears the figures but keeps the current target.
+    response = client.call(Trigger, '/accuracy_monitor/reset', Trigger.Request())
+    assert response.success
+    report = cell.report()
+    assert report['measured'] == {'visits': [], 'poses': []}
+    assert report['verdicts'] == {'ok': 0, 'error': 0}
+    assert report['truth'] is None and report['tracker'] is None
+    assert report['target']['time'] == cell.targets[-1][0]
 
-        # Tolerances are validated dynamic parameters.
-        refused = set_parameter(client, 'tolerance.position', -1e-5)
-        assert not refused.successful and refused.reason
-        refused = set_parameter(client, 'settle.window', 2.0)
-        assert not refused.successful and 'read-only' in refused.reason.lower()
-        assert get_parameter(client, 'tolerance.position') == 5e-5
-        assert set_parameter(client, 'tolerance.position', 1e-4).successful
-        assert cell.report()['tolerances']['position'] == 1e-4
+    # Tolerances are validated dynamic parameters.
+    refused = set_parameter(client, 'tolerance.position', -1e-5)
+    assert not refused.successful and refused.reason
+    refused = set_parameter(client, 'settle.window', 2.0)
+    assert not refused.successful and 'read-only' in refused.reason.lower()
+    assert get_parameter(client, 'tolerance.position') == 5e-5
+    assert set_parameter(client, 'tolerance.position', 1e-4).successful
+    assert cell.report()['tolerances']['position'] == 1e-4
 
-        # After the reset: B is key 0 (kept target), the new visit to A is key 1; with the
-        # wider tolerance B's 80 µm offset passes, and the figures again equal the batch.
-        cell.targets, cell.meas, cell.truth = cell.targets[-1:], [], []
-        cell.visit('A', offset=OFFSETS['B'])
-        verdicts = wait_until(lambda: (v := statuses(cell, 'accuracy_monitor: settled pose'))
-                              and len(v) >= 5 and v, 10.0, 'the fifth verdict')
-        assert verdicts[4].level == DiagnosticStatus.OK
-        assert 'pose 1 cycle 1' in verdicts[4].message
-        assert cell.report()['measured'] == jsonable(cell.batch(cell.meas).to_dict())
+    # After the reset: B is key 0 (kept target), the new visit to A is key 1; with the
+    # wider tolerance B's 80 µm offset passes, and the figures again equal the batch.
+    cell.targets, cell.meas, cell.truth = cell.targets[-1:], [], []
+    cell.visit('A', offset=OFFSETS['B'])
+    verdicts = wait_until(lambda: (v := statuses(cell, 'accuracy_monitor: settled pose'))
+                          and len(v) >= 5 and v, 10.0, 'the fifth verdict')
+    assert verdicts[4].level == DiagnosticStatus.OK
+    assert 'pose 1 cycle 1' in verdicts[4].message
+    assert cell.report()['measured'] == jsonable(cell.batch(cell.meas).to_dict())
 
-        codes = procs.stop()
-        assert codes['accuracy_monitor_node'] == 0, procs.log('accuracy_monitor_node')

@@ -14,12 +14,13 @@ import pytest
 import yaml
 
 from positioning_cell import accuracy
-from positioning_cell.analysis import MonitorReplay, MonitorSettings, analyse_bag
+from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings
+from positioning_cell.analysis import analyse_bag
 from positioning_cell.analysis.program import load_program
-from positioning_cell.analysis.synthetic import SyntheticRun, synthetic_run, write_run_bag
 from positioning_cell.config import config_path
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
-from positioning_cell.mechanism import Mechanism
+from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
 from positioning_cell.tools.analyze_bag import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL, analyze, main
 
 SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
@@ -93,7 +94,7 @@ def test_figures_equal_the_batch_analysis_of_the_same_samples(run: SyntheticRun,
                                         [b.position for b in mine], [b.quaternion for b in mine],
                                         mine[0].key)
             _same_figures(pose.figures.to_dict(), expected.to_dict())
-            errors = [accuracy.judge_visit(b, SETTINGS.tolerances) for b in mine]
+            errors = [accuracy.judge_visit(b, SETTINGS.tolerance) for b in mine]
             d = np.array([e.position_error for e in errors])
             assert pose.extremes.n == 2
             assert pose.extremes.position_error_max == pytest.approx(d.max(), abs=1e-12)
@@ -113,7 +114,7 @@ def test_figures_equal_the_batch_analysis_of_the_same_samples(run: SyntheticRun,
         _same_visit(mine_truth.visit, theirs_truth)
     expected_tracker = accuracy.tracker_errors(run.time, run.position, run.quaternion, run.time,
                                                run.true_position, run.true_quaternion,
-                                               SETTINGS.max_stamp_difference)
+                                               SETTINGS.tracker_error.max_stamp_difference)
     assert analysis.tracker is not None and expected_tracker is not None
     _same_figures(analysis.tracker.to_dict(), expected_tracker.to_dict())
     # the modes differ as the synthetic biases say: none far off, measured best
@@ -206,20 +207,21 @@ def test_not_a_bag_and_missing_topics_fail_with_a_clear_message(
     assert 'lacks /metrology/pose' in err and '/positioner/target' in err
 
 
-def test_the_replay_ignores_what_the_live_monitor_ignores() -> None:
-    replay = MonitorReplay(SETTINGS)
-    assert not replay.target(1.0, 'tracker', [0, 0, 0.2], [0, 0, 0, 1])
-    assert replay.measured.target is None
-    assert replay.target(1.0, 'base', [0, 0, 0.2], [0, 0, 0, 1])
-    assert replay.measurement(1.1, 'base', [0, 0, 0.2], [0, 0, 0, 2.0]) is None
-    update = replay.measurement(1.2, 'base', [0, 0, 0.2001], [0, 0, 0, 1])
-    assert update is not None and update.position_error is not None
-    assert update.position_error[2] == pytest.approx(1e-4)
-    assert replay.measurement(1.15, 'base', [0, 0, 0.2], [0, 0, 0, 1]) is None  # older
-    assert [i.topic for i in replay.ignored] == ['/positioner/target', '/metrology/pose',
-                                                 '/metrology/pose']
-    assert "frame_id 'tracker'" in replay.ignored[0].reason
-    report = replay.report()
+def test_the_monitor_ignores_what_it_cannot_take() -> None:
+    monitor = Monitor(SETTINGS)
+    wrong_frame = monitor.target(1.0, 'tracker', [0, 0, 0.2], [0, 0, 0, 1])
+    assert isinstance(wrong_frame, Ignored) and monitor.measured.target is None
+    assert monitor.target(1.0, 'base', [0, 0, 0.2], [0, 0, 0, 1]) is None
+    assert isinstance(monitor.measurement(1.1, 'base', [0, 0, 0.2], [0, 0, 0, 2.0]), Ignored)
+    taken = monitor.measurement(1.2, 'base', [0, 0, 0.2001], [0, 0, 0, 1])
+    assert not isinstance(taken, Ignored) and taken.update.position_error is not None
+    assert taken.update.position_error[2] == pytest.approx(1e-4) and taken.verdict is None
+    older = monitor.measurement(1.15, 'base', [0, 0, 0.2], [0, 0, 0, 1])
+    assert isinstance(older, Ignored) and 'earlier than the previous sample' in older.reason
+    assert [i.topic for i in monitor.ignored] == ['/positioner/target', '/metrology/pose',
+                                                  '/metrology/pose']
+    assert "frame_id 'tracker'" in monitor.ignored[0].reason
+    report = monitor.report()
     assert report['verdicts'] == {'ok': 0, 'error': 0} and report['truth'] is None
 
 
@@ -228,8 +230,9 @@ def test_monitor_settings_come_from_the_config(tmp_path: Path) -> None:
     section = cell['accuracy_monitor']['ros__parameters']
     assert SETTINGS.settle.window == section['settle']['window']
     assert SETTINGS.settle.min_samples == section['settle']['min_samples']
-    assert SETTINGS.tolerances.position == section['tolerance']['position']
-    assert SETTINGS.max_stamp_difference == section['truth']['max_stamp_difference']
+    assert SETTINGS.tolerance.position == section['tolerance']['position']
+    assert (SETTINGS.tracker_error.max_stamp_difference
+            == section['tracker_error']['max_stamp_difference'])
     bad = tmp_path / 'bad.yaml'
     bad.write_text(yaml.safe_dump({'accuracy_monitor': {'ros__parameters': {
         'settle': {'windw': 1.0}}}}))

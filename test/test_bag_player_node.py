@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from positioning_cell.bag import BagWriter
 from positioning_cell.bag.metadata import make_qos
 from positioning_cell.bag.writer import jazzy_typestore
-from positioning_cell.nodes.common import LATCHED_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import LATCHED_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.nodes
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.interfaces import QosDurability, QosHistory, QosReliability
 
 from positioning_cell.bag import (
-    CELL_TOPICS,
     BagError,
     BagReader,
     BagWriter,
@@ -26,13 +24,13 @@ from positioning_cell.bag import (
     TopicSelection,
     play,
     playback_qos,
-    qos_from_profile,
     recording_qos,
     recover_bag,
 )
 from positioning_cell.bag.metadata import make_qos
 from positioning_cell.bag.writer import jazzy_typestore
 from positioning_cell.errors import InputError
+from positioning_cell.names import CELL_TOPICS
 from positioning_cell.tools import recover_bag as recover_tool
 
 TS = jazzy_typestore()
@@ -373,16 +371,6 @@ def test_qos_choices() -> None:
     latched = playback_qos([LATCHED], 1000)
     assert (latched.durability, latched.depth) == (QosDurability.TRANSIENT_LOCAL, 1)
     assert playback_qos([STREAM], 1000).depth == 1000
-    profile = SimpleNamespace(history=1, depth=1, reliability=1, durability=1,
-                              deadline=SimpleNamespace(nanoseconds=2**63 - 1),
-                              lifespan=SimpleNamespace(nanoseconds=1_500_000_000),
-                              liveliness=1,
-                              liveliness_lease_duration=SimpleNamespace(nanoseconds=0),
-                              avoid_ros_namespace_conventions=False)
-    qos = qos_from_profile(profile)
-    assert qos.durability == QosDurability.TRANSIENT_LOCAL
-    assert (qos.deadline.sec, qos.deadline.nsec) == (9223372036, 854775807)
-    assert (qos.lifespan.sec, qos.lifespan.nsec) == (1, 500_000_000)
 
 
 def test_play_waits_for_due_times() -> None:

@@ -22,16 +22,17 @@ from cell_harness import CELL_YAML, Client, ProcessGroup, isolated_domain, wait_
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.srv import GetPlan
-from rcl_interfaces.srv import SetParameters
-from rclpy.parameter import Parameter
 from scipy.spatial.transform import Rotation
 from std_srvs.srv import SetBool
 from workspace import MECH
 
 from positioning_cell.config import load_parameter_file, node_parameters
-from positioning_cell.metrology import Simulation, pose_covariance
-from positioning_cell.nodes.common import STREAM_QOS, pose_arrays, pose_stamped
-from positioning_cell.poses import pose_error
+from positioning_cell.core.poses import pose_error
+from positioning_cell.metrology.fit import pose_covariance
+from positioning_cell.nodes.messages import pose_arrays, pose_stamped
+from positioning_cell.nodes.qos import STREAM_QOS
+from positioning_cell.parameters import parse
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 
@@ -43,9 +44,7 @@ GOALS = [
 
 
 def set_param(client: Client, node: str, name: str, value: Any) -> Any:
-    param = Parameter(name, value=value).to_parameter_msg()
-    return client.call(SetParameters, f'/{node}/set_parameters',
-                       SetParameters.Request(parameters=[param])).results[0]
+    return client.set_parameter(node, name, value)
 
 
 def move(client: Client, p: np.ndarray, rv: list[float]) -> tuple[Any, float]:
@@ -132,11 +131,11 @@ def test_model_compensation_cuts_the_error_tenfold(errors_by_mode: Any) -> None:
 
 def test_measured_compensation_ends_within_three_tracker_sigmas(errors_by_mode: Any) -> None:
     # One reading's pose sigma at the platform, from the configured tracker model.
-    sim = Simulation.from_params(node_parameters(load_parameter_file(CELL_YAML),
-                                                 'pose_measurement'))
+    sim = parse(PoseMeasurementSettings, node_parameters(load_parameter_file(CELL_YAML),
+                                                         'pose_measurement'))
     for (p, rv), errors in zip(GOALS, errors_by_mode['measured'], strict=True):
         q = Rotation.from_rotvec(rv).as_quat()
-        cov = np.reshape(pose_covariance(sim.tracker, sim.layout, p, q), (6, 6))
+        cov = np.reshape(pose_covariance(sim.tracker, sim.targets, p, q), (6, 6))
         sigma = np.sqrt(np.diag(cov))  # x, y, z (m), rx, ry, rz (rad)
         assert np.all(np.abs(errors['truth'][:3]) <= 3 * sigma[:3])
         assert np.all(np.abs(errors['truth'][3:]) <= 3 * sigma[3:])

@@ -10,9 +10,9 @@ import pytest
 from workspace import MECH, random_poses
 
 from positioning_cell import clearance as cl
-from positioning_cell import kinematics
+from positioning_cell.core import kinematics
+from positioning_cell.core.poses import pose_error
 from positioning_cell.errors import ConfigError
-from positioning_cell.poses import pose_error
 
 R = 0.16e-3  # seed 000 Table 1
 
@@ -120,47 +120,62 @@ def test_seed_000_error_largest_with_clearance_along_the_leg() -> None:
     assert np.all(np.array(aligned) > worst_random)
 
 
-def test_vector_offsets_along_the_leg_move_the_platform_most() -> None:
+def test_a_gap_across_the_leg_moves_the_platform_more_than_one_along_it() -> None:
+    """Exact vector model, one ball offset of r_b on leg 1 at home: along the θ direction it
+    moves the platform about twice as far as along the leg (the leg's length absorbs nothing
+    sideways; the θ drive holds the leg's direction), while along the φ direction the passive
+    joint absorbs it. So 'along the leg is the worst direction' holds only for eq. 9."""
     cmd = kinematics.inverse(MECH, MECH.home_position, MECH.home_quaternion)
     u = kinematics.leg_directions(MECH, cmd.phis, cmd.thetas)[0]
-    perpendicular = np.cross(u, MECH.tangential)
-    perpendicular /= np.linalg.norm(perpendicular, axis=1, keepdims=True)
+    phi_direction = np.cross(u, MECH.tangential)  # ∂B/∂φ: what the passive joint turns
+    phi_direction /= np.linalg.norm(phi_direction, axis=1, keepdims=True)
+    theta_direction = MECH.tangential - np.sum(MECH.tangential * u, axis=1)[:, None] * u
+    theta_direction /= np.linalg.norm(theta_direction, axis=1, keepdims=True)
 
-    def error(direction: np.ndarray) -> float:
-        # Ball offsets in the platform frame (= base frame at home), U offsets opposite.
-        model = cl.VectorClearance(tuple(map(tuple, -R * direction)),
-                                   tuple(map(tuple, R * direction)))
+    def error(direction: np.ndarray, legs: slice = slice(0, 1)) -> float:
+        ball = np.zeros((3, 3))
+        ball[legs] = R * direction[legs]
+        model = cl.VectorClearance(((0.0, 0.0, 0.0),) * 3, tuple(map(tuple, ball)))
         att = model.attained_pose(MECH, cmd.lengths, cmd.thetas)
         return float(np.linalg.norm(att.position[0] - MECH.home_position))
 
-    assert error(u) > 3 * error(perpendicular)
-    assert error(u) > 0.9 * 2 * R  # both offsets add up along the leg
+    along, across, absorbed = error(u), error(theta_direction), error(phi_direction)
+    assert 0.3 * R < along < R
+    assert across > 1.5 * along
+    assert absorbed < 0.01 * along
+    # All three balls out along their legs: the z errors add up (seed 000's worst case).
+    assert error(u, slice(None)) > 0.9 * R
 
 
 def test_model_from_params() -> None:
-    rng = np.random.default_rng(6)
-    model = cl.model_from_params({'model': 'effective_length', 'r_a': 1e-4}, MECH, rng)
+    model = cl.model_from_params({'model': 'effective_length', 'r_a': 1e-4, 'seed': 6}, MECH)
     assert isinstance(model, cl.EffectiveLengthClearance)
     assert model.r_a == 1e-4 and model.r_b == MECH.joint_clearance_s
-    same = cl.model_from_params({'clearance.model': 'effective_length', 'clearance.r_a': 1e-4},
-                                MECH, np.random.default_rng(6))
-    assert same == model  # same seed, same draws: the positioner can be given the truth
-    given = cl.model_from_params({'model': 'effective_length', 'delta_a1': [0, 1, 2],
-                                  'delta_a2': [0, 1, 2], 'delta_b1': [0, 1, 2],
-                                  'delta_b2': [0, 1, 2]}, MECH)
-    assert isinstance(given, cl.EffectiveLengthClearance) and given.delta_a1 == (0, 1, 2)
+    # Same seed, same draws (what lets a config hand the positioner the truth, issue 12).
+    assert model == cl.EffectiveLengthClearance.random(1e-4, MECH.joint_clearance_s,
+                                                       np.random.default_rng(6))
+    nested = cl.model_from_params({'model': 'effective_length', 'effective_length': {
+        name: [0, 1, 2] for name in ('delta_a1', 'delta_a2', 'delta_b1', 'delta_b2')}}, MECH)
+    dotted = cl.model_from_params({'model': 'effective_length', **{
+        f'effective_length.{name}': [0, 1, 2]
+        for name in ('delta_a1', 'delta_a2', 'delta_b1', 'delta_b2')}}, MECH)
+    assert isinstance(nested, cl.EffectiveLengthClearance) and nested == dotted
+    assert nested.delta_a1 == (0.0, 1.0, 2.0)
     assert cl.model_from_params({'model': 'none'}, MECH) is None
-    vec = cl.model_from_params({'model': 'vector'}, MECH, rng)
+    vec = cl.model_from_params({'model': 'vector', 'seed': 6}, MECH)
     assert isinstance(vec, cl.VectorClearance)
+    assert set(cl.MODEL_NAMES) == {'none', 'effective_length', 'vector', 'load'}
 
 
 @pytest.mark.parametrize(('params', 'words'), [
-    ({'model': 'magic'}, "clearance.model = 'magic'"),
-    ({'model': 'effective_length', 'r_a': -1.0}, 'clearance.r_a = -1.0'),
-    ({'model': 'effective_length', 'delta_a1': [1, 2]}, 'clearance.delta_a1'),
-    ({'model': 'effective_length'}, 'no random seed'),
-    ({'model': 'vector', 'u_offsets': [1.0] * 9, 's_offsets': [0.0] * 9}, 'u_offsets'),
-    ({'model': 'none', 'colour': 'red'}, "unknown parameter 'colour'"),
+    ({'model': 'magic'}, "clearance.model = 'magic': expected one of none, effective_length"),
+    ({'model': 'effective_length', 'r_a': -1.0}, r'clearance.r_a = -1.0: must be in \[0, 0.01\]'),
+    ({'model': 'effective_length', 'effective_length.delta_a1': [1, 2]},
+     r'clearance.effective_length.delta_a1 = \[1, 2\]: expected 3 numbers'),
+    ({'model': 'effective_length'}, 'clearance.seed = -1: the effective_length model'),
+    ({'model': 'vector', 'vector.u_offsets': [1.0] * 9, 'vector.s_offsets': [0.0] * 9},
+     'clearance.vector.u_offsets = .*: each offset must have length <= 0.00016 m'),
+    ({'model': 'none', 'colour': 'red'}, 'clearance.colour: unknown parameter'),
 ])
 def test_model_from_params_errors(params: dict[str, object], words: str) -> None:
     with pytest.raises(ConfigError, match=words):

@@ -1,39 +1,131 @@
-"""The library is pure (no rclpy), and the code passes ruff and mypy (strict on the library)."""
+"""The rules the layout keeps: the library reaches no ROS by any means (one AST test, and the
+import itself), every wire name comes from positioning_cell.names, and the code passes ruff
+and mypy (strict on the library)."""
 
 from __future__ import annotations
 
-import pkgutil
+import ast
+import importlib.util
 import subprocess
 import sys
+from functools import cache
 from pathlib import Path
 
 import positioning_cell
 
 REPO = Path(__file__).resolve().parent.parent
+PACKAGE = REPO / 'positioning_cell'
+#: The ROS layer: the nodes, and the tools' one ROS module.
+ROS_LAYER = ('nodes/', 'tools/ros.py')
 
 
-def library_modules() -> list[str]:
-    """Every module of the package outside positioning_cell.nodes."""
+def in_ros_layer(path: Path) -> bool:
+    rel = path.relative_to(PACKAGE).as_posix()
+    return any(rel == r or rel.startswith(r) for r in ROS_LAYER)
+
+
+def sources() -> list[Path]:
+    return sorted(PACKAGE.rglob('*.py'))
+
+
+@cache
+def is_ros_package(name: str) -> bool:
+    """rclpy, the launch system, or a ROS interface package (one with msg, srv or action)."""
+    if name in ('rclpy', 'launch', 'launch_ros', 'rosidl_runtime_py'):
+        return True
+    spec = importlib.util.find_spec(name)
+    if spec is None or not spec.submodule_search_locations:
+        return False
+    return any((Path(loc) / sub).is_dir() for loc in spec.submodule_search_locations
+               for sub in ('msg', 'srv', 'action'))
+
+
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    """(line, module) of every import in ``path``, at any depth (function bodies too)."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.append((node.lineno, node.module))
+    return out
+
+
+def dynamic_imports(path: Path) -> list[int]:
+    """Lines that import by name at run time: importlib or __import__."""
+    lines = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Call):
+            func = node.func
+            name = func.id if isinstance(func, ast.Name) else (
+                func.attr if isinstance(func, ast.Attribute) else '')
+            if name in ('__import__', 'import_module'):
+                lines.append(node.lineno)
+    return lines
+
+
+def test_nothing_outside_the_ros_layer_reaches_ros() -> None:
+    """Outside nodes/ and tools/ros.py: no import of rclpy, the launch system, a ROS message
+    package or the nodes (at any depth), and no import by name at run time."""
+    found = []
+    for path in sources():
+        if in_ros_layer(path):
+            continue
+        rel = path.relative_to(REPO)
+        for line, module in imported_modules(path):
+            top = module.split('.')[0]
+            if is_ros_package(top) or module.startswith('positioning_cell.nodes'):
+                found.append(f'{rel}:{line} imports {module}')
+        found += [f'{rel}:{line} imports by name' for line in dynamic_imports(path)]
+    assert not found, found
+    # The rule can fail: the ROS layer itself does reach ROS.
+    assert any(is_ros_package(m.split('.')[0])
+               for _, m in imported_modules(PACKAGE / 'nodes' / 'spin.py'))
+
+
+def test_the_library_imports_without_rclpy() -> None:
+    """Importing every module but the ROS layer (and the tools that drive it) loads no rclpy."""
+    ros_users = {'positioning_cell.tools.run_cell'}  # imports tools.ros: a ROS entry point
     names = []
-    for info in pkgutil.walk_packages(positioning_cell.__path__, 'positioning_cell.'):
-        if not info.name.startswith('positioning_cell.nodes'):
-            names.append(info.name)
-    return names
-
-
-def test_library_imports_without_rclpy() -> None:
-    modules = library_modules()
-    assert 'positioning_cell.kinematics' in modules and 'positioning_cell.clearance' in modules
-    code = (
-        'import importlib, sys\n'
-        f'for name in {modules!r}:\n'
-        '    importlib.import_module(name)\n'
-        "bad = sorted(m for m in sys.modules if m.split('.')[0] == 'rclpy')\n"
-        'assert not bad, bad\n'
-    )
+    for path in sources():
+        module = '.'.join(path.relative_to(REPO).with_suffix('').parts).removesuffix('.__init__')
+        if not in_ros_layer(path) and module not in ros_users:
+            names.append(module)
+    assert 'positioning_cell.core.kinematics' in names and 'positioning_cell.clearance' in names
+    code = ('import importlib, sys\n'
+            f'for name in {names!r}:\n'
+            '    importlib.import_module(name)\n'
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] == 'rclpy')\n"
+            'assert not bad, bad\n')
     result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                             check=False)
     assert result.returncode == 0, result.stderr
+
+
+def string_constants(path: Path) -> list[tuple[int, str]]:
+    """(line, text) of the string constants of ``path`` that are not docstrings."""
+    tree = ast.parse(path.read_text(), str(path))
+    docstrings = {id(n.body[0].value) for n in ast.walk(tree)
+                  if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef,
+                                    ast.AsyncFunctionDef))
+                  and n.body and isinstance(n.body[0], ast.Expr)
+                  and isinstance(n.body[0].value, ast.Constant)}
+    return [(n.lineno, n.value) for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str)
+            and id(n) not in docstrings]
+
+
+def test_every_wire_name_is_declared_once() -> None:
+    """Topic and service names appear as strings only in positioning_cell/names.py."""
+    from positioning_cell import names
+
+    wire = {v for k, v in vars(names).items() if k.isupper() and isinstance(v, str)
+            and v.startswith('/')}
+    assert '/legs/joint_states' in wire and '/positioner/move_to_pose' in wire
+    found = [f'{path.relative_to(REPO)}:{line} {text!r}' for path in sources()
+             if path.name != 'names.py' for line, text in string_constants(path)
+             if text in wire]
+    assert not found, found
 
 
 def test_ruff() -> None:
@@ -43,16 +135,23 @@ def test_ruff() -> None:
 
 
 def test_mypy_strict_on_the_library() -> None:
-    files = [str(p.relative_to(REPO)) for p in sorted((REPO / 'positioning_cell').rglob('*.py'))
-             if 'nodes' not in p.parts]
+    files = [str(p.relative_to(REPO)) for p in sources() if not in_ros_layer(p)]
     result = subprocess.run(
         [sys.executable, '-m', 'mypy', '--strict', '--cache-dir', '/dev/null', *files],
         cwd=REPO, capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-def test_mypy_on_the_nodes() -> None:
-    result = subprocess.run(
-        [sys.executable, '-m', 'mypy', '--cache-dir', '/dev/null', 'positioning_cell/nodes'],
-        cwd=REPO, capture_output=True, text=True, check=False)
+def test_mypy_on_the_ros_layer() -> None:
+    files = [str(p.relative_to(REPO)) for p in sources() if in_ros_layer(p)]
+    result = subprocess.run([sys.executable, '-m', 'mypy', '--cache-dir', '/dev/null', *files],
+                            cwd=REPO, capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_nodes_stay_thin() -> None:
+    """A node is parameters, subscriptions, publishers and one library call per callback."""
+    for path in sorted((PACKAGE / 'nodes').glob('*_node.py')):
+        lines = len(path.read_text().splitlines())
+        assert lines <= 200, f'{path.name}: {lines} lines'
+    assert positioning_cell.__version__

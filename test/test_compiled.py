@@ -6,7 +6,7 @@ import os
 
 import numpy as np
 
-from positioning_cell.compiled import available_cpus, kernel_array
+from positioning_cell.core.compiled import available_cpus, kernel_array
 
 
 def test_kernel_array_passes_plain_arrays_through_and_copies_the_rest() -> None:

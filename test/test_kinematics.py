@@ -9,10 +9,10 @@ from hypothesis import assume, given
 from scipy.spatial.transform import Rotation
 from workspace import MECH, poses, random_poses
 
-from positioning_cell import kinematics
+from positioning_cell.core import kinematics
+from positioning_cell.core.limits import check_poses
 from positioning_cell.errors import InputError
-from positioning_cell.kinematics_reference import reference_forward
-from positioning_cell.limits import check_poses
+from positioning_cell.testing.reference_kinematics import reference_forward
 
 
 def rotation_error(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:

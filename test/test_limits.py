@@ -7,10 +7,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 from workspace import MECH
 
-from positioning_cell import kinematics
+from positioning_cell.core import kinematics
+from positioning_cell.core.limits import check_poses, require_within_limits, segment_distance
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import LimitError
-from positioning_cell.limits import check_poses, require_within_limits, segment_distance
-from positioning_cell.mechanism import Mechanism
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 

@@ -9,11 +9,11 @@ import pytest
 from workspace import MECH, random_poses
 
 from positioning_cell import clearance as cl
-from positioning_cell import kinematics
-from positioning_cell import statics as st
+from positioning_cell.clearance.load import LoadAwareClearance, inverse_with_offsets
+from positioning_cell.core import kinematics
+from positioning_cell.core.poses import matrix_from_quaternion, pose_error
 from positioning_cell.errors import ConfigError
-from positioning_cell.load_clearance import LoadAwareClearance, inverse_with_offsets
-from positioning_cell.poses import matrix_from_quaternion, pose_error
+from positioning_cell.mechanics import statics as st
 
 R = 0.16e-3  # seed 000 Table 1
 TRUTH = LoadAwareClearance(R, R, st.Payload())
@@ -102,20 +102,17 @@ def test_load_aware_compensation_beats_direction_agnostic_models() -> None:
 
 
 def test_model_from_params_registers_load() -> None:
-    payload = {'mass': 45.0, 'gravity': [0.0, 0.0, -9.80665]}
-    nested = cl.model_from_params({'model': 'load', 'r_a': 1e-4, 'payload': payload}, MECH)
-    dotted = cl.model_from_params({'clearance.model': 'load', 'clearance.r_a': 1e-4,
-                                   'clearance.payload.mass': 45.0,
-                                   'clearance.payload.gravity': [0.0, 0.0, -9.80665],
-                                   'clearance.structure.leg_stiffness': 5.0e7}, MECH)
+    payload = st.Payload(mass=45.0, gravity=(0.0, 0.0, -9.80665))
+    nested = cl.model_from_params({'model': 'load', 'r_a': 1e-4, 'load': {'seating_force': 2.0}},
+                                  MECH, payload)
+    dotted = cl.model_from_params({'model': 'load', 'r_a': 1e-4, 'load.seating_force': 2.0},
+                                  MECH, payload, st.Structure())
     assert isinstance(nested, LoadAwareClearance) and nested == dotted
     assert nested.r_a == 1e-4 and nested.r_b == MECH.joint_clearance_s
-    assert nested.payload == st.Payload(mass=45.0, gravity=(0.0, 0.0, -9.80665))
-    with pytest.raises(ConfigError, match="unknown parameter 'mas'"):
-        cl.model_from_params({'model': 'load', 'payload.mas': 1.0}, MECH)
-    with pytest.raises(ConfigError, match='seating_force'):
-        cl.model_from_params({'model': 'load', 'seating_force': -1.0}, MECH)
-    with pytest.raises(ConfigError, match='load'):
+    assert nested.payload == payload and nested.seating_force == 2.0
+    with pytest.raises(ConfigError, match=r'clearance.load.seating_force = -1.0: must be > 0 N'):
+        cl.model_from_params({'model': 'load', 'load.seating_force': -1.0}, MECH)
+    with pytest.raises(ConfigError, match=r"clearance.model = 'loaded': expected one of"):
         cl.model_from_params({'model': 'loaded'}, MECH)
 
 
@@ -123,9 +120,9 @@ def test_nodes_can_select_the_load_model_by_parameter() -> None:
     """The simulator's truth and the positioner's compensation both build it from a
     `clearance.model: load` parameter block (as in config/cell.yaml)."""
     from positioning_cell.clearance import model_from_params
-    from positioning_cell.load_clearance import LoadAwareClearance
-    from positioning_cell.mechanism import Mechanism
-    from positioning_cell.metrology import truth_from_params
+    from positioning_cell.clearance.load import LoadAwareClearance
+    from positioning_cell.core.mechanism import Mechanism
+    from positioning_cell.sim.truth import truth_from_params
 
     mech = Mechanism.default()
     truth = truth_from_params({'truth': {'clearance': {'model': 'load', 'seed': 0}}}, mech)

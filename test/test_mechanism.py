@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from positioning_cell.config import config_path, flatten, load_parameter_file, node_parameters
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
-from positioning_cell.mechanism import Mechanism
 
 
 def test_defaults_are_seed_000_table_1() -> None:
@@ -41,12 +41,12 @@ def test_from_params_accepts_nested_and_dotted_keys() -> None:
 
 @pytest.mark.parametrize(('params', 'words'), [
     ({'base_radius': -1.0}, r'mechanism.base_radius = -1.0: must be > 0'),
-    ({'base_radus': 0.1}, r"unknown parameter 'base_radus'"),
+    ({'base_radus': 0.1}, r'mechanism.base_radus: unknown parameter'),
     ({'length_max': 0.1}, r'length_max = 0.1: must exceed length_min'),
-    ({'platform_radius': 'big'}, r"mechanism.platform_radius: expected a number, got 'big'"),
+    ({'platform_radius': 'big'}, r"mechanism.platform_radius = 'big': expected a number"),
     ({'tilt_max': 2.0}, r'tilt_max = 2.0'),
     ({'phi_min': float('nan')}, r'must be finite'),
-    ({'base_offsets': [1, 2]}, r'base_offsets: expected 3 x 3'),
+    ({'base_offsets': [1, 2]}, r'mechanism.base_offsets = \[1, 2\]: expected 9 numbers'),
 ])
 def test_bad_parameters_name_key_and_value(params: dict[str, object], words: str) -> None:
     with pytest.raises(ConfigError, match=words):

@@ -8,10 +8,11 @@ import pytest
 from scipy.linalg import null_space
 from workspace import MECH, random_poses
 
-from positioning_cell import kinematics, screw
-from positioning_cell import overconstrained as oc
-from positioning_cell import statics as st
+from positioning_cell.core import kinematics
 from positioning_cell.errors import InputError
+from positioning_cell.mechanics import overconstrained as oc
+from positioning_cell.mechanics import screw
+from positioning_cell.mechanics import statics as st
 
 # A 1 t shell (seed 001: metal shells of several tonnes) hung 0.2 m off-centre, with a push.
 LOAD = np.array([300.0, -200.0, -9810.0, 1500.0, -800.0, 250.0])

@@ -1,42 +1,49 @@
-"""The positioner node alone, with the test client playing the leg driver: every refusal says
-why (on /diagnostics) and moves nothing; busy, stop and a completed move."""
+"""The positioner node in the test process, the test client playing the leg driver: the services
+reach the mover and answer, every refusal says why on /diagnostics (looked for only after the
+call) and moves nothing, busy and stop, a completed move, the pose estimate and markers, and
+validated parameters. The mover's state machine itself: test_mover.py."""
 
 from __future__ import annotations
 
 import threading
-from pathlib import Path
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
-from cell_harness import Client, ProcessGroup, isolated_domain, wait_until
+from cell_harness import Client, InProcess, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.srv import GetPlan
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
+from visualization_msgs.msg import MarkerArray
 from workspace import MECH
 
-from positioning_cell import kinematics
-from positioning_cell.mechanism import JOINT_NAMES
-from positioning_cell.nodes.common import COMMAND_QOS, STREAM_QOS, pose_stamped
+from positioning_cell.core import kinematics
+from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.nodes.kinematics_node import PositionerNode
+from positioning_cell.nodes.messages import pose_arrays, pose_stamped
+from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.nodes
+
+HOME_P, HOME_Q = MECH.home_position, MECH.home_quaternion
 
 
 class FakeDriver:
     """Publishes encoder readings; jumps to a trajectory's last point when told to follow."""
 
     def __init__(self, client: Client) -> None:
-        home = kinematics.inverse(MECH, MECH.home_position, MECH.home_quaternion)
+        home = kinematics.inverse(MECH, HOME_P, HOME_Q)
         self.position = np.concatenate([home.lengths[0], home.thetas[0]])
-        self.follow = False
+        self.follow = True
         self.trajectories: list[JointTrajectory] = []
         self.lock = threading.Lock()
         node = client.node
         self.pub = node.create_publisher(JointState, '/legs/joint_states', STREAM_QOS)
-        self.diag = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.diag = node.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
         node.create_subscription(JointTrajectory, '/legs/joint_trajectory', self._on_traj,
                                  COMMAND_QOS)
         node.create_timer(0.02, self._tick)
@@ -54,44 +61,46 @@ class FakeDriver:
         msg.velocity = [0.0] * 6
         self.pub.publish(msg)
 
-    def report(self, enabled: bool) -> None:
-        status = DiagnosticStatus(name='leg_driver: drives', level=DiagnosticStatus.OK,
+    def report(self, enabled: bool, state: str = 'holding') -> None:
+        status = DiagnosticStatus(name='leg_driver', level=DiagnosticStatus.OK,
                                   values=[KeyValue(key='enabled', value=str(enabled).lower()),
-                                          KeyValue(key='state', value='holding')])
+                                          KeyValue(key='state', value=state)])
         self.diag.publish(DiagnosticArray(status=[status]))
 
 
-def request(p: Any, q: Any, frame: str = 'base') -> GetPlan.Request:
-    goal = PoseStamped()
-    goal.header.frame_id = frame
-    msg = pose_stamped(MECH.home_position, MECH.home_quaternion, goal.header.stamp, frame)
-    pos, ori = msg.pose.position, msg.pose.orientation
-    pos.x, pos.y, pos.z = (float(v) for v in p)
-    ori.x, ori.y, ori.z, ori.w = (float(v) for v in q)
-    return GetPlan.Request(goal=msg)
+def request(p: Any, q: Any, frame: str = 'base', tolerance: float = 0.0) -> GetPlan.Request:
+    goal = pose_stamped(p, q, PoseStamped().header.stamp, frame)
+    return GetPlan.Request(goal=goal, tolerance=float(tolerance))
 
 
-@pytest.fixture(scope='module')
-def cell(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    log_dir: Path = tmp_path_factory.mktemp('positioner')
-    with isolated_domain() as domain, ProcessGroup(domain, log_dir) as procs, \
-            Client(domain) as client:
-        driver = FakeDriver(client)
-        diagnostics = client.collect(DiagnosticArray, '/diagnostics')
-        poses = client.collect(PoseStamped, '/positioner/pose', STREAM_QOS)
-        procs.start('kinematics_node', label='positioner',
-                    overrides={'positioner': {'compensation': {'mode': 'none'}}})
-        wait_until(lambda: poses, 30.0, 'the first /positioner/pose')
-        yield client, driver, diagnostics, procs
-        codes = procs.stop()
-        assert codes['positioner'] == 0, procs.log('positioner')
+class Positioner:
+    """The node under test and what the test sees of it."""
+
+    def __init__(self, ros: InProcess) -> None:
+        self.client = ros.client
+        self.driver = FakeDriver(ros.client)
+        self.statuses = ros.client.statuses('positioner: state')
+        self.poses = ros.client.collect(PoseStamped, '/positioner/pose', STREAM_QOS)
+        self.markers = ros.client.collect(MarkerArray, '/positioner/markers', STREAM_QOS)
+        self.targets = ros.client.collect(PoseStamped, '/positioner/target', STREAM_QOS)
+        self.node = ros.start(PositionerNode, **{'compensation.mode': 'none',
+                                                 'settle_time': 0.0})
+        wait_until(lambda: self.poses, 30.0, 'the first /positioner/pose')
+
+    def plan(self, service: str, req: GetPlan.Request) -> Any:
+        return self.client.call(GetPlan, service, req)
+
+    def reasons_after(self, mark: int) -> list[str]:
+        return [s.message for s in self.statuses[mark:]]
+
+    def wait_reason(self, mark: int, words: str) -> str:
+        return wait_until(lambda: next((r for r in self.reasons_after(mark) if words in r), None),
+                          10.0, f'a positioner status naming {words!r}')
 
 
-def reasons(diagnostics: list[DiagnosticArray]) -> list[str]:
-    return [s.message for d in diagnostics for s in d.status if s.name.startswith('positioner')]
-
-
-HOME_P, HOME_Q = MECH.home_position, MECH.home_quaternion
+@pytest.fixture
+def positioner(ros: InProcess) -> Iterator[Positioner]:
+    yield Positioner(ros)
 
 
 @pytest.mark.parametrize(('p', 'q', 'frame', 'words'), [
@@ -99,80 +108,106 @@ HOME_P, HOME_Q = MECH.home_position, MECH.home_quaternion
     (HOME_P, [0.0, 0.0, 0.0, 0.0], 'base', 'is zero'),
     (HOME_P, [0.0, 0.0, 0.2, 1.0], 'base', 'not 1'),
     (HOME_P, HOME_Q, 'tracker', "goal frame 'tracker' is not 'base'"),
-    (HOME_P + [0.0, 0.0, 0.03], HOME_Q, 'base', 'length'),
+    (HOME_P + [0.0, 0.0, 0.03], HOME_Q,
+     'base', 'path refused, outside limits: sample'),
 ])
-def test_refusals_say_why_and_move_nothing(cell: Any, p: Any, q: Any, frame: str,
+def test_refusals_say_why_and_move_nothing(positioner: Positioner, p: Any, q: Any, frame: str,
                                            words: str) -> None:
-    client, driver, diagnostics, _ = cell
-    sent = len(driver.trajectories)
     for service in ('/positioner/check_pose', '/positioner/move_to_pose'):
-        response = client.call(GetPlan, service, request(p, q, frame))
+        mark = len(positioner.statuses)
+        response = positioner.plan(service, request(p, q, frame))
         assert len(response.plan.poses) == 0
-    wait_until(lambda: any(words in r for r in reasons(diagnostics)), 10.0,
-               f'a refusal naming {words!r} on /diagnostics')
-    assert len(driver.trajectories) == sent  # nothing moved
+        positioner.wait_reason(mark, words)
+    assert not positioner.driver.trajectories and not positioner.targets  # nothing moved
 
 
-def test_outside_limits_names_leg_and_excess(cell: Any) -> None:
-    client, _, diagnostics, _ = cell
-    client.call(GetPlan, '/positioner/check_pose', request(HOME_P + [0, 0, 0.03], HOME_Q))
-    wait_until(lambda: any('leg 1 length' in r and 'above the maximum 220.0000 mm by' in r
-                           for r in reasons(diagnostics)), 10.0, 'limit refusal in words')
-
-
-def test_check_pose_returns_the_path_without_moving(cell: Any) -> None:
-    client, driver, _, _ = cell
-    sent = len(driver.trajectories)
+def test_check_pose_returns_the_path_without_moving(positioner: Positioner) -> None:
     goal = HOME_P + [0.005, 0.0, 0.0]
-    response = client.call(GetPlan, '/positioner/check_pose', request(goal, HOME_Q))
+    response = positioner.plan('/positioner/check_pose', request(goal, HOME_Q))
     poses = response.plan.poses
     assert len(poses) > 10 and response.plan.header.frame_id == 'base'
-    last = poses[-1].pose.position
-    np.testing.assert_allclose([last.x, last.y, last.z], goal, atol=1e-12)
-    assert len(driver.trajectories) == sent
+    np.testing.assert_allclose(pose_arrays(poses[-1].pose)[0], goal, atol=1e-12)
+    assert not positioner.driver.trajectories
 
 
-def test_busy_then_stop_aborts(cell: Any) -> None:
-    client, driver, diagnostics, _ = cell
+def test_a_move_sends_one_trajectory_and_returns_the_executed_path(
+        positioner: Positioner) -> None:
+    goal = HOME_P + [0.0, 0.003, 0.001]
+    mark = len(positioner.statuses)
+    response = positioner.plan('/positioner/move_to_pose', request(goal, HOME_Q))
+    assert response.plan.poses, positioner.reasons_after(mark)
+    np.testing.assert_allclose(pose_arrays(response.plan.poses[-1].pose)[0], goal, atol=1e-9)
+    assert positioner.reasons_after(mark)[-1].startswith('settled')
+    (traj,) = positioner.driver.trajectories
+    assert list(traj.joint_names) == list(JOINT_NAMES) and len(traj.points) > 10
+    ideal = kinematics.inverse(MECH, goal, HOME_Q)
+    np.testing.assert_allclose(traj.points[-1].positions,
+                               [*ideal.lengths[0], *ideal.thetas[0]], atol=1e-12)
+    wait_until(lambda: positioner.targets, 10.0, 'the target')
+    np.testing.assert_allclose(pose_arrays(positioner.targets[-1].pose)[0], goal, atol=1e-12)
+    # The estimate follows the encoders; markers come with every 5th estimate.
+    wait_until(lambda: np.allclose(pose_arrays(positioner.poses[-1].pose)[0], goal, atol=1e-9),
+               10.0, 'the pose estimate at the goal')
+    wait_until(lambda: positioner.markers, 10.0, 'markers')
+    assert {m.ns for m in positioner.markers[-1].markers} == {'legs', 'platform'}
+
+
+def test_busy_then_stop_aborts(positioner: Positioner) -> None:
+    driver = positioner.driver
     driver.follow = False  # the drives never arrive: the move waits
     first: dict[str, Any] = {}
-    thread = threading.Thread(target=lambda: first.update(r=client.call(
-        GetPlan, '/positioner/move_to_pose', request(HOME_P + [0.002, 0, 0], HOME_Q))))
+    thread = threading.Thread(target=lambda: first.update(r=positioner.plan(
+        '/positioner/move_to_pose', request(HOME_P + [0.002, 0, 0], HOME_Q))))
+    mark = len(positioner.statuses)
     thread.start()
-    sent = len(driver.trajectories)
-    wait_until(lambda: len(driver.trajectories) > sent - 1 and any(
-        r.startswith('moving') for r in reasons(diagnostics)), 20.0, 'the move to start')
-    second = client.call(GetPlan, '/positioner/move_to_pose', request(HOME_P, HOME_Q))
+    wait_until(lambda: driver.trajectories, 20.0, 'the move to send its trajectory')
+    positioner.wait_reason(mark, 'moving')
+    mark = len(positioner.statuses)
+    second = positioner.plan('/positioner/move_to_pose', request(HOME_P, HOME_Q))
     assert len(second.plan.poses) == 0
-    wait_until(lambda: any('busy' in r for r in reasons(diagnostics)), 10.0, 'busy refusal')
-    stop = client.call(Trigger, '/positioner/stop', Trigger.Request())
+    positioner.wait_reason(mark, 'busy')
+    assert len(driver.trajectories) == 1  # the refused move sent nothing
+    stop = positioner.client.call(Trigger, '/positioner/stop', Trigger.Request())
     assert stop.success
     thread.join(timeout=30.0)
     assert len(first['r'].plan.poses) == 0
-    assert any('stopped by /positioner/stop' in r for r in reasons(diagnostics))
+    positioner.wait_reason(mark, 'stopped by /positioner/stop')
     assert len(driver.trajectories[-1].points) == 0  # the stop: an empty trajectory
 
 
-def test_drives_disabled_refused(cell: Any) -> None:
-    client, driver, diagnostics, _ = cell
+def test_drives_disabled_refused(positioner: Positioner) -> None:
+    driver = positioner.driver
     driver.report(enabled=False)
-    sent = len(driver.trajectories)
     # check_pose runs the same validation without moving, so polling it cannot start a move.
-    wait_until(lambda: len(client.call(GetPlan, '/positioner/check_pose', request(
-        HOME_P, HOME_Q)).plan.poses) == 0 and any(
-        'drives disabled' in r for r in reasons(diagnostics)), 20.0, 'drives disabled refusal')
-    response = client.call(GetPlan, '/positioner/move_to_pose', request(HOME_P, HOME_Q))
-    assert len(response.plan.poses) == 0 and len(driver.trajectories) == sent
+    wait_until(lambda: len(positioner.plan('/positioner/check_pose', request(
+        HOME_P, HOME_Q)).plan.poses) == 0, 20.0, 'check_pose refused')
+    mark = len(positioner.statuses)
+    response = positioner.plan('/positioner/move_to_pose', request(HOME_P, HOME_Q))
+    assert len(response.plan.poses) == 0 and not driver.trajectories
+    positioner.wait_reason(mark, 'drives disabled: enable them with /leg_driver/enable')
     driver.report(enabled=True)
+    wait_until(lambda: positioner.plan('/positioner/check_pose', request(
+        HOME_P, HOME_Q)).plan.poses, 20.0, 'check_pose accepted again')
 
 
-def test_completed_move_returns_executed_path(cell: Any) -> None:
-    client, driver, diagnostics, _ = cell
-    driver.report(enabled=True)
-    driver.follow = True
-    goal = HOME_P + [0.0, 0.003, 0.001]
-    response = client.call(GetPlan, '/positioner/move_to_pose', request(goal, HOME_Q))
-    assert response.plan.poses, reasons(diagnostics)[-3:]
-    last = response.plan.poses[-1].pose.position
-    np.testing.assert_allclose([last.x, last.y, last.z], goal, atol=1e-9)
-    assert any(r.startswith('settled') for r in reasons(diagnostics))
+def test_home_service_and_parameters(positioner: Positioner) -> None:
+    client = positioner.client
+    assert positioner.plan('/positioner/move_to_pose', request(HOME_P + [0.002, 0, 0],
+                                                               HOME_Q)).plan.poses
+    home = client.call(Trigger, '/positioner/home', Trigger.Request())
+    assert home.success and home.message == 'at home'
+    np.testing.assert_allclose(positioner.driver.trajectories[-1].points[-1].positions,
+                               positioner.driver.trajectories[0].points[0].positions,
+                               atol=1e-12)
+    refused = client.set_parameter('positioner', 'compensation.mode', 'magic')
+    assert not refused.successful
+    assert "compensation.mode = 'magic': expected one of none, model, measured" in \
+        refused.reason
+    refused = client.set_parameter('positioner', 'goal_tolerance.position', -1e-6)
+    assert not refused.successful and 'goal_tolerance.position out of range' in refused.reason
+    refused = client.set_parameter('positioner', 'compensation.max_iterations', 51)
+    assert not refused.successful and 'out of range' in refused.reason.lower()
+    refused = client.set_parameter('positioner', 'pose_rate_hz', 10.0)
+    assert not refused.successful and 'read-only' in refused.reason.lower()
+    assert client.set_parameter('positioner', 'compensation.mode', 'model').successful
+    assert positioner.node.mover.mode.value == 'model'

@@ -8,8 +8,8 @@ import pytest
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
-from positioning_cell.mechanism import Mechanism
 from positioning_cell.prediction.montecarlo import (
     _rotation_from_rotvec,
     _sin_cos_small,

@@ -8,9 +8,9 @@ import pytest
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from positioning_cell.kinematics import forward, inverse
-from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import pose_error
+from positioning_cell.core.kinematics import forward, inverse
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import pose_error
 from positioning_cell.prediction.sensitivity import (
     kind_variances,
     linearise,

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
-from positioning_cell.mechanism import Mechanism
 from positioning_cell.prediction.sources import (
     catalogue,
     draw_sources,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from positioning_cell.mechanism import Mechanism
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.prediction.maps import workspace_maps
 from positioning_cell.prediction.montecarlo import estimate_yield, inside_requirement
 from positioning_cell.prediction.sensitivity import linearise, split_norms, worst_case

@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from positioning_cell.bag import BagError, BagReader
-from positioning_cell.nodes.common import LATCHED_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import LATCHED_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.nodes
 

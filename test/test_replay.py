@@ -12,10 +12,11 @@ import numpy as np
 from cell_harness import Client, ProcessGroup, isolated_domain, wait_until
 from std_srvs.srv import Trigger
 
-from positioning_cell.analysis import MonitorSettings, analyse_bag
-from positioning_cell.analysis.replay import MEASURED_TOPIC, TARGET_TOPIC, TRUTH_TOPIC
-from positioning_cell.analysis.synthetic import synthetic_run, write_run_bag
+from positioning_cell.accuracy import MonitorSettings
+from positioning_cell.analysis import analyse_bag
 from positioning_cell.config import config_path
+from positioning_cell.names import MEASURED_POSE, TARGET, TRUE_POSE
+from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 
 
 def _numbers(poses: list[dict[str, object]]) -> np.ndarray:
@@ -46,7 +47,7 @@ def test_the_live_monitor_fed_by_the_player_reports_the_offline_figures(tmp_path
         client.call(Trigger, '/accuracy_monitor/report', Trigger.Request())  # it is up
         player = group.start('bag_player_node', overrides={'bag_player': {
             'bag': str(bag), 'rate': 2.0, 'wait_for_subscribers_s': 20.0,
-            'topics': [TARGET_TOPIC, MEASURED_TOPIC, TRUTH_TOPIC]}})
+            'topics': [TARGET, MEASURED_POSE, TRUE_POSE]}})
         assert player.wait(timeout=60.0) == 0, group.log('bag_player_node')
 
         def report() -> dict[str, Any]:

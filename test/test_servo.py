@@ -1,39 +1,37 @@
-"""The simulated leg drives (positioning_cell.servo): servo lag and limits, controlled stops,
-following-error faults, encoder quantisation, noise and dropout. ROS-free."""
+"""The simulated leg drives (positioning_cell.sim): servo lag and limits, controlled stops,
+following-error faults, setpoint paths, encoder quantisation, noise and dropout, injected
+faults, the driver's settings. ROS-free."""
 
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 
+from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.mechanism import JOINT_NAMES
-from positioning_cell.servo import (
-    AXES,
-    LINEAR_AXES,
+from positioning_cell.motion.trajectory import time_law
+from positioning_cell.parameters import parse
+from positioning_cell.sim.axes import AXES, LINEAR_AXES
+from positioning_cell.sim.drives import DriverSettings
+from positioning_cell.sim.encoders import Encoders, EncoderSettings, quantise
+from positioning_cell.sim.faults import DriveFaults, axis_mask
+from positioning_cell.sim.paths import JointPath, path_from_points, stop_path
+from positioning_cell.sim.servo import (
     AxisLimits,
     AxisState,
-    Encoders,
-    EncoderSettings,
-    FaultInjection,
-    JointPath,
     LegServos,
     MotionRefusedError,
     ServoSettings,
-    axis_mask,
     following_error_fault,
-    path_from_points,
-    quantise,
     servo_step,
-    settings_from_params,
-    stop_path,
 )
-from positioning_cell.trajectory import time_law
 
 HOME = np.array([0.2, 0.2, 0.2, 0.0, 0.0, 0.0])
 SETTINGS = ServoSettings()
+NOISELESS = EncoderSettings(linear_noise=0.0, rotary_noise=0.0)
 MOVE = np.array([4e-3, -3e-3, 2e-3, 0.05, -0.02, 0.01])
 
 
@@ -267,7 +265,8 @@ def test_path_sampling_hermite_and_linear() -> None:
 def test_path_from_points_reorders_names_and_refuses_bad_trajectories() -> None:
     names = list(reversed(JOINT_NAMES))
     rows = [HOME[::-1], (HOME + 0.01 * MOVE)[::-1]]
-    path = path_from_points(names, [0.0, 1.0], rows, [[0.0] * AXES, [0.0] * AXES], SETTINGS)
+    path = path_from_points(names, [0.0, 1.0], rows, [[0.0] * AXES, [0.0] * AXES],
+                            SETTINGS.velocity_limits)
     np.testing.assert_allclose(path.final, HOME + 0.01 * MOVE)
     assert path_from_points(JOINT_NAMES, [0.0], [HOME], [[]]).velocities is None
     bad = {
@@ -282,11 +281,11 @@ def test_path_from_points_reorders_names_and_refuses_bad_trajectories() -> None:
     }
     for reason, args in bad.items():
         with pytest.raises(InputError, match=reason):
-            path_from_points(*args, SETTINGS)
+            path_from_points(*args, SETTINGS.velocity_limits)
 
 
 def test_quantisation_to_the_resolution() -> None:
-    settings = EncoderSettings()
+    settings = NOISELESS
     assert settings.resolution[0] == 1e-6
     assert settings.resolution[3] == pytest.approx(2 * math.pi / 2**20)
     encoders = Encoders(settings, np.random.default_rng(0))
@@ -320,7 +319,7 @@ def test_encoder_noise_statistics_and_seeded_repeatability() -> None:
 
 
 def test_encoder_dropout_freezes_or_goes_missing() -> None:
-    encoders = Encoders(EncoderSettings(), np.random.default_rng(0))
+    encoders = Encoders(NOISELESS, np.random.default_rng(0))
     dropout = axis_mask('leg1_length, 4')
     first = encoders.read(AxisState(HOME, np.zeros(AXES)))
     moved = AxisState(HOME + 0.01, np.full(AXES, 0.001))
@@ -342,33 +341,36 @@ def test_fault_parameters_are_validated() -> None:
         axis_mask('leg7_theta')
     with pytest.raises(ConfigError, match='6'):
         axis_mask('6')
-    quiet = EncoderSettings()
-    ok = {'fault.encoder_dropout': '1', 'fault.encoder_dropout_mode': 'missing',
-          'fault.stuck_axis': 'leg3_theta', 'fault.noise_burst': [1.0, 0.0]}
-    faults = FaultInjection.from_params(ok, quiet)
+    faults = DriveFaults(encoder_dropout='1', encoder_dropout_mode='missing',
+                         stuck_axis='leg3_theta')
     assert faults.missing and faults.dropout[1] and faults.stuck[5]
-    for key, value, reason in [('fault.encoder_dropout_mode', 'drop', 'freeze or missing'),
-                               ('fault.noise_burst', [0.5, 1.0], 'scale >= 1'),
-                               ('fault.noise_burst', [2.0], 'scale >= 1'),
-                               ('fault.noise_burst', [5.0, 1.0], 'no noise')]:
-        with pytest.raises(ConfigError, match=reason):
-            FaultInjection.from_params({**ok, key: value}, quiet)
-    burst = FaultInjection.from_params({**ok, 'fault.noise_burst': [5.0, 2.0]},
-                                       EncoderSettings(linear_noise=1e-7))
+    quiet = {'encoder.linear_noise': 0.0, 'encoder.rotary_noise': 0.0}
+    for key, value, reason in [
+            ('fault.encoder_dropout_mode', 'drop', "fault.encoder_dropout_mode = 'drop': expected "
+                                                   'one of freeze, missing'),
+            ('fault.encoder_dropout', 'leg7_theta', "fault.encoder_dropout = 'leg7_theta': "
+                                                    "'leg7_theta' is neither a joint name"),
+            ('fault.noise_burst', [0.5, 1.0], 'scale >= 1'),
+            ('fault.noise_burst', [2.0], 'fault.noise_burst = [2.0]: expected 2 numbers'),
+            ('fault.noise_burst', [5.0, 1.0], 'the encoders have no noise to scale')]:
+        with pytest.raises(ConfigError, match=re.escape(reason)):
+            parse(DriverSettings, {**quiet, key: value})
+    burst = DriveFaults(noise_burst=(5.0, 2.0))
     assert (burst.noise_scale(1.0), burst.noise_scale(2.5), burst.noise_scale(-1.0)) == (
         5.0, 1.0, 1.0)
 
 
-def test_settings_from_parameters_and_their_validation() -> None:
-    values = {'linear.max_velocity': 0.05, 'linear.max_acceleration': 0.5,
-              'linear.following_error_limit': 1e-3, 'rotary.max_velocity': 0.5,
-              'rotary.max_acceleration': 5.0, 'rotary.following_error_limit': 0.01,
+def test_driver_settings_from_parameters_and_their_validation() -> None:
+    values = {'servo.linear.max_velocity': 0.05, 'servo.linear.max_acceleration': 0.5,
+              'servo.linear.following_error_limit': 1e-3, 'servo.rotary.max_velocity': 0.5,
+              'servo.rotary.max_acceleration': 5.0, 'servo.rotary.following_error_limit': 0.01,
               'servo.position_gain': 25.0, 'servo.velocity_lag': 0.01, 'servo.max_step': 0.002,
-              'encoder.linear_resolution': 1e-6, 'encoder.rotary_counts_per_rev': 2**20,
-              'encoder.linear_noise': 0.0, 'encoder.rotary_noise': 0.0}
-    servo, encoder = settings_from_params(values)
-    assert servo == ServoSettings() and encoder == EncoderSettings()
-    with pytest.raises(ConfigError, match='following_error'):
-        settings_from_params({**values, 'rotary.following_error_limit': 0.0})
-    with pytest.raises(ConfigError, match='missing'):
-        settings_from_params({k: v for k, v in values.items() if k != 'servo.max_step'})
+              'encoder.linear_resolution': 1e-6, 'encoder.rotary_counts_per_rev': 2**20}
+    settings = parse(DriverSettings, values)
+    assert settings.servo == ServoSettings() and settings.encoder == EncoderSettings()
+    assert settings.publish_rate == settings.physics_rate / settings.publish_every
+    with pytest.raises(ConfigError, match=r'servo.rotary.following_error_limit = 0.0: must be'):
+        parse(DriverSettings, {**values, 'servo.rotary.following_error_limit': 0.0})
+    with pytest.raises(ConfigError, match=r'encoder.rotary_counts_per_rev = 2.5: expected an '
+                                          r'integer'):
+        parse(DriverSettings, {**values, 'encoder.rotary_counts_per_rev': 2.5})

@@ -5,15 +5,18 @@ equilibrium, and the platform's compliance against forward kinematics of the def
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 from workspace import MECH, random_poses
 
-from positioning_cell import config, kinematics
-from positioning_cell import statics as st
+from positioning_cell import config
+from positioning_cell.core import kinematics
 from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.mechanics import statics as st
+from positioning_cell.parameters import parse, to_params
 
 PAYLOAD = st.Payload(mass=50.0, centre_of_gravity=(0.03, -0.02, 0.12),
                      external_wrench=(40.0, -25.0, 60.0, 3.0, -2.0, 5.0),
@@ -148,32 +151,34 @@ def test_batch_matches_single_poses() -> None:
 def test_parameters_from_cell_yaml_are_the_defaults() -> None:
     params = config.node_parameters(config.load_parameter_file(config.config_path()),
                                     'leg_driver')
-    assert st.Payload.from_params(params['payload']) == st.Payload()
-    assert st.Structure.from_params(params['structure']) == st.Structure()
-    flat = config.flatten({'payload': params['payload']})
-    assert st.Payload.from_params(flat) == st.Payload()
-    assert st.Payload.from_params({'payload': st.Payload().to_params()}) == st.Payload()
-    assert st.Structure.from_params(st.Structure().to_params()) == st.Structure()
-    assert st.Payload.from_params({'payload.gravity': [0, 0, -9.8]}).gravity == (0.0, 0.0, -9.8)
+    assert parse(st.Payload, params['payload']) == st.Payload()
+    assert parse(st.Structure, params['structure']) == st.Structure()
+    assert parse(st.Payload, config.flatten(params['payload'])) == st.Payload()
+    assert parse(st.Payload, to_params(st.Payload())) == st.Payload()
+    assert parse(st.Structure, to_params(st.Structure())) == st.Structure()
+    assert parse(st.Payload, {'gravity': [0, 0, -9.8]}).gravity == (0.0, 0.0, -9.8)
+    # Principal moments or the full matrix, as the declaration says.
+    assert parse(st.Payload, {'inertia': [1.0, 2.0, 3.0]}).inertia == (
+        (1.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 3.0))
 
 
 @pytest.mark.parametrize(('params', 'words'), [
-    ({'payload.mas': 50.0}, "unknown parameter 'mas'"),
-    ({'payload.mass': -1.0}, 'payload.mass = -1.0'),
-    ({'payload.mass': 'heavy'}, "payload.mass = 'heavy'"),
-    ({'payload.centre_of_gravity': [0.0, 0.1]}, 'payload.centre_of_gravity'),
-    ({'payload.gravity': [0.0, float('nan'), 0.0]}, 'payload.gravity'),
-    ({'payload.inertia': [1.0, -1.0, 1.0]}, 'payload.inertia'),
-    ({'payload.external_wrench': [0.0] * 5}, 'payload.external_wrench'),
+    ({'mas': 50.0}, 'payload.mas: unknown parameter'),
+    ({'mass': -1.0}, 'payload.mass = -1.0: must be >= 0 kg'),
+    ({'mass': 'heavy'}, "payload.mass = 'heavy': expected a number"),
+    ({'centre_of_gravity': [0.0, 0.1]}, 'payload.centre_of_gravity = [0.0, 0.1]: expected 3'),
+    ({'gravity': [0.0, float('nan'), 0.0]}, 'payload.gravity = nan: must be finite'),
+    ({'inertia': [1.0, -1.0, 1.0]}, 'payload.inertia = ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0)'),
+    ({'external_wrench': [0.0] * 5}, 'payload.external_wrench = [0.0, 0.0, 0.0, 0.0, 0.0]'),
 ])
 def test_bad_payload_names_key_and_value(params: dict[str, object], words: str) -> None:
-    with pytest.raises(ConfigError, match=words.replace('[', r'\[').replace('(', r'\(')):
-        st.Payload.from_params(params)
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        parse(st.Payload, params, 'payload.')
 
 
 def test_bad_structure_and_input() -> None:
-    with pytest.raises(ConfigError, match=r'structure\.leg_stiffness'):
-        st.Structure.from_params({'structure': {'leg_stiffness': 0.0}})
+    with pytest.raises(ConfigError, match=r'structure\.leg_stiffness = 0.0: must be > 0'):
+        parse(st.Structure, {'leg_stiffness': 0.0}, 'structure.')
     assert st.Structure(theta_stiffness=math.inf).theta_stiffness == math.inf
     with pytest.raises(InputError):
         st.actuator_efforts(MECH, [0.0, 0.0, float('nan')], MECH.home_quaternion, PAYLOAD)

@@ -10,7 +10,7 @@ from workspace import MECH
 
 from positioning_cell import clearance as cl
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.trajectory import MotionLimits, plan_move
+from positioning_cell.motion.trajectory import MotionLimits, plan_move
 
 LIMITS = MotionLimits(linear_speed=0.01, linear_acceleration=0.05, angular_speed=0.1,
                       angular_acceleration=0.5)
@@ -115,7 +115,7 @@ def test_bad_arguments() -> None:
 def test_path_near_a_singularity_is_refused_with_the_sample() -> None:
     """A path that turns the platform toward the π/2-about-z singularity (seed 001 rank loss)
     is refused at the first sample past the margin, even with joint limits relaxed."""
-    from positioning_cell.mechanism import Mechanism
+    from positioning_cell.core.mechanism import Mechanism
 
     mech = Mechanism(theta_min=-1.5, theta_max=1.5, phi_min=-1.5, phi_max=1.5, tilt_max=1.5,
                      length_min=0.05, length_max=0.4, min_leg_distance=0.0,

@@ -7,8 +7,8 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from positioning_cell.limits import check_poses
-from positioning_cell.mechanism import Mechanism
+from positioning_cell.core.limits import check_poses
+from positioning_cell.core.mechanism import Mechanism
 
 MECH = Mechanism.default()
 # Half-widths of the sampled box around home: m, and rad of the rotation vector.

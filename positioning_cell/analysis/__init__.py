@@ -1,16 +1,15 @@
-"""Offline analysis of recorded cell runs (pure library, no rclpy): a bag read in recorded
-order (:mod:`.reading`), replayed through the accuracy monitor's rules (:mod:`.monitor`,
-:mod:`.replay`), summarised per compensation mode and commanded pose (:mod:`.summary`), written
-as a Markdown report and a JSON summary (:mod:`.report`) and plotted (:mod:`.plots`)."""
+"""Offline analysis of recorded cell runs (pure library, no rclpy): the run program
+(:mod:`.program`), a bag read in recorded order (:mod:`.reading`), replayed through the
+accuracy monitor's rules (:mod:`positioning_cell.accuracy.monitor`, :mod:`.replay`),
+summarised per compensation mode and commanded pose (:mod:`.summary`), written as a Markdown
+report and a JSON summary (:mod:`.report`) and plotted (:mod:`.plots`)."""
 
-from positioning_cell.analysis.monitor import Ignored, MonitorReplay, MonitorSettings
+from positioning_cell.analysis.program import Program, ProgramStep, load_program
 from positioning_cell.analysis.reading import BagContents, read_bag
 from positioning_cell.analysis.replay import (
     OPTIONAL_TOPICS,
-    PROGRAM_TOPIC,
     REQUIRED_TOPICS,
     LabelledVisit,
-    ProgramStep,
     Replay,
     Segment,
     replay,
@@ -26,21 +25,19 @@ from positioning_cell.analysis.summary import (
 
 __all__ = [
     'OPTIONAL_TOPICS',
-    'PROGRAM_TOPIC',
     'REQUIRED_TOPICS',
     'BagContents',
     'Extremes',
-    'Ignored',
     'LabelledVisit',
     'ModeSummary',
-    'MonitorReplay',
-    'MonitorSettings',
     'PoseSummary',
+    'Program',
     'ProgramStep',
     'Replay',
     'RunAnalysis',
     'Segment',
     'analyse_bag',
+    'load_program',
     'read_bag',
     'replay',
     'summarise',

@@ -63,7 +63,7 @@ def plot_error_over_time(analysis: RunAnalysis, path: Path) -> Path:
         ax.set_yscale('log')
         ax.set_ylabel(unit)
         ax.grid(True, which='both', alpha=0.3)
-    tol = analysis.settings.tolerances
+    tol = analysis.settings.tolerance
     axes[0].axhline(tol.position * UM, color='red', ls='--', lw=0.8, label='tolerance')
     axes[1].axhline(tol.orientation * DEG, color='red', ls='--', lw=0.8)
     segs = r.segments
@@ -170,7 +170,7 @@ def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
     plt = _pyplot()
     modes = [m.mode for m in analysis.modes]
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
-    tol = analysis.settings.tolerances
+    tol = analysis.settings.tolerance
     for ax, attr, scale, unit, limit in (
             (axes[0], 'position_error', UM, '|Δp| µm', tol.position * UM),
             (axes[1], 'orientation_error', DEG, 'angle °', tol.orientation * DEG)):

@@ -4,6 +4,7 @@ limits before anything moves."""
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -14,10 +15,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.config import load_parameter_file
+from positioning_cell.core.limits import check_poses
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.limits import check_poses
-from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import as_pose_batch
 
 FloatArray = NDArray[np.float64]
 MODES = ('none', 'model', 'measured')
@@ -61,7 +62,7 @@ def _number(block: Mapping[str, Any], key: str, default: float, low: float) -> f
 
 def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
     """The program in a parsed program file (``program:`` block, see config/program.yaml),
-    every pose checked with :func:`positioning_cell.limits.check_poses`. ConfigError names
+    every pose checked with :func:`positioning_cell.core.limits.check_poses`. ConfigError names
     what is wrong."""
     block = data.get('program')
     if not isinstance(block, Mapping):
@@ -101,3 +102,42 @@ def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
 def load_program(path: str | Path, mech: Mechanism) -> Program:
     """Read and check a program file (:func:`program_from`)."""
     return program_from(load_parameter_file(path), mech)
+
+
+@dataclass(frozen=True)
+class ProgramStep:
+    """One step of the run program as published on /cell/program: compensation ``mode``,
+    ``cycle`` (1-based) and ``pose`` name of the next move, ``stamp`` (s, publisher clock)
+    and an optional ``note`` for the report."""
+
+    mode: str
+    stamp: float
+    cycle: int | None = None
+    pose: str | None = None
+    note: str | None = None
+
+    def to_json(self) -> str:
+        """The /cell/program message text."""
+        doc: dict[str, Any] = {'mode': self.mode, 'cycle': self.cycle, 'pose': self.pose,
+                               'stamp': self.stamp}
+        if self.note:
+            doc['note'] = self.note
+        return json.dumps(doc)
+
+    @classmethod
+    def from_json(cls, text: str, log_time: float) -> ProgramStep:
+        """Parse a /cell/program message; ``log_time`` (s) stands in for a missing stamp.
+        InputError for text that is not such a JSON object."""
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise InputError(f'/cell/program: not JSON ({err}): {text[:80]!r}') from err
+        if not isinstance(doc, dict) or not isinstance(doc.get('mode'), str):
+            raise InputError(f'/cell/program: expected an object with a "mode" string, '
+                             f'got {text[:80]!r}')
+        stamp = doc.get('stamp', log_time)
+        cycle, pose, note = doc.get('cycle'), doc.get('pose'), doc.get('note')
+        return cls(doc['mode'], float(stamp) if isinstance(stamp, (int, float)) else log_time,
+                   cycle if isinstance(cycle, int) else None,
+                   str(pose) if pose is not None else None,
+                   str(note) if note is not None else None)

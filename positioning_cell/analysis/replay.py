@@ -12,7 +12,6 @@ the move starts) and the pose is named ``P<key + 1>``.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -22,63 +21,27 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
-from positioning_cell.analysis.monitor import MonitorReplay, MonitorSettings
+from positioning_cell.accuracy.monitor import Ignored, Monitor, MonitorSettings
+from positioning_cell.analysis.program import ProgramStep
 from positioning_cell.bag import BagMessage
 from positioning_cell.errors import InputError
+from positioning_cell.names import (
+    DIAGNOSTICS,
+    MEASURED_POSE,
+    PROGRAM,
+    STATUS_POSITIONER,
+    TARGET,
+    TRUE_POSE,
+)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
-TARGET_TOPIC = '/positioner/target'
-MEASURED_TOPIC = '/metrology/pose'
-TRUTH_TOPIC = '/sim/platform/true_pose'
-PROGRAM_TOPIC = '/cell/program'
-DIAGNOSTICS_TOPIC = '/diagnostics'
 #: Without these there is nothing to analyse.
-REQUIRED_TOPICS = (TARGET_TOPIC, MEASURED_TOPIC)
+REQUIRED_TOPICS = (TARGET, MEASURED_POSE)
 #: Used when present: the simulation truth, the program labels, the positioner's mode.
-OPTIONAL_TOPICS = (TRUTH_TOPIC, PROGRAM_TOPIC, DIAGNOSTICS_TOPIC)
-POSITIONER_STATUS = 'positioner: state'
+OPTIONAL_TOPICS = (TRUE_POSE, PROGRAM, DIAGNOSTICS)
 UNKNOWN_MODE = 'unknown'
-
-
-@dataclass(frozen=True)
-class ProgramStep:
-    """One step of the run program as published on /cell/program: compensation ``mode``,
-    ``cycle`` (1-based) and ``pose`` name of the next move, ``stamp`` (s, publisher clock)
-    and an optional ``note`` for the report."""
-
-    mode: str
-    stamp: float
-    cycle: int | None = None
-    pose: str | None = None
-    note: str | None = None
-
-    def to_json(self) -> str:
-        """The /cell/program message text."""
-        doc: dict[str, Any] = {'mode': self.mode, 'cycle': self.cycle, 'pose': self.pose,
-                               'stamp': self.stamp}
-        if self.note:
-            doc['note'] = self.note
-        return json.dumps(doc)
-
-    @classmethod
-    def from_json(cls, text: str, log_time: float) -> ProgramStep:
-        """Parse a /cell/program message; ``log_time`` (s) stands in for a missing stamp.
-        InputError for text that is not such a JSON object."""
-        try:
-            doc = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise InputError(f'/cell/program: not JSON ({err}): {text[:80]!r}') from err
-        if not isinstance(doc, dict) or not isinstance(doc.get('mode'), str):
-            raise InputError(f'/cell/program: expected an object with a "mode" string, '
-                             f'got {text[:80]!r}')
-        stamp = doc.get('stamp', log_time)
-        cycle, pose, note = doc.get('cycle'), doc.get('pose'), doc.get('note')
-        return cls(doc['mode'], float(stamp) if isinstance(stamp, (int, float)) else log_time,
-                   cycle if isinstance(cycle, int) else None,
-                   str(pose) if pose is not None else None,
-                   str(note) if note is not None else None)
 
 
 @dataclass(frozen=True)
@@ -149,11 +112,11 @@ class _SampleLog:
 
 @dataclass(frozen=True)
 class Replay:
-    """Everything the replay found: the monitor (its :meth:`MonitorReplay.report` equals the
+    """Everything the replay found: the monitor (its :meth:`Monitor.report` equals the
     live node's), the segments, the labelled measured and true visits, the accepted samples,
     the program steps and the notes they carried."""
 
-    monitor: MonitorReplay
+    monitor: Monitor
     segments: tuple[Segment, ...]
     visits: tuple[LabelledVisit, ...]
     truth_visits: tuple[LabelledVisit, ...]
@@ -177,14 +140,14 @@ def _pose(msg: Any) -> tuple[float, str, tuple[float, float, float],
 
 def _diagnostic_modes(msg: Any) -> list[tuple[float, str]]:
     stamp = accuracy.stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec)
-    return [(stamp, kv.value) for status in msg.status if status.name == POSITIONER_STATUS
+    return [(stamp, kv.value) for status in msg.status if status.name == STATUS_POSITIONER
             for kv in status.values if kv.key == 'mode']
 
 
 def replay(messages: Sequence[BagMessage], settings: MonitorSettings | None = None) -> Replay:
-    """Feed the recorded messages (in recorded order) through :class:`MonitorReplay` as the
-    live monitor took them, and label what settled."""
-    monitor = MonitorReplay(settings)
+    """Feed the recorded messages (in recorded order) through the monitor's rules
+    (:class:`Monitor`) as the live monitor took them, and label what settled."""
+    monitor = Monitor(settings)
     steps: list[ProgramStep] = []
     modes: list[tuple[float, str]] = []
     problems: list[str] = []
@@ -192,35 +155,36 @@ def replay(messages: Sequence[BagMessage], settings: MonitorSettings | None = No
     measured, truth = _SampleLog(), _SampleLog()
     for item in messages:
         topic, msg = item.topic, item.message
-        if topic == PROGRAM_TOPIC:
+        if topic == PROGRAM:
             try:
                 steps.append(ProgramStep.from_json(msg.data, item.log_time_ns * 1e-9))
             except InputError as err:
                 problems.append(str(err))
-        elif topic == DIAGNOSTICS_TOPIC:
+        elif topic == DIAGNOSTICS:
             modes.extend(_diagnostic_modes(msg))
-        elif topic == TARGET_TOPIC:
+        elif topic == TARGET:
             before = monitor.measured.target
             stamp, frame, p, q = _pose(msg)
-            after = monitor.measured.target if monitor.target(stamp, frame, p, q) else before
+            taken = monitor.target(stamp, frame, p, q) is None
+            after = monitor.measured.target if taken else before
             if after is not None and after is not before:
                 truth_target = monitor.truth_accumulator.target
                 raw_segments.append((after[0], truth_target[0] if truth_target else after[0],
                                      after[3], after[1], after[2], stamp))
-        elif topic == MEASURED_TOPIC:
+        elif topic == MEASURED_POSE:
             stamp, frame, p, q = _pose(msg)
-            update = monitor.measurement(stamp, frame, p, q)
-            if update is not None:
-                measured.add(stamp, p, q, update, len(raw_segments) - 1)
-        elif topic == TRUTH_TOPIC:
+            result = monitor.measurement(stamp, frame, p, q)
+            if not isinstance(result, Ignored):
+                measured.add(stamp, p, q, result.update, len(raw_segments) - 1)
+        elif topic == TRUE_POSE:
             stamp, frame, p, q = _pose(msg)
             update = monitor.truth(stamp, frame, p, q)
-            if update is not None:
+            if not isinstance(update, Ignored):
                 truth.add(stamp, p, q, update, len(raw_segments) - 1)
     segments = _label(raw_segments, steps, modes)
     by_time = {s[0]: i for i, s in enumerate(raw_segments)}
     by_truth_time = {s[1]: i for i, s in enumerate(raw_segments)}
-    tolerances = monitor.settings.tolerances
+    tolerances = monitor.tolerances
     visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
                                  segments[by_time[v.target_time]].pose, verdict)
                    for v, verdict in zip(monitor.measured.visits, monitor.verdicts, strict=True))

@@ -89,8 +89,8 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
     a, s = analysis, analysis.settings
     out = [f'# Positioning cell run: {a.bag.name}', '',
            f'Bag `{a.bag}`: {a.message_count} messages, {len(a.topics)} topics.',
-           f'Tolerances: position {_um(s.tolerances.position)} µm, orientation '
-           f'{_deg(s.tolerances.orientation)}°. Settle: window {s.settle.window} s, dwell '
+           f'Tolerances: position {_um(s.tolerance.position)} µm, orientation '
+           f'{_deg(s.tolerance.orientation)}°. Settle: window {s.settle.window} s, dwell '
            f'{s.settle.dwell} s, ≥ {s.settle.min_samples} samples, spread ≤ '
            f'{_um(s.settle.position_threshold)} µm / {_deg(s.settle.angle_threshold)}°.', '']
     if a.problems:

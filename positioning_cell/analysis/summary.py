@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from positioning_cell import accuracy
-from positioning_cell.analysis.monitor import Ignored, MonitorSettings
+from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
 from positioning_cell.analysis.reading import read_bag
 from positioning_cell.analysis.replay import (
     OPTIONAL_TOPICS,
@@ -187,9 +187,9 @@ class RunAnalysis:
             'samples': {'measured': self.replay.measured.count,
                         'truth': self.replay.truth.count},
             'settings': {'settle': s.settle.to_params(),
-                         'tolerances': {'position': s.tolerances.position,
-                                        'orientation': s.tolerances.orientation},
-                         'max_stamp_difference': s.max_stamp_difference},
+                         'tolerances': {'position': s.tolerance.position,
+                                        'orientation': s.tolerance.orientation},
+                         'max_stamp_difference': s.tracker_error.max_stamp_difference},
             'modes': [m.to_dict() for m in self.modes],
             'truth_modes': [m.to_dict() for m in self.truth_modes],
             'tracker': None if tracker is None else tracker.to_dict(),
@@ -219,7 +219,8 @@ def analyse_bag(path: str | Path, settings: MonitorSettings | None = None) -> Ru
     return RunAnalysis(
         bag=Path(path), message_count=contents.message_count, topics=contents.topics,
         settings=settings, replay=result,
-        modes=_with_tracker(summarise(result.visits), result, settings.max_stamp_difference),
+        modes=_with_tracker(summarise(result.visits), result,
+                           settings.tracker_error.max_stamp_difference),
         truth_modes=summarise(result.truth_visits) if truth else (),
         problems=(*contents.problems, *result.problems),
         missing_optional=tuple(t for t in OPTIONAL_TOPICS if t not in contents.topics),

@@ -12,18 +12,16 @@ from positioning_cell.bag.metadata import (
     FileSummary,
     TopicMeta,
     playback_qos,
-    qos_from_profile,
-    qos_kwargs,
     recording_qos,
 )
 from positioning_cell.bag.playback import PlaybackTiming, play
 from positioning_cell.bag.reader import BagMessage, BagReader, RawMessage, TopicInfo
 from positioning_cell.bag.recovery import FileRecovery, RecoveryReport, recover_bag
-from positioning_cell.bag.topics import CELL_TOPICS, TopicSelection, message_class
+from positioning_cell.bag.settings import PlayerSettings, RecorderSettings, SplitSettings
+from positioning_cell.bag.topics import TopicSelection
 from positioning_cell.bag.writer import BagWriter, message_definition
 
 __all__ = [
-    'CELL_TOPICS',
     'BagError',
     'BagMessage',
     'BagReader',
@@ -31,17 +29,17 @@ __all__ = [
     'FileRecovery',
     'FileSummary',
     'PlaybackTiming',
+    'PlayerSettings',
     'RawMessage',
+    'RecorderSettings',
     'RecoveryReport',
+    'SplitSettings',
     'TopicInfo',
     'TopicMeta',
     'TopicSelection',
-    'message_class',
     'message_definition',
     'play',
     'playback_qos',
-    'qos_from_profile',
-    'qos_kwargs',
     'recording_qos',
     'recover_bag',
 ]

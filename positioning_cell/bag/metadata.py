@@ -33,8 +33,6 @@ METADATA_VERSION = 9
 #: ``ros_distro`` written to metadata.yaml: the cell runs on ROS 2 Jazzy.
 ROS_DISTRO = 'jazzy'
 METADATA_FILE = 'metadata.yaml'
-#: rclpy's "infinite" duration (deadline, lifespan, lease), as rosbag2 writes it.
-_INFINITE_NS = 2**63 - 1
 
 
 @dataclass(frozen=True)
@@ -68,32 +66,6 @@ def make_qos(history: QosHistory, depth: int, reliability: QosReliability,
     zero = QosTime(0, 0)
     return Qos(history, depth, reliability, durability, zero, zero,
                QosLiveliness.SYSTEM_DEFAULT, zero, False)
-
-
-def _time_of(duration: Any) -> QosTime:
-    ns = int(getattr(duration, 'nanoseconds', 0))
-    ns = min(max(ns, 0), _INFINITE_NS)
-    return QosTime(ns // 1_000_000_000, ns % 1_000_000_000)
-
-
-def qos_from_profile(profile: Any) -> Qos:
-    """The rosbags Qos of an rclpy ``QoSProfile`` (read by attribute, so no rclpy import).
-
-    rclpy's policy enums carry the rmw integer values, which are rosbags' enum values too.
-    """
-    return Qos(QosHistory(int(profile.history)), int(profile.depth),
-               QosReliability(int(profile.reliability)), QosDurability(int(profile.durability)),
-               _time_of(profile.deadline), _time_of(profile.lifespan),
-               QosLiveliness(int(profile.liveliness)),
-               _time_of(profile.liveliness_lease_duration),
-               bool(profile.avoid_ros_namespace_conventions))
-
-
-def qos_kwargs(qos: Qos) -> dict[str, int]:
-    """History, depth, reliability and durability of ``qos`` as the integer keyword arguments
-    ``rclpy.qos.QoSProfile(**kwargs)`` accepts (timing and liveliness stay rclpy defaults)."""
-    return {'history': qos.history.value, 'depth': max(int(qos.depth), 1),
-            'reliability': qos.reliability.value, 'durability': qos.durability.value}
 
 
 def _adapted(offered: Sequence[Qos]) -> tuple[QosReliability, QosDurability]:

@@ -18,54 +18,46 @@ from typing import Any
 import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 
+from positioning_cell import names
 from positioning_cell.bag import (
     BagError,
     BagReader,
     PlaybackTiming,
+    PlayerSettings,
     RawMessage,
-    message_class,
     play,
     playback_qos,
-    qos_kwargs,
 )
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.nodes.common import Parameters, ParamSpec, run
+from positioning_cell.nodes.messages import message_class
+from positioning_cell.nodes.parameters import NodeParameters
+from positioning_cell.nodes.qos import profile_from_qos
+from positioning_cell.nodes.spin import run
 
-SPECS = [
-    ParamSpec('bag', '', 'bag directory to play (required)', read_only=True),
-    ParamSpec('rate', 1.0, 'replay speed factor (2 = twice as fast)', low=0.01, high=100.0,
-              read_only=True),
-    ParamSpec('start_offset_s', 0.0, 'start this far into the bag, s of bag time', low=0.0,
-              high=1e9, read_only=True),
-    ParamSpec('loop', False, 'start over at the end', read_only=True),
-    ParamSpec('topics', [''], 'topics to play; empty: every topic of the bag', read_only=True),
-    ParamSpec('queue_depth', 1000, 'publisher history of streamed topics, messages', low=1,
-              high=1_000_000, read_only=True),
-    ParamSpec('wait_for_subscribers_s', 5.0, 'wait up to this long for every topic to have a '
-              'subscriber before playing, s', low=0.0, high=600.0, read_only=True),
-]
 ACK_TIMEOUT_S = 5.0
 
 
 class BagPlayerNode(Node):
     """Node ``bag_player``: see the module docstring."""
 
-    def __init__(self) -> None:
-        super().__init__('bag_player')
-        self.params = p = Parameters(self, SPECS)
-        if not p['bag']:
+    NAME = names.NODE_PLAYER
+    SETTINGS = PlayerSettings
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NAME, **kwargs)
+        self.settings = p = NodeParameters(self, self.SETTINGS).settings
+        if not p.bag:
             raise ConfigError('bag: the bag directory to play is required')
-        self._reader = BagReader(p['bag'])
+        self._reader = BagReader(p.bag)
         try:
-            self._topics = [t for t in p['topics'] if t] or sorted(self._reader.topics)
-            self._timing = PlaybackTiming.starting(self._reader.start_ns, p['rate'],
-                                                   p['start_offset_s'])
+            self._topics = list(p.topics) or sorted(self._reader.topics)
+            self._timing = PlaybackTiming.starting(self._reader.start_ns, p.rate,
+                                                   p.start_offset_s)
             self._outputs = {t: self._publisher(t) for t in self._topics}
         except (InputError, BagError) as err:
             self._reader.close()
-            raise ConfigError(f'{p["bag"]}: {err}') from err
+            raise ConfigError(f'{p.bag}: {err}') from err
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._playback, name='playback', daemon=True)
         self._thread.start()
@@ -75,7 +67,7 @@ class BagPlayerNode(Node):
         if info is None:
             raise InputError(f'no topic {topic} in the bag (it has: '
                              f'{", ".join(sorted(self._reader.topics))})')
-        qos = QoSProfile(**qos_kwargs(playback_qos(info.qos, self.params['queue_depth'])))
+        qos = profile_from_qos(playback_qos(info.qos, self.settings.queue_depth))
         return self.create_publisher(message_class(info.msgtype), topic, qos)
 
     def _publish(self, message: RawMessage) -> None:
@@ -83,14 +75,14 @@ class BagPlayerNode(Node):
 
     def _playback(self) -> None:
         log = self.get_logger()
-        deadline = time.monotonic() + self.params['wait_for_subscribers_s']
+        deadline = time.monotonic() + self.settings.wait_for_subscribers_s
         while (any(pub.get_subscription_count() == 0 for pub in self._outputs.values())
                and time.monotonic() < deadline):
             if self._stop.wait(0.02):
                 return
         missing = [t for t, pub in self._outputs.items() if pub.get_subscription_count() == 0]
         if missing:
-            log.warning(f'no subscriber after {self.params["wait_for_subscribers_s"]} s on '
+            log.warning(f'no subscriber after {self.settings.wait_for_subscribers_s} s on '
                         f'{", ".join(missing)}: playing anyway')
         try:
             while not self._stop.is_set():
@@ -98,7 +90,7 @@ class BagPlayerNode(Node):
                              self._timing, self._publish, self._stop.wait)
                 log.info(f'played {count} messages of {self._reader.path} '
                          f'at rate {self._timing.rate}')
-                if not self.params['loop']:
+                if not self.settings.loop:
                     break
             for pub in self._outputs.values():
                 pub.wait_for_all_acked(Duration(seconds=ACK_TIMEOUT_S))
@@ -120,11 +112,7 @@ class BagPlayerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Play until the end of the bag (or Ctrl-C / SIGTERM when looping)."""
-    try:
-        return run(BagPlayerNode, args)
-    except (ConfigError, BagError) as err:
-        print(f'bag_player: {err}', file=sys.stderr)
-        return 2
+    return run(BagPlayerNode, args)
 
 
 if __name__ == '__main__':

@@ -10,56 +10,29 @@ EventsExecutor (several times the throughput of the default executors).
 
 from __future__ import annotations
 
-import signal
 import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
-from rclpy.task import Future
 from std_srvs.srv import Trigger
 
+from positioning_cell import names
 from positioning_cell.bag import (
     BagError,
     BagWriter,
+    RecorderSettings,
     TopicSelection,
-    message_class,
-    qos_from_profile,
-    qos_kwargs,
     recording_qos,
 )
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.nodes.common import COMMAND_QOS, Parameters, ParamSpec, diagnostic
-
-SPECS = [
-    ParamSpec('output', '', 'bag directory to create (never overwritten); empty: '
-              'runs/<UTC timestamp>/bag under the working directory', read_only=True),
-    ParamSpec('topics', [''], 'topics to record (absolute names); with topic_pattern empty '
-              'too: every topic of design/interfaces.md', read_only=True),
-    ParamSpec('topic_pattern', '', 'regular expression (full match) of further topics to '
-              'record, e.g. "/sim/.*"', read_only=True),
-    ParamSpec('compression', 'none', 'chunk compression', choices=('none', 'zstd'),
-              read_only=True),
-    ParamSpec('chunk_bytes', 65536, 'MCAP chunk size, bytes', low=1024, high=64 * 2**20,
-              read_only=True),
-    ParamSpec('flush_period_s', 0.5, 'chunks reach the disk at least this often, s (bounds '
-              'what a SIGKILL loses)', low=0.05, high=60.0, read_only=True),
-    ParamSpec('discovery_period_s', 0.5, 'graph polling period for new topics, s', low=0.05,
-              high=60.0, read_only=True),
-    ParamSpec('queue_depth', 0, 'subscription history per topic, messages (0: keep all)',
-              low=0, high=1_000_000, read_only=True),
-    ParamSpec('split.max_bytes', 0, 'start a new .mcap file at this size, bytes (0: never)',
-              low=0, high=2**62, read_only=True),
-    ParamSpec('split.max_duration_s', 0.0, 'start a new .mcap file after this span of '
-              'receive time, s (0: never)', low=0.0, high=1e9, read_only=True),
-]
+from positioning_cell.nodes.messages import diagnostic, message_class
+from positioning_cell.nodes.parameters import NodeParameters
+from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, profile_from_qos, qos_from_profile
+from positioning_cell.nodes.spin import run
 
 
 def default_output(now: datetime | None = None) -> Path:
@@ -71,29 +44,33 @@ def default_output(now: datetime | None = None) -> Path:
 class RecorderNode(Node):
     """Node ``recorder``: see the module docstring; services ``~/pause``, ``~/resume``."""
 
-    def __init__(self) -> None:
-        super().__init__('recorder')
-        self.params = Parameters(self, SPECS)
-        p = self.params
+    NAME = names.NODE_RECORDER
+    SETTINGS = RecorderSettings
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NAME, **kwargs)
+        self.settings = p = NodeParameters(self, self.SETTINGS).settings
         try:
-            self._selection = TopicSelection.from_params(
-                [t for t in p['topics'] if t], p['topic_pattern'])
+            self._selection = TopicSelection.from_params(list(p.topics), p.topic_pattern)
         except InputError as err:
             raise ConfigError(str(err)) from err
         self._writer = BagWriter(
-            p['output'] or default_output(), compression=p['compression'],
-            chunk_bytes=p['chunk_bytes'], split_max_bytes=p['split.max_bytes'],
-            split_max_duration_s=p['split.max_duration_s'])
+            p.output or default_output(), compression=p.compression,
+            chunk_bytes=p.chunk_bytes, split_max_bytes=p.split.max_bytes,
+            split_max_duration_s=p.split.max_duration_s)
         self._recorded: dict[str, Any] = {}
         self._ignored: set[str] = set()
         self._paused = False
         self._write_errors = 0
         self._dropped_paused = 0
-        self._diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', COMMAND_QOS)
-        self.create_service(Trigger, '~/pause', lambda _, r: self._set_paused(True, r))
-        self.create_service(Trigger, '~/resume', lambda _, r: self._set_paused(False, r))
-        self.create_timer(p['discovery_period_s'], self._discover)
-        self.create_timer(p['flush_period_s'], self._writer.flush)
+        self._diagnostics = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
+                                                  DIAGNOSTICS_QOS)
+        self.create_service(Trigger, names.RECORDER_PAUSE,
+                            lambda _, r: self._set_paused(True, r))
+        self.create_service(Trigger, names.RECORDER_RESUME,
+                            lambda _, r: self._set_paused(False, r))
+        self.create_timer(p.discovery_period_s, self._discover)
+        self.create_timer(p.flush_period_s, self._writer.flush)
         self.create_timer(1.0, self._publish_diagnostics)
         self._discover()
         self.get_logger().info(f'recording into {self._writer.path}')
@@ -119,7 +96,7 @@ class RecorderNode(Node):
             if len(types) > 1:
                 self.get_logger().warning(f'{topic} has several types {types}; recording '
                                           f'{msgtype} only')
-            qos = QoSProfile(**qos_kwargs(recording_qos(offered, self.params['queue_depth'])))
+            qos = profile_from_qos(recording_qos(offered, self.settings.queue_depth))
             self._recorded[topic] = self.create_subscription(
                 msg_class, topic, self._receiver(topic, msgtype), qos, raw=True)
             self.get_logger().info(f'recording {topic} ({msgtype}, {qos.reliability.name}, '
@@ -156,7 +133,7 @@ class RecorderNode(Node):
         message = ('write errors' if self._write_errors else
                    'paused' if self._paused else 'recording')
         self._diagnostics.publish(diagnostic(
-            'recorder', level, message,
+            names.STATUS_RECORDER, level, message,
             {'bag': self._writer.path, 'messages': self._writer.message_count,
              'topics': len(self._recorded), 'files': len(self._writer.files),
              'dropped_while_paused': self._dropped_paused, 'write_errors': self._write_errors,
@@ -193,34 +170,8 @@ class RecorderNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Spin the recorder with the EventsExecutor until SIGINT / SIGTERM, then close the bag.
-
-    rclpy's own handlers turn both signals into a context shutdown; the Python SIGINT handler
-    is made a no-op so a KeyboardInterrupt can never land in the middle of a write.
-    """
-    signal.signal(signal.SIGINT, lambda *_: None)
-    rclpy.init(args=args)
-    node: RecorderNode | None = None
-    code = 0
-    try:
-        node = RecorderNode()
-        executor = EventsExecutor()
-        executor.add_node(node)
-        # EventsExecutor.spin() ignores a shutdown in this rclpy build; spin in bounded slices.
-        never: Future = Future()
-        while rclpy.ok():
-            executor.spin_until_future_complete(never, timeout_sec=1.0)
-    except ExternalShutdownException:
-        pass
-    except (ConfigError, BagError) as err:
-        print(f'recorder: {err}', file=sys.stderr)
-        code = 2
-    finally:
-        if node is not None:
-            node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    """Record until SIGINT / SIGTERM, then close the bag (exit 2: it could not be created)."""
+    return run(RecorderNode, args)
 
 
 if __name__ == '__main__':

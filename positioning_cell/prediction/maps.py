@@ -9,10 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from positioning_cell.core.limits import check_poses
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import as_unit_quaternions
 from positioning_cell.errors import InputError
-from positioning_cell.limits import check_poses
-from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import as_unit_quaternions
 from positioning_cell.prediction.sensitivity import (
     kind_variances,
     linearise,
@@ -55,7 +55,7 @@ def workspace_maps(mech: Mechanism, spec: ToleranceSpec, half_width: float, coun
     """Evaluate the predictions on a ``count`` × ``count`` grid x, y ∈ [−half_width, half_width]
     m at ``height`` m (default: home height) with orientation ``quaternion`` (x, y, z, w).
 
-    Feasibility is checked pose by pose with :func:`positioning_cell.limits.check_poses`; the
+    Feasibility is checked pose by pose with :func:`positioning_cell.core.limits.check_poses`; the
     sensitivity of all feasible poses is one batched :func:`.sensitivity.linearise`.
     """
     if count < 2 or not half_width > 0.0:

@@ -5,11 +5,11 @@ For each sample of the sources (:func:`.sources.draw_sources`) the closure equat
     h_i = p + R·(b_i + δb_i) − (A_i + δA_i) − (l_i + δl_i)·u_i(φ_i + δφ_i, θ_i + δθ_i) = 0
 
 are solved exactly for the pose deviation (δp, δρ) and the passive angles δφ, every sample with
-its own joint centres. :func:`positioning_cell.kinematics.forward` takes one geometry for the
+its own joint centres. :func:`positioning_cell.core.kinematics.forward` takes one geometry for the
 whole batch, so each sample is solved here by a chord (simplified Newton) iteration that reuses
 the nominal closure Jacobian U of :mod:`.sensitivity`: z ← z − U⁻¹·h(z) from the first-order
 solution, each step one residual evaluation and one (9 × 9) product, in a compiled per-sample
-kernel (:mod:`positioning_cell.compiled`). The tests check it against
+kernel (:mod:`positioning_cell.core.compiled`). The tests check it against
 ``forward(mech.with_offsets(...))`` sample by sample.
 """
 
@@ -24,11 +24,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.sparse import csr_array
 from scipy.stats import binomtest
 
-from positioning_cell.compiled import available_cpus, kernel, kernel_array
+from positioning_cell.core.compiled import available_cpus, kernel, kernel_array
+from positioning_cell.core.kinematics import forward, inverse
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import matrix_from_quaternion, pose_error
 from positioning_cell.errors import InputError
-from positioning_cell.kinematics import forward, inverse
-from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import matrix_from_quaternion, pose_error
 from positioning_cell.prediction.sensitivity import (
     COORDINATES,
     Linearisation,
@@ -367,9 +367,9 @@ __all__ = ['COORDINATES', 'Comparison', 'MonteCarloResult', 'YieldEstimate', 'co
 def per_sample_deviations(mech: Mechanism, spec: ToleranceSpec, position: ArrayLike,
                           quaternion: ArrayLike, samples: ArrayLike) -> FloatArray:
     """Reference: pose deviations (n, 6) (m, rad) for source samples (n, S), one
-    :func:`positioning_cell.kinematics.forward` per sample on the displaced mechanism. Slow and
-    independent of :func:`solve_closure`: what tests check it against and the benchmark's
-    baseline."""
+    :func:`positioning_cell.core.kinematics.forward` per sample on the displaced mechanism.
+    Slow and independent of :func:`solve_closure`: what tests check it against and the
+    benchmark's baseline."""
     p = np.asarray(position, dtype=float).reshape(3)
     q = np.asarray(quaternion, dtype=float).reshape(4)
     x = np.asarray(samples, dtype=float)

@@ -6,7 +6,7 @@ Closure equations (the seed's closed vector loops, eq. 5), one per leg, base fra
 
 The "assembly dimensions" u of the seed are the pose deviation (δp, δρ) and the passive angles
 δφ (9 unknowns); R = R_nom·exp([δρ]×), so δρ is the rotation vector of R_nomᵀ·R, as
-:func:`positioning_cell.poses.pose_error` gives. The open loop (eq. 6) is the pose itself,
+:func:`positioning_cell.core.poses.pose_error` gives. The open loop (eq. 6) is the pose itself,
 Gap = (δp, δρ), so C = 0 and D = [I₆ 0]. With U = ∂h/∂(δp, δρ, δφ) and A = ∂h/∂x the sources,
 eq. (14) gives T = C − D·U⁻¹·A = −[I₆ 0]·U⁻¹·A, a (6 × S) matrix: rows δp_x, δp_y, δp_z (m) and
 δρ_x, δρ_y, δρ_z (rad), columns the sources (m or rad) of :mod:`.sources`.
@@ -23,9 +23,9 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from positioning_cell.kinematics import inverse, leg_directions
-from positioning_cell.mechanism import Mechanism
-from positioning_cell.poses import as_pose_batch, matrix_from_quaternion
+from positioning_cell.core.kinematics import inverse, leg_directions
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import as_pose_batch, matrix_from_quaternion
 from positioning_cell.prediction.sources import GapModel, ToleranceSpec
 
 FloatArray = NDArray[np.float64]

@@ -36,8 +36,8 @@ from numpy.typing import NDArray
 from scipy.stats import truncnorm
 
 from positioning_cell.config import load_parameter_file
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.mechanism import Mechanism
 
 FloatArray = NDArray[np.float64]
 

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from positioning_cell.analysis.monitor import MonitorSettings
+from positioning_cell.accuracy.monitor import MonitorSettings
 from positioning_cell.analysis.plots import write_plots
 from positioning_cell.analysis.report import comparison_table, write_report
 from positioning_cell.analysis.summary import RunAnalysis, analyse_bag

@@ -20,9 +20,9 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.limits import require_within_limits
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError, InputError, PositioningError
-from positioning_cell.limits import require_within_limits
-from positioning_cell.mechanism import Mechanism
 from positioning_cell.prediction.angular import (
     PAPER_EXAMPLES,
     PAPER_HOLES,

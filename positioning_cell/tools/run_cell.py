@@ -21,14 +21,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import json
 import os
-import shutil
 import signal
-import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -38,31 +34,29 @@ from typing import Any
 import numpy as np
 import yaml
 
-from positioning_cell.analysis.program import Program, load_program
-from positioning_cell.analysis.replay import PROGRAM_TOPIC, ProgramStep
+from positioning_cell import names
+from positioning_cell.analysis.program import Program, ProgramStep, load_program
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
-from positioning_cell.domains import DomainError, free_domain
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
-from positioning_cell.mechanism import Mechanism
-from positioning_cell.polling import wait_until
 from positioning_cell.tools.analyze_bag import EXIT_OK, analyze, describe
-
-#: (executable, node name) of the cell, in start order.
-CELL_NODES = (
-    ('recorder_node', 'recorder'),
-    ('leg_driver_node', 'leg_driver'),
-    ('pose_measurement_node', 'pose_measurement'),
-    ('kinematics_node', 'positioner'),
-    ('accuracy_monitor_node', 'accuracy_monitor'),
+from positioning_cell.tools.domains import DomainError, free_domain
+from positioning_cell.tools.polling import wait_until
+from positioning_cell.tools.ros import (
+    CellClient,
+    Processes,
+    cell_environment,
+    status_ok,
+    status_values,
 )
+
+#: The recorder first, then the cell's nodes (the launch file's list).
+STARTED = (names.RECORDER, *names.CELL_NODES)
 #: Topics the recorder and the monitor must have subscribed before the program starts.
-RECORDED = ('/positioner/target', '/metrology/pose', '/sim/platform/true_pose', '/diagnostics',
-            PROGRAM_TOPIC)
-MONITORED = ('/positioner/target', '/metrology/pose')
-MONITOR_INPUTS = (*MONITORED, '/sim/platform/true_pose')
-VERDICT_STATUS = 'accuracy_monitor: settled pose'
-# Usable domain IDs (platform.md): 1-101 and 215-232 (0 is everyone's default). The lock
-# files are those of test/cell_harness.py, so runs and tests never share a domain.
+RECORDED = (names.TARGET, names.MEASURED_POSE, names.TRUE_POSE, names.DIAGNOSTICS,
+            names.PROGRAM)
+MONITORED = (names.TARGET, names.MEASURED_POSE)
+MONITOR_INPUTS = (*MONITORED, names.TRUE_POSE)
 EXIT_MOVE_FAILED, EXIT_NOT_STARTED, EXIT_INTERRUPTED = 1, 2, 130
 #: After the monitor's verdict, wait up to this long (s) for the true pose to settle as well,
 #: so the simulation-truth figures have every visit.
@@ -77,55 +71,6 @@ class StartError(Exception):
     """The cell did not come up; the message says what is missing."""
 
 
-def _executable(name: str) -> str:
-    found = shutil.which(name, path=str(Path(sys.executable).parent)) or shutil.which(name)
-    if found is None:
-        raise StartError(f'{name} is not installed (run `make setup`)')
-    return found
-
-
-class Processes:
-    """The cell's processes, each in its own process group; :meth:`stop` ends them all."""
-
-    def __init__(self, env: dict[str, str], log_dir: Path) -> None:
-        self.env = env
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-
-    def start(self, exe: str, params: Sequence[Path]) -> None:
-        """Start ``exe --ros-args --params-file P ...``, output to ``<log_dir>/<exe>.log``."""
-        args = [_executable(exe), '--ros-args']
-        for p in params:
-            args += ['--params-file', str(p)]
-        with (self.log_dir / f'{exe}.log').open('wb') as log:
-            self.procs[exe] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
-                                               env=self.env, start_new_session=True)
-
-    def dead(self) -> list[str]:
-        """Processes that have exited."""
-        return [name for name, p in self.procs.items() if p.poll() is not None]
-
-    def stop(self, grace: float = 10.0) -> dict[str, int]:
-        """SIGINT to every process group, SIGKILL to those still there after ``grace`` s;
-        the exit codes."""
-        for proc in self.procs.values():
-            if proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGINT)
-        deadline = time.monotonic() + grace
-        codes = {}
-        for name, proc in self.procs.items():
-            try:
-                codes[name] = proc.wait(timeout=max(deadline - time.monotonic(), 0.1))
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                codes[name] = proc.wait()
-            with contextlib.suppress(ProcessLookupError):  # leftovers of the group
-                os.killpg(proc.pid, signal.SIGKILL)
-        return codes
-
-
 def _wait(condition: Callable[[], Any], timeout: float, what: str) -> Any:
     try:
         return wait_until(condition, timeout, what)
@@ -133,125 +78,19 @@ def _wait(condition: Callable[[], Any], timeout: float, what: str) -> Any:
         raise StartError(str(err)) from err
 
 
-def _node_plumbing() -> Any:
-    """positioning_cell.nodes.common (QoS profiles, message helpers), imported when the
-    driver runs: it needs rclpy, and the type checker's strict library run stays out of it."""
-    return importlib.import_module('positioning_cell.nodes.common')
-
-
-class Driver:
-    """The run driver's rclpy node, in its own context on the run's domain, spun in a
-    background thread (the main thread keeps the signal handlers). rclpy is imported here,
-    not with the module, so the rest of run_cell stays importable without ROS."""
-
-    def __init__(self, domain: int) -> None:
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-        from rclpy.signals import SignalHandlerOptions
-        from std_msgs.msg import String
-
-        common = _node_plumbing()
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain,
-                   signal_handler_options=SignalHandlerOptions.NO)
-        self.node = Node('run_cell', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._string = String
-        self.program_pub = self.node.create_publisher(String, PROGRAM_TOPIC,
-                                                     common.LATCHED_QOS)
-        self.verdicts: list[Any] = []
-        self.states: list[Any] = []
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
-                                      common.COMMAND_QOS)
-        self.clients: dict[str, Any] = {}
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _spin(self) -> None:
-        with contextlib.suppress(Exception):
-            self.executor.spin()
-
-    def _on_diag(self, msg: Any) -> None:
-        for status in msg.status:
-            if status.name == VERDICT_STATUS:
-                self.verdicts.append(status)
-            elif status.name == 'positioner: state':
-                self.states.append(status)
-
-    def call(self, srv_type: Any, name: str, request: Any, timeout: float) -> Any:
-        """Call a service and wait for its response (StartError after ``timeout`` s)."""
-        if name not in self.clients:
-            self.clients[name] = self.node.create_client(srv_type, name)
-        client = self.clients[name]
-        _wait(client.service_is_ready, min(timeout, 30.0), f'service {name}')
-        future = client.call_async(request)
-        _wait(future.done, timeout, f'the response of {name}')
-        return future.result()
-
-    def subscribed(self, topic: str, node: str) -> bool:
-        """Has ``node`` a subscription on ``topic``?"""
-        return any(i.node_name == node for i in self.node.get_subscriptions_info_by_topic(topic))
-
-    def set_mode(self, mode: str) -> None:
-        """Set the positioner's compensation.mode (StartError if refused)."""
-        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-        from rcl_interfaces.srv import SetParameters
-
-        value = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=mode)
-        request = SetParameters.Request(parameters=[Parameter(name='compensation.mode',
-                                                              value=value)])
-        result = self.call(SetParameters, '/positioner/set_parameters', request, 10.0)
-        if not result.results or not result.results[0].successful:
-            reason = result.results[0].reason if result.results else 'no result'
-            raise StartError(f'the positioner refused compensation.mode = {mode}: {reason}')
-
-    def publish_step(self, step: ProgramStep) -> None:
-        """Publish a /cell/program step."""
-        self.program_pub.publish(self._string(data=step.to_json()))
-
-    def plan(self, service: str, position: Any, quaternion: Any, tolerance: float,
-             timeout: float) -> bool:
-        """Call /positioner/move_to_pose or /positioner/check_pose (GetPlan) for a pose in
-        the base frame; True when the plan is not empty (moved / would move)."""
-        from nav_msgs.srv import GetPlan
-
-        goal = _node_plumbing().pose_stamped(position, quaternion,
-                                             self.node.get_clock().now().to_msg())
-        response = self.call(GetPlan, service, GetPlan.Request(goal=goal, tolerance=tolerance),
-                             timeout)
-        return bool(response.plan.poses)
-
-    def truth_visits(self) -> int | None:
-        """Settled visits of the true pose so far (None: the monitor has no truth)."""
-        truth = self.report()['truth']
-        return None if truth is None else len(truth['visits'])
-
-    def report(self) -> dict[str, Any]:
-        """The monitor's /accuracy_monitor/report."""
-        from std_srvs.srv import Trigger
-
-        doc: dict[str, Any] = json.loads(self.call(Trigger, '/accuracy_monitor/report',
-                                                   Trigger.Request(), 10.0).message)
-        return doc
-
-    def close(self) -> None:
-        """Stop spinning and shut the context down."""
-        import rclpy
-
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()  # type: ignore[no-untyped-call]
-        rclpy.try_shutdown(context=self.context)  # type: ignore[attr-defined]
-        self._thread.join(timeout=5.0)
+def _call(what: Callable[[], Any]) -> Any:
+    """A client call; a service that does not answer is a StartError."""
+    try:
+        return what()
+    except TimeoutError as err:
+        raise StartError(str(err)) from err
 
 
 def model_note(params: dict[str, Any]) -> str:
     """Where the `model` mode's clearance parameters come from (the report says it)."""
-    comp = node_parameters(params, 'positioner').get('compensation', {}).get('clearance', {})
-    truth = node_parameters(params, 'pose_measurement').get('truth', {}).get('clearance', {})
+    comp = node_parameters(params, names.NODE_POSITIONER).get('compensation', {}).get(
+        'clearance', {})
+    truth = node_parameters(params, names.NODE_MEASUREMENT).get('truth', {}).get('clearance', {})
     if comp and all(comp.get(k) == v for k, v in truth.items()):
         return ('The `model` and `measured` modes compensate with the simulator\'s true '
                 'clearance parameters (positioner.compensation.clearance = '
@@ -263,8 +102,8 @@ def model_note(params: dict[str, Any]) -> str:
 
 def _overrides(run_dir: Path) -> Path:
     path = run_dir / 'run_overrides.yaml'
-    path.write_text(yaml.safe_dump({'recorder': {'ros__parameters': {
-        'output': str(run_dir / 'bag'), 'topic_pattern': PROGRAM_TOPIC}}}))
+    path.write_text(yaml.safe_dump({names.NODE_RECORDER: {'ros__parameters': {
+        'output': str(run_dir / 'bag'), 'topic_pattern': names.PROGRAM}}}))
     return path
 
 
@@ -272,61 +111,76 @@ def _more(items: list[Any], count: int) -> bool:
     return len(items) > count
 
 
-def _truth_settled(driver: Driver, count: int) -> bool:
-    return (driver.truth_visits() or 0) > count
+def _truth_visits(client: CellClient) -> int | None:
+    """Settled visits of the true pose so far (None: the monitor has no truth)."""
+    truth = _call(client.monitor_report)['truth']
+    return None if truth is None else len(truth['visits'])
+
+
+def _truth_settled(client: CellClient, count: int) -> bool:
+    return (_truth_visits(client) or 0) > count
 
 
 def _verdict_text(status: Any) -> str:
-    values = {kv.key: kv.value for kv in status.values}
-    ok = 'OK' if status.level in (b'\x00', 0) else 'OUT OF TOLERANCE'
+    values = status_values(status)
+    ok = 'OK' if status_ok(status) else 'OUT OF TOLERANCE'
     return (f'|Δp| {values.get("position_error_um", "?")} µm, '
             f'{values.get("orientation_error_deg", "?")}°: {ok}')
 
 
-def drive(driver: Driver, program: Program, note: str, say: Callable[[str], None]) -> int:
+def _set_mode(client: CellClient, mode: str) -> None:
+    result = _call(partial(client.set_parameter, names.NODE_POSITIONER, 'compensation.mode',
+                           mode))
+    if not result.successful:
+        raise StartError(f'the positioner refused compensation.mode = {mode}: {result.reason}')
+
+
+def drive(client: CellClient, program: Program, note: str, say: Callable[[str], None]) -> int:
     """Run the program: per mode, set it; per move, publish the step, move, wait for the
     monitor's verdict and say so. Returns the number of failed moves."""
     failed = 0
     width = len(str(program.moves))
     begin = time.monotonic()
+    verdicts = client.statuses(names.STATUS_MONITOR_VERDICT)
+    states = client.statuses(names.STATUS_POSITIONER)
     for n, (mode, cycle, k) in enumerate(program.steps(), start=1):
         if cycle == 1 and k == 0:
-            driver.set_mode(mode)
+            _set_mode(client, mode)
             say(f'compensation mode: {mode}')
         name = program.names[k]
-        driver.publish_step(ProgramStep(mode, time.time(), cycle, name,
-                                        note if mode != 'none' else None))
-        seen = len(driver.verdicts)
-        truth_seen = driver.truth_visits()
+        client.publish_program(ProgramStep(mode, time.time(), cycle, name,
+                                           note if mode != 'none' else None).to_json())
+        seen = len(verdicts)
+        truth_seen = _truth_visits(client)
         started = time.monotonic()
-        moved = driver.plan('/positioner/move_to_pose', program.position[k],
-                            program.quaternion[k], program.tolerance, 120.0)
+        moved = _call(partial(client.plan, names.MOVE_TO_POSE, program.position[k],
+                              program.quaternion[k], program.tolerance))
         took = time.monotonic() - started
         head = f'[{n:>{width}}/{program.moves}] {mode:<8} cycle {cycle} {name:<4}'
         if not moved:
             failed += 1
-            reason = driver.states[-1].message if driver.states else 'no reason given'
+            reason = states[-1].message if states else 'no reason given'
             say(f'{head} move refused or aborted: {reason}')
             continue
         try:
-            _wait(partial(_more, driver.verdicts, seen), program.settle_timeout, 'the verdict')
-            verdict = _verdict_text(driver.verdicts[seen])
+            _wait(partial(_more, verdicts, seen), program.settle_timeout, 'the verdict')
+            verdict = _verdict_text(verdicts[seen])
         except StartError:
             verdict = f'monitor saw no settled pose within {program.settle_timeout:.0f} s'
         if truth_seen is not None:  # the true pose settles too before the next target
             with contextlib.suppress(StartError):
-                _wait(partial(_truth_settled, driver, truth_seen), TRUTH_WAIT,
+                _wait(partial(_truth_settled, client, truth_seen), TRUTH_WAIT,
                       'the true pose to settle')
         say(f'{head} moved in {took:.1f} s; monitor: {verdict} '
             f'[{time.monotonic() - begin:.0f} s]')
     return failed
 
 
-def _start(procs: Processes, driver: Driver, config: Path, overrides: Path,
+def _start(procs: Processes, client: CellClient, config: Path, overrides: Path,
            program: Program, say: Callable[[str], None]) -> None:
-    for exe, _ in CELL_NODES:
-        procs.start(exe, [config, overrides])
-    say(f'started {", ".join(e for e, _ in CELL_NODES)}; waiting for the cell')
+    for node in STARTED:
+        procs.start(node.executable, params=[config, overrides])
+    say(f'started {", ".join(n.executable for n in STARTED)}; waiting for the cell')
 
     def up(check: Callable[[], bool]) -> Callable[[], bool]:
         def probe() -> bool:
@@ -336,20 +190,20 @@ def _start(procs: Processes, driver: Driver, config: Path, overrides: Path,
             return check()
         return probe
 
-    _wait(up(lambda: all(driver.subscribed(t, 'recorder') for t in RECORDED)
-             and all(driver.subscribed(t, 'accuracy_monitor') for t in MONITORED)), 60.0,
+    _wait(up(lambda: all(client.subscribed(t, names.NODE_RECORDER) for t in RECORDED)
+             and all(client.subscribed(t, names.NODE_MONITOR) for t in MONITORED)), 60.0,
           'the recorder and the monitor to subscribe')
     # The monitor's own subscriptions must have matched the publishers (the graph above shows
     # only that they exist): a first target matched late would reach it after the tracker
     # samples that follow it, and the live figures of the first visit would differ from the
     # offline analysis of the bag.
-    _wait(up(lambda: all(driver.report()['publishers'].get(t, 0) > 0
+    _wait(up(lambda: all(_call(client.monitor_report)['publishers'].get(t, 0) > 0
                          for t in MONITOR_INPUTS)), 60.0,
           'the monitor to match the target, tracker and truth publishers')
 
     def ready() -> bool:
-        return driver.plan('/positioner/check_pose', program.position[0],
-                           program.quaternion[0], 0.0, 30.0)
+        return bool(_call(partial(client.plan, names.CHECK_POSE, program.position[0],
+                                  program.quaternion[0], 0.0, 30.0)))
 
     _wait(up(ready), 60.0, 'the positioner to accept the first pose (encoder readings)')
 
@@ -370,7 +224,8 @@ def run(program_path: Path | None = None, config: Path | None = None,
     program_path = program_path or config_path('program.yaml')
     try:
         params = load_parameter_file(config)
-        mech = Mechanism.from_params(node_parameters(params, 'positioner').get('mechanism', {}))
+        mech = Mechanism.from_params(node_parameters(params, names.NODE_POSITIONER)
+                                     .get('mechanism', {}))
         program = load_program(program_path, mech)
     except PositioningError as err:
         say(f'run_cell: error: {err}')
@@ -390,20 +245,17 @@ def run(program_path: Path | None = None, config: Path | None = None,
     status, failed, live = EXIT_OK, 0, None
     try:
         with free_domain() as domain:
-            env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1',
-                       ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-            env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
-            env.setdefault('ROS_LOG_DIR', str(run_dir / 'logs' / 'ros'))
             os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-            os.environ.setdefault('ROS_LOG_DIR', env['ROS_LOG_DIR'])
-            procs = Processes(env, run_dir / 'logs')
-            driver: Driver | None = None
+            os.environ.setdefault('ROS_LOG_DIR', str(run_dir / 'logs' / 'ros'))
+            procs = Processes(cell_environment(domain), run_dir / 'logs')
+            client: CellClient | None = None
             try:
-                driver = Driver(domain)
+                client = CellClient(domain, 'run_cell', signals=False)
+                client.advertise_program()
                 say(f'ROS_DOMAIN_ID {domain}, logs in {run_dir / "logs"}')
-                _start(procs, driver, config, _overrides(run_dir), program, say)
-                failed = drive(driver, program, model_note(params), say)
-                live = driver.report()
+                _start(procs, client, config, _overrides(run_dir), program, say)
+                failed = drive(client, program, model_note(params), say)
+                live = _call(client.monitor_report)
             except StartError as err:
                 say(f'run_cell: error: {err}')
                 status = EXIT_NOT_STARTED
@@ -413,8 +265,8 @@ def run(program_path: Path | None = None, config: Path | None = None,
             finally:
                 for s in previous:  # stopping is not interrupted
                     signal.signal(s, signal.SIG_IGN)
-                if driver is not None:
-                    driver.close()
+                if client is not None:
+                    client.close()
                 codes = procs.stop()
                 say('stopped: ' + ', '.join(f'{k} ({v})' for k, v in codes.items()))
     except SignalledError:

@@ -1,0 +1,305 @@
+"""CPU cost of the four-node cell at rest and while moving, and the leg driver's publish rate.
+
+Starts kinematics_node (positioner), leg_driver_node, pose_measurement_node and
+accuracy_monitor_node as separate processes with config/cell.yaml on a free ROS domain, waits
+until the cell is up, then measures two windows of --seconds each: at rest (the configuration
+as shipped), and while the positioner moves back to back between poses within 4 mm of home
+(compensation.mode set to 'none' first, to keep the moves short). For each window: CPU seconds
+per wall second of each node (utime + stime of all its threads, /proc/<pid>/stat) and their
+total, and the rate and p99 interval of /legs/joint_states from its header stamps (the driver's
+own clock, so a slow subscriber is not blamed on the driver).
+
+The same run measures a baseline: a bare rclpy node (parameter services, no callbacks of its
+own) started the same way, the floor under every node's figure.
+
+Run: .venv/bin/python benchmarks/idle_cpu.py [--seconds S]
+Targets (issue): the idle cell <= 0.4 core in total; the driver publishes at >= 95 % of its
+nominal rate with a p99 interval <= 2 periods. Prints what it measured and whether each target
+is met; exits non-zero only if the cell did not come up or could not be measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from sensor_msgs.msg import JointState
+
+import positioning_cell
+from positioning_cell import names
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.nodes.qos import STREAM_QOS
+from positioning_cell.parameters import parse
+from positioning_cell.sim.drives import DriverSettings
+from positioning_cell.tools.domains import free_domain
+from positioning_cell.tools.polling import wait_until
+from positioning_cell.tools.ros import CellClient, Processes, cell_environment
+
+CELL_YAML = config_path('cell.yaml')
+#: Executable -> node name, in start order.
+NODES = {node.executable: node.name for node in names.CELL_NODES}
+#: The baseline: a bare node, started as a process like the others.
+BARE_NODE = ('import rclpy, rclpy.node\n'
+             'rclpy.init()\n'
+             'node = rclpy.node.Node("bare_node")\n'
+             'try:\n'
+             '    rclpy.spin(node)\n'
+             'except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):\n'
+             '    pass\n')
+IDLE_TARGET = 0.4        # cores, the idle cell in total
+RATE_TARGET = 0.95       # fraction of the nominal publish rate
+P99_TARGET = 2.0         # periods
+START_TIMEOUT = 90.0     # s, first start compiles the numba kernels in every process
+MOVE_TIMEOUT = 30.0      # s, one move from command to settled
+CENTRE = np.array([0.0, 0.0, 0.196])  # m, near home (0, 0, 0.19596)
+OFFSETS = np.array([[4.0, 0.0, 0.0], [0.0, 4.0, -2.0], [-4.0, 0.0, 2.0], [0.0, -4.0, 0.0]]) * 1e-3
+IDENTITY = (0.0, 0.0, 0.0, 1.0)
+CLOCK_TICKS = os.sysconf('SC_CLK_TCK')
+
+
+def cpu_seconds(pid: int) -> float:
+    """utime + stime of every thread of a process so far, s."""
+    # Fields after the parenthesised command name: state is field 3, utime 14, stime 15.
+    fields = Path(f'/proc/{pid}/stat').read_text().rpartition(')')[2].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+@dataclass(frozen=True)
+class DriverRate:
+    """/legs/joint_states in one window, from the header stamps."""
+
+    messages: int
+    rate: float          # Hz: intervals / stamp span
+    p99: float           # s
+    longest: float       # s
+    repeated: int        # intervals <= 0 (a stamp equal to or before the previous one)
+
+    @classmethod
+    def from_stamps(cls, stamps_ns: list[int]) -> DriverRate:
+        if len(stamps_ns) < 2:
+            return cls(len(stamps_ns), float('nan'), float('nan'), float('nan'), 0)
+        t = np.asarray(stamps_ns, dtype=np.int64)
+        dt = np.diff(t) * 1e-9
+        return cls(len(t), len(dt) / ((t[-1] - t[0]) * 1e-9), float(np.percentile(dt, 99)),
+                   float(dt.max()), int(np.count_nonzero(dt <= 0)))
+
+
+@dataclass(frozen=True)
+class Window:
+    """What one measurement window gave."""
+
+    cpu: dict[str, float]    # node (and 'bare_node') -> CPU s per wall s
+    own: float               # the benchmark process itself, CPU s per wall s
+    driver: DriverRate
+    moves: int = 0           # moves settled inside the window
+
+    @property
+    def total(self) -> float:
+        """The four cell nodes."""
+        return sum(v for k, v in self.cpu.items() if k in NODES.values())
+
+    @property
+    def baseline(self) -> float:
+        """The bare node."""
+        return self.cpu['bare_node']
+
+
+class Mover:
+    """Back-to-back moves between the goals, from a thread, until stopped."""
+
+    def __init__(self, client: CellClient) -> None:
+        self.client = client
+        self.settled = 0
+        self.refused = 0
+        self.seconds = 0.0   # command-to-settled time of the settled moves
+        self.error: Exception | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            for offset in itertools.cycle(OFFSETS):
+                if self._stop.is_set():
+                    return
+                t0 = time.monotonic()
+                if self.client.plan(names.MOVE_TO_POSE, CENTRE + offset, IDENTITY,
+                                    timeout=MOVE_TIMEOUT):
+                    self.settled += 1
+                    self.seconds += time.monotonic() - t0
+                else:
+                    self.refused += 1
+        except Exception as err:  # re-raised by stop()
+            self.error = err
+
+    def stop(self) -> None:
+        """Stop after the current move; re-raise what failed in the thread."""
+        self._stop.set()
+        self._thread.join(timeout=MOVE_TIMEOUT + 5.0)
+        if self.error is not None:
+            raise RuntimeError(f'moves failed: {self.error}') from self.error
+
+
+def check_alive(procs: Processes) -> None:
+    """RuntimeError if a node has exited."""
+    gone = {label: p.returncode for label, p in procs.procs.items() if p.poll() is not None}
+    if gone:
+        raise RuntimeError(f'node processes exited: {gone}')
+
+
+def wait_for_cell(procs: Processes, client: CellClient) -> None:
+    """Until the positioner publishes its pose, the tracker measures and the monitor answers."""
+    seen: dict[str, list[Any]] = {'/positioner/pose': [], '/metrology/pose': []}
+    subscriptions = [client.node.create_subscription(msg_type, topic, seen[topic].append,
+                                                     STREAM_QOS)
+                     for topic, msg_type in (('/positioner/pose', PoseStamped),
+                                             ('/metrology/pose', PoseWithCovarianceStamped))]
+
+    def up() -> bool:
+        check_alive(procs)
+        return all(seen.values())
+
+    wait_until(up, START_TIMEOUT, '/positioner/pose and /metrology/pose')
+    client.monitor_report()  # the monitor answers
+    for subscription in subscriptions:  # not part of the measured load
+        client.node.destroy_subscription(subscription)
+
+
+def measure(procs: Processes, stamps: list[int], seconds: float,
+            mover: Mover | None = None) -> Window:
+    """CPU per node and the driver's stamps over ``seconds`` of wall time from now."""
+    pids = {NODES.get(label, label): p.pid for label, p in procs.procs.items()}
+    cpu0 = {node: cpu_seconds(pid) for node, pid in pids.items()}
+    own0, first, moves0 = cpu_seconds(os.getpid()), len(stamps), mover.settled if mover else 0
+    t0 = time.monotonic()
+    time.sleep(seconds)  # the measurement interval itself
+    cpu1 = {node: cpu_seconds(pid) for node, pid in pids.items()}
+    own1, last, moves1 = cpu_seconds(os.getpid()), len(stamps), mover.settled if mover else 0
+    wall = time.monotonic() - t0
+    check_alive(procs)
+    return Window({node: (cpu1[node] - cpu0[node]) / wall for node in pids}, (own1 - own0) / wall,
+                  DriverRate.from_stamps(stamps[first:last]), moves1 - moves0)
+
+
+def set_parameter(client: CellClient, node: str, name: str, value: Any) -> None:
+    result = client.set_parameter(node, name, value)
+    if not result.successful:
+        raise RuntimeError(f'{node}: setting {name} = {value!r} refused: {result.reason}')
+
+
+def verdict(ok: bool) -> str:
+    return 'met' if ok else 'NOT met'
+
+
+def row(label: str, *cells: object) -> str:
+    return f'{label:<34}' + ''.join(f'{cell!s:>14}' for cell in cells)
+
+
+def report(rest: Window, moving: Window, nominal: float) -> None:
+    """The table: CPU per node and total, driver rate, targets."""
+    windows = (rest, moving)
+    print(row('CPU s per wall s', 'at rest', 'moving'))
+    for node in NODES.values():
+        print(row(f'  {node}', *(f'{w.cpu[node]:.3f}' for w in windows)))
+    print(row('  total (4 nodes)', *(f'{w.total:.3f}' for w in windows)))
+    print(row('  baseline: a bare rclpy node', *(f'{w.baseline:.3f}' for w in windows)))
+    print(row('  benchmark client (not in total)', *(f'{w.own:.3f}' for w in windows)))
+    print(f'target idle total <= {IDLE_TARGET} core: {verdict(rest.total <= IDLE_TARGET)} '
+          f'({rest.total:.3f})')
+    print()
+    period = 1.0 / nominal
+    rates = [w.driver for w in windows]
+    print(row(f'driver /legs/joint_states, {nominal:g} Hz', 'at rest', 'moving'))
+    print(row('  messages', *(d.messages for d in rates)))
+    print(row('  rate from stamps, Hz', *(f'{d.rate:.1f}' for d in rates)))
+    print(row('  % of nominal', *(f'{100 * d.rate / nominal:.1f} %' for d in rates)))
+    print(row('  p99 interval, ms (periods)',
+              *(f'{d.p99 * 1e3:.1f} ({d.p99 / period:.2f})' for d in rates)))
+    print(row('  longest interval, ms', *(f'{d.longest * 1e3:.1f}' for d in rates)))
+    print(row('  repeated or earlier stamps', *(d.repeated for d in rates)))
+    print(row(f'  target rate >= {RATE_TARGET * 100:g} % of nominal',
+              *(verdict(d.rate >= RATE_TARGET * nominal) for d in rates)))
+    print(row(f'  target p99 <= {P99_TARGET:g} periods',
+              *(verdict(d.p99 <= P99_TARGET * period) for d in rates)))
+
+
+def run(seconds: float, log_dir: Path) -> int:
+    driver = parse(DriverSettings, node_parameters(load_parameter_file(CELL_YAML),
+                                                   names.NODE_DRIVER))
+    nominal = driver.publish_rate
+    with free_domain() as domain, Processes(cell_environment(domain), log_dir) as procs, \
+            CellClient(domain, 'idle_cpu_benchmark') as client:
+        print(f'package {Path(positioning_cell.__file__).parent}, config {CELL_YAML}')
+        print(f'domain {domain}, {os.cpu_count()} CPUs, load average '
+              f'{os.getloadavg()[0]:.2f} before start, windows of {seconds:g} s')
+        stamps: list[int] = []
+        client.node.create_subscription(
+            JointState, '/legs/joint_states',
+            lambda m: stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec),
+            STREAM_QOS)
+        t0 = time.monotonic()
+        for exe in NODES:
+            procs.start(exe, params=[CELL_YAML])
+        procs.start('python', label='bare_node', extra_args=('-c', BARE_NODE))
+        try:
+            wait_for_cell(procs, client)
+        except (TimeoutError, RuntimeError) as err:
+            print(f'the cell did not come up: {err}', file=sys.stderr)
+            for exe in NODES:
+                print(f'--- {exe} log (tail) ---\n{procs.log(exe)[-1500:]}', file=sys.stderr)
+            return 1
+        print(f'cell up after {time.monotonic() - t0:.1f} s')
+        rest = measure(procs, stamps, seconds)
+        set_parameter(client, 'positioner', 'compensation.mode', 'none')
+        mover = Mover(client)
+        mover.start()
+        try:
+            wait_until(lambda: mover.settled or mover.error, MOVE_TIMEOUT, 'the first move')
+            moving = measure(procs, stamps, seconds, mover)
+        finally:
+            mover.stop()
+        mean = mover.seconds / mover.settled if mover.settled else float('nan')
+        print(f'moving window: compensation.mode none, {moving.moves} moves settled in it '
+              f'(mean {mean:.2f} s command to settled), {mover.refused} refused in all')
+        print()
+        report(rest, moving, nominal)
+        codes = procs.stop()
+        print('\nnodes stopped, exit codes: '
+              + ', '.join(f'{NODES.get(exe, exe)} {code}' for exe, code in codes.items()))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seconds', type=float, default=20.0,
+                        help='length of each measurement window, s (default 20)')
+    args = parser.parse_args(argv)
+    tmp = Path(tempfile.gettempdir())
+    # Nothing depends on the caller's ROS environment (the same settings as make bench).
+    os.environ.setdefault('ROS_LOG_DIR', str(tmp / 'idlecpu_ros_log'))
+    os.environ.setdefault('ROS_HOME', str(tmp / 'idlecpu_ros_home'))
+    os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ.pop('RMW_IMPLEMENTATION', None)
+    with tempfile.TemporaryDirectory(prefix='idle_cpu_') as log_dir:
+        try:
+            return run(args.seconds, Path(log_dir))
+        except (TimeoutError, RuntimeError) as err:
+            print(f'benchmark failed: {err}', file=sys.stderr)
+            return 1
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,138 @@
+"""ISO 9283:1998 pose accuracy (§7.2.1) and repeatability (§7.2.2) of a commanded pose from its
+attained poses, and the orientation angles the standard uses. SI: m and rad."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from positioning_cell.core.poses import (
+    Quad,
+    Triple,
+    as_pose_batch,
+    as_unit_quaternions,
+    quad,
+    triple,
+)
+from positioning_cell.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+#: Orientation angles a, b, c of ISO 9283: roll, pitch, yaw about the fixed base axes x, y, z,
+#: R = Rz(c)·Ry(b)·Rx(a) (scipy's extrinsic 'xyz').
+EULER_SEQUENCE = 'xyz'
+
+def orientation_angles(quaternion: ArrayLike) -> FloatArray:
+    """ISO 9283 orientation angles a, b, c (N, 3) rad of unit quaternions (N, 4): roll, pitch,
+    yaw about the fixed base axes x, y, z (R = Rz(c)·Ry(b)·Rx(a)); a, c in [−π, π],
+    b in [−π/2, π/2]. Near b = ±π/2 (gimbal lock) a and c are not separable."""
+    q = as_unit_quaternions(quaternion)
+    return np.asarray(Rotation.from_quat(q).as_euler(EULER_SEQUENCE))
+
+def wrap_angle(angle: ArrayLike) -> FloatArray:
+    """Angles wrapped into [−π, π) rad."""
+    return np.asarray((np.asarray(angle, dtype=float) + math.pi) % (2.0 * math.pi) - math.pi)
+
+# -- ISO 9283 --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PoseFigures:
+    """ISO 9283:1998 pose accuracy (§7.2.1) and repeatability (§7.2.2) of one commanded pose
+    from its n attained poses. SI: m and rad; angles a, b, c per :data:`EULER_SEQUENCE`.
+
+    ``barycentre`` (x̄, ȳ, z̄); AP_x = x̄ − x_c, AP_y, AP_z; AP_p = √(AP_x² + AP_y² + AP_z²);
+    AP_a = ā − a_c, AP_b, AP_c with each a_j taken as a_c + wrap(a_j − a_c) (no jump at ±π).
+    l_j = |P_j − barycentre|, l̄ their mean, S_l = √(Σ(l_j − l̄)²/(n−1)), RP_l = l̄ + 3·S_l;
+    S_a = √(Σ(a_j − ā)²/(n−1)), RP_a = ±3·S_a (the half-width is stored), RP_b, RP_c.
+    The S and RP terms are None when n < 2.
+    """
+
+    key: int
+    n: int
+    commanded_position: Triple
+    commanded_quaternion: Quad
+    commanded_angles: Triple
+    barycentre: Triple
+    ap_x: float
+    ap_y: float
+    ap_z: float
+    ap_p: float
+    ap_a: float
+    ap_b: float
+    ap_c: float
+    l_mean: float
+    s_l: float | None
+    rp_l: float | None
+    s_a: float | None
+    s_b: float | None
+    s_c: float | None
+    rp_a: float | None
+    rp_b: float | None
+    rp_c: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict (tuples as lists; None for undefined terms)."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    def for_people(self) -> dict[str, str]:
+        """The figures formatted for people: µm and degrees ('n/a' where undefined)."""
+        def um(v: float | None) -> str:
+            return 'n/a' if v is None else f'{v * 1e6:.1f}'
+
+        def deg(v: float | None) -> str:
+            return 'n/a' if v is None else f'{math.degrees(v):.4f}'
+
+        return {'n': str(self.n), 'AP_p_um': um(self.ap_p), 'RP_l_um': um(self.rp_l),
+                'AP_a_deg': deg(self.ap_a), 'AP_b_deg': deg(self.ap_b),
+                'AP_c_deg': deg(self.ap_c), 'RP_a_deg': deg(self.rp_a),
+                'RP_b_deg': deg(self.rp_b), 'RP_c_deg': deg(self.rp_c)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PoseFigures:
+        """Inverse of :meth:`to_dict`; missing or unknown keys raise InputError."""
+        names = [f.name for f in fields(cls)]
+        if set(data) != set(names):
+            raise InputError(f'PoseFigures: expected keys {names}, got {sorted(data)}')
+        values: dict[str, Any] = {
+            k: (tuple(float(x) for x in v) if isinstance(v, list) else v)
+            for k, v in data.items()}
+        return cls(**values)
+
+def iso9283(commanded_position: ArrayLike, commanded_quaternion: ArrayLike,
+            attained_position: ArrayLike, attained_quaternion: ArrayLike,
+            key: int = 0) -> PoseFigures:
+    """ISO 9283:1998 §7.2.1 (AP) and §7.2.2 (RP) of one commanded pose (3,), (4,) from its n
+    attained poses (n, 3) m, (n, 4), in visit order. See :class:`PoseFigures` for the formulas."""
+    pc, qc = as_pose_batch(commanded_position, commanded_quaternion)
+    if pc.shape[0] != 1:
+        raise InputError(f'iso9283 takes one commanded pose, got {pc.shape[0]}')
+    pa, qa = as_pose_batch(attained_position, attained_quaternion)
+    n = pa.shape[0]
+    barycentre = pa.mean(axis=0)
+    ap = barycentre - pc[0]
+    l_j = np.sqrt(((pa - barycentre) ** 2).sum(axis=1))
+    angles_c = orientation_angles(qc)[0]
+    deviation = wrap_angle(orientation_angles(qa) - angles_c)
+    ap_abc = deviation.mean(axis=0)
+    s_l: float | None = None
+    s_abc: list[float | None] = [None, None, None]
+    rp_abc: list[float | None] = [None, None, None]
+    if n >= 2:
+        s_l = float(l_j.std(ddof=1))
+        s = deviation.std(axis=0, ddof=1)
+        s_abc = [float(v) for v in s]
+        rp_abc = [3.0 * float(v) for v in s]
+    return PoseFigures(
+        key=int(key), n=n, commanded_position=triple(pc[0]),
+        commanded_quaternion=quad(qc[0]), commanded_angles=triple(angles_c),
+        barycentre=triple(barycentre), ap_x=float(ap[0]), ap_y=float(ap[1]),
+        ap_z=float(ap[2]), ap_p=float(np.sqrt((ap ** 2).sum())), ap_a=float(ap_abc[0]),
+        ap_b=float(ap_abc[1]), ap_c=float(ap_abc[2]), l_mean=float(l_j.mean()), s_l=s_l,
+        rp_l=None if s_l is None else float(l_j.mean()) + 3.0 * s_l,
+        s_a=s_abc[0], s_b=s_abc[1], s_c=s_abc[2], rp_a=rp_abc[0], rp_b=rp_abc[1],
+        rp_c=rp_abc[2])

@@ -1,0 +1,99 @@
+"""Pose batches: validation at the library boundary and rotation conversions.
+
+A pose is (p, q): position in the base frame (m) and unit quaternion x, y, z, w. Batches are
+(N, 3) and (N, 4); a single pose (3,), (4,) is promoted to N = 1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from positioning_cell.errors import InputError
+
+FloatArray = NDArray[np.float64]
+Triple = tuple[float, float, float]
+Quad = tuple[float, float, float, float]
+
+#: Largest accepted | |q| − 1 |; within it the quaternion is normalised.
+QUATERNION_UNIT_TOLERANCE = 1e-6
+
+
+def as_vectors(value: ArrayLike, width: int, name: str) -> FloatArray:
+    """``value`` as a finite float array (N, width); a single (width,) row becomes N = 1."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise InputError(f'{name}: expected numbers, got {value!r}') from err
+    if arr.ndim == 1:
+        arr = arr[np.newaxis]
+    if arr.ndim != 2 or arr.shape[1] != width:
+        raise InputError(
+            f'{name}: expected shape ({width},) or (N, {width}), got {np.shape(value)}')
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f'{name}[{i}] = {arr[i].tolist()} is not finite (NaN or infinite)')
+    return arr
+
+
+def as_unit_quaternions(quaternion: ArrayLike, name: str = 'quaternion') -> FloatArray:
+    """Quaternions (N, 4) x, y, z, w, normalised; zero or off unit length by > 1e-6 raise."""
+    q = as_vectors(quaternion, 4, name)
+    norm = np.linalg.norm(q, axis=1)
+    off = np.abs(norm - 1.0) > QUATERNION_UNIT_TOLERANCE
+    if off.any():
+        i = int(np.flatnonzero(off)[0])
+        what = 'is zero' if norm[i] == 0.0 else f'has norm {norm[i]:.9g}, not 1 (tolerance 1e-6)'
+        raise InputError(f'{name}[{i}] = {q[i].tolist()} {what}')
+    unit: FloatArray = q / norm[:, np.newaxis]
+    return unit
+
+
+def as_pose_batch(position: ArrayLike, quaternion: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Validated (N, 3) positions (m) and (N, 4) unit quaternions of equal N."""
+    p = as_vectors(position, 3, 'position')
+    q = as_unit_quaternions(quaternion)
+    if p.shape[0] != q.shape[0]:
+        raise InputError(f'position has {p.shape[0]} poses but quaternion has {q.shape[0]}')
+    return p, q
+
+
+def matrix_from_quaternion(quaternion: FloatArray) -> FloatArray:
+    """Rotation matrices (N, 3, 3) from unit quaternions (N, 4) x, y, z, w."""
+    return np.asarray(Rotation.from_quat(quaternion).as_matrix(), dtype=float)
+
+
+def quaternion_from_matrix(matrix: FloatArray, *, orthonormal: bool = False) -> FloatArray:
+    """Unit quaternions (N, 4) x, y, z, w with w >= 0 from rotation matrices (N, 3, 3).
+
+    ``orthonormal=True`` skips scipy's re-orthonormalisation for matrices built orthonormal.
+    """
+    rot = Rotation.from_matrix(matrix, assume_valid=orthonormal)
+    return np.asarray(rot.as_quat(canonical=True))
+
+
+def pose_error(position: FloatArray, quaternion: FloatArray, position_ref: FloatArray,
+               quaternion_ref: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Pose minus reference: Δp (N, 3) in m, base frame; rotation vector of R_refᵀ·R (N, 3) rad."""
+    rot = Rotation.from_quat(quaternion_ref).inv() * Rotation.from_quat(quaternion)
+    return position - position_ref, np.asarray(rot.as_rotvec())
+
+
+def triple(v: ArrayLike) -> Triple:
+    """The first three numbers of ``v`` as a tuple of floats (a position, a vector)."""
+    a = np.asarray(v, dtype=float).ravel()
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def quad(v: ArrayLike) -> Quad:
+    """The first four numbers of ``v`` as a tuple of floats (a quaternion x, y, z, w)."""
+    a = np.asarray(v, dtype=float).ravel()
+    return (float(a[0]), float(a[1]), float(a[2]), float(a[3]))
+
+
+def row_norms(d: FloatArray) -> FloatArray:
+    """Euclidean norms (M,) of the rows of (M, 3): one expression wherever two code paths must
+    give bit-identical figures (the batch and streaming monitor)."""
+    return np.asarray(np.sqrt((d * d).sum(axis=1)))

@@ -1,0 +1,152 @@
+"""Point-to-point moves: a straight line in position and SLERP in orientation, timed by a
+smooth (sinusoidal-acceleration) law within speed and acceleration limits, sampled at a fixed
+period, every sample checked against the mechanism's limits and the singularity margin."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation, Slerp
+
+from positioning_cell.clearance import ClearanceModel, compensate
+from positioning_cell.core.kinematics import _inverse_jacobian
+from positioning_cell.core.limits import LimitReport, check_poses
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import as_pose_batch
+from positioning_cell.errors import InputError
+from positioning_cell.mechanics.singularity import check_path
+from positioning_cell.parameters import check_fields, setting
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """Cartesian limits of a move (the positioner's ``motion:`` block, dynamic)."""
+
+    linear_speed: float = setting(0.01, 'linear speed of a move', 'm/s', low=1e-5, high=1.0,
+                                  dynamic=True)
+    linear_acceleration: float = setting(0.05, 'linear acceleration of a move', 'm/s^2',
+                                         low=1e-5, high=10.0, dynamic=True)
+    angular_speed: float = setting(0.1, 'angular speed of a move', 'rad/s', low=1e-5,
+                                   high=10.0, dynamic=True)
+    angular_acceleration: float = setting(0.5, 'angular acceleration of a move', 'rad/s^2',
+                                          low=1e-5, high=100.0, dynamic=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A sampled move. times (M,) s from the start; position (M, 3) m; quaternion (M, 4);
+    joint commands lengths, thetas (M, 3) m, rad and their rates (M, 3) m/s, rad/s; ``limits``
+    is the check of every sample."""
+
+    times: FloatArray
+    position: FloatArray
+    quaternion: FloatArray
+    lengths: FloatArray
+    thetas: FloatArray
+    length_rates: FloatArray
+    theta_rates: FloatArray
+    limits: LimitReport
+
+    @property
+    def duration(self) -> float:
+        """Duration of the move, s."""
+        return float(self.times[-1])
+
+
+def time_law(duration_accel: float, peak: float, total: float,
+             times: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Normalised path s(t) ∈ [0, 1] and ṡ(t) for a profile whose speed rises as
+    (1 − cos)/2 over ``duration_accel`` to ``peak``, cruises, and falls symmetrically;
+    ``total`` is the duration (s)."""
+    ta, v = duration_accel, peak
+    t = np.clip(times, 0.0, total)
+    s = np.empty_like(t)
+    sd = np.empty_like(t)
+    rise = t < ta
+    fall = t > total - ta
+    cruise = ~(rise | fall)
+    # Rising: ṡ = v (1 − cos(π t/ta))/2, s = v (t − ta/π sin(π t/ta))/2.
+    tr = t[rise]
+    sd[rise] = 0.5 * v * (1.0 - np.cos(math.pi * tr / ta))
+    s[rise] = 0.5 * v * (tr - ta / math.pi * np.sin(math.pi * tr / ta))
+    sd[cruise] = v
+    s[cruise] = 0.5 * v * ta + v * (t[cruise] - ta)
+    tf = total - t[fall]
+    sd[fall] = 0.5 * v * (1.0 - np.cos(math.pi * tf / ta))
+    s[fall] = 1.0 - 0.5 * v * (tf - ta / math.pi * np.sin(math.pi * tf / ta))
+    return s, sd
+
+
+def plan_profile(distance: float, angle: float,
+                 limits: MotionLimits) -> tuple[float, float, float]:
+    """(ramp time, peak ṡ, duration) in s, 1/s, s for a move of ``distance`` m and ``angle`` rad
+    keeping both within the speed and acceleration limits. Peak acceleration of the
+    sinusoidal ramp is π·v/(2·ta)."""
+    if distance <= 0.0 and angle <= 0.0:
+        return 0.0, 0.0, 0.0
+    with np.errstate(divide='ignore'):
+        v_max = min(limits.linear_speed / distance if distance > 0 else math.inf,
+                    limits.angular_speed / angle if angle > 0 else math.inf)
+        a_max = min(limits.linear_acceleration / distance if distance > 0 else math.inf,
+                    limits.angular_acceleration / angle if angle > 0 else math.inf)
+    v = v_max
+    ta = math.pi * v / (2.0 * a_max)
+    if v * ta > 1.0:  # no cruise: the ramps alone cover the path, s = v·ta = 1
+        v = math.sqrt(2.0 * a_max / math.pi)
+        ta = 1.0 / v
+    total = 2.0 * ta + (1.0 - v * ta) / v
+    return ta, v, total
+
+
+def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: ArrayLike,
+              goal_position: ArrayLike, goal_quaternion: ArrayLike, *, period: float,
+              limits: MotionLimits | None = None,
+              clearance: ClearanceModel = None) -> Trajectory:
+    """Sample the move from start to goal every ``period`` s (the last sample is the goal).
+
+    Joint commands come from :func:`positioning_cell.clearance.compensate` with ``clearance``
+    (None: nominal inverse kinematics); joint rates from the inverse Jacobian times the
+    platform twist. The returned ``limits`` report covers every sample; callers refuse the move
+    when it is not ok.
+    """
+    limits = limits or MotionLimits()
+    if not (math.isfinite(period) and period > 0.0):
+        raise InputError(f'period = {period!r}: must be a finite number of seconds > 0')
+    p, q = as_pose_batch(np.vstack([np.reshape(start_position, (-1, 3)),
+                                    np.reshape(goal_position, (-1, 3))]),
+                         np.vstack([np.reshape(start_quaternion, (-1, 4)),
+                                    np.reshape(goal_quaternion, (-1, 4))]))
+    if p.shape[0] != 2:
+        raise InputError('plan_move takes exactly one start and one goal pose')
+    rotations = Rotation.from_quat(q)
+    delta_p = p[1] - p[0]
+    rotvec = (rotations[0].inv() * rotations[1]).as_rotvec()
+    distance, angle = float(np.linalg.norm(delta_p)), float(np.linalg.norm(rotvec))
+    ta, peak, total = plan_profile(distance, angle, limits)
+    n = max(math.ceil(total / period - 1e-9), 1)
+    times = np.minimum(np.arange(n + 1) * period, total)
+    if total == 0.0:
+        s, sd = np.ones(n + 1), np.zeros(n + 1)
+    else:
+        s, sd = time_law(ta, peak, total, times)
+    position = p[0] + s[:, None] * delta_p
+    quaternion = Slerp([0.0, 1.0], rotations)(s).as_quat()
+    joints = compensate(mech, clearance, position, quaternion)
+    # Platform twist: v = ṡ Δp; ω = ṡ · (R_start · rotvec) in the base frame.
+    omega_axis = rotations[0].apply(rotvec)
+    twist = np.hstack([sd[:, None] * delta_p, sd[:, None] * omega_axis])
+    rates = np.einsum('nij,nj->ni', _inverse_jacobian(mech, position, quaternion), twist)
+    # Joint, stroke and collision limits, and the singularity margin of the actuation and
+    # constraint wrench system (seed 001) along the whole path.
+    report = check_poses(mech, position, quaternion).merged(
+        check_path(mech, position, quaternion).as_limit_report())
+    return Trajectory(times, position, quaternion, joints.lengths, joints.thetas,
+                      rates[:, :3], rates[:, 3:], report)

@@ -1,0 +1,86 @@
+"""Every name the cell uses on the wire, declared once: nodes and their executables, topics,
+services, frames and diagnostic status names (the tables of the README). Topic and service
+names are absolute, so the cell stays whole under a namespace remap of single nodes."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+# -- frames (REP-103: metres, radians, right-handed) ----------------------------------------------
+BASE_FRAME = 'base'
+PLATFORM_FRAME = 'platform'
+TRACKER_FRAME = 'tracker'
+
+
+# -- nodes ----------------------------------------------------------------------------------------
+class CellNode(NamedTuple):
+    """An executable (``ros2 run positioning_cell <executable>``) and the node it starts."""
+
+    executable: str
+    name: str
+
+
+NODE_POSITIONER = 'positioner'
+NODE_DRIVER = 'leg_driver'
+NODE_MEASUREMENT = 'pose_measurement'
+NODE_MONITOR = 'accuracy_monitor'
+NODE_RECORDER = 'recorder'
+NODE_PLAYER = 'bag_player'
+
+#: The cell's nodes in start order: the launch file and the run driver start these.
+CELL_NODES = (
+    CellNode('leg_driver_node', NODE_DRIVER),
+    CellNode('pose_measurement_node', NODE_MEASUREMENT),
+    CellNode('kinematics_node', NODE_POSITIONER),
+    CellNode('accuracy_monitor_node', NODE_MONITOR),
+)
+RECORDER = CellNode('recorder_node', NODE_RECORDER)
+PLAYER = CellNode('bag_player_node', NODE_PLAYER)
+#: Every node executable of the package.
+NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER)
+
+# -- topics ---------------------------------------------------------------------------------------
+JOINT_TRAJECTORY = '/legs/joint_trajectory'
+JOINT_STATES = '/legs/joint_states'
+TRUE_JOINT_STATES = '/sim/legs/true_joint_states'
+TARGET = '/positioner/target'
+ESTIMATED_POSE = '/positioner/pose'
+MARKERS = '/positioner/markers'
+MEASURED_POSE = '/metrology/pose'
+TRUE_POSE = '/sim/platform/true_pose'
+POSITION_ERROR = '/accuracy/position_error'
+ORIENTATION_ERROR = '/accuracy/orientation_error'
+DIAGNOSTICS = '/diagnostics'
+#: The run driver's current step (make run): mode, cycle, pose (JSON in std_msgs/String).
+PROGRAM = '/cell/program'
+
+#: Every topic of the cell, in the README's table order: what the recorder takes by default.
+CELL_TOPICS = (
+    JOINT_TRAJECTORY, JOINT_STATES, TRUE_JOINT_STATES, TARGET, ESTIMATED_POSE, MARKERS,
+    MEASURED_POSE, TRUE_POSE, POSITION_ERROR, ORIENTATION_ERROR, DIAGNOSTICS, PROGRAM,
+)
+
+# -- services -------------------------------------------------------------------------------------
+MOVE_TO_POSE = '/positioner/move_to_pose'
+CHECK_POSE = '/positioner/check_pose'
+HOME = '/positioner/home'
+STOP = '/positioner/stop'
+DRIVER_ENABLE = '/leg_driver/enable'
+MONITOR_REPORT = '/accuracy_monitor/report'
+MONITOR_RESET = '/accuracy_monitor/reset'
+RECORDER_PAUSE = '/recorder/pause'
+RECORDER_RESUME = '/recorder/resume'
+
+
+def set_parameters_service(node: str) -> str:
+    """The parameter service rclpy gives node ``node``."""
+    return f'/{node}/set_parameters'
+
+
+# -- diagnostic status names (DiagnosticStatus.name on /diagnostics) ------------------------------
+STATUS_POSITIONER = 'positioner: state'
+STATUS_DRIVER = 'leg_driver'
+STATUS_MEASUREMENT = 'pose_measurement'
+STATUS_MONITOR_VERDICT = 'accuracy_monitor: settled pose'
+STATUS_MONITOR_INPUT = 'accuracy_monitor: input'
+STATUS_RECORDER = 'recorder'

@@ -1,0 +1,182 @@
+"""Messages ↔ numpy at the edge of the nodes: poses, vectors, joint states, diagnostics, and the
+message class of a ROS type name. No mathematics here."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from builtin_interfaces.msg import Duration, Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, Pose, PoseStamped, Vector3Stamped
+from nav_msgs.msg import Path
+from numpy.typing import ArrayLike
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from visualization_msgs.msg import Marker, MarkerArray
+
+from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.errors import InputError
+from positioning_cell.motion.trajectory import Trajectory
+from positioning_cell.names import BASE_FRAME
+
+
+def pose_arrays(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """Position (3,) m and quaternion (4,) x, y, z, w of a geometry_msgs/Pose (not validated)."""
+    p, o = pose.position, pose.orientation
+    return np.array([p.x, p.y, p.z]), np.array([o.x, o.y, o.z, o.w])
+
+
+def pose_msg(position: ArrayLike, quaternion: ArrayLike) -> Pose:
+    """geometry_msgs/Pose from a position (m) and a quaternion x, y, z, w."""
+    msg = Pose()
+    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in np.ravel(position))
+    (msg.orientation.x, msg.orientation.y, msg.orientation.z,
+     msg.orientation.w) = (float(v) for v in np.ravel(quaternion))
+    return msg
+
+
+def pose_stamped(position: ArrayLike, quaternion: ArrayLike, stamp: Time,
+                 frame: str = BASE_FRAME) -> PoseStamped:
+    """geometry_msgs/PoseStamped in ``frame``."""
+    msg = PoseStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame
+    msg.pose = pose_msg(position, quaternion)
+    return msg
+
+
+def vector3_stamped(vector: ArrayLike, stamp: Time,
+                    frame: str = BASE_FRAME) -> Vector3Stamped:
+    """geometry_msgs/Vector3Stamped in ``frame``."""
+    msg = Vector3Stamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame
+    msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in np.ravel(vector))
+    return msg
+
+
+def joint_state(names: Sequence[str], stamp: Time, position: ArrayLike,
+                velocity: ArrayLike = (), effort: ArrayLike = ()) -> JointState:
+    """sensor_msgs/JointState (SI: m, rad, m/s, rad/s, N, N·m)."""
+    msg = JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    msg.position = [float(v) for v in np.ravel(position)]
+    msg.velocity = [float(v) for v in np.ravel(velocity)]
+    msg.effort = [float(v) for v in np.ravel(effort)]
+    return msg
+
+
+def joint_values(msg: JointState, names: Sequence[str],
+                 field: str = 'position') -> np.ndarray | None:
+    """The values of ``names`` (in that order) from a JointState field, or None if any is
+    missing; JointState may list joints in any order."""
+    values = getattr(msg, field)
+    index = {n: i for i, n in enumerate(msg.name)}
+    if len(values) != len(msg.name) or any(n not in index for n in names):
+        return None
+    return np.array([values[index[n]] for n in names], dtype=float)
+
+
+def duration(seconds: float) -> Duration:
+    """builtin_interfaces/Duration of ``seconds`` (>= 0)."""
+    whole = int(seconds)
+    return Duration(sec=whole, nanosec=min(round((seconds - whole) * 1e9), 999_999_999))
+
+
+def seconds(value: Duration | Time) -> float:
+    """A Duration or Time as float seconds."""
+    return value.sec + value.nanosec * 1e-9
+
+
+def joint_trajectory(traj: Trajectory, stamp: Time) -> JointTrajectory:
+    """trajectory_msgs/JointTrajectory of a planned move: positions and velocities of the six
+    actuated joints (JOINT_NAMES order) at each sample time."""
+    msg = JointTrajectory(joint_names=list(JOINT_NAMES))
+    msg.header.stamp = stamp
+    positions = np.hstack([traj.lengths, traj.thetas])
+    velocities = np.hstack([traj.length_rates, traj.theta_rates])
+    msg.points = [JointTrajectoryPoint(positions=positions[i].tolist(),
+                                       velocities=velocities[i].tolist(),
+                                       time_from_start=duration(float(t)))
+                  for i, t in enumerate(traj.times)]
+    return msg
+
+
+def stop_trajectory() -> JointTrajectory:
+    """The empty trajectory: stop with controlled deceleration."""
+    return JointTrajectory(joint_names=list(JOINT_NAMES))
+
+
+def path_msg(positions: ArrayLike, quaternions: ArrayLike, stamp: Time,
+             frame: str = BASE_FRAME) -> Path:
+    """nav_msgs/Path of poses (M, 3) m, (M, 4)."""
+    path = Path()
+    path.header.frame_id, path.header.stamp = frame, stamp
+    p = np.reshape(positions, (-1, 3))
+    q = np.reshape(quaternions, (-1, 4))
+    path.poses = [pose_stamped(p[i], q[i], stamp, frame) for i in range(p.shape[0])]
+    return path
+
+
+def _points(rows: ArrayLike) -> list[Point]:
+    return [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in np.reshape(rows, (-1, 3))]
+
+
+def platform_markers(base_joints: ArrayLike, platform_joints: ArrayLike,
+                     header: Header) -> MarkerArray:
+    """Legs (lines A_i → B_i) and the platform triangle for RViz / Foxglove, from the U
+    centres A_i and S centres B_i (3, 3) m in the header's frame."""
+    a, b = np.reshape(base_joints, (3, 3)), np.reshape(platform_joints, (3, 3))
+    legs = Marker(header=header, ns='legs', id=0, type=Marker.LINE_LIST, action=Marker.ADD)
+    legs.scale.x, legs.color.r, legs.color.g, legs.color.a = 0.004, 0.2, 0.6, 1.0
+    legs.points = _points(np.stack([a, b], axis=1))
+    plate = Marker(header=header, ns='platform', id=1, type=Marker.LINE_STRIP,
+                   action=Marker.ADD)
+    plate.scale.x, plate.color.b, plate.color.a = 0.003, 1.0, 1.0
+    plate.points = _points(np.vstack([b, b[:1]]))
+    return MarkerArray(markers=[legs, plate])
+
+
+def stamp_is_zero(stamp: Time) -> bool:
+    """A zero header stamp (ROS convention: "now" / "on receipt")."""
+    return stamp.sec == 0 and stamp.nanosec == 0
+
+
+LEVELS = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN,
+          'error': DiagnosticStatus.ERROR, 'stale': DiagnosticStatus.STALE}
+
+
+def status_level(status: DiagnosticStatus) -> int:
+    """The level of a DiagnosticStatus as an int (rclpy gives a byte)."""
+    level = status.level
+    return int.from_bytes(level, 'little') if isinstance(level, bytes) else int(level)
+
+
+def diagnostic(name: str, level: str, message: str, values: Mapping[str, Any],
+               stamp: Time, hardware_id: str = 'positioning_cell') -> DiagnosticArray:
+    """A DiagnosticArray with one status; ``level`` is ok, warn, error or stale."""
+    status = DiagnosticStatus(level=LEVELS[level], name=name, message=message,
+                              hardware_id=hardware_id,
+                              values=[KeyValue(key=str(k), value=str(v))
+                                      for k, v in values.items()])
+    array = DiagnosticArray()
+    array.header.stamp = stamp
+    array.status = [status]
+    return array
+
+
+def message_class(msgtype: str) -> Any:
+    """The Python class of ROS message type ``pkg/msg/Type`` from its generated package (what
+    a raw publisher or subscription of a recorded type needs); InputError if not installed."""
+    parts = msgtype.split('/')
+    if len(parts) != 3 or parts[1] != 'msg' or not all(parts):
+        raise InputError(f'{msgtype!r} is not a ROS message type name (pkg/msg/Type)')
+    try:
+        return getattr(importlib.import_module(f'{parts[0]}.msg'), parts[2])
+    except (ImportError, AttributeError) as err:
+        raise InputError(f'message type {msgtype} is not installed: {err}') from err

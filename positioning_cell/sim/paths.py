@@ -1,0 +1,158 @@
+"""Setpoint paths of the six axes: the trajectory sampler the servos follow (cubic Hermite of
+the trajectory points), holds and controlled stops, and the conversion of trajectory points
+(trajectory_msgs/JointTrajectory fields) into a path. Units: m, rad, s."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import CubicHermiteSpline, make_interp_spline
+
+from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.errors import InputError
+from positioning_cell.sim.axes import AXES, unit_of
+
+FloatArray = NDArray[np.float64]
+
+# -- setpoint paths --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class JointPath:
+    """Setpoints of the six axes: points at ``times`` (M,) s from the path's start (finite,
+    ≥ 0, strictly increasing), ``positions`` (M, 6) in m / rad and ``velocities`` (M, 6) in
+    m/s / rad/s, or None for linear interpolation. Between points the setpoint is the cubic
+    Hermite interpolant of positions and velocities (or linear); before the first point it is
+    the first point, after the last one it holds the last position with zero velocity."""
+
+    times: FloatArray
+    positions: FloatArray
+    velocities: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        times = np.asarray(self.times, dtype=float)
+        if times.ndim != 1 or times.size == 0 or not np.isfinite(times).all():
+            raise InputError(f'times: expected M >= 1 finite values, got {self.times!r}')
+        if times[0] < 0.0 or (np.diff(times) <= 0.0).any():
+            raise InputError(f'times must be >= 0 and strictly increasing, got {times.tolist()}')
+        object.__setattr__(self, 'times', times)
+        for name in ('positions', 'velocities'):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != (times.size, AXES) or not np.isfinite(arr).all():
+                raise InputError(f'{name}: expected {times.size} finite rows of {AXES}, '
+                                 f'got shape {arr.shape}')
+            object.__setattr__(self, name, arr)
+
+    @property
+    def duration(self) -> float:
+        """Time of the last point, s."""
+        return float(self.times[-1])
+
+    @property
+    def final(self) -> FloatArray:
+        """The last point's positions (6,)."""
+        final: FloatArray = self.positions[-1]
+        return final
+
+    @cached_property
+    def _splines(self) -> tuple[Any, Any]:
+        """The interpolant and its derivative (built once, on first use)."""
+        if self.velocities is not None:
+            spline = CubicHermiteSpline(self.times, self.positions, self.velocities, axis=0)
+        else:
+            spline = make_interp_spline(self.times, self.positions, k=1, axis=0)
+        return spline, spline.derivative()
+
+    def sample(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Setpoint positions and feed-forward velocities (K, 6) at times ``t`` (K,) s from
+        the path's start."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        if self.times.size == 1:
+            return np.tile(self.positions[0], (t.size, 1)), np.zeros((t.size, AXES))
+        spline, derivative = self._splines
+        clipped = np.clip(t, self.times[0], self.times[-1])
+        position: FloatArray = spline(clipped)
+        velocity: FloatArray = derivative(clipped)
+        velocity[(t < self.times[0]) | (t >= self.times[-1])] = 0.0
+        return position, velocity
+
+    def starting_from(self, position: FloatArray, velocity: FloatArray) -> JointPath:
+        """This path with the point (``position``, ``velocity``) put at t = 0 when its first
+        point is later (how a new trajectory joins the current motion)."""
+        if self.times[0] == 0.0:
+            return self
+        velocities = (None if self.velocities is None
+                      else np.vstack([velocity, self.velocities]))
+        return JointPath(np.concatenate([[0.0], self.times]),
+                         np.vstack([position, self.positions]), velocities)
+
+def hold_path(position: ArrayLike) -> JointPath:
+    """A path that holds ``position`` (6,)."""
+    return JointPath(np.zeros(1), np.reshape(np.asarray(position, dtype=float), (1, AXES)),
+                     np.zeros((1, AXES)))
+
+def stop_path(position: ArrayLike, velocity: ArrayLike, acceleration: ArrayLike) -> JointPath:
+    """Controlled stop from (``position``, ``velocity``) (6,): all axes decelerate uniformly and
+    stop together after T = max_i |v_i| / a_i, so no axis exceeds its deceleration a_i (6,) and
+    the joint-space direction of motion is kept. The axis that sets T stops after v²/(2a), the
+    others after v_i T / 2 (≥ v_i²/(2 a_i)). The setpoint is quadratic in t (the cubic Hermite
+    of the two points is exactly that quadratic)."""
+    p = np.asarray(position, dtype=float)
+    v = np.asarray(velocity, dtype=float)
+    stop_time = float(np.max(np.abs(v) / np.asarray(acceleration, dtype=float)))
+    if stop_time <= 0.0:
+        return hold_path(p)
+    return JointPath(np.array([0.0, stop_time]), np.vstack([p, p + 0.5 * v * stop_time]),
+                     np.vstack([v, np.zeros(AXES)]))
+
+def path_from_points(names: Sequence[str], times: Sequence[float],
+                     positions: Sequence[Sequence[float]],
+                     velocities: Sequence[Sequence[float]],
+                     v_max: FloatArray | None = None) -> JointPath:
+    """A JointPath from trajectory points (trajectory_msgs/JointTrajectory): ``names`` the six
+    JOINT_NAMES in any order; per point k its time_from_start ``times[k]`` (s), ``positions[k]``
+    and ``velocities[k]`` (one value per name; velocities empty on every point = linear
+    interpolation). Columns are reordered to JOINT_NAMES. With ``v_max`` (6,), point velocities
+    and mean segment velocities above it are refused. Raises InputError naming the problem.
+    """
+    names = list(names)
+    unknown = sorted(set(names) - set(JOINT_NAMES))
+    if unknown:
+        raise InputError(f'unknown joint names {unknown}; expected {list(JOINT_NAMES)}')
+    if len(set(names)) != len(names):
+        raise InputError(f'duplicate joint names in {names}')
+    missing = [n for n in JOINT_NAMES if n not in names]
+    if missing:
+        raise InputError(f'joint names {missing} missing; all six axes are commanded together')
+    if len(times) == 0:
+        raise InputError('a trajectory needs at least one point (an empty one stops)')
+    for k, row in enumerate(positions):
+        if len(row) != AXES:
+            raise InputError(f'point {k} has {len(row)} positions, expected {AXES}')
+    given = [len(row) for row in velocities]
+    if any(n not in (0, AXES) for n in given) or 0 < given.count(AXES) < len(given):
+        raise InputError(f'velocities: give {AXES} on every point or none, got counts {given}')
+    order = [names.index(n) for n in JOINT_NAMES]
+    pos = np.asarray(positions, dtype=float)[:, order]
+    vel = np.asarray(velocities, dtype=float)[:, order] if given and given[0] else None
+    path = JointPath(np.asarray(times, dtype=float), pos, vel)
+    if v_max is not None:
+        _check_speeds(path, v_max)
+    return path
+
+def _check_speeds(path: JointPath, v_max: FloatArray) -> None:
+    speeds = np.abs(np.diff(path.positions, axis=0) / np.diff(path.times)[:, None])
+    if path.velocities is not None:
+        speeds = np.vstack([speeds, np.abs(path.velocities)])
+    over = speeds > v_max * (1.0 + 1e-9)
+    if over.any():
+        axis = int(np.flatnonzero(over.any(axis=0))[0])
+        unit = unit_of(axis, 1)
+        raise InputError(f'{JOINT_NAMES[axis]} speed {speeds[:, axis].max():.6g} {unit} '
+                         f'exceeds its limit {v_max[axis]:.6g} {unit}')

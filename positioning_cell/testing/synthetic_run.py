@@ -1,0 +1,200 @@
+"""A synthetic recorded run, for the analysis tests and benchmark: commanded poses visited in
+cycles under each compensation mode, the tracker's noisy measurements and the true poses,
+written as an MCAP rosbag2 bag with rosbags' writer (the format the recorder writes), with the
+QoS the cell's publishers offer (reliable; the target and the program latched).
+
+Each move starts at its target's stamp; the platform travels for ``move_time`` s from the last
+attained pose to the new one (commanded + the mode's bias + a random offset per visit) and
+stays there until the next target. Measurements (``rate`` Hz) carry Gaussian noise; the true
+pose is published with the same stamps, without noise.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from rosbags.interfaces import QosDurability, QosHistory, QosReliability
+from rosbags.rosbag2 import StoragePlugin, Writer
+from scipy.spatial.transform import Rotation
+
+from positioning_cell.analysis.program import ProgramStep
+from positioning_cell.bag.metadata import make_qos
+from positioning_cell.core.poses import as_pose_batch
+from positioning_cell.names import (
+    DIAGNOSTICS,
+    JOINT_STATES,
+    MEASURED_POSE,
+    PROGRAM,
+    STATUS_POSITIONER,
+    TARGET,
+    TRUE_POSE,
+)
+
+FloatArray = NDArray[np.float64]
+
+#: Bias of the attained pose per mode: position (m) and rotation vector (rad), base frame.
+DEFAULT_BIAS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    'none': ((400e-6, -250e-6, 150e-6), (4e-3, -6e-3, 2e-3)),
+    'model': ((30e-6, 20e-6, -10e-6), (2e-4, 1e-4, -1e-4)),
+    'measured': ((6e-6, -4e-6, 3e-6), (1e-5, -1e-5, 5e-6)),
+}
+#: Topics whose publishers are latched (transient-local) in the cell; the rest are streams.
+LATCHED_TOPICS = (TARGET, PROGRAM)
+
+
+@dataclass(frozen=True)
+class SyntheticRun:
+    """Targets (M,) s / (M, 3) m / (M, 4) with their program steps, measurements and true
+    poses (N,) s / (N, 3) m / (N, 4)."""
+
+    target_time: FloatArray
+    target_position: FloatArray
+    target_quaternion: FloatArray
+    steps: tuple[ProgramStep, ...]
+    time: FloatArray
+    position: FloatArray
+    quaternion: FloatArray
+    true_position: FloatArray
+    true_quaternion: FloatArray
+
+
+def synthetic_run(position: ArrayLike, quaternion: ArrayLike,
+                  modes: Sequence[str] = ('none', 'model', 'measured'), cycles: int = 3,
+                  *, rate: float = 20.0, move_time: float = 1.0, dwell_time: float = 2.5,
+                  bias: Mapping[str, tuple[Sequence[float], Sequence[float]]] | None = None,
+                  visit_sigma: float = 5e-6, noise: float = 8e-6, angle_noise: float = 2e-5,
+                  start: float = 1.7e9, seed: int = 0) -> SyntheticRun:
+    """The run: for each mode, ``cycles`` passes over the commanded poses (K, 3) m / (K, 4);
+    a move every ``move_time + dwell_time`` s; noise sigmas in m and rad."""
+    rng = np.random.default_rng(seed)
+    cp, cq = as_pose_batch(position, quaternion)
+    bias = bias or DEFAULT_BIAS
+    period = move_time + dwell_time
+    steps: list[ProgramStep] = []
+    times: list[float] = []
+    targets: list[int] = []
+    for mode in modes:
+        for cycle in range(1, cycles + 1):
+            for k in range(cp.shape[0]):
+                t = start + 0.5 + len(targets) * period + 0.013
+                steps.append(ProgramStep(mode, t - 0.2, cycle, f'P{k + 1}'))
+                times.append(t)
+                targets.append(k)
+    index = np.array(targets)
+    tt = np.array(times)
+    b = np.array([bias[s.mode][0] for s in steps])
+    rb = np.array([bias[s.mode][1] for s in steps])
+    goal_p = cp[index] + b + rng.normal(0.0, visit_sigma, b.shape)
+    goal_r = Rotation.from_quat(cq[index]) * Rotation.from_rotvec(
+        rb + rng.normal(0.0, visit_sigma / 0.1, rb.shape))
+    ts = start + np.arange(int((tt[-1] + period - start) * rate)) / rate
+    seg = np.searchsorted(tt, ts, side='right') - 1
+    prev = np.maximum(seg - 1, 0)
+    frac = np.clip((ts - tt[np.maximum(seg, 0)]) / move_time, 0.0, 1.0)[:, None]
+    frac[seg < 0] = 1.0
+    s = np.maximum(seg, 0)
+    true_p = goal_p[prev] + (goal_p[s] - goal_p[prev]) * frac
+    rel = (goal_r[prev].inv() * goal_r[s]).as_rotvec()
+    true_r = goal_r[prev] * Rotation.from_rotvec(rel * frac)
+    meas_p = true_p + rng.normal(0.0, noise, true_p.shape)
+    meas_r = true_r * Rotation.from_rotvec(rng.normal(0.0, angle_noise, true_p.shape))
+    return SyntheticRun(tt, cp[index], cq[index], tuple(steps), ts, meas_p,
+                        meas_r.as_quat(canonical=True), true_p, true_r.as_quat(canonical=True))
+
+
+def _stamp(t: float) -> tuple[int, int]:
+    sec = int(np.floor(t))
+    return sec, round((t - sec) * 1e9) % 1_000_000_000
+
+
+def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
+                  program: bool = True, diagnostics: bool = True,
+                  joint_state_rate: float = 0.0, latency: float = 0.002,
+                  truncate_to: float | None = None) -> int:
+    """Write ``run`` as a bag at ``path`` (must not exist): targets, measurements, and as
+    asked the truth, the program steps, the positioner's mode diagnostics and filler
+    /legs/joint_states at ``joint_state_rate`` Hz (same bytes, stamps patched). Log time =
+    stamp + ``latency``. ``truncate_to`` (0..1) then cuts the .mcap file to that fraction and
+    removes metadata.yaml, as a killed recorder leaves it. Returns the messages written."""
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    T = store.types
+    Time, Header = T['builtin_interfaces/msg/Time'], T['std_msgs/msg/Header']
+    Point, Quat = T['geometry_msgs/msg/Point'], T['geometry_msgs/msg/Quaternion']
+    Pose = T['geometry_msgs/msg/Pose']
+
+    def header(t: float) -> Any:
+        return Header(stamp=Time(*_stamp(t)), frame_id='base')
+
+    def pose(p: FloatArray, q: FloatArray) -> Any:
+        return Pose(position=Point(*(float(v) for v in p)),
+                    orientation=Quat(*(float(v) for v in q)))
+
+    events: list[tuple[float, str, str, Any]] = []
+    stamped = 'geometry_msgs/msg/PoseStamped'
+    for i, t in enumerate(run.target_time):
+        events.append((t, TARGET, stamped, T[stamped](
+            header(t), pose(run.target_position[i], run.target_quaternion[i]))))
+    cov = 'geometry_msgs/msg/PoseWithCovarianceStamped'
+    for i, t in enumerate(run.time):
+        events.append((t, MEASURED_POSE, cov, T[cov](header(t), T[
+            'geometry_msgs/msg/PoseWithCovariance'](pose(run.position[i], run.quaternion[i]),
+                                                     np.zeros(36)))))
+        if truth:
+            events.append((t, TRUE_POSE, stamped, T[stamped](
+                header(t), pose(run.true_position[i], run.true_quaternion[i]))))
+    if program:
+        string = T['std_msgs/msg/String']
+        events += [(s.stamp, PROGRAM, 'std_msgs/msg/String', string(s.to_json()))
+                   for s in run.steps]
+    if diagnostics:
+        diag = 'diagnostic_msgs/msg/DiagnosticArray'
+        for s, t in zip(run.steps, run.target_time, strict=True):
+            status = T['diagnostic_msgs/msg/DiagnosticStatus'](
+                level=0, name=STATUS_POSITIONER, message='moving', hardware_id='cell',
+                values=[T['diagnostic_msgs/msg/KeyValue']('mode', s.mode)])
+            events.append((t + 0.001, DIAGNOSTICS, diag, T[diag](header(t + 0.001),
+                                                                       [status])))
+    filler = b''
+    if joint_state_rate > 0:
+        js = T['sensor_msgs/msg/JointState'](header(0.0), [f'j{k}' for k in range(6)],
+                                             np.zeros(6), np.zeros(6), np.zeros(6))
+        filler = bytes(store.serialize_cdr(js, 'sensor_msgs/msg/JointState'))
+        ft = run.time[0] + np.arange(int((run.time[-1] - run.time[0]) * joint_state_rate)) / (
+            joint_state_rate)
+        events += [(float(t), JOINT_STATES, 'sensor_msgs/msg/JointState', filler)
+                   for t in ft]
+    events.sort(key=lambda e: e[0])
+    path = Path(path)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {}
+        for _, topic, msgtype, _ in events:
+            if topic not in conns:
+                durability = (QosDurability.TRANSIENT_LOCAL if topic in LATCHED_TOPICS
+                              else QosDurability.VOLATILE)
+                qos = make_qos(QosHistory.KEEP_LAST, 1 if topic in LATCHED_TOPICS else 100,
+                               QosReliability.RELIABLE, durability)
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store,
+                                                     offered_qos_profiles=[qos])
+        for t, topic, msgtype, msg in events:
+            if isinstance(msg, bytes):
+                patched = bytearray(msg)
+                struct.pack_into('<iI', patched, 4, *_stamp(t))
+                raw = bytes(patched)
+            else:
+                raw = bytes(store.serialize_cdr(msg, msgtype))
+            writer.write(conns[topic], round((t + latency) * 1e9), raw)
+    if truncate_to is not None:
+        (path / 'metadata.yaml').unlink()
+        mcap = next(path.glob('*.mcap'))
+        data = mcap.read_bytes()
+        mcap.write_bytes(data[:int(len(data) * truncate_to)])
+    return len(events)
+

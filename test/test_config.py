@@ -1,0 +1,75 @@
+"""config/cell.yaml and the nodes' declarations agree: every key of the file is declared by a
+node that reads it (a typo or a dead block fails here, not silently at run time), every node's
+section parses into its settings, and the declarations carry what ROS shows a user."""
+
+from __future__ import annotations
+
+import pytest
+
+from positioning_cell import names
+from positioning_cell.config import config_path, flatten, load_parameter_file, node_parameters
+from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
+from positioning_cell.nodes.bag_player_node import BagPlayerNode
+from positioning_cell.nodes.kinematics_node import PositionerNode
+from positioning_cell.nodes.leg_driver_node import LegDriverNode
+from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
+from positioning_cell.nodes.recorder_node import RecorderNode
+from positioning_cell.parameters import declarations, parse
+
+NODES = {n.NAME: n for n in (PositionerNode, LegDriverNode, PoseMeasurementNode,
+                             AccuracyMonitorNode, RecorderNode, BagPlayerNode)}
+CELL = load_parameter_file(config_path('cell.yaml'))
+
+
+def declared(node: str) -> set[str]:
+    return {d.name for d in declarations(NODES[node].SETTINGS)}
+
+
+def test_every_node_executable_has_a_settings_type() -> None:
+    assert set(NODES) == {n.name for n in names.NODE_EXECUTABLES}
+
+
+@pytest.mark.parametrize('section', [k for k in CELL if k != '/**'])
+def test_every_key_of_a_node_section_is_declared_by_that_node(section: str) -> None:
+    assert section in NODES, f'{section}: no node of that name'
+    keys = flatten(CELL[section]['ros__parameters'])
+    undeclared = sorted(set(keys) - declared(section))
+    assert not undeclared, f'{section}: {undeclared} are read by no node'
+
+
+def test_every_shared_key_is_declared_by_a_node() -> None:
+    keys = flatten(CELL['/**']['ros__parameters'])
+    everyone = set().union(*(declared(n) for n in NODES))
+    assert not sorted(set(keys) - everyone)
+    # The machine's load is shared by every node that models it (no silent defaults).
+    for node in (names.NODE_POSITIONER, names.NODE_DRIVER, names.NODE_MEASUREMENT):
+        assert {'payload.mass', 'structure.leg_stiffness', 'mechanism.base_radius'} <= \
+            declared(node)
+
+
+@pytest.mark.parametrize('node', sorted(NODES))
+def test_each_section_parses_into_the_node_settings(node: str) -> None:
+    params = flatten(node_parameters(CELL, node))
+    mine = {k: v for k, v in params.items() if k in declared(node)}
+    settings = parse(NODES[node].SETTINGS, mine)
+    assert settings is not None
+
+
+def test_a_misspelt_key_would_be_found() -> None:
+    bad = {'positioner': {'ros__parameters': {'goal_tolerance': {'positon': 1e-5}}}}
+    keys = flatten(bad['positioner']['ros__parameters'])
+    assert set(keys) - declared('positioner') == {'goal_tolerance.positon'}
+
+
+def test_declarations_say_what_a_user_needs() -> None:
+    for node, cls in NODES.items():
+        for d in declarations(cls.SETTINGS):
+            assert d.rule.description, f'{node}: {d.name} has no description'
+    by_name = {d.name: d for d in declarations(PositionerNode.SETTINGS)}
+    speed = by_name['motion.linear_speed']
+    assert speed.rule.unit == 'm/s' and not speed.read_only
+    assert 'unit: m/s' in speed.constraints() and 'in [1e-05, 1]' in speed.constraints()
+    iterations = by_name['compensation.max_iterations']
+    assert (iterations.rule.low, iterations.rule.high) == (0, 50)
+    assert by_name['compensation.mode'].rule.choices == ('none', 'model', 'measured')
+    assert by_name['pose_rate_hz'].read_only
