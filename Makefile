@@ -7,10 +7,13 @@ STAMP := $(VENV)/.installed
 TMP := $(CURDIR)/.test-tmp
 
 # Nothing depends on the caller's ROS environment: logs and ROS home inside the checkout,
-# discovery limited to this machine, the venv as the ament prefix.
+# Fast DDS on loopback only (config/fastdds_loopback.xml; discovery left to that profile, as
+# LOCALHOST would make rmw_fastrtps add a transport on every interface; README "Network"),
+# the venv as the ament prefix.
 RUN_ENV := ROS_LOG_DIR=$(TMP)/ros_log ROS_HOME=$(TMP)/ros_home \
-	ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) \
-	MPLBACKEND=Agg PYTHONDONTWRITEBYTECODE=1
+	FASTRTPS_DEFAULT_PROFILES_FILE=$(CURDIR)/config/fastdds_loopback.xml \
+	ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT ROS_LOCALHOST_ONLY= \
+	AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) MPLBACKEND=Agg PYTHONDONTWRITEBYTECODE=1
 
 .PHONY: test setup clean bench run
 

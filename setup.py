@@ -8,14 +8,14 @@ PACKAGE = 'positioning_cell'
 
 # Executables: `ros2 run positioning_cell <name>` on a ROS install, `<name>` on PATH in a venv.
 CONSOLE_SCRIPTS = [
-    'recorder_node = positioning_cell.nodes.recorder_node:main',
-    'bag_player_node = positioning_cell.nodes.bag_player_node:main',
+    'recorder_node = positioning_cell.nodes.entry:recorder_node',
+    'bag_player_node = positioning_cell.nodes.entry:bag_player_node',
     'recover_bag = positioning_cell.tools.recover_bag:main',
     'predict_accuracy = positioning_cell.tools.predict_accuracy:main',
-    'leg_driver_node = positioning_cell.nodes.leg_driver_node:main',
-    'pose_measurement_node = positioning_cell.nodes.pose_measurement_node:main',
-    'kinematics_node = positioning_cell.nodes.kinematics_node:main',
-    'accuracy_monitor_node = positioning_cell.nodes.accuracy_monitor_node:main',
+    'leg_driver_node = positioning_cell.nodes.entry:leg_driver_node',
+    'pose_measurement_node = positioning_cell.nodes.entry:pose_measurement_node',
+    'kinematics_node = positioning_cell.nodes.entry:kinematics_node',
+    'accuracy_monitor_node = positioning_cell.nodes.entry:accuracy_monitor_node',
     'analyze_bag = positioning_cell.tools.analyze_bag:main',
     'run_cell = positioning_cell.tools.run_cell:main',
 ]
@@ -53,7 +53,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
-        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.py')),
     ],
     # Every third-party runtime import (test/test_dependencies.py checks it against the code),

@@ -43,7 +43,8 @@ from positioning_cell.parameters import parse
 from positioning_cell.sim.drives import DriverSettings
 from positioning_cell.tools.domains import free_domain
 from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.ros import CellClient, Processes, cell_environment
+from positioning_cell.tools.processes import Processes, cell_environment
+from positioning_cell.tools.ros import CellClient
 
 CELL_YAML = config_path('cell.yaml')
 #: Executable -> node name, in start order.
@@ -261,6 +262,9 @@ def run(seconds: float, log_dir: Path) -> int:
                 print(f'--- {exe} log (tail) ---\n{procs.log(exe)[-1500:]}', file=sys.stderr)
             return 1
         print(f'cell up after {time.monotonic() - t0:.1f} s')
+        homed, message = client.trigger(names.HOME)  # references the drives
+        if not homed:
+            raise RuntimeError(f'homing failed: {message}')
         rest = measure(procs, stamps, seconds)
         set_parameter(client, 'positioner', 'compensation.mode', 'none')
         mover = Mover(client)
@@ -291,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault('ROS_LOG_DIR', str(tmp / 'idlecpu_ros_log'))
     os.environ.setdefault('ROS_HOME', str(tmp / 'idlecpu_ros_home'))
     os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ.update(cell_environment(0))  # loopback only, as the cell (the domain is set later)
     os.environ.pop('RMW_IMPLEMENTATION', None)
     with tempfile.TemporaryDirectory(prefix='idle_cpu_') as log_dir:
         try:

@@ -1,17 +1,20 @@
 """Start the positioning cell on a ROS 2 Jazzy install: `ros2 launch positioning_cell
-cell.launch.py [params_file:=...] [record:=true]`. (Here, without ros2launch, `make run` starts
+cell.launch.py [params_file:=...] [record:=true]`, on loopback only unless your environment
+names its own Fast DDS profile (README "Network"). (Here, without ros2launch, `make run` starts
 the same processes.)"""
 
+import os
 from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable, UnsetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
 from positioning_cell.names import CELL_NODES, RECORDER
+from positioning_cell.tools.processes import loopback_only
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -23,7 +26,12 @@ def generate_launch_description() -> LaunchDescription:
     nodes.append(Node(package='positioning_cell', executable=RECORDER.executable,
                       name=RECORDER.name, output='screen', parameters=[params],
                       condition=IfCondition(LaunchConfiguration('record'))))
+    env = dict(os.environ)
+    loopback_only(env)
+    network = [SetEnvironmentVariable(k, v) for k, v in env.items() if os.environ.get(k) != v]
+    network += [UnsetEnvironmentVariable(k) for k in os.environ if k not in env]
     return LaunchDescription([
+        *network,
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='ROS 2 parameter file of the cell'),
         DeclareLaunchArgument('record', default_value='true',

@@ -42,6 +42,8 @@ NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER)
 # -- topics ---------------------------------------------------------------------------------------
 JOINT_TRAJECTORY = '/legs/joint_trajectory'
 JOINT_STATES = '/legs/joint_states'
+#: The drives' answer to each trajectory: accepted or refused, keyed by its fingerprint.
+TRAJECTORY_STATUS = '/legs/trajectory_status'
 TRUE_JOINT_STATES = '/sim/legs/true_joint_states'
 TARGET = '/positioner/target'
 ESTIMATED_POSE = '/positioner/pose'
@@ -56,8 +58,9 @@ PROGRAM = '/cell/program'
 
 #: Every topic of the cell, in the README's table order: what the recorder takes by default.
 CELL_TOPICS = (
-    JOINT_TRAJECTORY, JOINT_STATES, TRUE_JOINT_STATES, TARGET, ESTIMATED_POSE, MARKERS,
-    MEASURED_POSE, TRUE_POSE, POSITION_ERROR, ORIENTATION_ERROR, DIAGNOSTICS, PROGRAM,
+    JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
+    ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRUE_POSE, POSITION_ERROR, ORIENTATION_ERROR,
+    DIAGNOSTICS, PROGRAM,
 )
 
 # -- services -------------------------------------------------------------------------------------
@@ -66,6 +69,7 @@ CHECK_POSE = '/positioner/check_pose'
 HOME = '/positioner/home'
 STOP = '/positioner/stop'
 DRIVER_ENABLE = '/leg_driver/enable'
+DRIVER_REFERENCE = '/leg_driver/reference'
 MONITOR_REPORT = '/accuracy_monitor/report'
 MONITOR_RESET = '/accuracy_monitor/reset'
 RECORDER_PAUSE = '/recorder/pause'
@@ -80,6 +84,7 @@ def set_parameters_service(node: str) -> str:
 # -- diagnostic status names (DiagnosticStatus.name on /diagnostics) ------------------------------
 STATUS_POSITIONER = 'positioner: state'
 STATUS_DRIVER = 'leg_driver'
+STATUS_TRAJECTORY = 'leg_driver: trajectory'
 STATUS_MEASUREMENT = 'pose_measurement'
 STATUS_MONITOR_VERDICT = 'accuracy_monitor: settled pose'
 STATUS_MONITOR_INPUT = 'accuracy_monitor: input'

@@ -5,6 +5,7 @@ clear message and a non-zero exit. No ROS graph."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -17,6 +18,8 @@ from positioning_cell import accuracy
 from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings
 from positioning_cell.analysis import analyse_bag
 from positioning_cell.analysis.program import load_program
+from positioning_cell.analysis.replay import BEFORE_PROGRAM
+from positioning_cell.analysis.report import markdown
 from positioning_cell.config import config_path
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
@@ -179,6 +182,57 @@ def test_a_truncated_bag_is_analysed_as_far_as_it_is_readable(
         _same_visit(accuracy.Visit(**{k: (tuple(v) if isinstance(v, list) else v)
                                       for k, v in mine.items()
                                       if k in accuracy.Visit.__dataclass_fields__}), theirs)
+
+
+def test_no_settle_time_exceeds_the_bag_after_an_old_latched_target(
+        run: SyntheticRun, bag: Path, tmp_path: Path) -> None:
+    """A recorder started after a move receives that move's latched /positioner/target first,
+    with its old stamp (here 140 s before the bag): the settle time of its visit counts from
+    the bag's first sample, so no settle time exceeds the bag (it was 140.2 s in a 75 s bag);
+    every other figure is that of the same run without the old target."""
+    path = tmp_path / 'latched'
+    write_run_bag(path, run, joint_state_rate=50.0, latched_target_age=140.0)
+    analysis = analyse_bag(path, SETTINGS)
+    info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    duration = info['duration']['nanoseconds'] * 1e-9
+    visits = (*analysis.replay.visits, *analysis.replay.truth_visits)
+    assert len(analysis.replay.visits) == len(analysis.replay.truth_visits) == 30
+    assert all(0.0 <= v.settle_duration <= duration for v in visits)
+    extremes = [m.extremes for m in (*analysis.modes, *analysis.truth_modes)]
+    extremes += [p.extremes for m in (*analysis.modes, *analysis.truth_modes) for p in m.poses]
+    assert all(e.settle_time_max <= duration and e.settle_time_mean <= duration
+               for e in extremes)
+    first = analysis.replay.visits[0]
+    assert first.visit.target_time == pytest.approx(run.time[0] - 140.0)  # as the monitor has it
+    assert first.start == run.time[0] and first.settle_duration < 1.0  # already there
+    summary = analysis.to_dict()
+    assert max(v['settle_duration'] for v in summary['visits']) <= duration
+    # the other visits are those of the bag without the old target
+    plain = analyse_bag(bag, SETTINGS)
+    for mine, theirs in zip(analysis.replay.visits[1:], plain.replay.visits[1:], strict=True):
+        _same_visit(mine.visit, theirs.visit)
+        assert mine.settle_duration == theirs.settle_duration == (
+            theirs.visit.settle_time - theirs.visit.target_time)
+        assert (mine.mode, mine.pose) == (theirs.mode, theirs.pose)
+
+
+def test_a_move_before_the_first_program_step_is_left_out_of_the_mode_figures(
+        run: SyntheticRun, bag: Path, tmp_path: Path) -> None:
+    """run_cell homes before the program: that visit has no program step. It stays in the
+    monitor's figures, is labelled 'before program', and the mode summaries are those of the
+    program's visits alone."""
+    path = tmp_path / 'homed_first'
+    write_run_bag(path, dataclasses.replace(run, steps=run.steps[1:]), diagnostics=False)
+    analysis = analyse_bag(path, SETTINGS)
+    plain = analyse_bag(bag, SETTINGS)
+    first, *rest = analysis.replay.visits
+    assert first.mode == BEFORE_PROGRAM
+    assert [(v.mode, v.pose) for v in rest] == [(v.mode, v.pose) for v in plain.replay.visits[1:]]
+    assert [m.mode for m in analysis.modes] == [m.mode for m in plain.modes]
+    assert sum(m.extremes.n for m in analysis.modes) == len(rest)
+    assert analysis.modes[0].extremes.n == plain.modes[0].extremes.n - 1
+    assert len(analysis.monitor['verdicts']) == len(plain.monitor['verdicts'])
+    assert '1 visit(s) before the first program step' in markdown(analysis)
 
 
 def test_not_a_bag_and_missing_topics_fail_with_a_clear_message(

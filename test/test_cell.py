@@ -86,6 +86,8 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Any:
         for exe in NODES:
             procs.start(exe)
         wait_until(lambda: poses and streams['measured'], 60.0, 'the cell to come up')
+        homed, message = client.trigger('/positioner/home')  # references the drives
+        assert homed, message
         yield client, streams, diagnostics, procs
         codes = procs.stop()
         assert all(c == 0 for c in codes.values()), {k: procs.log(k)[-1500:] for k in codes}

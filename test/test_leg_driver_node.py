@@ -12,7 +12,7 @@ from builtin_interfaces.msg import Duration
 from cell_harness import CELL_YAML, Client, InProcess, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
-from std_srvs.srv import SetBool
+from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from positioning_cell.config import load_parameter_file, node_parameters
@@ -86,7 +86,7 @@ class Cell:
 
 @pytest.fixture
 def cell(ros: InProcess) -> Iterator[Cell]:
-    ros.start(LegDriverNode)
+    ros.start(LegDriverNode, referenced_at_start=True)
     yield Cell(ros.client)
 
 
@@ -199,3 +199,32 @@ def test_stuck_axis_faults_names_the_axis_stops_and_reenable_clears(cell: Cell) 
     cleared = cell.status(lambda s: 'fault cleared' in values(s)['last_event'],
                           'diagnostics after re-enable')
     assert cleared.level == DiagnosticStatus.OK and values(cleared)['fault_axis'] == ''
+
+
+def test_unreferenced_drives_refuse_and_answer_every_trajectory(ros: InProcess) -> None:
+    """As shipped the drives start unreferenced; each trajectory gets an answer on
+    /legs/trajectory_status naming the rule; a trajectory beyond the stroke (the issue's probe:
+    leg 1 to 0.240 m, published straight to the driver) is refused and the axes hold."""
+    ros.start(LegDriverNode)
+    cell = Cell(ros.client)
+    answers = ros.client.collect(DiagnosticStatus, '/legs/trajectory_status', STREAM_QOS)
+    start = cell.position()
+    cell.send_move(MOVE)
+    first = wait_until(lambda: answers and answers[0], 10.0, 'the answer')
+    assert first.level == DiagnosticStatus.ERROR and 'not referenced' in first.message
+    assert values(first)['code'] == 'not_referenced' and values(first)['accepted'] == 'false'
+    reference = ros.client.call(Trigger, '/leg_driver/reference', Trigger.Request())
+    assert reference.success and 'virtual homing' in reference.message
+    cell.status(lambda s: values(s)['referenced'] == 'True', 'diagnostics: referenced')
+    beyond = MOVE.copy()
+    beyond[0] = 0.240 - start[0]
+    cell.send_move(beyond, duration=5.0)
+    refused = wait_until(lambda: len(answers) > 1 and answers[1], 10.0, 'the second answer')
+    assert 'leg1_length' in refused.message and 'above its limit 220.0000 mm' in refused.message
+    assert values(refused)['code'] == 'out_of_range'
+    seen = len(cell.truth)
+    wait_until(lambda: len(cell.truth) > seen + 50, 10.0, '50 more true joint states')
+    np.testing.assert_allclose(cell.position(), start, atol=1e-12)  # the axes held
+    cell.send_move(MOVE)
+    accepted = wait_until(lambda: len(answers) > 2 and answers[2], 10.0, 'the third answer')
+    assert accepted.level == DiagnosticStatus.OK and values(accepted)['accepted'] == 'true'

@@ -1,10 +1,14 @@
 """The positioner's move state machine without DDS (positioning_cell.motion.mover): goal checks,
-closed-loop correction, arrival, averaging, and whole moves against a fake world: settled,
-corrected on a measured machine, refused, busy, stopped, timed out, faulted."""
+closed-loop correction, arrival, averaging, and whole moves against a fake world: settled only
+within tolerance, corrected on a measured machine, refused (nothing moves, the state stays),
+busy, stopped, and every abort (stop, fault, drives off, the driver refusing, not answering or
+falling silent, a frozen or unreadable encoder, a silent or inconsistent tracker, a timeout)
+stopping the drives, each within its time bound; referencing by homing."""
 
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -16,17 +20,20 @@ from positioning_cell.core import kinematics
 from positioning_cell.errors import InputError
 from positioning_cell.motion.correction import corrected_command, deviation, mean_pose
 from positioning_cell.motion.mover import (
-    GoalTolerance,
+    Answer,
     JointReading,
     Machine,
+    Measurement,
     MoveAbortedError,
     Mover,
     PositionerSettings,
+    ResultCode,
     State,
     joints_arrived,
     validate_goal,
 )
-from positioning_cell.motion.trajectory import Trajectory
+from positioning_cell.motion.settings import GoalTolerance
+from positioning_cell.motion.trajectory import Trajectory, fingerprint
 from positioning_cell.parameters import parse
 from positioning_cell.tools.polling import wait_until
 
@@ -101,41 +108,73 @@ HOME_JOINTS = np.concatenate([kinematics.inverse(MECH, MECH.home_position,
                                                  MECH.home_quaternion).thetas[0]])
 GOAL = MECH.home_position + np.array([0.003, -0.002, 0.001])
 GOAL_Q = Rotation.from_rotvec([0.01, -0.02, 0.005]).as_quat()
+TRACKER_COVARIANCE = np.diag([5e-6**2] * 3 + [2e-5**2] * 3)
 
 
 class World:
-    """The mover's outside world: drives that jump to the end of each trajectory (when
-    ``follow``), encoders reading them, and a tracker measuring where a machine with clearance
-    ``truth`` really puts the platform (``samples`` exact readings per look)."""
+    """The mover's outside world: drives that answer each trajectory (accepting it unless
+    ``refuse``) and jump to its end (when ``follow``, plus ``bias`` on every axis), encoders
+    reading them (silent when ``silent``), and a tracker measuring where a machine with
+    clearance ``truth`` really puts the platform (``samples`` exact readings per look)."""
 
     def __init__(self, truth: cl.ClearanceModel = None, follow: bool = True,
                  samples: int = 10) -> None:
         self.position = HOME_JOINTS.copy()
         self.truth, self.follow, self.samples = truth, follow, samples
+        self.bias = np.zeros(6)
+        self.refuse: str | None = None
+        self.answering = True
+        self.silent = False
+        self.connected = True  # the drives' endpoints matched (subscriber and answers)
+        self.unreadable: list[int] = []  # axes whose encoder reads NaN
         self.trajectories: list[Trajectory] = []
+        self.pending: list[Answer] = []
         self.stops = 0
+        self.references = 0
         self.targets: list[tuple[np.ndarray, np.ndarray]] = []
-        self.states: list[tuple[State, str]] = []
+        self.states: list[tuple[State, str, ResultCode | None]] = []
+        self.refusals: list[tuple[ResultCode, str]] = []
         self.lock = threading.Lock()
 
     def machine(self) -> Machine:
         return Machine(send_trajectory=self.send, stop_drives=self.stop,
                        publish_target=lambda p, q: self.targets.append((p, q)),
                        latest_joints=self.latest, new_measurements=self.measurements,
-                       state_changed=lambda s, r: self.states.append((s, r)))
+                       trajectory_answers=self.answers, reference_drives=self.reference,
+                       drives_connected=lambda: self.connected,
+                       state_changed=lambda s, r, c: self.states.append((s, r, c)),
+                       refused=lambda c, r: self.refusals.append((c, r)))
 
     def send(self, traj: Trajectory) -> None:
         with self.lock:
             self.trajectories.append(traj)
-            if self.follow:
-                self.position = np.concatenate([traj.lengths[-1], traj.thetas[-1]])
+            key = fingerprint(traj.times, np.hstack([traj.lengths, traj.thetas]))
+            if self.answering:
+                self.pending.append(Answer(key, self.refuse is None, self.refuse or 'ok'))
+            if self.follow and self.refuse is None:
+                self.position = np.concatenate([traj.lengths[-1], traj.thetas[-1]]) + self.bias
+
+    def answers(self) -> list[Answer]:
+        with self.lock:
+            out, self.pending = self.pending, []
+            return out
 
     def stop(self) -> None:
         self.stops += 1
 
-    def latest(self) -> JointReading:
+    def reference(self) -> bool:
+        if not self.connected:
+            return False
+        self.references += 1
+        return True
+
+    def latest(self) -> JointReading | None:
         with self.lock:
-            return JointReading(self.position.copy(), np.zeros(6))
+            if self.silent:
+                return None
+            reading = self.position.copy()
+            reading[self.unreadable] = np.nan
+            return JointReading(reading, np.zeros(6))
 
     def attained(self) -> tuple[np.ndarray, np.ndarray]:
         with self.lock:
@@ -143,39 +182,58 @@ class World:
         att = cl.attained_pose(MECH, self.truth, q[:3], q[3:])
         return att.position[0], att.quaternion[0]
 
-    def measurements(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        return [self.attained()] * self.samples if self.samples else []
+    def measurements(self) -> list[Measurement]:
+        return [Measurement(*self.attained(), TRACKER_COVARIANCE)] * self.samples
 
-    def reasons(self) -> list[str]:
-        return [r for _, r in self.states]
+
+DRIVES_READY = {'enabled': 'true', 'state': 'holding', 'referenced': 'true'}
 
 
 def settings(mode: str = 'none', **changes: object) -> PositionerSettings:
     """Positioner settings for fast tests: no dwell, short timeouts."""
     values = {'compensation.mode': mode, 'compensation.clearance.model': 'none',
-              'settle_time': 0.0, 'arrival.timeout': 0.3, 'measurement_timeout': 0.3,
+              'settle_time': 0.0, 'arrival.timeout': 0.3, 'measurement_timeout': 0.5,
               **changes}
     return parse(PositionerSettings, values)
 
 
 def mover(world: World, mode: str = 'none', **changes: object) -> Mover:
     m = Mover(settings(mode, **changes), world.machine())
+    m.driver_status(DRIVES_READY)
     assert m.estimate_pose() is not None  # encoder readings are there
     return m
+
+
+def abort(m: Mover, world: World, act: object = None, delay: float = 0.2,
+          **kwargs: object) -> tuple[MoveAbortedError, float]:
+    """A move that ``act()`` (after ``delay`` s) makes fail: its error and how long after the
+    act it ended (s)."""
+    acted: list[float] = []
+    if act is not None:
+        def later() -> None:
+            acted.append(time.monotonic())
+            act()  # type: ignore[operator]
+        threading.Timer(delay, later).start()
+    with pytest.raises(MoveAbortedError) as info:
+        m.move('base', GOAL, GOAL_Q, **kwargs)  # type: ignore[arg-type]
+    ended = time.monotonic()
+    return info.value, ended - (acted[0] if acted else ended)
 
 
 def test_a_move_settles_on_the_goal() -> None:
     world = World()
     m = mover(world)
     result = m.move('base', GOAL, GOAL_Q)
-    assert m.state is State.SETTLED and result.reason == 'settled'
-    assert len(world.trajectories) == 1 and len(world.targets) == 1
+    assert m.state is State.SETTLED and result.reason.startswith('settled within tolerance')
+    assert len(world.trajectories) == 1 and len(world.targets) == 1 and world.stops == 0
     np.testing.assert_allclose(world.targets[0][0], GOAL)
     ideal = kinematics.inverse(MECH, GOAL, GOAL_Q)
     np.testing.assert_allclose(world.position, np.concatenate([ideal.lengths[0],
                                                                ideal.thetas[0]]), atol=1e-12)
     np.testing.assert_allclose(result.positions[-1], GOAL, atol=1e-9)
-    assert [s for s, _ in world.states][-3:] == [State.MOVING, State.SETTLING, State.SETTLED]
+    assert np.linalg.norm(result.position_error) < 1e-9
+    assert [s for s, _, _ in world.states][-3:] == [State.MOVING, State.SETTLING, State.SETTLED]
+    assert world.states[-1][2] is ResultCode.SUCCESS
 
 
 def test_measured_mode_corrects_a_machine_with_clearance_to_the_tolerance() -> None:
@@ -193,20 +251,46 @@ def test_measured_mode_corrects_a_machine_with_clearance_to_the_tolerance() -> N
     assert np.linalg.norm(deviation(*uncorrected.attained(), GOAL, GOAL_Q)[0]) > 20e-6
 
 
-@pytest.mark.parametrize(('frame', 'p', 'q', 'words'), [
-    ('tracker', GOAL, GOAL_Q, "goal frame 'tracker' is not 'base'"),
-    ('base', [0.0, np.nan, 0.196], GOAL_Q, 'not finite'),
-    ('base', GOAL, [0.0, 0.0, 0.0, 0.0], 'is zero'),
-    ('base', MECH.home_position + [0, 0, 0.03], GOAL_Q, 'leg 1 length'),
+def test_out_of_tolerance_is_a_failure_with_the_attained_error() -> None:
+    truth = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(3))
+    world = World(truth)
+    err, _ = abort(mover(world, 'measured', **{'compensation.max_iterations': 0}), world)
+    assert err.code is ResultCode.OUT_OF_TOLERANCE
+    assert 'settled outside tolerance: measured error' in str(err) and world.stops == 0
+    biased = World()  # encoders arrive within their tolerance, 4 µm off the goal per leg
+    biased.bias[:3] = 4e-6
+    err, _ = abort(mover(biased), biased, tolerance=1e-6)
+    assert err.code is ResultCode.OUT_OF_TOLERANCE and 'estimated error' in str(err)
+
+
+@pytest.mark.parametrize(('frame', 'p', 'q', 'code', 'words'), [
+    ('tracker', GOAL, GOAL_Q, ResultCode.REFUSED_INVALID_GOAL,
+     "goal frame 'tracker' is not 'base'"),
+    ('base', [0.0, np.nan, 0.196], GOAL_Q, ResultCode.REFUSED_INVALID_GOAL, 'not finite'),
+    ('base', GOAL, [0.0, 0.0, 0.0, 0.0], ResultCode.REFUSED_INVALID_GOAL, 'is zero'),
+    ('base', MECH.home_position + [0, 0, 0.03], GOAL_Q, ResultCode.REFUSED_LIMITS,
+     'leg 1 length'),
 ])
-def test_refusals_say_why_and_move_nothing(frame: str, p: object, q: object, words: str) -> None:
+def test_refusals_say_why_move_nothing_and_keep_the_state(
+        frame: str, p: object, q: object, code: ResultCode, words: str) -> None:
     world = World()
     m = mover(world)
+    state = m.state
     for call in (m.check, m.move):
-        with pytest.raises(MoveAbortedError, match=words):
+        with pytest.raises(MoveAbortedError, match=words) as info:
             call(frame, p, q)
-        assert m.state is State.ABORTED and words in m.reason
-    assert not world.trajectories and not world.targets
+        assert info.value.code is code and world.refusals[-1] == (code, str(info.value))
+        assert m.state is state
+    assert len(world.refusals) == 2
+    assert not world.trajectories and not world.targets and world.stops == 0
+
+
+@pytest.mark.parametrize('tolerance', [float('nan'), -1e-6, float('inf'), 2e-3])
+def test_a_bad_request_tolerance_is_refused(tolerance: float) -> None:
+    world = World()
+    with pytest.raises(MoveAbortedError, match=r'tolerance = .*: must be finite, >= 0') as info:
+        mover(world).move('base', GOAL, GOAL_Q, tolerance)
+    assert info.value.code is ResultCode.REFUSED_INVALID_GOAL and not world.trajectories
 
 
 def test_check_plans_without_moving() -> None:
@@ -216,66 +300,204 @@ def test_check_plans_without_moving() -> None:
     assert traj.limits.ok and not world.trajectories
 
 
-def test_disabled_or_faulted_drives_refuse_motion() -> None:
+@pytest.mark.parametrize(('status', 'code', 'words'), [
+    ({'enabled': 'false', 'state': 'disabled'}, ResultCode.REFUSED_DRIVES_OFF,
+     'drives disabled'),
+    ({'state': 'fault', 'message': 'following error'}, ResultCode.REFUSED_DRIVE_FAULT,
+     'drive fault: following error'),
+    ({'state': 'holding', 'referenced': 'false'}, ResultCode.REFUSED_NOT_REFERENCED,
+     'axes not referenced: home them first'),
+])
+def test_drives_not_ready_refuse_motion(status: dict[str, str], code: ResultCode,
+                                        words: str) -> None:
     world = World()
     m = mover(world)
-    m.driver_status({'enabled': 'false', 'state': 'disabled'})
-    with pytest.raises(MoveAbortedError, match='drives disabled'):
+    m.driver_status({**DRIVES_READY, **status})
+    with pytest.raises(MoveAbortedError, match=words) as info:
         m.move('base', GOAL, GOAL_Q)
-    m.driver_status({'enabled': 'true', 'state': 'fault', 'message': 'following error'})
-    with pytest.raises(MoveAbortedError, match='drive fault: following error'):
-        m.move('base', GOAL, GOAL_Q)
-    assert not world.trajectories
+    assert info.value.code is code and not world.trajectories
 
 
-def test_busy_then_stop_aborts_the_running_move() -> None:
+def test_a_silent_driver_refuses_motion() -> None:
+    world = World()
+    m = mover(world, **{'liveness.joint_silence': 0.05})
+    world.silent = True
+    time.sleep(0.06)  # the silence itself is what is tested
+    with pytest.raises(MoveAbortedError, match='leg driver not responding') as info:
+        m.check('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_DRIVER_SILENT
+
+
+def test_busy_is_refused_without_touching_the_running_move_then_stop_aborts() -> None:
     world = World(follow=False)  # the drives never arrive: the move waits
     m = mover(world, **{'arrival.timeout': 60.0})
-    outcome: dict[str, object] = {}
+    outcome: dict[str, MoveAbortedError] = {}
 
     def first() -> None:
         try:
             m.move('base', GOAL, GOAL_Q)
         except MoveAbortedError as err:
-            outcome['error'] = str(err)
+            outcome['error'] = err
 
     thread = threading.Thread(target=first)
     thread.start()
-    wait_until(lambda: world.trajectories, 10.0, 'the first move to start')
-    with pytest.raises(MoveAbortedError, match='busy'):
+    wait_until(lambda: m.state is State.MOVING, 10.0, 'the first move to start')
+    states = len(world.states)
+    with pytest.raises(MoveAbortedError, match='busy') as info:
         m.move('base', MECH.home_position, MECH.home_quaternion)
+    assert info.value.code is ResultCode.REFUSED_BUSY
+    assert m.state is State.MOVING and len(world.states) == states  # nothing changed
     assert len(world.trajectories) == 1
     m.stop()
     thread.join(timeout=10.0)
-    assert outcome['error'] == 'stopped by /positioner/stop' and world.stops == 1
-    assert m.state is State.ABORTED
+    err = outcome['error']
+    assert str(err) == 'stopped by /positioner/stop' and err.code is ResultCode.ABORTED_STOP
+    assert world.stops >= 1 and m.state is State.ABORTED
 
 
-def test_drives_that_never_arrive_time_out() -> None:
-    world = World(follow=False)
+def test_a_stop_before_the_send_sends_nothing() -> None:
+    world = World()
     m = mover(world)
-    with pytest.raises(MoveAbortedError, match=r'timed out after .* waiting for the drives'):
+    traj = m._plan(GOAL, GOAL_Q)
+    m.stop_requested = True  # as if a stop landed between the plan and the send
+    with pytest.raises(MoveAbortedError, match='stopped'):
+        m._go(GOAL, GOAL_Q, traj)
+    assert not world.trajectories
+
+
+def test_the_drives_refusing_the_trajectory_aborts_at_once() -> None:
+    world = World()
+    world.refuse = 'point 3: leg1_length 240.0000 mm is above its limit 220.0000 mm'
+    started = time.monotonic()
+    err, _ = abort(mover(world, **{'arrival.timeout': 60.0}), world)
+    assert err.code is ResultCode.ABORTED_DRIVER_REFUSED and 'above its limit' in str(err)
+    assert time.monotonic() - started < 1.0 and world.stops == 1
+
+
+def test_a_driver_that_does_not_answer_aborts() -> None:
+    world = World()
+    world.answering = False
+    err, _ = abort(mover(world, **{'liveness.answer_timeout': 0.2}), world)
+    assert err.code is ResultCode.ABORTED_DRIVER_LOST
+    assert 'waiting for the leg driver to answer the trajectory' in str(err) and world.stops == 1
+
+
+@pytest.mark.parametrize(('act', 'code', 'words', 'bound'), [
+    (lambda w, m: setattr(w, 'silent', True), ResultCode.ABORTED_DRIVER_LOST,
+     'leg driver not responding: no /legs/joint_states for', 0.5),
+    (lambda w, m: m.driver_status({**DRIVES_READY, 'enabled': 'false'}),
+     ResultCode.ABORTED_DRIVES_OFF, 'drives disabled during the move', 0.1),
+    (lambda w, m: m.driver_status({**DRIVES_READY, 'state': 'fault', 'message': 'leg2 stuck'}),
+     ResultCode.ABORTED_FAULT, 'drive fault: leg2 stuck', 0.1),
+    (lambda w, m: w.unreadable.append(1), ResultCode.ABORTED_ENCODER,
+     'encoder reading of leg2_length is not a number', 0.1),
+])
+def test_every_abort_mid_move_stops_the_drives_in_bounded_time(
+        act: object, code: ResultCode, words: str, bound: float) -> None:
+    world = World(follow=False)
+    m = mover(world, **{'arrival.timeout': 60.0})
+    err, took = abort(m, world, lambda: act(world, m))  # type: ignore[operator]
+    assert err.code is code and words in str(err), str(err)
+    assert took < bound + 0.1, took  # POLL_PERIOD and a busy machine's slack
+    assert world.stops == 1 and m.state in (State.ABORTED, State.FAULT)
+
+
+def test_a_frozen_encoder_is_a_fault_naming_the_axis_within_a_second() -> None:
+    world = World(follow=False)  # the encoders never change: frozen while commanded to move
+    m = mover(world, **{'arrival.timeout': 60.0})
+    started = time.monotonic()
+    err, _ = abort(m, world)
+    took = time.monotonic() - started
+    assert err.code is ResultCode.ABORTED_ENCODER and 'frozen: no change for 0.50 s' in str(err)
+    assert err.args[0].split()[2] in {'leg1_length', 'leg2_length', 'leg3_length',
+                                      'leg1_theta', 'leg2_theta', 'leg3_theta'}
+    assert took < 1.0 + 0.2 and world.stops == 1
+
+
+def test_a_tracker_that_falls_silent_mid_move_aborts_a_measured_move_within_a_second() -> None:
+    world = World(follow=False)  # the drives take their time: the tracker dies on the way
+    m = mover(world, 'measured', **{'measurement_timeout': 30.0, 'arrival.timeout': 60.0,
+                                    'liveness.freeze_window': 10.0})
+
+    def silence() -> None:
+        world.samples = 0
+    err, took = abort(m, world, silence)
+    assert err.code is ResultCode.ABORTED_TRACKER_LOST
+    assert 'laser tracker not responding: no /metrology/pose for' in str(err)
+    assert took < 0.5 + 0.2 and world.stops == 1
+
+
+def test_a_measured_move_is_refused_while_the_tracker_is_silent() -> None:
+    world = World(samples=0)
+    m = mover(world, 'measured')
+    with pytest.raises(MoveAbortedError) as info:
         m.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_TRACKER_SILENT
+    assert str(info.value) == ('laser tracker not responding: no /metrology/pose for ever '
+                               '(the measured mode needs it)')
+    assert world.trajectories == [] and world.stops == 0 and m.state is State.IDLE
+    assert world.refusals == [(ResultCode.REFUSED_TRACKER_SILENT, str(info.value))]
+    m.reconfigure(settings('none'))  # the other modes do not need the tracker
+    assert m.move('base', GOAL, GOAL_Q).reason.startswith('settled within tolerance')
+
+
+def test_tracker_readings_that_scatter_abort_instead_of_settling() -> None:
+    world = World()
+    rng = np.random.default_rng(5)
+    world.measurements = lambda: [  # type: ignore[method-assign]
+        Measurement(GOAL + rng.normal(0.0, 1e-3, 3), GOAL_Q, TRACKER_COVARIANCE)
+        for _ in range(10)]
+    err, _ = abort(mover(world, 'measured'), world)
+    assert err.code is ResultCode.ABORTED_TRACKER_INCONSISTENT and 'scatter' in str(err)
+
+
+def test_home_references_the_drives_then_moves_home() -> None:
+    world = World()
+    m = mover(world)
+    m.driver_status({**DRIVES_READY, 'referenced': 'false'})
+    with pytest.raises(MoveAbortedError, match='not referenced'):
+        m.move('base', GOAL, GOAL_Q)
+    threading.Timer(0.1, m.driver_status, [DRIVES_READY]).start()  # the drives reference
+    result = m.home()
+    assert world.references == 1 and result.reason.startswith('settled within tolerance')
+    assert State.HOMING in [s for s, _, _ in world.states]
+    m.move('base', GOAL, GOAL_Q)
+
+
+def test_drives_not_yet_connected_refuse_motion_and_homing() -> None:
+    """A driver just restarted: encoder readings come, but its trajectory subscription or its
+    answers are not matched yet (or its referencing service is not there): refused, nothing
+    sent, instead of a trajectory lost to discovery."""
+    world = World()
+    m = mover(world)
+    world.connected = False
+    with pytest.raises(MoveAbortedError) as info:
+        m.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_DRIVER_SILENT
+    assert str(info.value).startswith('leg driver not connected: no subscriber on '
+                                      '/legs/joint_trajectory')
+    m.driver_status({**DRIVES_READY, 'referenced': 'false'})
+    with pytest.raises(MoveAbortedError) as info:
+        m.home()
+    assert info.value.code is ResultCode.REFUSED_DRIVER_SILENT
+    assert world.trajectories == [] and world.references == 0 and m.state is State.IDLE
+    world.connected = True
+    threading.Timer(0.1, m.driver_status, [DRIVES_READY]).start()
+    assert m.home().reason.startswith('settled within tolerance')
 
 
 def test_a_fault_mid_move_aborts_and_the_next_move_starts_from_the_encoders() -> None:
     world = World(follow=False)
-    m = mover(world, **{'arrival.timeout': 60.0})
-    threading.Timer(0.2, m.driver_status, [{'state': 'fault', 'message': 'leg2 stuck'}]).start()
-    with pytest.raises(MoveAbortedError, match='drive fault: leg2 stuck'):
-        m.move('base', GOAL, GOAL_Q)
-    m.driver_status({'state': 'holding', 'enabled': 'true'})
+    m = mover(world, **{'arrival.timeout': 60.0, 'liveness.freeze_window': 5.0})
+    err, _ = abort(m, world, lambda: m.driver_status({**DRIVES_READY, 'state': 'fault',
+                                                      'message': 'leg2 stuck'}))
+    assert err.code is ResultCode.ABORTED_FAULT
+    m.driver_status(DRIVES_READY)
     world.follow = True
     m.move('base', GOAL, GOAL_Q)
     # The second trajectory starts where the encoders were (home), not at the aborted goal.
     np.testing.assert_allclose(world.trajectories[-1].position[0], MECH.home_position,
                                atol=1e-9)
-
-
-def test_measured_mode_without_tracker_readings_times_out() -> None:
-    world = World(samples=0)
-    with pytest.raises(MoveAbortedError, match=r'waiting for 10 new samples on /metrology/pose'):
-        mover(world, 'measured').move('base', GOAL, GOAL_Q)
 
 
 def test_pose_estimate_and_a_fault_without_a_solution() -> None:
@@ -286,6 +508,8 @@ def test_pose_estimate_and_a_fault_without_a_solution() -> None:
     np.testing.assert_allclose(estimate.position, MECH.home_position, atol=1e-12)
     world.position = np.array([0.4, 0.2, 0.2, 0.0, 0.0, 0.0])  # legs that cannot close
     assert m.estimate_pose() is None and m.state is State.FAULT
+    world.position = HOME_JOINTS.copy()
+    assert m.estimate_pose() is not None and m.state is State.IDLE
 
 
 def test_the_mode_can_change_between_moves() -> None:
@@ -296,3 +520,11 @@ def test_the_mode_can_change_between_moves() -> None:
     assert len(world.trajectories) == 1
     m.reconfigure(settings('measured'))
     assert m.move('base', GOAL, GOAL_Q).reason.startswith('settled within tolerance')
+    m.reconfigure(settings('none'))
+    m.move('base', MECH.home_position, MECH.home_quaternion)
+    # After the change of mode the move starts where the axes are, not at the joints the
+    # last (corrected) command had under the old mode: no step for the drives to refuse.
+    start = np.concatenate([world.trajectories[-1].lengths[0], world.trajectories[-1].thetas[0]])
+    np.testing.assert_allclose(start, np.concatenate([world.trajectories[-2].lengths[-1],
+                                                      world.trajectories[-2].thetas[-1]]),
+                               atol=1e-9)

@@ -23,6 +23,7 @@ from workspace import MECH
 
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.motion.trajectory import fingerprint
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.nodes.messages import pose_arrays, pose_stamped
 from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
@@ -33,7 +34,8 @@ HOME_P, HOME_Q = MECH.home_position, MECH.home_quaternion
 
 
 class FakeDriver:
-    """Publishes encoder readings; jumps to a trajectory's last point when told to follow."""
+    """Publishes encoder readings and answers each trajectory (accepting it); jumps to its last
+    point when told to follow; reports itself enabled and referenced."""
 
     def __init__(self, client: Client) -> None:
         home = kinematics.inverse(MECH, HOME_P, HOME_Q)
@@ -44,14 +46,25 @@ class FakeDriver:
         node = client.node
         self.pub = node.create_publisher(JointState, '/legs/joint_states', STREAM_QOS)
         self.diag = node.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+        self.answers = node.create_publisher(DiagnosticStatus, '/legs/trajectory_status',
+                                             STREAM_QOS)
         node.create_subscription(JointTrajectory, '/legs/joint_trajectory', self._on_traj,
                                  COMMAND_QOS)
+        self.enabled = True
         node.create_timer(0.02, self._tick)
+        node.create_timer(0.2, lambda: self.report(self.enabled))
 
     def _on_traj(self, msg: JointTrajectory) -> None:
         with self.lock:
             self.trajectories.append(msg)
-            if self.follow and msg.points:
+            if not msg.points:
+                return
+            times = [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9 for p in msg.points]
+            key = fingerprint(times, [p.positions for p in msg.points])
+            self.answers.publish(DiagnosticStatus(
+                name='leg_driver: trajectory', message='accepted',
+                values=[KeyValue(key='key', value=key), KeyValue(key='accepted', value='true')]))
+            if self.follow:
                 self.position = np.array(msg.points[-1].positions)
 
     def _tick(self) -> None:
@@ -62,9 +75,11 @@ class FakeDriver:
         self.pub.publish(msg)
 
     def report(self, enabled: bool, state: str = 'holding') -> None:
+        self.enabled = enabled
         status = DiagnosticStatus(name='leg_driver', level=DiagnosticStatus.OK,
                                   values=[KeyValue(key='enabled', value=str(enabled).lower()),
-                                          KeyValue(key='state', value=state)])
+                                          KeyValue(key='state', value=state),
+                                          KeyValue(key='referenced', value='true')])
         self.diag.publish(DiagnosticArray(status=[status]))
 
 
@@ -86,6 +101,7 @@ class Positioner:
         self.node = ros.start(PositionerNode, **{'compensation.mode': 'none',
                                                  'settle_time': 0.0})
         wait_until(lambda: self.poses, 30.0, 'the first /positioner/pose')
+        wait_until(lambda: self.node.mover.referenced, 10.0, 'the fake drives\' status')
 
     def plan(self, service: str, req: GetPlan.Request) -> Any:
         return self.client.call(GetPlan, service, req)
@@ -195,7 +211,7 @@ def test_home_service_and_parameters(positioner: Positioner) -> None:
     assert positioner.plan('/positioner/move_to_pose', request(HOME_P + [0.002, 0, 0],
                                                                HOME_Q)).plan.poses
     home = client.call(Trigger, '/positioner/home', Trigger.Request())
-    assert home.success and home.message == 'at home'
+    assert home.success and home.message.startswith('at home, referenced')
     np.testing.assert_allclose(positioner.driver.trajectories[-1].points[-1].positions,
                                positioner.driver.trajectories[0].points[0].positions,
                                atol=1e-12)

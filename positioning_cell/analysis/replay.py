@@ -4,10 +4,21 @@ every settled visit labelled by the compensation mode and program pose it belong
 Labels come from ``/cell/program`` (std_msgs/String, JSON written by :meth:`ProgramStep.to_json`:
 ``{"mode": "model", "cycle": 2, "pose": "P3", "stamp": 1700000000.25}``) published by the run
 driver before each move: a segment (a new target) takes the last step whose ``stamp`` (s, the
-publisher's clock; the log time if absent) is not after the target's header stamp. Without
-program steps the mode is the ``mode`` value of the positioner's ``positioner: state``
+publisher's clock; the log time if absent) is not after the target's header stamp; one before
+the first step (the homing move) is labelled :data:`BEFORE_PROGRAM`. Without program steps the
+mode is the ``mode`` value of the positioner's ``positioner: state``
 diagnostics (the first status stamped at or after the target; the positioner publishes it when
 the move starts) and the pose is named ``P<key + 1>``.
+
+The settle time of a visit is counted from the *start of its segment as the bag shows it*: the
+later of the time its target took effect (the monitor's ``Visit.target_time``) and the stamp of
+the first sample of that source (measured or true pose) the bag holds. The two differ only for
+a target stamped before the bag's first sample: typically the latched (transient-local)
+/positioner/target of a move commanded before the recorder started, which reaches the recorder
+first with its old header stamp. Counted from that stamp, a settle time would include time
+the bag does not cover (a 159 s settle in a 20 s bag); counted from the first sample, no settle
+time exceeds the span of the samples' stamps. The monitor's visits themselves (and so what the
+live node reports) keep the target's own stamp.
 """
 
 from __future__ import annotations
@@ -42,6 +53,9 @@ REQUIRED_TOPICS = (TARGET, MEASURED_POSE)
 #: Used when present: the simulation truth, the program labels, the positioner's mode.
 OPTIONAL_TOPICS = (TRUE_POSE, PROGRAM, DIAGNOSTICS)
 UNKNOWN_MODE = 'unknown'
+#: The label of a segment that starts before the first program step of a run that has steps
+#: (the homing move of run_cell): in the monitor's figures, not in the per-mode summaries.
+BEFORE_PROGRAM = 'before program'
 
 
 @dataclass(frozen=True)
@@ -59,12 +73,20 @@ class Segment:
 
 @dataclass(frozen=True)
 class LabelledVisit:
-    """A settled visit with its labels and its verdict against the monitor's tolerances."""
+    """A settled visit with its labels, its verdict against the monitor's tolerances, and
+    ``start`` (s): when its segment started as far as the bag shows (module docstring)."""
 
     visit: accuracy.Visit
     mode: str
     pose: str
     verdict: accuracy.Verdict
+    start: float
+
+    @property
+    def settle_duration(self) -> float:
+        """Settle time (s): from ``start`` to the last sample of the settle window; never
+        longer than the span of the source's samples in the bag."""
+        return self.visit.settle_time - self.start
 
 
 @dataclass(frozen=True)
@@ -94,6 +116,11 @@ class _SampleLog:
 
     def add(self, t: float, p: Any, q: Any, update: accuracy.SampleUpdate, seg: int) -> None:
         self.rows.append((t, p, q, update.position_error, update.orientation_error, seg))
+
+    def start(self, target_time: float) -> float:
+        """Start of a segment as the bag shows it: the later of ``target_time`` and the first
+        sample."""
+        return max(target_time, self.rows[0][0]) if self.rows else target_time
 
     def arrays(self) -> Samples:
         n = len(self.rows)
@@ -186,12 +213,13 @@ def replay(messages: Sequence[BagMessage], settings: MonitorSettings | None = No
     by_truth_time = {s[1]: i for i, s in enumerate(raw_segments)}
     tolerances = monitor.tolerances
     visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
-                                 segments[by_time[v.target_time]].pose, verdict)
+                                 segments[by_time[v.target_time]].pose, verdict,
+                                 measured.start(v.target_time))
                    for v, verdict in zip(monitor.measured.visits, monitor.verdicts, strict=True))
     truth_visits = tuple(
         LabelledVisit(v, segments[by_truth_time[v.target_time]].mode,
                       segments[by_truth_time[v.target_time]].pose,
-                      accuracy.judge_visit(v, tolerances))
+                      accuracy.judge_visit(v, tolerances), truth.start(v.target_time))
         for v in monitor.truth_accumulator.visits)
     notes = tuple(dict.fromkeys(s.note for s in steps if s.note))
     return Replay(monitor, segments, visits, truth_visits, measured.arrays(), truth.arrays(),
@@ -210,9 +238,9 @@ def _label(raw: Sequence[tuple[float, float, int, Any, Any, float]],
     for time, _, key, p, q, stamp in raw:
         mode, pose = UNKNOWN_MODE, f'P{key + 1}'
         i = int(np.searchsorted(step_times[order], stamp, side='right')) - 1
-        if steps and i >= 0:
-            step = steps[int(order[i])]
-            mode, pose = step.mode, step.pose or pose
+        if steps:
+            step = steps[int(order[i])] if i >= 0 else None
+            mode, pose = (step.mode, step.pose or pose) if step else (BEFORE_PROGRAM, pose)
         elif modes:
             j = min(int(np.searchsorted(mode_times[mode_order], stamp, side='left')),
                     len(modes) - 1)

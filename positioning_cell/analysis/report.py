@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from positioning_cell.accuracy import ErrorStatistics
+from positioning_cell.analysis.replay import BEFORE_PROGRAM
 from positioning_cell.analysis.summary import ModeSummary, RunAnalysis
 
 REPORT_FILE = 'report.md'
@@ -103,6 +104,10 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
     if a.ignored:
         out += [f'{len(a.ignored)} message(s) ignored as the live monitor ignores them; '
                 f'first: {a.ignored[0].topic}: {a.ignored[0].reason}.', '']
+    before = sum(v.mode == BEFORE_PROGRAM for v in a.replay.visits)
+    if before:
+        out += [f'{before} visit(s) before the first program step (homing) are in the live '
+                'monitor\'s figures only, not in the comparison of modes.', '']
     out += ['## Comparison of compensation modes (measured by the tracker)', '']
     if a.modes:
         out += _table(COMPARISON_HEADER, comparison_rows(a.modes))
@@ -110,7 +115,8 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
         out += ['No commanded pose settled: nothing to compare.']
     out += ['', 'AP, RP: ISO 9283:1998 §7.2.1 pose accuracy and §7.2.2 repeatability over the '
             'cycles of each pose (RP needs two cycles); Δp and angle: attained (settle-window '
-            'mean) minus commanded pose; settle: target to end of the settle window.', '']
+            'mean) minus commanded pose; settle: target (or the bag\'s first sample, if the '
+            'target is older) to end of the settle window.', '']
     if a.modes:
         out += ['## Per commanded pose', '', *_table(POSE_HEADER, _pose_rows(a.modes)), '']
     if a.truth_modes:

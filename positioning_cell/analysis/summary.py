@@ -4,7 +4,9 @@ and tolerance verdicts of a recorded run; the whole analysis of a bag (:func:`an
 Errors of a visit are those of its attained pose (the settle-window mean, see
 positioning_cell.accuracy) against its commanded pose: |Δp| (m) and the rotation angle of
 R_cmdᵀ·R (rad). Max and RMS are over the visits (the ISO 9283 cycles); the settle time of a
-visit is from the target taking effect to the last sample of its settle window (s).
+visit (s) is from the start of its segment as the bag shows it (the later of the target taking
+effect and the bag's first sample, :attr:`LabelledVisit.settle_duration`) to the last sample of
+its settle window, so it never exceeds what the bag covers.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from positioning_cell import accuracy
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
 from positioning_cell.analysis.reading import read_bag
 from positioning_cell.analysis.replay import (
+    BEFORE_PROGRAM,
     OPTIONAL_TOPICS,
     REQUIRED_TOPICS,
     LabelledVisit,
@@ -48,7 +51,7 @@ class Extremes:
         """Of ``visits`` (at least one)."""
         d = np.array([v.verdict.position_error for v in visits])
         a = np.array([v.verdict.orientation_error for v in visits])
-        s = np.array([v.visit.settle_time - v.visit.target_time for v in visits])
+        s = np.array([v.settle_duration for v in visits])
         return cls(len(visits), float(d.max()), float(np.sqrt((d * d).mean())),
                    float(a.max()), float(np.sqrt((a * a).mean())), float(s.mean()),
                    float(s.max()), sum(v.verdict.ok for v in visits))
@@ -196,6 +199,7 @@ class RunAnalysis:
             'visits': [{'mode': v.mode, 'pose': v.pose, 'ok': v.verdict.ok,
                         'position_error': v.verdict.position_error,
                         'orientation_error': v.verdict.orientation_error,
+                        'segment_start': v.start, 'settle_duration': v.settle_duration,
                         **v.visit.to_dict()} for v in self.replay.visits],
             'ignored': [i.__dict__ for i in self.ignored],
             'monitor': self.monitor,
@@ -204,9 +208,10 @@ class RunAnalysis:
 
 def analyse_bag(path: str | Path, settings: MonitorSettings | None = None) -> RunAnalysis:
     """Read the bag at ``path``, replay it through the monitor's rules and summarise it per
-    mode and pose. BagError when it is not a readable bag or lacks a topic of
-    :data:`REQUIRED_TOPICS`; a truncated bag is analysed as far as it is readable
-    (``problems`` says what was lost)."""
+    mode and pose. BagError when it is not a readable bag (nothing in it is an MCAP file: an
+    empty or too short file, wrong magic) or lacks a topic of :data:`REQUIRED_TOPICS`; a
+    truncated or damaged bag is analysed as far as it is readable: its sound chunks
+    (``problems`` names each corrupt chunk and the time range and messages lost)."""
     settings = settings or MonitorSettings()
     contents = read_bag(path, (*REQUIRED_TOPICS, *OPTIONAL_TOPICS))
     missing = [t for t in REQUIRED_TOPICS if t not in contents.topics]
@@ -216,12 +221,16 @@ def analyse_bag(path: str | Path, settings: MonitorSettings | None = None) -> Ru
                                    f'(the bag has: {have})')
     result = replay(contents.messages, settings)
     truth = bool(result.truth.count)
+
+    def in_program(visits: Sequence[LabelledVisit]) -> list[LabelledVisit]:
+        return [v for v in visits if v.mode != BEFORE_PROGRAM]
+
     return RunAnalysis(
         bag=Path(path), message_count=contents.message_count, topics=contents.topics,
         settings=settings, replay=result,
-        modes=_with_tracker(summarise(result.visits), result,
+        modes=_with_tracker(summarise(in_program(result.visits)), result,
                            settings.tracker_error.max_stamp_difference),
-        truth_modes=summarise(result.truth_visits) if truth else (),
+        truth_modes=summarise(in_program(result.truth_visits)) if truth else (),
         problems=(*contents.problems, *result.problems),
         missing_optional=tuple(t for t in OPTIONAL_TOPICS if t not in contents.topics),
         ignored=tuple(result.monitor.ignored))

@@ -3,7 +3,10 @@
 - :class:`BagWriter`: serialized messages → ``<bag>/<bag>_N.mcap`` + ``metadata.yaml``, small
   chunks flushed on demand, optional zstd chunk compression, size / duration splits.
 - :class:`BagReader`: a bag read back through rosbags, raw (for replay) or decoded (analysis).
-- :func:`recover_bag`: a bag whose recorder was killed → valid, indexed files + metadata.
+- :func:`verify_bag`: every storage file checked (MCAP magic, chunk and data-section CRCs,
+  records): the corrupt chunks with the log times and messages they covered.
+- :func:`recover_bag`: a bag whose recorder was killed, or with corrupt chunks → valid,
+  indexed files (the sound chunks) + metadata.
 - :class:`PlaybackTiming`, :func:`play`: replay with the recorded timing.
 """
 
@@ -19,13 +22,17 @@ from positioning_cell.bag.reader import BagMessage, BagReader, RawMessage, Topic
 from positioning_cell.bag.recovery import FileRecovery, RecoveryReport, recover_bag
 from positioning_cell.bag.settings import PlayerSettings, RecorderSettings, SplitSettings
 from positioning_cell.bag.topics import TopicSelection
+from positioning_cell.bag.verify import BagCheck, DamagedChunk, FileCheck, verify_bag, verify_file
 from positioning_cell.bag.writer import BagWriter, message_definition
 
 __all__ = [
+    'BagCheck',
     'BagError',
     'BagMessage',
     'BagReader',
     'BagWriter',
+    'DamagedChunk',
+    'FileCheck',
     'FileRecovery',
     'FileSummary',
     'PlaybackTiming',
@@ -42,4 +49,6 @@ __all__ = [
     'playback_qos',
     'recording_qos',
     'recover_bag',
+    'verify_bag',
+    'verify_file',
 ]

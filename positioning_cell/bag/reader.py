@@ -1,5 +1,10 @@
 """Reading a recorded bag back, through rosbags (decoder independent of the writer's mcap
-library): raw CDR for replay, decoded messages and numpy arrays for analysis."""
+library): raw CDR for replay, decoded messages and numpy arrays for analysis.
+
+rosbags checks a chunk's CRC when it reads the chunk; :meth:`BagReader.verify` checks every
+chunk and the data-section CRC up front (:mod:`positioning_cell.bag.verify`), and a read that
+fails on damaged storage says which chunks are corrupt and what they covered.
+"""
 
 from __future__ import annotations
 
@@ -18,6 +23,7 @@ from rosbags.serde import SerdeError
 
 from positioning_cell.bag.errors import BagError
 from positioning_cell.bag.metadata import METADATA_FILE
+from positioning_cell.bag.verify import BagCheck, verify_bag
 
 _READ_ERRORS = (AnyReaderError, ReaderError, SerdeError, OSError, KeyError, ValueError,
                 AssertionError, EOFError)
@@ -52,11 +58,21 @@ class TopicInfo:
     qos: tuple[Qos, ...]
 
 
+def _damage(path: Path) -> str:
+    """``; <what verification finds wrong>`` for an error message ('' if nothing)."""
+    try:
+        lines = verify_bag(path).lines() if path.is_dir() or path.suffix == '.mcap' else []
+    except OSError:
+        return ''
+    return ''.join(f'; {line}' for line in lines)
+
+
 class BagReader:
     """An open bag (a rosbag2 directory, or a single ``.mcap``): a context manager.
 
     Every message is yielded in log-time order across topics and files. Problems (missing
-    path, no metadata.yaml, unreadable or corrupt storage, unknown topics) raise BagError.
+    path, no metadata.yaml, unreadable or corrupt storage, unknown topics) raise BagError; on
+    unreadable or corrupt storage its reason names the damage :meth:`verify` finds.
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -71,7 +87,7 @@ class BagReader:
             self._reader = AnyReader([path])
             self._reader.open()
         except _READ_ERRORS as err:
-            raise BagError(path, f'not a readable bag: {err}') from err
+            raise BagError(path, f'not a readable bag: {err}{_damage(path)}') from err
         self.topics: dict[str, TopicInfo] = {}
         for name, info in self._reader.topics.items():
             qos: list[Qos] = []
@@ -114,7 +130,7 @@ class BagReader:
             for conn, t_ns, data in self._reader.messages(connections, start=start_ns):
                 yield RawMessage(conn.topic, conn.msgtype, t_ns, bytes(data))
         except _READ_ERRORS as err:
-            raise BagError(self.path, f'corrupt storage: {err}') from err
+            raise BagError(self.path, f'corrupt storage: {err}{_damage(self.path)}') from err
 
     def messages(self, topics: Collection[str] | None = None,
                  start_ns: int | None = None) -> Iterator[BagMessage]:
@@ -144,6 +160,11 @@ class BagReader:
         if values.ndim == 1:
             values = values.reshape(len(times), -1)
         return np.asarray(times, dtype=np.int64), values
+
+    def verify(self) -> BagCheck:
+        """Verify the bag's storage files: every chunk's CRC (or structure) and the
+        data-section CRC (:func:`positioning_cell.bag.verify.verify_bag`)."""
+        return verify_bag(self.path)
 
     def close(self) -> None:
         """Release the files (idempotent)."""

@@ -1,25 +1,28 @@
-"""Recovering a bag whose recorder was killed: every complete chunk of a truncated ``.mcap``
-is rewritten into a valid, indexed file and ``metadata.yaml`` is rebuilt from the files.
+"""Recovering a bag whose recorder was killed, or whose files are damaged: every sound chunk
+of a truncated or damaged ``.mcap`` is rewritten into a valid, indexed file and
+``metadata.yaml`` is rebuilt from the files.
 
 A recording killed with SIGKILL leaves ``.mcap`` files without their summary section (and the
 last one cut in the middle of a record) and no ``metadata.yaml``. The MCAP record stream is
-self-describing (schemas and channels precede the messages that use them), so reading it from
-the start until the first incomplete or corrupt record yields exactly the readable prefix.
+self-describing (schemas and channels precede the messages that use them), so walking it from
+the start yields the readable prefix. A file damaged on disk (a corrupt chunk: its CRC,
+compression or records fail, see :mod:`positioning_cell.bag.verify`) is rewritten from its
+sound chunks: the walk skips each corrupt chunk and goes on with the next, and what each one
+covered is reported (:attr:`FileRecovery.lost`).
 """
 
 from __future__ import annotations
 
 import os
-import re
 import struct
-from collections.abc import Iterator
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import MAGIC_SIZE, CRCValidationError, StreamReader
+from mcap.records import Channel, Schema
+from mcap.stream_reader import MAGIC_SIZE, CRCValidationError
 from rosbags.rosbag2.errors import ReaderError
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
@@ -32,25 +35,40 @@ from positioning_cell.bag.metadata import (
     parse_qos_yaml,
     write_metadata,
 )
+from positioning_cell.bag.verify import (
+    MCAP_MAGIC,
+    DamagedChunk,
+    FileCheck,
+    sound_records,
+    storage_files,
+    verify_file,
+)
 from positioning_cell.bag.writer import McapFile
 
-MCAP_MAGIC = b'\x89MCAP0\r\n'
-#: Everything a damaged record stream can raise while being parsed.
+__all__ = ['MCAP_MAGIC', 'FileRecovery', 'RecoveryReport', 'recover_bag', 'storage_files']
+
+#: Everything a damaged summary section can raise while being parsed.
 _STREAM_ERRORS = (McapError, CRCValidationError, struct.error, ValueError, UnicodeDecodeError,
                   EOFError, IndexError, KeyError, MemoryError)
-_INDEX = re.compile(r'_(\d+)\.mcap$')
 RECOVER_CHUNK_BYTES = 1024 * 1024
+#: Suffix of the kept original, by status.
+BACKUP_SUFFIX = {'recovered': '.truncated', 'repaired': '.damaged'}
 
 
 @dataclass(frozen=True)
 class FileRecovery:
-    """What happened to one storage file: ``complete`` (already valid, untouched), ``recovered``
-    (rewritten from its readable prefix; the damaged original kept as ``backup``)."""
+    """What happened to one storage file: ``complete`` (sound, untouched), ``recovered``
+    (truncated: rewritten from its readable records), ``repaired`` (complete but damaged:
+    rewritten from its sound chunks); a rewritten file's original is kept as ``backup``.
+    ``lost``: the corrupt chunks left out (what each covered); ``problems``: damage found
+    outside the chunks."""
 
     path: Path
     status: str
     message_count: int
     backup: Path | None = None
+    lost: tuple[DamagedChunk, ...] = ()
+    problems: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -70,7 +88,7 @@ class RecoveryReport:
     @property
     def changed(self) -> bool:
         """True when anything on disk was rewritten."""
-        return self.metadata_written or any(f.status == 'recovered' for f in self.files)
+        return self.metadata_written or any(f.status != 'complete' for f in self.files)
 
 
 @dataclass(frozen=True)
@@ -79,14 +97,14 @@ class _Inspection:
     complete: bool
     topics: tuple[TopicMeta, ...] = ()
     summary: FileSummary | None = None
+    check: FileCheck | None = None
 
-
-def storage_files(bag: Path) -> list[Path]:
-    """The ``.mcap`` files of a bag directory in split order (``name_0``, ``name_1``, ...)."""
-    def key(p: Path) -> tuple[int, str]:
-        m = _INDEX.search(p.name)
-        return (int(m.group(1)) if m else -1, p.name)
-    return sorted((p for p in bag.glob('*.mcap') if p.is_file()), key=key)
+    @property
+    def status(self) -> str:
+        """What recovery does with the file (see FileRecovery)."""
+        if self.complete:
+            return 'complete'
+        return 'repaired' if self.check is not None and self.check.complete else 'recovered'
 
 
 def _topic(channel: Channel, schema: Schema | None, path: Path) -> TopicMeta:
@@ -96,26 +114,27 @@ def _topic(channel: Channel, schema: Schema | None, path: Path) -> TopicMeta:
                      meta.get('topic_type_hash', ''), channel.message_encoding)
 
 
-def _inspect(path: Path) -> _Inspection:
+def _inspect(path: Path, check: FileCheck | None) -> _Inspection:
     """Is ``path`` an MCAP file (else BagError), and is it complete (footer, summary and
-    statistics readable)? For a complete file, its topics and counts from the summary."""
+    statistics readable) and sound (:func:`verify_file`, unless ``check`` is its verification
+    already)? For a complete, sound file, its topics and counts from the summary."""
     size = path.stat().st_size
     with path.open('rb') as stream:
         head = stream.read(MAGIC_SIZE)
         if size and head != MCAP_MAGIC[:len(head)]:
             raise BagError(path, 'not an MCAP file (wrong magic bytes); nothing changed')
-        if size < 2 * MAGIC_SIZE:
-            return _Inspection(path, False)
-        stream.seek(-MAGIC_SIZE, os.SEEK_END)
-        if stream.read(MAGIC_SIZE) != MCAP_MAGIC:
-            return _Inspection(path, False)
-        stream.seek(0)
+    check = check or verify_file(path)
+    if not check.usable:
+        return _Inspection(path, False)
+    if not check.sound:
+        return _Inspection(path, False, check=check)
+    with path.open('rb') as stream:
         try:
             summary = SeekingReader(stream).get_summary()
         except _STREAM_ERRORS:
-            return _Inspection(path, False)
+            return _Inspection(path, False, check=check)
     if summary is None or summary.statistics is None:
-        return _Inspection(path, False)
+        return _Inspection(path, False, check=check)
     stats = summary.statistics
     topics = tuple(_topic(c, summary.schemas.get(c.schema_id), path)
                    for c in summary.channels.values())
@@ -127,36 +146,21 @@ def _inspect(path: Path) -> _Inspection:
         stats.message_end_time if count else 0, count, counts))
 
 
-def _readable_records(path: Path) -> Iterator[Schema | Channel | Message]:
-    """Schemas, channels and messages of ``path`` in file order, up to the first incomplete or
-    corrupt record (chunk CRCs are checked, so a damaged chunk ends the prefix)."""
-    with path.open('rb') as stream:
-        records = StreamReader(stream, validate_crcs=True).records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                return
-            except _STREAM_ERRORS:
-                return
-            if isinstance(record, (Schema, Channel, Message)):
-                yield record
-
-
 def _rewrite(path: Path, compression: str) -> tuple[FileSummary, tuple[TopicMeta, ...]]:
-    """Write the readable prefix of ``path`` to ``path.recovering``; its summary and topics."""
+    """Write the sound records of ``path`` (:func:`sound_records`: every readable chunk, corrupt
+    ones skipped) to ``path.recovering``; its summary and topics."""
     target = path.with_name(path.name + '.recovering')
     target.unlink(missing_ok=True)
     out = McapFile(target, compression, RECOVER_CHUNK_BYTES)
     schemas: dict[int, Schema] = {}
     topics: dict[int, TopicMeta] = {}
     try:
-        for record in _readable_records(path):
+        for record in sound_records(path):
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
                 schema = schemas.get(record.schema_id)
-                if schema is None:
+                if schema is None or record.id in topics:
                     continue
                 topics[record.id] = _topic(record, schema, path)
                 out.add_topic(topics[record.id], schema.data.decode('utf-8', 'replace'),
@@ -180,13 +184,16 @@ def _listed_files(bag: Path) -> list[str] | None:
         return None
 
 
-def recover_bag(path: str | Path, compression: str = 'zstd') -> RecoveryReport:
+def recover_bag(path: str | Path, compression: str = 'zstd', *,
+                checked: Sequence[FileCheck] = ()) -> RecoveryReport:
     """Make the bag at ``path`` (its directory, or one of its ``.mcap`` files) valid again.
 
-    Complete files are left as they are; each truncated one is rewritten from its readable
-    prefix (``compression``: ``zstd`` or ``none``) and the damaged original kept beside it as
-    ``<name>.mcap.truncated``; metadata.yaml is rebuilt when missing, stale or after any
-    rewrite. A bag that is already complete is not touched. Input that is not a bag (missing
+    Every file is verified (:func:`positioning_cell.bag.verify.verify_file`; ``checked``: files
+    verified already, matched by file name). Sound, complete files are left as they are; each
+    truncated one is rewritten from its readable records, each damaged one from its sound
+    chunks (``compression``: ``zstd`` or ``none``), the original kept beside it as
+    ``<name>.mcap.truncated`` or ``<name>.mcap.damaged``; metadata.yaml is rebuilt when missing,
+    stale or after any rewrite. A sound bag is not touched. Input that is not a bag (missing
     path, no ``.mcap``, a file that is not MCAP) raises BagError before anything is changed.
     """
     path = Path(path)
@@ -196,7 +203,8 @@ def recover_bag(path: str | Path, compression: str = 'zstd') -> RecoveryReport:
     files = storage_files(bag)
     if not files:
         raise BagError(bag, 'no .mcap storage files: not an MCAP rosbag2 bag')
-    inspections = [_inspect(f) for f in files]  # raises before any change
+    known = {c.path.name: c for c in checked}
+    inspections = [_inspect(f, known.get(f.name)) for f in files]  # raises before any change
 
     results: list[FileRecovery] = []
     summaries: list[FileSummary] = []
@@ -207,15 +215,20 @@ def recover_bag(path: str | Path, compression: str = 'zstd') -> RecoveryReport:
             results.append(FileRecovery(item.path, 'complete', summary.message_count))
         else:
             summary, found = _rewrite(item.path, compression)
-            backup = item.path.with_name(item.path.name + '.truncated')
+            status = item.status
+            backup = item.path.with_name(item.path.name + BACKUP_SUFFIX[status])
             os.replace(item.path, backup)
             os.replace(item.path.with_name(item.path.name + '.recovering'), item.path)
-            results.append(FileRecovery(item.path, 'recovered', summary.message_count, backup))
+            check = item.check
+            results.append(FileRecovery(
+                item.path, status, summary.message_count, backup,
+                check.damaged if check is not None else (),
+                check.problems if check is not None else ()))
         summaries.append(summary)
         for topic in found:
             topics.setdefault(topic.name, topic)
 
-    rewritten = any(r.status == 'recovered' for r in results)
+    rewritten = any(r.status != 'complete' for r in results)
     stale = _listed_files(bag) != [f.name for f in files]
     if rewritten or stale:
         write_metadata(bag, list(topics.values()), summaries)

@@ -10,18 +10,29 @@ definition from the rosbags Jazzy typestore, one ``cdr`` channel per topic carry
 message indexes). It is 3-4x faster than ``mcap.writer.Writer`` here (about 150k against 45k
 small messages/s), which is what lets a recorder keep up at 20k messages/s; its 1 MiB chunk
 buffer is bounded by closing the chunk at ``chunk_bytes`` and on every flush.
+
+rosbags' writer leaves every CRC of the format at 0 ("not computed"); this one fills all three,
+so that :mod:`positioning_cell.bag.verify` (and any MCAP reader that checks them) detects a
+damaged file: each chunk's ``uncompressed_crc`` (CRC-32 of its records before compression), the
+``data_section_crc`` of the DataEnd record (every byte from the start of the file to DataEnd,
+kept as a running CRC of what reaches the file) and the footer's ``summary_crc``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
+import struct
+import zlib
+from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 from rosbags.interfaces import (
     Connection,
@@ -31,7 +42,15 @@ from rosbags.interfaces import (
     Qos,
 )
 from rosbags.rosbag2.enums import CompressionMode
-from rosbags.rosbag2.storage_mcap import McapWriter
+from rosbags.rosbag2.storage_mcap import (
+    McapWriter,
+    PendingChunk,
+    write_record,
+    write_string,
+    write_uint16,
+    write_uint32,
+    write_uint64,
+)
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -72,6 +91,128 @@ def message_definition(msgtype: str, typestore: Typestore | None = None) -> tupl
     return text, store.hash_rihs01(msgtype)
 
 
+_MAGIC = b'\x89MCAP0\r\n'
+_FOOTER_BYTES = 1 + 8 + 8 + 8 + 4      # opcode, length, summary_start, summary_offset_start, crc
+_DATA_END_BYTES = 1 + 8 + 4            # opcode, length, data_section_crc
+_OP_CHUNK, _OP_DATA_END, _OP_FOOTER = 0x06, 0x0F, 0x02
+
+
+class _CrcRaw(io.RawIOBase):
+    """The raw file under the storage's buffered writer: what reaches the file also goes into
+    a running CRC-32 (``crc``) of the file from its first byte."""
+
+    def __init__(self, raw: io.RawIOBase, crc: int, position: int) -> None:
+        super().__init__()
+        self._raw = raw
+        self.crc = crc
+        self.position = position
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return False
+
+    def tell(self) -> int:
+        return self.position
+
+    def write(self, b: Any, /) -> int:  # a bytes-like object (typeshed's ReadableBuffer)
+        n = self._raw.write(b) or 0
+        with memoryview(b) as view, view.cast('B')[:n] as written:
+            self.crc = zlib.crc32(written, self.crc)
+        self.position += n
+        return n
+
+    def close(self) -> None:
+        if not self.closed:
+            self._raw.close()
+        super().close()
+
+
+class _CrcMcapWriter(McapWriter):
+    """rosbags' MCAP storage writer with the chunk CRCs filled in and the file's running CRC
+    kept (see :class:`_CrcRaw`); :meth:`seal` fills the data-section and summary CRCs."""
+
+    def __init__(self, path: Path, compression: CompressionMode) -> None:
+        super().__init__(path, compression)
+        self.bio.flush()  # magic and header record; they start the data-section CRC
+        header = self.path.read_bytes()
+        self.raw = _CrcRaw(self.bio.detach(), zlib.crc32(header), len(header))
+        self.bio = io.BufferedWriter(self.raw)
+
+    def close_chunk(self) -> None:
+        """rosbags' ``McapWriter.close_chunk`` (0.11.9), with ``uncompressed_crc`` computed."""
+        chunk = self.chunk
+        records = chunk.bio.getbuffer()
+        rec = io.BytesIO()
+        write_uint64(rec, chunk.message_start_time)
+        write_uint64(rec, chunk.message_end_time)
+        write_uint64(rec, len(records))
+        write_uint32(rec, zlib.crc32(records))
+        compressed = self.compressor(bytes(records))
+        del records  # release the chunk buffer
+        write_string(rec, self.compression)
+        write_uint64(rec, len(compressed))
+        rec.write(compressed)
+
+        chunk_start = self.bio.tell()
+        write_record(self.bio, _OP_CHUNK, rec)
+        chunk_end = self.bio.tell()
+
+        offsets: list[tuple[int, int]] = []
+        for cid, msgs in chunk.msgs.items():
+            offsets.append((cid, self.bio.tell()))
+            rec = io.BytesIO()
+            write_uint16(rec, cid)
+            write_uint32(rec, len(msgs) * 16)
+            for ts, offset in msgs:
+                write_uint64(rec, ts)
+                write_uint64(rec, offset)
+            write_record(self.bio, 0x07, rec)
+
+        rec = io.BytesIO()
+        write_uint64(rec, chunk.message_start_time)
+        write_uint64(rec, chunk.message_end_time)
+        write_uint64(rec, chunk_start)
+        write_uint64(rec, chunk_end - chunk_start)
+        write_uint32(rec, len(offsets) * 10)
+        for cid, offset in offsets:
+            write_uint16(rec, cid)
+            write_uint64(rec, offset)
+        write_uint64(rec, self.bio.tell() - chunk_end)
+        write_string(rec, self.compression)
+        write_uint64(rec, len(compressed))
+        write_uint64(rec, chunk.bio.tell())
+        self.chunks.append(rec)
+
+        self.chunk = PendingChunk(2**63 - 1, 0, io.BytesIO(), defaultdict(list))
+
+    def seal(self, mark: int, crc: int) -> None:
+        """After :meth:`close`: write the DataEnd and footer CRCs into the file. ``crc`` is the
+        running CRC of the file's first ``mark`` bytes (everything but the metadata record
+        that :meth:`close` writes before DataEnd)."""
+        with self.path.open('r+b') as f:
+            size = f.seek(0, os.SEEK_END)
+            footer = size - len(_MAGIC) - _FOOTER_BYTES
+            f.seek(footer)
+            tail = f.read()
+            if tail[:9] != struct.pack('<BQ', _OP_FOOTER, 20) or tail[-8:] != _MAGIC:
+                raise BagError(self.path, 'no MCAP footer after closing; CRCs not written')
+            summary_start = struct.unpack_from('<Q', tail, 9)[0]
+            data_end = (summary_start or footer) - _DATA_END_BYTES
+            f.seek(mark)
+            rest = f.read(data_end + 9 - mark)
+            if rest[-9:] != struct.pack('<BQ', _OP_DATA_END, 4):
+                raise BagError(self.path, 'no DataEnd record before the summary; CRCs not '
+                                          'written')
+            f.seek(summary_start or footer)
+            summary = f.read(footer + 25 - (summary_start or footer))
+            f.seek(data_end + 9)
+            f.write(struct.pack('<I', zlib.crc32(rest[:-9], crc)))
+            f.seek(footer + 25)
+            f.write(struct.pack('<I', zlib.crc32(summary)))
+
+
 class McapFile:
     """One ``.mcap`` storage file being written (not thread-safe: one writer thread).
 
@@ -89,15 +230,14 @@ class McapFile:
         try:
             scratch.mkdir()
             try:
-                self._storage = McapWriter(scratch, COMPRESSIONS[compression])
+                self._storage = _CrcMcapWriter(scratch, COMPRESSIONS[compression])
                 os.replace(self._storage.path, path)
             finally:
                 with contextlib.suppress(OSError):
                     scratch.rmdir()
         except OSError as err:
             raise BagError(path, f'cannot create storage file: {err.strerror or err}') from err
-        self._storage.path = path
-        self._storage.bio.flush()  # the header is on disk at once: a killed recording is MCAP
+        self._storage.path = path  # the header is on disk at once: a killed recording is MCAP
         self.path = path
         self._chunk_bytes = min(chunk_bytes, MAX_CHUNK_BYTES)
         self._types: set[str] = set()
@@ -161,11 +301,17 @@ class McapFile:
     def close(self, topics: Sequence[TopicMeta]) -> FileSummary:
         """Write the ``rosbag2`` metadata record, the summary section and index, then close."""
         summary = self.summary()
-        if self._storage.chunk.bio.tell() and not self._storage.chunk.msgs:
-            self._storage.chunk.bio.seek(0)  # schemas and channels only: repeated in summary
-            self._storage.chunk.bio.truncate()
+        storage = self._storage
+        if storage.chunk.msgs:
+            storage.close_chunk()
+        elif storage.chunk.bio.tell():
+            storage.chunk.bio.seek(0)  # schemas and channels only: repeated in summary
+            storage.chunk.bio.truncate()
+        storage.bio.flush()
+        mark, crc = storage.raw.position, storage.raw.crc
         info = bag_metadata([t for t in topics if t.name in self.connections], [summary])
-        self._storage.close(METADATA_VERSION, metadata_yaml(info, inner=True))
+        storage.close(METADATA_VERSION, metadata_yaml(info, inner=True))
+        storage.seal(mark, crc)
         return summary
 
 

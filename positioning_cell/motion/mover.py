@@ -1,16 +1,21 @@
 """The positioner's move state machine, without ROS: goals validated, paths planned and checked,
-trajectories sent to the drives, arrival awaited, the closed loop on the tracker run, and the
-pose estimated from the encoders.
+trajectories sent to the drives and their answers awaited, arrival watched, the closed loop on
+the tracker run, the pose estimated from the encoders, the drives referenced.
 
-The mover reaches the outside world only through :class:`Machine`, a set of callables (publish
-a trajectory, stop the drives, read the latest joint state, take the tracker samples that came
-in, the clock), so its whole state machine runs in a unit test without DDS. Poses are in the
-``base`` frame: positions (3,) m, unit quaternions (4,) x, y, z, w; joints in JOINT_NAMES order.
+The mover reaches the outside world only through :class:`Machine`, a set of callables (send a
+trajectory, stop the drives, read the newest joint state, take the tracker readings and the
+drives' answers that came in, ask for referencing, report, the clock), so its whole state
+machine runs in a unit test without DDS. Poses are in the ``base`` frame: positions (3,) m,
+unit quaternions (4,) x, y, z, w; joints in JOINT_NAMES order.
 
 A move (:meth:`Mover.move`) goes IDLE → MOVING → SETTLING (→ CORRECTING → MOVING … in
-``measured`` mode) → SETTLED, or ends ABORTED (stop, timeout, drive fault) or FAULT (no pose
-estimate). Compensation modes: ``none`` commands nominal inverse kinematics; ``model`` the
-configured clearance model; ``measured`` the model, then corrections from averaged tracker
+``measured`` mode) → SETTLED, and succeeds only within its tolerance. Before anything moves it
+may be refused (a bad goal, a limit, drives off, in fault, not referenced, silent, busy: the
+state does not change, the refusal is reported); once the drives were commanded, every abort
+stops them (stop, drive fault, drives disabled, no joint states, an encoder frozen or not a
+number, the drives refusing the trajectory or not answering it, a silent or inconsistent
+tracker, a timeout). Compensation modes: ``none`` commands nominal inverse kinematics; ``model``
+the configured clearance model; ``measured`` the model, then corrections from averaged tracker
 readings until within the goal tolerance or out of iterations.
 """
 
@@ -21,156 +26,36 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from enum import Enum
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from positioning_cell.clearance import ClearanceModel, ClearanceParameters, attained_pose, build
-from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.clearance import ClearanceModel, attained_pose
+from positioning_cell.core.limits import LimitReport
 from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.errors import InputError, PositioningError
-from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.motion.correction import corrected_command, deviation, mean_pose
-from positioning_cell.motion.trajectory import MotionLimits, Trajectory, plan_move
-from positioning_cell.names import BASE_FRAME, DRIVER_ENABLE, STOP
-from positioning_cell.parameters import check_fields, group, setting
+from positioning_cell.motion.outcomes import MoveAbortedError, MoveResult, ResultCode, State
+from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
+from positioning_cell.motion.trajectory import Trajectory, fingerprint, plan_move
+from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
+from positioning_cell.names import (
+    BASE_FRAME,
+    DRIVER_ENABLE,
+    DRIVER_REFERENCE,
+    HOME,
+    JOINT_TRAJECTORY,
+    MEASURED_POSE,
+    STOP,
+    TRAJECTORY_STATUS,
+)
 
 FloatArray = NDArray[np.float64]
 
-
-class State(Enum):
-    """States of the positioner, as reported on /diagnostics."""
-
-    IDLE = 'idle'
-    MOVING = 'moving'
-    SETTLING = 'settling'
-    CORRECTING = 'correcting'
-    SETTLED = 'settled'
-    ABORTED = 'aborted'
-    FAULT = 'fault'
-
-
-class CompensationMode(Enum):
-    """none: nominal IK; model: the configured clearance model; measured: the model, then
-    closed-loop correction from the measured pose."""
-
-    NONE = 'none'
-    MODEL = 'model'
-    MEASURED = 'measured'
-
-
-# -- settings ------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class CompensationSettings:
-    """The ``compensation:`` block."""
-
-    mode: str = setting('measured', 'none: nominal inverse kinematics; model: the clearance '
-                        'model; measured: the model, then closed loop on the tracker',
-                        choices=tuple(m.value for m in CompensationMode), dynamic=True)
-    clearance: ClearanceParameters = group(ClearanceParameters,
-                                           'the clearance model used by model and measured')
-    max_iterations: int = setting(5, 'closed-loop corrections per move', low=0, high=50,
-                                  dynamic=True)
-    samples: int = setting(10, 'tracker samples averaged per correction', low=1, high=200,
-                           dynamic=True)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-
-@dataclass(frozen=True)
-class GoalTolerance:
-    """The settle tolerance of a move (a request's tolerance overrides the position)."""
-
-    position: float = setting(10e-6, 'settle tolerance of a move, position', 'm', low=0.0,
-                              low_open=True, high=0.01, dynamic=True)
-    orientation: float = setting(1e-4, 'settle tolerance of a move, orientation', 'rad',
-                                 low=0.0, low_open=True, high=0.1, dynamic=True)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-    def holds(self, position_error: ArrayLike, rotation_error: ArrayLike) -> bool:
-        """True when |Δp| ≤ position and |rotation vector| ≤ orientation."""
-        return bool(np.linalg.norm(position_error) <= self.position
-                    and np.linalg.norm(rotation_error) <= self.orientation)
-
-
-@dataclass(frozen=True)
-class ArrivalSettings:
-    """When the drives count as arrived: every encoder within its tolerance of the target and
-    slower than its speed; ``timeout`` beyond the trajectory's duration."""
-
-    length_tolerance: float = setting(5e-6, 'encoder arrival tolerance, legs', 'm', low=0.0,
-                                      high=0.01, dynamic=True)
-    theta_tolerance: float = setting(5e-5, 'encoder arrival tolerance, theta', 'rad',
-                                     low=0.0, high=0.1, dynamic=True)
-    length_speed: float = setting(2e-4, 'at rest below this speed, legs', 'm/s', low=0.0,
-                                  high=1.0, dynamic=True)
-    theta_speed: float = setting(2e-3, 'at rest below this speed, theta', 'rad/s', low=0.0,
-                                 high=1.0, dynamic=True)
-    timeout: float = setting(5.0, 'extra time to arrive after the trajectory ends', 's',
-                             low=0.1, high=120.0, dynamic=True)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-    @property
-    def position_tolerance(self) -> FloatArray:
-        """Arrival tolerance (6,) m, rad."""
-        return np.array([self.length_tolerance] * 3 + [self.theta_tolerance] * 3)
-
-    @property
-    def speed_tolerance(self) -> FloatArray:
-        """At-rest speed (6,) m/s, rad/s."""
-        return np.array([self.length_speed] * 3 + [self.theta_speed] * 3)
-
-
-@dataclass(frozen=True)
-class TrajectorySettings:
-    """The ``trajectory:`` block."""
-
-    period: float = setting(0.01, 'spacing of the trajectory points', 's', low=0.001,
-                            high=0.5, dynamic=True)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-
-@dataclass(frozen=True)
-class PositionerSettings:
-    """Every parameter of the ``positioner`` node (config/cell.yaml)."""
-
-    mechanism: Mechanism = group(Mechanism, 'the machine')
-    payload: Payload = group(Payload, 'what the platform carries (load-driven clearance)')
-    structure: Structure = group(Structure, 'stiffness and masses of the machine')
-    compensation: CompensationSettings = group(CompensationSettings, 'compensation')
-    goal_tolerance: GoalTolerance = group(GoalTolerance, 'settle tolerance of a move')
-    motion: MotionLimits = group(MotionLimits, 'Cartesian limits of a move')
-    trajectory: TrajectorySettings = group(TrajectorySettings, 'the joint trajectories')
-    arrival: ArrivalSettings = group(ArrivalSettings, 'arrival of the drives')
-    settle_time: float = setting(0.2, 'dwell after arrival before the pose counts as settled',
-                                 's', low=0.0, high=10.0, dynamic=True)
-    measurement_timeout: float = setting(5.0, 'wait for tracker samples', 's', low=0.1,
-                                         high=60.0, dynamic=True)
-    pose_rate_hz: float = setting(50.0, 'rate of the pose estimate on /positioner/pose', 'Hz',
-                                  low=1.0, high=200.0)
-    markers_every: int = setting(5, 'markers are published with every this many pose '
-                                 'estimates', low=1, high=1000)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-    @property
-    def mode(self) -> CompensationMode:
-        """The compensation mode."""
-        return CompensationMode(self.compensation.mode)
-
-    def clearance_model(self) -> ClearanceModel:
-        """The compensation's clearance model (ConfigError naming a bad key)."""
-        return build(self.compensation.clearance, self.mechanism, self.payload, self.structure)
+__all__ = ['Answer', 'Estimate', 'JointReading', 'Machine', 'Measurement', 'MoveAbortedError',
+           'MoveResult', 'Mover', 'PositionerSettings', 'ResultCode', 'State', 'joints_arrived',
+           'validate_goal']
 
 
 # -- goals and arrival ---------------------------------------------------------------------------
@@ -204,6 +89,24 @@ class JointReading(NamedTuple):
     velocity: FloatArray
 
 
+class Measurement(NamedTuple):
+    """A tracker reading of the platform: position (3,) m, quaternion (4,), covariance (6, 6)
+    (x, y, z, rot-x, rot-y, rot-z; m², rad²)."""
+
+    position: FloatArray
+    quaternion: FloatArray
+    covariance: FloatArray
+
+
+class Answer(NamedTuple):
+    """The drives' answer to a trajectory: its key (:func:`fingerprint`), accepted or not, and
+    the words."""
+
+    key: str
+    accepted: bool
+    reason: str
+
+
 class Estimate(NamedTuple):
     """The pose estimate from the encoders: position (3,) m, quaternion (4,), passive angles
     φ (3,) rad of the solution."""
@@ -213,44 +116,49 @@ class Estimate(NamedTuple):
     phis: FloatArray
 
 
+def _nothing(*_: object) -> None:
+    """A report nobody listens to."""
+
+
 @dataclass(frozen=True)
 class Machine:
     """What the mover does to and reads from the world.
 
-    ``send_trajectory(traj)`` commands the drives (a planned :class:`Trajectory`);
-    ``stop_drives()`` sends the controlled stop; ``publish_target(p, q)`` announces the
-    commanded goal; ``latest_joints()`` gives the newest encoder reading (None: none yet);
-    ``new_measurements()`` the tracker poses (p, q) that came in since the last call, oldest
-    first; ``state_changed(state, reason)`` reports a new state; ``clock()`` is a monotonic
-    clock in s.
+    ``send_trajectory(traj)`` commands the drives; ``stop_drives()`` sends the controlled stop;
+    ``publish_target(p, q)`` announces the goal; ``latest_joints()`` gives the newest encoder
+    reading since the last call (None: nothing new); ``new_measurements()`` the tracker
+    readings and ``trajectory_answers()`` the drives' answers that came in since the last call,
+    oldest first; ``reference_drives()`` asks the drives to reference (False: they cannot be
+    asked, nothing was sent); ``drives_connected()`` says whether the drives are there to take
+    a trajectory and answer it (a driver that was just restarted is not, until discovery has
+    matched both ways); ``state_changed(state, reason, code)`` reports a new state,
+    ``refused(code, reason)`` a refusal (the state stays); ``clock()`` is a monotonic clock
+    in s.
     """
 
     send_trajectory: Callable[[Trajectory], None]
     stop_drives: Callable[[], None]
     publish_target: Callable[[FloatArray, FloatArray], None]
     latest_joints: Callable[[], JointReading | None]
-    new_measurements: Callable[[], list[tuple[FloatArray, FloatArray]]]
-    state_changed: Callable[[State, str], None] = field(default=lambda state, reason: None)
+    new_measurements: Callable[[], list[Measurement]]
+    trajectory_answers: Callable[[], list[Answer]]
+    reference_drives: Callable[[], bool] = lambda: True
+    drives_connected: Callable[[], bool] = lambda: True
+    state_changed: Callable[[State, str, ResultCode | None], None] = field(default=_nothing)
+    refused: Callable[[ResultCode, str], None] = field(default=_nothing)
     clock: Callable[[], float] = time.monotonic
 
 
-class MoveAbortedError(PositioningError):
-    """A move was refused or ended before it settled; the message says why."""
-
-
-class MoveResult(NamedTuple):
-    """A settled move: the estimated poses while it ran, positions (M, 3) m and quaternions
-    (M, 4), and the words for how it ended."""
-
-    positions: FloatArray
-    quaternions: FloatArray
-    reason: str
-
-
-#: How often a wait re-reads the world and re-checks stop and faults, s.
+#: How often a wait re-reads the world and re-checks stop, faults and liveness, s.
 POLL_PERIOD = 0.02
-#: Tracker poses kept for averaging.
+#: Tracker readings kept for averaging.
 MEASUREMENTS_KEPT = 200
+
+
+def _joints(traj: Trajectory, t: float) -> FloatArray:
+    """The commanded joints (6,) of ``traj`` at ``t`` s from its start (held at the ends)."""
+    joints = np.hstack([traj.lengths, traj.thetas])
+    return np.array([np.interp(t, traj.times, joints[:, i]) for i in range(6)])
 
 
 class Mover:
@@ -266,42 +174,62 @@ class Mover:
         self.cond = threading.Condition()
         self._busy = threading.Lock()
         self.joints: JointReading | None = None
-        self.measurements: list[tuple[FloatArray, FloatArray]] = []
+        self.joints_time = -math.inf
+        self.measurements: list[Measurement] = []
         self.measurement_count = 0
+        self.measurement_time = -math.inf
+        self.answers: list[Answer] = []
         self.driver: dict[str, str] = {}
         self.command: tuple[FloatArray, FloatArray] | None = None
         self.estimate: Estimate | None = None
         self._path: list[tuple[FloatArray, FloatArray]] | None = None
+        self._motion: tuple[float, Trajectory, FreezeWatch] | None = None
         self.stop_requested = False
         self.state, self.reason = State.IDLE, 'waiting for encoder readings'
 
     # -- inputs ---------------------------------------------------------------------------------
     def reconfigure(self, settings: PositionerSettings) -> None:
-        """New dynamic settings (mode, tolerances, limits, ...); the model is read-only."""
-        self.settings = settings
+        """New dynamic settings (mode, tolerances, limits, ...); the model is read-only. After a
+        change of mode the next move starts from where the encoders are (the last command's
+        joints under the old mode are not those of the new one)."""
+        with self.cond:
+            if settings.mode is not self.settings.mode:
+                self.command = None
+            self.settings = settings
 
     def driver_status(self, values: Mapping[str, str]) -> None:
-        """The leg driver's latest diagnostic values (state, enabled, level, message)."""
+        """The leg driver's latest diagnostic values (state, enabled, referenced, message)."""
         with self.cond:
             self.driver = dict(values)
             self.cond.notify_all()
 
     def _refresh(self) -> None:
-        """Read the newest joint state and the tracker poses that came in."""
+        """Take what came in: the newest joint state, tracker readings, the drives' answers."""
         joints = self.machine.latest_joints()
         taken = self.machine.new_measurements()
+        answers = self.machine.trajectory_answers()
+        now = self.machine.clock()
         with self.cond:
             if joints is not None:
-                self.joints = joints
+                self.joints, self.joints_time = joints, now
+                if self._motion is not None:
+                    self._motion[2].reading(joints.position, now)
             if taken:
                 self.measurements.extend(taken)
                 self.measurement_count += len(taken)
+                self.measurement_time = now
                 del self.measurements[:-MEASUREMENTS_KEPT]
+            self.answers.extend(answers)
 
     @property
     def mode(self) -> CompensationMode:
         """The compensation mode in force."""
         return self.settings.mode
+
+    @property
+    def referenced(self) -> bool:
+        """The drives report themselves referenced."""
+        return self.driver.get('referenced', 'false').lower() == 'true'
 
     def _model(self) -> ClearanceModel:
         return None if self.mode is CompensationMode.NONE else self.model
@@ -316,22 +244,32 @@ class Mover:
             joints, previous = self.joints, self.estimate
         if joints is None:
             return None
+        bad = unreadable_axes(joints.position)
+        if bad:
+            self._set_state(State.FAULT, f'encoder reading of {", ".join(bad)} is not a '
+                                         'number: no pose estimate', ResultCode.ABORTED_ENCODER)
+            return None
         phi0 = previous.phis if previous is not None else None
         try:
             fk = attained_pose(self.mech, self._model(), joints.position[:3],
                                joints.position[3:], phi0)
         except PositioningError as err:
-            self._set_state(State.FAULT, f'pose estimate failed: {err}')
+            self._set_state(State.FAULT, f'pose estimate failed: {err}', ResultCode.ABORTED_FAULT)
             return None
         if not fk.converged[0]:
             self._set_state(State.FAULT, 'forward kinematics did not converge for the encoder '
-                                         f'readings {joints.position.tolist()}')
+                                         f'readings {joints.position.tolist()}',
+                            ResultCode.ABORTED_FAULT)
             return None
         estimate = Estimate(fk.position[0], fk.quaternion[0], fk.phis[0])
         with self.cond:
             self.estimate = estimate
             if self._path is not None:
                 self._path.append((estimate.position, estimate.quaternion))
+        if self.state is State.FAULT and self.reason.startswith(('encoder reading',
+                                                                 'pose estimate',
+                                                                 'forward kinematics')):
+            self._set_state(State.IDLE, 'ready: the pose estimate is back')
         if self.state is State.IDLE and self.reason == 'waiting for encoder readings':
             self._set_state(State.IDLE, 'ready')
         return estimate
@@ -339,165 +277,342 @@ class Mover:
     # -- commands -------------------------------------------------------------------------------
     def check(self, frame_id: str, position: ArrayLike, quaternion: ArrayLike) -> Trajectory:
         """The move to a goal, planned and checked without moving (a "virtual move");
-        MoveAbortedError (or InputError) says why it would be refused."""
+        MoveAbortedError says why it would be refused."""
+        goal = self._goal(frame_id, position, quaternion)
+        self._ready()
         try:
-            goal = validate_goal(frame_id, position, quaternion)
             return self._plan(*goal)
-        except PositioningError as err:
-            self._refused(str(err))
-            raise MoveAbortedError(str(err)) from err
+        except MoveAbortedError as err:
+            raise self._refusal(err.code, str(err)) from err
 
     def move(self, frame_id: str, position: ArrayLike, quaternion: ArrayLike,
              tolerance: float = 0.0) -> MoveResult:
-        """Move to a goal and return when settled (``tolerance``: the settle tolerance in m,
-        0 for the configured one); MoveAbortedError says why it was refused or aborted."""
-        if not self._busy.acquire(blocking=False):
-            self._refused('busy: a move is in progress')
-            raise MoveAbortedError('busy: a move is in progress')
-        try:
-            p, q = validate_goal(frame_id, position, quaternion)
-            goal_tol = self.settings.goal_tolerance
-            tol = GoalTolerance(tolerance or goal_tol.position, goal_tol.orientation)
-            return self._execute(p, q, tol)
-        except PositioningError as err:
-            self._refused(str(err))
-            raise MoveAbortedError(str(err)) from err
-        finally:
-            self._busy.release()
+        """Move to a goal and return when settled within the tolerance (``tolerance``: the
+        settle tolerance in m, 0 for the configured one); MoveAbortedError names the outcome
+        otherwise (refused: nothing moved; aborted: the drives were stopped; out of
+        tolerance: settled elsewhere)."""
+        with self._exclusive():
+            goal = self._goal(frame_id, position, quaternion)
+            try:
+                tol = self.settings.goal_tolerance.for_request(float(tolerance))
+            except InputError as err:
+                raise self._refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
+            self._ready()
+            return self._execute(*goal, tol)
 
     def home(self) -> MoveResult:
-        """Move to the home pose."""
-        return self.move(BASE_FRAME, self.mech.home_position, self.mech.home_quaternion)
+        """Reference the drives if they are not, then move to the home pose."""
+        with self._exclusive():
+            self._ready(homing=True)
+            if not self.referenced:
+                if not self.machine.reference_drives():
+                    raise self._refusal(ResultCode.REFUSED_DRIVER_SILENT,
+                                        f'the drives cannot be referenced: {DRIVER_REFERENCE} '
+                                        'is not available')
+                self._set_state(State.HOMING, 'referencing the drives')
+                try:
+                    self._wait(lambda: self.referenced, self.settings.liveness.homing_timeout,
+                               'the drives to be referenced')
+                except MoveAbortedError as err:
+                    self.machine.stop_drives()
+                    self._set_state(State.ABORTED, str(err), err.code)
+                    raise
+            return self._execute(self.mech.home_position, self.mech.home_quaternion,
+                                 self.settings.goal_tolerance)
 
     def stop(self) -> str:
         """Stop now: the drives decelerate under control; a running move ends aborted."""
-        self.stop_requested = True
-        self.machine.stop_drives()
         with self.cond:
+            self.stop_requested = True
+            self.machine.stop_drives()
             self.cond.notify_all()
         return 'stopping with controlled deceleration'
 
-    # -- the move -------------------------------------------------------------------------------
-    def _refused(self, reason: str) -> None:
-        """Report a refusal, every time (a caller who asks twice hears it twice)."""
-        self._set_state(State.ABORTED if self.state is not State.FAULT else State.FAULT, reason,
-                        always=True)
+    # -- refusals -------------------------------------------------------------------------------
+    def _refusal(self, code: ResultCode, reason: str) -> MoveAbortedError:
+        """Report a refusal (every time; the state does not change) and make its error."""
+        self.machine.refused(code, reason)
+        return MoveAbortedError(code, reason)
+
+    def _exclusive(self) -> _Exclusive:
+        return _Exclusive(self)
+
+    def _goal(self, frame_id: str, position: ArrayLike,
+              quaternion: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        try:
+            return validate_goal(frame_id, position, quaternion)
+        except InputError as err:
+            raise self._refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
+
+    def _ready(self, *, homing: bool = False) -> None:
+        """Refuse when the world is not ready for motion: no or silent joint states, drives
+        off or in fault, not referenced (homing references), no pose estimate, a silent
+        tracker in ``measured`` mode."""
+        self._refresh()
+        live = self.settings.liveness
+        with self.cond:
+            silence = self.machine.clock() - self.joints_time
+            driver, estimate = dict(self.driver), self.estimate
+        if self.joints is None or silence > live.joint_silence:
+            raise self._refusal(ResultCode.REFUSED_DRIVER_SILENT,
+                                'leg driver not responding: no /legs/joint_states for '
+                                + ('ever' if self.joints is None else f'{silence:.2f} s'))
+        if not self.machine.drives_connected():
+            raise self._refusal(ResultCode.REFUSED_DRIVER_SILENT,
+                                f'leg driver not connected: no subscriber on {JOINT_TRAJECTORY} '
+                                f'or no publisher on {TRAJECTORY_STATUS} yet')
+        if driver.get('enabled', 'true').lower() == 'false':
+            raise self._refusal(ResultCode.REFUSED_DRIVES_OFF,
+                                f'drives disabled: enable them with {DRIVER_ENABLE}')
+        if driver.get('state') == 'fault':
+            raise self._refusal(ResultCode.REFUSED_DRIVE_FAULT,
+                                f'drive fault: {driver.get("message", "")}; clear it with '
+                                f'{DRIVER_ENABLE}')
+        if not homing and not self.referenced:
+            raise self._refusal(ResultCode.REFUSED_NOT_REFERENCED,
+                                f'axes not referenced: home them first ({HOME})')
+        if estimate is None and self.command is None:
+            raise self._refusal(ResultCode.REFUSED_NO_ESTIMATE,
+                                'no pose estimate from the encoders yet')
+        tracker_silence = self.machine.clock() - self.measurement_time
+        if self.mode is CompensationMode.MEASURED and tracker_silence > live.tracker_silence:
+            raise self._refusal(ResultCode.REFUSED_TRACKER_SILENT,
+                                f'laser tracker not responding: no {MEASURED_POSE} for '
+                                + ('ever' if math.isinf(tracker_silence)
+                                   else f'{tracker_silence:.2f} s')
+                                + ' (the measured mode needs it)')
 
     def _plan(self, p: FloatArray, q: FloatArray) -> Trajectory:
-        self._refresh()
+        """The checked move from the last command (or, after an abort, from where the encoders
+        are) to (p, q)."""
         with self.cond:
-            driver, command, estimate = dict(self.driver), self.command, self.estimate
-        if command is None:  # at start and after an aborted move: where the encoders are
+            command = self.command
+        if command is None:
+            estimate = self.estimate_pose()  # where the encoders are now
             if estimate is None:
-                raise MoveAbortedError('no encoder readings yet from /legs/joint_states')
+                raise MoveAbortedError(ResultCode.REFUSED_NO_ESTIMATE,
+                                       'no pose estimate from the encoders yet')
             command = (estimate.position, estimate.quaternion)
-        if driver.get('enabled', 'true').lower() == 'false':
-            raise MoveAbortedError(f'drives disabled: enable them with {DRIVER_ENABLE}')
-        if driver.get('state') == 'fault':
-            raise MoveAbortedError(f'drive fault: {driver.get("message", "")}; clear it '
-                                   f'with {DRIVER_ENABLE}')
         traj = plan_move(self.mech, *command, p, q, period=self.settings.trajectory.period,
                          limits=self.settings.motion, clearance=self._model())
         if not traj.limits.ok:
-            raise MoveAbortedError(f'path refused, {traj.limits.message()}')
+            raise MoveAbortedError(ResultCode.REFUSED_LIMITS, _refused_path(traj.limits))
         return traj
 
+    # -- the move -------------------------------------------------------------------------------
     def _execute(self, p: FloatArray, q: FloatArray, tol: GoalTolerance) -> MoveResult:
-        self.stop_requested = False
-        with self.cond:
-            self._path = []
         try:
             first = self._plan(p, q)  # refused before anything is announced or moved
+        except MoveAbortedError as err:
+            raise self._refusal(err.code, str(err)) from err
+        with self.cond:
+            self.stop_requested = False
+            self._path = []
+        moved = False
+        try:
             self.machine.publish_target(p, q)
             command = (p, q)
+            moved = True
             self._go(*command, first)
-            reason = 'settled'
             if self.mode is CompensationMode.MEASURED:
-                reason = self._correct(command, p, q, tol)
-            self.estimate_pose()  # the executed path ends at the settled pose
-            self._set_state(State.SETTLED, reason)
-        except MoveAbortedError:
+                e_p, e_r, reason = self._correct(command, p, q, tol)
+            else:
+                e_p, e_r, reason = self._check_estimate(p, q, tol)
+        except MoveAbortedError as err:
             with self.cond:
                 self.command = None  # the axes stopped somewhere else: re-plan from them
+                self._motion = None
+            if moved and err.code is not ResultCode.OUT_OF_TOLERANCE:
+                self.machine.stop_drives()
+            self._set_state(State.FAULT if err.code is ResultCode.ABORTED_FAULT
+                            else State.ABORTED, str(err), err.code)
             raise
         finally:
             with self.cond:
                 path, self._path = self._path or [], None
-        positions = np.array([x[0] for x in path]).reshape(-1, 3)
-        quaternions = np.array([x[1] for x in path]).reshape(-1, 4)
-        return MoveResult(positions, quaternions, reason)
+        self._set_state(State.SETTLED, reason, ResultCode.SUCCESS)
+        return MoveResult(np.array([x[0] for x in path]).reshape(-1, 3),
+                          np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r)
+
+    def _check_estimate(self, p: FloatArray, q: FloatArray,
+                        tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str]:
+        """``none`` / ``model``: the pose the encoders show (through the model) must be within
+        the tolerance of the goal."""
+        estimate = self.estimate_pose()
+        if estimate is None:
+            raise MoveAbortedError(ResultCode.ABORTED_FAULT, f'no pose estimate: {self.reason}')
+        e_p, e_r = deviation(estimate.position, estimate.quaternion, p, q)
+        text = _error_text(e_p, e_r, 'estimated error')
+        if not tol.holds(e_p, e_r):
+            raise MoveAbortedError(ResultCode.OUT_OF_TOLERANCE,
+                                   f'settled outside tolerance: {text}')
+        return e_p, e_r, f'settled within tolerance: {text}'
 
     def _correct(self, command: tuple[FloatArray, FloatArray], p: FloatArray, q: FloatArray,
-                 tol: GoalTolerance) -> str:
-        """Closed loop on the tracker until within ``tol`` or out of iterations."""
+                 tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str]:
+        """``measured``: the closed loop on the tracker until within ``tol``; out of
+        iterations is out of tolerance."""
         iterations = self.settings.compensation.max_iterations
         for done in range(iterations + 1):
             measured = self._measure()
             e_p, e_r = deviation(*measured, p, q)
-            text = (f'measured error {np.linalg.norm(e_p) * 1e6:.1f} um, '
-                    f'{math.degrees(float(np.linalg.norm(e_r))):.5f} deg after {done} '
-                    'corrections')
+            text = _error_text(e_p, e_r, 'measured error') + f' after {done} corrections'
             if tol.holds(e_p, e_r):
-                return f'settled within tolerance: {text}'
+                return e_p, e_r, f'settled within tolerance: {text}'
             if done == iterations:
-                return f'settled outside tolerance: {text}'
+                raise MoveAbortedError(ResultCode.OUT_OF_TOLERANCE,
+                                       f'settled outside tolerance: {text}')
             self._set_state(State.CORRECTING, f'{text}: correcting')
             command = corrected_command(*command, p, q, *measured)
             self._go(*command)
         raise AssertionError('unreachable')
 
     def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
+        """Send the move to (p, q), wait for the drives to accept it, to arrive, to settle."""
         traj = planned if planned is not None else self._plan(p, q)
-        final = np.concatenate([traj.lengths[-1], traj.thetas[-1]])
+        joints = np.hstack([traj.lengths, traj.thetas])
+        key = fingerprint(traj.times, joints)
+        live, arrival = self.settings.liveness, self.settings.arrival
         self._set_state(State.MOVING, f'moving for {traj.duration:.2f} s')
-        with self.cond:
+        with self.cond:  # a stop cannot slip in between the check and the send
+            if self.stop_requested:
+                raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
             self.command = (p, q)
-        self.machine.send_trajectory(traj)
-        arrival = self.settings.arrival
+            self.answers.clear()
+            counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
+            self._motion = (self.machine.clock(), traj,
+                            FreezeWatch(live.freeze_window, live.freeze_motion, counts))
+            self.machine.send_trajectory(traj)
+        measuring = self.mode is CompensationMode.MEASURED  # the tracker must stay live
+        self._wait(lambda: any(a.key == key for a in self.answers), live.answer_timeout,
+                   'the leg driver to answer the trajectory', ResultCode.ABORTED_DRIVER_LOST,
+                   measuring=measuring)
+        answer = next(a for a in self.answers if a.key == key)
+        if not answer.accepted:
+            raise MoveAbortedError(ResultCode.ABORTED_DRIVER_REFUSED,
+                                   f'the drives refused the trajectory: {answer.reason}')
+        final = joints[-1]
 
         def arrived() -> bool:
-            joints = self.joints
-            return joints is not None and joints_arrived(
-                joints.position, joints.velocity, final, arrival.position_tolerance,
+            reading = self.joints
+            return reading is not None and joints_arrived(
+                reading.position, reading.velocity, final, arrival.position_tolerance,
                 arrival.speed_tolerance)
 
-        self._wait(arrived, traj.duration + arrival.timeout, 'the drives to arrive')
+        self._wait(arrived, traj.duration + arrival.timeout, 'the drives to arrive',
+                   measuring=measuring)
+        with self.cond:
+            self._motion = None
         self._set_state(State.SETTLING, 'settling')
         deadline = self.machine.clock() + self.settings.settle_time
         self._wait(lambda: self.machine.clock() >= deadline, self.settings.settle_time + 1.0,
-                   'settling')
+                   'settling', measuring=measuring)
 
     def _measure(self) -> tuple[FloatArray, FloatArray]:
+        """The mean of the next ``samples`` tracker readings; a tracker that falls silent or
+        readings that scatter beyond their stated uncertainty abort."""
         n = self.settings.compensation.samples
         with self.cond:
             start = self.measurement_count
         self._wait(lambda: self.measurement_count - start >= n,
-                   self.settings.measurement_timeout, f'{n} new samples on /metrology/pose')
+                   self.settings.measurement_timeout, f'{n} new samples on {MEASURED_POSE}',
+                   measuring=True)
         with self.cond:
             samples = self.measurements[-n:]
-        return mean_pose([s[0] for s in samples], [s[1] for s in samples])
+        positions = np.array([s.position for s in samples])
+        sigma = np.sqrt(np.mean([np.diag(s.covariance)[:3] for s in samples], axis=0))
+        if n > 2:
+            scatter = positions.std(axis=0, ddof=1)
+            ratio = float(np.max(scatter / np.maximum(sigma, 1e-12)))
+            if ratio > self.settings.liveness.scatter_limit:
+                raise MoveAbortedError(
+                    ResultCode.ABORTED_TRACKER_INCONSISTENT,
+                    f'tracker readings scatter {np.max(scatter) * 1e6:.1f} um, {ratio:.0f}x '
+                    'their stated sigma: outliers or a disturbed line of sight')
+        return mean_pose(positions, [s.quaternion for s in samples])
 
-    def _wait(self, condition: Callable[[], bool], timeout: float, what: str) -> None:
-        """Until ``condition()`` holds (checked under the lock after re-reading the world),
-        MoveAbortedError on stop, drive fault or timeout."""
+    def _wait(self, condition: Callable[[], bool], timeout: float, what: str,
+              timeout_code: ResultCode = ResultCode.ABORTED_TIMEOUT, *,
+              measuring: bool = False) -> None:
+        """Until ``condition()`` holds (checked under the lock after re-reading the world and
+        checking it); MoveAbortedError on stop, drive fault or drives off, silent or unreadable
+        encoders, an encoder frozen while its axis moves, a silent tracker (``measuring``: the
+        whole of a ``measured``-mode move), timeout."""
         deadline = self.machine.clock() + timeout
         while True:
             self._refresh()
             with self.cond:
+                self._check_world(measuring)
                 if condition():
                     return
-                if self.stop_requested:
-                    raise MoveAbortedError(f'stopped by {STOP}')
-                if self.driver.get('state') == 'fault':
-                    raise MoveAbortedError(f'drive fault: {self.driver.get("message", "")}')
                 remaining = deadline - self.machine.clock()
                 if remaining <= 0:
-                    raise MoveAbortedError(f'timed out after {timeout:.1f} s waiting for {what}')
+                    raise MoveAbortedError(timeout_code,
+                                           f'timed out after {timeout:.1f} s waiting for {what}')
                 self.cond.wait(min(remaining, POLL_PERIOD))
 
+    def _check_world(self, measuring: bool) -> None:
+        """The checks of :meth:`_wait` (called under the lock)."""
+        now, live, driver = self.machine.clock(), self.settings.liveness, self.driver
+        if self.stop_requested:
+            raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
+        if driver.get('state') == 'fault':
+            raise MoveAbortedError(ResultCode.ABORTED_FAULT,
+                                   f'drive fault: {driver.get("message", "")}')
+        if driver.get('enabled', 'true').lower() == 'false':
+            raise MoveAbortedError(ResultCode.ABORTED_DRIVES_OFF, 'drives disabled during the '
+                                   f'move: {driver.get("message", "")}')
+        silence = now - self.joints_time
+        if silence > live.joint_silence:
+            raise MoveAbortedError(ResultCode.ABORTED_DRIVER_LOST,
+                                   f'leg driver not responding: no /legs/joint_states for '
+                                   f'{silence:.2f} s')
+        bad = unreadable_axes(self.joints.position) if self.joints is not None else []
+        if bad:
+            raise MoveAbortedError(ResultCode.ABORTED_ENCODER,
+                                   f'encoder reading of {", ".join(bad)} is not a number')
+        if self._motion is not None:
+            sent, traj, watch = self._motion
+            motion = _joints(traj, now - sent) - _joints(traj, now - sent - watch.window)
+            frozen = watch.frozen(motion, now)
+            if frozen:
+                name, amount = frozen[0]
+                unit, scale = ('mm', 1e3) if name.endswith('length') else ('mrad', 1e3)
+                raise MoveAbortedError(
+                    ResultCode.ABORTED_ENCODER,
+                    f'encoder of {name} frozen: no change for {watch.window:.2f} s while the '
+                    f'axis was commanded to move {abs(amount) * scale:.3f} {unit}')
+        if measuring and now - self.measurement_time > live.tracker_silence:
+            raise MoveAbortedError(ResultCode.ABORTED_TRACKER_LOST,
+                                   f'laser tracker not responding: no {MEASURED_POSE} for '
+                                   f'{now - self.measurement_time:.2f} s')
+
     # -- state ----------------------------------------------------------------------------------
-    def _set_state(self, state: State, reason: str, *, always: bool = False) -> None:
+    def _set_state(self, state: State, reason: str, code: ResultCode | None = None) -> None:
         changed = (state, reason) != (self.state, self.reason)
         self.state, self.reason = state, reason
-        if changed or always:
-            self.machine.state_changed(state, reason)
+        if changed or code is not None:
+            self.machine.state_changed(state, reason, code)
+
+
+class _Exclusive:
+    """One command at a time: a second one while busy is refused and changes nothing."""
+
+    def __init__(self, mover: Mover) -> None:
+        self.mover = mover
+
+    def __enter__(self) -> None:
+        if not self.mover._busy.acquire(blocking=False):
+            raise self.mover._refusal(ResultCode.REFUSED_BUSY, 'busy: a move is in progress')
+
+    def __exit__(self, *exc: object) -> None:
+        self.mover._busy.release()
+
+
+def _refused_path(report: LimitReport) -> str:
+    return f'path refused, {report.message()}'
+
+
+def _error_text(e_p: FloatArray, e_r: FloatArray, what: str) -> str:
+    return (f'{what} {np.linalg.norm(e_p) * 1e6:.1f} um, '
+            f'{math.degrees(float(np.linalg.norm(e_r))):.5f} deg')

@@ -23,7 +23,7 @@ from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings, Visit, 
 from positioning_cell.accuracy.verdicts import Verdict
 from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
 from positioning_cell.nodes.spin import run
 
 
@@ -55,8 +55,8 @@ class AccuracyMonitorNode(Node):
                 PoseWithCovarianceStamped, names.MEASURED_POSE, self._on_measured, STREAM_QOS),
             names.TRUE_POSE: self.create_subscription(PoseStamped, names.TRUE_POSE,
                                                       self._on_truth, STREAM_QOS)}
-        self.create_service(Trigger, names.MONITOR_REPORT, self._report)
-        self.create_service(Trigger, names.MONITOR_RESET, self._reset)
+        self.create_service(Trigger, names.MONITOR_REPORT, self._report, qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, names.MONITOR_RESET, self._reset, qos_profile=SERVICE_QOS)
 
     def _on_change(self, settings: MonitorSettings, changed: frozenset[str]) -> None:
         self.monitor.tolerances = settings.tolerance

@@ -1,12 +1,15 @@
 """kinematics_node (node ``positioner``): pose commands by service → the move state machine
 (:mod:`positioning_cell.motion.mover`) → joint trajectories for the leg driver; the pose
-estimated from the encoders on /positioner/pose; the state on /diagnostics."""
+estimated from the encoders on /positioner/pose; the state, refusals and result codes on
+/diagnostics."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Callable
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.srv import GetPlan
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -18,20 +21,24 @@ from visualization_msgs.msg import MarkerArray
 
 from positioning_cell import names
 from positioning_cell.core import kinematics
-from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.motion.mover import (
-    JointReading,
     Machine,
     MoveAbortedError,
     Mover,
     PositionerSettings,
+    ResultCode,
     State,
 )
-from positioning_cell.motion.trajectory import Trajectory
 from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.latest import Reader
 from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import (
+    COMMAND_QOS,
+    DIAGNOSTICS_QOS,
+    LATCHED_QOS,
+    SERVICE_QOS,
+    STREAM_QOS,
+)
 from positioning_cell.nodes.spin import Spin, run
 
 _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
@@ -45,11 +52,12 @@ class PositionerNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
-        self.params = NodeParameters(self, self.SETTINGS, self._on_change)
+        self.params = NodeParameters(self, self.SETTINGS, lambda s, _: self.mover.reconfigure(s))
         settings = self.params.settings
         kinematics.warm_up()  # compiled FK ready before the first command
         self._joints = Reader(self, JointState, names.JOINT_STATES)
         self._tracker = Reader(self, PoseWithCovarianceStamped, names.MEASURED_POSE, STREAM_QOS)
+        self._answers = Reader(self, DiagnosticStatus, names.TRAJECTORY_STATUS, STREAM_QOS)
         self.pub_traj = self.create_publisher(JointTrajectory, names.JOINT_TRAJECTORY,
                                               COMMAND_QOS)
         self.pub_target = self.create_publisher(PoseStamped, names.TARGET, LATCHED_QOS)
@@ -57,56 +65,48 @@ class PositionerNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, names.MARKERS, STREAM_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
                                               DIAGNOSTICS_QOS)
+        topics, services = MutuallyExclusiveCallbackGroup(), ReentrantCallbackGroup()
+        self._reference = self.create_client(Trigger, names.DRIVER_REFERENCE,
+                                             callback_group=topics)
         self.mover = Mover(settings, Machine(
-            send_trajectory=self._send, stop_drives=self._stop_drives,
+            send_trajectory=lambda t: self.pub_traj.publish(m.joint_trajectory(t)),
+            stop_drives=lambda: self.pub_traj.publish(m.stop_trajectory()),
             publish_target=lambda p, q: self.pub_target.publish(m.pose_stamped(p, q,
                                                                                self._now())),
-            latest_joints=self._latest_joints, new_measurements=self._new_measurements,
-            state_changed=lambda state, reason: self._publish_diagnostics()))
+            latest_joints=lambda: m.joint_reading(self._joints.newest()),
+            new_measurements=lambda: [m.measurement(x) for x in self._tracker.take()],
+            trajectory_answers=lambda: [a for s in self._answers.take()
+                                        if (a := m.answer(s)) is not None],
+            reference_drives=self._reference_drives,
+            drives_connected=lambda: (self.pub_traj.get_subscription_count() > 0
+                                      and self._answers.publisher_count() > 0),
+            state_changed=self._state_changed,
+            refused=self._refused))
         self._estimates = 0
-        topics, services = MutuallyExclusiveCallbackGroup(), ReentrantCallbackGroup()
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
                                  DIAGNOSTICS_QOS, callback_group=topics)
         for name, srv, cb in ((names.MOVE_TO_POSE, GetPlan, self._srv_move),
                               (names.CHECK_POSE, GetPlan, self._srv_check),
                               (names.HOME, Trigger, self._srv_home),
                               (names.STOP, Trigger, self._srv_stop)):
-            self.create_service(srv, name, cb, callback_group=services)
+            self.create_service(srv, name, cb, qos_profile=SERVICE_QOS, callback_group=services)
         self.create_timer(1.0 / settings.pose_rate_hz, self._publish_pose, callback_group=topics)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=topics)
+
+    def _reference_drives(self) -> bool:
+        """Ask the drives to reference (False: the service is not there, nothing sent)."""
+        if not self._reference.service_is_ready():
+            return False
+        self._reference.call_async(Trigger.Request())
+        return True
 
     def _now(self) -> Any:
         return self.get_clock().now().to_msg()
 
-    def _on_change(self, settings: PositionerSettings, changed: frozenset[str]) -> None:
-        self.mover.reconfigure(settings)
-
-    # -- the mover's world ----------------------------------------------------------------------
-    def _send(self, traj: Trajectory) -> None:
-        self.pub_traj.publish(m.joint_trajectory(traj, self._now()))
-
-    def _stop_drives(self) -> None:
-        self.pub_traj.publish(m.stop_trajectory())
-
-    def _latest_joints(self) -> JointReading | None:
-        msg = self._joints.newest()
-        if msg is None:
-            return None
-        position = m.joint_values(msg, JOINT_NAMES)
-        velocity = m.joint_values(msg, JOINT_NAMES, 'velocity')
-        if position is None or velocity is None:
-            return None
-        return JointReading(position, velocity)
-
-    def _new_measurements(self) -> list[Any]:
-        return [m.pose_arrays(msg.pose.pose) for msg in self._tracker.take()]
-
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name.startswith(names.STATUS_DRIVER):
-                values = {kv.key: kv.value for kv in status.values}
-                values.update(level=str(m.status_level(status)), message=status.message)
-                self.mover.driver_status(values)
+            if status.name == names.STATUS_DRIVER:
+                self.mover.driver_status({**m.status_values(status), 'message': status.message})
 
     # -- outputs --------------------------------------------------------------------------------
     def _publish_pose(self) -> None:
@@ -122,45 +122,52 @@ class PositionerNode(Node):
                                              estimate.quaternion[None])[0]
             self.pub_markers.publish(m.platform_markers(mech.base_joints, top, msg.header))
 
-    def _publish_diagnostics(self) -> None:
+    def _status(self, level: str, message: str, code: ResultCode | None) -> None:
         mover = self.mover
-        level = _LEVELS.get(mover.state, 'ok')
         if level != 'ok':
-            self.get_logger().warning(f'{mover.state.value}: {mover.reason}')
+            self.get_logger().warning(message)
         self.pub_diag.publish(m.diagnostic(
-            names.STATUS_POSITIONER, level, f'{mover.state.value}: {mover.reason}',
-            {'state': mover.state.value, 'reason': mover.reason, 'mode': mover.mode.value},
+            names.STATUS_POSITIONER, level, message,
+            {'state': mover.state.value, 'reason': mover.reason, 'mode': mover.mode.value,
+             'code': code.value if code else '', 'referenced': mover.referenced},
             self._now()))
+
+    def _state_changed(self, state: State, reason: str, code: ResultCode | None) -> None:
+        """A new state (the result code of the move it ends, if any) on /diagnostics."""
+        self._status(_LEVELS.get(state, 'ok'), f'{state.value}: {reason}', code)
+
+    def _publish_diagnostics(self) -> None:
+        self._state_changed(self.mover.state, self.mover.reason, None)
+
+    def _refused(self, code: ResultCode, reason: str) -> None:
+        self._status('warn', f'refused ({code.value}): {reason}', code)
 
     # -- services -------------------------------------------------------------------------------
     def _srv_check(self, request: GetPlan.Request, response: GetPlan.Response) -> Any:
         goal = request.goal
-        try:
-            traj = self.mover.check(goal.header.frame_id, *m.pose_arrays(goal.pose))
-        except MoveAbortedError:
-            response.plan = m.path_msg([], [], self._now())
-            return response
-        response.plan = m.path_msg(traj.position, traj.quaternion, self._now())
-        return response
+        return self._planned(response, lambda: self.mover.check(goal.header.frame_id,
+                                                                *m.pose_arrays(goal.pose)))
 
     def _srv_move(self, request: GetPlan.Request, response: GetPlan.Response) -> Any:
         goal = request.goal
-        try:
-            result = self.mover.move(goal.header.frame_id, *m.pose_arrays(goal.pose),
-                                     tolerance=request.tolerance)
-        except MoveAbortedError:
-            response.plan = m.path_msg([], [], self._now())
-            return response
-        response.plan = m.path_msg(result.positions, result.quaternions, self._now())
+        return self._planned(response, lambda: self.mover.move(
+            goal.header.frame_id, *m.pose_arrays(goal.pose), tolerance=request.tolerance))
+
+    def _planned(self, response: GetPlan.Response, command: Callable[[], Any]) -> Any:
+        """The path of a check or a move; empty when refused or aborted (the code and the
+        reason are on /diagnostics)."""
+        path: tuple[Any, Any] = ([], [])
+        with contextlib.suppress(MoveAbortedError):
+            path = command().path
+        response.plan = m.path_msg(*path, self._now())
         return response
 
     def _srv_home(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         try:
-            self.mover.home()
+            response.message = f'at home, referenced; {self.mover.home().reason}'
+            response.success = True
         except MoveAbortedError as err:
-            response.success, response.message = False, str(err)
-            return response
-        response.success, response.message = True, 'at home'
+            response.success, response.message = False, f'{err.code.value}: {err}'
         return response
 
     def _srv_stop(self, request: Trigger.Request, response: Trigger.Response) -> Any:
@@ -170,7 +177,7 @@ class PositionerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of `ros2 run positioning_cell kinematics_node`."""
-    return run(PositionerNode, args, Spin.THREADS)
+    return run(PositionerNode, args, Spin.THREADS, threads=4)
 
 
 if __name__ == '__main__':

@@ -1,21 +1,22 @@
 """leg_driver_node (node ``leg_driver``): the simulated drives and encoders of the three legs
 (:mod:`positioning_cell.sim.drives`).
 
-Follows /legs/joint_trajectory (an empty one stops with controlled deceleration; a zero
-header stamp starts on receipt), publishes the encoder readings on /legs/joint_states and the
-truth on /sim/legs/true_joint_states from one physics timer, is switched by
-/leg_driver/enable, reports on /diagnostics.
+Follows /legs/joint_trajectory after checking it against every axis limit (an empty one stops
+with controlled deceleration; a zero header stamp starts on receipt) and answers each on
+/legs/trajectory_status; publishes the encoder readings on /legs/joint_states and the truth on
+/sim/legs/true_joint_states from one physics timer; is switched by /leg_driver/enable and
+referenced by /leg_driver/reference; reports on /diagnostics.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
-from std_srvs.srv import SetBool
+from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from positioning_cell import names
@@ -23,9 +24,10 @@ from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, SERVICE_QOS, STREAM_QOS
 from positioning_cell.nodes.spin import run
-from positioning_cell.sim.drives import DriverSettings, LegDriver
+from positioning_cell.sim.drives import DriverSettings, LegDriver, Outcome
+from positioning_cell.sim.guard import TrajectoryRefusedError
 
 
 class LegDriverNode(Node):
@@ -45,9 +47,14 @@ class LegDriverNode(Node):
         self._truth = self.create_publisher(JointState, names.TRUE_JOINT_STATES, STREAM_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
                                                   DIAGNOSTICS_QOS)
+        self._answers = self.create_publisher(DiagnosticStatus, names.TRAJECTORY_STATUS,
+                                              STREAM_QOS)
         self.create_subscription(JointTrajectory, names.JOINT_TRAJECTORY, self._on_trajectory,
                                  COMMAND_QOS)
-        self.create_service(SetBool, names.DRIVER_ENABLE, self._on_enable)
+        self.create_service(SetBool, names.DRIVER_ENABLE, self._on_enable,
+                            qos_profile=SERVICE_QOS)
+        self.create_service(Trigger, names.DRIVER_REFERENCE, self._on_reference,
+                            qos_profile=SERVICE_QOS)
         self.create_timer(1.0 / settings.physics_rate, self._step)
         self.create_timer(settings.diagnostics_period, self._report)
         self._report()
@@ -87,15 +94,33 @@ class LegDriverNode(Node):
         outcome = self.driver.follow(
             msg.joint_names, [m.seconds(p.time_from_start) for p in msg.points],
             [p.positions for p in msg.points], [p.velocities for p in msg.points], start, now)
+        self._answer(outcome)
         if outcome.accepted:
             self._report(outcome.message)
         else:
             self.get_logger().warning(outcome.message)
             self._report(outcome.message, 'warn')
 
+    def _answer(self, outcome: Outcome) -> None:
+        """The answer to a trajectory, keyed by its fingerprint (/legs/trajectory_status)."""
+        values = {'key': outcome.key, 'accepted': str(outcome.accepted).lower(),
+                  'code': outcome.code.value if outcome.code else '',
+                  'sequence': str(outcome.sequence)}
+        self._answers.publish(m.status(names.STATUS_TRAJECTORY,
+                                       'ok' if outcome.accepted else 'error', outcome.message,
+                                       values, hardware_id='leg_drives'))
+
     def _on_enable(self, request: SetBool.Request, response: SetBool.Response) -> Any:
         response.success, response.message = True, self.driver.enable(request.data,
                                                                       self._now())
+        self._report(response.message)
+        return response
+
+    def _on_reference(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        try:
+            response.success, response.message = True, self.driver.reference(self._now())
+        except TrajectoryRefusedError as err:
+            response.success, response.message = False, str(err)
         self._report(response.message)
         return response
 

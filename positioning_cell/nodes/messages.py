@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, Pose, PoseStamped, Vector3Stamped
+from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovarianceStamped, Vector3Stamped
 from nav_msgs.msg import Path
 from numpy.typing import ArrayLike
 from sensor_msgs.msg import JointState
@@ -20,6 +20,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import InputError
+from positioning_cell.motion.mover import Answer, JointReading, Measurement
 from positioning_cell.motion.trajectory import Trajectory
 from positioning_cell.names import BASE_FRAME
 
@@ -93,11 +94,11 @@ def seconds(value: Duration | Time) -> float:
     return value.sec + value.nanosec * 1e-9
 
 
-def joint_trajectory(traj: Trajectory, stamp: Time) -> JointTrajectory:
+def joint_trajectory(traj: Trajectory) -> JointTrajectory:
     """trajectory_msgs/JointTrajectory of a planned move: positions and velocities of the six
-    actuated joints (JOINT_NAMES order) at each sample time."""
+    actuated joints (JOINT_NAMES order) at each sample time; a zero header stamp (the ROS
+    convention: start on receipt)."""
     msg = JointTrajectory(joint_names=list(JOINT_NAMES))
-    msg.header.stamp = stamp
     positions = np.hstack([traj.lengths, traj.thetas])
     velocities = np.hstack([traj.length_rates, traj.theta_rates])
     msg.points = [JointTrajectoryPoint(positions=positions[i].tolist(),
@@ -142,6 +143,30 @@ def platform_markers(base_joints: ArrayLike, platform_joints: ArrayLike,
     return MarkerArray(markers=[legs, plate])
 
 
+def joint_reading(msg: JointState | None) -> JointReading | None:
+    """The six positions and velocities of a JointState (None: no message, or one that lacks
+    a joint)."""
+    if msg is None:
+        return None
+    position = joint_values(msg, JOINT_NAMES)
+    velocity = joint_values(msg, JOINT_NAMES, 'velocity')
+    return None if position is None or velocity is None else JointReading(position, velocity)
+
+
+def measurement(msg: PoseWithCovarianceStamped) -> Measurement:
+    """A tracker reading: pose and its covariance (6, 6)."""
+    return Measurement(*pose_arrays(msg.pose.pose),
+                       np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6))
+
+
+def answer(status: DiagnosticStatus) -> Answer | None:
+    """The drives' answer to a trajectory (/legs/trajectory_status), None without a key."""
+    values = status_values(status)
+    if not values.get('key'):
+        return None
+    return Answer(values['key'], values.get('accepted') == 'true', status.message)
+
+
 def stamp_is_zero(stamp: Time) -> bool:
     """A zero header stamp (ROS convention: "now" / "on receipt")."""
     return stamp.sec == 0 and stamp.nanosec == 0
@@ -157,16 +182,26 @@ def status_level(status: DiagnosticStatus) -> int:
     return int.from_bytes(level, 'little') if isinstance(level, bytes) else int(level)
 
 
+def status(name: str, level: str, message: str, values: Mapping[str, Any],
+           hardware_id: str = 'positioning_cell') -> DiagnosticStatus:
+    """A DiagnosticStatus; ``level`` is ok, warn, error or stale."""
+    return DiagnosticStatus(level=LEVELS[level], name=name, message=message,
+                            hardware_id=hardware_id,
+                            values=[KeyValue(key=str(k), value=str(v))
+                                    for k, v in values.items()])
+
+
+def status_values(status: DiagnosticStatus) -> dict[str, str]:
+    """The key-value pairs of a status."""
+    return {kv.key: kv.value for kv in status.values}
+
+
 def diagnostic(name: str, level: str, message: str, values: Mapping[str, Any],
                stamp: Time, hardware_id: str = 'positioning_cell') -> DiagnosticArray:
-    """A DiagnosticArray with one status; ``level`` is ok, warn, error or stale."""
-    status = DiagnosticStatus(level=LEVELS[level], name=name, message=message,
-                              hardware_id=hardware_id,
-                              values=[KeyValue(key=str(k), value=str(v))
-                                      for k, v in values.items()])
+    """A DiagnosticArray with one status (:func:`status`)."""
     array = DiagnosticArray()
     array.header.stamp = stamp
-    array.status = [status]
+    array.status = [status(name, level, message, values, hardware_id)]
     return array
 
 

@@ -31,7 +31,12 @@ from positioning_cell.bag import (
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.nodes.messages import diagnostic, message_class
 from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, profile_from_qos, qos_from_profile
+from positioning_cell.nodes.qos import (
+    DIAGNOSTICS_QOS,
+    SERVICE_QOS,
+    profile_from_qos,
+    qos_from_profile,
+)
 from positioning_cell.nodes.spin import run
 
 
@@ -66,9 +71,9 @@ class RecorderNode(Node):
         self._diagnostics = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
                                                   DIAGNOSTICS_QOS)
         self.create_service(Trigger, names.RECORDER_PAUSE,
-                            lambda _, r: self._set_paused(True, r))
+                            lambda _, r: self._set_paused(True, r), qos_profile=SERVICE_QOS)
         self.create_service(Trigger, names.RECORDER_RESUME,
-                            lambda _, r: self._set_paused(False, r))
+                            lambda _, r: self._set_paused(False, r), qos_profile=SERVICE_QOS)
         self.create_timer(p.discovery_period_s, self._discover)
         self.create_timer(p.flush_period_s, self._writer.flush)
         self.create_timer(1.0, self._publish_diagnostics)

@@ -3,7 +3,6 @@ exit on SIGINT and SIGTERM."""
 
 from __future__ import annotations
 
-import signal
 import sys
 from collections.abc import Callable, Sequence
 from enum import Enum
@@ -16,6 +15,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 
 from positioning_cell.errors import PositioningError
+from positioning_cell.nodes.entry import hold_stops, stop_requested
 
 
 class Spin(Enum):
@@ -33,14 +33,17 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
     ``close()`` if it has one, then destroy it). A node that cannot be built (invalid
     parameters, an unreadable bag: a PositioningError) prints the reason and exits 2.
 
-    rclpy's own signal handlers shut the context down on SIGINT and SIGTERM; Python's SIGINT
-    handler is made a no-op first, so no KeyboardInterrupt lands in the middle of a callback
-    (under the events executor that would abort the process).
+    rclpy's own signal handlers shut the context down on SIGINT and SIGTERM; Python's handlers
+    only set a flag first (:func:`~positioning_cell.nodes.entry.hold_stops`), so no
+    KeyboardInterrupt lands in the middle of a callback (under the events executor that would
+    abort the process), and a stop that came before ``rclpy.init`` is honoured after it.
     """
-    signal.signal(signal.SIGINT, lambda *_: None)
+    hold_stops()
     rclpy.init(args=list(args) if args is not None else None)
     node: Node | None = None
     try:
+        if stop_requested():
+            return 0
         node = node_factory()
         if spin is Spin.THREADS:
             executor = MultiThreadedExecutor(num_threads=threads)

@@ -19,6 +19,10 @@ from positioning_cell.sim.axes import AXES, unit_of
 
 FloatArray = NDArray[np.float64]
 
+
+class JointNamesError(InputError):
+    """A trajectory's joint names are not the six axes (unknown, duplicate or missing)."""
+
 # -- setpoint paths --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class JointPath:
@@ -124,12 +128,13 @@ def path_from_points(names: Sequence[str], times: Sequence[float],
     names = list(names)
     unknown = sorted(set(names) - set(JOINT_NAMES))
     if unknown:
-        raise InputError(f'unknown joint names {unknown}; expected {list(JOINT_NAMES)}')
+        raise JointNamesError(f'unknown joint names {unknown}; expected {list(JOINT_NAMES)}')
     if len(set(names)) != len(names):
-        raise InputError(f'duplicate joint names in {names}')
+        raise JointNamesError(f'duplicate joint names in {names}')
     missing = [n for n in JOINT_NAMES if n not in names]
     if missing:
-        raise InputError(f'joint names {missing} missing; all six axes are commanded together')
+        raise JointNamesError(f'joint names {missing} missing; all six axes are commanded '
+                              'together')
     if len(times) == 0:
         raise InputError('a trajectory needs at least one point (an empty one stops)')
     for k, row in enumerate(positions):
@@ -141,10 +146,25 @@ def path_from_points(names: Sequence[str], times: Sequence[float],
     order = [names.index(n) for n in JOINT_NAMES]
     pos = np.asarray(positions, dtype=float)[:, order]
     vel = np.asarray(velocities, dtype=float)[:, order] if given and given[0] else None
+    _check_finite(times, pos, vel)
     path = JointPath(np.asarray(times, dtype=float), pos, vel)
     if v_max is not None:
         _check_speeds(path, v_max)
     return path
+
+def _check_finite(times: Sequence[float], positions: FloatArray,
+                  velocities: FloatArray | None) -> None:
+    """InputError for a NaN or infinite number, naming the point and the axis."""
+    t = np.asarray(times, dtype=float)
+    if not np.isfinite(t).all():
+        k = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise InputError(f'point {k}: time_from_start is {t[k]}')
+    for what, values in (('', positions), (' velocity', velocities)):
+        if values is not None and not np.isfinite(values).all():
+            k, axis = (int(i) for i in np.argwhere(~np.isfinite(values))[0])
+            kind = 'NaN' if np.isnan(values[k, axis]) else 'infinite'
+            raise InputError(f'point {k}, {JOINT_NAMES[axis]}{what} is {kind}')
+
 
 def _check_speeds(path: JointPath, v_max: FloatArray) -> None:
     speeds = np.abs(np.diff(path.positions, axis=0) / np.diff(path.times)[:, None])

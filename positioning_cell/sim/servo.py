@@ -22,9 +22,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.errors import InputError
 from positioning_cell.parameters import check_fields, group, setting
 from positioning_cell.sim.axes import AXES, LINEAR_AXES, per_axis
+from positioning_cell.sim.guard import Refusal, TrajectoryRefusedError
 from positioning_cell.sim.paths import JointPath, hold_path, stop_path
 
 FloatArray = NDArray[np.float64]
@@ -33,7 +34,7 @@ BoolArray = NDArray[np.bool_]
 #: Largest number of integration sub-steps in one advance (a longer stall uses longer steps).
 MAX_SUBSTEPS = 1000
 
-class MotionRefusedError(PositioningError):
+class MotionRefusedError(TrajectoryRefusedError):
     """The drives refuse a motion command: disabled, in fault, or the trajectory is over."""
 
 
@@ -47,6 +48,9 @@ class AxisLimits:
                                       low=0.0, low_open=True, high=1000.0)
     following_error_limit: float = setting(1e-3, '|setpoint - position| that faults the drive',
                                            'm or rad', low=0.0, low_open=True, high=10.0)
+    max_jump: float = setting(1e-4, 'largest step from the current setpoint to the first point '
+                              'of a trajectory that starts there', 'm or rad', low=0.0,
+                              high=1.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -59,7 +63,7 @@ class ServoSettings:
 
     linear: AxisLimits = group(AxisLimits, 'the leg-length drives, m')
     rotary: AxisLimits = group(AxisLimits, 'the theta drives, rad', default=lambda: AxisLimits(
-        max_velocity=0.5, max_acceleration=5.0, following_error_limit=0.01))
+        max_velocity=0.5, max_acceleration=5.0, following_error_limit=0.01, max_jump=1e-3))
     position_gain: float = setting(25.0, 'K_p of the position loop (K_p tau = 1/4: critical)',
                                    '1/s', low=0.1, high=1000.0)
     velocity_lag: float = setting(0.01, 'tau, velocity-loop time constant', 's', low=1e-4,
@@ -83,6 +87,11 @@ class ServoSettings:
     def following_error_limits(self) -> FloatArray:
         """Following-error limits (6,), m and rad."""
         return per_axis(self.linear.following_error_limit, self.rotary.following_error_limit)
+
+    @cached_property
+    def jump_limits(self) -> FloatArray:
+        """Largest step to a trajectory's first point (6,), m and rad."""
+        return per_axis(self.linear.max_jump, self.rotary.max_jump)
 
 
 # -- servo dynamics --------------------------------------------------------------------------
@@ -114,12 +123,14 @@ def servo_step(state: AxisState, setpoint: FloatArray, feedforward: FloatArray, 
 
 @dataclass(frozen=True)
 class Fault:
-    """A following-error fault: axis index (JOINT_NAMES order), the error x_sp − x and the
-    limit it exceeded (m or rad)."""
+    """A drive fault on axis ``axis`` (JOINT_NAMES order): a following error (the error
+    x_sp − x and the limit it exceeded, m or rad), or, with ``encoder_lost``, an encoder that
+    stopped giving a signal."""
 
     axis: int
-    error: float
-    limit: float
+    error: float = 0.0
+    limit: float = 0.0
+    encoder_lost: bool = False
 
     @property
     def name(self) -> str:
@@ -128,6 +139,8 @@ class Fault:
 
     def message(self) -> str:
         """For people: mm on linear axes, degrees on rotary ones."""
+        if self.encoder_lost:
+            return f'encoder signal lost on {self.name}'
         if LINEAR_AXES[self.axis]:
             return (f'following error on {self.name}: {self.error * 1e3:.3f} mm exceeds the '
                     f'limit {self.limit * 1e3:.3f} mm')
@@ -151,7 +164,8 @@ class LegServos:
     while disabled or in fault. ``stuck`` (6,) marks jammed axes (fault injection)."""
 
     def __init__(self, settings: ServoSettings, position: ArrayLike, time: float = 0.0,
-                 *, enabled: bool = True) -> None:
+                 *, enabled: bool = True, low: ArrayLike | None = None,
+                 high: ArrayLike | None = None) -> None:
         p = np.asarray(position, dtype=float)
         if p.shape != (AXES,) or not np.isfinite(p).all():
             raise InputError(f'initial position: expected {AXES} finite values, got {position!r}')
@@ -163,6 +177,9 @@ class LegServos:
         self.stuck: BoolArray = np.zeros(AXES, dtype=bool)
         self._path, self._start = hold_path(p), self.time
         self._pending: tuple[JointPath, float] | None = None
+        #: Soft limits (6,): setpoints are never outside them, whatever the path says.
+        self.low = np.full(AXES, -np.inf) if low is None else np.asarray(low, dtype=float)
+        self.high = np.full(AXES, np.inf) if high is None else np.asarray(high, dtype=float)
 
     # -- commands ------------------------------------------------------------------------
     def command(self, path: JointPath, start: float) -> None:
@@ -171,12 +188,15 @@ class LegServos:
         MotionRefusedError when disabled, in fault, or if the path ends before the current
         time."""
         if not self.enabled:
-            raise MotionRefusedError('drives disabled: trajectory ignored, axes hold')
+            raise MotionRefusedError(Refusal.DISABLED,
+                                     'drives disabled: trajectory ignored, axes hold')
         if self.fault is not None:
-            raise MotionRefusedError(f'in fault ({self.fault.message()}): re-enable to clear it')
+            raise MotionRefusedError(Refusal.FAULT, f'in fault ({self.fault.message()}): '
+                                                    're-enable to clear it')
         if start + path.duration < self.time:
             late = self.time - start - path.duration
-            raise MotionRefusedError(f'trajectory ended {late:.3f} s ago (start stamp too old)')
+            raise MotionRefusedError(Refusal.OLD_HEADER_TIMESTAMP,
+                                     f'trajectory ended {late:.3f} s ago (start stamp too old)')
         if start <= self.time:
             self._replace(path, start)
         else:
@@ -220,10 +240,24 @@ class LegServos:
         return self.fault
 
     def setpoint(self, time: float | None = None) -> tuple[FloatArray, FloatArray]:
-        """Setpoint position and feed-forward velocity (6,) at ``time`` (default: now)."""
+        """Setpoint position and feed-forward velocity (6,) at ``time`` (default: now), held
+        within the soft limits."""
         t = self.time if time is None else time
-        position, velocity = self._path.sample(t - self._start)
+        position, velocity = self._clamped(*self._path.sample(t - self._start))
         return position[0], velocity[0]
+
+    def _clamped(self, position: FloatArray,
+                 velocity: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Setpoints (K, 6) held within the soft limits; where one is held, it does not move."""
+        held = (position < self.low) | (position > self.high)
+        return np.clip(position, self.low, self.high), np.where(held, 0.0, velocity)
+
+    def fail(self, fault: Fault) -> None:
+        """A fault found outside the servo loop (an encoder lost): stop from the actual state,
+        hold, refuse motion until re-enabled."""
+        if self.fault is None:
+            self.fault = fault
+            self._stop_from_actual()
 
     @property
     def following_error(self) -> FloatArray:
@@ -265,8 +299,8 @@ class LegServos:
             return
         n = min(max(math.ceil(span / self.settings.max_step - 1e-9), 1), MAX_SUBSTEPS)
         step = span / n
-        setpoints, feedforward = self._path.sample(self.time + step * np.arange(1, n + 1)
-                                                   - self._start)
+        setpoints, feedforward = self._clamped(*self._path.sample(
+            self.time + step * np.arange(1, n + 1) - self._start))
         state = self.state
         for k in range(n):  # the ODE is sequential; n is 1-3 at the usual physics rates
             state = servo_step(state, setpoints[k], feedforward[k], step, self.settings,

@@ -1,7 +1,9 @@
 """A synthetic recorded run, for the analysis tests and benchmark: commanded poses visited in
 cycles under each compensation mode, the tracker's noisy measurements and the true poses,
-written as an MCAP rosbag2 bag with rosbags' writer (the format the recorder writes), with the
-QoS the cell's publishers offer (reliable; the target and the program latched).
+written as an MCAP rosbag2 bag with the QoS the cell's publishers offer (reliable; the target
+and the program latched): by the cell's writer (:class:`positioning_cell.bag.BagWriter`, what
+the recorder writes: its chunk size, chunk and data-section CRCs) or by rosbags' writer
+(``rosbags.rosbag2.Writer``: 1 MiB chunks, no CRCs).
 
 Each move starts at its target's stamp; the platform travels for ``move_time`` s from the last
 attained pose to the new one (commanded + the mode's bias + a random offset per visit) and
@@ -12,19 +14,20 @@ pose is published with the same stamps, without noise.
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from rosbags.interfaces import QosDurability, QosHistory, QosReliability
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosReliability
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.analysis.program import ProgramStep
 from positioning_cell.bag.metadata import make_qos
+from positioning_cell.bag.writer import DEFAULT_CHUNK_BYTES, BagWriter
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.names import (
     DIAGNOSTICS,
@@ -116,12 +119,20 @@ def _stamp(t: float) -> tuple[int, int]:
 def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
                   program: bool = True, diagnostics: bool = True,
                   joint_state_rate: float = 0.0, latency: float = 0.002,
-                  truncate_to: float | None = None) -> int:
+                  truncate_to: float | None = None, writer: str = 'cell',
+                  compression: str = 'none', chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                  latched_target_age: float = 0.0) -> int:
     """Write ``run`` as a bag at ``path`` (must not exist): targets, measurements, and as
     asked the truth, the program steps, the positioner's mode diagnostics and filler
     /legs/joint_states at ``joint_state_rate`` Hz (same bytes, stamps patched). Log time =
-    stamp + ``latency``. ``truncate_to`` (0..1) then cuts the .mcap file to that fraction and
-    removes metadata.yaml, as a killed recorder leaves it. Returns the messages written."""
+    stamp + ``latency``. ``writer``: ``cell`` (BagWriter, chunks of ``chunk_bytes``, CRCs) or
+    ``rosbags`` (rosbags' writer, no CRCs); ``compression``: ``none`` or ``zstd`` chunks.
+    ``latched_target_age`` > 0: the bag starts with the /positioner/target of an earlier move
+    (the first target's pose, where the platform already is), stamped that many seconds
+    before the first measurement and logged with it, as a recorder started after that move
+    receives the latched target. ``truncate_to`` (0..1) then cuts the .mcap file to that
+    fraction and removes metadata.yaml, as a killed recorder leaves it. Returns the messages
+    written."""
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -139,6 +150,10 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
 
     events: list[tuple[float, str, str, Any]] = []
     stamped = 'geometry_msgs/msg/PoseStamped'
+    if latched_target_age > 0:  # first in the list: sorts before the first measurement
+        events.append((float(run.time[0]), TARGET, stamped, T[stamped](
+            header(float(run.time[0]) - latched_target_age),
+            pose(run.target_position[0], run.target_quaternion[0]))))
     for i, t in enumerate(run.target_time):
         events.append((t, TARGET, stamped, T[stamped](
             header(t), pose(run.target_position[i], run.target_quaternion[i]))))
@@ -173,16 +188,16 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
                    for t in ft]
     events.sort(key=lambda e: e[0])
     path = Path(path)
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conns = {}
-        for _, topic, msgtype, _ in events:
-            if topic not in conns:
-                durability = (QosDurability.TRANSIENT_LOCAL if topic in LATCHED_TOPICS
-                              else QosDurability.VOLATILE)
-                qos = make_qos(QosHistory.KEEP_LAST, 1 if topic in LATCHED_TOPICS else 100,
-                               QosReliability.RELIABLE, durability)
-                conns[topic] = writer.add_connection(topic, msgtype, typestore=store,
-                                                     offered_qos_profiles=[qos])
+    qos: dict[str, tuple[str, Qos]] = {}
+    for _, topic, msgtype, _ in events:
+        if topic not in qos:
+            durability = (QosDurability.TRANSIENT_LOCAL if topic in LATCHED_TOPICS
+                          else QosDurability.VOLATILE)
+            qos[topic] = (msgtype, make_qos(QosHistory.KEEP_LAST,
+                                            1 if topic in LATCHED_TOPICS else 100,
+                                            QosReliability.RELIABLE, durability))
+
+    def serialized() -> Iterator[tuple[str, str, bytes, int]]:
         for t, topic, msgtype, msg in events:
             if isinstance(msg, bytes):
                 patched = bytearray(msg)
@@ -190,7 +205,26 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
                 raw = bytes(patched)
             else:
                 raw = bytes(store.serialize_cdr(msg, msgtype))
-            writer.write(conns[topic], round((t + latency) * 1e9), raw)
+            yield topic, msgtype, raw, round((t + latency) * 1e9)
+
+    if writer == 'cell':
+        with BagWriter(path, compression=compression, chunk_bytes=chunk_bytes) as bag:
+            for topic, (msgtype, q) in qos.items():
+                bag.add_topic(topic, msgtype, [q])
+            for topic, msgtype, raw, log_ns in serialized():
+                bag.write(topic, msgtype, raw, log_ns)
+    elif writer == 'rosbags':
+        other = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        if compression == 'zstd':
+            other.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        with other:
+            conns = {topic: other.add_connection(topic, msgtype, typestore=store,
+                                                 offered_qos_profiles=[q])
+                     for topic, (msgtype, q) in qos.items()}
+            for topic, _, raw, log_ns in serialized():
+                other.write(conns[topic], log_ns, raw)
+    else:
+        raise ValueError(f'writer {writer!r}: expected cell or rosbags')
     if truncate_to is not None:
         (path / 'metadata.yaml').unlink()
         mcap = next(path.glob('*.mcap'))

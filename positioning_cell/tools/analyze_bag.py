@@ -3,9 +3,12 @@
 Reads the bag with rosbags (no ROS graph), replays it through the accuracy monitor's rules
 with the monitor's settings from ``config/cell.yaml`` (or ``--config``), and writes
 ``report.md``, ``summary.json`` and PNG plots into ``--out`` (default: ``<bag>_analysis``
-beside the bag). Exit status: 0 analysed; 2 nothing analysed (not a bag, a bag without the
-needed topics, a bad config); 3 analysed only in part (a truncated bag: what was missing is
-printed and in the report). :func:`analyze` does the work; :func:`main` parses the command line.
+beside the bag). The bag's storage files are verified first (MCAP magic, every chunk's CRC, the
+data-section CRC: :mod:`positioning_cell.bag.verify`). Exit status: 0 analysed; 2 nothing
+analysed (not a bag, an empty or too short ``.mcap``, a bag without the needed topics, a bad
+config); 3 analysed only in part (a truncated bag, or corrupt chunks: each one with the time
+range and messages lost is printed and in the report, the figures cover the rest).
+:func:`analyze` does the work; :func:`main` parses the command line.
 """
 
 from __future__ import annotations

@@ -1,8 +1,11 @@
-"""``recover_bag BAG``: make a bag whose recorder was killed readable again.
+"""``recover_bag BAG``: make a bag whose recorder was killed, or whose files are damaged,
+readable again.
 
-Each truncated ``.mcap`` of the bag directory is rewritten from its readable prefix (every
-complete chunk) into a valid, indexed file, the damaged original kept as
-``<name>.mcap.truncated``, and ``metadata.yaml`` is rebuilt. A complete bag is left untouched.
+Every ``.mcap`` of the bag directory is verified (chunk CRCs, data-section CRC). Each truncated
+one is rewritten from its readable records (every complete chunk), each damaged one from its
+sound chunks (the corrupt ones are left out and listed with the log times they covered), into
+a valid, indexed file; the original is kept as ``<name>.mcap.truncated`` or
+``<name>.mcap.damaged``, and ``metadata.yaml`` is rebuilt. A sound bag is left untouched.
 Exit status: 0 recovered or already complete, 1 not a bag / unrecoverable (nothing changed).
 :func:`recover` does the work (tests call it); :func:`main` parses the command line.
 """
@@ -26,11 +29,13 @@ def describe(report: RecoveryReport) -> str:
     """A few human-readable lines about what :func:`recover` did."""
     lines = []
     for item in report.files:
-        if item.status == 'recovered':
-            lines.append(f'{item.path.name}: recovered {item.message_count} messages '
-                         f'(damaged original kept as {item.backup.name if item.backup else "-"})')
-        else:
+        if item.status == 'complete':
             lines.append(f'{item.path.name}: complete, {item.message_count} messages')
+            continue
+        lines.append(f'{item.path.name}: {item.status} {item.message_count} messages '
+                     f'(damaged original kept as {item.backup.name if item.backup else "-"})')
+        lines += [f'  {item.path.name}: {p}' for p in item.problems]
+        lines += [f'  left out: {d.describe()}' for d in item.lost]
     if report.metadata_written:
         lines.append(f'wrote {report.bag / "metadata.yaml"}')
     if not report.changed:

@@ -1,136 +1,36 @@
-"""The tools' one ROS module: starting the cell's executables as processes on a private
-domain, and an rclpy client of the running cell (its own context, spun in a background thread)
-with the calls the tools and tests make. Everything else in ``tools/`` is plain Python."""
+"""The tools' one ROS module: an rclpy client of the running cell (its own context, spun in a
+background thread) with the calls the tools and tests make. Everything else in ``tools/`` is
+plain Python (starting the cell's processes: :mod:`positioning_cell.tools.processes`)."""
 
 from __future__ import annotations
 
 import contextlib
 import json
-import os
-import shutil
-import signal
-import subprocess
-import sys
 import threading
-from collections.abc import Mapping, Sequence
-from pathlib import Path
-from typing import IO, Any
+from collections.abc import Sequence
+from typing import Any
 
 import rclpy
-import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.srv import GetPlan
 from numpy.typing import ArrayLike
 from rcl_interfaces.msg import SetParametersResult
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.srv import ListParameters, SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
-from positioning_cell.nodes.messages import pose_stamped
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS
+from positioning_cell.motion.outcomes import ResultCode
+from positioning_cell.nodes.messages import pose_stamped, status_values
+from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
 from positioning_cell.tools.polling import wait_until
-
-
-def cell_environment(domain: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
-    """The environment of a cell process: ``base`` (default: this process's) on ROS domain
-    ``domain`` with discovery limited to this machine. The wheels' bootstrap marker is removed
-    so the child sets its own library path (platform.md)."""
-    env = dict(os.environ if base is None else base, ROS_DOMAIN_ID=str(domain),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
-    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
-    return env
-
-
-def executable(name: str) -> str:
-    """Path of one of the package's console scripts: beside this interpreter first (a venv),
-    else on PATH; FileNotFoundError if it is not installed."""
-    found = shutil.which(name, path=str(Path(sys.executable).parent)) or shutil.which(name)
-    if found is None:
-        raise FileNotFoundError(f'{name} is not installed (run `make setup`)')
-    return found
-
-
-class Processes:
-    """Processes started in environment ``env``, each in its own process group, output in
-    ``log_dir/<label>.log``; :meth:`stop` ends them (SIGINT, SIGKILL after a grace period)."""
-
-    def __init__(self, env: Mapping[str, str], log_dir: Path) -> None:
-        self.env = dict(env)
-        self.log_dir = log_dir
-        self.procs: dict[str, subprocess.Popen[bytes]] = {}
-        self._logs: dict[str, IO[bytes]] = {}
-
-    def start(self, exe: str, *ros_args: str, params: Sequence[Path] = (),
-              overrides: Mapping[str, Mapping[str, Any]] | None = None,
-              label: str | None = None,
-              extra_args: Sequence[str] = ()) -> subprocess.Popen[bytes]:
-        """Start ``exe extra_args --ros-args --params-file P ... ros_args``. ``overrides``
-        ({node name: {nested params}}) go in one more params file after ``params`` (a later
-        file beats an earlier one, and a node's section beats a plain ``-p``)."""
-        label = label or exe
-        args = [executable(exe), *extra_args, '--ros-args']
-        files = list(params)
-        if overrides:
-            extra = self.log_dir / f'{label}.overrides.yaml'
-            extra.write_text(yaml.safe_dump(
-                {node: {'ros__parameters': dict(v)} for node, v in overrides.items()}))
-            files.append(extra)
-        for path in files:
-            args += ['--params-file', str(path)]
-        args += list(ros_args)
-        log = (self.log_dir / f'{label}.log').open('wb')
-        self._logs[label] = log
-        self.procs[label] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
-                                             env=self.env, start_new_session=True)
-        return self.procs[label]
-
-    def log(self, label: str) -> str:
-        """What a process printed so far."""
-        path = self.log_dir / f'{label}.log'
-        return path.read_text(errors='replace') if path.exists() else ''
-
-    def dead(self) -> list[str]:
-        """Labels of the processes that have exited."""
-        return [label for label, p in self.procs.items() if p.poll() is not None]
-
-    def stop(self, label: str | None = None, sig: int = signal.SIGINT,
-             grace: float = 20.0) -> dict[str, int]:
-        """Send ``sig`` to the process group of ``label`` (default: all), wait up to ``grace``
-        s, SIGKILL what is left; the exit codes."""
-        labels = [label] if label else list(self.procs)
-        for name in labels:
-            proc = self.procs[name]
-            if proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, sig)
-        codes = {}
-        for name in labels:
-            proc = self.procs[name]
-            try:
-                codes[name] = proc.wait(timeout=grace)
-            except subprocess.TimeoutExpired:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(proc.pid, signal.SIGKILL)
-                codes[name] = proc.wait()
-            with contextlib.suppress(ProcessLookupError):  # leftovers of the group
-                os.killpg(proc.pid, signal.SIGKILL)
-            log = self._logs.pop(name, None)
-            if log is not None:
-                log.close()
-        return codes
-
-    def __enter__(self) -> Processes:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
 
 class CellClient:
@@ -168,16 +68,50 @@ class CellClient:
         self.node.create_subscription(msg_type, topic, received.append, qos)
         return received
 
+    def service(self, srv_type: Any, name: str, wait: float = 30.0) -> Any:
+        """The client of service ``name`` (one per name, queue sized for bursts of calls:
+        SERVICE_QOS), once the service is there (TimeoutError after ``wait`` s)."""
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(srv_type, name,
+                                                                   qos_profile=SERVICE_QOS)
+        wait_until(client.service_is_ready, wait, f'service {name}')
+        return client
+
     def call(self, srv_type: Any, name: str, request: Any, timeout: float = 30.0) -> Any:
         """Call a service (waiting up to ``min(timeout, 30)`` s for it to appear) and return
         the response; TimeoutError names what did not come."""
-        client = self._clients.get(name)
-        if client is None:
-            client = self._clients[name] = self.node.create_client(srv_type, name)
-        wait_until(client.service_is_ready, min(timeout, 30.0), f'service {name}')
-        future = client.call_async(request)
+        future = self.service(srv_type, name, min(timeout, 30.0)).call_async(request)
         wait_until(future.done, timeout, f'the response of {name}')
         return future.result()
+
+    def call_many(self, srv_type: Any, name: str, requests: Sequence[Any]) -> list[Future]:
+        """Send every request at once (the service must be there: :meth:`service`); their
+        futures."""
+        client = self.service(srv_type, name, 0.0)
+        return [client.call_async(r) for r in requests]
+
+    def home(self, timeout: float = 60.0) -> tuple[bool, str]:
+        """Home the positioner (it references the drives first): (success, message). Retries
+        while it refuses for want of encoder readings (the cell is still coming up)."""
+        not_yet = (ResultCode.REFUSED_DRIVER_SILENT.value, ResultCode.REFUSED_NO_ESTIMATE.value)
+
+        def attempt() -> tuple[bool, str] | None:
+            done, message = self.trigger(names.HOME)
+            return None if not done and message.startswith(not_yet) else (done, message)
+
+        result: tuple[bool, str] = wait_until(attempt, timeout, 'the positioner to home')
+        return result
+
+    def spinning(self, node: str, timeout: float = 2.0) -> bool:
+        """Does node ``node`` (a name) answer its parameter service within ``timeout`` s (it
+        is built and its executor spins)?"""
+        try:
+            self.call(ListParameters, f'/{node}/list_parameters', ListParameters.Request(),
+                      timeout)
+        except TimeoutError:
+            return False
+        return True
 
     def subscribed(self, topic: str, node: str) -> bool:
         """Has node ``node`` a subscription on ``topic``?"""
@@ -213,6 +147,11 @@ class CellClient:
         response = self.call(GetPlan, service,
                              GetPlan.Request(goal=goal, tolerance=float(tolerance)), timeout)
         return bool(response.plan.poses)
+
+    def trigger(self, service: str, timeout: float = 120.0) -> tuple[bool, str]:
+        """Call a std_srvs/Trigger service (home, stop, ...): (success, message)."""
+        response = self.call(Trigger, service, Trigger.Request(), timeout)
+        return bool(response.success), str(response.message)
 
     def monitor_report(self) -> dict[str, Any]:
         """The accuracy monitor's /accuracy_monitor/report."""
@@ -250,6 +189,11 @@ def status_ok(status: DiagnosticStatus) -> bool:
     return status.level in (b'\x00', 0)
 
 
-def status_values(status: DiagnosticStatus) -> dict[str, str]:
-    """The key-value pairs of a status."""
-    return {kv.key: kv.value for kv in status.values}
+def verdict_text(status: DiagnosticStatus) -> str:
+    """A monitor verdict (status ``accuracy_monitor: settled pose``) in a few words."""
+    values = status_values(status)
+    ok = 'OK' if status_ok(status) else 'OUT OF TOLERANCE'
+    return (f'|Δp| {values.get("position_error_um", "?")} µm, '
+            f'{values.get("orientation_error_deg", "?")}°: {ok}')
+
+

@@ -29,7 +29,7 @@ import time
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import yaml
@@ -42,13 +42,10 @@ from positioning_cell.errors import PositioningError
 from positioning_cell.tools.analyze_bag import EXIT_OK, analyze, describe
 from positioning_cell.tools.domains import DomainError, free_domain
 from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.ros import (
-    CellClient,
-    Processes,
-    cell_environment,
-    status_ok,
-    status_values,
-)
+from positioning_cell.tools.processes import Processes, cell_environment
+from positioning_cell.tools.ros import CellClient, verdict_text
+
+T = TypeVar('T')
 
 #: The recorder first, then the cell's nodes (the launch file's list).
 STARTED = (names.RECORDER, *names.CELL_NODES)
@@ -121,13 +118,6 @@ def _truth_settled(client: CellClient, count: int) -> bool:
     return (_truth_visits(client) or 0) > count
 
 
-def _verdict_text(status: Any) -> str:
-    values = status_values(status)
-    ok = 'OK' if status_ok(status) else 'OUT OF TOLERANCE'
-    return (f'|Δp| {values.get("position_error_um", "?")} µm, '
-            f'{values.get("orientation_error_deg", "?")}°: {ok}')
-
-
 def _set_mode(client: CellClient, mode: str) -> None:
     result = _call(partial(client.set_parameter, names.NODE_POSITIONER, 'compensation.mode',
                            mode))
@@ -164,7 +154,7 @@ def drive(client: CellClient, program: Program, note: str, say: Callable[[str], 
             continue
         try:
             _wait(partial(_more, verdicts, seen), program.settle_timeout, 'the verdict')
-            verdict = _verdict_text(verdicts[seen])
+            verdict = verdict_text(verdicts[seen])
         except StartError:
             verdict = f'monitor saw no settled pose within {program.settle_timeout:.0f} s'
         if truth_seen is not None:  # the true pose settles too before the next target
@@ -182,8 +172,8 @@ def _start(procs: Processes, client: CellClient, config: Path, overrides: Path,
         procs.start(node.executable, params=[config, overrides])
     say(f'started {", ".join(n.executable for n in STARTED)}; waiting for the cell')
 
-    def up(check: Callable[[], bool]) -> Callable[[], bool]:
-        def probe() -> bool:
+    def up(check: Callable[[], T]) -> Callable[[], T]:
+        def probe() -> T:
             dead = procs.dead()
             if dead:
                 raise StartError(f'{", ".join(dead)} exited during start-up (see the logs)')
@@ -205,7 +195,24 @@ def _start(procs: Processes, client: CellClient, config: Path, overrides: Path,
         return bool(_call(partial(client.plan, names.CHECK_POSE, program.position[0],
                                   program.quaternion[0], 0.0, 30.0)))
 
+    done, message = _call(client.home)
+    if not done:
+        raise StartError(f'homing failed: {message}')
+    say(f'homed: {message}')
     _wait(up(ready), 60.0, 'the positioner to accept the first pose (encoder readings)')
+
+    def home_settled() -> bool:
+        """The monitor's verdict on the home pose is in (and the true pose settled there):
+        a verdict arriving later would be taken for that of the program's first move."""
+        report = _call(client.monitor_report)
+        truth = report['truth']
+        return (sum(report['verdicts'].values()) >= 1
+                and (truth is None or len(truth['visits']) >= 1))
+
+    try:
+        _wait(up(home_settled), program.settle_timeout, 'the monitor to see the home pose settle')
+    except StartError as err:
+        say(f'run_cell: {err}; the first verdict may be late')
 
 
 def _same_figures(live: dict[str, Any], offline: dict[str, Any]) -> bool:
@@ -245,8 +252,8 @@ def run(program_path: Path | None = None, config: Path | None = None,
     status, failed, live = EXIT_OK, 0, None
     try:
         with free_domain() as domain:
-            os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
             os.environ.setdefault('ROS_LOG_DIR', str(run_dir / 'logs' / 'ros'))
+            os.environ.update(cell_environment(domain))  # this process's client: loopback too
             procs = Processes(cell_environment(domain), run_dir / 'logs')
             client: CellClient | None = None
             try:

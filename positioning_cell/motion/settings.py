@@ -1,0 +1,186 @@
+"""The positioner's settings: every parameter of the ``positioner`` node (config/cell.yaml),
+grouped by what it governs. SI units."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from positioning_cell.clearance import ClearanceModel, ClearanceParameters, build
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import InputError
+from positioning_cell.mechanics.statics import Payload, Structure
+from positioning_cell.motion.trajectory import MotionLimits
+from positioning_cell.parameters import ParameterError, check_fields, group, setting
+
+FloatArray = NDArray[np.float64]
+
+
+class CompensationMode(Enum):
+    """none: nominal IK; model: the configured clearance model; measured: the model, then
+    closed-loop correction from the measured pose."""
+
+    NONE = 'none'
+    MODEL = 'model'
+    MEASURED = 'measured'
+
+
+@dataclass(frozen=True)
+class CompensationSettings:
+    """The ``compensation:`` block."""
+
+    mode: str = setting('measured', 'none: nominal inverse kinematics; model: the clearance '
+                        'model; measured: the model, then closed loop on the tracker',
+                        choices=tuple(m.value for m in CompensationMode), dynamic=True)
+    clearance: ClearanceParameters = group(ClearanceParameters,
+                                           'the clearance model used by model and measured')
+    max_iterations: int = setting(5, 'closed-loop corrections per move', low=0, high=50,
+                                  dynamic=True)
+    samples: int = setting(10, 'tracker samples averaged per correction', low=1, high=200,
+                           dynamic=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class GoalTolerance:
+    """The settle tolerance of a move (a request's tolerance overrides the position)."""
+
+    position: float = setting(10e-6, 'settle tolerance of a move, position', 'm', low=0.0,
+                              low_open=True, high=0.01, dynamic=True)
+    orientation: float = setting(1e-4, 'settle tolerance of a move, orientation', 'rad',
+                                 low=0.0, low_open=True, high=0.1, dynamic=True)
+    largest_request: float = setting(1e-3, 'largest settle tolerance a request may ask for',
+                                     'm', low=0.0, low_open=True, high=0.01, dynamic=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if self.position > self.largest_request:
+            raise ParameterError('position', self.position,
+                                 f'must not exceed largest_request = {self.largest_request} m')
+
+    def for_request(self, tolerance: float) -> GoalTolerance:
+        """The tolerance of a move that asked for ``tolerance`` m (0: this one); InputError
+        when it is not finite, negative or above ``largest_request``."""
+        if not (math.isfinite(tolerance) and 0.0 <= tolerance <= self.largest_request):
+            raise InputError(f'tolerance = {tolerance!r}: must be finite, >= 0 (0: the '
+                             f'configured {self.position} m) and <= {self.largest_request} m')
+        return self if tolerance == 0.0 else GoalTolerance(tolerance, self.orientation,
+                                                          max(tolerance, self.largest_request))
+
+    def holds(self, position_error: ArrayLike, rotation_error: ArrayLike) -> bool:
+        """True when |Δp| ≤ position and |rotation vector| ≤ orientation."""
+        return bool(np.linalg.norm(position_error) <= self.position
+                    and np.linalg.norm(rotation_error) <= self.orientation)
+
+
+@dataclass(frozen=True)
+class ArrivalSettings:
+    """When the drives count as arrived: every encoder within its tolerance of the target and
+    slower than its speed; ``timeout`` beyond the trajectory's duration."""
+
+    length_tolerance: float = setting(5e-6, 'encoder arrival tolerance, legs', 'm', low=0.0,
+                                      high=0.01, dynamic=True)
+    theta_tolerance: float = setting(5e-5, 'encoder arrival tolerance, theta', 'rad',
+                                     low=0.0, high=0.1, dynamic=True)
+    length_speed: float = setting(2e-4, 'at rest below this speed, legs', 'm/s', low=0.0,
+                                  high=1.0, dynamic=True)
+    theta_speed: float = setting(2e-3, 'at rest below this speed, theta', 'rad/s', low=0.0,
+                                 high=1.0, dynamic=True)
+    timeout: float = setting(5.0, 'extra time to arrive after the trajectory ends', 's',
+                             low=0.1, high=120.0, dynamic=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+    @property
+    def position_tolerance(self) -> FloatArray:
+        """Arrival tolerance (6,) m, rad."""
+        return np.array([self.length_tolerance] * 3 + [self.theta_tolerance] * 3)
+
+    @property
+    def speed_tolerance(self) -> FloatArray:
+        """At-rest speed (6,) m/s, rad/s."""
+        return np.array([self.length_speed] * 3 + [self.theta_speed] * 3)
+
+
+@dataclass(frozen=True)
+class TrajectorySettings:
+    """The ``trajectory:`` block."""
+
+    period: float = setting(0.01, 'spacing of the trajectory points', 's', low=0.001,
+                            high=0.5, dynamic=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class LivenessSettings:
+    """How quickly the positioner notices a silent, frozen or refusing world."""
+
+    joint_silence: float = setting(0.2, 'no /legs/joint_states for this long: the leg driver is '
+                                   'not responding', 's', low=0.01, high=10.0, dynamic=True)
+    answer_timeout: float = setting(0.5, 'the leg driver must accept or refuse a trajectory '
+                                    'within this', 's', low=0.01, high=10.0, dynamic=True)
+    freeze_window: float = setting(0.5, 'an encoder that does not change for this long while '
+                                   'its axis is commanded to move is frozen', 's', low=0.05,
+                                   high=10.0, dynamic=True)
+    freeze_motion: float = setting(20.0, 'commanded motion in the freeze window above which an '
+                                   'unchanged encoder counts as frozen, in encoder counts',
+                                   low=1.0, high=1e6, dynamic=True)
+    tracker_silence: float = setting(0.5, 'no /metrology/pose for this long while measuring: '
+                                     'the tracker is not responding', 's', low=0.05,
+                                     high=60.0, dynamic=True)
+    scatter_limit: float = setting(6.0, 'tracker readings averaged for a correction may '
+                                   'scatter at most this many times their stated sigma',
+                                   low=1.0, high=1000.0, dynamic=True)
+    homing_timeout: float = setting(120.0, 'referencing must complete within this', 's',
+                                    low=1.0, high=3600.0, dynamic=True)
+    linear_count: float = setting(1e-6, 'one linear encoder count, for the freeze rule', 'm',
+                                  low=1e-9, high=1e-3)
+    rotary_count: float = setting(6e-6, 'one rotary encoder count, for the freeze rule',
+                                  'rad', low=1e-9, high=1e-2)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class PositionerSettings:
+    """Every parameter of the ``positioner`` node (config/cell.yaml)."""
+
+    mechanism: Mechanism = group(Mechanism, 'the machine')
+    payload: Payload = group(Payload, 'what the platform carries (load-driven clearance)')
+    structure: Structure = group(Structure, 'stiffness and masses of the machine')
+    compensation: CompensationSettings = group(CompensationSettings, 'compensation')
+    goal_tolerance: GoalTolerance = group(GoalTolerance, 'settle tolerance of a move')
+    motion: MotionLimits = group(MotionLimits, 'Cartesian limits of a move')
+    trajectory: TrajectorySettings = group(TrajectorySettings, 'the joint trajectories')
+    arrival: ArrivalSettings = group(ArrivalSettings, 'arrival of the drives')
+    liveness: LivenessSettings = group(LivenessSettings, 'silent, frozen or refusing inputs')
+    settle_time: float = setting(0.2, 'dwell after arrival before the pose counts as settled',
+                                 's', low=0.0, high=10.0, dynamic=True)
+    measurement_timeout: float = setting(5.0, 'wait for tracker samples', 's', low=0.1,
+                                         high=60.0, dynamic=True)
+    pose_rate_hz: float = setting(50.0, 'rate of the pose estimate on /positioner/pose', 'Hz',
+                                  low=1.0, high=200.0)
+    markers_every: int = setting(5, 'markers are published with every this many pose '
+                                 'estimates', low=1, high=1000)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+    @property
+    def mode(self) -> CompensationMode:
+        """The compensation mode."""
+        return CompensationMode(self.compensation.mode)
+
+    def clearance_model(self) -> ClearanceModel:
+        """The compensation's clearance model (ConfigError naming a bad key)."""
+        return build(self.compensation.clearance, self.mechanism, self.payload, self.structure)

@@ -1,0 +1,71 @@
+"""The console entry points of the cell's nodes: SIGINT and SIGTERM stop a node cleanly (exit
+0, no traceback) from the first instant, not only once rclpy is up.
+
+A node's module imports rclpy, numpy, scipy and numba: about a second in which Python's default
+handlers would turn SIGINT into a ``KeyboardInterrupt`` traceback and SIGTERM into a kill. This
+module is imported first (standard library only) and installs handlers that end the process at
+once with exit 0: nothing is open yet (no rclpy context, no file), and an exception raised inside
+an import would surface as a C extension's ImportError, so none is raised. Just before
+``rclpy.init``, :func:`positioning_cell.nodes.spin.run` swaps them for :func:`hold_stops`. Only
+the interpreter's own start (some 50 ms, before any of the package runs) is left to Python's
+defaults.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import signal
+import threading
+from collections.abc import Callable
+from types import FrameType
+
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_stop_requested = threading.Event()
+
+
+def _exit_now(signum: int, frame: FrameType | None) -> None:
+    """A stop while the node's modules load: nothing to close yet, exit 0 now."""
+    os._exit(0)
+
+
+def _remember(signum: int, frame: FrameType | None) -> None:
+    _stop_requested.set()
+
+
+def hold_stops() -> None:
+    """SIGINT / SIGTERM only set a flag (:func:`stop_requested`). Installed just before
+    ``rclpy.init``, whose own handlers then shut the context down and chain to this one: no
+    exception lands in the middle of a callback, and a stop before rclpy's handlers are in is
+    not lost."""
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, _remember)
+
+
+def exit_on_stop() -> None:
+    """SIGINT / SIGTERM end the process at once with exit 0 (while the modules load)."""
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, _exit_now)
+
+
+def stop_requested() -> bool:
+    """Whether SIGINT or SIGTERM arrived since :func:`hold_stops`."""
+    return _stop_requested.is_set()
+
+
+def _console(module: str) -> Callable[[], int]:
+    def main() -> int:
+        exit_on_stop()
+        node_main: Callable[[], int] = importlib.import_module(module).main
+        return node_main()
+
+    main.__doc__ = f'Entry point of ``{module.rsplit(".", 1)[1]}`` (clean stop from the start).'
+    return main
+
+
+recorder_node = _console('positioning_cell.nodes.recorder_node')
+bag_player_node = _console('positioning_cell.nodes.bag_player_node')
+leg_driver_node = _console('positioning_cell.nodes.leg_driver_node')
+pose_measurement_node = _console('positioning_cell.nodes.pose_measurement_node')
+kinematics_node = _console('positioning_cell.nodes.kinematics_node')
+accuracy_monitor_node = _console('positioning_cell.nodes.accuracy_monitor_node')

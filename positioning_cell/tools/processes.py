@@ -1,0 +1,140 @@
+"""The cell's executables as processes: their environment (a private ROS domain, loopback
+only), where they are installed, and a group of them started and stopped together. Plain
+Python (subprocess); the rclpy client of the running cell is :mod:`positioning_cell.tools.ros`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import IO, Any
+
+import yaml
+
+
+def cell_environment(domain: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The environment of a cell process: ``base`` (default: this process's) on ROS domain
+    ``domain``, on this machine's loopback only (:func:`loopback_only`). The wheels' bootstrap
+    marker is removed so the child sets its own library path (platform.md)."""
+    env = dict(os.environ if base is None else base, ROS_DOMAIN_ID=str(domain),
+               PYTHONUNBUFFERED='1')
+    loopback_only(env)
+    env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)
+    return env
+
+
+def loopback_only(env: dict[str, str]) -> None:
+    """Fast DDS on loopback only, unless ``env`` names its own Fast DDS profile.
+
+    Without one: the shipped ``config/fastdds_loopback.xml`` (UDPv4 on 127.0.0.1 and shared
+    memory, unicast discovery on 127.0.0.1) in FASTRTPS_DEFAULT_PROFILES_FILE, the variable Fast
+    DDS 2.14 (Jazzy) reads, and discovery left to it: ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT,
+    because with LOCALHOST Jazzy's rmw_fastrtps adds a UDP transport of its own that binds
+    0.0.0.0 and every interface (ROS_LOCALHOST_ONLY=1 would mean LOCALHOST too). With the
+    caller's own profile (a deliberate choice, e.g. a multi-machine cell), the caller's range,
+    by default LOCALHOST."""
+    from positioning_cell.config import config_path
+
+    shipped = config_path('fastdds_loopback.xml')
+    own = env.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
+    try:
+        ours = not own or Path(own).read_bytes() == shipped.read_bytes()
+    except OSError:  # the caller's missing file: theirs to fix (Fast DDS logs it)
+        ours = False
+    if not ours:
+        env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        return
+    env['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(shipped)
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SYSTEM_DEFAULT'
+    env.pop('ROS_LOCALHOST_ONLY', None)
+
+
+def executable(name: str) -> str:
+    """Path of one of the package's console scripts: beside this interpreter first (a venv),
+    else on PATH; FileNotFoundError if it is not installed."""
+    found = shutil.which(name, path=str(Path(sys.executable).parent)) or shutil.which(name)
+    if found is None:
+        raise FileNotFoundError(f'{name} is not installed (run `make setup`)')
+    return found
+
+
+class Processes:
+    """Processes started in environment ``env``, each in its own process group, output in
+    ``log_dir/<label>.log``; :meth:`stop` ends them (SIGINT, SIGKILL after a grace period)."""
+
+    def __init__(self, env: Mapping[str, str], log_dir: Path) -> None:
+        self.env = dict(env)
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self._logs: dict[str, IO[bytes]] = {}
+
+    def start(self, exe: str, *ros_args: str, params: Sequence[Path] = (),
+              overrides: Mapping[str, Mapping[str, Any]] | None = None,
+              label: str | None = None,
+              extra_args: Sequence[str] = ()) -> subprocess.Popen[bytes]:
+        """Start ``exe extra_args --ros-args --params-file P ... ros_args``. ``overrides``
+        ({node name: {nested params}}) go in one more params file after ``params`` (a later
+        file beats an earlier one, and a node's section beats a plain ``-p``)."""
+        label = label or exe
+        args = [executable(exe), *extra_args, '--ros-args']
+        files = list(params)
+        if overrides:
+            extra = self.log_dir / f'{label}.overrides.yaml'
+            extra.write_text(yaml.safe_dump(
+                {node: {'ros__parameters': dict(v)} for node, v in overrides.items()}))
+            files.append(extra)
+        for path in files:
+            args += ['--params-file', str(path)]
+        args += list(ros_args)
+        log = (self.log_dir / f'{label}.log').open('wb')
+        self._logs[label] = log
+        self.procs[label] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
+                                             env=self.env, start_new_session=True)
+        return self.procs[label]
+
+    def log(self, label: str) -> str:
+        """What a process printed so far."""
+        path = self.log_dir / f'{label}.log'
+        return path.read_text(errors='replace') if path.exists() else ''
+
+    def dead(self) -> list[str]:
+        """Labels of the processes that have exited."""
+        return [label for label, p in self.procs.items() if p.poll() is not None]
+
+    def stop(self, label: str | None = None, sig: int = signal.SIGINT,
+             grace: float = 20.0) -> dict[str, int]:
+        """Send ``sig`` to the process group of ``label`` (default: all), wait up to ``grace``
+        s, SIGKILL what is left; the exit codes."""
+        labels = [label] if label else list(self.procs)
+        for name in labels:
+            proc = self.procs[name]
+            if proc.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, sig)
+        codes = {}
+        for name in labels:
+            proc = self.procs[name]
+            try:
+                codes[name] = proc.wait(timeout=grace)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                codes[name] = proc.wait()
+            with contextlib.suppress(ProcessLookupError):  # leftovers of the group
+                os.killpg(proc.pid, signal.SIGKILL)
+            log = self._logs.pop(name, None)
+            if log is not None:
+                log.close()
+        return codes
+
+    def __enter__(self) -> Processes:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

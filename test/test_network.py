@@ -1,0 +1,130 @@
+"""Loopback only by default: with the shipped Fast DDS profile (config/fastdds_loopback.xml) every
+UDP and TCP socket of the cell's processes, and of a client in this process, is bound to
+127.0.0.1 (``ss``), while the nodes still discover each other and exchange messages."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from cell_harness import Client, ProcessGroup, isolated_domain, wait_until
+from geometry_msgs.msg import PoseStamped
+
+from positioning_cell import names
+from positioning_cell.config import config_path
+from positioning_cell.nodes.qos import STREAM_QOS
+from positioning_cell.tools.processes import cell_environment
+
+pytestmark = pytest.mark.nodes
+
+PROFILE = config_path('fastdds_loopback.xml')
+PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'  # what Fast DDS 2.14 (Jazzy) reads
+STARTUP = 60.0  # s; process start and discovery on a loaded 2-core VM (usually ~3 s)
+NODES = ('leg_driver_node', 'pose_measurement_node')
+
+
+def sockets(pids: set[int]) -> list[tuple[str, str]]:
+    """(local address, ss line) of every UDP and TCP socket (any state) that one of ``pids``
+    holds."""
+    found = []
+    for flags in ('-H', '-aunp'), ('-H', '-atnp'):
+        out = subprocess.run(['ss', *flags], capture_output=True, text=True, check=True,
+                             timeout=30).stdout
+        for line in out.splitlines():
+            owners = {int(p) for p in re.findall(r'pid=(\d+),', line)}
+            if owners & pids:
+                found.append((local_host(line), line.strip()))
+    return found
+
+
+def local_host(line: str) -> str:
+    """The host part of the local address of an ``ss -H`` line (``127.0.0.1``, ``0.0.0.0``,
+    ``*``, ``[::]``, ``127.0.0.1%lo``)."""
+    address = line.split()[3]
+    return address.rsplit(':', 1)[0]
+
+
+def session(leader: int) -> set[int]:
+    """``leader`` and every process in its session (the group's children, if any)."""
+    pids = {leader}
+    for entry in Path('/proc').iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / 'stat').read_text()
+            except OSError:
+                continue
+            fields = stat.rsplit(')', 1)[1].split()  # after "pid (comm)": state ppid pgrp sid
+            if int(fields[3]) == leader:
+                pids.add(int(entry.name))
+    return pids
+
+
+def not_loopback(found: list[tuple[str, str]]) -> list[str]:
+    return [line for host, line in found if host != '127.0.0.1']
+
+
+def test_the_parser_flags_every_non_loopback_binding() -> None:
+    lines = {
+        'UNCONN 0 0 127.0.0.1:7400 0.0.0.0:* users:(("python3",pid=7,fd=5))': '127.0.0.1',
+        'UNCONN 0 0 0.0.0.0:36010 0.0.0.0:* users:(("python3",pid=7,fd=6))': '0.0.0.0',
+        'UNCONN 0 0 192.0.2.2:48537 0.0.0.0:* users:(("python3",pid=7,fd=7))': '192.0.2.2',
+        'UNCONN 0 0 239.255.0.1:7400 0.0.0.0:* users:(("python3",pid=7,fd=8))': '239.255.0.1',
+        'LISTEN 0 128 [::]:22 [::]:* users:(("sshd",pid=9,fd=3))': '[::]',
+        'LISTEN 0 128 *:80 *:* users:(("httpd",pid=9,fd=3))': '*',
+    }
+    for line, host in lines.items():
+        assert local_host(line) == host
+    assert len(not_loopback([(local_host(x), x) for x in lines])) == 5
+
+
+def test_cell_environment_uses_the_shipped_profile_unless_the_caller_has_one(
+        tmp_path: Path) -> None:
+    env = cell_environment(7, {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST',
+                               'ROS_LOCALHOST_ONLY': '1'})
+    assert env[PROFILE_VARIABLE] == str(PROFILE)
+    # LOCALHOST would make rmw_fastrtps add a UDP transport on every interface.
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
+    assert 'ROS_LOCALHOST_ONLY' not in env
+    assert env['ROS_DOMAIN_ID'] == '7'
+
+    own = tmp_path / 'own_profile.xml'
+    own.write_text('<dds/>')
+    env = cell_environment(7, {PROFILE_VARIABLE: str(own)})
+    assert env[PROFILE_VARIABLE] == str(own)  # the user's own profile wins
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    env = cell_environment(7, {PROFILE_VARIABLE: str(own),
+                               'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'})
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'  # widened deliberately
+
+
+@pytest.mark.skipif(shutil.which('ss') is None, reason='needs ss (iproute2)')
+def test_no_cell_socket_is_bound_to_a_non_loopback_address(tmp_path: Path) -> None:
+    if Path(os.environ[PROFILE_VARIABLE]).resolve() != PROFILE.resolve():
+        pytest.skip(f'{PROFILE_VARIABLE} names the caller’s own profile')
+    with isolated_domain() as domain, ProcessGroup(domain, tmp_path) as group, \
+            Client(domain, 'network_test') as client:
+        assert group.env[PROFILE_VARIABLE] == str(PROFILE)
+        truth = client.collect(PoseStamped, names.TRUE_POSE, STREAM_QOS)
+        procs = {exe: group.start(exe) for exe in NODES}
+        # The truth needs the driver's joint states at pose_measurement: the two talk.
+        wait_until(lambda: truth or group.dead(), STARTUP, 'the nodes exchanging messages')
+        assert not group.dead(), {k: group.log(k)[-1500:] for k in group.dead()}
+
+        cell = sockets(set().union(*(session(p.pid) for p in procs.values())))
+        own = sockets({os.getpid()})
+        codes = group.stop()
+    assert codes == dict.fromkeys(NODES, 0), {k: group.log(k)[-1500:] for k in codes}
+
+    assert cell, 'no socket found for the cell processes: the check would prove nothing'
+    assert not not_loopback(cell), 'cell sockets not on 127.0.0.1:\n' + '\n'.join(
+        not_loopback(cell))
+    for exe, proc in procs.items():  # each process has its own sockets, all checked
+        assert any(f'pid={proc.pid},' in line for _, line in cell), exe
+    # Positive control: the client in this process (conftest's environment) is loopback too.
+    assert own, 'no socket found for the test process'
+    assert not not_loopback(own), 'test process sockets not on 127.0.0.1:\n' + '\n'.join(
+        not_loopback(own))

@@ -1,0 +1,66 @@
+"""Every node executable stops cleanly on SIGINT and on SIGTERM: exit 0, no traceback, no
+C++ "terminate called", within a bounded time, wherever in its start the signal lands: while
+its modules load, while rclpy comes up and the node is built, and once it runs (the recorder
+then leaves a closed bag).
+
+Multi-process tier. The six executables run together in one private domain per trial. The
+running case waits for a condition before it signals (every node answering its parameter
+service); the sweep stops each node 30 times at moments spread over its start (the moment is
+the variable of that test, not a wait for something). benchmarks/shutdown.py prints the stop
+times against a bare rclpy node.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+from cell_harness import Client, isolated_domain
+
+from positioning_cell import names
+from positioning_cell.testing.stops import Stop, stop_after, stop_commands
+from positioning_cell.tools.processes import cell_environment
+
+#: A clean stop takes well under this on a loaded 2-core machine (the recorder drains its
+#: queue, the player closes its bag).
+STOP_BOUND_S = 15.0
+#: The sweep: 30 stops per node, this far apart in the start (0 to 2.9 s after the entry
+#: point runs; six nodes load in about 3 s on 2 cores, so the last stops hit running nodes).
+STOPS, STEP_S = 30, 0.1
+
+
+NODE_NAMES = {node.executable: node.name for node in names.NODE_EXECUTABLES}
+
+
+def _unclean(stops: list[Stop]) -> list[Stop]:
+    return [s for s in stops if not s.clean or s.seconds > STOP_BOUND_S]
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+def test_every_running_node_stops_cleanly(tmp_path: Path, sig: signal.Signals) -> None:
+    commands = stop_commands(tmp_path)
+    with isolated_domain() as domain, Client(domain, 'shutdown_test_client') as client:
+        def answers(label: str, proc: subprocess.Popen[bytes]) -> bool:
+            """The node is up and its executor spins: its parameter service answers."""
+            return client.spinning(NODE_NAMES[label])
+
+        stops = stop_after(commands, cell_environment(domain), tmp_path, sig, 0.0, answers,
+                           timeout=STOP_BOUND_S)
+    assert not _unclean(stops), stops
+    assert (tmp_path / 'bag' / 'metadata.yaml').exists()
+    assert 'closed' in (tmp_path / f'{names.RECORDER.executable}.log').read_text()
+
+
+def test_thirty_stops_per_node_spread_over_the_start(tmp_path: Path) -> None:
+    bad: list[tuple[int, Stop]] = []
+    for k in range(STOPS):
+        sig = signal.SIGINT if k % 2 == 0 else signal.SIGTERM
+        run = tmp_path / f'stop{k}'
+        with isolated_domain() as domain:
+            stops = stop_after(stop_commands(run), cell_environment(domain), run, sig,
+                               k * STEP_S, timeout=STOP_BOUND_S)
+        assert len(stops) == len(names.NODE_EXECUTABLES)
+        bad += [(k, s) for s in _unclean(stops)]
+    assert not bad, bad
