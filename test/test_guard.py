@@ -94,6 +94,18 @@ def test_speed_acceleration_jump_and_overshoot_between_points_are_refused() -> N
     assert driver.received == 3 and driver2.received == 1
 
 
+def test_a_malformed_trajectory_is_refused_with_its_key() -> None:
+    """The sender matches answers by key: a trajectory refused before it could be parsed
+    (times not increasing, NaN) is answered with the key of what was sent, so the sender
+    learns of the refusal at once instead of waiting out a timeout."""
+    driver = LegDriver(SETTINGS)
+    for times, positions in (([0.0, 0.0], [HOME.tolist()] * 2),
+                             ([0.0, 1.0], [HOME.tolist(), [float('nan')] * 6])):
+        outcome = follow(driver, times, positions, [[0.0] * 6] * 2)
+        assert not outcome.accepted and outcome.code is Refusal.INVALID_GOAL
+        assert outcome.key == fingerprint(times, positions) != ''
+
+
 def test_unknown_joint_names_and_unreferenced_drives_are_refused() -> None:
     driver = LegDriver(SETTINGS)
     outcome = follow(driver, *points(np.zeros(6)), names=('leg7_length', *JOINT_NAMES[1:]))

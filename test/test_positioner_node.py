@@ -98,8 +98,11 @@ class Positioner:
         self.poses = ros.client.collect(PoseStamped, '/positioner/pose', STREAM_QOS)
         self.markers = ros.client.collect(MarkerArray, '/positioner/markers', STREAM_QOS)
         self.targets = ros.client.collect(PoseStamped, '/positioner/target', STREAM_QOS)
+        # The fake driver shares this process (and its GIL) with the test: a stall here is
+        # not a lost driver. Liveness itself is proven on real processes (test_faults).
         self.node = ros.start(PositionerNode, **{'compensation.mode': 'none',
-                                                 'settle_time': 0.0})
+                                                 'settle_time': 0.0,
+                                                 'liveness.joint_silence': 1.0})
         wait_until(lambda: self.poses, 30.0, 'the first /positioner/pose')
         wait_until(lambda: self.node.mover.referenced, 10.0, 'the fake drives\' status')
 

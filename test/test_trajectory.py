@@ -9,8 +9,11 @@ from scipy.spatial.transform import Rotation
 from workspace import MECH
 
 from positioning_cell import clearance as cl
+from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.motion.trajectory import MotionLimits, plan_move
+from positioning_cell.parameters import parse
+from positioning_cell.sim.drives import DriverSettings, LegDriver
 
 LIMITS = MotionLimits(linear_speed=0.01, linear_acceleration=0.05, angular_speed=0.1,
                       angular_acceleration=0.5)
@@ -96,11 +99,19 @@ def test_path_outside_limits_reports_first_bad_sample() -> None:
     assert traj.limits.violations[0].constraint == 'length_max'
 
 
-def test_zero_move_is_one_sample_pair() -> None:
+def test_zero_move_holds_for_one_period_and_the_drives_take_it() -> None:
+    """Already at the goal (homing where the axes stand): two samples one period apart, not
+    two at t = 0, which no trajectory consumer accepts (times must increase)."""
     traj = plan_move(MECH, MECH.home_position, IDENTITY, MECH.home_position, IDENTITY,
                      period=0.01)
-    assert traj.duration == 0.0
+    np.testing.assert_allclose(traj.times, [0.0, 0.01])
     np.testing.assert_allclose(traj.position, MECH.home_position[None].repeat(2, 0))
+    np.testing.assert_allclose(np.hstack([traj.length_rates, traj.theta_rates]), 0.0)
+    driver = LegDriver(parse(DriverSettings, {'referenced_at_start': True}))
+    joints = np.hstack([traj.lengths, traj.thetas])
+    outcome = driver.follow(JOINT_NAMES, traj.times.tolist(), joints.tolist(),
+                            np.zeros_like(joints).tolist(), None, driver.servos.time)
+    assert outcome.accepted, outcome.message
 
 
 def test_bad_arguments() -> None:

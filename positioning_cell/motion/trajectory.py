@@ -139,7 +139,8 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
     ta, peak, total = plan_profile(distance, angle, limits)
     n = max(math.ceil(total / period - 1e-9), 1)
     times = np.minimum(np.arange(n + 1) * period, total)
-    if total == 0.0:
+    if total == 0.0:  # already there: hold for one period (times must increase)
+        times = np.array([0.0, period])
         s, sd = np.ones(n + 1), np.zeros(n + 1)
     else:
         s, sd = time_law(ta, peak, total, times)
@@ -163,7 +164,8 @@ def fingerprint(times: ArrayLike, positions: ArrayLike) -> str:
     positions (m, rad, to 1e-12), JOINT_NAMES order. The drives answer each trajectory with
     its key, so the sender knows the answer is to what it sent (a trajectory that starts on
     receipt has no stamp to key by)."""
-    t_us = np.round(np.asarray(times, dtype=float) * 1e6).astype(np.int64)
-    final = np.round(np.asarray(positions, dtype=float)[-1] * 1e12).astype(np.int64)
+    with np.errstate(invalid='ignore'):  # NaN / inf (a malformed trajectory) key too
+        t_us = np.round(np.asarray(times, dtype=float) * 1e6).astype(np.int64)
+        final = np.round(np.asarray(positions, dtype=float)[-1] * 1e12).astype(np.int64)
     digest = hashlib.sha1(t_us.tobytes() + final.tobytes(), usedforsecurity=False)
     return digest.hexdigest()[:12]

@@ -35,9 +35,9 @@ def _remember(signum: int, frame: FrameType | None) -> None:
 
 def hold_stops() -> None:
     """SIGINT / SIGTERM only set a flag (:func:`stop_requested`). Installed just before
-    ``rclpy.init``, whose own handlers then shut the context down and chain to this one: no
-    exception lands in the middle of a callback, and a stop before rclpy's handlers are in is
-    not lost."""
+    ``rclpy.init`` (which installs no handlers of its own): no exception lands in the middle
+    of a callback, the context is not shut down under a publishing timer, and the spin loop
+    returns between two callbacks once the flag is up."""
     for sig in _STOP_SIGNALS:
         signal.signal(sig, _remember)
 

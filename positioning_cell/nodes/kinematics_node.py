@@ -174,6 +174,10 @@ class PositionerNode(Node):
         response.success, response.message = True, self.mover.stop()
         return response
 
+    def close(self) -> None:
+        """At shutdown: a running move ends aborted and the drives stop."""
+        self.mover.stop()
+
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of `ros2 run positioning_cell kinematics_node`."""

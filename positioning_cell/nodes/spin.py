@@ -9,13 +9,20 @@ from enum import Enum
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from positioning_cell.errors import PositioningError
 from positioning_cell.nodes.entry import hold_stops, stop_requested
+
+STOP_POLL_S = 0.1
+"""Longest time from SIGINT / SIGTERM to the executor returning (s), besides a running callback."""
+
+SHUTDOWN_WAIT_S = 5.0
+"""Longest wait for running callbacks after a stop (s)."""
 
 
 class Spin(Enum):
@@ -30,48 +37,50 @@ class Spin(Enum):
 def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
         spin: Spin = Spin.EVENTS, *, threads: int = 3) -> int:
     """Init, build the node, spin until SIGINT / SIGTERM / shutdown, clean up (the node's
-    ``close()`` if it has one, then destroy it). A node that cannot be built (invalid
-    parameters, an unreadable bag: a PositioningError) prints the reason and exits 2.
+    ``close()`` if it has one, then destroy it, then shut the context down). A node that cannot
+    be built (invalid parameters, an unreadable bag: a PositioningError) prints the reason and
+    exits 2.
 
-    rclpy's own signal handlers shut the context down on SIGINT and SIGTERM; Python's handlers
-    only set a flag first (:func:`~positioning_cell.nodes.entry.hold_stops`), so no
-    KeyboardInterrupt lands in the middle of a callback (under the events executor that would
-    abort the process), and a stop that came before ``rclpy.init`` is honoured after it.
+    rclpy's own signal handlers are not installed: they shut the context down at once, while a
+    timer callback may be publishing on it ("publisher's context is invalid", a FATAL log and a
+    traceback). SIGINT and SIGTERM only set a flag
+    (:func:`~positioning_cell.nodes.entry.hold_stops`); the executor spins in slices of
+    :data:`STOP_POLL_S` and returns between two callbacks once the flag is up, and only then is
+    the node closed and the context shut down. A stop that came before ``rclpy.init`` is
+    honoured after it.
     """
     hold_stops()
-    rclpy.init(args=list(args) if args is not None else None)
+    rclpy.init(args=list(args) if args is not None else None,
+               signal_handler_options=SignalHandlerOptions.NO)
     node: Node | None = None
+    executor: Executor | None = None
     try:
         if stop_requested():
             return 0
         node = node_factory()
-        if spin is Spin.THREADS:
-            executor = MultiThreadedExecutor(num_threads=threads)
-            executor.add_node(node)
-            executor.spin()
-        else:
-            events = EventsExecutor()
-            events.add_node(node)
-            # EventsExecutor.spin() does not run callbacks in this rclpy build (platform.md):
-            # spin in bounded slices until shutdown.
-            never: Future = Future()
-            while rclpy.ok():
-                events.spin_until_future_complete(never, timeout_sec=1.0)
+        # EventsExecutor.spin() does not run callbacks in this rclpy build (platform.md), and
+        # Python's signal handlers run only between two slices: spin in bounded slices.
+        executor = (MultiThreadedExecutor(num_threads=threads) if spin is Spin.THREADS
+                    else EventsExecutor())
+        executor.add_node(node)
+        never: Future = Future()
+        while rclpy.ok() and not stop_requested():
+            executor.spin_until_future_complete(never, timeout_sec=STOP_POLL_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except PositioningError as err:
         print(f'{Path(sys.argv[0]).name}: {err}', file=sys.stderr)
         return 2
-    except Exception:
-        if rclpy.ok():
-            raise
-        # SIGINT / SIGTERM while the node was being built: rclpy failed on the shut-down
-        # context. A stop while starting is a stop, not a failure.
     finally:
+        # close() first: it ends what a worker thread may still wait on (a move), so the
+        # executor's shutdown then finds its callbacks returning.
         if node is not None:
             close = getattr(node, 'close', None)
             if callable(close):
                 close()
+        if executor is not None:
+            executor.shutdown(timeout_sec=SHUTDOWN_WAIT_S)
+        if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0

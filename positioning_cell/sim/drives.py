@@ -206,10 +206,9 @@ class LegDriver:
         trajectory changes nothing; the outcome says why, with the trajectory's key."""
         self.servos.advance(now)
         self.received += 1
-        key = ''
+        key = _key(times, positions)
         try:
             path = self._path(names, times, positions, velocities)
-            key = fingerprint(path.times, path.positions)
             if not self.referenced:
                 raise TrajectoryRefusedError(
                     Refusal.NOT_REFERENCED, 'axes not referenced: home them first '
@@ -299,3 +298,13 @@ class LegDriver:
                   **{f'following_error.{n}': f'{e:.3e}'
                      for n, e in zip(JOINT_NAMES, s.following_error, strict=True)}}
         return level, message, values
+
+
+def _key(times: Sequence[float], positions: Sequence[Sequence[float]]) -> str:
+    """The fingerprint of a trajectory as received, also of one the drives refuse as
+    malformed (its sender must learn of the refusal); '' when it has no points or ragged
+    ones."""
+    try:
+        return fingerprint(times, positions)
+    except (ValueError, IndexError, TypeError):
+        return ''

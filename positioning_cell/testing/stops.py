@@ -21,7 +21,8 @@ from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 from positioning_cell.tools.processes import executable
 
 #: What an unclean stop prints.
-CRASH_SIGNS = ('Traceback', 'terminate called', 'Segmentation fault', 'Aborted', 'core dumped')
+CRASH_SIGNS = ('Traceback', 'terminate called', 'Segmentation fault', 'Aborted', 'core dumped',
+               '[FATAL]', 'Error occurred at', 'context is invalid')
 
 
 def catches_signal(pid: int, sig: int) -> bool:
