@@ -18,6 +18,7 @@ CONSOLE_SCRIPTS = [
     'accuracy_monitor_node = positioning_cell.nodes.entry:accuracy_monitor_node',
     'analyze_bag = positioning_cell.tools.analyze_bag:main',
     'run_cell = positioning_cell.tools.run_cell:main',
+    'calibrate_cell = positioning_cell.tools.calibrate_cell:main',
 ]
 
 # ROS 2 Jazzy from PyPI wheels and the pinned libraries the cell runs on (make run / make test).

@@ -55,12 +55,15 @@ ORIENTATION_ERROR = '/accuracy/orientation_error'
 DIAGNOSTICS = '/diagnostics'
 #: The run driver's current step (make run): mode, cycle, pose (JSON in std_msgs/String).
 PROGRAM = '/cell/program'
+#: A calibration run's measured poses (calibrate_cell): which readings belong to which pose
+#: (JSON in std_msgs/String).
+CALIBRATION = '/cell/calibration'
 
 #: Every topic of the cell, in the README's table order: what the recorder takes by default.
 CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
     ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRUE_POSE, POSITION_ERROR, ORIENTATION_ERROR,
-    DIAGNOSTICS, PROGRAM,
+    DIAGNOSTICS, PROGRAM, CALIBRATION,
 )
 
 # -- services -------------------------------------------------------------------------------------
@@ -70,6 +73,8 @@ HOME = '/positioner/home'
 STOP = '/positioner/stop'
 DRIVER_ENABLE = '/leg_driver/enable'
 DRIVER_REFERENCE = '/leg_driver/reference'
+#: Re-locate the tracker on the base reference targets (std_srvs/srv/Trigger).
+LOCATE_TRACKER = '/pose_measurement/locate'
 MONITOR_REPORT = '/accuracy_monitor/report'
 MONITOR_RESET = '/accuracy_monitor/reset'
 RECORDER_PAUSE = '/recorder/pause'

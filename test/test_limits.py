@@ -8,7 +8,12 @@ from scipy.spatial.transform import Rotation
 from workspace import MECH
 
 from positioning_cell.core import kinematics
-from positioning_cell.core.limits import check_poses, require_within_limits, segment_distance
+from positioning_cell.core.limits import (
+    check_poses,
+    require_within_limits,
+    segment_distance,
+    within_limits,
+)
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import LimitError
 
@@ -113,3 +118,14 @@ def test_segment_distance_against_sampling() -> None:
         brute = np.linalg.norm(a[:, None] - b[None], axis=2).min()
         assert d[k] <= brute + 1e-12
         assert brute - d[k] < 1e-2
+
+
+def test_within_limits_agrees_with_check_poses_pose_by_pose() -> None:
+    """The vectorised mask against the full report of each pose alone (poses in and out)."""
+    rng = np.random.default_rng(7)
+    mech = Mechanism.default()
+    p = mech.home_position + rng.uniform(-0.03, 0.03, (300, 3))
+    q = Rotation.from_rotvec(rng.uniform(-0.3, 0.3, (300, 3))).as_quat()
+    mask = within_limits(mech, p, q)
+    assert 0 < mask.sum() < len(mask)
+    assert mask.tolist() == [check_poses(mech, p[i], q[i]).ok for i in range(len(p))]

@@ -528,3 +528,25 @@ def test_the_mode_can_change_between_moves() -> None:
     np.testing.assert_allclose(start, np.concatenate([world.trajectories[-2].lengths[-1],
                                                       world.trajectories[-2].thetas[-1]]),
                                atol=1e-9)
+
+
+def test_measured_mode_does_not_chase_an_error_within_the_measurement_noise() -> None:
+    """Readings of 20 µm sigma (6 µm for a 10-sample mean) and a 4 µm error: no correction
+    is sent, the move ends out of a 1 µm tolerance and says why, with the uncertainty."""
+
+    class NoisyWorld(World):
+        def measurements(self) -> list[Measurement]:
+            cov = np.diag([20e-6**2] * 3 + [2e-4**2] * 3)
+            return [Measurement(*self.attained(), cov)] * self.samples
+
+    world = NoisyWorld()
+    world.bias[:3] = 4e-6
+    err, _ = abort(mover(world, 'measured'), world, tolerance=1e-6)
+    assert err.code is ResultCode.OUT_OF_TOLERANCE
+    assert 'within 2 sigma of the measurement, a correction would be noise' in str(err)
+    assert '(1 sigma) after 0 corrections' in str(err)
+    assert len(world.trajectories) == 1  # the move itself, no correction
+    quiet = World()  # the same error with a 1.6 µm sigma mean is corrected
+    quiet.bias[:3] = 4e-6
+    result = mover(quiet, 'measured').move('base', GOAL, GOAL_Q, tolerance=2e-6)
+    assert result.reason.startswith('settled within tolerance') and len(quiet.trajectories) > 1

@@ -104,10 +104,11 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
         assert os.access(lib / name, os.X_OK), f'{name} missing from {lib}'
     nodes = {n: v for n, v in executables.items() if '.nodes.' in v}
     tools = {n: v for n, v in executables.items() if '.nodes.' not in v}
-    for name in tools:  # command-line tools answer --help
-        result = subprocess.run([str(lib / name), '--help'], capture_output=True, text=True,
-                                check=False, timeout=60)
-        assert result.returncode == 0, f'{name} --help: {result.stderr}'
+    helps = {name: subprocess.Popen([str(lib / name), '--help'], stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True) for name in tools}
+    for name, proc in helps.items():  # command-line tools answer --help (all at once)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0, f'{name} --help: {err}'
     if not nodes:
         return
     # Nodes that need an argument to run get one: the player a one-message bag, looped.

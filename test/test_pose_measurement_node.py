@@ -1,7 +1,10 @@
-"""The pose_measurement node in the test process: truth from joint states, tracker poses with
-covariance, diagnostics, and validated dynamic parameters."""
+"""The pose_measurement node in the test process: truth from joint states, the tracker located
+on the base targets and its poses with covariance (judged against the truth), re-locating,
+diagnostics, and validated dynamic parameters."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
@@ -13,14 +16,17 @@ from rcl_interfaces.srv import GetParameters
 from scipy import stats
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
+from positioning_cell import names
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.kinematics import inverse
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.nodes.messages import joint_state, pose_arrays
 from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
 from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, STREAM_QOS
-from positioning_cell.sim.truth import truth_from_params
+from positioning_cell.parameters import parse
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 
 pytestmark = pytest.mark.nodes
 
@@ -46,7 +52,8 @@ def test_pose_measurement_node(ros: InProcess) -> None:
     params = node_parameters(load_parameter_file(CELL_YAML), NODE)
     mech = Mechanism.from_params(params['mechanism'])
     home = inverse(mech, mech.home_position, mech.home_quaternion)
-    expected = truth_from_params(params['truth'], mech).attained_pose(home.lengths, home.thetas)
+    truth_machine = parse(PoseMeasurementSettings, params).true_machine()
+    expected = truth_machine.poses(home.lengths, home.thetas)
     stamp = Time(sec=1234, nanosec=5678)
 
     client = ros.client
@@ -91,6 +98,21 @@ def test_pose_measurement_node(ros: InProcess) -> None:
     wait_until(lambda: any(s.level == DiagnosticStatus.OK
                            and {v.key: v.value for v in s.values}.get('targets_used') == '5'
                            for s in statuses(diagnostics)), 15, 'an OK diagnostic')
+    # The registration the node located itself with, and its residuals, on /diagnostics.
+    values = {v.key: v.value for v in statuses(diagnostics)[-1].values}
+    assert values['locations'] == '1'
+    located = np.asarray(json.loads(values['located_position']))
+    true_position = np.asarray(params['truth']['tracker']['position'])
+    assert 0.0 < np.linalg.norm(located - true_position) < 1e-4  # located, not given
+    residuals = json.loads(values['locate_residuals_um'])
+    assert len(residuals) == len(params['locate']['base_targets']) // 3
+    assert 0.0 < float(values['locate_residual_rms_um']) < 20.0
+
+    # Re-locating: a fresh registration, reported in the answer and on /diagnostics.
+    response = client.call(Trigger, names.LOCATE_TRACKER, Trigger.Request())
+    assert response.success and 'tracker located on 6/6 base targets' in response.message
+    wait_until(lambda: any({v.key: v.value for v in s.values}.get('locations') == '2'
+                           for s in statuses(diagnostics)), 15, 'the new location reported')
 
     # Dynamic parameters: a bad value is refused with a reason and the old one stays.
     ok, reason = set_parameter(client, 'fault.occlusion_probability', 1.5)
@@ -100,6 +122,8 @@ def test_pose_measurement_node(ros: InProcess) -> None:
     assert not ok and 'targets.platform = ' in reason and 'at least 4' in reason
     ok, reason = set_parameter(client, 'truth.clearance.seed', 3)
     assert not ok and reason
+    ok, reason = set_parameter(client, 'truth.tracker.scale_ppm', 0.0)
+    assert not ok and reason  # the truth is read-only
     ok, reason = set_parameter(client, 'fault.outlier_probability', 0.25)
     assert ok, reason
     assert get_double(client, 'fault.outlier_probability') == 0.25

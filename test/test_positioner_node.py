@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from cell_harness import Client, InProcess, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
@@ -230,3 +232,38 @@ def test_home_service_and_parameters(positioner: Positioner) -> None:
     assert not refused.successful and 'read-only' in refused.reason.lower()
     assert client.set_parameter('positioner', 'compensation.mode', 'model').successful
     assert positioner.node.mover.mode.value == 'model'
+
+
+def _calibration_doc(fingerprint: str, length_offset: float) -> dict[str, Any]:
+    """A calibration file's content: a machine with one leg zero offset."""
+    from positioning_cell.calibration.parameters import PARAMETER_NAMES
+    params = {name: {'value': length_offset if name == 'leg1.length_offset' else 0.0,
+                     'sigma': 1e-6, 'identified': True} for name in PARAMETER_NAMES}
+    return {'calibration': {'format': 1, 'mechanism_fingerprint': fingerprint,
+                            'parameters': params}}
+
+
+def test_a_calibration_file_is_loaded_checked_and_refused_with_the_old_kept(
+        positioner: Positioner, tmp_path: Path) -> None:
+    from positioning_cell.calibration.file import fingerprint
+    client, mover = positioner.client, positioner.node.mover
+    good = tmp_path / 'calibration.yaml'
+    good.write_text(yaml.safe_dump(_calibration_doc(fingerprint(MECH), 1e-4)))
+    assert client.set_parameter('positioner', 'compensation.calibration_file',
+                                str(good)).successful
+    assert mover.calibration is not None
+    assert client.set_parameter('positioner', 'compensation.mode', 'model').successful
+    # the calibrated machine's leg 1 reads 0.1 mm short: the command for home says so
+    planned = mover.check('base', HOME_P, HOME_Q).lengths[-1]
+    nominal = kinematics.inverse(MECH, HOME_P, HOME_Q).lengths[0]
+    assert planned[0] == pytest.approx(nominal[0] - 1e-4, abs=1e-9)
+    assert planned[1:] == pytest.approx(nominal[1:], abs=1e-9)
+    loaded = mover.calibration
+    other = tmp_path / 'other.yaml'
+    other.write_text(yaml.safe_dump(_calibration_doc('0' * 16, 0.0)))
+    for path, words in ((other, 'belongs to mechanism'), (tmp_path / 'missing.yaml',
+                                                          'cannot be read')):
+        refused = client.set_parameter('positioner', 'compensation.calibration_file', str(path))
+        assert not refused.successful and words in refused.reason, refused.reason
+        assert mover.calibration is loaded  # the old one stays
+        assert client.get_parameter('positioner', 'compensation.calibration_file') == str(good)

@@ -49,7 +49,7 @@ def nonlinear_deviation(spec: ToleranceSpec, p: NDArray[np.float64], q: NDArray[
     return np.concatenate([dp[0], drot[0]])
 
 
-@pytest.mark.parametrize('mode', ['leg', 'motion'])
+@pytest.mark.parametrize('mode', ['leg', 'motion', 'any'])
 @pytest.mark.parametrize('pose', list(POSES))
 def test_sensitivity_matches_finite_differences_of_forward_kinematics(pose: str,
                                                                       mode: str) -> None:

@@ -35,6 +35,12 @@ def test_predict_writes_figures_and_a_consistent_summary(tmp_path: Path) -> None
     c = report.comparison
     assert np.all(c.rss <= c.worst_case)
     assert np.all(c.mc_max <= c.worst_case * 1.05)
+    # the largest |dp| and angle over every clearance direction (the shipped default), bracketed
+    assert report.spec.gap.mode == 'any' and 'clearance every direction' in report.text
+    for worst, axes in ((report.worst_position, split_norms(c.worst_case)[0]),
+                        (report.worst_orientation, split_norms(c.worst_case)[1])):
+        assert worst.attained <= worst.bound <= axes
+    assert 'worst |dp| gap directions' in report.text
     y = report.yield_nonlinear
     assert y.trials == 3000 and y.low <= y.probability <= y.high
 
@@ -50,7 +56,7 @@ def test_workspace_maps_agree_with_the_pose_by_pose_prediction() -> None:
     assert maps.feasible[i, j]
     p = np.array([maps.x[j], maps.y[i], maps.z])
     lin = linearise(MECH, spec, p, maps.quaternion)
-    expected = split_norms(worst_case(lin.matrix[0], spec.bounds))
+    expected = split_norms(worst_case(lin.matrix[0], spec.bounds, spec.balls))
     assert (maps.worst_position[i, j], maps.worst_orientation[i, j]) == pytest.approx(
         tuple(expected))
     assert maps.kinds[maps.dominant_position[i, j]] in ('u_clearance', 's_clearance')

@@ -11,13 +11,19 @@ import subprocess
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from cell_harness import executable, wait_until
 
 from positioning_cell.bag import BagReader
+from positioning_cell.calibration import file as calfile
+from positioning_cell.core.mechanism import Mechanism
 
-SHORT_PROGRAM = {'program': {'cycles': 1, 'modes': ['none', 'measured'], 'poses': {
+MECH = Mechanism.default()
+
+SHORT_PROGRAM = {'program': {'cycles': 1, 'modes': ['none', 'model'],
+                             'calibration': {'poses': 8, 'hold_out': 1, 'samples': 3}, 'poses': {
     'P1': {'position': [0.0, 0.0, 0.196], 'orientation': [0.0, 0.0, 0.0, 1.0]},
     'P2': {'position': [0.004, 0.004, 0.2], 'orientation': [0.0, 0.0, 0.0, 1.0]}}}}
 
@@ -78,25 +84,39 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     assert code == 0, text
     run = _run_dir(runs)
     assert not _cell_processes(run / 'run_overrides.yaml'), 'a cell process outlived run_cell'
-    for line in ('[1/4] none     cycle 1 P1', '[4/4] measured cycle 1 P2',
-                 'compensation mode: measured', 'worst AP_p µm',
+    for line in ('calibrating: 8 poses + 1 hold-out', '[9/9] hold_out',
+                 'the positioner loaded it', '[1/4] none     cycle 1 P1',
+                 '[4/4] model    cycle 1 P2', 'compensation mode: model', 'worst AP_p µm',
                  "reproduces the live monitor's figures", f'bag:     {run / "bag"}',
                  f'report:  {run / "report.md"}'):
         assert line in text
     for name in ('report.md', 'summary.json', 'monitor_report.json', 'error_over_time.png',
                  'axis_errors.png', 'clusters.png', 'error_distribution.png',
-                 'bag/metadata.yaml'):
+                 'bag/metadata.yaml', 'calibration/calibration.yaml',
+                 'calibration/calibration_report.md'):
         assert (run / name).is_file(), name
     summary = json.loads((run / 'summary.json').read_text())
-    assert [m['mode'] for m in summary['modes']] == ['none', 'measured']
+    assert [m['mode'] for m in summary['modes']] == ['none', 'model']
     assert [[p['pose'] for p in m['poses']] for m in summary['modes']] == [['P1', 'P2']] * 2
     assert summary['problems'] == []
-    assert any('true clearance' in n for n in summary['notes'])
+    assert any('identified from its own measurements' in n for n in summary['notes'])
     assert '/cell/program' in summary['topics'] and summary['topics']['/cell/program'][
         'count'] == 4
+    # Judged against the truth: the calibration the cell made of itself removes the error.
+    truth = {m['mode']: m['position_error_rms'] for m in summary['truth_modes']}
+    assert truth['none'] > 50e-6 and truth['model'] < 0.1 * truth['none'], truth
+    # The recording gives the same calibration offline.
+    offline = subprocess.run([executable('calibrate_cell'), '--from-bag', str(run / 'bag'),
+                              '--out', str(tmp_path / 'offline')], capture_output=True,
+                             text=True, timeout=120.0, check=False)
+    assert offline.returncode == 0, offline.stdout + offline.stderr
+    a = calfile.load(run / 'calibration' / 'calibration.yaml', MECH)
+    b = calfile.load(tmp_path / 'offline' / 'calibration.yaml', MECH)
+    assert np.array_equal(a.x, b.x) and np.allclose(a.sigma, b.sigma, equal_nan=True)
     live = json.loads((run / 'monitor_report.json').read_text())
     assert live['verdicts'] == summary['monitor']['verdicts']
-    assert sum(live['verdicts'].values()) == 1 + 4  # the home pose, then the program's moves
+    # the home pose, the calibration poses the monitor saw settle, then the program's moves
+    assert sum(live['verdicts'].values()) >= 1 + 4
 
 
 def test_an_interrupted_run_stops_every_process_and_keeps_a_readable_bag(
@@ -104,8 +124,9 @@ def test_an_interrupted_run_stops_every_process_and_keeps_a_readable_bag(
     runs = tmp_path / 'runs'
     proc, lines = _start(program, runs)
     try:
-        wait_until(lambda: any(line.startswith('[1/4]') for line in lines), 90.0,
-                   'the first move')
+        # interrupted while it calibrates: the calibration is stopped with the cell
+        wait_until(lambda: any(line.startswith('[1/9]') for line in lines), 90.0,
+                   'the first calibration pose')
         proc.send_signal(signal.SIGINT)
         code = _finish(proc, 60.0)
     finally:
@@ -121,3 +142,4 @@ def test_an_interrupted_run_stops_every_process_and_keeps_a_readable_bag(
         assert bag.topics['/positioner/target'].message_count >= 1
         assert bag.topics['/metrology/pose'].message_count > 0
     assert (run / 'report.md').is_file()
+    assert not (run / 'calibration' / 'calibration.yaml').exists()  # nothing half-done

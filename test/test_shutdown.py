@@ -5,7 +5,7 @@ then leaves a closed bag).
 
 Multi-process tier. The six executables run together in one private domain per trial. The
 running case waits for a condition before it signals (every node answering its parameter
-service); the sweep stops each node 30 times at moments spread over its start (the moment is
+service); the sweep stops each node 15 times at moments spread over its start (the moment is
 the variable of that test, not a wait for something). benchmarks/shutdown.py prints the stop
 times against a bare rclpy node.
 """
@@ -26,9 +26,10 @@ from positioning_cell.tools.processes import cell_environment
 #: A clean stop takes well under this on a loaded 2-core machine (the recorder drains its
 #: queue, the player closes its bag).
 STOP_BOUND_S = 15.0
-#: The sweep: 30 stops per node, this far apart in the start (0 to 2.9 s after the entry
-#: point runs; six nodes load in about 3 s on 2 cores, so the last stops hit running nodes).
-STOPS, STEP_S = 30, 0.1
+#: The sweep: 15 stops per node, this far apart in the start (0 to 2.8 s after the entry
+#: point runs; six nodes load in about 3 s on 2 cores, so the last stops hit running nodes;
+#: benchmarks/shutdown.py takes 30).
+STOPS, STEP_S = 15, 0.2
 
 
 NODE_NAMES = {node.executable: node.name for node in names.NODE_EXECUTABLES}
@@ -53,7 +54,7 @@ def test_every_running_node_stops_cleanly(tmp_path: Path, sig: signal.Signals) -
     assert 'closed' in (tmp_path / f'{names.RECORDER.executable}.log').read_text()
 
 
-def test_thirty_stops_per_node_spread_over_the_start(tmp_path: Path) -> None:
+def test_stops_spread_over_the_start(tmp_path: Path) -> None:
     bad: list[tuple[int, Stop]] = []
     for k in range(STOPS):
         sig = signal.SIGINT if k % 2 == 0 else signal.SIGTERM

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from positioning_cell.core.limits import check_poses
+from positioning_cell.core.limits import within_limits
 from positioning_cell.core.mechanism import Mechanism
 
 MECH = Mechanism.default()
@@ -21,11 +21,7 @@ def random_poses(n: int, rng: np.random.Generator,
     """n poses uniformly in the sampled box, keeping only those within every limit."""
     p = mech.home_position + rng.uniform(-1.0, 1.0, (4 * n, 3)) * SPAN_POSITION
     q = Rotation.from_rotvec(rng.uniform(-1.0, 1.0, (4 * n, 3)) * SPAN_ROTATION).as_quat()
-    ok = np.ones(4 * n, dtype=bool)
-    report = check_poses(mech, p, q)
-    if not report.ok:
-        # The report lists at most 50 violations; re-check the flagged rows one by one.
-        ok = np.array([check_poses(mech, p[i], q[i]).ok for i in range(4 * n)])
+    ok = within_limits(mech, p, q)
     p, q = p[ok][:n], q[ok][:n]
     assert len(p) == n, 'sampled box too small a fraction within limits'
     return p, q

@@ -25,11 +25,22 @@ MODES = ('none', 'model', 'measured')
 
 
 @dataclass(frozen=True)
+class Calibrating:
+    """The ``program.calibration`` block: the run first calibrates the machine (calibrate_cell)
+    with this many ``poses``, ``hold_out`` validation poses and tracker ``samples`` per pose."""
+
+    poses: int
+    hold_out: int
+    samples: int
+
+
+@dataclass(frozen=True)
 class Program:
     """``names`` of the poses, their positions (K, 3) m and quaternions (K, 4) x, y, z, w in
     the base frame; ``cycles`` passes over them per mode in ``modes``; ``tolerance`` the settle
     tolerance of a move, m (0: the positioner's configured one); ``settle_timeout`` how long to
-    wait for the monitor to see a move settle, s."""
+    wait for the monitor to see a move settle, s; ``calibration``, if given, the calibration run
+    before the modes."""
 
     names: tuple[str, ...]
     position: FloatArray
@@ -38,6 +49,7 @@ class Program:
     modes: tuple[str, ...]
     tolerance: float = 0.0
     settle_timeout: float = 5.0
+    calibration: Calibrating | None = None
 
     @property
     def moves(self) -> int:
@@ -96,7 +108,26 @@ def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
                           f'{report.message()}')
     return Program(tuple(names), p, q, cycles, tuple(modes),
                    _number(block, 'tolerance', 0.0, 0.0),
-                   _number(block, 'settle_timeout', 5.0, 0.1))
+                   _number(block, 'settle_timeout', 5.0, 0.1), _calibrating(block))
+
+
+def _calibrating(block: Mapping[str, Any]) -> Calibrating | None:
+    cal = block.get('calibration')
+    if cal is None:
+        return None
+    if not isinstance(cal, Mapping):
+        raise ConfigError('program.calibration: expected {poses: N, hold_out: H, samples: S}')
+    values = []
+    for key, low in (('poses', 8), ('hold_out', 0), ('samples', 1)):
+        value = cal.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f'program.calibration.{key} = {value!r}: must be an integer '
+                              f'>= {low}')
+        values.append(value)
+    unknown = set(cal) - {'poses', 'hold_out', 'samples'}
+    if unknown:
+        raise ConfigError(f'program.calibration.{sorted(unknown)[0]}: unknown key')
+    return Calibrating(*values)
 
 
 def load_program(path: str | Path, mech: Mechanism) -> Program:

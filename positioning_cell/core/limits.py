@@ -22,6 +22,7 @@ from positioning_cell.core.poses import as_pose_batch, matrix_from_quaternion
 from positioning_cell.errors import LimitError
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
 
 #: How many violations a report keeps in full (the count is always exact).
 MAX_LISTED = 50
@@ -139,27 +140,7 @@ def check_poses(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike) -> 
     :meth:`LimitReport.raise_if_violated`).
     """
     p, q = as_pose_batch(position, quaternion)
-    joints = _inverse_validated(mech, p, q)
-    points = platform_points(mech, p, q)
-    u = (points - mech.base_joints) / joints.lengths[..., None]
-    normal = matrix_from_quaternion(q)[:, :, 2]
-    tilt = np.arccos(np.clip(np.einsum('nkj,nj->nk', u, normal), -1.0, 1.0))
-    base = np.broadcast_to(mech.base_joints, points.shape)
-    gap = segment_distance(base[:, PAIRS_I], points[:, PAIRS_I], base[:, PAIRS_J],
-                           points[:, PAIRS_J])
-    cond = conditioning(mech, _inverse_jacobian(mech, p, q))[:, None]
-    checks: list[tuple[str, FloatArray, float, float, str]] = [
-        # name, value (N, k), limit, sign (+1: value must stay below), unit
-        ('length_min', joints.lengths, mech.length_min, -1.0, 'm'),
-        ('length_max', joints.lengths, mech.length_max, 1.0, 'm'),
-        ('phi_min', joints.phis, mech.phi_min, -1.0, _RAD),
-        ('phi_max', joints.phis, mech.phi_max, 1.0, _RAD),
-        ('theta_min', joints.thetas, mech.theta_min, -1.0, _RAD),
-        ('theta_max', joints.thetas, mech.theta_max, 1.0, _RAD),
-        ('spherical_tilt', tilt, mech.tilt_max, 1.0, _RAD),
-        ('leg_distance_min', gap, mech.min_leg_distance, -1.0, 'm'),
-        ('conditioning_min', cond, mech.min_conditioning, -1.0, ''),
-    ]
+    checks = _checks(mech, p, q)
     found: list[Violation] = []
     total = 0
     for name, value, limit, sign, unit in checks:
@@ -171,6 +152,41 @@ def check_poses(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike) -> 
                                    float(limit), float(excess[s, k]), unit))
     found.sort(key=lambda v: (v.sample, v.constraint))
     return LimitReport(p.shape[0], tuple(found[:MAX_LISTED]), total)
+
+
+def within_limits(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike) -> BoolArray:
+    """Per pose (N,), whether poses (N, 3) m / (N, 4) violate no limit of ``mech`` (the checks
+    of :func:`check_poses`)."""
+    p, q = as_pose_batch(position, quaternion)
+    ok = np.ones(p.shape[0], dtype=bool)
+    for _, value, limit, sign, _ in _checks(mech, p, q):
+        ok &= np.all(sign * (value - limit) <= 0.0, axis=1)
+    return ok
+
+
+def _checks(mech: Mechanism, p: FloatArray,
+            q: FloatArray) -> list[tuple[str, FloatArray, float, float, str]]:
+    """Every limit as (name, value (N, k), limit, sign (+1: value must stay below), unit)."""
+    joints = _inverse_validated(mech, p, q)
+    points = platform_points(mech, p, q)
+    u = (points - mech.base_joints) / joints.lengths[..., None]
+    normal = matrix_from_quaternion(q)[:, :, 2]
+    tilt = np.arccos(np.clip(np.einsum('nkj,nj->nk', u, normal), -1.0, 1.0))
+    base = np.broadcast_to(mech.base_joints, points.shape)
+    gap = segment_distance(base[:, PAIRS_I], points[:, PAIRS_I], base[:, PAIRS_J],
+                           points[:, PAIRS_J])
+    cond = conditioning(mech, _inverse_jacobian(mech, p, q))[:, None]
+    return [
+        ('length_min', joints.lengths, mech.length_min, -1.0, 'm'),
+        ('length_max', joints.lengths, mech.length_max, 1.0, 'm'),
+        ('phi_min', joints.phis, mech.phi_min, -1.0, _RAD),
+        ('phi_max', joints.phis, mech.phi_max, 1.0, _RAD),
+        ('theta_min', joints.thetas, mech.theta_min, -1.0, _RAD),
+        ('theta_max', joints.thetas, mech.theta_max, 1.0, _RAD),
+        ('spherical_tilt', tilt, mech.tilt_max, 1.0, _RAD),
+        ('leg_distance_min', gap, mech.min_leg_distance, -1.0, 'm'),
+        ('conditioning_min', cond, mech.min_conditioning, -1.0, ''),
+    ]
 
 
 def _leg_label(name: str, k: int) -> str | None:

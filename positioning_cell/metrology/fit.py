@@ -1,6 +1,7 @@
 """The outlier-robust rigid fit of the platform pose to the tracker's readings of its targets,
-and its first-order covariance. Frames: readings and poses in ``base``, targets in
-``platform``; SI: m, rad."""
+and its first-order covariance; the weighted rigid fit (Kabsch) and its covariance are shared
+with locating the tracker (:mod:`.locate`). Frames: readings and poses in ``base`` (converted
+with the tracker's located registration), targets in ``platform``; SI: m, rad."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.core.poses import as_pose_batch, quaternion_from_matrix
 from positioning_cell.errors import InputError
-from positioning_cell.metrology.instrument import Tracker
+from positioning_cell.metrology.instrument import Tracker, skew
 from positioning_cell.metrology.targets import TargetLayout, collinear
 from positioning_cell.parameters import check_fields, setting
 
@@ -72,13 +73,16 @@ def fit_pose(tracker: Tracker, layout: TargetLayout, points: ArrayLike, *,
     """Least-squares rigid fit of the layout onto measured points (T, 3) or (N, T, 3) m in
     ``base`` (NaN rows: hidden targets), robust to outliers.
 
-    Minimises Σ w_i |m_i − (p + R·b_i)|² with w_i = 1 / σ(d_i)²: the maximum-likelihood pose
-    for the isotropic noise of this tracker model, solved in closed form by SVD (weighted
-    Kabsch / Arun et al. 1987, det-corrected). Outliers: while some inlier's residual |e_i| / σ_i
-    exceeds ``reject_threshold`` and more than three inliers remain, the target whose removal
-    leaves the smallest weighted residual sum of squares is dropped and the pose refitted.
-    Fewer than three visible targets, or collinear ones, raise :class:`TooFewTargetsError`.
-    The covariance is first order (:func:`pose_covariance`).
+    Minimises Σ w_i |m_i − (p + R·b_i)|² with w_i = 1 / σ̄_i², σ̄_i² = tr Σ_i / 3 the
+    reading's mean variance (Σ_i = :meth:`Tracker.point_covariance`), in closed form by SVD
+    (:func:`weighted_kabsch`); for the anisotropic noise this is not quite the
+    maximum-likelihood pose, and the covariance is that of this estimator
+    (:func:`pose_covariance`). Outliers: while some inlier's residual |e_i| / σ̄_i exceeds
+    ``reject_threshold`` (the metric of the weights: a Mahalanobis distance under Σ_i would
+    count the transverse noise the fit spreads along other beams) and more than three
+    inliers remain, the target whose removal leaves the smallest weighted residual sum of
+    squares is dropped and the pose refitted. Fewer than three visible targets, or collinear
+    ones, raise :class:`TooFewTargetsError`.
     """
     if not (math.isfinite(reject_threshold) and reject_threshold > 0.0):
         raise InputError(f'reject_threshold = {reject_threshold!r}: must be finite and > 0')
@@ -86,15 +90,17 @@ def fit_pose(tracker: Tracker, layout: TargetLayout, points: ArrayLike, *,
     visible = np.all(np.isfinite(arr), axis=-1)
     _require_targets(layout.array, visible, 'visible')
     measured = np.where(visible[..., None], arr, 0.0)
-    sigma = tracker.sigma(np.linalg.norm(measured - np.asarray(tracker.position), axis=-1))
-    weight = np.where(visible, 1.0 / sigma**2, 0.0)
+    point_cov = tracker.point_covariance(np.where(visible[..., None], arr,
+                                                  tracker.to_base([1.0, 0.0, 0.0])))
+    mean_sigma = np.sqrt(np.trace(point_cov, axis1=-2, axis2=-1) / 3.0)
+    weight = np.where(visible, 1.0 / mean_sigma**2, 0.0)
     inliers = visible.copy()
     rows = np.arange(arr.shape[0])
     for _ in range(len(layout.platform)):  # at most T − 3 rejections, then one confirming pass
-        rot, pos = _weighted_kabsch(layout.array, measured, weight * inliers)
+        rot, pos = weighted_kabsch(layout.array, measured, weight * inliers)
         error = np.linalg.norm(measured - pos[:, None] - layout.array @ np.swapaxes(rot, 1, 2),
                                axis=-1)
-        normalised = np.where(inliers, error / sigma, -np.inf)
+        normalised = np.where(inliers, error / mean_sigma, -np.inf)
         drop = (normalised.max(axis=1) > reject_threshold) & (inliers.sum(axis=1) > 3)
         if not drop.any():
             break
@@ -115,29 +121,38 @@ def fit_pose(tracker: Tracker, layout: TargetLayout, points: ArrayLike, *,
 
 def pose_covariance(tracker: Tracker, layout: TargetLayout, position: ArrayLike,
                     quaternion: ArrayLike, used: ArrayLike | None = None) -> FloatArray:
-    """First-order covariance (N, 6, 6) of the weighted fit of the ``used`` targets (N, T)
-    (default all) at platform poses (N, 3) m, (N, 4), order x, y, z, rot-x, rot-y, rot-z.
-
-    A target at c_i = R·b_i moves by δm_i = J_i·(δp, δθ) with J_i = [I, −[c_i]×] (small
-    rotation δθ about the base axes). The weighted least-squares estimate then has
-    δx = A⁻¹ Σ w_i J_iᵀ δm_i, A = Σ w_i J_iᵀ J_i, so cov = A⁻¹ (Σ w_i² J_iᵀ Σ_i J_i) A⁻¹
-    with Σ_i = :meth:`Tracker.point_covariance` (equal to A⁻¹ for this isotropic model).
-    """
+    """First-order covariance (N, 6, 6) of the fitted pose from the ``used`` targets (N, T)
+    (default all) at platform poses (N, 3) m, (N, 4), order x, y, z, rot-x, rot-y, rot-z:
+    the reading noise of the fit (:func:`rigid_fit_covariance` with the weights of
+    :func:`fit_pose` and Σ_i = :meth:`Tracker.point_covariance`) plus the uncertainty of the
+    tracker's registration (:meth:`Tracker.registration_covariance`), which is common to all
+    targets and readings."""
     p, q = as_pose_batch(position, quaternion)
     targets = layout.in_base(p, q)
     mask = (np.ones(targets.shape[:2], dtype=bool) if used is None
             else np.broadcast_to(np.asarray(used, dtype=bool), targets.shape[:2]))
-    sigma = tracker.sigma(np.linalg.norm(targets - np.asarray(tracker.position), axis=-1))
-    weight = np.where(mask, 1.0 / sigma**2, 0.0)
-    c = targets - p[:, None, :]
-    skew = np.zeros((*c.shape, 3))
-    skew[..., 0, 1], skew[..., 0, 2], skew[..., 1, 2] = -c[..., 2], c[..., 1], -c[..., 0]
-    skew -= np.swapaxes(skew, -1, -2)
-    jac = np.concatenate([np.broadcast_to(np.eye(3), skew.shape), -skew], axis=-1)  # (N,T,3,6)
-    jac_t = np.swapaxes(jac, -1, -2)
+    point_cov = tracker.point_covariance(targets)
+    weight = np.where(mask, 3.0 / np.trace(point_cov, axis1=-2, axis2=-1), 0.0)
+    return (rigid_fit_covariance(targets - p[:, None, :], weight, point_cov)
+            + tracker.registration_covariance(p))
+
+
+def rigid_fit_covariance(lever: FloatArray, weight: FloatArray,
+                         point_cov: FloatArray) -> FloatArray:
+    """First-order covariance (N, 6, 6) of the rigid motion (δp, δθ) fitted by
+    :func:`weighted_kabsch` with weights (N, T) to points with covariances (N, T, 3, 3) m²,
+    at levers c_i (N, T, 3) m from the point the rotation is taken about.
+
+    A point moves by δm_i = J_i·(δp, δθ) with J_i = [I, −[c_i]×] (small rotation δθ about the
+    base axes). The weighted least-squares estimate has δx = A⁻¹ Σ w_i J_iᵀ δm_i,
+    A = Σ w_i J_iᵀ J_i, so cov = A⁻¹ (Σ w_i² J_iᵀ Σ_i J_i) A⁻¹ (the sandwich: exact for any
+    weights, A⁻¹ itself only for w_i Σ_i = I).
+    """
+    cross = skew(lever)
+    jac = np.concatenate([np.broadcast_to(np.eye(3), cross.shape), -cross], axis=-1)
+    jac_t = np.swapaxes(jac, -1, -2)  # (N, T, 6, 3)
     normal = np.einsum('nt,ntij->nij', weight, jac_t @ jac)
-    middle = np.einsum('nt,ntij->nij', weight**2,
-                       jac_t @ tracker.point_covariance(targets) @ jac)
+    middle = np.einsum('nt,ntij->nij', weight**2, jac_t @ point_cov @ jac)
     normal_inv = np.linalg.inv(normal)
     cov: FloatArray = normal_inv @ middle @ normal_inv
     return 0.5 * (cov + np.swapaxes(cov, -1, -2))
@@ -183,15 +198,16 @@ def _deletion_cost(body: FloatArray, measured: FloatArray, weight: FloatArray,
                                            keep.reshape(n * t, t))
     cost = np.full(n * t, np.inf)
     if usable.any():
-        rot, pos = _weighted_kabsch(body, cand_measured[usable], cand_weight[usable])
+        rot, pos = weighted_kabsch(body, cand_measured[usable], cand_weight[usable])
         error = cand_measured[usable] - pos[:, None] - body @ np.swapaxes(rot, 1, 2)
         cost[usable] = np.sum(cand_weight[usable] * np.sum(error**2, axis=-1), axis=1)
     return cost.reshape(n, t)
 
-def _weighted_kabsch(body: FloatArray, measured: FloatArray,
-                     weight: FloatArray) -> tuple[FloatArray, FloatArray]:
+def weighted_kabsch(body: FloatArray, measured: FloatArray,
+                    weight: FloatArray) -> tuple[FloatArray, FloatArray]:
     """R (N, 3, 3) and p (N, 3) minimising Σ w_i |m_i − (p + R·b_i)|² for body points (T, 3)
-    and measured points (N, T, 3) with weights (N, T)."""
+    and measured points (N, T, 3) with weights (N, T): closed form by SVD of the weighted
+    cross-covariance (Kabsch; Arun et al. 1987), det-corrected to a proper rotation."""
     w = weight / weight.sum(axis=1, keepdims=True)
     body_mean = w @ body
     measured_mean = np.einsum('nt,ntk->nk', w, measured)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,20 +44,7 @@ class TargetLayout:
 
     def __post_init__(self) -> None:
         check_fields(self)
-        arr = np.asarray(self.platform, dtype=float)
-        if arr.shape[0] < MIN_LAYOUT_TARGETS:
-            raise ParameterError('platform', list(arr.ravel()),
-                                 f'{arr.shape[0]} targets given, the tracker needs at least '
-                                 f'{MIN_LAYOUT_TARGETS} on the platform')
-        gaps = np.linalg.norm(arr[:, None] - arr[None], axis=-1) + np.eye(len(arr))
-        if gaps.min() < _MIN_TARGET_SEPARATION:
-            i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
-            raise ParameterError('platform', list(arr.ravel()),
-                                 f'targets {i} and {j} are {gaps[i, j]:.3g} m apart: targets '
-                                 f'must be >= {_MIN_TARGET_SEPARATION} m apart')
-        if collinear(arr[None], np.ones((1, len(arr)), dtype=bool))[0]:
-            raise ParameterError('platform', list(arr.ravel()),
-                                 'the targets all lie on one line: they cannot fix a rotation')
+        check_point_set('platform', self.platform, 'on the platform')
 
     @cached_property
     def array(self) -> FloatArray:
@@ -70,6 +58,26 @@ class TargetLayout:
         rot = matrix_from_quaternion(quaternion)
         out: FloatArray = position[:, None, :] + self.array @ np.swapaxes(rot, -1, -2)
         return out
+
+
+def check_point_set(name: str, points: Any, where: str) -> None:
+    """ParameterError on parameter ``name`` unless the points (T, 3) m are at least
+    :data:`MIN_LAYOUT_TARGETS`, pairwise distinct and not all on one line (``where``: the
+    targets' place, for the message)."""
+    arr = np.asarray(points, dtype=float)
+    if arr.shape[0] < MIN_LAYOUT_TARGETS:
+        raise ParameterError(name, list(arr.ravel()),
+                             f'{arr.shape[0]} targets given, the tracker needs at least '
+                             f'{MIN_LAYOUT_TARGETS} {where}')
+    gaps = np.linalg.norm(arr[:, None] - arr[None], axis=-1) + np.eye(len(arr))
+    if gaps.min() < _MIN_TARGET_SEPARATION:
+        i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
+        raise ParameterError(name, list(arr.ravel()),
+                             f'targets {i} and {j} are {gaps[i, j]:.3g} m apart: targets '
+                             f'must be >= {_MIN_TARGET_SEPARATION} m apart')
+    if collinear(arr[None], np.ones((1, len(arr)), dtype=bool))[0]:
+        raise ParameterError(name, list(arr.ravel()),
+                             'the targets all lie on one line: they cannot fix a rotation')
 
 
 def collinear(points: FloatArray, mask: BoolArray) -> BoolArray:

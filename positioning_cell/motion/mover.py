@@ -35,6 +35,7 @@ from positioning_cell.clearance import ClearanceModel, attained_pose
 from positioning_cell.core.limits import LimitReport
 from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.motion.calibrated import calibrated_machine
 from positioning_cell.motion.correction import corrected_command, deviation, mean_pose
 from positioning_cell.motion.outcomes import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
@@ -52,6 +53,9 @@ from positioning_cell.names import (
 )
 
 FloatArray = NDArray[np.float64]
+#: A remaining error within this many standard uncertainties of its measurement, in every
+#: component, is not corrected (measured mode).
+SIGNIFICANCE = 2.0
 
 __all__ = ['Answer', 'Estimate', 'JointReading', 'Machine', 'Measurement', 'MoveAbortedError',
            'MoveResult', 'Mover', 'PositionerSettings', 'ResultCode', 'State', 'joints_arrived',
@@ -170,6 +174,8 @@ class Mover:
         self.settings = settings
         self.mech = settings.mechanism
         self.model = settings.clearance_model()
+        self.calibration: ClearanceModel = calibrated_machine(settings)  # ConfigError: no start
+        self._pending: tuple[str, ClearanceModel] | None = None
         self.machine = machine
         self.cond = threading.Condition()
         self._busy = threading.Lock()
@@ -189,13 +195,27 @@ class Mover:
 
     # -- inputs ---------------------------------------------------------------------------------
     def reconfigure(self, settings: PositionerSettings) -> None:
-        """New dynamic settings (mode, tolerances, limits, ...); the model is read-only. After a
-        change of mode the next move starts from where the encoders are (the last command's
-        joints under the old mode are not those of the new one)."""
+        """New dynamic settings (mode, tolerances, limits, the calibration file, ...); the
+        a-priori clearance model is read-only. After a change of mode or of calibration the
+        next move starts from where the encoders are (the last command's joints under the old
+        model are not those of the new one)."""
         with self.cond:
             if settings.mode is not self.settings.mode:
                 self.command = None
+            path = settings.compensation.calibration_file
+            if path != self.settings.compensation.calibration_file:
+                pending = self._pending
+                self.calibration = (pending[1] if pending is not None and pending[0] == path
+                                    else calibrated_machine(settings))
+                self._pending, self.command = None, None
             self.settings = settings
+
+    def prepare(self, settings: PositionerSettings) -> None:
+        """Check new settings before they are accepted: a new calibration file is loaded now
+        (CalibrationFileError, a ConfigError, says why it cannot be used; nothing changes)."""
+        path = settings.compensation.calibration_file
+        if path != self.settings.compensation.calibration_file:
+            self._pending = (path, calibrated_machine(settings))
 
     def driver_status(self, values: Mapping[str, str]) -> None:
         """The leg driver's latest diagnostic values (state, enabled, referenced, message)."""
@@ -232,7 +252,9 @@ class Mover:
         return self.driver.get('referenced', 'false').lower() == 'true'
 
     def _model(self) -> ClearanceModel:
-        return None if self.mode is CompensationMode.NONE else self.model
+        if self.mode is CompensationMode.NONE:
+            return None
+        return self.calibration if self.calibration is not None else self.model
 
     # -- the pose estimate --------------------------------------------------------------------
     def estimate_pose(self) -> Estimate | None:
@@ -450,20 +472,30 @@ class Mover:
 
     def _correct(self, command: tuple[FloatArray, FloatArray], p: FloatArray, q: FloatArray,
                  tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str]:
-        """``measured``: the closed loop on the tracker until within ``tol``; out of
-        iterations is out of tolerance."""
+        """``measured``: the closed loop on the tracker until within ``tol``. A remaining error
+        that no component of exceeds :data:`SIGNIFICANCE` standard uncertainties of the
+        averaged measurement is not corrected (that would chase noise): within tolerance it is
+        a success, else out of tolerance, as is running out of iterations. The result states
+        the measured error with its uncertainty."""
         iterations = self.settings.compensation.max_iterations
         for done in range(iterations + 1):
-            measured = self._measure()
-            e_p, e_r = deviation(*measured, p, q)
-            text = _error_text(e_p, e_r, 'measured error') + f' after {done} corrections'
+            m_p, m_q, cov = self._measure()
+            e_p, e_r = deviation(m_p, m_q, p, q)
+            sigma = np.sqrt(np.diag(cov))
+            text = (_error_text(e_p, e_r, 'measured error') + f' ± {_sigma_text(sigma)} (1 '
+                    f'sigma) after {done} corrections')
             if tol.holds(e_p, e_r):
                 return e_p, e_r, f'settled within tolerance: {text}'
+            if not np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma):
+                raise MoveAbortedError(
+                    ResultCode.OUT_OF_TOLERANCE, f'settled outside tolerance: {text}; the '
+                    f'error is within {SIGNIFICANCE:g} sigma of the measurement, a correction '
+                    'would be noise')
             if done == iterations:
                 raise MoveAbortedError(ResultCode.OUT_OF_TOLERANCE,
                                        f'settled outside tolerance: {text}')
             self._set_state(State.CORRECTING, f'{text}: correcting')
-            command = corrected_command(*command, p, q, *measured)
+            command = corrected_command(*command, p, q, m_p, m_q)
             self._go(*command)
         raise AssertionError('unreachable')
 
@@ -508,9 +540,12 @@ class Mover:
         self._wait(lambda: self.machine.clock() >= deadline, self.settings.settle_time + 1.0,
                    'settling', measuring=measuring)
 
-    def _measure(self) -> tuple[FloatArray, FloatArray]:
-        """The mean of the next ``samples`` tracker readings; a tracker that falls silent or
-        readings that scatter beyond their stated uncertainty abort."""
+    def _measure(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The next ``samples`` tracker readings averaged: the position weighted by each
+        reading's covariance, the mean rotation, and the covariance (6, 6) of that mean
+        (inv Σ C_i⁻¹: the readings taken as independent; a part common to all, such as the
+        tracker's registration, is so understated). A tracker that falls silent or readings
+        that scatter beyond their stated uncertainty abort."""
         n = self.settings.compensation.samples
         with self.cond:
             start = self.measurement_count
@@ -529,7 +564,13 @@ class Mover:
                     ResultCode.ABORTED_TRACKER_INCONSISTENT,
                     f'tracker readings scatter {np.max(scatter) * 1e6:.1f} um, {ratio:.0f}x '
                     'their stated sigma: outliers or a disturbed line of sight')
-        return mean_pose(positions, [s.quaternion for s in samples])
+        covariances = np.array([s.covariance for s in samples])
+        information = np.linalg.inv(covariances)
+        weights = np.linalg.inv(covariances[:, :3, :3])
+        position = np.linalg.solve(weights.sum(axis=0),
+                                   np.einsum('nij,nj->i', weights, positions))
+        _, quaternion = mean_pose(positions, [s.quaternion for s in samples])
+        return position, quaternion, np.linalg.inv(information.sum(axis=0))
 
     def _wait(self, condition: Callable[[], bool], timeout: float, what: str,
               timeout_code: ResultCode = ResultCode.ABORTED_TIMEOUT, *,
@@ -611,6 +652,12 @@ class _Exclusive:
 
 def _refused_path(report: LimitReport) -> str:
     return f'path refused, {report.message()}'
+
+
+def _sigma_text(sigma: FloatArray) -> str:
+    """|σ_p| µm, |σ_r| deg of a standard-uncertainty vector (6,)."""
+    return (f'{np.linalg.norm(sigma[:3]) * 1e6:.1f} um, '
+            f'{math.degrees(float(np.linalg.norm(sigma[3:]))):.5f} deg')
 
 
 def _error_text(e_p: FloatArray, e_r: FloatArray, what: str) -> str:

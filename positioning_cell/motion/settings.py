@@ -36,8 +36,12 @@ class CompensationSettings:
     mode: str = setting('measured', 'none: nominal inverse kinematics; model: the clearance '
                         'model; measured: the model, then closed loop on the tracker',
                         choices=tuple(m.value for m in CompensationMode), dynamic=True)
-    clearance: ClearanceParameters = group(ClearanceParameters,
-                                           'the clearance model used by model and measured')
+    clearance: ClearanceParameters = group(
+        ClearanceParameters, 'the a-priori clearance model of model and measured, used while '
+        'no calibration is loaded')
+    calibration_file: str = setting(
+        '', 'calibration.yaml of this machine (calibrate_cell): model and measured use the '
+        'identified machine; empty: the a-priori clearance model', dynamic=True)
     max_iterations: int = setting(5, 'closed-loop corrections per move', low=0, high=50,
                                   dynamic=True)
     samples: int = setting(10, 'tracker samples averaged per correction', low=1, high=200,

@@ -52,7 +52,8 @@ class PositionerNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
-        self.params = NodeParameters(self, self.SETTINGS, lambda s, _: self.mover.reconfigure(s))
+        self.params = NodeParameters(self, self.SETTINGS, lambda s, _: self.mover.reconfigure(s),
+                                     lambda s, _: self.mover.prepare(s))
         settings = self.params.settings
         kinematics.warm_up()  # compiled FK ready before the first command
         self._joints = Reader(self, JointState, names.JOINT_STATES)
@@ -129,7 +130,8 @@ class PositionerNode(Node):
         self.pub_diag.publish(m.diagnostic(
             names.STATUS_POSITIONER, level, message,
             {'state': mover.state.value, 'reason': mover.reason, 'mode': mover.mode.value,
-             'code': code.value if code else '', 'referenced': mover.referenced},
+             'code': code.value if code else '', 'referenced': mover.referenced,
+             'calibration': mover.settings.compensation.calibration_file or 'none'},
             self._now()))
 
     def _state_changed(self, state: State, reason: str, code: ResultCode | None) -> None:

@@ -69,13 +69,17 @@ def _value(node: Node, name: str) -> Any:
 
 class NodeParameters(Generic[T]):
     """Every parameter of settings type ``cls`` declared on ``node``; :attr:`settings` the
-    parsed value (ConfigError at start names the bad key); ``on_change(settings, names)`` runs
-    after each accepted set, with the names that were set."""
+    parsed value (ConfigError at start names the bad key); ``check(settings, names)`` may refuse
+    a set by raising ConfigError (what parsing alone cannot judge, e.g. a file's content);
+    ``on_change(settings, names)`` runs after each accepted set, with the names that were
+    set."""
 
     def __init__(self, node: Node, cls: type[T],
-                 on_change: Callable[[T, frozenset[str]], None] | None = None) -> None:
+                 on_change: Callable[[T, frozenset[str]], None] | None = None,
+                 check: Callable[[T, frozenset[str]], None] | None = None) -> None:
         self._cls = cls
         self._on_change = on_change
+        self._check = check
         self._declared = {d.name: d for d in declarations(cls)}
         for d in self._declared.values():
             # None and [] cannot be declared as values: the parameter is declared by its type
@@ -91,11 +95,14 @@ class NodeParameters(Generic[T]):
         for p in params:
             if p.name in self._declared:
                 candidate[p.name] = _plain(p.value)
+        names = frozenset(p.name for p in params)
         try:
             settings = parse(self._cls, candidate)
+            if self._check is not None:
+                self._check(settings, names)
         except ConfigError as err:
             return SetParametersResult(successful=False, reason=str(err))
         self.values, self.settings = candidate, settings
         if self._on_change is not None:
-            self._on_change(settings, frozenset(p.name for p in params))
+            self._on_change(settings, names)
         return SetParametersResult(successful=True)

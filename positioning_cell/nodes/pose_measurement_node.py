@@ -1,10 +1,13 @@
 """pose_measurement_node (node ``pose_measurement``): the machine's truth and a simulated laser
 tracker measuring it (:mod:`positioning_cell.sim.pose_measurement`).
 
-The newest /sim/legs/true_joint_states → the true platform pose (at most ``truth_rate_hz``) on
+At start the tracker locates itself on the base reference targets (``locate.*``; again on
+/pose_measurement/locate), and logs the registration and its residuals. The newest
+/sim/legs/true_joint_states → the true platform pose (at most ``truth_rate_hz``) on
 /sim/platform/true_pose, stamped with the joint state's time → at ``rate_hz`` a tracker reading
-of the SMRs, the fitted pose and its covariance on /metrology/pose, stamped with the time of the
-truth it measured.
+of the SMRs, converted to ``base`` with the located registration, the fitted pose and the
+cell's own covariance of it (datasheet noise and registration uncertainty) on /metrology/pose,
+stamped with the time of the truth it measured.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
 from positioning_cell import names
 from positioning_cell.core import kinematics
@@ -22,7 +26,7 @@ from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.latest import Reader
 from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, SERVICE_QOS, STREAM_QOS
 from positioning_cell.nodes.spin import run
 from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSettings,
@@ -42,6 +46,7 @@ class PoseMeasurementNode(Node):
                                      lambda s, _: self.sim.reconfigure(s))
         settings = self.params.settings
         self.sim = PoseMeasurementSimulator(settings)
+        self._log_location()
         kinematics.warm_up()  # compiled FK ready before the first truth update
         self._joints = Reader(self, JointState, names.TRUE_JOINT_STATES)
         self._true_pub = self.create_publisher(PoseStamped, names.TRUE_POSE, STREAM_QOS)
@@ -52,6 +57,25 @@ class PoseMeasurementNode(Node):
         self.create_timer(1.0 / settings.truth_rate_hz, self._update_truth)
         self.create_timer(1.0 / settings.rate_hz, self._measure)
         self.create_timer(1.0, self._diagnostics)
+        self.create_service(Trigger, names.LOCATE_TRACKER, self._locate, qos_profile=SERVICE_QOS)
+
+    def _log_location(self) -> None:
+        level, message = self.sim.locate_status
+        values = self.sim.location_values()
+        if values:
+            message += (f'; tracker at {values["located_position"]} m, orientation '
+                        f'{values["located_orientation"]}, registration sigma '
+                        f'{values["registration_sigma_position_um"]} um, '
+                        f'{values["registration_sigma_rotation_urad"]} urad; residuals per '
+                        f'target {values["locate_residuals_um"]} um')
+        log = self.get_logger()
+        (log.info if level == 'ok' else log.warning if level == 'warn' else log.error)(message)
+
+    def _locate(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        response.success, response.message = self.sim.locate()
+        self._log_location()
+        self._diagnostics()
+        return response
 
     def _update_truth(self) -> None:
         msg = self._joints.newest()

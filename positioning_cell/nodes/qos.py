@@ -40,6 +40,11 @@ STREAM_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5000,
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: The markers of a calibration run: every one for a late joiner (a recorder that discovers the
+#: topic after the first poses), up to a program of 1000 poses.
+MARKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: A reader of the newest value only (older ones are overwritten unread).
 LATEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                         reliability=ReliabilityPolicy.RELIABLE,

@@ -32,7 +32,9 @@ class WorkspaceMaps:
     """Maps on a (ny, nx) grid of x (nx,) and y (ny,) in m at height ``z`` m, orientation
     ``quaternion`` (4,). ``feasible`` is False where a pose violates a limit of the mechanism
     (values NaN, dominant −1 there). Worst cases are the norms of the per-coordinate worst cases
-    (an upper bound of the worst |Δp| in m and rotation angle in rad); 3σ from the linear model.
+    (over every clearance direction in the ``any`` gap model; an upper bound of the worst |Δp|
+    in m and rotation angle in rad, :func:`.extremes.worst_norm` gives the attained one at a
+    pose); 3σ from the linear model.
     ``dominant_*`` index ``kinds``: the kind of source adding the most variance."""
 
     x: FloatArray
@@ -74,7 +76,7 @@ def workspace_maps(mech: Mechanism, spec: ToleranceSpec, half_width: float, coun
     if feasible.any():
         lin = linearise(mech, spec, positions[feasible],
                         np.broadcast_to(q, (int(feasible.sum()), 4)))
-        values[feasible, 0:2] = split_norms(worst_case(lin.matrix, spec.bounds))
+        values[feasible, 0:2] = split_norms(worst_case(lin.matrix, spec.bounds, spec.balls))
         values[feasible, 2:4] = 3.0 * split_norms(root_sum_square(lin.matrix, spec.stds))
         kinds, variances = kind_variances(lin.matrix, spec)
         dominant[feasible] = np.argmax(variances, axis=-1)

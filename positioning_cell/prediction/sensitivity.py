@@ -13,7 +13,13 @@ eq. (14) gives T = C − D·U⁻¹·A = −[I₆ 0]·U⁻¹·A, a (6 × S) matri
 
 A is built in two steps: ∂h/∂(24 primitive perturbations) — δl (3), δθ (3), δA_i (9, base
 frame), δb_i (9, platform frame) — times the map from sources to primitives (clearances enter
-as gap connectors along their direction, :class:`.sources.GapModel`).
+as gap connectors along their direction, :class:`.sources.GapModel`, or, in the ``any`` model,
+as the three components of the joint's offset vector, like a joint-centre error).
+
+Worst case (eq. 15) over box sources |x_i| ≤ t_i and, in the ``any`` model, clearance balls
+|e_j| ≤ r_j: per pose coordinate c, max (T·x)_c = Σ_i |T_ci|·t_i + Σ_j r_j·‖T_c,j‖₂ (T_c,j the
+three columns of ball j), exact for the linear model (:func:`worst_case`); the largest |Δp| and
+rotation angle over the same set: :func:`positioning_cell.prediction.extremes.worst_norm`.
 """
 
 from __future__ import annotations
@@ -65,10 +71,11 @@ def skew(v: FloatArray) -> FloatArray:
 def gap_directions(mech: Mechanism, gap: GapModel, position: FloatArray,
                    quaternion: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Unit gap-connector directions of the U and S joints (N, 3 legs, 3), base frame, at
-    validated poses (N, 3) m, (N, 4); see :class:`.sources.GapModel` (seed 004 eqs. 2-3)."""
+    validated poses (N, 3) m, (N, 4); see :class:`.sources.GapModel` (seed 004 eqs. 2-3). The
+    ``any`` model has no fixed direction: the leg axis is returned (unused by its sources)."""
     joints = inverse(mech, position, quaternion)
     u = leg_directions(mech, joints.phis, joints.thetas)
-    if gap.mode == 'leg':
+    if gap.mode != 'motion':
         return u, u
     rot = matrix_from_quaternion(quaternion)
     r = np.einsum('nij,kj->nki', rot, mech.platform_joints)
@@ -116,7 +123,9 @@ def closure_jacobians(mech: Mechanism, position: FloatArray,
 def source_map(spec: ToleranceSpec, rotation: FloatArray, gap_u: FloatArray,
                gap_s: FloatArray) -> FloatArray:
     """Map (N, 24, S) from sources to primitive perturbations (δl, δθ, δA base, δb platform)
-    at poses with rotations (N, 3, 3) and gap directions (N, 3 legs, 3) in the base frame."""
+    at poses with rotations (N, 3, 3) and gap directions (N, 3 legs, 3) in the base frame.
+    A clearance component (``any`` model: ``axis`` set) is one coordinate of δA_i (base) or
+    δb_i (platform), as :class:`positioning_cell.clearance.VectorClearance` offsets."""
     n = rotation.shape[0]
     out = np.zeros((n, N_PRIMITIVES, len(spec.sources)))
     gap_s_platform = np.einsum('nji,nkj->nki', rotation, gap_s)
@@ -127,9 +136,9 @@ def source_map(spec: ToleranceSpec, rotation: FloatArray, gap_u: FloatArray,
             out[:, _L + i, j] = 1.0
         elif src.kind == 'encoder_theta':
             out[:, _T + i, j] = 1.0
-        elif src.kind == 'u_centre':
+        elif src.kind == 'u_centre' or (src.kind == 'u_clearance' and src.axis):
             out[:, _A + 3 * i + axis, j] = 1.0
-        elif src.kind == 's_centre':
+        elif src.kind == 's_centre' or (src.kind == 's_clearance' and src.axis):
             out[:, _B + 3 * i + axis, j] = 1.0
         elif src.kind == 'u_clearance':
             out[:, _A + 3 * i:_A + 3 * i + 3, j] = gap_u[:, i]
@@ -153,10 +162,19 @@ def linearise(mech: Mechanism, spec: ToleranceSpec, position: ArrayLike,
     return Linearisation(p, q, closure, prim, smap, matrix)
 
 
-def worst_case(matrix: FloatArray, bounds: FloatArray) -> FloatArray:
-    """Worst-case deviation t = Σ_i |T_i|·x_i per pose coordinate (seed 004 eq. 15): T
-    (..., 6, S), bounds (S,) → (..., 6) in m and rad."""
-    out: FloatArray = np.abs(matrix) @ bounds
+def worst_case(matrix: FloatArray, bounds: FloatArray,
+               balls: tuple[tuple[int, int], ...] = ()) -> FloatArray:
+    """Worst-case deviation per pose coordinate (seed 004 eq. 15 over boxes and balls): T
+    (..., R, S), bounds (S,), ``balls`` index ranges of offset vectors with |e_j| ≤ r_j
+    (:attr:`.sources.ToleranceSpec.balls`; r_j = the bound of their columns) → (..., R) in m and
+    rad: Σ_box |T_ci|·t_i + Σ_j r_j·‖T_c,j‖₂, the exact maximum of |(T·x)_c| (attained by
+    x_i = ±t_i and e_j = ±r_j·T_c,jᵀ/‖T_c,j‖). Without balls, Σ_i |T_ci|·t_i."""
+    box = np.ones(matrix.shape[-1], dtype=bool)
+    members = np.array([range(a, b) for a, b in balls], dtype=np.int64).reshape(-1, 3)
+    box[members.ravel()] = False
+    out: FloatArray = np.abs(matrix[..., box]) @ bounds[box]
+    if members.size:
+        out = out + np.linalg.norm(matrix[..., members], axis=-1) @ bounds[members[:, 0]]
     return out
 
 

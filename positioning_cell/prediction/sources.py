@@ -8,16 +8,26 @@ kind                  unit  what                                                
 ``leg_length``        m     zero offset of the leg length: l_true = l_cmd + x         1
 ``u_centre``          m     U-joint centre A_i error, base frame (``_x``/``_y``/``_z``)  3
 ``s_centre``          m     S-joint centre b_i error, platform frame                  3
-``u_clearance``       m     U-joint clearance as a gap connector: A_i moves by x·d    1
-``s_clearance``       m     S-joint clearance as a gap connector: B_i moves by x·d    1
+``u_clearance``       m     U-joint clearance r_a: A_i moves by e_a, |e_a| ≤ r_a      1 or 3
+``s_clearance``       m     S-joint clearance r_b: B_i moves by e_b, |e_b| ≤ r_b      1 or 3
 ``encoder_length``    m     linear encoder quantisation; spec value = resolution q    1
 ``encoder_theta``     rad   rotary (θ) encoder quantisation; spec value = resolution  1
 ====================  ====  ========================================================  =========
 
 Names are ``<kind>_<leg>`` or ``<kind>_<leg>_<axis>`` (``u_centre_2_x``); a spec key may also
 name a whole kind (``u_centre``) or one leg of it (``u_centre_2``). Gap connectors (seed 004 §2)
-have a length bounded by the joint clearance and a direction that follows the joint's load or
-motion (:class:`GapModel`); the sign is unknown to a prediction, so x ∈ [−r, r].
+have a length bounded by the joint clearance r; their direction is set by :class:`GapModel`:
+
+- ``any`` (the default): the joint's offset e may point anywhere, |e| ≤ r (the exact vector
+  model, :class:`positioning_cell.clearance.VectorClearance`). Each clearance is then three
+  sources ``<kind>_<leg>_x/_y/_z``, the components of e (U joint: base frame; S joint: platform
+  frame, as the vector model's ``u_offsets`` / ``s_offsets``), bounded *jointly* by the ball
+  |e| ≤ r (:attr:`ToleranceSpec.balls`); the spec names the joint (``u_clearance_2``), never
+  one component. Sampled, e = x·d with x from the source's law and d uniform on the sphere.
+- ``leg`` / ``motion``: one scalar x ∈ [−r, r] along a fixed unit direction d (the leg axis, or
+  the joint's velocity); the sign is unknown to a prediction. Exact for seed 000 eq. 9, which
+  sees a gap only through its projection on the leg, but not a bound of all gap directions.
+
 Encoder errors are uniform on ±q/2; the other kinds default to a normal law with
 bound = 3σ, truncated at the bound (parts inspected to their tolerance).
 """
@@ -59,7 +69,9 @@ _MAX_LENGTH = 5e-3
 _MAX_ANGLE = 0.05
 #: Truncation of the normal law, in σ (bound = 3σ).
 _SIGMAS = 3.0
-_GAP_MODES = ('leg', 'motion')
+_GAP_MODES = ('any', 'leg', 'motion')
+#: Kinds that are one joint's offset vector in the ``any`` gap model (a ball of radius r).
+BALL_KINDS = ('u_clearance', 's_clearance')
 _SPEC_KEYS = ('tolerances', 'distributions', 'requirement', 'clearance_direction', 'motion')
 
 
@@ -67,7 +79,8 @@ _SPEC_KEYS = ('tolerances', 'distributions', 'requirement', 'clearance_direction
 class ErrorSource:
     """One scalar error source: |x| ≤ ``bound`` (m or rad, see ``unit``), drawn from
     ``distribution``. ``tolerance`` is the spec value (for encoders the resolution, bound = q/2).
-    ``leg`` is 1-based; ``axis`` is 'x', 'y', 'z' for joint-centre errors, else None."""
+    ``leg`` is 1-based; ``axis`` is 'x', 'y', 'z' for joint-centre errors and for the offset
+    components of a clearance in the ``any`` gap model, else None."""
 
     name: str
     kind: str
@@ -82,16 +95,26 @@ class ErrorSource:
         return 'rad' if self.kind in _ANGLE_KINDS else 'm'
 
     @property
+    def in_ball(self) -> bool:
+        """True for one component of a clearance offset vector (``any`` gap model): bounded with
+        its two siblings by |e| ≤ ``bound``, not on its own."""
+        return self.kind in BALL_KINDS and self.axis is not None
+
+    @property
     def bound(self) -> float:
-        """Half-width of the source's range (m or rad)."""
+        """Half-width of the source's range (m or rad); of a ball component, the ball radius."""
         return self.tolerance * _BOUND_FACTOR.get(self.kind, 1.0)
 
     @property
     def std(self) -> float:
-        """Standard deviation of the source's law (m or rad)."""
+        """Standard deviation of the source's law (m or rad). A ball component is one
+        coordinate of x·d, d uniform on the sphere: E[d_k²] = 1/3, so σ_x/√3 (and the three
+        are uncorrelated)."""
         if self.distribution == 'uniform':
-            return self.bound / math.sqrt(3.0)
-        return self.bound / _SIGMAS * float(truncnorm.std(-_SIGMAS, _SIGMAS))
+            std = self.bound / math.sqrt(3.0)
+        else:
+            std = self.bound / _SIGMAS * float(truncnorm.std(-_SIGMAS, _SIGMAS))
+        return std / math.sqrt(3.0) if self.in_ball else std
 
 
 @dataclass(frozen=True)
@@ -107,8 +130,12 @@ class Requirement:
 class GapModel:
     """Direction of the gap connectors (seed 004 §2).
 
+    ``'any'`` (default): every direction; each joint's offset is a vector in the ball of radius
+    r (exact vector model, design/kinematics.md), so the worst case bounds all gap directions
+    (:func:`.sensitivity.worst_case`, :func:`.extremes.worst_norm`).
     ``'leg'``: the joint is loaded along the leg (a UPS leg carries mainly axial force), so the
-    clearance is taken up along the leg axis u_i; design/kinematics.md: the worst direction.
+    clearance is taken up along the leg axis u_i. The worst direction only under seed 000
+    eq. 9; under the vector model a gap tangential to the leg moves the platform further.
     ``'motion'``: the direction follows the motion (seed 004 eq. 2: the gap vector lies along the
     velocity of the moving member): for a platform twist ``twist`` = (v m/s, ω rad/s) in the
     base frame, the S joint's gap points along the ball's velocity v + ω × R·b_i and the U joint's
@@ -116,7 +143,7 @@ class GapModel:
     velocity vanishes, the leg axis is used.
     """
 
-    mode: str = 'leg'
+    mode: str = 'any'
     twist: tuple[float, float, float, float, float, float] = (0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -167,13 +194,23 @@ class ToleranceSpec:
         """Kind of each source, in order."""
         return tuple(s.kind for s in self.sources)
 
+    @cached_property
+    def balls(self) -> tuple[tuple[int, int], ...]:
+        """Index ranges (first, stop) of the offset vectors bounded by a ball |e| ≤ r (the
+        clearances in the ``any`` gap model; empty otherwise), stop exclusive."""
+        return tuple((j, j + 3) for j, s in enumerate(self.sources)
+                     if s.in_ball and s.axis == _AXES[0])
 
-def catalogue() -> tuple[tuple[str, str, int, str | None], ...]:
-    """Every source of the machine as (name, kind, leg, axis), in the order T's columns use."""
+
+def catalogue(directions: str = 'any') -> tuple[tuple[str, str, int, str | None], ...]:
+    """Every source of the machine as (name, kind, leg, axis), in the order T's columns use,
+    for the gap model ``directions`` (:class:`GapModel`: with ``any`` a clearance is the three
+    components of its offset vector, else one scalar)."""
+    vector_kinds = _VECTOR_KINDS + (BALL_KINDS if directions == 'any' else ())
     out: list[tuple[str, str, int, str | None]] = []
     for kind in KINDS:
         for leg in (1, 2, 3):
-            if kind in _VECTOR_KINDS:
+            if kind in vector_kinds:
                 out.extend((f'{kind}_{leg}_{a}', kind, leg, a) for a in _AXES)
             else:
                 out.append((f'{kind}_{leg}', kind, leg, None))
@@ -193,10 +230,11 @@ def parse_tolerance_spec(data: Mapping[str, Any], mech: Mechanism) -> ToleranceS
 
     Keys: ``tolerances`` (source or group name → tolerance, SI; required), ``distributions``
     (kind → 'normal' | 'uniform'), ``requirement`` (``position`` m, ``orientation`` rad),
-    ``clearance_direction`` ('leg' | 'motion'), ``motion`` (6 numbers: v m/s, ω rad/s).
-    More specific names override groups (``u_centre_2_x`` over ``u_centre``). Clearances the
-    spec does not name take the mechanism's design clearance (r_a, r_b); other unnamed sources
-    are 0. Unknown names, negative or non-finite values raise :class:`ConfigError` naming them.
+    ``clearance_direction`` ('any' (default) | 'leg' | 'motion'), ``motion`` (6 numbers: v m/s,
+    ω rad/s). More specific names override groups (``u_centre_2_x`` over ``u_centre``).
+    Clearances the spec does not name take the mechanism's design clearance (r_a, r_b); other
+    unnamed sources are 0. Unknown names, one component of a clearance ball
+    (``u_clearance_2_x``), negative or non-finite values raise :class:`ConfigError` naming them.
     """
     if not isinstance(data, Mapping):
         raise ConfigError(f'tolerance spec: expected a mapping, got {data!r}')
@@ -208,7 +246,8 @@ def parse_tolerance_spec(data: Mapping[str, Any], mech: Mechanism) -> ToleranceS
     if not isinstance(tolerances, Mapping) or not tolerances:
         raise ConfigError(f'tolerance spec: tolerances = {tolerances!r}: expected a mapping '
                           'of source names to tolerances (m or rad)')
-    entries = catalogue()
+    gap = _gap(data)
+    entries = catalogue(gap.mode)
     values = {name: 0.0 for name, *_ in entries}
     for name, kind, _leg, _axis in entries:
         if kind == 'u_clearance':
@@ -222,6 +261,11 @@ def parse_tolerance_spec(data: Mapping[str, Any], mech: Mechanism) -> ToleranceS
         if not isinstance(key, str) or not matched:
             raise ConfigError(f'tolerances: unknown source {key!r} (groups: {", ".join(KINDS)}; '
                               'or one leg / coordinate, e.g. leg_length_1, u_centre_2_x)')
+        if matched[0][1] in BALL_KINDS and key not in {matched[0][1], *(
+                f'{matched[0][1]}_{leg}' for leg in (1, 2, 3))}:
+            raise ConfigError(f'tolerances: {key!r} names one component of a clearance; a '
+                              'clearance bounds the length of its offset vector: name the '
+                              'joint (e.g. u_clearance_2)')
         value = _positive(f'tolerances.{key}', tolerances[key])
         limit = _MAX_ANGLE if matched[0][1] in _ANGLE_KINDS else _MAX_LENGTH
         if value > limit:
@@ -242,7 +286,7 @@ def parse_tolerance_spec(data: Mapping[str, Any], mech: Mechanism) -> ToleranceS
         distributions[kind] = law
     sources = tuple(ErrorSource(name, kind, leg, axis, values[name], distributions[kind])
                     for name, kind, leg, axis in entries)
-    return ToleranceSpec(sources, _requirement(data.get('requirement')), _gap(data))
+    return ToleranceSpec(sources, _requirement(data.get('requirement')), gap)
 
 
 def _requirement(block: Any) -> Requirement:
@@ -260,7 +304,7 @@ def _requirement(block: Any) -> Requirement:
 
 
 def _gap(data: Mapping[str, Any]) -> GapModel:
-    mode = data.get('clearance_direction', 'leg')
+    mode = data.get('clearance_direction', GapModel.mode)
     motion = data.get('motion', GapModel.twist)
     try:
         twist = tuple(float(v) for v in motion)
@@ -287,7 +331,9 @@ def draw_sources(spec: ToleranceSpec, n: int, rng: np.random.Generator) -> Float
     contiguous axis, which is what the vectorised closure solve wants. Runs of consecutive
     sources with the same law are drawn in place into their rows. The truncated normal is drawn
     by rejection from ``rng.standard_normal`` (redrawing the 0.27 % beyond 3σ): exact, and far
-    faster than ``scipy.stats.truncnorm.rvs`` on this hot path.
+    faster than ``scipy.stats.truncnorm.rvs`` on this hot path. A clearance ball (``any`` gap
+    model, :attr:`ToleranceSpec.balls`) is x·d: x the first component's draw from the law, d
+    uniform on the unit sphere (normalised standard normals), so |e| ≤ r.
     """
     if n < 0:
         raise InputError(f'n = {n}: the number of samples must be >= 0')
@@ -306,5 +352,10 @@ def draw_sources(spec: ToleranceSpec, n: int, rng: np.random.Generator) -> Float
             bounds = spec.bounds[first:stop, None]
             rows *= 2.0 * bounds
             rows -= bounds
+    if spec.balls:
+        heads = np.array([b[0] for b in spec.balls])
+        d = rng.standard_normal(size=(heads.size, 3, n))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        unit[heads[:, None] + np.arange(3)] = unit[heads][:, None, :] * d
     drawn: FloatArray = unit.T
     return drawn

@@ -1,6 +1,11 @@
 """The pose_measurement node's work without ROS: the machine's truth turned into the true
 platform pose from the true joints, and the simulated laser tracker measuring it.
 
+The tracker first locates itself (:meth:`PoseMeasurementSimulator.locate`): it reads the base
+reference targets ``locate.samples`` times, and the best fit of the averaged readings onto
+their known base coordinates is the registration through which every later reading becomes a
+base-frame point; the true tracker pose (``truth.tracker.*``) only produces the readings.
+
 The latest true joint state is kept (older ones are of no use); at most ``truth_rate_hz`` the
 true pose is computed from it (unchanged joints: the previous pose, newly stamped), and at
 ``rate_hz`` the tracker reads the targets at the current true pose and fits the pose, stamped
@@ -9,7 +14,7 @@ with the time of the truth it measured. Stamps are opaque here: whatever the cal
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -19,13 +24,24 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConvergenceError, InputError
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.metrology.fit import FitSettings, PoseFit, TooFewTargetsError
-from positioning_cell.metrology.instrument import Tracker
+from positioning_cell.metrology.instrument import TrackerAccuracy
+from positioning_cell.metrology.locate import LocateSettings, Location, locate
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.parameters import check_fields, group, setting
-from positioning_cell.sim.tracker import TrackerFaults, observe
+from positioning_cell.sim.tracker import SimulatedTracker, TrackerFaults, TrackerTruth, observe
 from positioning_cell.sim.truth import Truth, TruthParameters
 
 FloatArray = NDArray[np.float64]
+
+_LEVELS = ('ok', 'warn', 'error')
+
+
+@dataclass(frozen=True)
+class SimulationTruth(TruthParameters):
+    """The pose_measurement node's ``truth:`` block (read-only): the machine
+    (:class:`TruthParameters`) and the tracker as it really is (``truth.tracker.*``)."""
+
+    tracker: TrackerTruth = group(TrackerTruth, 'the tracker\'s true pose and systematic errors')
 
 
 @dataclass(frozen=True)
@@ -35,8 +51,9 @@ class PoseMeasurementSettings:
     mechanism: Mechanism = group(Mechanism, 'the nominal machine')
     payload: Payload = group(Payload, 'what the platform carries (load-driven clearance)')
     structure: Structure = group(Structure, 'stiffness and masses of the machine')
-    truth: TruthParameters = group(TruthParameters, 'simulation truth (read-only)')
-    tracker: Tracker = group(Tracker, 'the laser tracker')
+    truth: SimulationTruth = group(SimulationTruth, 'simulation truth (read-only)')
+    tracker: TrackerAccuracy = group(TrackerAccuracy, 'the laser tracker\'s datasheet accuracy')
+    locate: LocateSettings = group(LocateSettings, 'locating the tracker on base targets')
     targets: TargetLayout = group(TargetLayout, 'the SMRs on the platform')
     fault: TrackerFaults = group(TrackerFaults, 'injected measurement faults')
     fit: FitSettings = group(FitSettings, 'the pose fit')
@@ -77,7 +94,10 @@ class PoseMeasurementSimulator:
     def __init__(self, settings: PoseMeasurementSettings) -> None:
         self.settings = settings
         self.truth = settings.true_machine()
+        self.instrument = SimulatedTracker(settings.truth.tracker, settings.tracker)
         self._rng = np.random.default_rng(settings.seed)
+        self.location: Location | None = None
+        self.locate_status = ('error', 'tracker not located')
         self._latest: tuple[FloatArray, Any] | None = None
         self._joints = np.full(6, np.nan)  # joints of the current true pose (NaN: none)
         self._phis: FloatArray | None = None
@@ -86,11 +106,67 @@ class PoseMeasurementSimulator:
         self.stats: dict[str, Any] = {
             'targets_visible': 0, 'targets_used': 0, 'outliers_rejected': 0,
             'outliers_rejected_total': 0, 'fit_residual_rms_um': float('nan'),
-            'measurements': 0, 'failed_measurements': 0, 'truth_updates': 0}
+            'measurements': 0, 'failed_measurements': 0, 'truth_updates': 0, 'locations': 0}
+        self.locate()
 
     def reconfigure(self, settings: PoseMeasurementSettings) -> None:
-        """New dynamic settings (tracker, targets, faults, fit); the truth is read-only."""
+        """New dynamic settings (tracker, targets, faults, fit); the truth is read-only. A new
+        datasheet accuracy re-locates the tracker (its registration's weights and covariance
+        come from it); if that fails the old registration is kept, with the new accuracy."""
+        accuracy_changed = settings.tracker != self.settings.tracker
         self.settings = settings
+        self.instrument = SimulatedTracker(settings.truth.tracker, settings.tracker)
+        if accuracy_changed and not self.locate()[0] and self.location is not None:
+            self.location = self.location._replace(
+                tracker=replace(self.location.tracker, accuracy=settings.tracker))
+
+    def locate(self) -> tuple[bool, str]:
+        """Locate the tracker: ``locate.samples`` readings of every base target (with the
+        injected faults), averaged and fitted (:func:`locate`). (success, message); on
+        failure the previous registration, if any, stays in use."""
+        s = self.settings
+        base = s.locate.array
+        try:
+            readings = self.instrument.read(np.broadcast_to(base, (s.locate.samples,
+                                                                   *base.shape)),
+                                            self._rng, s.fault)
+            location = locate(s.tracker, base, readings.local)
+        except InputError as err:  # LocateError among them
+            kept = '; keeping the previous registration' if self.location else ''
+            self.locate_status = ('error', f'locate failed: {err}{kept}')
+            return False, self.locate_status[1]
+        self.location = location
+        self.stats['locations'] += 1
+        worst = int(np.nanargmax(location.normalised))
+        summary = (f'tracker located on {int(location.used.sum())}/{len(base)} base targets: '
+                   f'residual RMS {location.rms * 1e6:.1f} um, max {location.max * 1e6:.1f} um '
+                   f'(target {worst}, {location.normalised[worst]:.1f} sigma)')
+        if location.normalised[worst] > s.locate.residual_limit:
+            self.locate_status = ('warn', f'{summary}: beyond {s.locate.residual_limit:g} '
+                                          'sigma, check that target')
+        else:
+            self.locate_status = ('ok', summary)
+        return True, summary
+
+    def location_values(self) -> dict[str, Any]:
+        """The located registration and its residuals, for /diagnostics (µm, µrad)."""
+        loc = self.location
+        if loc is None:
+            return {}
+        sigma = np.sqrt(np.diag(loc.tracker.covariance if loc.tracker.covariance is not None
+                                else np.zeros((6, 6))))
+        return {
+            'located_position': [round(v, 7) for v in loc.tracker.position],
+            'located_orientation': [round(v, 9) for v in loc.tracker.orientation],
+            'registration_sigma_position_um': np.round(sigma[:3] * 1e6, 2).tolist(),
+            'registration_sigma_rotation_urad': np.round(sigma[3:] * 1e6, 2).tolist(),
+            'locate_residual_rms_um': round(loc.rms * 1e6, 2),
+            'locate_residual_max_um': round(loc.max * 1e6, 2),
+            'locate_residuals_um': np.round(np.linalg.norm(loc.residuals, axis=1) * 1e6,
+                                            2).tolist(),
+            'locate_residuals_sigma': np.round(loc.normalised, 2).tolist(),
+            'locate_variance_factor': round(loc.variance_factor, 3),
+        }
 
     def joints(self, values: ArrayLike | None, stamp: Any) -> None:
         """The latest true joint state (6,) m / rad in JOINT_NAMES order (None: the message
@@ -113,7 +189,7 @@ class PoseMeasurementSimulator:
             self.true_pose = self.true_pose._replace(stamp=stamp)  # the machine has not moved
         else:
             try:
-                result = self.truth.attained_pose(joints[:3], joints[3:], self._phis)
+                result = self.truth.poses(joints[:3], joints[3:], self._phis)
                 if not result.converged[0]:
                     raise ConvergenceError('forward kinematics did not converge')
             except (InputError, ConvergenceError) as err:
@@ -130,11 +206,14 @@ class PoseMeasurementSimulator:
         targets visible; :attr:`status` says so)."""
         if self.true_pose is None:
             return None
+        if self.location is None:
+            self.status = ('error', 'no measurement: the tracker is not located')
+            return None
         s = self.settings
         try:
-            _, fit = observe(s.tracker, s.targets, self.true_pose.position,
-                             self.true_pose.quaternion, self._rng, s.fault,
-                             reject_threshold=s.fit.reject_threshold)
+            _, fit = observe(self.instrument, self.location.tracker, s.targets,
+                             self.true_pose.position, self.true_pose.quaternion, self._rng,
+                             s.fault, reject_threshold=s.fit.reject_threshold)
         except TooFewTargetsError as err:
             self.stats['failed_measurements'] += 1
             self.status = ('warn', f'no measurement: {err}')
@@ -155,4 +234,8 @@ class PoseMeasurementSimulator:
         if level == 'ok':
             message = (f'{self.stats["targets_used"]}/{len(self.settings.targets.platform)} '
                        f'targets, residual RMS {self.stats["fit_residual_rms_um"]} um')
-        return level, message, dict(self.stats)
+        locate_level, locate_message = self.locate_status
+        if locate_level != 'ok':
+            level = max(level, locate_level, key=_LEVELS.index)
+            message = f'{message}; {locate_message}'
+        return level, message, {**self.stats, **self.location_values()}

@@ -15,11 +15,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.srv import GetPlan
 from numpy.typing import ArrayLike
 from rcl_interfaces.msg import SetParametersResult
-from rcl_interfaces.srv import ListParameters, SetParameters
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
+from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
@@ -51,6 +51,7 @@ class CellClient:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients: dict[str, Any] = {}
+        self._in_flight: list[Future] = []
         self._statuses: dict[str, list[DiagnosticStatus]] | None = None
         self._program: Any = None
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -82,8 +83,16 @@ class CellClient:
         """Call a service (waiting up to ``min(timeout, 30)`` s for it to appear) and return
         the response; TimeoutError names what did not come."""
         future = self.service(srv_type, name, min(timeout, 30.0)).call_async(request)
+        self._in_flight.append(future)
         wait_until(future.done, timeout, f'the response of {name}')
+        self._in_flight.remove(future)
         return future.result()
+
+    def answered(self) -> bool:
+        """Every call this client made has its response (a call left by an exception, e.g. an
+        interrupt, included)."""
+        self._in_flight = [f for f in self._in_flight if not f.done()]
+        return not self._in_flight
 
     def call_many(self, srv_type: Any, name: str, requests: Sequence[Any]) -> list[Future]:
         """Send every request at once (the service must be there: :meth:`service`); their
@@ -116,6 +125,12 @@ class CellClient:
     def subscribed(self, topic: str, node: str) -> bool:
         """Has node ``node`` a subscription on ``topic``?"""
         return any(i.node_name == node for i in self.node.get_subscriptions_info_by_topic(topic))
+
+    def get_parameter(self, node: str, name: str) -> Any:
+        """The value of one parameter of ``node``."""
+        response = self.call(GetParameters, f'/{node}/get_parameters',
+                             GetParameters.Request(names=[name]))
+        return parameter_value_to_python(response.values[0])
 
     def set_parameter(self, node: str, name: str, value: Any) -> SetParametersResult:
         """Set one parameter of ``node``; the node's result (``successful``, ``reason``)."""

@@ -27,6 +27,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
@@ -36,10 +37,12 @@ import yaml
 
 from positioning_cell import names
 from positioning_cell.analysis.program import Program, ProgramStep, load_program
+from positioning_cell.calibration.program import ProgramSettings
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
 from positioning_cell.tools.analyze_bag import EXIT_OK, analyze, describe
+from positioning_cell.tools.calibrate_cell import Machine, run_live
 from positioning_cell.tools.domains import DomainError, free_domain
 from positioning_cell.tools.polling import wait_until
 from positioning_cell.tools.processes import Processes, cell_environment
@@ -83,18 +86,29 @@ def _call(what: Callable[[], Any]) -> Any:
         raise StartError(str(err)) from err
 
 
-def model_note(params: dict[str, Any]) -> str:
-    """Where the `model` mode's clearance parameters come from (the report says it)."""
-    comp = node_parameters(params, names.NODE_POSITIONER).get('compensation', {}).get(
-        'clearance', {})
-    truth = node_parameters(params, names.NODE_MEASUREMENT).get('truth', {}).get('clearance', {})
-    if comp and all(comp.get(k) == v for k, v in truth.items()):
-        return ('The `model` and `measured` modes compensate with the simulator\'s true '
-                'clearance parameters (positioner.compensation.clearance = '
-                'pose_measurement.truth.clearance in the config): the cell does not yet '
-                'identify its own, so `model` shows what a perfectly identified model gives.')
-    return ('The `model` mode compensates with positioner.compensation.clearance of the '
-            'config, which differs from the simulator\'s true clearance.')
+def calibrate(client: CellClient, program: Program, config: Path, run_dir: Path,
+              say: Callable[[str], None]) -> str:
+    """The run's calibration (``program.calibration``: calibrate_cell on the live cell, the
+    result loaded by the positioner); the note the report gives the compensated modes."""
+    cal = program.calibration
+    if cal is None:
+        return ('No calibration in this run: `model` and `measured` use the a-priori clearance '
+                'model of the config (positioner.compensation.clearance).')
+    say(f'calibrating: {cal.poses} poses + {cal.hold_out} hold-out, {cal.samples} tracker '
+        'readings each')
+    settings = replace(ProgramSettings(), poses=cal.poses, hold_out=cal.hold_out)
+    try:
+        status, path = run_live(client, Machine.from_config(config), settings, cal.samples,
+                                run_dir / 'calibration', say, load=True)
+    except (TimeoutError, PositioningError) as err:
+        status, path = 1, None
+        say(f'run_cell: calibration failed: {err}')
+    if status != 0 or path is None:
+        return ('The calibration failed: `model` and `measured` use the a-priori clearance '
+                'model of the config.')
+    return (f'`model` and `measured` use the machine the cell identified from its own '
+            f'measurements in this run ({path.relative_to(run_dir)}); only the truth table '
+            'reads the simulator.')
 
 
 def _overrides(run_dir: Path) -> Path:
@@ -261,7 +275,8 @@ def run(program_path: Path | None = None, config: Path | None = None,
                 client.advertise_program()
                 say(f'ROS_DOMAIN_ID {domain}, logs in {run_dir / "logs"}')
                 _start(procs, client, config, _overrides(run_dir), program, say)
-                failed = drive(client, program, model_note(params), say)
+                note = calibrate(client, program, config, run_dir, say)
+                failed = drive(client, program, note, say)
                 live = _call(client.monitor_report)
             except StartError as err:
                 say(f'run_cell: error: {err}')

@@ -1,0 +1,149 @@
+"""``calibration.yaml``: an identified machine as the positioner loads it.
+
+One YAML mapping under ``calibration:``: ``format`` (1), ``mechanism_fingerprint`` (of the
+nominal mechanism it was identified over: a file of another machine is refused), ``date``
+(ISO 8601, UTC), ``program`` (how it was measured), ``parameters`` (every parameter of
+:data:`positioning_cell.calibration.parameters.PARAMETER_NAMES`: ``value``, ``sigma`` (null
+when fixed), ``unit``, ``identified``), ``fixed`` (each parameter the data could not separate,
+with those that absorbed it), ``seating_force`` (N) and ``residuals`` (χ², degrees of freedom,
+pose-space residual per pose in µm) and, when measured, ``hold_out``.
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from positioning_cell.calibration import parameters as cp
+from positioning_cell.calibration.identify import Identification
+from positioning_cell.calibration.machine import MachineModel
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import ConfigError
+from positioning_cell.mechanics.statics import Payload, Structure
+
+FloatArray = NDArray[np.float64]
+FORMAT = 1
+_GEOMETRY_KEYS = ('base_radius', 'platform_radius', 'home_length', 'base_offsets',
+                  'platform_offsets')
+
+
+class CalibrationFileError(ConfigError):
+    """A calibration file that cannot be used: unreadable, malformed, or of another mechanism
+    (the message says which and why)."""
+
+
+def fingerprint(mech: Mechanism) -> str:
+    """Fingerprint of a nominal mechanism's geometry (16 hex digits of SHA-256 of its
+    geometric parameters): a calibration belongs to the machine it was identified on."""
+    params = mech.to_params()
+    geometry = {k: params[k] for k in _GEOMETRY_KEYS}
+    text = json.dumps(geometry, sort_keys=True, default=lambda v: np.asarray(v).tolist())
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A loaded calibration: the vector ``x`` (COUNT,), its ``sigma`` (NaN: fixed), which
+    parameters were ``identified``, the ``seating_force`` N, and everything else of the file
+    in ``meta``."""
+
+    x: FloatArray
+    sigma: FloatArray
+    identified: NDArray[np.bool_]
+    seating_force: float = 1.0
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def model(self, nominal: Mechanism, payload: Payload, structure: Structure) -> MachineModel:
+        """The calibrated machine carrying ``payload``."""
+        return cp.machine_model(self.x, nominal, payload, structure, self.seating_force)
+
+
+def document(result: Identification, nominal: Mechanism, seating_force: float,
+             program: dict[str, Any], hold_out: dict[str, Any] | None = None,
+             date: datetime.datetime | None = None) -> dict[str, Any]:
+    """The file's content (module docstring) for an identification over ``nominal``."""
+    when = (date or datetime.datetime.now(datetime.UTC)).isoformat(timespec='seconds')
+    sigma = result.sigma
+    params = {
+        name: {'value': float(result.x[k]),
+               'sigma': None if math.isnan(sigma[k]) else float(sigma[k]),
+               'unit': cp.UNITS[k], 'identified': bool(result.identifiability.identified[k])}
+        for k, name in enumerate(cp.PARAMETER_NAMES)}
+    fixed = {name: [f'{partner} ({coef:+.3f})' for partner, coef in partners]
+             for name, partners in result.identifiability.merged.items()}
+    body: dict[str, Any] = {
+        'format': FORMAT, 'mechanism_fingerprint': fingerprint(nominal), 'date': when,
+        'program': program, 'seating_force': float(seating_force), 'parameters': params,
+        'fixed': fixed,
+        'residuals': {'chi2': round(result.chi2, 3), 'dof': result.dof,
+                      'pose_position_um': [round(float(v) * 1e6, 3)
+                                           for v in result.pose_residual_position]}}
+    if hold_out is not None:
+        body['hold_out'] = hold_out
+    return {'calibration': body}
+
+
+def write(path: str | Path, content: dict[str, Any]) -> Path:
+    """Write the document to ``path`` (through a temporary file: never half a file)."""
+    out = Path(path)
+    tmp = out.with_name(out.name + '.part')
+    tmp.write_text(yaml.safe_dump(content, sort_keys=False))
+    tmp.replace(out)
+    return out
+
+
+def load(path: str | Path, nominal: Mechanism) -> Calibration:
+    """Read and check a calibration file for the nominal machine ``nominal``;
+    CalibrationFileError naming what is wrong otherwise."""
+    where = f'calibration file {str(path)!r}'
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except OSError as err:
+        raise CalibrationFileError(f'{where}: cannot be read ({err.strerror})') from None
+    except yaml.YAMLError as err:
+        raise CalibrationFileError(f'{where}: not YAML ({err})') from None
+    body = data.get('calibration') if isinstance(data, dict) else None
+    if not isinstance(body, dict):
+        raise CalibrationFileError(f'{where}: no "calibration:" mapping')
+    if body.get('format') != FORMAT:
+        raise CalibrationFileError(f'{where}: format {body.get("format")!r}, expected {FORMAT}')
+    mine = fingerprint(nominal)
+    if body.get('mechanism_fingerprint') != mine:
+        raise CalibrationFileError(
+            f'{where}: belongs to mechanism {body.get("mechanism_fingerprint")!r}, this '
+            f'positioner is {mine!r} (identified on another machine or geometry)')
+    params = body.get('parameters')
+    if not isinstance(params, dict):
+        raise CalibrationFileError(f'{where}: no "parameters:" mapping')
+    missing = [n for n in cp.PARAMETER_NAMES if n not in params]
+    if missing:
+        raise CalibrationFileError(f'{where}: lacks parameters {", ".join(missing)}')
+    x = np.empty(cp.COUNT)
+    sigma = np.full(cp.COUNT, np.nan)
+    identified = np.zeros(cp.COUNT, dtype=bool)
+    for k, name in enumerate(cp.PARAMETER_NAMES):
+        entry = params[name]
+        value = entry.get('value') if isinstance(entry, dict) else None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
+            raise CalibrationFileError(f'{where}: {name}.value = {value!r}: not a finite number')
+        x[k] = value
+        identified[k] = bool(entry.get('identified', False))
+        if entry.get('sigma') is not None:
+            sigma[k] = float(entry['sigma'])
+    if x[cp.R_A] < 0.0 or x[cp.R_B] < 0.0:
+        raise CalibrationFileError(f'{where}: a clearance is negative')
+    seating = body.get('seating_force', 1.0)
+    if isinstance(seating, bool) or not isinstance(seating, (int, float)) or seating <= 0.0:
+        raise CalibrationFileError(f'{where}: seating_force = {seating!r}: must be > 0 N')
+    meta = {k: v for k, v in body.items() if k not in ('parameters',)}
+    return Calibration(x, sigma, identified, float(seating), meta)

@@ -1,0 +1,357 @@
+"""Identification of a machine model from a calibration run: weighted nonlinear least squares
+of the geometric and clearance parameters (:mod:`positioning_cell.calibration.parameters`)
+from measured platform poses and the encoder readings at them.
+
+The residual of pose k is in joint space (the inverse-kinematic formulation of parallel-robot
+calibration, e.g. Zhuang 1997; seed 000 eq. 9 in its exact vector form): the encoder values the
+model predicts at the measured pose, minus the encoder values read,
+
+    r_k = IK_x(p_k, q_k) − δ − e_k   (6: three lengths m, three θ rad),
+
+closed form per leg with the load model's joint-centre shifts
+d_i = p + R (b_i + r_b s_B,i) − (A_i + r_a s_A,i), l_i = |d_i|, θ_i = asin(u_i · e_t,i)
+(s_A, s_B the seated force directions of :class:`~positioning_cell.clearance.load
+.LoadAwareClearance` at the measured pose). Its Jacobian is analytic: ∂l/∂d = uᵀ,
+∂θ/∂d = wᵀ with w = (e_t − (u·e_t) u) / (l cos θ) (the rows of
+:func:`positioning_cell.core.kinematics.inverse_jacobian`); the force directions s_A, s_B are
+those of the current geometry, held constant in the Jacobian (turning them adds at most a few
+per cent to a joint-centre column: 0.1 mm of geometry turns them by ~2 mrad). The residuals
+are exact, so the fit reaches the same minimum; only its covariance is that approximate.
+Each residual is whitened by its
+covariance J⁻¹ Σ_pose J⁻ᵀ + Σ_encoder (Σ_pose the tracker fit's, mapped through the inverse
+Jacobian J⁻¹), so the weighted sum of squares is χ² with 6N − n degrees of freedom.
+
+Identifiability: the whitened Jacobian in units of each parameter's expected size is
+decomposed by QR with column pivoting (the base-parameter method of Khalil & Dombre). A
+parameter whose new information |R_jj| is below ``min_information`` (its standard uncertainty
+would exceed 1/min_information of its expected size) cannot be separated from those already
+chosen: it is fixed at its nominal value (0) and the parameters that absorb it are named.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+
+from positioning_cell.calibration import parameters as cp
+from positioning_cell.calibration.machine import MachineModel
+from positioning_cell.clearance import LoadAwareClearance
+from positioning_cell.core.kinematics import inverse_jacobian, jacobian
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import as_pose_batch, matrix_from_quaternion
+from positioning_cell.errors import InputError
+from positioning_cell.mechanics.statics import Payload, Structure
+from positioning_cell.parameters import check_fields, setting
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+class IdentificationError(InputError):
+    """The data cannot identify the model (too few or degenerate poses); the message gives the
+    rank and the parameters left unidentifiable."""
+
+
+@dataclass(frozen=True)
+class IdentificationSettings:
+    """How identification treats its data (the ``identification:`` block)."""
+
+    min_information: float = setting(
+        3.0, 'a parameter is identified when its standard uncertainty is at most its expected '
+        'size divided by this', low=0.0, low_open=True, high=1e6)
+    min_identified: int = setting(
+        12, 'refuse data that identify fewer parameters than this', low=1, high=cp.COUNT)
+    min_poses: int = setting(8, 'refuse fewer measured poses than this', low=2, high=10000)
+    seating_force: float = setting(1.0, 'F_0 of the load model', 'N', low=0.0, low_open=True)
+    fit_clearance: bool = setting(True, 'identify the clearances r_a, r_b (false: a '
+                                  'geometry-only fit, the clearance fixed at 0)')
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+class CalibrationData(NamedTuple):
+    """A calibration run, N stationary poses: the encoder means ``joints`` (N, 6) (lengths m,
+    then θ rad, JOINT_NAMES order) and their standard uncertainties ``joint_sigma`` (N, 6);
+    the measured pose ``position`` (N, 3) m, ``quaternion`` (N, 4) x, y, z, w in ``base`` and
+    its ``covariance`` (N, 6, 6) (x, y, z, rot-x, rot-y, rot-z; m², rad²)."""
+
+    joints: FloatArray
+    joint_sigma: FloatArray
+    position: FloatArray
+    quaternion: FloatArray
+    covariance: FloatArray
+
+    def subset(self, rows: ArrayLike) -> CalibrationData:
+        """The poses ``rows`` (indices or a mask)."""
+        idx = np.asarray(rows)
+        return CalibrationData(*(np.asarray(a)[idx] for a in self))
+
+
+def check_data(data: CalibrationData) -> CalibrationData:
+    """The data as float arrays with consistent shapes and finite values (InputError naming
+    the field otherwise); quaternions normalised."""
+    p, q = as_pose_batch(data.position, data.quaternion)
+    n = p.shape[0]
+    shapes = {'joints': (n, 6), 'joint_sigma': (n, 6), 'covariance': (n, 6, 6)}
+    arrays = {}
+    for name, shape in shapes.items():
+        arr = np.asarray(getattr(data, name), dtype=float)
+        if arr.shape != shape:
+            raise InputError(f'calibration data {name} has shape {arr.shape}, expected {shape}')
+        if not np.all(np.isfinite(arr)):
+            raise InputError(f'calibration data {name} holds non-finite values')
+        arrays[name] = arr
+    if np.any(arrays['joint_sigma'] <= 0.0):
+        raise InputError('calibration data joint_sigma must be > 0')
+    return CalibrationData(arrays['joints'], arrays['joint_sigma'], p, q, arrays['covariance'])
+
+
+def predicted_joints(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
+                     position: FloatArray, quaternion: FloatArray, seating_force: float = 1.0,
+                     *, with_jacobian: bool = False,
+                     directions: tuple[FloatArray, FloatArray] | None = None,
+                     ) -> tuple[FloatArray, FloatArray | None]:
+    """Encoder values (N, 6) the machine of vector ``x`` reads at validated poses (N, 3),
+    (N, 4), and (``with_jacobian``) their analytic Jacobian (N, 6, COUNT) in the vector's units
+    (module docstring). ``directions``: the seated force directions (s_A base frame, s_B
+    platform frame, (N, 3, 3) each) to use instead of those of this geometry
+    (:func:`force_directions`)."""
+    mech = _geometry(x, nominal)
+    s_a, s_b = directions or force_directions(x, nominal, payload, structure, position,
+                                              quaternion, seating_force)
+    rot = matrix_from_quaternion(quaternion)
+    s_b_base = np.einsum('nij,nkj->nki', rot, s_b)
+    r_a, r_b = x[cp.R_A], x[cp.R_B]
+    b_base = np.einsum('nij,kj->nki', rot, mech.platform_joints)
+    d = position[:, None, :] + b_base + r_b * s_b_base - (mech.base_joints + r_a * s_a)
+    length = np.linalg.norm(d, axis=2)
+    u = d / length[..., None]
+    ut = np.einsum('nkj,kj->nk', u, mech.tangential)
+    theta = np.arcsin(np.clip(ut, -1.0, 1.0))
+    pred = np.concatenate([length - x[cp.LENGTH], theta - x[cp.THETA]], axis=1)
+    if not with_jacobian:
+        return pred, None
+    cos_t = np.sqrt(np.clip(1.0 - ut**2, 1e-300, None))
+    w = (mech.tangential - ut[..., None] * u) / (length * cos_t)[..., None]
+    n = position.shape[0]
+    jac = np.zeros((n, 6, cp.COUNT))
+    for i in range(3):  # three legs, each block vectorised over the poses
+        base_cols = slice(cp.BASE.start + 3 * i, cp.BASE.start + 3 * i + 3)
+        plat_cols = slice(cp.PLATFORM.start + 3 * i, cp.PLATFORM.start + 3 * i + 3)
+        for row, g in ((i, u[:, i]), (3 + i, w[:, i])):
+            jac[:, row, base_cols] = -g
+            jac[:, row, plat_cols] = np.einsum('nj,njk->nk', g, rot)
+            jac[:, row, cp.R_A] = -np.einsum('nj,nj->n', g, s_a[:, i])
+            jac[:, row, cp.R_B] = np.einsum('nj,nj->n', g, s_b_base[:, i])
+        jac[:, i, cp.LENGTH.start + i] = -1.0
+        jac[:, 3 + i, cp.THETA.start + i] = -1.0
+    return pred, jac
+
+
+def _geometry(x: FloatArray, nominal: Mechanism) -> Mechanism:
+    """The mechanism with the joint-centre errors of ``x``."""
+    return nominal.with_offsets(np.asarray(nominal.base_offsets) + x[cp.BASE].reshape(3, 3),
+                                np.asarray(nominal.platform_offsets)
+                                + x[cp.PLATFORM].reshape(3, 3))
+
+
+def force_directions(x: FloatArray, nominal: Mechanism, payload: Payload,
+                     structure: Structure, position: FloatArray, quaternion: FloatArray,
+                     seating_force: float = 1.0) -> tuple[FloatArray, FloatArray]:
+    """The seated joint-force directions of the geometry of ``x`` at poses: s_A (N, 3, 3) base
+    frame, s_B (N, 3, 3) platform frame (:meth:`LoadAwareClearance.offsets` with r = 1)."""
+    unit = LoadAwareClearance(1.0, 1.0, payload, structure, seating_force)
+    return unit.offsets(_geometry(x, nominal), position, quaternion)
+
+
+def whitening(nominal: Mechanism, data: CalibrationData) -> FloatArray:
+    """W_k (N, 6, 6) with W_k C_k W_kᵀ = I, C_k = J⁻¹ Σ_k J⁻ᵀ + diag(σ_joint²): the joint-space
+    covariance of pose k's residual."""
+    jinv = inverse_jacobian(nominal, data.position, data.quaternion)
+    cov = jinv @ data.covariance @ np.swapaxes(jinv, 1, 2)
+    cov = cov + np.einsum('ni,ij->nij', data.joint_sigma**2, np.eye(6))
+    chol = np.linalg.cholesky(cov)
+    eye = np.broadcast_to(np.eye(6), chol.shape)
+    white: FloatArray = np.asarray(np.linalg.solve(chol, eye), dtype=float)
+    return white
+
+
+class Identifiability(NamedTuple):
+    """Which parameters the data can separate: ``identified`` (COUNT,) mask; ``information``
+    (COUNT,) |R_jj| of the pivoted QR in units of each parameter's expected size (the inverse of
+    its standard uncertainty in those units, had it been added last); ``merged``, per fixed
+    parameter, the identified ones that absorb it (name, coefficient); ``singular_values``
+    (COUNT,) of the scaled whitened Jacobian, largest first."""
+
+    identified: BoolArray
+    information: FloatArray
+    merged: dict[str, tuple[tuple[str, float], ...]]
+    singular_values: FloatArray
+
+    @property
+    def rank(self) -> int:
+        """How many parameters are identified."""
+        return int(self.identified.sum())
+
+
+def identifiability(scaled_jacobian: FloatArray, min_information: float) -> Identifiability:
+    """Identifiable parameters of a whitened Jacobian (M, COUNT) in units of the parameters'
+    expected sizes (module docstring)."""
+    _, r, piv = scipy.linalg.qr(scaled_jacobian, mode='economic', pivoting=True)
+    diag = np.abs(np.diag(r))
+    top = diag[0] if diag.size else 0.0
+    info = np.zeros(cp.COUNT)
+    info[piv[:diag.size]] = diag
+    keep = np.zeros(cp.COUNT, dtype=bool)
+    for j, col in enumerate(piv[:diag.size]):
+        if diag[j] < min_information or diag[j] <= 1e-10 * top:
+            break
+        keep[col] = True
+    merged: dict[str, tuple[tuple[str, float], ...]] = {}
+    kept_cols = np.flatnonzero(keep)
+    if kept_cols.size and (~keep).any():
+        coef, *_ = np.linalg.lstsq(scaled_jacobian[:, kept_cols],
+                                   scaled_jacobian[:, ~keep], rcond=None)
+        for k, col in enumerate(np.flatnonzero(~keep)):
+            order = np.argsort(-np.abs(coef[:, k]))
+            partners = tuple((cp.PARAMETER_NAMES[kept_cols[o]], round(float(coef[o, k]), 3))
+                             for o in order[:3] if abs(coef[o, k]) >= 0.1)
+            merged[cp.PARAMETER_NAMES[col]] = partners
+    elif not kept_cols.size:
+        merged = {name: () for name in cp.PARAMETER_NAMES}
+    sv = np.asarray(np.linalg.svd(scaled_jacobian, compute_uv=False), dtype=float)
+    return Identifiability(keep, info, merged, sv)
+
+
+@dataclass(frozen=True)
+class Identification:
+    """An identified machine: the vector ``x`` (COUNT,) (fixed parameters 0), its covariance
+    (COUNT, COUNT) (zero rows and columns for fixed parameters; scaled by the a-posteriori
+    variance factor when χ²/dof > 1), the :class:`Identifiability`, the raw joint residuals
+    (N, 6) and their whitened sum of squares ``chi2`` with ``dof`` degrees of freedom, and
+    the pose-space residual position per pose (N,) m (the joint residual through the
+    velocity Jacobian), and ``nfev`` function evaluations."""
+
+    x: FloatArray
+    covariance: FloatArray
+    identifiability: Identifiability
+    residuals: FloatArray
+    pose_residual_position: FloatArray
+    chi2: float
+    dof: int
+    nfev: int
+
+    @property
+    def sigma(self) -> FloatArray:
+        """Standard uncertainty per parameter (COUNT,), NaN for fixed ones."""
+        out = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        return np.where(self.identifiability.identified, out, np.nan)
+
+    def model(self, nominal: Mechanism, payload: Payload, structure: Structure,
+              seating_force: float = 1.0) -> MachineModel:
+        """The identified machine carrying ``payload`` (any payload: the clearance is a load
+        model, so a new panel needs its mass and centre of gravity, not a new calibration)."""
+        return cp.machine_model(self.x, nominal, payload, structure, seating_force)
+
+
+def identify(nominal: Mechanism, payload: Payload, structure: Structure,
+             data: CalibrationData,
+             settings: IdentificationSettings | None = None) -> Identification:
+    """Identify the machine model from ``data`` (module docstring). IdentificationError when
+    there are too few poses or they identify fewer than ``settings.min_identified``
+    parameters (the message names the rank and the unidentifiable parameters)."""
+    s = settings or IdentificationSettings()
+    data = check_data(data)
+    n = data.position.shape[0]
+    if n < s.min_poses:
+        raise IdentificationError(f'{n} poses: a calibration needs at least {s.min_poses}')
+    scale = cp.scales(nominal)
+    white = whitening(nominal, data)
+
+    def evaluate(x: FloatArray, jac: bool) -> tuple[FloatArray, FloatArray | None]:
+        pred, j = predicted_joints(x, nominal, payload, structure, data.position,
+                                   data.quaternion, s.seating_force, with_jacobian=jac)
+        res = np.einsum('nij,nj->ni', white, pred - data.joints).ravel()
+        if j is None:
+            return res, None
+        return res, (white @ j).reshape(6 * n, cp.COUNT) * scale
+
+    x0 = np.zeros(cp.COUNT)
+    x0[cp.R_A], x0[cp.R_B] = scale[cp.R_A], scale[cp.R_B]
+    _, j0 = evaluate(x0, True)
+    assert j0 is not None
+    if not s.fit_clearance:
+        j0[:, [cp.R_A, cp.R_B]] = 0.0
+        x0[cp.R_A] = x0[cp.R_B] = 0.0
+    ident = identifiability(j0, s.min_information)
+    if ident.rank < s.min_identified or 6 * n <= ident.rank:
+        unknown = ', '.join(name for name, ok in zip(cp.PARAMETER_NAMES, ident.identified,
+                                                      strict=True) if not ok)
+        raise IdentificationError(
+            f'{n} poses identify {ident.rank} of {cp.COUNT} parameters (at least '
+            f'{s.min_identified} needed); not identifiable: {unknown}')
+    free = np.flatnonzero(ident.identified)
+    start = np.where(ident.identified, x0, 0.0)
+
+    def full(z: FloatArray) -> FloatArray:
+        x = start.copy()
+        x[free] = z * scale[free]
+        return x
+
+    def fun(z: FloatArray) -> FloatArray:
+        return evaluate(full(z), False)[0]
+
+    def jac(z: FloatArray) -> FloatArray:
+        j = evaluate(full(z), True)[1]
+        assert j is not None
+        return j[:, free]
+
+    lower = np.where(np.isin(free, (cp.R_A, cp.R_B)), 0.0, -np.inf)
+    fit = least_squares(fun, start[free] / scale[free], jac=jac, method='trf',
+                        bounds=(lower, np.full(free.size, np.inf)), x_scale=1.0,
+                        xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100)
+    x = full(fit.x)
+    res_white, j_final = evaluate(x, True)
+    assert j_final is not None
+    chi2 = float(res_white @ res_white)
+    dof = 6 * n - free.size
+    jf = j_final[:, free]
+    cov_scaled = np.linalg.pinv(jf.T @ jf)
+    factor = max(chi2 / dof, 1.0) if dof > 0 else 1.0
+    cov = np.zeros((cp.COUNT, cp.COUNT))
+    cov[np.ix_(free, free)] = cov_scaled * factor * np.outer(scale[free], scale[free])
+    pred, _ = predicted_joints(x, nominal, payload, structure, data.position, data.quaternion,
+                               s.seating_force)
+    residuals = pred - data.joints
+    pose_res = np.einsum('nij,nj->ni', jacobian(nominal, data.position, data.quaternion).matrix,
+                         residuals)
+    return Identification(x, cov, ident, residuals, np.linalg.norm(pose_res[:, :3], axis=1),
+                          chi2, dof, int(fit.nfev))
+
+
+def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
+                     position: ArrayLike, quaternion: ArrayLike, covariance: FloatArray,
+                     joint_sigma: ArrayLike, seating_force: float = 1.0) -> FloatArray:
+    """The scaled whitened identification Jacobian of candidate poses (N, 6, COUNT): what each
+    pose would add to the calibration (for choosing the measurement program). ``covariance``
+    (6, 6) or (N, 6, 6) the expected pose measurement covariance, ``joint_sigma`` (6,) the
+    encoders'."""
+    p, q = as_pose_batch(position, quaternion)
+    n = p.shape[0]
+    data = CalibrationData(np.zeros((n, 6)), np.broadcast_to(np.asarray(joint_sigma,
+                                                                          dtype=float), (n, 6)),
+                           p, q, np.broadcast_to(covariance, (n, 6, 6)))
+    scale = cp.scales(nominal)
+    x0 = np.zeros(cp.COUNT)
+    x0[cp.R_A], x0[cp.R_B] = scale[cp.R_A], scale[cp.R_B]
+    _, j = predicted_joints(x0, nominal, payload, structure, p, q, seating_force,
+                            with_jacobian=True)
+    assert j is not None
+    rows: FloatArray = whitening(nominal, data) @ j * scale
+    return rows

@@ -1,0 +1,70 @@
+"""A calibration run simulated offline, without ROS: what the cell would record when it
+commands each pose of a program and measures it stationary. The machine (the truth) goes
+where its commanded encoder values put it; the encoders read those values with their noise
+and resolution, averaged over ``samples`` readings; the tracker measures the true pose
+``samples`` times and the cell averages the fits. The result holds only what the cell would
+see (:class:`~positioning_cell.calibration.identify.CalibrationData`); the truth stays here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from positioning_cell.calibration.identify import CalibrationData
+from positioning_cell.core.poses import pose_error
+from positioning_cell.errors import ConvergenceError
+from positioning_cell.metrology.instrument import Tracker
+from positioning_cell.metrology.targets import TargetLayout
+from positioning_cell.motion.correction import mean_pose
+from positioning_cell.sim.encoders import EncoderSettings, quantise
+from positioning_cell.sim.tracker import SimulatedTracker, observe
+from positioning_cell.sim.truth import Truth
+
+FloatArray = NDArray[np.float64]
+
+
+def measure_program(truth: Truth, instrument: SimulatedTracker, located: Tracker,
+                    targets: TargetLayout, encoders: EncoderSettings, commands: ArrayLike,
+                    rng: np.random.Generator, samples: int = 10) -> CalibrationData:
+    """The data of measuring the machine ``truth`` at encoder commands (N, 6) (lengths m, then
+    θ rad): the drives hold the commanded counts (the axes dither by the encoder noise), the
+    encoder means and their uncertainty, and the mean of ``samples`` fits of the real
+    ``instrument``'s readings through the cell's ``located`` registration, with the fits' mean
+    covariance divided by ``samples`` (the registration's own error is common to every pose:
+    it is not divided)."""
+    cmd = np.atleast_2d(np.asarray(commands, dtype=float))
+    n = cmd.shape[0]
+    noise = encoders.noise
+    axis = cmd + rng.standard_normal(cmd.shape) * noise
+    readings = quantise(axis[:, None, :] + rng.standard_normal((n, samples, 6)) * noise,
+                        encoders.resolution)
+    joints = readings.mean(axis=1)
+    joint_sigma = np.sqrt(noise**2 / samples + encoders.resolution**2 / 12.0
+                          + noise**2) * np.ones((n, 1))
+    true = truth.poses(axis[:, :3], axis[:, 3:])
+    if not np.all(true.converged):
+        raise ConvergenceError('the simulated machine has no pose for a commanded pose')
+    reps = np.repeat(true.position, samples, axis=0), np.repeat(true.quaternion, samples, axis=0)
+    _, fit = observe(instrument, located, targets, reps[0], reps[1], rng)
+    position = np.empty((n, 3))
+    quaternion = np.empty((n, 4))
+    for k in range(n):  # one mean per pose (rotation mean: scipy, per set)
+        rows = slice(k * samples, (k + 1) * samples)
+        position[k], quaternion[k] = mean_pose(fit.position[rows], fit.quaternion[rows])
+    common = located.registration_covariance(position)
+    covariance = (fit.covariance.reshape(n, samples, 6, 6).mean(axis=1) - common) / samples \
+        + common
+    return CalibrationData(joints, joint_sigma, position, quaternion, covariance)
+
+
+def true_errors(truth: Truth, lengths: ArrayLike, thetas: ArrayLike, position: ArrayLike,
+                quaternion: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Judging only: where the machine ``truth`` really goes for encoder commands (N, 3) m,
+    (N, 3) rad, against the desired poses (N, 3) m, (N, 4): position error (N, 3) m and
+    rotation-vector error (N, 3) rad, base frame."""
+    attained = truth.poses(lengths, thetas)
+    if not np.all(attained.converged):
+        raise ConvergenceError('the simulated machine has no pose for a command')
+    return pose_error(attained.position, attained.quaternion, np.asarray(position, dtype=float),
+                      np.asarray(quaternion, dtype=float))

@@ -1,0 +1,374 @@
+"""``calibrate_cell``: calibrate the running cell, or a recorded calibration run.
+
+Live (default): on the cell of ``ROS_DOMAIN_ID``, the positioner is homed and set to mode
+``none``; the measurement program (``positioning_cell.calibration.program``: D-optimal poses
+and hold-out poses) is driven through ``/positioner/move_to_pose``; at each pose, once the move
+is done, a marker goes out on ``/cell/calibration`` and the tool waits for ``--samples`` tracker
+readings; a line per pose says how far the measured pose is from the commanded one and, every
+ten poses, the residual of a fit so far. Then the machine is identified
+(``positioning_cell.calibration.identify``), validated on the hold-out poses, and
+``OUT/calibration.yaml`` and ``OUT/calibration_report.md`` (with plots) are written; the
+positioner's mode is put back. ``--load`` also sets the positioner's
+``compensation.calibration_file`` to the new file. Ctrl-C / SIGTERM stops the move
+(``/positioner/stop``), puts the mode back and writes nothing.
+
+``--from-bag BAG``: the same identification from a recording of such a run (the markers, the
+encoder readings and the tracker poses: :mod:`positioning_cell.calibration.collect`), the same
+result from the same data.
+
+Exit status: 0 written; 1 the data could not identify the machine (nothing written); 2 the cell
+or the bag could not be used; 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from functools import partial
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from positioning_cell import names
+from positioning_cell.bag.reader import BagReader
+from positioning_cell.calibration import collect as col
+from positioning_cell.calibration import file as calfile
+from positioning_cell.calibration import identify as idf
+from positioning_cell.calibration import program as prog
+from positioning_cell.calibration.report import predict, write_report
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.errors import PositioningError
+from positioning_cell.motion.calibrated import CALIBRATION_FILE
+from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.nodes.messages import joint_values, measurement, seconds
+from positioning_cell.nodes.qos import MARKER_QOS, STREAM_QOS
+from positioning_cell.parameters import parse
+from positioning_cell.tools.polling import wait_until
+from positioning_cell.tools.ros import CellClient
+
+EXIT_OK, EXIT_NOT_IDENTIFIED, EXIT_UNUSABLE, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: The encoders' resolution as a standard uncertainty (1 µm and 2^20 counts per turn, /√12).
+JOINT_SIGMA_FLOOR = np.r_[[1e-6 / np.sqrt(12)] * 3, [2 * np.pi / 2**20 / np.sqrt(12)] * 3]
+#: For the estimate of the program's cell time: the tracker's reading rate (Hz).
+TRACKER_RATE_HZ = 20.0
+#: Progress: a fit so far every this many poses.
+FIT_EVERY = 10
+
+
+class InterruptedRunError(Exception):
+    """SIGINT or SIGTERM."""
+
+
+class Machine(NamedTuple):
+    """What the tool knows of the machine: the positioner's settings (nominal mechanism,
+    payload, structure, motion limits, settle time)."""
+
+    settings: PositionerSettings
+
+    @classmethod
+    def from_config(cls, config: Path) -> Machine:
+        params = node_parameters(load_parameter_file(config), names.NODE_POSITIONER)
+        params.pop('compensation', None)  # the tool needs the machine, not the compensation
+        return cls(parse(PositionerSettings, params))
+
+
+# -- the messages a run consists of -------------------------------------------------------------
+class Recording:
+    """Markers, encoder readings and tracker poses, as received (live) or read (bag)."""
+
+    def __init__(self) -> None:
+        self.markers: list[col.Marker] = []
+        self.joint_t: list[float] = []
+        self.joints: list[Any] = []
+        self.pose_t: list[float] = []
+        self.poses: list[tuple[Any, Any, Any]] = []
+
+    def on_joints(self, msg: Any) -> None:
+        values = joint_values(msg, JOINT_NAMES)
+        if values is not None:
+            self.joint_t.append(seconds(msg.header.stamp))
+            self.joints.append(values)
+
+    def on_pose(self, msg: Any) -> None:
+        reading = measurement(msg)
+        self.pose_t.append(seconds(msg.header.stamp))
+        self.poses.append((reading.position, reading.quaternion, reading.covariance))
+
+    def on_marker(self, msg: Any) -> None:
+        self.markers.append(col.Marker.from_json(msg.data))
+
+    def readings_since(self, start: float) -> int:
+        """Tracker readings stamped at or after ``start`` so far."""
+        return sum(1 for t in self.pose_t[-200:] if t >= start)
+
+    def collected(self) -> col.Collected:
+        joints = col.Stream(np.asarray(self.joint_t), (np.asarray(self.joints).reshape(-1, 6),))
+        p, q, c = (zip(*self.poses, strict=True) if self.poses else ((), (), ()))
+        poses = col.Stream(np.asarray(self.pose_t),
+                           (np.asarray(p).reshape(-1, 3), np.asarray(q).reshape(-1, 4),
+                            np.asarray(c).reshape(-1, 6, 6)))
+        return col.collect(self.markers, joints, poses, JOINT_SIGMA_FLOOR)
+
+
+def read_bag(path: Path, run: str | None = None,
+             say: Callable[[str], None] = print) -> Recording:
+    """Calibration run ``run`` (default: the last one) recorded in the bag at ``path``
+    (PositioningError if it lacks the markers, the encoder readings or the tracker poses)."""
+    rec = Recording()
+    handlers = {names.CALIBRATION: rec.on_marker, names.JOINT_STATES: rec.on_joints,
+                names.MEASURED_POSE: rec.on_pose}
+    with BagReader(path) as reader:
+        missing = [t for t in handlers if t not in reader.topics]
+        if missing:
+            raise PositioningError(f'{path}: not a calibration run: no {", ".join(missing)}')
+        for item in reader.messages(list(handlers)):
+            handlers[item.topic](item.message)
+    found = col.runs(rec.markers)
+    if not found:
+        raise PositioningError(f'{path}: no calibration marker on {names.CALIBRATION}')
+    if run is None:
+        run = found[-1]
+    elif run not in found:
+        raise PositioningError(f'{path}: no calibration run {run!r}; it holds '
+                               f'{", ".join(found)}')
+    rec.markers = [m for m in rec.markers if m.run == run]
+    say(f'{path}: calibration run {run} ({len(rec.markers)} poses; runs in the bag: '
+        f'{", ".join(found)})')
+    return rec
+
+
+# -- identification and output ------------------------------------------------------------------
+def identify_and_write(machine: Machine, recording: Recording, out: Path, program: dict[str, Any],
+                       say: Callable[[str], None]) -> tuple[int, Path | None]:
+    """Identify from the recording, validate on its hold-out poses, write the file and the
+    report into ``out``: (exit status, the calibration file or None)."""
+    s = machine.settings
+    collected = recording.collected()
+    for marker, why in collected.skipped:
+        say(f'left out pose {marker.pose} ({marker.set}): {why}')
+    try:
+        result = idf.identify(s.mechanism, s.payload, s.structure, collected.fit)
+    except idf.IdentificationError as err:
+        say(f'calibrate_cell: not identified, nothing written: {err}')
+        return EXIT_NOT_IDENTIFIED, None
+    model = result.model(s.mechanism, s.payload, s.structure)
+    fit = predict(s.mechanism, model, collected.fit)
+    hold = predict(s.mechanism, model, collected.hold_out) if len(collected.hold_out.joints) \
+        else None
+    hold_doc = None
+    if hold is not None:
+        hold_doc = {'poses': len(collected.hold_out.joints),
+                    'nominal_rms_um': round(_rms(hold.nominal[0]) * 1e6, 3),
+                    'calibrated_rms_um': round(_rms(hold.calibrated[0]) * 1e6, 3),
+                    'calibrated_max_um': round(float(np.linalg.norm(hold.calibrated[0], axis=1)
+                                                     .max()) * 1e6, 3)}
+    out.mkdir(parents=True, exist_ok=True)
+    doc = calfile.document(result, s.mechanism, idf.IdentificationSettings().seating_force,
+                           program, hold_doc)
+    path = calfile.write(out / 'calibration.yaml', doc)
+    report = write_report(out, result, fit, hold)
+    ident = result.identifiability
+    say(f'identified {ident.rank}/{len(ident.identified)} parameters from '
+        f'{len(collected.fit.joints)} poses (chi2/dof {result.chi2 / result.dof:.2f}); fit '
+        f'residual RMS {_rms(fit.calibrated[0]) * 1e6:.2f} um (nominal model '
+        f'{_rms(fit.nominal[0]) * 1e6:.1f} um)')
+    if hold_doc is not None:
+        say(f'hold-out ({hold_doc["poses"]} poses): measured vs predicted RMS '
+            f'{hold_doc["calibrated_rms_um"]} um, max {hold_doc["calibrated_max_um"]} um '
+            f'(nominal model {hold_doc["nominal_rms_um"]} um)')
+    if ident.merged:
+        say('fixed (not separable): ' + ', '.join(ident.merged))
+    say(f'calibration: {path}\nreport:      {report}')
+    return EXIT_OK, path
+
+
+def _rms(a: Any) -> float:
+    return float(np.sqrt(np.mean(np.sum(np.asarray(a)**2, axis=1)))) if len(a) else float('nan')
+
+
+# -- live ---------------------------------------------------------------------------------------
+def _enough(rec: Recording, start: float, samples: int) -> bool:
+    return rec.readings_since(start) >= samples
+
+
+def _planning_covariance(recording: Recording, samples: int, timeout: float) -> Any:
+    """The tracker's covariance of one averaged pose, from its own readings at rest."""
+    start = time.time()
+    wait_until(lambda: recording.readings_since(start) >= 1, timeout, 'a tracker reading')
+    return np.asarray(recording.poses[-1][2]) / samples
+
+
+def _progress_fit(machine: Machine, rec: Recording) -> str:
+    """' ; fit so far ...': the residual of an identification on the poses measured so far."""
+    s = machine.settings
+    data = rec.collected().fit
+    try:
+        result = idf.identify(s.mechanism, s.payload, s.structure, data)
+    except idf.IdentificationError as err:
+        return f'; fit so far: not yet ({str(err).split(";")[0]})'
+    return (f'; fit so far ({len(data.joints)} poses, {result.identifiability.rank} '
+            f'parameters): residual RMS {_rms(result.pose_residual_position[:, None]) * 1e6:.2f}'
+            ' um')
+
+
+def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSettings, samples: int,
+             out: Path, say: Callable[[str], None], *, load: bool = False,
+             timeout: float = 10.0) -> tuple[int, Path | None]:
+    """The live calibration (module docstring): (exit status, the calibration file or None).
+    :class:`InterruptedRunError` propagates after the drives were stopped and the mode put back."""
+    rec = Recording()
+    client.node.create_subscription(JointState, names.JOINT_STATES, rec.on_joints, STREAM_QOS)
+    client.node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
+                                    rec.on_pose, STREAM_QOS)
+    # Transient-local: a recorder that subscribes once it sees this publisher still gets every
+    # marker sent before.
+    markers = client.node.create_publisher(String, names.CALIBRATION, MARKER_QOS)
+    s = machine.settings
+    done, message = client.home()
+    if not done:
+        say(f'calibrate_cell: homing failed: {message}')
+        return EXIT_UNUSABLE, None
+    previous = str(client.get_parameter(names.NODE_POSITIONER, 'compensation.mode'))
+    result = client.set_parameter(names.NODE_POSITIONER, 'compensation.mode', 'none')
+    if not result.successful:
+        say(f'calibrate_cell: the positioner refused mode none: {result.reason}')
+        return EXIT_UNUSABLE, None
+    run = datetime.datetime.now(datetime.UTC).isoformat(timespec='milliseconds')
+    try:
+        cov = _planning_covariance(rec, samples, timeout)
+        program = prog.choose(s.mechanism, s.payload, s.structure, settings, cov,
+                              2 * JOINT_SIGMA_FLOOR)
+        plan = [(col.FIT, p, q) for p, q in zip(program.position, program.quaternion,
+                                                  strict=True)]
+        plan += [(col.HOLD_OUT, p, q) for p, q in zip(program.hold_out_position,
+                                                        program.hold_out_quaternion, strict=True)]
+        estimate = prog.duration(s.mechanism, np.asarray([x[1] for x in plan]),
+                                 np.asarray([x[2] for x in plan]), s.motion,
+                                 s.settle_time + samples / TRACKER_RATE_HZ, settings.approach,
+                                 s.settle_time)
+        say(f'calibration program: {len(program.position)} poses + '
+            f'{len(program.hold_out_position)} hold-out, about {estimate:.0f} s of cell time')
+        for k, (which, p, q) in enumerate(plan, start=1):
+            head = f'[{k}/{len(plan)}] {which:<8}'
+            # every pose approached the same way: from `approach` m below it along base z
+            if settings.approach > 0.0 and not client.plan(
+                    names.MOVE_TO_POSE, prog.approach_pose(p, settings.approach), q):
+                say(f'{head} approach pose refused or aborted: left out')
+                continue
+            if not client.plan(names.MOVE_TO_POSE, p, q):
+                say(f'{head} move refused or aborted: left out')
+                continue
+            start = client.node.get_clock().now().nanoseconds * 1e-9
+            marker = col.Marker(run, k - 1, which, (float(p[0]), float(p[1]), float(p[2])),
+                                (float(q[0]), float(q[1]), float(q[2]), float(q[3])), start,
+                                samples)
+            markers.publish(String(data=marker.to_json()))
+            rec.markers.append(marker)
+            try:
+                wait_until(partial(_enough, rec, start, samples), timeout,
+                           f'{samples} tracker readings')
+            except TimeoutError as err:
+                say(f'{head} {err}: left out')
+                continue
+            measured = np.mean([m[0] for m in rec.poses[-samples:]], axis=0)
+            line = f'{head} |measured - commanded| {np.linalg.norm(measured - p) * 1e6:7.1f} um'
+            fits = sum(1 for m in rec.markers if m.set == col.FIT)
+            if which == col.FIT and fits % FIT_EVERY == 0:
+                line += _progress_fit(machine, rec)
+            say(line)
+    except InterruptedRunError:
+        client.trigger(names.STOP)
+        with contextlib.suppress(TimeoutError):  # the interrupted move has ended before we leave
+            wait_until(client.answered, timeout, 'the interrupted move to end')
+        say('calibrate_cell: interrupted: drives stopped, nothing written')
+        raise
+    finally:
+        client.set_parameter(names.NODE_POSITIONER, 'compensation.mode', previous)
+    say('the recorder took the markers (calibrate_cell --from-bag can repeat this)'
+        if client.subscribed(names.CALIBRATION, names.NODE_RECORDER)
+        else 'no recorder took the markers: this run cannot be repeated from a bag')
+    status, path = identify_and_write(machine, rec, out, {
+        'poses': settings.poses, 'hold_out': settings.hold_out, 'samples': samples,
+        'seed': settings.seed, 'candidates': settings.candidates}, say)
+    if status == EXIT_OK and load and path is not None:
+        loaded = client.set_parameter(names.NODE_POSITIONER, CALIBRATION_FILE,
+                                      str(path.resolve()))
+        say('the positioner loaded it' if loaded.successful
+            else f'the positioner refused it: {loaded.reason}')
+    return status, path
+
+
+def say(text: str) -> None:
+    """A progress line, at once."""
+    print(text, flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line (module docstring)."""
+    defaults = prog.ProgramSettings()
+    parser = argparse.ArgumentParser(prog='calibrate_cell', description=__doc__.split('\n\n')[0])
+    parser.add_argument('--out', type=Path, default=Path('calibration'),
+                        help='folder for calibration.yaml and the report (default ./calibration)')
+    parser.add_argument('--from-bag', type=Path, help='identify from a recorded calibration run')
+    parser.add_argument('--run', help='with --from-bag: which run (its start, as printed; '
+                        'default: the last in the bag)')
+    parser.add_argument('--config', type=Path, help='parameter file of the cell (default: the '
+                        'shipped config/cell.yaml): the nominal machine and its payload')
+    parser.add_argument('--poses', type=int, default=defaults.poses)
+    parser.add_argument('--hold-out', type=int, default=defaults.hold_out)
+    parser.add_argument('--samples', type=int, default=10,
+                        help='tracker readings averaged per pose')
+    parser.add_argument('--seed', type=int, default=defaults.seed, help='candidate draw')
+    parser.add_argument('--approach', type=float, default=defaults.approach,
+                        help='approach each pose from this far below it, m (0: directly)')
+    parser.add_argument('--load', action='store_true',
+                        help='set the positioner\'s compensation.calibration_file afterwards')
+    args = parser.parse_args(argv)
+    try:
+        machine = Machine.from_config(args.config or config_path('cell.yaml'))
+        settings = replace(defaults, poses=args.poses, hold_out=args.hold_out, seed=args.seed,
+                           approach=args.approach)
+    except PositioningError as err:
+        say(f'calibrate_cell: error: {err}')
+        return EXIT_UNUSABLE
+    if args.from_bag is not None:
+        try:
+            recording = read_bag(args.from_bag, args.run, say)
+        except PositioningError as err:
+            say(f'calibrate_cell: error: {err}')
+            return EXIT_UNUSABLE
+        return identify_and_write(machine, recording, args.out, {'from_bag': str(args.from_bag)},
+                                  say)[0]
+
+    def on_signal(signum: int, frame: Any) -> None:
+        raise InterruptedRunError(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    client = CellClient(name='calibrate_cell', signals=False)
+    try:
+        return run_live(client, machine, settings, args.samples, args.out, say,
+                        load=args.load)[0]
+    except InterruptedRunError:
+        return EXIT_INTERRUPTED
+    except TimeoutError as err:
+        say(f'calibrate_cell: error: {err}')
+        return EXIT_UNUSABLE
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        client.close()
+
+
+if __name__ == '__main__':
+    sys.exit(main())

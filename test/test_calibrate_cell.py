@@ -1,0 +1,17 @@
+"""calibrate_cell's command line without a cell (the live run and --from-bag on its recording
+are exercised end to end by test_run_cell, whose run calibrates the cell first)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+from cell_harness import executable
+
+
+def test_from_bag_refuses_what_is_not_a_bag(tmp_path: Path) -> None:
+    proc = subprocess.run([executable('calibrate_cell'), '--from-bag', str(tmp_path / 'none'),
+                           '--out', str(tmp_path / 'o')], capture_output=True, text=True,
+                          timeout=60.0, check=False)
+    assert proc.returncode == 2 and 'calibrate_cell: error:' in proc.stdout, proc.stdout
+    assert not (tmp_path / 'o').exists()

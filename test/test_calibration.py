@@ -1,0 +1,276 @@
+"""Calibration of an unknown machine (positioning_cell.calibration): the identification model
+against a second path (the machine model's own IK), its analytic Jacobian against finite
+differences, recovery of a simulated machine from simulated tracker data (the truth only
+judges), refusals of data that cannot identify, and the calibration file."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from positioning_cell.calibration import file as calfile
+from positioning_cell.calibration import identify as idf
+from positioning_cell.calibration import parameters as cp
+from positioning_cell.calibration import program as prog
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.kinematics import inverse
+from positioning_cell.motion.calibrated import calibrated_machine
+from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.parameters import parse
+from positioning_cell.sim.campaign import measure_program
+from positioning_cell.sim.encoders import EncoderSettings
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
+from positioning_cell.sim.truth import TruthParameters
+
+PARAMS = node_parameters(load_parameter_file(config_path()), 'pose_measurement')
+SETTINGS = parse(PoseMeasurementSettings, PARAMS)
+MECH, PAYLOAD, STRUCTURE = SETTINGS.mechanism, SETTINGS.payload, SETTINGS.structure
+ENCODERS = EncoderSettings()
+PROGRAM = prog.ProgramSettings(poses=60, hold_out=20, candidates=2000)
+POSE_COV = np.diag([3e-6**2] * 3 + [2e-5**2] * 3)
+JOINT_SIGMA = np.r_[[4e-7] * 3, [3e-6] * 3]
+
+
+def simulator(geometry_seed: int, **payload: Any) -> PoseMeasurementSimulator:
+    truth = replace(SETTINGS.truth, geometry_seed=geometry_seed)
+    return PoseMeasurementSimulator(replace(SETTINGS, truth=truth,
+                                            payload=replace(PAYLOAD, **payload)))
+
+
+def campaign(sim: PoseMeasurementSimulator, p: Any, q: Any, seed: int = 1) -> idf.CalibrationData:
+    """What the cell records commanding poses by nominal IK and measuring them."""
+    cmd = inverse(MECH, p, q)
+    assert sim.location is not None
+    return measure_program(sim.truth, sim.instrument, sim.location.tracker, SETTINGS.targets,
+                           ENCODERS, np.c_[cmd.lengths, cmd.thetas], np.random.default_rng(seed))
+
+
+@pytest.fixture(scope='module')
+def program() -> prog.Program:
+    return prog.choose(MECH, PAYLOAD, STRUCTURE, PROGRAM, POSE_COV, JOINT_SIGMA)
+
+
+@pytest.fixture(scope='module')
+def calibrated(program: prog.Program) -> tuple[PoseMeasurementSimulator, idf.Identification]:
+    sim = simulator(0)
+    data = campaign(sim, program.position, program.quaternion)
+    return sim, idf.identify(MECH, PAYLOAD, STRUCTURE, data)
+
+
+def truth_vector(sim: PoseMeasurementSimulator) -> Any:
+    return cp.vector_of(sim.truth, MECH)
+
+
+def test_identification_model_matches_the_machine_model_ik(program: prog.Program) -> None:
+    """Second path: the identification's closed-form leg model at the truth's vector gives
+    the encoder values MachineModel.commands computes through the clearance model's IK."""
+    sim = simulator(3)
+    x = truth_vector(sim)
+    model = cp.machine_model(x, MECH, PAYLOAD, STRUCTURE)
+    pred, _ = idf.predicted_joints(x, MECH, PAYLOAD, STRUCTURE, program.position,
+                                   program.quaternion)
+    cmd = model.commands(program.position, program.quaternion)
+    assert np.allclose(pred, np.c_[cmd.lengths, cmd.thetas], atol=1e-12, rtol=0.0)
+    back = model.poses(cmd.lengths, cmd.thetas, cmd.phis)  # FK round trip of the same model
+    assert np.allclose(back.position, program.position, atol=1e-9)
+
+
+def test_analytic_jacobian_matches_finite_differences(program: prog.Program) -> None:
+    x = truth_vector(simulator(2))
+    p, q = program.position[:10], program.quaternion[:10]
+    _, jac = idf.predicted_joints(x, MECH, PAYLOAD, STRUCTURE, p, q, with_jacobian=True)
+    assert jac is not None
+    scale = cp.scales(MECH)
+    frozen = idf.force_directions(x, MECH, PAYLOAD, STRUCTURE, p, q)
+    for k in range(cp.COUNT):
+        dx = np.zeros(cp.COUNT)
+        dx[k] = h = 1e-3 * scale[k]
+        numeric = {}
+        for label, directions in (('frozen', frozen), ('full', None)):
+            plus, _ = idf.predicted_joints(x + dx, MECH, PAYLOAD, STRUCTURE, p, q,
+                                           directions=directions)
+            minus, _ = idf.predicted_joints(x - dx, MECH, PAYLOAD, STRUCTURE, p, q,
+                                            directions=directions)
+            numeric[label] = (plus - minus) / (2 * h)
+        column = np.abs(numeric['full']).max()
+        # exact with the force directions held (as the analytic Jacobian holds them) ...
+        assert np.abs(jac[:, :, k] - numeric['frozen']).max() <= 1e-6 * column, \
+            cp.PARAMETER_NAMES[k]
+        # ... and what turning them adds is a few per cent of a joint-centre column
+        assert np.abs(jac[:, :, k] - numeric['full']).max() <= 0.05 * column, \
+            cp.PARAMETER_NAMES[k]
+
+
+def test_program_is_within_limits_and_better_conditioned_than_random(
+        program: prog.Program) -> None:
+    from positioning_cell.core.limits import within_limits
+    assert within_limits(MECH, program.position, program.quaternion).all()
+    assert within_limits(MECH, program.hold_out_position, program.hold_out_quaternion).all()
+    rows = idf.information_rows(MECH, PAYLOAD, STRUCTURE, program.position, program.quaternion,
+                                POSE_COV, JOINT_SIGMA)
+    p, q = prog.candidates(MECH, PROGRAM)
+    rnd = idf.information_rows(MECH, PAYLOAD, STRUCTURE, p[:60], q[:60], POSE_COV, JOINT_SIGMA)
+
+    def singular_values(r: Any) -> Any:
+        return np.linalg.svd(r.reshape(-1, cp.COUNT), compute_uv=False)
+
+    chosen, drawn = singular_values(rows), singular_values(rnd)
+    # D-optimal: the volume of the information ellipsoid, and its thinnest axis, both grow
+    assert np.sum(np.log(chosen)) > np.sum(np.log(drawn)) + 5.0
+    assert chosen[-1] > drawn[-1]
+
+
+def test_calibration_recovers_the_machine_and_removes_its_error(
+        program: prog.Program, calibrated: Any) -> None:
+    sim, result = calibrated
+    truth = truth_vector(sim)
+    ident = result.identifiability.identified
+    z = (result.x - truth)[ident] / result.sigma[ident]
+    assert np.mean(np.abs(z) <= 3.0) >= 0.95, dict(zip(np.array(cp.PARAMETER_NAMES)[ident],
+                                                        np.round(z, 2), strict=True))
+    assert result.chi2 / result.dof < 2.0
+    hp, hq = program.hold_out_position, program.hold_out_quaternion
+    errors = {}
+    for name, cmd in (('none', inverse(MECH, hp, hq)),
+                      ('calibrated', result.model(MECH, PAYLOAD, STRUCTURE).commands(hp, hq))):
+        att = sim.truth.poses(cmd.lengths, cmd.thetas)
+        errors[name] = np.linalg.norm(att.position - hp, axis=1)
+    rms = {k: float(np.sqrt(np.mean(v**2))) for k, v in errors.items()}
+    assert rms['none'] > 50e-6
+    assert rms['calibrated'] <= 0.05 * rms['none'] and errors['calibrated'].max() <= 25e-6
+
+
+@pytest.mark.parametrize('mass', [30.0, 70.0])
+def test_a_new_payload_needs_its_mass_not_a_new_calibration(program: prog.Program,
+                                                            calibrated: Any,
+                                                            mass: float) -> None:
+    _, result = calibrated
+    heavier = simulator(0, mass=mass)
+    payload = replace(PAYLOAD, mass=mass)
+    hp, hq = program.hold_out_position, program.hold_out_quaternion
+    none = inverse(MECH, hp, hq)
+    told = result.model(MECH, payload, STRUCTURE).commands(hp, hq)
+    e_none = heavier.truth.poses(none.lengths, none.thetas).position - hp
+    e_told = heavier.truth.poses(told.lengths, told.thetas).position - hp
+    assert np.sqrt(np.mean(e_told**2)) <= 0.10 * np.sqrt(np.mean(e_none**2))
+
+
+def test_too_few_poses_are_refused(program: prog.Program) -> None:
+    data = campaign(simulator(0), program.position[:5], program.quaternion[:5])
+    with pytest.raises(idf.IdentificationError, match='5 poses: a calibration needs at least'):
+        idf.identify(MECH, PAYLOAD, STRUCTURE, data)
+
+
+def test_degenerate_poses_are_refused_with_rank_and_names(program: prog.Program) -> None:
+    """Twelve measurements of one pose: 6 independent equations, not 26."""
+    p = np.repeat(program.position[:1], 12, axis=0)
+    q = np.repeat(program.quaternion[:1], 12, axis=0)
+    data = campaign(simulator(0), p, q)
+    with pytest.raises(idf.IdentificationError,
+                       match=r'12 poses identify \d+ of 26 parameters .*not identifiable: '):
+        idf.identify(MECH, PAYLOAD, STRUCTURE, data)
+
+
+def test_parameters_that_cannot_be_separated_are_fixed_and_named(
+        program: prog.Program) -> None:
+    """Without rotations the U and S centres of a leg move the leg alike: merged, named."""
+    p = program.position
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (len(p), 1))
+    data = campaign(simulator(0), p, q)
+    result = idf.identify(MECH, PAYLOAD, STRUCTURE, data,
+                          idf.IdentificationSettings(min_identified=6))
+    merged = result.identifiability.merged
+    assert merged and result.identifiability.rank < cp.COUNT
+    assert all(partners for partners in merged.values())  # each names who absorbs it
+    assert np.all(np.isnan(result.sigma[~result.identifiability.identified]))
+    assert np.all(result.x[~result.identifiability.identified] == 0.0)
+
+
+def test_bad_data_is_refused() -> None:
+    n = 10
+    good = idf.CalibrationData(np.zeros((n, 6)), np.ones((n, 6)), np.zeros((n, 3)),
+                               np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
+                               np.tile(np.eye(6), (n, 1, 1)))
+    with pytest.raises(idf.InputError, match='joints has shape'):
+        idf.check_data(good._replace(joints=np.zeros((n, 5))))
+    with pytest.raises(idf.InputError, match='non-finite'):
+        idf.check_data(good._replace(covariance=np.full((n, 6, 6), np.nan)))
+    with pytest.raises(idf.InputError, match='joint_sigma must be > 0'):
+        idf.check_data(good._replace(joint_sigma=np.zeros((n, 6))))
+
+
+# -- the calibration file ----------------------------------------------------------------------
+def test_file_round_trip_and_the_positioner_loads_it(tmp_path: Path, calibrated: Any) -> None:
+    _, result = calibrated
+    path = calfile.write(tmp_path / 'calibration.yaml',
+                         calfile.document(result, MECH, 1.0, {'poses': 60}))
+    loaded = calfile.load(path, MECH)
+    assert np.array_equal(loaded.x, result.x)
+    assert np.allclose(loaded.sigma, result.sigma, equal_nan=True)
+    settings = parse(PositionerSettings, {'compensation.calibration_file': str(path)})
+    machine = calibrated_machine(settings)
+    assert machine is not None
+    p, q = MECH.home_position, MECH.home_quaternion
+    assert np.allclose(machine.commands(p, q).lengths,
+                       result.model(MECH, PAYLOAD, STRUCTURE).commands(p, q).lengths)
+    text = path.read_text()
+    assert 'truth' not in text  # the file holds what was identified, nothing of the simulator
+
+
+@pytest.mark.parametrize(('edit', 'words'), [
+    (lambda d: d['calibration'].update(mechanism_fingerprint='0123456789abcdef'),
+     'belongs to mechanism'),
+    (lambda d: d['calibration']['parameters'].pop('leg2.theta_offset'),
+     'lacks parameters leg2.theta_offset'),
+    (lambda d: d['calibration']['parameters']['clearance.r_a'].update(value='x'),
+     'clearance.r_a.value'),
+    (lambda d: d['calibration'].update(format=7), 'format 7'),
+    (lambda d: d.clear(), 'no "calibration:" mapping'),
+])
+def test_bad_files_are_refused_with_the_reason(tmp_path: Path, calibrated: Any, edit: Any,
+                                               words: str) -> None:
+    _, result = calibrated
+    doc = calfile.document(result, MECH, 1.0, {'poses': 60})
+    edit(doc)
+    path = tmp_path / 'bad.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(calfile.CalibrationFileError, match=words):
+        calfile.load(path, MECH)
+
+
+def test_unreadable_and_non_yaml_files_are_refused(tmp_path: Path) -> None:
+    with pytest.raises(calfile.CalibrationFileError, match='cannot be read'):
+        calfile.load(tmp_path / 'missing.yaml', MECH)
+    (tmp_path / 'junk.yaml').write_text('calibration: [unclosed')
+    with pytest.raises(calfile.CalibrationFileError, match='not YAML'):
+        calfile.load(tmp_path / 'junk.yaml', MECH)
+
+
+def test_truth_geometry_seed_draws_one_machine_per_seed() -> None:
+    a = TruthParameters(geometry_seed=4).geometric_errors()
+    b = TruthParameters(geometry_seed=4).geometric_errors()
+    c = TruthParameters(geometry_seed=5).geometric_errors()
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    assert not np.array_equal(a[0], c[0])
+    assert all(not np.any(x) for x in TruthParameters().geometric_errors())
+
+
+def test_no_node_but_the_simulators_declares_a_truth_parameter() -> None:
+    """The oracle rule, checked on the declarations: the positioner, the monitor, the recorder
+    and the player declare no truth.* parameter (the simulators do: the tracker simulator
+    holds the machine's truth). The calibration file is checked in the round-trip test."""
+    from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
+    from positioning_cell.nodes.bag_player_node import BagPlayerNode
+    from positioning_cell.nodes.kinematics_node import PositionerNode
+    from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
+    from positioning_cell.nodes.recorder_node import RecorderNode
+    from positioning_cell.parameters import declarations
+    for node in (PositionerNode, AccuracyMonitorNode, RecorderNode, BagPlayerNode):
+        found = [d.name for d in declarations(node.SETTINGS) if 'truth' in d.name.split('.')]
+        assert not found, (node.NAME, found)
+    assert any(d.name.startswith('truth.') for d in declarations(PoseMeasurementNode.SETTINGS))
