@@ -113,6 +113,13 @@ def main() -> int:
                   f'{rms(e_p) * 1e6:9.2f} {np.linalg.norm(e_p, axis=1).max() * 1e6:7.2f} '
                   f'{per_r[0]:8.2f}{per_r[1]:8.2f}{per_r[2]:8.2f} {share}')
         e_p, e_r = rows['calibrated']
+        promised = idf.pose_uncertainty(result, MECH, PAYLOAD, STRUCTURE, hp, hq)
+        sigma_p = np.sqrt(np.trace(promised[:, :3, :3], axis1=1, axis2=2))
+        covered = np.mean(np.linalg.norm(e_p, axis=1) <= 3 * sigma_p) * 100
+        print(f'         the calibration promises |dp| sigma '
+              f'{np.sqrt(np.mean(sigma_p**2)) * 1e6:.2f} um RMS over the hold-out poses (from '
+              f'its parameter covariance); the truth error is {covered:.0f} % within 3 of '
+              'those sigma')
         if rms(e_p) > 0.05 * rms(base_p):
             failures.append(f'machine {seed}: position RMS {rms(e_p) * 1e6:.2f} um > 5 %')
         if rms(e_r) > 0.10 * rms(base_r):
@@ -145,7 +152,8 @@ def main() -> int:
                     failures.append(f'machine {seed}: {mass:.0f} kg only {removed:.1f} % removed')
             print(f'         {mass:.0f} kg panel (uncompensated {rms(e_none) * 1e6:.1f} um): '
                   + '; '.join(figures))
-    print('\nmeasured mode: not part of this benchmark (its closed loop is unchanged here)')
+    print('\nmeasured mode: judged on the live cell, not here (test/test_cell.py: the truth '
+          'within twice the uncertainty the positioner states)')
     if failures:
         print('\nTARGETS NOT MET: ' + '; '.join(failures))
         return 1

@@ -274,3 +274,30 @@ def test_no_node_but_the_simulators_declares_a_truth_parameter() -> None:
         found = [d.name for d in declarations(node.SETTINGS) if 'truth' in d.name.split('.')]
         assert not found, (node.NAME, found)
     assert any(d.name.startswith('truth.') for d in declarations(PoseMeasurementNode.SETTINGS))
+
+
+def test_pose_uncertainty_matches_machines_drawn_from_the_parameter_covariance(
+        program: prog.Program, calibrated: Any) -> None:
+    """Second path: machines drawn from N(x, Cov) of the identification, each commanded with
+    the calibrated model; the scatter of where they put the platform against the first-order
+    covariance pose_uncertainty promises."""
+    _, result = calibrated
+    p, q = program.hold_out_position[:3], program.hold_out_quaternion[:3]
+    promised = idf.pose_uncertainty(result, MECH, PAYLOAD, STRUCTURE, p, q)
+    cmd = result.model(MECH, PAYLOAD, STRUCTURE).commands(p, q)
+    rng = np.random.default_rng(11)
+    free = result.identifiability.identified
+    cov = result.covariance[np.ix_(free, free)]
+    reached = []
+    # Draws of a third of the covariance: r_a - r_b is poorly determined, and full draws
+    # would cross the physical bound r >= 0 (a clearance cannot be negative).
+    shrink = 1.0 / 3.0
+    for draw in rng.multivariate_normal(np.zeros(free.sum()), cov * shrink**2, 300):
+        x = result.x.copy()
+        x[free] += draw
+        assert np.all(x[cp.R_A:] > 0.0)
+        reached.append(cp.machine_model(x, MECH, PAYLOAD, STRUCTURE)
+                       .poses(cmd.lengths, cmd.thetas, cmd.phis).position)
+    scatter = np.std(np.array(reached), axis=0) / shrink  # (poses, 3)
+    sigma = np.sqrt(np.diagonal(promised[:, :3, :3], axis1=1, axis2=2))
+    assert np.allclose(scatter, sigma, rtol=0.15), (scatter * 1e6, sigma * 1e6)

@@ -11,6 +11,7 @@ and the cell moves again after re-enable.
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from pathlib import Path
@@ -98,7 +99,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Any:
 
 @pytest.fixture(scope='module')
 def errors_by_mode(cell: Any) -> dict[str, list[dict[str, np.ndarray]]]:
-    client, streams, _, _ = cell
+    client, streams, diagnostics, _ = cell
     results: dict[str, list[dict[str, np.ndarray]]] = {}
     for mode in ('none', 'measured'):
         assert set_param(client, 'positioner', 'compensation.mode', mode).successful
@@ -108,6 +109,7 @@ def errors_by_mode(cell: Any) -> dict[str, list[dict[str, np.ndarray]]]:
             assert response.plan.poses, f'{mode} move to {p} refused or aborted'
             errors = settled_errors(client, streams, p, rv)
             errors['seconds'] = np.array([seconds])
+            errors['stated_um'] = np.array([stated_uncertainty_um(diagnostics)])
             results[mode].append(errors)
             print(f'{mode:9s} goal {np.round((p - MECH.home_position) * 1e3, 1)} mm: '
                   f'{seconds:.2f} s command-to-settled; measured error '
@@ -115,6 +117,17 @@ def errors_by_mode(cell: Any) -> dict[str, list[dict[str, np.ndarray]]]:
                   f'{np.round(np.degrees(errors["measured"][3:]), 5)} deg; truth '
                   f'{np.round(errors["truth"][:3] * 1e6, 1)} um')
     return results
+
+
+def stated_uncertainty_um(diagnostics: list[Any]) -> float:
+    """The uncertainty (µm, 1 sigma, |σ_p|) the positioner states with its last settled move
+    (NaN: none stated, as in modes without the tracker)."""
+    for array in reversed(diagnostics):
+        for status in array.status:
+            found = re.search(r'^settled: .*± ([0-9.]+) um', status.message)
+            if status.name == 'positioner: state' and found:
+                return float(found.group(1))
+    return float('nan')
 
 
 def norm_um(e: np.ndarray) -> float:
@@ -140,6 +153,14 @@ def test_measured_compensation_ends_within_three_tracker_sigmas(errors_by_mode: 
         sigma = np.sqrt(np.diag(cov))  # x, y, z (m), rx, ry, rz (rad)
         assert np.all(np.abs(errors['truth'][:3]) <= 3 * sigma[:3])
         assert np.all(np.abs(errors['truth'][3:]) <= 3 * sigma[3:])
+
+
+def test_measured_ends_within_twice_its_stated_uncertainty_of_the_truth(
+        errors_by_mode: Any) -> None:
+    for errors in errors_by_mode['measured']:
+        stated = float(errors['stated_um'][0])
+        assert np.isfinite(stated) and stated > 0.0
+        assert norm_um(errors['truth']) <= 2.0 * stated, (norm_um(errors['truth']), stated)
 
 
 def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: Any) -> None:

@@ -158,7 +158,8 @@ def test_a_move_sends_one_trajectory_and_returns_the_executed_path(
     response = positioner.plan('/positioner/move_to_pose', request(goal, HOME_Q))
     assert response.plan.poses, positioner.reasons_after(mark)
     np.testing.assert_allclose(pose_arrays(response.plan.poses[-1].pose)[0], goal, atol=1e-9)
-    assert positioner.reasons_after(mark)[-1].startswith('settled')
+    # the service answered; its final status may still be on its way
+    positioner.wait_reason(mark, 'settled within tolerance')
     (traj,) = positioner.driver.trajectories
     assert list(traj.joint_names) == list(JOINT_NAMES) and len(traj.points) > 10
     ideal = kinematics.inverse(MECH, goal, HOME_Q)

@@ -85,7 +85,8 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     run = _run_dir(runs)
     assert not _cell_processes(run / 'run_overrides.yaml'), 'a cell process outlived run_cell'
     for line in ('calibrating: 8 poses + 1 hold-out', '[9/9] hold_out',
-                 'the positioner loaded it', '[1/4] none     cycle 1 P1',
+                 'the positioner loaded it', 'identified parameters within 3 sigma of the truth',
+                 '[1/4] none     cycle 1 P1',
                  '[4/4] model    cycle 1 P2', 'compensation mode: model', 'worst AP_p µm',
                  "reproduces the live monitor's figures", f'bag:     {run / "bag"}',
                  f'report:  {run / "report.md"}'):
@@ -93,7 +94,7 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     for name in ('report.md', 'summary.json', 'monitor_report.json', 'error_over_time.png',
                  'axis_errors.png', 'clusters.png', 'error_distribution.png',
                  'bag/metadata.yaml', 'calibration/calibration.yaml',
-                 'calibration/calibration_report.md'):
+                 'calibration/calibration_report.md', 'calibration/truth.md'):
         assert (run / name).is_file(), name
     summary = json.loads((run / 'summary.json').read_text())
     assert [m['mode'] for m in summary['modes']] == ['none', 'model']

@@ -168,7 +168,11 @@ def identify_and_write(machine: Machine, recording: Recording, out: Path, progra
         else None
     hold_doc = None
     if hold is not None:
+        promised = idf.pose_uncertainty(result, s.mechanism, s.payload, s.structure,
+                                        *collected.hold_out_commanded)
+        sigma_p = np.sqrt(np.trace(promised[:, :3, :3], axis1=1, axis2=2))
         hold_doc = {'poses': len(collected.hold_out.joints),
+                    'promised_sigma_um': round(float(np.sqrt(np.mean(sigma_p**2))) * 1e6, 3),
                     'nominal_rms_um': round(_rms(hold.nominal[0]) * 1e6, 3),
                     'calibrated_rms_um': round(_rms(hold.calibrated[0]) * 1e6, 3),
                     'calibrated_max_um': round(float(np.linalg.norm(hold.calibrated[0], axis=1)
@@ -186,7 +190,8 @@ def identify_and_write(machine: Machine, recording: Recording, out: Path, progra
     if hold_doc is not None:
         say(f'hold-out ({hold_doc["poses"]} poses): measured vs predicted RMS '
             f'{hold_doc["calibrated_rms_um"]} um, max {hold_doc["calibrated_max_um"]} um '
-            f'(nominal model {hold_doc["nominal_rms_um"]} um)')
+            f'(nominal model {hold_doc["nominal_rms_um"]} um); the calibrated model\'s own '
+            f'uncertainty there: {hold_doc["promised_sigma_um"]} um (1 sigma, |dp|)')
     if ident.merged:
         say('fixed (not separable): ' + ', '.join(ident.merged))
     say(f'calibration: {path}\nreport:      {report}')

@@ -37,10 +37,14 @@ import yaml
 
 from positioning_cell import names
 from positioning_cell.analysis.program import Program, ProgramStep, load_program
+from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration.program import ProgramSettings
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
+from positioning_cell.parameters import parse
+from positioning_cell.sim.campaign import truth_table
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.tools.analyze_bag import EXIT_OK, analyze, describe
 from positioning_cell.tools.calibrate_cell import Machine, run_live
 from positioning_cell.tools.domains import DomainError, free_domain
@@ -106,9 +110,22 @@ def calibrate(client: CellClient, program: Program, config: Path, run_dir: Path,
     if status != 0 or path is None:
         return ('The calibration failed: `model` and `measured` use the a-priori clearance '
                 'model of the config.')
+    _judge_calibration(path, config, say)
     return (f'`model` and `measured` use the machine the cell identified from its own '
             f'measurements in this run ({path.relative_to(run_dir)}); only the truth table '
             'reads the simulator.')
+
+
+def _judge_calibration(path: Path, config: Path, say: Callable[[str], None]) -> None:
+    """The report's truth table of the calibration (judging only: the simulator's truth from
+    the config, against what the cell identified), next to the calibration file."""
+    sim = parse(PoseMeasurementSettings,
+                node_parameters(load_parameter_file(config), names.NODE_MEASUREMENT))
+    nominal = sim.mechanism
+    lines = truth_table(calfile.load(path, nominal), sim.true_machine(), nominal)
+    table = path.with_name('truth.md')
+    table.write_text('# Calibration against the simulation truth\n\n' + '\n'.join(lines) + '\n')
+    say(f'truth table: {table}: {lines[-1].split(" (")[0]}')
 
 
 def _overrides(run_dir: Path) -> Path:
