@@ -15,3 +15,15 @@ def test_from_bag_refuses_what_is_not_a_bag(tmp_path: Path) -> None:
                           timeout=60.0, check=False)
     assert proc.returncode == 2 and 'calibrate_cell: error:' in proc.stdout, proc.stdout
     assert not (tmp_path / 'o').exists()
+
+
+def test_from_bag_refuses_a_bag_without_a_calibration_run(tmp_path: Path) -> None:
+    from test_package import one_message_bag
+    bag = one_message_bag(tmp_path / 'bag')
+    proc = subprocess.run([executable('calibrate_cell'), '--from-bag', str(bag), '--out',
+                           str(tmp_path / 'o')], capture_output=True, text=True, timeout=60.0,
+                          check=False)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert ('not a calibration run: no /cell/calibration, /legs/joint_states, /metrology/pose'
+            in proc.stdout), proc.stdout
+    assert not (tmp_path / 'o').exists()
