@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
@@ -212,6 +213,7 @@ def test_file_round_trip_and_the_positioner_loads_it(tmp_path: Path, calibrated:
     loaded = calfile.load(path, MECH)
     assert np.array_equal(loaded.x, result.x)
     assert np.allclose(loaded.sigma, result.sigma, equal_nan=True)
+    assert np.array_equal(loaded.covariance, result.covariance)
     settings = parse(PositionerSettings, {'compensation.calibration_file': str(path)})
     machine = calibrated_machine(settings)
     assert machine is not None
@@ -230,6 +232,7 @@ def test_file_round_trip_and_the_positioner_loads_it(tmp_path: Path, calibrated:
     (lambda d: d['calibration']['parameters']['clearance.r_a'].update(value='x'),
      'clearance.r_a.value'),
     (lambda d: d['calibration'].update(format=7), 'format 7'),
+    (lambda d: d['calibration'].update(covariance=[[0.0]]), 'covariance must be 26 x 26'),
     (lambda d: d.clear(), 'no "calibration:" mapping'),
 ])
 def test_bad_files_are_refused_with_the_reason(tmp_path: Path, calibrated: Any, edit: Any,
@@ -283,7 +286,8 @@ def test_pose_uncertainty_matches_machines_drawn_from_the_parameter_covariance(
     covariance pose_uncertainty promises."""
     _, result = calibrated
     p, q = program.hold_out_position[:3], program.hold_out_quaternion[:3]
-    promised = idf.pose_uncertainty(result, MECH, PAYLOAD, STRUCTURE, p, q)
+    promised = idf.pose_uncertainty(result.x, result.covariance, MECH, PAYLOAD, STRUCTURE,
+                                    p, q)
     cmd = result.model(MECH, PAYLOAD, STRUCTURE).commands(p, q)
     rng = np.random.default_rng(11)
     free = result.identifiability.identified
@@ -301,3 +305,24 @@ def test_pose_uncertainty_matches_machines_drawn_from_the_parameter_covariance(
     scatter = np.std(np.array(reached), axis=0) / shrink  # (poses, 3)
     sigma = np.sqrt(np.diagonal(promised[:, :3, :3], axis1=1, axis2=2))
     assert np.allclose(scatter, sigma, rtol=0.15), (scatter * 1e6, sigma * 1e6)
+
+
+def test_predict_accuracy_gives_the_calibrated_machines_uncertainty(
+        tmp_path: Path, calibrated: Any) -> None:
+    """predict_accuracy --calibration: the promise of the identified parameters at a pose, as
+    pose_uncertainty computes it from the file's covariance."""
+    from positioning_cell.tools.predict_accuracy import calibrated_prediction
+    _, result = calibrated
+    path = calfile.write(tmp_path / 'calibration.yaml',
+                         calfile.document(result, MECH, 1.0, {'poses': 60}))
+    position = MECH.home_position + [0.004, -0.002, 0.003]
+    text = calibrated_prediction(path, position=position, rotvec=(0.02, 0.0, -0.01))
+    q = Rotation.from_rotvec([0.02, 0.0, -0.01]).as_quat()
+    cov = idf.pose_uncertainty(result.x, result.covariance, MECH, PAYLOAD, STRUCTURE,
+                               position, q)[0]
+    assert f'|dp| {np.linalg.norm(np.sqrt(np.diag(cov)[:3])) * 1e6:.3f} um' in text, text
+    other = yaml.safe_load(path.read_text())
+    other['calibration']['mechanism_fingerprint'] = '1' * 16
+    path.write_text(yaml.safe_dump(other))
+    with pytest.raises(calfile.CalibrationFileError, match='belongs to mechanism'):
+        calibrated_prediction(path)

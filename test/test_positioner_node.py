@@ -240,8 +240,9 @@ def _calibration_doc(fingerprint: str, length_offset: float) -> dict[str, Any]:
     from positioning_cell.calibration.parameters import PARAMETER_NAMES
     params = {name: {'value': length_offset if name == 'leg1.length_offset' else 0.0,
                      'sigma': 1e-6, 'identified': True} for name in PARAMETER_NAMES}
+    covariance = (np.eye(len(PARAMETER_NAMES)) * 1e-12).tolist()
     return {'calibration': {'format': 1, 'mechanism_fingerprint': fingerprint,
-                            'parameters': params}}
+                            'parameters': params, 'covariance': covariance}}
 
 
 def test_a_calibration_file_is_loaded_checked_and_refused_with_the_old_kept(

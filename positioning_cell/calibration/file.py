@@ -6,7 +6,8 @@ nominal mechanism it was identified over: a file of another machine is refused),
 :data:`positioning_cell.calibration.parameters.PARAMETER_NAMES`: ``value``, ``sigma`` (null
 when fixed), ``unit``, ``identified``), ``fixed`` (each parameter the data could not separate,
 with those that absorbed it), ``seating_force`` (N) and ``residuals`` (χ², degrees of freedom,
-pose-space residual per pose in µm) and, when measured, ``hold_out``.
+pose-space residual per pose in µm), ``covariance`` (COUNT × COUNT, the parameters'
+covariance) and, when measured, ``hold_out``.
 """
 
 from __future__ import annotations
@@ -53,14 +54,15 @@ def fingerprint(mech: Mechanism) -> str:
 @dataclass(frozen=True)
 class Calibration:
     """A loaded calibration: the vector ``x`` (COUNT,), its ``sigma`` (NaN: fixed), which
-    parameters were ``identified``, the ``seating_force`` N, and everything else of the file
-    in ``meta``."""
+    parameters were ``identified``, the ``seating_force`` N, everything else of the file in
+    ``meta``, and the parameters' ``covariance`` (COUNT, COUNT)."""
 
     x: FloatArray
     sigma: FloatArray
     identified: NDArray[np.bool_]
     seating_force: float = 1.0
     meta: dict[str, Any] = field(default_factory=dict)
+    covariance: FloatArray = field(default_factory=lambda: np.zeros((cp.COUNT, cp.COUNT)))
 
     def model(self, nominal: Mechanism, payload: Payload, structure: Structure) -> MachineModel:
         """The calibrated machine carrying ``payload``."""
@@ -84,6 +86,8 @@ def document(result: Identification, nominal: Mechanism, seating_force: float,
         'format': FORMAT, 'mechanism_fingerprint': fingerprint(nominal), 'date': when,
         'program': program, 'seating_force': float(seating_force), 'parameters': params,
         'fixed': fixed,
+        # rows in PARAMETER_NAMES order, m / rad squared: the correlations carry the promise
+        'covariance': [[float(v) for v in row] for row in result.covariance],
         'residuals': {'chi2': round(result.chi2, 3), 'dof': result.dof,
                       'pose_position_um': [round(float(v) * 1e6, 3)
                                            for v in result.pose_residual_position]}}
@@ -145,5 +149,12 @@ def load(path: str | Path, nominal: Mechanism) -> Calibration:
     seating = body.get('seating_force', 1.0)
     if isinstance(seating, bool) or not isinstance(seating, (int, float)) or seating <= 0.0:
         raise CalibrationFileError(f'{where}: seating_force = {seating!r}: must be > 0 N')
-    meta = {k: v for k, v in body.items() if k not in ('parameters',)}
-    return Calibration(x, sigma, identified, float(seating), meta)
+    try:
+        covariance = np.asarray(body.get('covariance'), dtype=float)
+    except (TypeError, ValueError):
+        covariance = np.empty(0)
+    if covariance.shape != (cp.COUNT, cp.COUNT) or not np.all(np.isfinite(covariance)):
+        raise CalibrationFileError(f'{where}: covariance must be {cp.COUNT} x {cp.COUNT} '
+                                   'finite numbers')
+    meta = {k: v for k, v in body.items() if k not in ('parameters', 'covariance')}
+    return Calibration(x, sigma, identified, float(seating), meta, covariance)

@@ -357,17 +357,19 @@ def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
     return rows
 
 
-def pose_uncertainty(result: Identification, nominal: Mechanism, payload: Payload,
-                     structure: Structure, position: ArrayLike, quaternion: ArrayLike,
-                     seating_force: float = 1.0) -> FloatArray:
+def pose_uncertainty(x: FloatArray, covariance: FloatArray, nominal: Mechanism,
+                     payload: Payload, structure: Structure, position: ArrayLike,
+                     quaternion: ArrayLike, seating_force: float = 1.0) -> FloatArray:
     """Covariance (N, 6, 6) (x, y, z, rot-x, rot-y, rot-z; m², rad²) of where the calibrated
     machine puts the platform when commanded to poses (N, 3), (N, 4), from the identified
     parameters' covariance alone (first order: the encoder commands move by ∂e/∂x·δx, the pose
-    by the velocity Jacobian of that): the accuracy the calibration itself promises there."""
+    by the velocity Jacobian of that): the accuracy the calibration itself promises there.
+    ``x`` (COUNT,) and ``covariance`` (COUNT, COUNT): an :class:`Identification`'s, or a
+    calibration file's."""
     p, q = as_pose_batch(position, quaternion)
-    _, sens = predicted_joints(result.x, nominal, payload, structure, p, q, seating_force,
+    _, sens = predicted_joints(x, nominal, payload, structure, p, q, seating_force,
                                with_jacobian=True)
     assert sens is not None
     pose_sens = jacobian(nominal, p, q).matrix @ sens
-    cov: FloatArray = pose_sens @ result.covariance @ np.swapaxes(pose_sens, 1, 2)
+    cov: FloatArray = pose_sens @ covariance @ np.swapaxes(pose_sens, 1, 2)
     return cov

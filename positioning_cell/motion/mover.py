@@ -436,8 +436,9 @@ class Mover:
             command = (p, q)
             moved = True
             self._go(*command, first)
+            sigma: FloatArray | None = None
             if self.mode is CompensationMode.MEASURED:
-                e_p, e_r, reason = self._correct(command, p, q, tol)
+                e_p, e_r, reason, sigma = self._correct(command, p, q, tol)
             else:
                 e_p, e_r, reason = self._check_estimate(p, q, tol)
         except MoveAbortedError as err:
@@ -454,7 +455,7 @@ class Mover:
                 path, self._path = self._path or [], None
         self._set_state(State.SETTLED, reason, ResultCode.SUCCESS)
         return MoveResult(np.array([x[0] for x in path]).reshape(-1, 3),
-                          np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r)
+                          np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r, sigma)
 
     def _check_estimate(self, p: FloatArray, q: FloatArray,
                         tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str]:
@@ -471,7 +472,7 @@ class Mover:
         return e_p, e_r, f'settled within tolerance: {text}'
 
     def _correct(self, command: tuple[FloatArray, FloatArray], p: FloatArray, q: FloatArray,
-                 tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str]:
+                 tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str, FloatArray]:
         """``measured``: the closed loop on the tracker until within ``tol``. A remaining error
         that no component of exceeds :data:`SIGNIFICANCE` standard uncertainties of the
         averaged measurement is not corrected (that would chase noise): within tolerance it is
@@ -485,7 +486,7 @@ class Mover:
             text = (_error_text(e_p, e_r, 'measured error') + f' ± {_sigma_text(sigma)} (1 '
                     f'sigma) after {done} corrections')
             if tol.holds(e_p, e_r):
-                return e_p, e_r, f'settled within tolerance: {text}'
+                return e_p, e_r, f'settled within tolerance: {text}', sigma
             if not np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma):
                 raise MoveAbortedError(
                     ResultCode.OUT_OF_TOLERANCE, f'settled outside tolerance: {text}; the '

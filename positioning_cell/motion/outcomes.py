@@ -71,7 +71,9 @@ class MoveAbortedError(PositioningError):
 class MoveResult(NamedTuple):
     """A settled move: the estimated poses while it ran, positions (M, 3) m and quaternions
     (M, 4); the words for how it ended; the attained error against the goal (Δp (3,) m and
-    rotation vector (3,) rad: the tracker's in ``measured`` mode, else the encoders').
+    rotation vector (3,) rad: the tracker's in ``measured`` mode, else the encoders'); in
+    ``measured`` mode its standard uncertainty (6,) (x, y, z m, rot-x, rot-y, rot-z rad; None
+    otherwise).
     """
 
     positions: FloatArray
@@ -79,6 +81,7 @@ class MoveResult(NamedTuple):
     reason: str
     position_error: FloatArray
     orientation_error: FloatArray
+    uncertainty: FloatArray | None = None
 
     @property
     def path(self) -> tuple[FloatArray, FloatArray]:

@@ -168,8 +168,8 @@ def identify_and_write(machine: Machine, recording: Recording, out: Path, progra
         else None
     hold_doc = None
     if hold is not None:
-        promised = idf.pose_uncertainty(result, s.mechanism, s.payload, s.structure,
-                                        *collected.hold_out_commanded)
+        promised = idf.pose_uncertainty(result.x, result.covariance, s.mechanism, s.payload,
+                                        s.structure, *collected.hold_out_commanded)
         sigma_p = np.sqrt(np.trace(promised[:, :3, :3], axis1=1, axis2=2))
         hold_doc = {'poses': len(collected.hold_out.joints),
                     'promised_sigma_um': round(float(np.sqrt(np.mean(sigma_p**2))) * 1e6, 3),

@@ -19,10 +19,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from positioning_cell.calibration import file as calfile
+from positioning_cell.calibration.identify import pose_uncertainty
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.limits import require_within_limits
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError, InputError, PositioningError
+from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.parameters import parse
 from positioning_cell.prediction.angular import (
     PAPER_EXAMPLES,
     PAPER_HOLES,
@@ -278,6 +282,31 @@ def _stacked_study(out_dir: Path, runs: int, global_runs: int,
     return lines, plot_stacked_stages(curves, out_dir / 'stacked_stages.png')
 
 
+def calibrated_prediction(calibration: Path, config: Path | None = None,
+                          position: Sequence[float] | None = None,
+                          rotvec: Sequence[float] = (0.0, 0.0, 0.0)) -> str:
+    """The calibrated machine's predicted accuracy at the pose: the standard uncertainty of
+    where it puts the platform, from the identified parameters' covariance of the calibration
+    file (:func:`positioning_cell.calibration.identify.pose_uncertainty`), for the config's
+    mechanism and payload. CalibrationFileError for a file of another machine."""
+    params = node_parameters(load_parameter_file(config or shipped_config('cell.yaml')),
+                             'positioner')
+    params.pop('compensation', None)
+    machine = parse(PositionerSettings, params)
+    mech = machine.mechanism
+    cal = calfile.load(calibration, mech)
+    p = mech.home_position if position is None else np.asarray(position, dtype=float)
+    q = Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_quat()
+    require_within_limits(mech, p, q)
+    cov = pose_uncertainty(cal.x, cal.covariance, mech, machine.payload, machine.structure,
+                           p, q, cal.seating_force)[0]
+    sigma = np.sqrt(np.diag(cov))
+    return (f'calibrated machine ({calibration}): standard uncertainty at the pose from the '
+            f'identified parameters: position x, y, z {np.round(sigma[:3] * 1e6, 3).tolist()} '
+            f'um (|dp| {np.linalg.norm(sigma[:3]) * 1e6:.3f} um), rotation '
+            f'{np.round(sigma[3:] * 1e6, 2).tolist()} urad\n')
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: ``predict_accuracy [--config F] [--spec F] [--out D] ...``; 0 on success,
     2 with a message on stderr for a bad config, spec or pose."""
@@ -303,8 +332,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='runs of the seed 003 stacked-stage study (0: none)')
     parser.add_argument('--global-runs', type=int, default=1_000,
                         help='runs of the exhaustive global strategy (costly: 6^7 per run)')
+    parser.add_argument('--calibration', type=Path,
+                        help='calibration.yaml of the machine (calibrate_cell): also print the '
+                        'calibrated machine\'s uncertainty at the pose')
     args = parser.parse_args(argv)
     try:
+        if args.calibration is not None:
+            sys.stdout.write(calibrated_prediction(args.calibration, args.config,
+                                                   args.position, args.rotvec))
         report = predict(args.out, config=args.config, spec_path=args.spec,
                          position=args.position, rotvec=args.rotvec, samples=args.samples,
                          seed=args.seed, grid=args.grid, half_width=args.half_width,

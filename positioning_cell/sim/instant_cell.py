@@ -1,0 +1,76 @@
+"""The mover's outside world simulated offline, without ROS and without waiting: drives that
+take every trajectory and stand at its end at once, encoders that read the axes exactly, and
+the laser tracker (the simulator's: true pose of the machine, readings with the instrument's
+noise and systematic errors, fitted through the cell's located registration). For judging the
+positioner's own move logic (:class:`positioning_cell.motion.mover.Mover`, unchanged) on a
+simulated machine in a benchmark; the truth stays here (:meth:`InstantCell.true_pose`)."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from numpy.typing import NDArray
+
+from positioning_cell.core.kinematics import inverse
+from positioning_cell.metrology.instrument import Tracker
+from positioning_cell.metrology.targets import TargetLayout
+from positioning_cell.motion.mover import Answer, JointReading, Machine, Measurement
+from positioning_cell.motion.trajectory import Trajectory, fingerprint
+from positioning_cell.sim.tracker import SimulatedTracker, observe
+from positioning_cell.sim.truth import Truth
+
+FloatArray = NDArray[np.float64]
+
+#: The drives' report to the mover: enabled, at rest, referenced.
+DRIVES_READY = {'enabled': 'true', 'state': 'holding', 'referenced': 'true'}
+
+
+class InstantCell:
+    """The drives, encoders and tracker of the machine ``truth`` (module docstring); each look
+    of the mover at the tracker gets ``samples`` new readings."""
+
+    def __init__(self, truth: Truth, instrument: SimulatedTracker, located: Tracker,
+                 targets: TargetLayout, rng: np.random.Generator, samples: int = 10) -> None:
+        self.truth, self.instrument, self.located, self.targets = truth, instrument, located, \
+            targets
+        self.rng, self.samples = rng, samples
+        mech = truth.mechanism
+        home = inverse(mech, mech.home_position, mech.home_quaternion)
+        self.position: FloatArray = np.concatenate([home.lengths[0], home.thetas[0]])
+        self._answers: list[Answer] = []
+        self._lock = threading.Lock()
+
+    def machine(self) -> Machine:
+        """The :class:`Machine` a mover drives."""
+        return Machine(send_trajectory=self._send, stop_drives=lambda: None,
+                       publish_target=lambda p, q: None, latest_joints=self._joints,
+                       new_measurements=self._measure, trajectory_answers=self._take)
+
+    def true_pose(self) -> tuple[FloatArray, FloatArray]:
+        """Judging only: where the platform really is, position (3,) m, quaternion (4,)."""
+        pose = self.truth.poses(self.position[None, :3], self.position[None, 3:])
+        return pose.position[0], pose.quaternion[0]
+
+    def _send(self, traj: Trajectory) -> None:
+        joints = np.hstack([traj.lengths, traj.thetas])
+        with self._lock:
+            self.position = joints[-1].copy()
+            self._answers.append(Answer(fingerprint(traj.times, joints), True, 'ok'))
+
+    def _take(self) -> list[Answer]:
+        with self._lock:
+            out, self._answers = self._answers, []
+        return out
+
+    def _joints(self) -> JointReading:
+        with self._lock:
+            return JointReading(self.position.copy(), np.zeros(6))
+
+    def _measure(self) -> list[Measurement]:
+        p, q = self.true_pose()
+        n = self.samples
+        _, fit = observe(self.instrument, self.located, self.targets, np.repeat(p[None], n, 0),
+                         np.repeat(q[None], n, 0), self.rng)
+        return [Measurement(fit.position[k], fit.quaternion[k], fit.covariance[k])
+                for k in range(n)]
