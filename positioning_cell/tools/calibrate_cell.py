@@ -46,14 +46,13 @@ from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.report import predict, write_report
-from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.config import config_path
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import PositioningError
-from positioning_cell.motion.calibrated import CALIBRATION_FILE
+from positioning_cell.motion.calibrated import CALIBRATION_FILE, machine_settings
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.nodes.messages import joint_values, measurement, seconds
 from positioning_cell.nodes.qos import MARKER_QOS, STREAM_QOS
-from positioning_cell.parameters import parse
 from positioning_cell.tools.polling import wait_until
 from positioning_cell.tools.ros import CellClient
 
@@ -78,9 +77,8 @@ class Machine(NamedTuple):
 
     @classmethod
     def from_config(cls, config: Path) -> Machine:
-        params = node_parameters(load_parameter_file(config), names.NODE_POSITIONER)
-        params.pop('compensation', None)  # the tool needs the machine, not the compensation
-        return cls(parse(PositionerSettings, params))
+        """The machine of the positioner's section of a parameter file."""
+        return cls(machine_settings(config))
 
 
 # -- the messages a run consists of -------------------------------------------------------------

@@ -25,8 +25,7 @@ from positioning_cell.config import config_path, load_parameter_file, node_param
 from positioning_cell.core.limits import require_within_limits
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError, InputError, PositioningError
-from positioning_cell.motion.settings import PositionerSettings
-from positioning_cell.parameters import parse
+from positioning_cell.motion.calibrated import machine_settings
 from positioning_cell.prediction.angular import (
     PAPER_EXAMPLES,
     PAPER_HOLES,
@@ -289,10 +288,7 @@ def calibrated_prediction(calibration: Path, config: Path | None = None,
     where it puts the platform, from the identified parameters' covariance of the calibration
     file (:func:`positioning_cell.calibration.identify.pose_uncertainty`), for the config's
     mechanism and payload. CalibrationFileError for a file of another machine."""
-    params = node_parameters(load_parameter_file(config or shipped_config('cell.yaml')),
-                             'positioner')
-    params.pop('compensation', None)
-    machine = parse(PositionerSettings, params)
+    machine = machine_settings(config or shipped_config('cell.yaml'))
     mech = machine.mechanism
     cal = calfile.load(calibration, mech)
     p = mech.home_position if position is None else np.asarray(position, dtype=float)
