@@ -86,37 +86,40 @@ class Recording:
     """Markers, encoder readings and tracker poses, as received (live) or read (bag)."""
 
     def __init__(self) -> None:
+        # One entry per message (stamp and values together): a reader on another thread
+        # never sees a stamp without its values.
         self.markers: list[col.Marker] = []
-        self.joint_t: list[float] = []
-        self.joints: list[Any] = []
-        self.pose_t: list[float] = []
-        self.poses: list[tuple[Any, Any, Any]] = []
+        self.joints: list[tuple[float, Any]] = []
+        self.poses: list[tuple[float, Any, Any, Any]] = []
 
     def on_joints(self, msg: Any) -> None:
         values = joint_values(msg, JOINT_NAMES)
         if values is not None:
-            self.joint_t.append(seconds(msg.header.stamp))
-            self.joints.append(values)
+            self.joints.append((seconds(msg.header.stamp), values))
 
     def on_pose(self, msg: Any) -> None:
         reading = measurement(msg)
-        self.pose_t.append(seconds(msg.header.stamp))
-        self.poses.append((reading.position, reading.quaternion, reading.covariance))
+        self.poses.append((seconds(msg.header.stamp), reading.position, reading.quaternion,
+                           reading.covariance))
 
     def on_marker(self, msg: Any) -> None:
         self.markers.append(col.Marker.from_json(msg.data))
 
     def readings_since(self, start: float) -> int:
         """Tracker readings stamped at or after ``start`` so far."""
-        return sum(1 for t in self.pose_t[-200:] if t >= start)
+        return sum(1 for entry in self.poses[-200:] if entry[0] >= start)
 
     def collected(self) -> col.Collected:
-        joints = col.Stream(np.asarray(self.joint_t), (np.asarray(self.joints).reshape(-1, 6),))
-        p, q, c = (zip(*self.poses, strict=True) if self.poses else ((), (), ()))
-        poses = col.Stream(np.asarray(self.pose_t),
-                           (np.asarray(p).reshape(-1, 3), np.asarray(q).reshape(-1, 4),
-                            np.asarray(c).reshape(-1, 6, 6)))
-        return col.collect(self.markers, joints, poses, JOINT_SIGMA_FLOOR)
+        joints, poses = list(self.joints), list(self.poses)  # what has come in so far
+        jt, jv = zip(*joints, strict=True) if joints else ((), ())
+        pt, p, q, c = zip(*poses, strict=True) if poses else ((), (), (), ())
+        return col.collect(
+            list(self.markers),
+            col.Stream(np.asarray(jt, dtype=float), (np.asarray(jv).reshape(-1, 6),)),
+            col.Stream(np.asarray(pt, dtype=float),
+                       (np.asarray(p).reshape(-1, 3), np.asarray(q).reshape(-1, 4),
+                        np.asarray(c).reshape(-1, 6, 6))),
+            JOINT_SIGMA_FLOOR)
 
 
 def read_bag(path: Path, run: str | None = None,
@@ -209,7 +212,7 @@ def _planning_covariance(recording: Recording, samples: int, timeout: float) -> 
     """The tracker's covariance of one averaged pose, from its own readings at rest."""
     start = time.time()
     wait_until(lambda: recording.readings_since(start) >= 1, timeout, 'a tracker reading')
-    return np.asarray(recording.poses[-1][2]) / samples
+    return np.asarray(recording.poses[-1][3]) / samples
 
 
 def _progress_fit(machine: Machine, rec: Recording) -> str:
@@ -284,7 +287,7 @@ def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSetting
             except TimeoutError as err:
                 say(f'{head} {err}: left out')
                 continue
-            measured = np.mean([m[0] for m in rec.poses[-samples:]], axis=0)
+            measured = np.mean([m[1] for m in rec.poses[-samples:]], axis=0)
             line = f'{head} |measured - commanded| {np.linalg.norm(measured - p) * 1e6:7.1f} um'
             fits = sum(1 for m in rec.markers if m.set == col.FIT)
             if which == col.FIT and fits % FIT_EVERY == 0:
