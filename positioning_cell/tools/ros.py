@@ -102,8 +102,10 @@ class CellClient:
 
     def home(self, timeout: float = 60.0) -> tuple[bool, str]:
         """Home the positioner (it references the drives first): (success, message). Retries
-        while it refuses for want of encoder readings (the cell is still coming up)."""
-        not_yet = (ResultCode.REFUSED_DRIVER_SILENT.value, ResultCode.REFUSED_NO_ESTIMATE.value)
+        while it refuses for want of encoder or tracker readings (the cell is still coming up:
+        the tracker locates itself before it measures)."""
+        not_yet = (ResultCode.REFUSED_DRIVER_SILENT.value, ResultCode.REFUSED_NO_ESTIMATE.value,
+                   ResultCode.REFUSED_TRACKER_SILENT.value)
 
         def attempt() -> tuple[bool, str] | None:
             done, message = self.trigger(names.HOME)
