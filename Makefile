@@ -19,11 +19,20 @@ RUN_ENV := ROS_LOG_DIR=$(TMP)/ros_log ROS_HOME=$(TMP)/ros_home \
 
 setup: $(STAMP)
 
-# Reinstalls only when the package metadata changes; the package itself is editable.
-$(STAMP): setup.py setup.cfg package.xml
+# The typed interfaces (actions, services): a second ROS package, built from its own folder by
+# scikit-build-core against the ROS 2 wheels into the venv prefix (nothing to source; about a
+# minute the first time, then reused), and by colcon on a ROS install (README, "Building").
+INTERFACES := interfaces/positioning_cell_interfaces
+INTERFACE_FILES := $(wildcard $(INTERFACES)/*.txt $(INTERFACES)/*.xml $(INTERFACES)/*.toml \
+	$(INTERFACES)/msg/*.msg $(INTERFACES)/srv/*.srv $(INTERFACES)/action/*.action)
+
+# Reinstalls only when the package metadata or the interfaces change; the package itself is
+# editable.
+$(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	test -x $(UV) || $(PY) -m pip install --quiet --disable-pip-version-check uv==0.13.9
-	$(UV) pip install --quiet --compile-bytecode --python $(PY) -e '.[cell,test]'
+	$(UV) pip install --quiet --compile-bytecode --python $(PY) --reinstall-package \
+		positioning_cell_interfaces ./$(INTERFACES) -e '.[cell,test]'
 	# Compile the numba kernels once now (cached on disk), not in the first process that needs them.
 	$(PY) -c 'from positioning_cell.core import kinematics; kinematics.warm_up()'
 	touch $(STAMP)
@@ -43,4 +52,4 @@ bench: $(STAMP)
 	for b in benchmarks/*.py; do env $(RUN_ENV) $(PY) $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(TMP) build install log
+	rm -rf $(VENV) $(TMP) build install log $(INTERFACES)/build

@@ -16,9 +16,11 @@ CONSOLE_SCRIPTS = [
     'pose_measurement_node = positioning_cell.nodes.entry:pose_measurement_node',
     'kinematics_node = positioning_cell.nodes.entry:kinematics_node',
     'accuracy_monitor_node = positioning_cell.nodes.entry:accuracy_monitor_node',
+    'calibrator_node = positioning_cell.nodes.entry:calibrator_node',
     'analyze_bag = positioning_cell.tools.analyze_bag:main',
     'run_cell = positioning_cell.tools.run_cell:main',
     'calibrate_cell = positioning_cell.tools.calibrate_cell:main',
+    'cell = positioning_cell.tools.cell:main',
 ]
 
 # ROS 2 Jazzy from PyPI wheels and the pinned libraries the cell runs on (make run / make test).

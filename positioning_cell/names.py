@@ -26,6 +26,7 @@ NODE_MEASUREMENT = 'pose_measurement'
 NODE_MONITOR = 'accuracy_monitor'
 NODE_RECORDER = 'recorder'
 NODE_PLAYER = 'bag_player'
+NODE_CALIBRATOR = 'calibrator'
 
 #: The cell's nodes in start order: the launch file and the run driver start these.
 CELL_NODES = (
@@ -36,8 +37,9 @@ CELL_NODES = (
 )
 RECORDER = CellNode('recorder_node', NODE_RECORDER)
 PLAYER = CellNode('bag_player_node', NODE_PLAYER)
+CALIBRATOR = CellNode('calibrator_node', NODE_CALIBRATOR)
 #: Every node executable of the package.
-NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER)
+NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR)
 
 # -- topics ---------------------------------------------------------------------------------------
 JOINT_TRAJECTORY = '/legs/joint_trajectory'
@@ -66,11 +68,21 @@ CELL_TOPICS = (
     DIAGNOSTICS, PROGRAM, CALIBRATION,
 )
 
-# -- services -------------------------------------------------------------------------------------
+# -- services (positioning_cell_interfaces unless named otherwise) ------------------------------
+#: Move and return when settled (srv MoveToPose).
 MOVE_TO_POSE = '/positioner/move_to_pose'
+#: The checks of a move without moving, with the validity bits (srv CheckPose).
 CHECK_POSE = '/positioner/check_pose'
+#: Reference and home, blocking (std_srvs/srv/Trigger).
 HOME = '/positioner/home'
+#: Controlled stop of whatever runs (std_srvs/srv/Trigger).
 STOP = '/positioner/stop'
+SET_COORDINATE_SYSTEMS = '/positioner/set_coordinate_systems'
+GET_COORDINATE_SYSTEMS = '/positioner/get_coordinate_systems'
+SET_LIMITS = '/positioner/set_limits'
+GET_LIMITS = '/positioner/get_limits'
+SET_SPEED = '/positioner/set_speed'
+JOG = '/positioner/jog'
 DRIVER_ENABLE = '/leg_driver/enable'
 DRIVER_REFERENCE = '/leg_driver/reference'
 #: Re-locate the tracker on the base reference targets (std_srvs/srv/Trigger).
@@ -79,6 +91,16 @@ MONITOR_REPORT = '/accuracy_monitor/report'
 MONITOR_RESET = '/accuracy_monitor/reset'
 RECORDER_PAUSE = '/recorder/pause'
 RECORDER_RESUME = '/recorder/resume'
+
+
+# -- actions (positioning_cell_interfaces) --------------------------------------------------------
+#: Move with feedback; cancel = controlled stop (action MoveToPose).
+MOVE_ACTION = '/positioner/move'
+#: Reference and home with feedback (action Home).
+HOME_ACTION = '/positioner/homing'
+#: Calibrate the machine from its own measurements, progress per pose (action Calibrate,
+#: served by calibrator_node).
+CALIBRATE_ACTION = '/calibrator/calibrate'
 
 
 def set_parameters_service(node: str) -> str:

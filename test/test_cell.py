@@ -22,7 +22,8 @@ import pytest
 from cell_harness import CELL_YAML, Client, ProcessGroup, isolated_domain, wait_until
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-from nav_msgs.srv import GetPlan
+from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
+from positioning_cell_interfaces.srv import MoveToPose
 from scipy.spatial.transform import Rotation
 from std_srvs.srv import SetBool
 from workspace import MECH
@@ -54,10 +55,10 @@ def set_param(client: Client, node: str, name: str, value: Any) -> Any:
 def move(client: Client, p: np.ndarray, rv: list[float]) -> tuple[Any, float]:
     q = Rotation.from_rotvec(rv).as_quat()
     t0 = time.monotonic()
-    response = client.call(GetPlan, '/positioner/move_to_pose',
-                           GetPlan.Request(goal=pose_stamped(p, q, client.node.get_clock()
-                                                             .now().to_msg())), timeout=90.0)
-    return response, time.monotonic() - t0
+    goal = MoveCommand(pose=pose_stamped(p, q, client.node.get_clock().now().to_msg()))
+    response = client.call(MoveToPose, '/positioner/move_to_pose',
+                           MoveToPose.Request(command=goal), timeout=90.0)
+    return response.outcome, time.monotonic() - t0
 
 
 def settled_errors(client: Client, streams: dict[str, list[Any]], p: np.ndarray,
@@ -106,7 +107,7 @@ def errors_by_mode(cell: Any) -> dict[str, list[dict[str, np.ndarray]]]:
         results[mode] = []
         for p, rv in GOALS:
             response, seconds = move(client, p, rv)
-            assert response.plan.poses, f'{mode} move to {p} refused or aborted'
+            assert response.code == MoveOutcome.SUCCESS, f'{mode} move to {p}: {response.reason}'
             errors = settled_errors(client, streams, p, rv)
             errors['seconds'] = np.array([seconds])
             errors['stated_um'] = np.array([stated_uncertainty_um(diagnostics)])
@@ -174,7 +175,7 @@ def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: A
     assert set_param(client, 'leg_driver', 'fault.stuck_axis', 'leg2_length').successful
     thread.join(timeout=60.0)
     response, _ = result['m']
-    assert len(response.plan.poses) == 0
+    assert response.code_name.startswith('aborted'), response.reason
     wait_until(lambda: any(s.name.startswith('positioner') and 'drive fault' in s.message
                            and 'leg2_length' in s.message
                            for d in diagnostics for s in d.status), 10.0,
@@ -184,8 +185,7 @@ def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: A
         assert client.call(SetBool, '/leg_driver/enable', SetBool.Request(data=on)).success
     # The driver's new state reaches the positioner on /diagnostics: poll the validation.
     q0 = Rotation.from_rotvec(GOALS[0][1]).as_quat()
-    wait_until(lambda: client.call(GetPlan, '/positioner/check_pose', GetPlan.Request(
-        goal=pose_stamped(GOALS[0][0], q0, client.node.get_clock().now().to_msg()))
-    ).plan.poses, 20.0, 'the positioner to accept commands again')
+    wait_until(lambda: client.plan('/positioner/check_pose', GOALS[0][0], q0), 20.0,
+               'the positioner to accept commands again')
     response, _ = move(client, *GOALS[0])
-    assert response.plan.poses
+    assert response.code == MoveOutcome.SUCCESS, response.reason

@@ -10,6 +10,7 @@ from positioning_cell import names
 from positioning_cell.config import config_path, flatten, load_parameter_file, node_parameters
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
 from positioning_cell.nodes.bag_player_node import BagPlayerNode
+from positioning_cell.nodes.calibrator_node import CalibratorNode
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.nodes.leg_driver_node import LegDriverNode
 from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
@@ -17,7 +18,7 @@ from positioning_cell.nodes.recorder_node import RecorderNode
 from positioning_cell.parameters import declarations, parse
 
 NODES = {n.NAME: n for n in (PositionerNode, LegDriverNode, PoseMeasurementNode,
-                             AccuracyMonitorNode, RecorderNode, BagPlayerNode)}
+                             AccuracyMonitorNode, RecorderNode, BagPlayerNode, CalibratorNode)}
 CELL = load_parameter_file(config_path('cell.yaml'))
 
 

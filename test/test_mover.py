@@ -251,6 +251,22 @@ def test_measured_mode_corrects_a_machine_with_clearance_to_the_tolerance() -> N
     assert np.linalg.norm(deviation(*uncorrected.attained(), GOAL, GOAL_Q)[0]) > 20e-6
 
 
+def test_a_goal_already_reached_is_not_moved_to_and_the_next_move_starts_at_the_axes() -> None:
+    truth = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(3))
+    world = World(truth)
+    m = mover(world, 'measured')
+    m.move('base', GOAL, GOAL_Q)
+    sent, axes = len(world.trajectories), world.position.copy()
+    again = m.move('base', GOAL, GOAL_Q)
+    assert again.reason.startswith('already within tolerance, not moved: measured error')
+    assert len(world.trajectories) == sent and again.uncertainty is not None
+    # the command that got the machine there (corrected), not the goal: no jump at the start
+    m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q)
+    first = world.trajectories[sent]
+    np.testing.assert_allclose(np.concatenate([first.lengths[0], first.thetas[0]]), axes,
+                               atol=1e-9)
+
+
 def test_out_of_tolerance_is_a_failure_with_the_attained_error() -> None:
     truth = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(3))
     world = World(truth)

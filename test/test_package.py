@@ -24,6 +24,7 @@ NODE_NAMES = {
     'accuracy_monitor_node': 'accuracy_monitor',
     'recorder_node': 'recorder',
     'bag_player_node': 'bag_player',
+    'calibrator_node': 'calibrator',
 }
 
 
@@ -147,3 +148,15 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
                 log.close()
         logs = {n: (tmp_path / f'{n}.log').read_text(errors='replace')[-2000:] for n in nodes}
         assert all(code == 0 for code in codes.values()), (codes, logs)
+
+
+def test_colcon_finds_both_packages_from_the_documented_base_paths() -> None:
+    """README "Building": `colcon build --base-paths . interfaces` (colcon does not look for a
+    package inside another package's folder)."""
+    colcon = Path(sys.executable).parent / 'colcon'
+    result = subprocess.run([str(colcon), 'list', '--base-paths', '.', 'interfaces'],
+                            cwd=REPO, capture_output=True, text=True, check=False, timeout=60)
+    assert result.returncode == 0, result.stderr
+    found = {line.split('\t')[0]: line.split('\t')[-1] for line in result.stdout.splitlines()}
+    assert found == {PACKAGE: '(ros.ament_python)',
+                     'positioning_cell_interfaces': '(ros.ament_cmake)'}, result.stdout

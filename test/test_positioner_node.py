@@ -16,7 +16,8 @@ import yaml
 from cell_harness import Client, InProcess, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
-from nav_msgs.srv import GetPlan
+from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome, Validity
+from positioning_cell_interfaces.srv import CheckPose, MoveToPose
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
@@ -85,15 +86,26 @@ class FakeDriver:
         self.diag.publish(DiagnosticArray(status=[status]))
 
 
-def request(p: Any, q: Any, frame: str = 'base', tolerance: float = 0.0) -> GetPlan.Request:
-    goal = pose_stamped(p, q, PoseStamped().header.stamp, frame)
-    return GetPlan.Request(goal=goal, tolerance=float(tolerance))
+def command(p: Any, q: Any, frame: str = 'base', tolerance: float = 0.0,
+            mode: int = MoveCommand.ABSOLUTE) -> MoveCommand:
+    return MoveCommand(pose=pose_stamped(p, q, PoseStamped().header.stamp, frame), mode=mode,
+                       tolerance=float(tolerance))
+
+
+SERVICES = {'/positioner/check_pose': CheckPose, '/positioner/move_to_pose': MoveToPose}
+
+
+def done(response: Any) -> bool:
+    """A check found the goal valid, or a move settled within tolerance."""
+    if hasattr(response, 'valid'):
+        return bool(response.valid)
+    return bool(response.outcome.code == MoveOutcome.SUCCESS)
 
 
 class Positioner:
     """The node under test and what the test sees of it."""
 
-    def __init__(self, ros: InProcess) -> None:
+    def __init__(self, ros: InProcess, systems_file: Path) -> None:
         self.client = ros.client
         self.driver = FakeDriver(ros.client)
         self.statuses = ros.client.statuses('positioner: state')
@@ -104,12 +116,15 @@ class Positioner:
         # not a lost driver. Liveness itself is proven on real processes (test_faults).
         self.node = ros.start(PositionerNode, **{'compensation.mode': 'none',
                                                  'settle_time': 0.0,
-                                                 'liveness.joint_silence': 1.0})
+                                                 'liveness.joint_silence': 1.0,
+                                                 'operator.coordinate_systems_file':
+                                                     str(systems_file)})
         wait_until(lambda: self.poses, 30.0, 'the first /positioner/pose')
         wait_until(lambda: self.node.mover.referenced, 10.0, 'the fake drives\' status')
 
-    def plan(self, service: str, req: GetPlan.Request) -> Any:
-        return self.client.call(GetPlan, service, req)
+    def plan(self, service: str, cmd: MoveCommand) -> Any:
+        kind = SERVICES[service]
+        return self.client.call(kind, service, kind.Request(command=cmd))
 
     def reasons_after(self, mark: int) -> list[str]:
         return [s.message for s in self.statuses[mark:]]
@@ -120,44 +135,64 @@ class Positioner:
 
 
 @pytest.fixture
-def positioner(ros: InProcess) -> Iterator[Positioner]:
-    yield Positioner(ros)
+def positioner(ros: InProcess, tmp_path: Path) -> Iterator[Positioner]:
+    yield Positioner(ros, tmp_path / 'coordinate_systems.yaml')
 
 
 @pytest.mark.parametrize(('p', 'q', 'frame', 'words'), [
     ([0.0, float('nan'), 0.196], HOME_Q, 'base', 'not finite'),
     (HOME_P, [0.0, 0.0, 0.0, 0.0], 'base', 'is zero'),
     (HOME_P, [0.0, 0.0, 0.2, 1.0], 'base', 'not 1'),
-    (HOME_P, HOME_Q, 'tracker', "goal frame 'tracker' is not 'base'"),
+    (HOME_P, HOME_Q, 'tracker', "not in frame_id 'tracker'"),
     (HOME_P + [0.0, 0.0, 0.03], HOME_Q,
-     'base', 'path refused, outside limits: sample'),
+     'base', 'above the maximum 220.0000 mm'),
 ])
 def test_refusals_say_why_and_move_nothing(positioner: Positioner, p: Any, q: Any, frame: str,
                                            words: str) -> None:
     for service in ('/positioner/check_pose', '/positioner/move_to_pose'):
         mark = len(positioner.statuses)
-        response = positioner.plan(service, request(p, q, frame))
-        assert len(response.plan.poses) == 0
+        response = positioner.plan(service, command(p, q, frame))
+        assert not done(response)
         positioner.wait_reason(mark, words)
     assert not positioner.driver.trajectories and not positioner.targets  # nothing moved
 
 
-def test_check_pose_returns_the_path_without_moving(positioner: Positioner) -> None:
+def test_check_pose_returns_the_goal_and_duration_without_moving(
+        positioner: Positioner) -> None:
     goal = HOME_P + [0.005, 0.0, 0.0]
-    response = positioner.plan('/positioner/check_pose', request(goal, HOME_Q))
-    poses = response.plan.poses
-    assert len(poses) > 10 and response.plan.header.frame_id == 'base'
-    np.testing.assert_allclose(pose_arrays(poses[-1].pose)[0], goal, atol=1e-12)
+    response = positioner.plan('/positioner/check_pose', command(goal, HOME_Q))
+    assert response.valid and response.validity.bits == 0 and response.duration > 0.1
+    assert response.goal.header.frame_id == 'base'
+    np.testing.assert_allclose(pose_arrays(response.goal.pose)[0], goal, atol=1e-12)
+    margins = dict(zip(response.validity.margin_names, response.validity.margins, strict=True))
+    assert margins['factory.length_max'] > 0 and margins['machine.Tx'] > 0
     assert not positioner.driver.trajectories
+
+
+def test_check_pose_sets_one_bit_per_violated_constraint(positioner: Positioner) -> None:
+    high = positioner.plan('/positioner/check_pose', command(HOME_P + [0, 0, 0.03], HOME_Q))
+    assert not high.valid and high.validity.bits & Validity.STROKE
+    assert 'stroke' in high.validity.bit_names
+    assert any(v.startswith('factory: ') for v in high.validity.violations)
+    margins = dict(zip(high.validity.margin_names, high.validity.margins, strict=True))
+    assert margins['factory.length_max'] < 0
+    bad = positioner.plan('/positioner/check_pose', command(HOME_P, [0.0, 0.0, 0.0, 0.0]))
+    assert bad.validity.bits == Validity.INVALID_GOAL
+    positioner.driver.report(enabled=False)
+    wait_until(lambda: positioner.plan('/positioner/check_pose', command(
+        HOME_P, HOME_Q)).validity.bits == Validity.DRIVES_OFF, 20.0, 'the drives-off bit')
+    positioner.driver.report(enabled=True)
 
 
 def test_a_move_sends_one_trajectory_and_returns_the_executed_path(
         positioner: Positioner) -> None:
     goal = HOME_P + [0.0, 0.003, 0.001]
     mark = len(positioner.statuses)
-    response = positioner.plan('/positioner/move_to_pose', request(goal, HOME_Q))
-    assert response.plan.poses, positioner.reasons_after(mark)
-    np.testing.assert_allclose(pose_arrays(response.plan.poses[-1].pose)[0], goal, atol=1e-9)
+    response = positioner.plan('/positioner/move_to_pose', command(goal, HOME_Q))
+    assert done(response), positioner.reasons_after(mark)
+    assert response.outcome.code_name == 'success'
+    np.testing.assert_allclose(pose_arrays(response.outcome.attained.pose)[0], goal, atol=1e-9)
+    assert np.isnan(response.outcome.uncertainty).all()  # not measured
     # the service answered; its final status may still be on its way
     positioner.wait_reason(mark, 'settled within tolerance')
     (traj,) = positioner.driver.trajectories
@@ -179,20 +214,20 @@ def test_busy_then_stop_aborts(positioner: Positioner) -> None:
     driver.follow = False  # the drives never arrive: the move waits
     first: dict[str, Any] = {}
     thread = threading.Thread(target=lambda: first.update(r=positioner.plan(
-        '/positioner/move_to_pose', request(HOME_P + [0.002, 0, 0], HOME_Q))))
+        '/positioner/move_to_pose', command(HOME_P + [0.002, 0, 0], HOME_Q))))
     mark = len(positioner.statuses)
     thread.start()
     wait_until(lambda: driver.trajectories, 20.0, 'the move to send its trajectory')
     positioner.wait_reason(mark, 'moving')
     mark = len(positioner.statuses)
-    second = positioner.plan('/positioner/move_to_pose', request(HOME_P, HOME_Q))
-    assert len(second.plan.poses) == 0
+    second = positioner.plan('/positioner/move_to_pose', command(HOME_P, HOME_Q))
+    assert second.outcome.code == MoveOutcome.REFUSED_BUSY
     positioner.wait_reason(mark, 'busy')
     assert len(driver.trajectories) == 1  # the refused move sent nothing
     stop = positioner.client.call(Trigger, '/positioner/stop', Trigger.Request())
     assert stop.success
     thread.join(timeout=30.0)
-    assert len(first['r'].plan.poses) == 0
+    assert first['r'].outcome.code == MoveOutcome.ABORTED_STOP
     positioner.wait_reason(mark, 'stopped by /positioner/stop')
     assert len(driver.trajectories[-1].points) == 0  # the stop: an empty trajectory
 
@@ -201,21 +236,21 @@ def test_drives_disabled_refused(positioner: Positioner) -> None:
     driver = positioner.driver
     driver.report(enabled=False)
     # check_pose runs the same validation without moving, so polling it cannot start a move.
-    wait_until(lambda: len(positioner.plan('/positioner/check_pose', request(
-        HOME_P, HOME_Q)).plan.poses) == 0, 20.0, 'check_pose refused')
+    wait_until(lambda: not positioner.plan('/positioner/check_pose', command(
+        HOME_P, HOME_Q)).valid, 20.0, 'check_pose refused')
     mark = len(positioner.statuses)
-    response = positioner.plan('/positioner/move_to_pose', request(HOME_P, HOME_Q))
-    assert len(response.plan.poses) == 0 and not driver.trajectories
+    response = positioner.plan('/positioner/move_to_pose', command(HOME_P, HOME_Q))
+    assert response.outcome.code == MoveOutcome.REFUSED_DRIVES_OFF and not driver.trajectories
     positioner.wait_reason(mark, 'drives disabled: enable them with /leg_driver/enable')
     driver.report(enabled=True)
-    wait_until(lambda: positioner.plan('/positioner/check_pose', request(
-        HOME_P, HOME_Q)).plan.poses, 20.0, 'check_pose accepted again')
+    wait_until(lambda: positioner.plan('/positioner/check_pose', command(
+        HOME_P, HOME_Q)).valid, 20.0, 'check_pose accepted again')
 
 
 def test_home_service_and_parameters(positioner: Positioner) -> None:
     client = positioner.client
-    assert positioner.plan('/positioner/move_to_pose', request(HOME_P + [0.002, 0, 0],
-                                                               HOME_Q)).plan.poses
+    assert done(positioner.plan('/positioner/move_to_pose', command(HOME_P + [0.002, 0, 0],
+                                                                    HOME_Q)))
     home = client.call(Trigger, '/positioner/home', Trigger.Request())
     assert home.success and home.message.startswith('at home, referenced')
     np.testing.assert_allclose(positioner.driver.trajectories[-1].points[-1].positions,

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from cell_harness import executable, wait_until
+from cell_harness import CELL_YAML, executable, wait_until
 
 from positioning_cell.bag import BagReader
 from positioning_cell.calibration import file as calfile
@@ -53,10 +53,26 @@ def program(tmp_path: Path) -> Path:
     return path
 
 
+#: Moves three times the shipped speed (within the drives' and the factory's maxima): the test
+#: is of the run, not of the motion.
+FAST_MOTION = {'linear_speed': 0.03, 'linear_acceleration': 0.15, 'angular_speed': 0.3,
+               'angular_acceleration': 1.5}
+
+
+def _fast_config(folder: Path) -> Path:
+    """config/cell.yaml with :data:`FAST_MOTION` for the positioner."""
+    doc = yaml.safe_load(CELL_YAML.read_text())
+    doc['positioner']['ros__parameters']['motion'].update(FAST_MOTION)
+    path = folder / 'cell_fast.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
 def _start(program: Path, runs: Path) -> tuple[subprocess.Popen[str], list[str]]:
     proc = subprocess.Popen([executable('run_cell'), '--program', str(program), '--runs',
-                             str(runs)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
+                             str(runs), '--config', str(_fast_config(program.parent))],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
     lines: list[str] = []
 
     def read() -> None:
@@ -65,6 +81,21 @@ def _start(program: Path, runs: Path) -> tuple[subprocess.Popen[str], list[str]]
 
     threading.Thread(target=read, daemon=True).start()
     return proc, lines
+
+
+def _wait_line(proc: subprocess.Popen[str], lines: list[str], prefix: str,
+               timeout: float) -> None:
+    """Wait for a line of run_cell's starting with ``prefix``; a failure names what it printed
+    (also when it exits first)."""
+    def seen() -> bool:
+        if any(line.startswith(prefix) for line in lines):
+            return True
+        assert proc.poll() is None, f'run_cell exited ({proc.returncode}):\n' + ''.join(lines)
+        return False
+    try:
+        wait_until(seen, timeout, f'a line {prefix!r}')
+    except TimeoutError as err:
+        raise AssertionError(f'{err}; run_cell printed:\n' + ''.join(lines)) from None
 
 
 def _finish(proc: subprocess.Popen[str], timeout: float) -> int:
@@ -126,8 +157,7 @@ def test_an_interrupted_run_stops_every_process_and_keeps_a_readable_bag(
     proc, lines = _start(program, runs)
     try:
         # interrupted while it calibrates: the calibration is stopped with the cell
-        wait_until(lambda: any(line.startswith('[1/9]') for line in lines), 90.0,
-                   'the first calibration pose')
+        _wait_line(proc, lines, '[1/9]', 240.0)
         proc.send_signal(signal.SIGINT)
         code = _finish(proc, 60.0)
     finally:

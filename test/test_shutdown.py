@@ -5,7 +5,7 @@ then leaves a closed bag).
 
 Multi-process tier. The six executables run together in one private domain per trial. The
 running case waits for a condition before it signals (every node answering its parameter
-service); the sweep stops each node 15 times at moments spread over its start (the moment is
+service); the sweep stops each node 10 times at moments spread over its start (the moment is
 the variable of that test, not a wait for something). benchmarks/shutdown.py prints the stop
 times against a bare rclpy node.
 """
@@ -26,10 +26,10 @@ from positioning_cell.tools.processes import cell_environment
 #: A clean stop takes well under this on a loaded 2-core machine (the recorder drains its
 #: queue, the player closes its bag).
 STOP_BOUND_S = 15.0
-#: The sweep: 15 stops per node, this far apart in the start (0 to 2.8 s after the entry
-#: point runs; six nodes load in about 3 s on 2 cores, so the last stops hit running nodes;
+#: The sweep: 10 stops per node, this far apart in the start (0 to 2.7 s after the entry
+#: point runs; the nodes load in about 3 s on 2 cores, so the last stops hit running nodes;
 #: benchmarks/shutdown.py takes 30).
-STOPS, STEP_S = 15, 0.2
+STOPS, STEP_S = 10, 0.3
 
 
 NODE_NAMES = {node.executable: node.name for node in names.NODE_EXECUTABLES}

@@ -10,7 +10,6 @@ Pure numpy/scipy over arrays of samples; no ROS.
 """
 
 from positioning_cell.accuracy.iso9283 import (
-    EULER_SEQUENCE,
     PoseFigures,
     iso9283,
     orientation_angles,
@@ -51,6 +50,7 @@ from positioning_cell.accuracy.verdicts import (
     judge,
     judge_visit,
 )
+from positioning_cell.core.poses import EULER_SEQUENCE
 
 __all__ = [
     'EULER_SEQUENCE',

@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.core.poses import (
+    EULER_SEQUENCE,
     Quad,
     Triple,
     as_pose_batch,
@@ -24,9 +25,6 @@ from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
 
-#: Orientation angles a, b, c of ISO 9283: roll, pitch, yaw about the fixed base axes x, y, z,
-#: R = Rz(c)·Ry(b)·Rx(a) (scipy's extrinsic 'xyz').
-EULER_SEQUENCE = 'xyz'
 
 def orientation_angles(quaternion: ArrayLike) -> FloatArray:
     """ISO 9283 orientation angles a, b, c (N, 3) rad of unit quaternions (N, 4): roll, pitch,

@@ -164,9 +164,16 @@ def within_limits(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike) -
     return ok
 
 
-def _checks(mech: Mechanism, p: FloatArray,
-            q: FloatArray) -> list[tuple[str, FloatArray, float, float, str]]:
-    """Every limit as (name, value (N, k), limit, sign (+1: value must stay below), unit)."""
+#: One limit of :func:`limit_values`: (name, value (N, k), limit, sign, unit).
+LimitValue = tuple[str, FloatArray, float, float, str]
+
+
+def limit_values(mech: Mechanism, p: FloatArray, q: FloatArray) -> list[LimitValue]:
+    """Every limit as (name, value (N, k), limit, sign (+1: value must stay below), unit),
+    in the order of :func:`check_poses`, for poses already validated (N, 3) m / (N, 4) unit
+    quaternions (:func:`positioning_cell.core.poses.as_pose_batch`). The signed margin of a
+    value is ``sign * (limit - value)``: positive inside by that much (SI), negative violated.
+    """
     joints = _inverse_validated(mech, p, q)
     points = platform_points(mech, p, q)
     u = (points - mech.base_joints) / joints.lengths[..., None]
@@ -187,6 +194,9 @@ def _checks(mech: Mechanism, p: FloatArray,
         ('leg_distance_min', gap, mech.min_leg_distance, -1.0, 'm'),
         ('conditioning_min', cond, mech.min_conditioning, -1.0, ''),
     ]
+
+
+_checks = limit_values  # the former private name
 
 
 def _leg_label(name: str, k: int) -> str | None:

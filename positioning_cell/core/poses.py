@@ -13,6 +13,9 @@ from scipy.spatial.transform import Rotation
 from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
+#: Rotations as three angles about the fixed axes x, then y, then z: R = Rz·Ry·Rx (scipy's
+#: extrinsic 'xyz'); ISO 9283's a, b, c and the operator's Rx, Ry, Rz.
+EULER_SEQUENCE = 'xyz'
 Triple = tuple[float, float, float]
 Quad = tuple[float, float, float, float]
 

@@ -39,7 +39,7 @@ from positioning_cell.motion.calibrated import calibrated_machine
 from positioning_cell.motion.correction import corrected_command, deviation, mean_pose
 from positioning_cell.motion.outcomes import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
-from positioning_cell.motion.trajectory import Trajectory, fingerprint, plan_move
+from positioning_cell.motion.trajectory import MotionLimits, Trajectory, fingerprint, plan_move
 from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
 from positioning_cell.names import (
     BASE_FRAME,
@@ -53,13 +53,16 @@ from positioning_cell.names import (
 )
 
 FloatArray = NDArray[np.float64]
+#: Further limits on a planned path: positions (M, 3) m and quaternions (M, 4) in base → one
+#: line per violation (empty: within them).
+PathCheck = Callable[[FloatArray, FloatArray], list[str]]
 #: A remaining error within this many standard uncertainties of its measurement, in every
 #: component, is not corrected (measured mode).
 SIGNIFICANCE = 2.0
 
 __all__ = ['Answer', 'Estimate', 'JointReading', 'Machine', 'Measurement', 'MoveAbortedError',
-           'MoveResult', 'Mover', 'PositionerSettings', 'ResultCode', 'State', 'joints_arrived',
-           'validate_goal']
+           'MoveResult', 'Mover', 'PathCheck', 'PositionerSettings', 'ResultCode', 'State',
+           'joints_arrived', 'validate_goal']
 
 
 # -- goals and arrival ---------------------------------------------------------------------------
@@ -187,10 +190,14 @@ class Mover:
         self.answers: list[Answer] = []
         self.driver: dict[str, str] = {}
         self.command: tuple[FloatArray, FloatArray] | None = None
+        #: The goal of the last move (what it was asked to reach; its command may differ).
+        self.goal: tuple[FloatArray, FloatArray] | None = None
         self.estimate: Estimate | None = None
         self._path: list[tuple[FloatArray, FloatArray]] | None = None
         self._motion: tuple[float, Trajectory, FreezeWatch] | None = None
         self.stop_requested = False
+        self._sent: tuple[float, float] | None = None
+        self._move_limits: tuple[MotionLimits | None, PathCheck | None] = (None, None)
         self.state, self.reason = State.IDLE, 'waiting for encoder readings'
 
     # -- inputs ---------------------------------------------------------------------------------
@@ -297,30 +304,36 @@ class Mover:
         return estimate
 
     # -- commands -------------------------------------------------------------------------------
-    def check(self, frame_id: str, position: ArrayLike, quaternion: ArrayLike) -> Trajectory:
+    def check(self, frame_id: str, position: ArrayLike, quaternion: ArrayLike, *,
+              limits: MotionLimits | None = None,
+              path_check: PathCheck | None = None) -> Trajectory:
         """The move to a goal, planned and checked without moving (a "virtual move");
-        MoveAbortedError says why it would be refused."""
+        MoveAbortedError says why it would be refused. ``limits``: the speeds to plan with
+        (None: the configured ``motion``); ``path_check``: further limits on the planned path
+        (:data:`PathCheck`)."""
         goal = self._goal(frame_id, position, quaternion)
         self._ready()
         try:
-            return self._plan(*goal)
+            return self._checked(self.plan_path(*goal, limits), path_check)
         except MoveAbortedError as err:
-            raise self._refusal(err.code, str(err)) from err
+            raise self.refusal(err.code, str(err)) from err
 
     def move(self, frame_id: str, position: ArrayLike, quaternion: ArrayLike,
-             tolerance: float = 0.0) -> MoveResult:
+             tolerance: float = 0.0, *, limits: MotionLimits | None = None,
+             path_check: PathCheck | None = None) -> MoveResult:
         """Move to a goal and return when settled within the tolerance (``tolerance``: the
         settle tolerance in m, 0 for the configured one); MoveAbortedError names the outcome
         otherwise (refused: nothing moved; aborted: the drives were stopped; out of
-        tolerance: settled elsewhere)."""
+        tolerance: settled elsewhere). A goal the machine is already settled at within the
+        tolerance succeeds without moving. ``limits`` and ``path_check``: as :meth:`check`."""
         with self._exclusive():
             goal = self._goal(frame_id, position, quaternion)
             try:
                 tol = self.settings.goal_tolerance.for_request(float(tolerance))
             except InputError as err:
-                raise self._refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
+                raise self.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
             self._ready()
-            return self._execute(*goal, tol)
+            return self._execute(*goal, tol, limits, path_check)
 
     def home(self) -> MoveResult:
         """Reference the drives if they are not, then move to the home pose."""
@@ -328,7 +341,7 @@ class Mover:
             self._ready(homing=True)
             if not self.referenced:
                 if not self.machine.reference_drives():
-                    raise self._refusal(ResultCode.REFUSED_DRIVER_SILENT,
+                    raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
                                         f'the drives cannot be referenced: {DRIVER_REFERENCE} '
                                         'is not available')
                 self._set_state(State.HOMING, 'referencing the drives')
@@ -340,7 +353,7 @@ class Mover:
                     self._set_state(State.ABORTED, str(err), err.code)
                     raise
             return self._execute(self.mech.home_position, self.mech.home_quaternion,
-                                 self.settings.goal_tolerance)
+                                 self.settings.goal_tolerance, None, None)
 
     def stop(self) -> str:
         """Stop now: the drives decelerate under control; a running move ends aborted."""
@@ -350,8 +363,53 @@ class Mover:
             self.cond.notify_all()
         return 'stopping with controlled deceleration'
 
+    @property
+    def busy(self) -> bool:
+        """A command (move, homing, jog) is running."""
+        return self._busy.locked()
+
+    def progress(self) -> float:
+        """0..1: the share of the running trajectory's duration elapsed (1 when none runs)."""
+        with self.cond:
+            sent = self._sent
+        if sent is None or sent[1] <= 0.0:
+            return 1.0
+        return float(min(max((self.machine.clock() - sent[0]) / sent[1], 0.0), 1.0))
+
+    def jog(self, times: FloatArray, joints: FloatArray) -> JointReading:
+        """Run a joint-space trajectory outside the kinematics (times (K,) s, joints (K, 6) m /
+        rad from where the encoders are; :mod:`positioning_cell.limits.jog` makes it within
+        the axis ranges): refused like a move when the world is not ready, except that the
+        drives need not be referenced; aborted (drives stopped) like a move. The next move
+        plans from where the encoders are. Returns the encoder reading at the end."""
+        with self._exclusive():
+            self._ready(homing=True)
+            rates = np.gradient(joints, times, axis=0) if len(times) > 1 else np.zeros_like(joints)
+            estimate = self.estimate
+            p = np.broadcast_to(estimate.position if estimate else self.mech.home_position,
+                                (len(times), 3))
+            q = np.broadcast_to(estimate.quaternion if estimate else self.mech.home_quaternion,
+                                (len(times), 4))
+            traj = Trajectory(np.asarray(times, float), p, q, joints[:, :3], joints[:, 3:],
+                              rates[:, :3], rates[:, 3:], LimitReport(len(times), (), 0))
+            with self.cond:
+                self.stop_requested = False
+            try:
+                self._drive(traj, None)
+            except MoveAbortedError as err:
+                with self.cond:
+                    self._motion, self._sent, self.command = None, None, None
+                self.machine.stop_drives()
+                self._set_state(State.FAULT if err.code is ResultCode.ABORTED_FAULT
+                                else State.ABORTED, f'jog: {err}', err.code)
+                raise
+            self._set_state(State.IDLE, 'jogged: the next move plans from the encoders',
+                            ResultCode.SUCCESS)
+            assert self.joints is not None
+            return self.joints
+
     # -- refusals -------------------------------------------------------------------------------
-    def _refusal(self, code: ResultCode, reason: str) -> MoveAbortedError:
+    def refusal(self, code: ResultCode, reason: str) -> MoveAbortedError:
         """Report a refusal (every time; the state does not change) and make its error."""
         self.machine.refused(code, reason)
         return MoveAbortedError(code, reason)
@@ -364,7 +422,7 @@ class Mover:
         try:
             return validate_goal(frame_id, position, quaternion)
         except InputError as err:
-            raise self._refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
+            raise self.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
 
     def _ready(self, *, homing: bool = False) -> None:
         """Refuse when the world is not ready for motion: no or silent joint states, drives
@@ -376,37 +434,40 @@ class Mover:
             silence = self.machine.clock() - self.joints_time
             driver, estimate = dict(self.driver), self.estimate
         if self.joints is None or silence > live.joint_silence:
-            raise self._refusal(ResultCode.REFUSED_DRIVER_SILENT,
+            raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
                                 'leg driver not responding: no /legs/joint_states for '
                                 + ('ever' if self.joints is None else f'{silence:.2f} s'))
         if not self.machine.drives_connected():
-            raise self._refusal(ResultCode.REFUSED_DRIVER_SILENT,
+            raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
                                 f'leg driver not connected: no subscriber on {JOINT_TRAJECTORY} '
                                 f'or no publisher on {TRAJECTORY_STATUS} yet')
         if driver.get('enabled', 'true').lower() == 'false':
-            raise self._refusal(ResultCode.REFUSED_DRIVES_OFF,
+            raise self.refusal(ResultCode.REFUSED_DRIVES_OFF,
                                 f'drives disabled: enable them with {DRIVER_ENABLE}')
         if driver.get('state') == 'fault':
-            raise self._refusal(ResultCode.REFUSED_DRIVE_FAULT,
+            raise self.refusal(ResultCode.REFUSED_DRIVE_FAULT,
                                 f'drive fault: {driver.get("message", "")}; clear it with '
                                 f'{DRIVER_ENABLE}')
         if not homing and not self.referenced:
-            raise self._refusal(ResultCode.REFUSED_NOT_REFERENCED,
+            raise self.refusal(ResultCode.REFUSED_NOT_REFERENCED,
                                 f'axes not referenced: home them first ({HOME})')
         if estimate is None and self.command is None:
-            raise self._refusal(ResultCode.REFUSED_NO_ESTIMATE,
+            raise self.refusal(ResultCode.REFUSED_NO_ESTIMATE,
                                 'no pose estimate from the encoders yet')
         tracker_silence = self.machine.clock() - self.measurement_time
         if self.mode is CompensationMode.MEASURED and tracker_silence > live.tracker_silence:
-            raise self._refusal(ResultCode.REFUSED_TRACKER_SILENT,
+            raise self.refusal(ResultCode.REFUSED_TRACKER_SILENT,
                                 f'laser tracker not responding: no {MEASURED_POSE} for '
                                 + ('ever' if math.isinf(tracker_silence)
                                    else f'{tracker_silence:.2f} s')
                                 + ' (the measured mode needs it)')
 
-    def _plan(self, p: FloatArray, q: FloatArray) -> Trajectory:
-        """The checked move from the last command (or, after an abort, from where the encoders
-        are) to (p, q)."""
+    def plan_path(self, p: FloatArray, q: FloatArray,
+                  limits: MotionLimits | None = None) -> Trajectory:
+        """The move from the last command (or, after an abort, from where the encoders are)
+        to (p, q) (3,) m, (4,) in base, planned with ``limits`` (None: the configured
+        ``motion``) but not judged: its ``limits`` report says what it violates.
+        MoveAbortedError REFUSED_NO_ESTIMATE before the first encoder reading."""
         with self.cond:
             command = self.command
         if command is None:
@@ -415,25 +476,48 @@ class Mover:
                 raise MoveAbortedError(ResultCode.REFUSED_NO_ESTIMATE,
                                        'no pose estimate from the encoders yet')
             command = (estimate.position, estimate.quaternion)
-        traj = plan_move(self.mech, *command, p, q, period=self.settings.trajectory.period,
-                         limits=self.settings.motion, clearance=self._model())
+        return plan_move(self.mech, *command, p, q, period=self.settings.trajectory.period,
+                         limits=limits or self.settings.motion, clearance=self._model())
+
+    @staticmethod
+    def _checked(traj: Trajectory, path_check: PathCheck | None) -> Trajectory:
+        """``traj`` if it violates no limit (the mechanism's, then ``path_check``'s);
+        MoveAbortedError REFUSED_LIMITS naming what it violates."""
         if not traj.limits.ok:
             raise MoveAbortedError(ResultCode.REFUSED_LIMITS, _refused_path(traj.limits))
+        violations = path_check(traj.position, traj.quaternion) if path_check else []
+        if violations:
+            raise MoveAbortedError(ResultCode.REFUSED_LIMITS,
+                                   'path refused, ' + '; '.join(violations[:3])
+                                   + (f' (+{len(violations) - 3} more)'
+                                      if len(violations) > 3 else ''))
         return traj
 
+    def _plan(self, p: FloatArray, q: FloatArray) -> Trajectory:
+        """The checked move to (p, q) with the running move's speeds and path check."""
+        limits, path_check = self._move_limits
+        return self._checked(self.plan_path(p, q, limits), path_check)
+
     # -- the move -------------------------------------------------------------------------------
-    def _execute(self, p: FloatArray, q: FloatArray, tol: GoalTolerance) -> MoveResult:
+    def _execute(self, p: FloatArray, q: FloatArray, tol: GoalTolerance,
+                 limits: MotionLimits | None, path_check: PathCheck | None) -> MoveResult:
+        self._move_limits = (limits, path_check)
         try:
             first = self._plan(p, q)  # refused before anything is announced or moved
         except MoveAbortedError as err:
-            raise self._refusal(err.code, str(err)) from err
+            raise self.refusal(err.code, str(err)) from err
         with self.cond:
             self.stop_requested = False
             self._path = []
         moved = False
         try:
             self.machine.publish_target(p, q)
+            self.goal = (p, q)
             command = (p, q)
+            there = self._already_there(p, q, tol)
+            if there is not None:
+                self._set_state(State.SETTLED, there[0], ResultCode.SUCCESS)
+                return MoveResult(np.empty((0, 3)), np.empty((0, 4)), *there)
             moved = True
             self._go(*command, first)
             sigma: FloatArray | None = None
@@ -444,7 +528,7 @@ class Mover:
         except MoveAbortedError as err:
             with self.cond:
                 self.command = None  # the axes stopped somewhere else: re-plan from them
-                self._motion = None
+                self._motion, self._sent = None, None
             if moved and err.code is not ResultCode.OUT_OF_TOLERANCE:
                 self.machine.stop_drives()
             self._set_state(State.FAULT if err.code is ResultCode.ABORTED_FAULT
@@ -453,9 +537,38 @@ class Mover:
         finally:
             with self.cond:
                 path, self._path = self._path or [], None
+            self._move_limits = (None, None)
         self._set_state(State.SETTLED, reason, ResultCode.SUCCESS)
         return MoveResult(np.array([x[0] for x in path]).reshape(-1, 3),
                           np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r, sigma)
+
+    def _already_there(self, p: FloatArray, q: FloatArray, tol: GoalTolerance
+                       ) -> tuple[str, FloatArray, FloatArray, FloatArray | None] | None:
+        """When the machine is settled at its last command and the goal is within ``tol`` of
+        where it is (the encoders' estimate; the tracker's in ``measured`` mode): (words,
+        Δp, rotation error, uncertainty) of a move that need not move; else None."""
+        with self.cond:
+            at_rest = self.state is State.SETTLED and self.command is not None
+        if not at_rest:
+            return None
+        sigma: FloatArray | None = None
+        if self.mode is CompensationMode.MEASURED:
+            m_p, m_q, cov = self._measure()
+            e_p, e_r = deviation(m_p, m_q, p, q)
+            sigma = np.sqrt(np.diag(cov))
+            what = 'measured error'
+        else:
+            estimate = self.estimate_pose()
+            if estimate is None:
+                return None
+            e_p, e_r = deviation(estimate.position, estimate.quaternion, p, q)
+            what = 'estimated error'
+        if not tol.holds(e_p, e_r):
+            return None
+        # self.command stays the command that got the machine here (in measured mode the
+        # corrected one, not the goal): the next move starts where the axes are
+        return (f'already within tolerance, not moved: {_error_text(e_p, e_r, what)}', e_p, e_r,
+                sigma)
 
     def _check_estimate(self, p: FloatArray, q: FloatArray,
                         tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str]:
@@ -503,6 +616,11 @@ class Mover:
     def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
         """Send the move to (p, q), wait for the drives to accept it, to arrive, to settle."""
         traj = planned if planned is not None else self._plan(p, q)
+        self._drive(traj, (p, q))
+
+    def _drive(self, traj: Trajectory, command: tuple[FloatArray, FloatArray] | None) -> None:
+        """Send ``traj`` (``command``: the pose it ends at, None for a move outside the
+        kinematics), wait for the drives to accept it, to arrive, to settle."""
         joints = np.hstack([traj.lengths, traj.thetas])
         key = fingerprint(traj.times, joints)
         live, arrival = self.settings.liveness, self.settings.arrival
@@ -510,11 +628,12 @@ class Mover:
         with self.cond:  # a stop cannot slip in between the check and the send
             if self.stop_requested:
                 raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
-            self.command = (p, q)
+            self.command = command
             self.answers.clear()
             counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
             self._motion = (self.machine.clock(), traj,
                             FreezeWatch(live.freeze_window, live.freeze_motion, counts))
+            self._sent = (self._motion[0], traj.duration)
             self.machine.send_trajectory(traj)
         measuring = self.mode is CompensationMode.MEASURED  # the tracker must stay live
         self._wait(lambda: any(a.key == key for a in self.answers), live.answer_timeout,
@@ -536,6 +655,7 @@ class Mover:
                    measuring=measuring)
         with self.cond:
             self._motion = None
+            self._sent = None
         self._set_state(State.SETTLING, 'settling')
         deadline = self.machine.clock() + self.settings.settle_time
         self._wait(lambda: self.machine.clock() >= deadline, self.settings.settle_time + 1.0,
@@ -645,7 +765,7 @@ class _Exclusive:
 
     def __enter__(self) -> None:
         if not self.mover._busy.acquire(blocking=False):
-            raise self.mover._refusal(ResultCode.REFUSED_BUSY, 'busy: a move is in progress')
+            raise self.mover.refusal(ResultCode.REFUSED_BUSY, 'busy: a move is in progress')
 
     def __exit__(self, *exc: object) -> None:
         self.mover._busy.release()

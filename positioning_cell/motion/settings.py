@@ -13,6 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 from positioning_cell.clearance import ClearanceModel, ClearanceParameters, build
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
+from positioning_cell.limits.boxes import FactoryBoxSettings
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.motion.trajectory import MotionLimits
 from positioning_cell.parameters import ParameterError, check_fields, group, setting
@@ -156,6 +157,56 @@ class LivenessSettings:
 
 
 @dataclass(frozen=True)
+class OperatorSettings:
+    """The operator's surface (``operator:``, read at start; SetCoordinateSystems, SetLimits
+    and SetSpeed change what is in force at run time): where the coordinate systems persist,
+    the three limit layers, the factory's speed maxima and the jog."""
+
+    coordinate_systems_file: str = setting(
+        '', 'YAML file of the user and object coordinate systems (SetCoordinateSystems writes '
+        'it; they survive a restart); empty: $ROS_HOME/positioning_cell/coordinate_systems.yaml')
+    factory_box: FactoryBoxSettings = group(FactoryBoxSettings, 'the factory box (machine CS)')
+    machine_lower: tuple[float, ...] | None = setting(
+        None, 'machine-CS box at start, lower bounds Tx, Ty, Tz, Rx, Ry, Rz; not given: the '
+        'factory box', 'm, rad', length=6)
+    machine_upper: tuple[float, ...] | None = setting(
+        None, 'machine-CS box at start, upper bounds', 'm, rad', length=6)
+    user_lower: tuple[float, ...] | None = setting(
+        None, 'user-CS box at start, lower bounds Tx, Ty, Tz, Rx, Ry, Rz; not given: no user '
+        'limit', 'm, rad', length=6)
+    user_upper: tuple[float, ...] | None = setting(
+        None, 'user-CS box at start, upper bounds', 'm, rad', length=6)
+    max_linear_speed: float = setting(0.05, 'factory maximum of the linear speed', 'm/s',
+                                      low=1e-5, high=1.0)
+    max_angular_speed: float = setting(0.5, 'factory maximum of the angular speed', 'rad/s',
+                                       low=1e-5, high=10.0)
+    max_linear_acceleration: float = setting(0.2, 'factory maximum of the linear '
+                                             'acceleration', 'm/s^2', low=1e-5, high=10.0)
+    max_angular_acceleration: float = setting(2.0, 'factory maximum of the angular '
+                                              'acceleration', 'rad/s^2', low=1e-5, high=100.0)
+    jog_largest_length_step: float = setting(0.005, 'largest jog step of a leg length', 'm',
+                                             low=0.0, low_open=True, high=0.1)
+    jog_largest_theta_step: float = setting(0.05, 'largest jog step of a theta angle', 'rad',
+                                            low=0.0, low_open=True, high=1.0)
+    jog_length_speed: float = setting(0.002, 'jog speed of a leg length', 'm/s', low=1e-6,
+                                      high=0.1)
+    jog_theta_speed: float = setting(0.02, 'jog speed of a theta angle', 'rad/s', low=1e-6,
+                                     high=1.0)
+    jog_length_acceleration: float = setting(0.01, 'jog acceleration of a leg length',
+                                             'm/s^2', low=1e-6, high=1.0)
+    jog_theta_acceleration: float = setting(0.1, 'jog acceleration of a theta angle',
+                                            'rad/s^2', low=1e-6, high=10.0)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        for name in ('machine', 'user'):
+            low, high = getattr(self, f'{name}_lower'), getattr(self, f'{name}_upper')
+            if (low is None) != (high is None):
+                raise ParameterError(f'{name}_lower', low, f'give both {name}_lower and '
+                                     f'{name}_upper, or neither')
+
+
+@dataclass(frozen=True)
 class PositionerSettings:
     """Every parameter of the ``positioner`` node (config/cell.yaml)."""
 
@@ -168,6 +219,8 @@ class PositionerSettings:
     trajectory: TrajectorySettings = group(TrajectorySettings, 'the joint trajectories')
     arrival: ArrivalSettings = group(ArrivalSettings, 'arrival of the drives')
     liveness: LivenessSettings = group(LivenessSettings, 'silent, frozen or refusing inputs')
+    operator: OperatorSettings = group(OperatorSettings, "the operator's surface: coordinate "
+                                       'systems, limit layers, speed maxima, jog')
     settle_time: float = setting(0.2, 'dwell after arrival before the pose counts as settled',
                                  's', low=0.0, high=10.0, dynamic=True)
     measurement_timeout: float = setting(5.0, 'wait for tracker samples', 's', low=0.1,
@@ -179,6 +232,15 @@ class PositionerSettings:
 
     def __post_init__(self) -> None:
         check_fields(self)
+        op = self.operator
+        for name, maximum in (('linear_speed', op.max_linear_speed),
+                              ('angular_speed', op.max_angular_speed),
+                              ('linear_acceleration', op.max_linear_acceleration),
+                              ('angular_acceleration', op.max_angular_acceleration)):
+            value = getattr(self.motion, name)
+            if value > maximum:
+                raise ParameterError(f'motion.{name}', value,
+                                     f'above the factory maximum operator.max_{name} = {maximum}')
 
     @property
     def mode(self) -> CompensationMode:

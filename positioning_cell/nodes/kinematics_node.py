@@ -1,17 +1,15 @@
-"""kinematics_node (node ``positioner``): pose commands by service → the move state machine
-(:mod:`positioning_cell.motion.mover`) → joint trajectories for the leg driver; the pose
-estimated from the encoders on /positioner/pose; the state, refusals and result codes on
-/diagnostics."""
+"""kinematics_node (node ``positioner``): pose commands by action or service → the operator's
+surface (:mod:`positioning_cell.motion.controller`: coordinate systems, limit layers, speeds,
+jog) → the move state machine (:mod:`positioning_cell.motion.mover`) → joint trajectories for
+the leg driver; the pose estimated from the encoders on /positioner/pose; the state, refusals,
+result codes and the operator's settings on /diagnostics."""
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-from nav_msgs.srv import GetPlan
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -21,6 +19,7 @@ from visualization_msgs.msg import MarkerArray
 
 from positioning_cell import names
 from positioning_cell.core import kinematics
+from positioning_cell.motion.controller import Controller
 from positioning_cell.motion.mover import (
     Machine,
     MoveAbortedError,
@@ -31,6 +30,7 @@ from positioning_cell.motion.mover import (
 )
 from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.latest import Reader
+from positioning_cell.nodes.operator_interface import OperatorInterface
 from positioning_cell.nodes.parameters import NodeParameters
 from positioning_cell.nodes.qos import (
     COMMAND_QOS,
@@ -83,14 +83,15 @@ class PositionerNode(Node):
                                       and self._answers.publisher_count() > 0),
             state_changed=self._state_changed,
             refused=self._refused))
+        self.controller = Controller(self.mover, settings.operator)  # ConfigError: no start
         self._estimates = 0
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
                                  DIAGNOSTICS_QOS, callback_group=topics)
-        for name, srv, cb in ((names.MOVE_TO_POSE, GetPlan, self._srv_move),
-                              (names.CHECK_POSE, GetPlan, self._srv_check),
-                              (names.HOME, Trigger, self._srv_home),
-                              (names.STOP, Trigger, self._srv_stop)):
-            self.create_service(srv, name, cb, qos_profile=SERVICE_QOS, callback_group=services)
+        for name, kind, cb in ((names.HOME, Trigger, self._srv_home),
+                               (names.STOP, Trigger, self._srv_stop)):
+            self.create_service(kind, name, cb, qos_profile=SERVICE_QOS, callback_group=services)
+        self.operator = OperatorInterface(self, self.controller, services,
+                                          self._publish_diagnostics)
         self.create_timer(1.0 / settings.pose_rate_hz, self._publish_pose, callback_group=topics)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=topics)
 
@@ -124,15 +125,17 @@ class PositionerNode(Node):
             self.pub_markers.publish(m.platform_markers(mech.base_joints, top, msg.header))
 
     def _status(self, level: str, message: str, code: ResultCode | None) -> None:
-        mover = self.mover
+        mover, op = self.mover, getattr(self, 'controller', None)
         if level != 'ok':
             self.get_logger().warning(message)
-        self.pub_diag.publish(m.diagnostic(
-            names.STATUS_POSITIONER, level, message,
-            {'state': mover.state.value, 'reason': mover.reason, 'mode': mover.mode.value,
-             'code': code.value if code else '', 'referenced': mover.referenced,
-             'calibration': mover.settings.compensation.calibration_file or 'none'},
-            self._now()))
+        values: dict[str, Any] = {
+            'state': mover.state.value, 'reason': mover.reason, 'mode': mover.mode.value,
+            'code': code.value if code else '', 'referenced': mover.referenced,
+            'calibration': mover.settings.compensation.calibration_file or 'none'}
+        if op is not None:
+            values.update(op.status_values())
+        self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER, level, message, values,
+                                           self._now()))
 
     def _state_changed(self, state: State, reason: str, code: ResultCode | None) -> None:
         """A new state (the result code of the move it ends, if any) on /diagnostics."""
@@ -145,25 +148,6 @@ class PositionerNode(Node):
         self._status('warn', f'refused ({code.value}): {reason}', code)
 
     # -- services -------------------------------------------------------------------------------
-    def _srv_check(self, request: GetPlan.Request, response: GetPlan.Response) -> Any:
-        goal = request.goal
-        return self._planned(response, lambda: self.mover.check(goal.header.frame_id,
-                                                                *m.pose_arrays(goal.pose)))
-
-    def _srv_move(self, request: GetPlan.Request, response: GetPlan.Response) -> Any:
-        goal = request.goal
-        return self._planned(response, lambda: self.mover.move(
-            goal.header.frame_id, *m.pose_arrays(goal.pose), tolerance=request.tolerance))
-
-    def _planned(self, response: GetPlan.Response, command: Callable[[], Any]) -> Any:
-        """The path of a check or a move; empty when refused or aborted (the code and the
-        reason are on /diagnostics)."""
-        path: tuple[Any, Any] = ([], [])
-        with contextlib.suppress(MoveAbortedError):
-            path = command().path
-        response.plan = m.path_msg(*path, self._now())
-        return response
-
     def _srv_home(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         try:
             response.message = f'at home, referenced; {self.mover.home().reason}'
@@ -183,7 +167,7 @@ class PositionerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of `ros2 run positioning_cell kinematics_node`."""
-    return run(PositionerNode, args, Spin.THREADS, threads=4)
+    return run(PositionerNode, args, Spin.THREADS, threads=6)
 
 
 if __name__ == '__main__':

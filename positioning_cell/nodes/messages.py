@@ -11,7 +11,6 @@ import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovarianceStamped, Vector3Stamped
-from nav_msgs.msg import Path
 from numpy.typing import ArrayLike
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
@@ -111,17 +110,6 @@ def joint_trajectory(traj: Trajectory) -> JointTrajectory:
 def stop_trajectory() -> JointTrajectory:
     """The empty trajectory: stop with controlled deceleration."""
     return JointTrajectory(joint_names=list(JOINT_NAMES))
-
-
-def path_msg(positions: ArrayLike, quaternions: ArrayLike, stamp: Time,
-             frame: str = BASE_FRAME) -> Path:
-    """nav_msgs/Path of poses (M, 3) m, (M, 4)."""
-    path = Path()
-    path.header.frame_id, path.header.stamp = frame, stamp
-    p = np.reshape(positions, (-1, 3))
-    q = np.reshape(quaternions, (-1, 4))
-    path.poses = [pose_stamped(p[i], q[i], stamp, frame) for i in range(p.shape[0])]
-    return path
 
 
 def _points(rows: ArrayLike) -> list[Point]:

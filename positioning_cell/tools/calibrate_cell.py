@@ -12,6 +12,10 @@ positioner's mode is put back. ``--load`` also sets the positioner's
 ``compensation.calibration_file`` to the new file. Ctrl-C / SIGTERM stops the move
 (``/positioner/stop``), puts the mode back and writes nothing.
 
+From another thread (the ``calibrator`` node's Calibrate action): :func:`calibrate_live` with
+a ``progress`` callback per measured pose and a ``stop`` event (the move is stopped at once,
+the run ends as on Ctrl-C) gives the :class:`Outcome` with the identification's figures.
+
 ``--from-bag BAG``: the same identification from a recording of such a run (the markers, the
 encoder readings and the tracker poses: :mod:`positioning_cell.calibration.collect`), the same
 result from the same data.
@@ -27,6 +31,7 @@ import contextlib
 import datetime
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -38,6 +43,7 @@ import numpy as np
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
 from positioning_cell import names
 from positioning_cell.bag.reader import BagReader
@@ -52,7 +58,7 @@ from positioning_cell.errors import PositioningError
 from positioning_cell.motion.calibrated import CALIBRATION_FILE, machine_settings
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.nodes.messages import joint_values, measurement, seconds
-from positioning_cell.nodes.qos import MARKER_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import MARKER_QOS, SERVICE_QOS, STREAM_QOS
 from positioning_cell.tools.polling import wait_until
 from positioning_cell.tools.ros import CellClient
 
@@ -65,8 +71,36 @@ TRACKER_RATE_HZ = 20.0
 FIT_EVERY = 10
 
 
+#: A measured pose, for a progress display: (pose k from 1, poses in the program, 'fit' or
+#: 'hold_out', |measured - commanded| m).
+Progress = Callable[[int, int, str, float], None]
+
+
 class InterruptedRunError(Exception):
-    """SIGINT or SIGTERM."""
+    """SIGINT or SIGTERM, or a stop asked from another thread (:func:`calibrate_live`)."""
+
+
+class Figures(NamedTuple):
+    """An identification in numbers: the fit poses' position residual RMS under the calibrated
+    model (m), measured vs predicted at the hold-out poses (RMS, m; NaN without hold-out
+    poses), and how many of how many parameters were identified."""
+
+    fit_rms: float
+    hold_out_rms: float
+    identified: int
+    parameters: int
+
+
+class Outcome(NamedTuple):
+    """How a calibration ended: the exit status, the calibration file (None: nothing written),
+    the identification's figures (None: not identified), what happened in a few words, and
+    whether the positioner loaded the file (None: not asked to)."""
+
+    status: int
+    path: Path | None = None
+    figures: Figures | None = None
+    reason: str = ''
+    loaded: bool | None = None
 
 
 class Machine(NamedTuple):
@@ -151,9 +185,10 @@ def read_bag(path: Path, run: str | None = None,
 
 # -- identification and output ------------------------------------------------------------------
 def identify_and_write(machine: Machine, recording: Recording, out: Path, program: dict[str, Any],
-                       say: Callable[[str], None]) -> tuple[int, Path | None]:
+                       say: Callable[[str], None]) -> Outcome:
     """Identify from the recording, validate on its hold-out poses, write the file and the
-    report into ``out``: (exit status, the calibration file or None)."""
+    report into ``out``: the :class:`Outcome` (exit status, the calibration file or None, the
+    figures)."""
     s = machine.settings
     collected = recording.collected()
     for marker, why in collected.skipped:
@@ -162,7 +197,7 @@ def identify_and_write(machine: Machine, recording: Recording, out: Path, progra
         result = idf.identify(s.mechanism, s.payload, s.structure, collected.fit)
     except idf.IdentificationError as err:
         say(f'calibrate_cell: not identified, nothing written: {err}')
-        return EXIT_NOT_IDENTIFIED, None
+        return Outcome(EXIT_NOT_IDENTIFIED, reason=f'not identified, nothing written: {err}')
     model = result.model(s.mechanism, s.payload, s.structure)
     fit = predict(s.mechanism, model, collected.fit)
     hold = predict(s.mechanism, model, collected.hold_out) if len(collected.hold_out.joints) \
@@ -196,7 +231,12 @@ def identify_and_write(machine: Machine, recording: Recording, out: Path, progra
     if ident.merged:
         say('fixed (not separable): ' + ', '.join(ident.merged))
     say(f'calibration: {path}\nreport:      {report}')
-    return EXIT_OK, path
+    figures = Figures(_rms(fit.calibrated[0]),
+                      _rms(hold.calibrated[0]) if hold is not None else float('nan'),
+                      ident.rank, len(ident.identified))
+    return Outcome(EXIT_OK, path, figures,
+                   f'identified {ident.rank}/{len(ident.identified)} parameters from '
+                   f'{len(collected.fit.joints)} poses, written to {path}')
 
 
 def _rms(a: Any) -> float:
@@ -208,10 +248,52 @@ def _enough(rec: Recording, start: float, samples: int) -> bool:
     return rec.readings_since(start) >= samples
 
 
-def _planning_covariance(recording: Recording, samples: int, timeout: float) -> Any:
+class _Stop:
+    """A stop asked from another thread through ``event`` (None: only signals stop the run):
+    :meth:`check` raises InterruptedRunError once it is set, :meth:`wait` is a
+    :func:`wait_until` that also ends on it, and a watcher calls /positioner/stop as soon as it
+    is set, so that the move running then ends at once."""
+
+    def __init__(self, client: CellClient, event: threading.Event | None) -> None:
+        self.event = event
+        self._done = threading.Event()
+        self._watcher: threading.Thread | None = None
+        if event is not None:
+            self._stop = client.node.create_client(Trigger, names.STOP, qos_profile=SERVICE_QOS)
+            self._watcher = threading.Thread(target=self._watch, daemon=True)
+            self._watcher.start()
+
+    def _watch(self) -> None:
+        assert self.event is not None
+        while not self._done.is_set():
+            if self.event.wait(0.05):
+                if self._stop.service_is_ready():
+                    self._stop.call_async(Trigger.Request())
+                return
+
+    def check(self) -> None:
+        if self.event is not None and self.event.is_set():
+            raise InterruptedRunError('stop requested')
+
+    def wait(self, condition: Callable[[], Any], timeout: float, what: str) -> Any:
+        if self.event is None:
+            return wait_until(condition, timeout, what)
+        event = self.event
+        value = wait_until(lambda: event.is_set() or condition(), timeout, what)
+        self.check()
+        return value
+
+    def close(self) -> None:
+        self._done.set()
+        if self._watcher is not None:
+            self._watcher.join(timeout=1.0)
+
+
+def _planning_covariance(recording: Recording, samples: int, timeout: float,
+                         stop: _Stop) -> Any:
     """The tracker's covariance of one averaged pose, from its own readings at rest."""
     start = time.time()
-    wait_until(lambda: recording.readings_since(start) >= 1, timeout, 'a tracker reading')
+    stop.wait(lambda: recording.readings_since(start) >= 1, timeout, 'a tracker reading')
     return np.asarray(recording.poses[-1][3]) / samples
 
 
@@ -230,9 +312,36 @@ def _progress_fit(machine: Machine, rec: Recording) -> str:
 
 def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSettings, samples: int,
              out: Path, say: Callable[[str], None], *, load: bool = False,
-             timeout: float = 10.0) -> tuple[int, Path | None]:
-    """The live calibration (module docstring): (exit status, the calibration file or None).
-    :class:`InterruptedRunError` propagates after the drives were stopped and the mode put back."""
+             timeout: float = 10.0, progress: Progress | None = None,
+             stop: threading.Event | None = None) -> tuple[int, Path | None]:
+    """The live calibration (module docstring): (exit status, the calibration file or None);
+    :func:`calibrate_live` gives the whole :class:`Outcome`. :class:`InterruptedRunError`
+    propagates after the drives were stopped and the mode put back."""
+    outcome = calibrate_live(client, machine, settings, samples, out, say, load=load,
+                             timeout=timeout, progress=progress, stop=stop)
+    return outcome.status, outcome.path
+
+
+def calibrate_live(client: CellClient, machine: Machine, settings: prog.ProgramSettings,
+                   samples: int, out: Path, say: Callable[[str], None], *, load: bool = False,
+                   timeout: float = 10.0, progress: Progress | None = None,
+                   stop: threading.Event | None = None) -> Outcome:
+    """The live calibration (module docstring) through ``client``, a line per pose to ``say``
+    and, if given, ``progress(k, poses, set, |measured - commanded|)`` per measured pose.
+    Setting ``stop`` (from another thread) stops the move at once (/positioner/stop) and ends
+    the run as SIGINT does: :class:`InterruptedRunError` propagates after the drives were
+    stopped and the mode put back, nothing written."""
+    stopper = _Stop(client, stop)
+    try:
+        return _calibrate_live(client, machine, settings, samples, out, say, load, timeout,
+                               progress, stopper)
+    finally:
+        stopper.close()
+
+
+def _calibrate_live(client: CellClient, machine: Machine, settings: prog.ProgramSettings,
+                    samples: int, out: Path, say: Callable[[str], None], load: bool,
+                    timeout: float, progress: Progress | None, stop: _Stop) -> Outcome:
     rec = Recording()
     client.node.create_subscription(JointState, names.JOINT_STATES, rec.on_joints, STREAM_QOS)
     client.node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
@@ -242,17 +351,19 @@ def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSetting
     markers = client.node.create_publisher(String, names.CALIBRATION, MARKER_QOS)
     s = machine.settings
     done, message = client.home()
+    stop.check()  # a stop while homing ends the homing move (nothing else to undo yet)
     if not done:
         say(f'calibrate_cell: homing failed: {message}')
-        return EXIT_UNUSABLE, None
+        return Outcome(EXIT_UNUSABLE, reason=f'homing failed: {message}')
     previous = str(client.get_parameter(names.NODE_POSITIONER, 'compensation.mode'))
     result = client.set_parameter(names.NODE_POSITIONER, 'compensation.mode', 'none')
     if not result.successful:
         say(f'calibrate_cell: the positioner refused mode none: {result.reason}')
-        return EXIT_UNUSABLE, None
+        return Outcome(EXIT_UNUSABLE, reason=f'the positioner refused mode none: '
+                       f'{result.reason}')
     run = datetime.datetime.now(datetime.UTC).isoformat(timespec='milliseconds')
     try:
-        cov = _planning_covariance(rec, samples, timeout)
+        cov = _planning_covariance(rec, samples, timeout, stop)
         program = prog.choose(s.mechanism, s.payload, s.structure, settings, cov,
                               2 * JOINT_SIGMA_FLOOR)
         plan = [(col.FIT, p, q) for p, q in zip(program.position, program.quaternion,
@@ -266,13 +377,19 @@ def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSetting
         say(f'calibration program: {len(program.position)} poses + '
             f'{len(program.hold_out_position)} hold-out, about {estimate:.0f} s of cell time')
         for k, (which, p, q) in enumerate(plan, start=1):
+            stop.check()
             head = f'[{k}/{len(plan)}] {which:<8}'
             # every pose approached the same way: from `approach` m below it along base z
-            if settings.approach > 0.0 and not client.plan(
-                    names.MOVE_TO_POSE, prog.approach_pose(p, settings.approach), q):
-                say(f'{head} approach pose refused or aborted: left out')
-                continue
-            if not client.plan(names.MOVE_TO_POSE, p, q):
+            if settings.approach > 0.0:
+                approached = client.plan(names.MOVE_TO_POSE,
+                                         prog.approach_pose(p, settings.approach), q)
+                stop.check()
+                if not approached:
+                    say(f'{head} approach pose refused or aborted: left out')
+                    continue
+            moved = client.plan(names.MOVE_TO_POSE, p, q)
+            stop.check()
+            if not moved:
                 say(f'{head} move refused or aborted: left out')
                 continue
             start = client.node.get_clock().now().nanoseconds * 1e-9
@@ -282,17 +399,20 @@ def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSetting
             markers.publish(String(data=marker.to_json()))
             rec.markers.append(marker)
             try:
-                wait_until(partial(_enough, rec, start, samples), timeout,
-                           f'{samples} tracker readings')
+                stop.wait(partial(_enough, rec, start, samples), timeout,
+                          f'{samples} tracker readings')
             except TimeoutError as err:
                 say(f'{head} {err}: left out')
                 continue
             measured = np.mean([m[1] for m in rec.poses[-samples:]], axis=0)
-            line = f'{head} |measured - commanded| {np.linalg.norm(measured - p) * 1e6:7.1f} um'
+            deviation = float(np.linalg.norm(measured - p))
+            line = f'{head} |measured - commanded| {deviation * 1e6:7.1f} um'
             fits = sum(1 for m in rec.markers if m.set == col.FIT)
             if which == col.FIT and fits % FIT_EVERY == 0:
                 line += _progress_fit(machine, rec)
             say(line)
+            if progress is not None:
+                progress(k, len(plan), which, deviation)
     except InterruptedRunError:
         client.trigger(names.STOP)
         with contextlib.suppress(TimeoutError):  # the interrupted move has ended before we leave
@@ -304,15 +424,18 @@ def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSetting
     say('the recorder took the markers (calibrate_cell --from-bag can repeat this)'
         if client.subscribed(names.CALIBRATION, names.NODE_RECORDER)
         else 'no recorder took the markers: this run cannot be repeated from a bag')
-    status, path = identify_and_write(machine, rec, out, {
+    outcome = identify_and_write(machine, rec, out, {
         'poses': settings.poses, 'hold_out': settings.hold_out, 'samples': samples,
         'seed': settings.seed, 'candidates': settings.candidates}, say)
-    if status == EXIT_OK and load and path is not None:
+    if outcome.status == EXIT_OK and load and outcome.path is not None:
         loaded = client.set_parameter(names.NODE_POSITIONER, CALIBRATION_FILE,
-                                      str(path.resolve()))
+                                      str(outcome.path.resolve()))
         say('the positioner loaded it' if loaded.successful
             else f'the positioner refused it: {loaded.reason}')
-    return status, path
+        outcome = outcome._replace(loaded=loaded.successful, reason=outcome.reason + (
+            '; the positioner loaded it' if loaded.successful
+            else f'; the positioner refused it: {loaded.reason}'))
+    return outcome
 
 
 def say(text: str) -> None:

@@ -35,7 +35,8 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-from nav_msgs.srv import GetPlan
+from positioning_cell_interfaces.msg import MoveCommand
+from positioning_cell_interfaces.srv import CheckPose, MoveToPose
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -482,10 +483,11 @@ def _trajectory_trial(cell: FaultCell, fault: Fault, trial: Trial) -> None:
 def _flood_trial(cell: FaultCell, fault: Fault, trial: Trial) -> None:
     """FLOOD_CALLS concurrent calls to every service of the cell, all at once: every one
     answered (success, busy or a refusal) within the bound."""
-    goal = pose_stamped(*cell.goal(0), cell.client.node.get_clock().now().to_msg())
+    goal = MoveCommand(pose=pose_stamped(*cell.goal(0),
+                                         cell.client.node.get_clock().now().to_msg()))
     calls: list[tuple[Any, str, Any]] = [
-        (GetPlan, names.MOVE_TO_POSE, GetPlan.Request(goal=goal)),
-        (GetPlan, names.CHECK_POSE, GetPlan.Request(goal=goal)),
+        (MoveToPose, names.MOVE_TO_POSE, MoveToPose.Request(command=goal)),
+        (CheckPose, names.CHECK_POSE, CheckPose.Request(command=goal)),
         (Trigger, names.HOME, Trigger.Request()), (Trigger, names.STOP, Trigger.Request()),
         (SetBool, names.DRIVER_ENABLE, SetBool.Request(data=True)),
         (Trigger, names.DRIVER_REFERENCE, Trigger.Request()),

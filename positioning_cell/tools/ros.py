@@ -7,15 +7,18 @@ from __future__ import annotations
 import contextlib
 import json
 import threading
-from collections.abc import Sequence
-from typing import Any
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from nav_msgs.srv import GetPlan
 from numpy.typing import ArrayLike
+from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
+from positioning_cell_interfaces.srv import CheckPose, MoveToPose
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+from rclpy.action.client import ActionClient
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -31,6 +34,8 @@ from positioning_cell.motion.outcomes import ResultCode
 from positioning_cell.nodes.messages import pose_stamped, status_values
 from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
 from positioning_cell.tools.polling import wait_until
+
+T = TypeVar('T')
 
 
 class CellClient:
@@ -51,6 +56,7 @@ class CellClient:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients: dict[str, Any] = {}
+        self._known: set[str] = set()
         self._in_flight: list[Future] = []
         self._statuses: dict[str, list[DiagnosticStatus]] | None = None
         self._program: Any = None
@@ -77,7 +83,36 @@ class CellClient:
             client = self._clients[name] = self.node.create_client(srv_type, name,
                                                                    qos_profile=SERVICE_QOS)
         wait_until(client.service_is_ready, wait, f'service {name}')
+        if name not in self._known:  # the server has matched this new client: :meth:`handshake`
+            self.handshake(serving_node(name), wait)
+            self._known.add(name)
         return client
+
+    def handshake(self, node: str, timeout: float = 30.0, attempt: float = 2.0) -> None:
+        """Wait until node ``node`` knows every endpoint this client created so far: one
+        idempotent request of a new client (its /<node>/list_parameters) answered, retried
+        every ``attempt`` s (TimeoutError after ``timeout`` s). Discovery is not symmetric: a
+        server that has not yet matched a new client's response reader answers into the void
+        (the request arrives, a move may run, the answer is lost). A participant announces its
+        readers in order on one reliable channel, so the answer to a newer reader shows that
+        the older ones are matched too."""
+        service = f'/{node}/list_parameters'
+        ping = self.node.create_client(ListParameters, service, qos_profile=SERVICE_QOS)
+        deadline = time.monotonic() + timeout
+        try:
+            wait_until(ping.service_is_ready, timeout, f'service {service}')
+            while True:
+                future = ping.call_async(ListParameters.Request())
+                left = deadline - time.monotonic()
+                try:
+                    wait_until(future.done, max(min(attempt, left), 0.0), 'an answer')
+                    return
+                except TimeoutError:
+                    if time.monotonic() >= deadline:
+                        raise TimeoutError(f'timed out after {timeout:.1f} s waiting for '
+                                           f'{node} to answer {service}') from None
+        finally:
+            self.node.destroy_client(ping)
 
     def call(self, srv_type: Any, name: str, request: Any, timeout: float = 30.0) -> Any:
         """Call a service (waiting up to ``min(timeout, 30)`` s for it to appear) and return
@@ -158,12 +193,16 @@ class CellClient:
 
     def plan(self, service: str, position: ArrayLike, quaternion: ArrayLike,
              tolerance: float = 0.0, timeout: float = 120.0) -> bool:
-        """Call /positioner/move_to_pose or /positioner/check_pose for a pose in the base
-        frame; True when the plan is not empty (moved / would move)."""
-        goal = pose_stamped(position, quaternion, self.node.get_clock().now().to_msg())
-        response = self.call(GetPlan, service,
-                             GetPlan.Request(goal=goal, tolerance=float(tolerance)), timeout)
-        return bool(response.plan.poses)
+        """Call /positioner/move_to_pose (moved and settled within tolerance?) or
+        /positioner/check_pose (would it move?) for an absolute goal in the base frame."""
+        command = MoveCommand(pose=pose_stamped(position, quaternion,
+                                                self.node.get_clock().now().to_msg()),
+                              mode=MoveCommand.ABSOLUTE, tolerance=float(tolerance))
+        if service == names.CHECK_POSE:
+            return bool(self.call(CheckPose, service, CheckPose.Request(command=command),
+                                  timeout).valid)
+        response = self.call(MoveToPose, service, MoveToPose.Request(command=command), timeout)
+        return bool(response.outcome.code == MoveOutcome.SUCCESS)
 
     def trigger(self, service: str, timeout: float = 120.0) -> tuple[bool, str]:
         """Call a std_srvs/Trigger service (home, stop, ...): (success, message)."""
@@ -195,6 +234,84 @@ class CellClient:
         self._thread.join(timeout=5.0)
 
     def __enter__(self) -> CellClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def serving_node(name: str) -> str:
+    """The node that serves service or action ``name``: the cell's names are
+    /<node>/<what> (:mod:`positioning_cell.names`)."""
+    parts = name.strip('/').split('/')
+    if len(parts) < 2:
+        raise ValueError(f'{name!r} is not /<node>/<service>')
+    return parts[0]
+
+
+class GoalClient:
+    """An action client on a node of its own in ``client``'s context, spun only by the thread
+    that uses it (:meth:`spin_once`, :meth:`until`). rclpy's ActionClient registers a goal,
+    cancel or result request only after sending it (no lock, Jazzy): an answer that another
+    thread's executor takes in between is dropped ("Ignoring unexpected goal response") and
+    the caller waits forever. Spun by its caller alone, the answer is taken after it is
+    registered."""
+
+    def __init__(self, client: CellClient, action_type: Any, name: str) -> None:
+        self.cell, self.name = client, name
+        self.node = Node(f'{client.node.get_name()}_goals', context=client.context)
+        self.executor = SingleThreadedExecutor(context=client.context)
+        self.executor.add_node(self.node)
+        self.action = ActionClient(self.node, action_type, name)
+
+    def spin_once(self, timeout: float) -> None:
+        """Take what came for the action (feedback, answers), waiting up to ``timeout`` s."""
+        self.executor.spin_once(timeout_sec=timeout)
+
+    def until(self, condition: Callable[[], T], timeout: float, what: str) -> T:
+        """Spin until ``condition()`` is truthy and return it (TimeoutError naming ``what``)."""
+        deadline = time.monotonic() + timeout
+        while not (value := condition()):
+            if time.monotonic() > deadline:
+                raise TimeoutError(f'timed out after {timeout:.1f} s waiting for {what}')
+            self.spin_once(0.02)
+        return value
+
+    def ready(self, timeout: float) -> None:
+        """Wait for the server, then for its node to know this client
+        (:meth:`CellClient.handshake`: its answers would be lost otherwise)."""
+        wait_until(self.action.server_is_ready, timeout, f'the action server {self.name}')
+        self.cell.handshake(serving_node(self.name), timeout)
+
+    def send(self, goal: Any, feedback: Callable[[Any], None] | None = None,
+             timeout: float = 30.0) -> Any:
+        """Send ``goal`` (``feedback(msg.feedback)`` for each feedback); its goal handle
+        (accepted or not)."""
+        future = self.action.send_goal_async(
+            goal, feedback_callback=None if feedback is None else
+            (lambda msg: feedback(msg.feedback)))
+        return self.until(lambda: future.result() if future.done() else None, timeout,
+                          f'the answer to the goal of {self.name}')
+
+    def result(self, handle: Any, timeout: float) -> Any:
+        """The result response (``status``, ``result``) of an accepted goal."""
+        future = handle.get_result_async()
+        self.until(future.done, timeout, f'the result of {self.name}')
+        return future.result()
+
+    def cancel(self, handle: Any, timeout: float = 30.0) -> Any:
+        """Ask to cancel a goal; the cancel response."""
+        future = handle.cancel_goal_async()
+        self.until(future.done, timeout, f'the answer to the cancel of {self.name}')
+        return future.result()
+
+    def close(self) -> None:
+        """Destroy the action client and its node."""
+        self.action.destroy()
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+
+    def __enter__(self) -> GoalClient:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -1,0 +1,220 @@
+"""The coordinate systems file: the user and object CS as they survive a restart.
+
+One YAML mapping under ``coordinate_systems:`` with exactly the keys ``user``
+(T_machine_user) and ``object`` (T_platform_object), each with ``position_m`` (3 numbers, m),
+``quaternion_xyzw`` (4 numbers, unit within 1e-6) and, optionally, ``human``
+(``'Tx Ty Tz mm Rx Ry Rz deg'``, R = Rz·Ry·Rx, six decimals). The SI fields are the truth;
+``human`` is for people and, when present, must agree with them (to its printed precision), so
+that a hand edit of it alone is refused rather than silently ignored::
+
+    coordinate_systems:
+      user:
+        position_m: [0.01, 0.0, 0.0]
+        quaternion_xyzw: [0.0, 0.0, 0.0, 1.0]
+        human: 10.000000 0.000000 0.000000 mm 0.000000 0.000000 0.000000 deg
+      object: ...
+
+:func:`write` replaces the file atomically (temporary file in the same directory, flushed to
+disk, then renamed): a reader sees the old file or the new one, never half of one.
+:func:`load` of a missing file gives the identity systems (nothing was ever defined); any other
+problem (unreadable, not YAML, a missing or unknown key, not numbers, NaN or infinite, a
+non-unit quaternion, a ``human`` field that disagrees) raises
+:class:`CoordinateSystemsFileError` naming the file and the problem, and changes nothing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from positioning_cell.core.poses import as_unit_quaternions
+from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.frames.systems import CoordinateSystems
+from positioning_cell.frames.transforms import Transform, distance, format_human
+
+#: The top-level key, and the systems under it in file order.
+ROOT_KEY = 'coordinate_systems'
+SYSTEM_KEYS = ('user', 'object')
+#: The keys of one system: required, then optional.
+REQUIRED_KEYS = ('position_m', 'quaternion_xyzw')
+OPTIONAL_KEYS = ('human',)
+#: How closely ``human`` must agree with the SI fields: its six decimals of mm and deg.
+HUMAN_POSITION_TOLERANCE = 1e-9  # m
+HUMAN_ANGLE_TOLERANCE = 5e-8  # rad (three angles rounded to 5e-7 deg each)
+
+_HEADER = ('# Coordinate systems of the positioner (positioning_cell.frames.file).\n'
+           '# user = T_machine_user (in the machine CS), object = T_platform_object (in the\n'
+           '# platform frame; its origin is the pivot). position_m and quaternion_xyzw (SI) are\n'
+           "# the values; 'human' (mm, deg, R = Rz*Ry*Rx) must agree with them.\n")
+
+__all__ = ['CoordinateSystemsFileError', 'document', 'dump', 'load', 'parse', 'write']
+
+
+class CoordinateSystemsFileError(ConfigError):
+    """A coordinate systems file that cannot be used: unreadable, malformed or inconsistent
+    (the message names the file and the problem)."""
+
+
+# -- writing -------------------------------------------------------------------------------------
+def _entry(t: Transform) -> dict[str, Any]:
+    p, q = t.to_pq()
+    return {'position_m': [float(v) for v in p], 'quaternion_xyzw': [float(v) for v in q],
+            'human': format_human(t.to_human())}
+
+
+def document(systems: CoordinateSystems) -> dict[str, Any]:
+    """The file's content (module docstring) for ``systems``."""
+    return {ROOT_KEY: {'user': _entry(systems.user), 'object': _entry(systems.object)}}
+
+
+def dump(systems: CoordinateSystems) -> str:
+    """The file's text for ``systems``: a comment header, then :func:`document` in YAML."""
+    return _HEADER + yaml.safe_dump(document(systems), sort_keys=False,
+                                    default_flow_style=None, width=99)
+
+
+def write(path: str | Path, systems: CoordinateSystems) -> Path:
+    """Write ``systems`` to ``path`` atomically (module docstring); the path written.
+    CoordinateSystemsFileError if it cannot be written (the old file then stays as it was)."""
+    out = Path(path)
+    text = dump(systems)
+    tmp: str | None = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f'.{out.name}.', suffix='.tmp', dir=out.parent)
+        with os.fdopen(fd, 'w', encoding='utf-8') as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(tmp, out)
+        tmp = None
+        _sync_directory(out.parent)
+    except OSError as err:
+        raise CoordinateSystemsFileError(
+            f'coordinate systems file {str(out)!r}: cannot be written ({err.strerror or err})'
+        ) from None
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    return out
+
+
+def _sync_directory(directory: Path) -> None:
+    """Flush a rename in ``directory`` to disk (POSIX; a no-op where it cannot be opened)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+# -- reading -------------------------------------------------------------------------------------
+def load(path: str | Path) -> CoordinateSystems:
+    """The coordinate systems of the file ``path``; the identity systems if it does not
+    exist. CoordinateSystemsFileError naming the file and the problem otherwise."""
+    where = f'coordinate systems file {str(path)!r}'
+    try:
+        text = Path(path).read_text(encoding='utf-8')
+    except FileNotFoundError:
+        return CoordinateSystems()
+    except (OSError, UnicodeDecodeError) as err:
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+        raise CoordinateSystemsFileError(f'{where}: cannot be read ({reason})') from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise CoordinateSystemsFileError(f'{where}: not YAML ({err})') from None
+    return parse(data, where)
+
+
+def parse(data: Any, where: str = 'coordinate systems') -> CoordinateSystems:
+    """The coordinate systems of a loaded document (:func:`document`'s form);
+    CoordinateSystemsFileError prefixed with ``where`` if it is not one."""
+    if not isinstance(data, dict) or set(data) != {ROOT_KEY}:
+        found = sorted(map(str, data)) if isinstance(data, dict) else type(data).__name__
+        raise CoordinateSystemsFileError(
+            f'{where}: expected exactly one mapping "{ROOT_KEY}:", found {found}')
+    body = data[ROOT_KEY]
+    if not isinstance(body, dict):
+        raise CoordinateSystemsFileError(f'{where}: "{ROOT_KEY}" is not a mapping')
+    _check_keys(body, SYSTEM_KEYS, (), ROOT_KEY, where)
+    user, obj = (_system(body[name], name, where) for name in SYSTEM_KEYS)
+    return CoordinateSystems(user=user, object=obj)
+
+
+def _check_keys(entry: dict[Any, Any], required: tuple[str, ...], optional: tuple[str, ...],
+                name: str, where: str) -> None:
+    missing = [k for k in required if k not in entry]
+    unknown = sorted(str(k) for k in entry if k not in required + optional)
+    if missing or unknown:
+        said = ([f'lacks {", ".join(missing)}'] if missing else []) + (
+            [f'has unknown keys {", ".join(unknown)}'] if unknown else [])
+        allowed = ', '.join(required + optional)
+        raise CoordinateSystemsFileError(f'{where}: {name} {" and ".join(said)} '
+                                         f'(expected {allowed})')
+
+
+def _numbers(value: Any, count: int, name: str, where: str) -> list[float]:
+    if not isinstance(value, list) or len(value) != count or any(
+            isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
+        hint = ''
+        if isinstance(value, list) and any(isinstance(v, str) and _is_float(v) for v in value):
+            hint = ' (YAML reads 1e-3 as text: write 1.0e-3)'
+        raise CoordinateSystemsFileError(f'{where}: {name} = {value!r}: expected a list of '
+                                         f'{count} numbers{hint}')
+    if not all(math.isfinite(v) for v in value):
+        raise CoordinateSystemsFileError(f'{where}: {name} = {value!r}: not finite (NaN or '
+                                         'infinite)')
+    return [float(v) for v in value]
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _system(entry: Any, name: str, where: str) -> Transform:
+    if not isinstance(entry, dict):
+        raise CoordinateSystemsFileError(f'{where}: {name} is not a mapping')
+    _check_keys(entry, REQUIRED_KEYS, OPTIONAL_KEYS, name, where)
+    p = _numbers(entry['position_m'], 3, f'{name}.position_m', where)
+    q = _numbers(entry['quaternion_xyzw'], 4, f'{name}.quaternion_xyzw', where)
+    try:
+        transform = Transform.from_pq(p, as_unit_quaternions(q, f'{name}.quaternion_xyzw')[0])
+    except InputError as err:
+        raise CoordinateSystemsFileError(f'{where}: {err}') from None
+    if 'human' in entry:
+        _check_human(entry['human'], transform, f'{name}.human', where)
+    return transform
+
+
+def _check_human(value: Any, transform: Transform, name: str, where: str) -> None:
+    """``value`` is the six-decimal human text of ``transform``, to its printed precision."""
+    tokens = value.split() if isinstance(value, str) else []
+    numbers: list[float] = []
+    if len(tokens) == 8 and tokens[3] == 'mm' and tokens[7] == 'deg':
+        with contextlib.suppress(ValueError):
+            numbers = [float(t) for i, t in enumerate(tokens) if i not in (3, 7)]
+    if len(numbers) != 6 or not np.isfinite(numbers).all():
+        raise CoordinateSystemsFileError(f"{where}: {name} = {value!r}: expected 'Tx Ty Tz mm "
+                                         "Rx Ry Rz deg' (six finite numbers)")
+    dp, angle = distance(transform, Transform.from_human(numbers))
+    if dp > HUMAN_POSITION_TOLERANCE or angle > HUMAN_ANGLE_TOLERANCE:
+        said = format_human(transform.to_human())
+        raise CoordinateSystemsFileError(
+            f'{where}: {name} = {value!r} disagrees with position_m and quaternion_xyzw '
+            f'({said!r}; off by {dp * 1e3:.3g} mm, {math.degrees(angle):.3g} deg): edit the '
+            "SI fields, and correct or delete 'human'")

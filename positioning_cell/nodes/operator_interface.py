@@ -1,0 +1,218 @@
+"""The positioner's typed services and actions (positioning_cell_interfaces): the move and home
+actions with feedback and cancel, the move and check services, coordinate systems, limits,
+speeds and jog, each one call into the operator's surface
+(:class:`~positioning_cell.motion.controller.Controller`)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from positioning_cell_interfaces import action as act
+from positioning_cell_interfaces import srv
+from rclpy.action import ActionServer, CancelResponse
+from rclpy.callback_groups import CallbackGroup
+from rclpy.node import Node
+
+from positioning_cell import names
+from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.limits.jog import axis_index
+from positioning_cell.limits.validity import factory_constraints
+from positioning_cell.motion.controller import Controller, MoveCommand
+from positioning_cell.motion.correction import deviation
+from positioning_cell.motion.mover import MoveAbortedError, MoveResult, ResultCode, State
+from positioning_cell.nodes import messages as m
+from positioning_cell.nodes import operator_messages as om
+from positioning_cell.nodes.qos import SERVICE_QOS
+
+#: The action feedback's phase of each state.
+_PHASES = {State.MOVING: act.MoveToPose.Feedback.MOVING,
+           State.SETTLING: act.MoveToPose.Feedback.SETTLING,
+           State.CORRECTING: act.MoveToPose.Feedback.CORRECTING}
+#: Feedback period of the actions, s.
+FEEDBACK_PERIOD = 0.1
+
+
+class OperatorInterface:
+    """The typed services and actions of ``node`` over ``controller`` (README: Interfaces),
+    in callback group ``group``; ``status_changed()`` republishes the node's status after a
+    change of the operator's settings."""
+
+    def __init__(self, node: Node, controller: Controller, group: CallbackGroup,
+                 status_changed: Callable[[], None]) -> None:
+        self.node, self.controller = node, controller
+        self._status_changed = status_changed
+        for name, kind, cb in (
+                (names.MOVE_TO_POSE, srv.MoveToPose, self._srv_move),
+                (names.CHECK_POSE, srv.CheckPose, self._srv_check),
+                (names.SET_COORDINATE_SYSTEMS, srv.SetCoordinateSystems, self._srv_set_systems),
+                (names.GET_COORDINATE_SYSTEMS, srv.GetCoordinateSystems, self._srv_get_systems),
+                (names.SET_LIMITS, srv.SetLimits, self._srv_set_limits),
+                (names.GET_LIMITS, srv.GetLimits, self._srv_get_limits),
+                (names.SET_SPEED, srv.SetSpeed, self._srv_set_speed),
+                (names.JOG, srv.Jog, self._srv_jog)):
+            node.create_service(kind, name, cb, qos_profile=SERVICE_QOS, callback_group=group)
+        self.actions = [
+            ActionServer(node, act.MoveToPose, names.MOVE_ACTION, self._act_move,
+                         cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group),
+            ActionServer(node, act.Home, names.HOME_ACTION, self._act_home,
+                         cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)]
+
+    def _now(self) -> Any:
+        return self.node.get_clock().now().to_msg()
+
+    # -- moves ----------------------------------------------------------------------------------
+    def _run_move(self, command: MoveCommand, progress: Callable[[tuple[Any, Any]], None]
+                  | None = None) -> Any:
+        """Run a request to its MoveOutcome; ``progress(goal)`` is called every
+        :data:`FEEDBACK_PERIOD` s while it runs (the goal resolved to base)."""
+        op = self.controller
+        try:
+            goal = op.resolve(command)
+        except InputError as err:
+            op.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err))
+            return om.outcome(ResultCode.REFUSED_INVALID_GOAL, str(err))
+        return self._watched(lambda: op.move(command), goal, progress)
+
+    def _watched(self, run: Callable[[], MoveResult], goal: tuple[Any, Any],
+                 progress: Callable[[tuple[Any, Any]], None] | None) -> Any:
+        """Run a move in a worker thread, calling ``progress`` while it runs; its outcome."""
+        box: dict[str, Any] = {}
+
+        def work() -> None:
+            try:
+                box['result'] = run()
+            except MoveAbortedError as err:
+                box['error'] = err
+
+        worker = threading.Thread(target=work, daemon=True)
+        if progress is not None:
+            progress(goal)  # the first feedback: planning
+        worker.start()
+        while worker.is_alive():
+            worker.join(FEEDBACK_PERIOD)
+            if progress is not None and worker.is_alive():
+                progress(goal)
+        if 'error' in box:
+            err = box['error']
+            return om.outcome(err.code, str(err))
+        result: MoveResult = box['result']
+        attained_p = goal[0] + result.position_error
+        return om.outcome(ResultCode.SUCCESS, result.reason, result, goal,
+                          self.controller.user_position(attained_p, goal[1]), self._now())
+
+    def _feedback(self, goal_handle: Any, kind: Any) -> Callable[[tuple[Any, Any]], None]:
+        """A progress callback that cancels on request and publishes the feedback."""
+        def progress(goal: tuple[Any, Any]) -> None:
+            if goal_handle.is_cancel_requested:
+                self.controller.mover.stop()
+            mover = self.controller.mover
+            feedback = kind.Feedback()
+            state = mover.state
+            if hasattr(feedback, 'phase'):
+                feedback.phase = _PHASES.get(state, kind.Feedback.PLANNING)
+                estimate = mover.estimate
+                if estimate is not None:
+                    e_p, e_r = deviation(estimate.position, estimate.quaternion, *goal)
+                    feedback.position_error = [float(v) for v in e_p]
+                    feedback.orientation_error = [float(v) for v in e_r]
+            feedback.phase_name = state.value
+            feedback.progress = mover.progress() if state is State.MOVING else (
+                1.0 if state in (State.SETTLING, State.CORRECTING, State.SETTLED) else 0.0)
+            goal_handle.publish_feedback(feedback)
+        return progress
+
+    @staticmethod
+    def _finish(goal_handle: Any, result: Any) -> Any:
+        """End an action goal by its outcome: succeeded, canceled (a requested stop) or
+        aborted."""
+        code = result.outcome.code_name
+        if code == ResultCode.SUCCESS.value:
+            goal_handle.succeed()
+        elif goal_handle.is_cancel_requested and code == ResultCode.ABORTED_STOP.value:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+        return result
+
+    def _act_move(self, goal_handle: Any) -> Any:
+        command = om.move_command(goal_handle.request.command)
+        outcome = self._run_move(command, self._feedback(goal_handle, act.MoveToPose))
+        return self._finish(goal_handle, act.MoveToPose.Result(outcome=outcome))
+
+    def _act_home(self, goal_handle: Any) -> Any:
+        mover = self.controller.mover
+        outcome = self._watched(mover.home, (mover.mech.home_position,
+                                             mover.mech.home_quaternion),
+                                self._feedback(goal_handle, act.Home))
+        return self._finish(goal_handle, act.Home.Result(outcome=outcome))
+
+    # -- services -------------------------------------------------------------------------------
+    def _srv_move(self, request: Any, response: Any) -> Any:
+        response.outcome = self._run_move(om.move_command(request.command))
+        return response
+
+    def _srv_check(self, request: Any, response: Any) -> Any:
+        check = self.controller.check(om.move_command(request.command))
+        response.valid = check.result.valid
+        response.validity = om.validity(check.result)
+        response.duration = float(check.duration)
+        if check.goal is not None:
+            response.goal = m.pose_stamped(*check.goal, self._now())
+        if not check.result.valid:
+            self.controller.mover.refusal(check.result.code, f'check: {check.result.message()}')
+        return response
+
+    def _srv_set_systems(self, request: Any, response: Any) -> Any:
+        try:
+            path = self.controller.set_systems(om.transform(request.systems.user),
+                                               om.transform(request.systems.object))
+            response.success, response.reason = True, f'coordinate systems written to {path}'
+        except (InputError, PositioningError) as err:
+            response.success, response.reason = False, str(err)
+        self._status_changed()
+        return response
+
+    def _srv_get_systems(self, request: Any, response: Any) -> Any:
+        op = self.controller
+        response.systems = om.systems_msg(op.systems.user, op.systems.object)
+        response.file = str(op.systems_file)
+        return response
+
+    def _srv_set_limits(self, request: Any, response: Any) -> Any:
+        try:
+            self.controller.set_limits(om.box(request.machine), om.box(request.user))
+            response.success, response.reason = True, 'limits set'
+        except InputError as err:
+            response.success, response.reason = False, str(err)
+        return response
+
+    def _srv_get_limits(self, request: Any, response: Any) -> Any:
+        layers = self.controller.layers
+        response.factory = om.box_msg(layers.factory_box)
+        response.machine = om.box_msg(layers.machine_box)
+        response.user = om.box_msg(layers.user_box)
+        response.factory_constraints = factory_constraints(self.controller.mover.mech)
+        return response
+
+    def _srv_set_speed(self, request: Any, response: Any) -> Any:
+        op = self.controller
+        try:
+            op.set_speeds(om.speeds(request.request))
+            response.success, response.reason = True, 'speeds set'
+        except InputError as err:
+            response.success, response.reason = False, str(err)
+        response.current, response.maximum = om.speeds_msg(op.speeds), om.speeds_msg(op.maxima)
+        self._status_changed()
+        return response
+
+    def _srv_jog(self, request: Any, response: Any) -> Any:
+        try:
+            reading = self.controller.jog(request.axis, float(request.delta))
+            response.success, response.code_name = True, ResultCode.SUCCESS.value
+            response.reason = f'jogged {request.axis}'
+            response.position = float(reading.position[axis_index(request.axis)])
+        except MoveAbortedError as err:
+            response.success, response.code_name, response.reason = False, err.code.value, str(err)
+        return response

@@ -1,0 +1,118 @@
+"""positioning_cell_interfaces messages ↔ the library's types of the operator's surface: move
+requests, outcomes, validity, coordinate systems, limit boxes, speeds."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import Pose
+from positioning_cell_interfaces.msg import (
+    BoxLimits as BoxLimitsMsg,
+)
+from positioning_cell_interfaces.msg import (
+    CoordinateSystems as CoordinateSystemsMsg,
+)
+from positioning_cell_interfaces.msg import (
+    MoveCommand as MoveCommandMsg,
+)
+from positioning_cell_interfaces.msg import (
+    MoveOutcome,
+    Validity,
+)
+from positioning_cell_interfaces.msg import (
+    Speeds as SpeedsMsg,
+)
+from scipy.spatial.transform import Rotation
+
+from positioning_cell.frames.systems import ABSOLUTE, RELATIVE_OBJECT, RELATIVE_USER
+from positioning_cell.frames.transforms import Transform
+from positioning_cell.limits.boxes import BoxLimits
+from positioning_cell.limits.speed import Speeds
+from positioning_cell.limits.validity import CheckResult
+from positioning_cell.motion.controller import MoveCommand
+from positioning_cell.motion.outcomes import MoveResult, ResultCode
+from positioning_cell.nodes.messages import pose_arrays, pose_msg
+
+#: MoveCommand.mode ↔ the library's move kinds.
+KINDS = {MoveCommandMsg.ABSOLUTE: ABSOLUTE, MoveCommandMsg.RELATIVE_USER: RELATIVE_USER,
+         MoveCommandMsg.RELATIVE_OBJECT: RELATIVE_OBJECT}
+#: ResultCode → MoveOutcome's constant (the same names, upper case).
+CODES = {code: int(getattr(MoveOutcome, code.name)) for code in ResultCode}
+
+
+def move_command(msg: MoveCommandMsg) -> MoveCommand:
+    """The library's request of a MoveCommand (an unknown mode is an invalid kind, named)."""
+    p, q = pose_arrays(msg.pose.pose)
+    return MoveCommand(KINDS.get(msg.mode, f'mode {msg.mode}'), msg.pose.header.frame_id, p, q,
+                       float(msg.tolerance), float(msg.speed_scale))
+
+
+def outcome(code: ResultCode, reason: str, result: MoveResult | None = None,
+            goal: tuple[Any, Any] | None = None, user: Transform | None = None,
+            stamp: Any = None) -> MoveOutcome:
+    """A MoveOutcome: the code and its words; with a settled move's ``result`` and its
+    ``goal`` (p, q) in base, the attained pose (goal ⊕ the attained error), the error, its
+    uncertainty (NaN when unknown) and the attained user position ``user``."""
+    out = MoveOutcome(code=CODES[code], code_name=code.value, reason=reason)
+    out.uncertainty = [math.nan] * 6
+    if result is not None and goal is not None:
+        e_p, e_r = np.asarray(result.position_error), np.asarray(result.orientation_error)
+        p = np.asarray(goal[0]) + e_p
+        q = (Rotation.from_quat(goal[1]) * Rotation.from_rotvec(e_r)).as_quat()
+        out.attained.header.frame_id = 'base'
+        if stamp is not None:
+            out.attained.header.stamp = stamp
+        out.attained.pose = pose_msg(p, q)
+        out.position_error = [float(v) for v in e_p]
+        out.orientation_error = [float(v) for v in e_r]
+        if result.uncertainty is not None:
+            out.uncertainty = [float(v) for v in result.uncertainty]
+    if user is not None:
+        out.attained_user = pose_msg(*user.to_pq())
+    return out
+
+
+def validity(result: CheckResult) -> Validity:
+    """The Validity message of a check."""
+    names = sorted(result.margins)
+    return Validity(bits=int(result.bits),
+                    bit_names=[(b.name or '').lower() for b in type(result.bits)
+                               if result.bits & b],
+                    violations=list(result.violations), margin_names=names,
+                    margins=[float(result.margins[n]) for n in names])
+
+
+def transform(pose: Pose) -> Transform:
+    """A geometry_msgs/Pose as a Transform (InputError: NaN, a non-unit quaternion)."""
+    return Transform.from_pq(*pose_arrays(pose))
+
+
+def systems_msg(user: Transform, obj: Transform) -> CoordinateSystemsMsg:
+    """The CoordinateSystems message of the user and object frames."""
+    return CoordinateSystemsMsg(user=pose_msg(*user.to_pq()), object=pose_msg(*obj.to_pq()))
+
+
+def box(msg: BoxLimitsMsg) -> BoxLimits:
+    """A BoxLimits message as the library's box (InputError naming a bad bound)."""
+    return BoxLimits(tuple(float(v) for v in msg.lower), tuple(float(v) for v in msg.upper))
+
+
+def box_msg(limits: BoxLimits) -> BoxLimitsMsg:
+    """The BoxLimits message of a box."""
+    return BoxLimitsMsg(lower=[float(v) for v in limits.lower],
+                        upper=[float(v) for v in limits.upper])
+
+
+def speeds(msg: SpeedsMsg) -> Speeds:
+    """A Speeds message as the library's speeds."""
+    return Speeds(msg.linear_speed, msg.angular_speed, msg.linear_acceleration,
+                  msg.angular_acceleration)
+
+
+def speeds_msg(value: Speeds) -> SpeedsMsg:
+    """The Speeds message of the library's speeds."""
+    return SpeedsMsg(linear_speed=value.linear_speed, angular_speed=value.angular_speed,
+                     linear_acceleration=value.linear_acceleration,
+                     angular_acceleration=value.angular_acceleration)

@@ -1,0 +1,627 @@
+"""The operator's client ``cell``, its pure parts (no running cell): the command line into
+MoveCommand fields (mm → m, deg → rad, modes and frames), the exit code of every MoveOutcome
+constant, the JSON and text of outcomes, checks, status, limits, speeds and jogs, the goal loop
+against stand-in action handles (cancel on Ctrl-C and on the timeout), and ``--help`` of every
+subcommand. The end-to-end runs against the cell are elsewhere."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from positioning_cell_interfaces.action import MoveToPose
+from positioning_cell_interfaces.msg import BoxLimits, MoveCommand, MoveOutcome, Speeds
+from positioning_cell_interfaces.srv import CheckPose
+from scipy.spatial.transform import Rotation
+
+from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
+from positioning_cell.frames.systems import (
+    MACHINE_FRAME,
+    OBJECT_FRAME,
+    USER_FRAME,
+    CoordinateSystems,
+)
+from positioning_cell.frames.transforms import Transform
+from positioning_cell.motion.outcomes import ResultCode
+from positioning_cell.names import BASE_FRAME
+from positioning_cell.tools import cell
+from positioning_cell.tools import cell_format as cf
+
+MECH = Mechanism.default()
+
+
+def parse(*argv: str) -> Any:
+    return cf.build_parser().parse_args(list(argv))
+
+
+def usage_error(*argv: str) -> None:
+    with pytest.raises(SystemExit) as err:
+        parse(*argv)
+    assert err.value.code == cf.EXIT_USAGE
+
+
+def command_of(*argv: str) -> MoveCommand:
+    return cell.move_command(cf.move_request(parse(*argv)), Time(sec=3))
+
+
+def quaternion_deg(rx: float, ry: float, rz: float) -> np.ndarray:
+    """R = Rz·Ry·Rx (fixed axes x, then y, then z), w ≥ 0."""
+    return Rotation.from_euler('xyz', [rx, ry, rz], degrees=True).as_quat(canonical=True)
+
+
+def pose_of(command: MoveCommand) -> tuple[np.ndarray, np.ndarray]:
+    p, o = command.pose.pose.position, command.pose.pose.orientation
+    return np.array([p.x, p.y, p.z]), np.array([o.x, o.y, o.z, o.w])
+
+
+# -- the command line into MoveCommand ---------------------------------------------------------
+def test_the_mode_constants_are_the_messages() -> None:
+    assert cf.MODE_ABSOLUTE == MoveCommand.ABSOLUTE
+    assert cf.MODE_RELATIVE_USER == MoveCommand.RELATIVE_USER
+    assert cf.MODE_RELATIVE_OBJECT == MoveCommand.RELATIVE_OBJECT
+
+
+@pytest.mark.parametrize('verb', ['move', 'check'])
+def test_an_absolute_move_in_the_user_cs_by_default_in_si(verb: str) -> None:
+    command = command_of(verb, '10', '-20', '30.5', '1', '-2', '3')
+    p, q = pose_of(command)
+    assert command.mode == MoveCommand.ABSOLUTE
+    assert command.pose.header.frame_id == USER_FRAME
+    assert command.pose.header.stamp.sec == 3
+    np.testing.assert_allclose(p, [0.010, -0.020, 0.0305], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(q, quaternion_deg(1, -2, 3), atol=1e-12)
+    assert command.tolerance == 0.0 and command.speed_scale == 0.0  # the configured ones
+
+
+@pytest.mark.parametrize(('option', 'mode', 'frame'), [
+    ('--relative-user', MoveCommand.RELATIVE_USER, USER_FRAME),
+    ('--relative-object', MoveCommand.RELATIVE_OBJECT, OBJECT_FRAME),
+    ('--frame=base', MoveCommand.ABSOLUTE, BASE_FRAME),
+    ('--frame=machine', MoveCommand.ABSOLUTE, MACHINE_FRAME),
+    ('--frame=user', MoveCommand.ABSOLUTE, USER_FRAME),
+])
+def test_modes_and_frames(option: str, mode: int, frame: str) -> None:
+    command = command_of('move', '0', '0', '1', '0', '0', '90', option)
+    assert (command.mode, command.pose.header.frame_id) == (mode, frame)
+    np.testing.assert_allclose(pose_of(command)[1], quaternion_deg(0, 0, 90), atol=1e-12)
+
+
+def test_tolerance_mm_and_speed_scale() -> None:
+    command = command_of('move', '1', '2', '3', '0', '0', '0', '--tolerance', '0.05',
+                         '--speed-scale', '0.25')
+    assert command.tolerance == pytest.approx(5e-5, rel=1e-12)
+    assert command.speed_scale == 0.25
+
+
+def test_negative_numbers_are_coordinates() -> None:
+    p, q = pose_of(command_of('move', '-1', '-2.5', '-.5', '-10', '0', '0'))
+    np.testing.assert_allclose(p, [-0.001, -0.0025, -0.0005], atol=1e-15)
+    np.testing.assert_allclose(q, quaternion_deg(-10, 0, 0), atol=1e-12)
+
+
+def test_the_request_document_has_si_and_human() -> None:
+    doc = cf.move_request(parse('move', '1', '2', '3', '4', '5', '6', '--relative-object'))\
+        .document()
+    assert doc['mode'] == MoveCommand.RELATIVE_OBJECT and doc['mode_name'] == 'relative_object'
+    assert doc['frame'] == OBJECT_FRAME
+    np.testing.assert_allclose(doc['pose']['human'], [1, 2, 3, 4, 5, 6], atol=1e-9)
+    np.testing.assert_allclose(doc['pose']['pose6'][:3], [0.001, 0.002, 0.003])
+    np.testing.assert_allclose(doc['pose']['pose6'][3:], np.radians([4, 5, 6]))
+
+
+@pytest.mark.parametrize('argv', [
+    ['move', '1', '2', '3', '4', '5'],                                   # five numbers
+    ['move', '1', '2', '3', '4', '5', 'x'],                              # not a number
+    ['move', '1', '2', '3', '4', '5', 'nan'],                            # not finite
+    ['move', '1', '2', '3', '4', '5', '6', '--relative-user', '--relative-object'],
+    ['move', '1', '2', '3', '4', '5', '6', '--relative-user', '--frame', 'base'],
+    ['move', '1', '2', '3', '4', '5', '6', '--frame', 'object'],         # not absolute
+    ['move', '1', '2', '3', '4', '5', '6', '--speed-scale', '0'],
+    ['move', '1', '2', '3', '4', '5', '6', '--speed-scale', '1.5'],
+    ['move', '1', '2', '3', '4', '5', '6', '--tolerance', '-1'],
+    ['move', '1', '2', '3', '4', '5', '6', '--timeout', '0'],
+    ['move', '1', '2', '3', '4', '5', '6', '--domain', '300'],
+    ['jog', 'theta1', '1'],                                              # not a joint name
+    ['jog', 'leg1_length', 'inf'],
+    ['speed', '--linear', '-1'],
+    ['frames', 'set', '--user', '1', '2', '3'],
+    ['frames'], ['limits'], [],
+    ['limits', 'set', '--user-upper', '1', '1', '1', '1', '1', 'nan'],
+])
+def test_usage_errors_exit_2(argv: list[str]) -> None:
+    usage_error(*argv)
+
+
+def test_common_options_and_default_timeouts() -> None:
+    args = parse('status', '--json', '--domain', '42')
+    assert (args.command, args.json, args.domain, args.timeout) == ('status', True, 42, None)
+    assert cf.default_timeout('move') == cf.default_timeout('home') == 300.0
+    assert cf.default_timeout('status') < 60.0
+    assert parse('move', '0', '0', '0', '0', '0', '0', '--timeout', '5').timeout == 5.0
+    assert {parse(*a).command for a in (['status'], ['move', *'000000'], ['check', *'000000'],
+                                         ['frames', 'get'], ['frames', 'set'], ['home'],
+                                         ['stop'], ['jog', 'leg1_theta', '1'], ['speed'],
+                                         ['limits', 'get'], ['limits', 'set'])} == \
+        set(cf.COMMANDS) == set(cell.COMMANDS)
+
+
+def test_jog_lengths_in_mm_and_angles_in_degrees() -> None:
+    for axis in JOINT_NAMES:
+        name, delta = cf.jog_request(parse('jog', axis, '-1.5'))
+        assert name == axis
+        if axis.endswith('_length'):
+            assert delta == pytest.approx(-1.5e-3) and cf.jog_unit(axis) == 'mm'
+        else:
+            assert delta == pytest.approx(math.radians(-1.5)) and cf.jog_unit(axis) == 'deg'
+        assert cf.jog_human(axis, delta) == pytest.approx(-1.5)
+
+
+def test_jog_exit_codes() -> None:
+    assert cf.jog_exit_code(True, 'success') == cf.EXIT_OK
+    assert cf.jog_exit_code(False, 'refused_busy') == cf.EXIT_REFUSED
+    assert cf.jog_exit_code(False, 'aborted_fault') == cf.EXIT_ABORTED
+    assert cf.jog_exit_code(False, '') == cf.EXIT_REFUSED
+    assert cf.jog_exit_code(False, 'success') == cf.EXIT_REFUSED  # not a success after all
+
+
+def test_speed_request_in_si_and_zero_keeps() -> None:
+    request = cf.speed_request(parse('speed', '--linear', '20', '--angular-acceleration',
+                                     '90'))
+    assert request.linear_speed == pytest.approx(0.020)
+    assert request.angular_acceleration == pytest.approx(math.pi / 2)
+    assert request.angular_speed == request.linear_acceleration == 0.0
+    assert not request.is_query and cf.speed_request(parse('speed')).is_query
+    msg = cell.speeds_msg(request)
+    assert isinstance(msg, Speeds) and cell.speeds_of(msg) == request
+    doc = request.document()
+    assert doc['linear_speed_mm_s'] == pytest.approx(20.0)
+    assert doc['angular_acceleration_deg_s2'] == pytest.approx(90.0)
+
+
+def test_frames_request() -> None:
+    user, obj = cf.frames_request(parse('frames', 'set', '--user', '10', '0', '0', '0', '0',
+                                        '90'))
+    assert obj is None and user is not None
+    np.testing.assert_allclose(user.to_human(), [10, 0, 0, 0, 0, 90], atol=1e-9)
+    systems = CoordinateSystems(user=user, object=Transform.from_human([0, 0, 5, 1, 0, 0]))
+    back = cell.systems_of(cell.systems_msg(systems))
+    np.testing.assert_allclose(back.user.to_pose6(), systems.user.to_pose6(), atol=1e-12)
+    np.testing.assert_allclose(back.object.to_pose6(), systems.object.to_pose6(), atol=1e-12)
+
+
+def test_limits_keep_what_is_left_out_and_none_is_no_limit() -> None:
+    machine = cf.box_of([-0.01] * 3 + [-0.1] * 3, [0.01] * 3 + [0.1] * 3)
+    user = cf.box_of([-math.inf] * 6, [math.inf] * 6)
+    request = cf.limits_request(parse('limits', 'set', '--machine-lower', '-5', '-5', '-5',
+                                      '-1', '-1', '-1', '--user-upper', '1', '2', '3', '4',
+                                      '5', 'none', '--user-lower', 'none', 'NONE', '-1', '-1',
+                                      '-1', '-1'))
+    (m_low, m_high), (u_low, u_high) = request.merged(machine, user)
+    np.testing.assert_allclose(m_low, [-0.005] * 3 + [math.radians(-1)] * 3)
+    np.testing.assert_array_equal(m_high, machine[1])
+    np.testing.assert_allclose(u_high[:5], [0.001, 0.002, 0.003, *np.radians([4, 5])])
+    assert u_high[5] == math.inf and u_low[0] == u_low[1] == -math.inf
+    np.testing.assert_allclose(u_low[2:], [-0.001, *np.radians([-1, -1, -1])])
+    msg = cell.box_msg((u_low, u_high))
+    assert isinstance(msg, BoxLimits)
+    back = cell.box_of(msg)
+    np.testing.assert_array_equal(back[0], u_low)
+    np.testing.assert_array_equal(back[1], u_high)
+
+
+# -- exit codes ----------------------------------------------------------------------------------
+def outcome_constants() -> dict[str, int]:
+    return {name: value for name, value in vars(MoveOutcome).items()
+            if name.isupper() and isinstance(value, int) and not name.startswith('_')}
+
+
+def expected_exit(name: str) -> int:
+    if name == 'SUCCESS':
+        return cf.EXIT_OK
+    if name == 'OUT_OF_TOLERANCE':
+        return cf.EXIT_OUT_OF_TOLERANCE
+    if name.startswith('REFUSED_'):
+        return cf.EXIT_REFUSED
+    assert name.startswith('ABORTED_'), name
+    return cf.EXIT_ABORTED
+
+
+def test_every_move_outcome_constant_maps_to_an_exit_code() -> None:
+    constants = outcome_constants()
+    assert len(constants) == 20 and constants['ABORTED_STOP'] == 30
+    # The message's constants are the positioner's result codes, one for one.
+    assert {name.lower() for name in constants} == {r.value for r in ResultCode}
+    for name, value in constants.items():
+        assert cf.exit_code(name.lower(), value) == expected_exit(name), name
+        assert cf.exit_code(name.lower()) == expected_exit(name), name
+        assert cf.exit_code('', value) == expected_exit(name), name  # by number alone
+        assert cf.Outcome(value, name.lower(), '').exit_code == expected_exit(name)
+
+
+def test_an_unknown_outcome_counts_as_aborted() -> None:
+    assert cf.exit_code('aborted_by_a_newer_positioner') == cf.EXIT_ABORTED
+    assert cf.exit_code('') == cf.EXIT_ABORTED
+    assert cf.exit_code('', 99) == cf.EXIT_ABORTED
+    assert cf.exit_code('', 19) == cf.EXIT_REFUSED
+
+
+def test_one_exit_code_table_documented_everywhere() -> None:
+    codes = [row.code for row in cf.EXIT_CODES]
+    assert codes == sorted(set(codes))
+    assert codes[:6] == [0, 1, 2, 3, 4, 5]
+    assert cell.__doc__ is not None
+    table = cell.__doc__[cell.__doc__.index('Exit codes'):]
+    doc_rows = [line.split()[:2] for line in table.splitlines() if line[:1].isdigit()]
+    assert doc_rows == [[str(row.code), row.name] for row in cf.EXIT_CODES]
+    epilog = cf.build_parser().epilog or ''
+    assert all(f'{row.code:>3}  {row.name}' in epilog for row in cf.EXIT_CODES)
+    assert cf.exit_name(cf.EXIT_NOT_THERE) == 'not_there'
+
+
+# -- outcomes in JSON and text -------------------------------------------------------------------
+def outcome_msg(code: int = MoveOutcome.SUCCESS, name: str = 'success',
+                uncertainty: list[float] | None = None) -> MoveOutcome:
+    msg = MoveOutcome(code=code, code_name=name, reason='settled within 10 µm')
+    msg.attained.header.frame_id = BASE_FRAME
+    msg.attained.pose.position.z = 0.19
+    q = quaternion_deg(0, 0, 30)
+    msg.attained.pose.orientation.x, msg.attained.pose.orientation.y = q[0], q[1]
+    msg.attained.pose.orientation.z, msg.attained.pose.orientation.w = q[2], q[3]
+    msg.attained_user.position.x, msg.attained_user.position.y = 0.010, -0.0025
+    msg.position_error = [3e-6, -4e-6, 0.0]
+    msg.orientation_error = [0.0, 0.0, math.radians(0.001)]
+    msg.uncertainty = uncertainty if uncertainty is not None else [math.nan] * 6
+    return msg
+
+
+def test_outcome_json_is_complete_si_and_human_with_nan_as_null() -> None:
+    outcome = cell.outcome_of(outcome_msg())
+    text = cf.json_text(cf.command_document('move', outcome.exit_code, None,
+                                            {'outcome': outcome.document()}))
+    assert '\n' not in text and 'NaN' not in text
+    doc = json.loads(text)
+    assert list(doc)[:4] == ['command', 'exit_code', 'exit_name', 'error']
+    assert (doc['command'], doc['exit_code'], doc['exit_name'], doc['error']) == \
+        ('move', 0, 'success', None)
+    o = doc['outcome']
+    assert set(o) == {'code', 'code_name', 'reason', 'attained', 'attained_user',
+                      'position_error_m', 'orientation_error_rad', 'position_error_um',
+                      'orientation_error_deg', 'uncertainty'}
+    assert (o['code'], o['code_name'], o['reason']) == (0, 'success', 'settled within 10 µm')
+    assert o['attained']['frame'] == BASE_FRAME
+    assert o['attained']['position_m'] == [0.0, 0.0, 0.19]
+    np.testing.assert_allclose(o['attained']['human'], [0, 0, 190, 0, 0, 30], atol=1e-9)
+    np.testing.assert_allclose(o['attained']['pose6'][5], math.radians(30))
+    np.testing.assert_allclose(o['attained_user']['human'], [10, -2.5, 0, 0, 0, 0], atol=1e-9)
+    assert o['position_error_m'] == [3e-6, -4e-6, 0.0]
+    assert o['position_error_um'] == pytest.approx(5.0)
+    assert o['orientation_error_deg'] == pytest.approx(0.001)
+    assert o['uncertainty'] == [None] * 6
+
+
+def test_a_finite_uncertainty_is_kept_and_a_partial_one_nulled() -> None:
+    u = [1e-6, 2e-6, 3e-6, math.nan, 1e-5, math.inf]
+    doc = json.loads(cf.json_text(cell.outcome_of(outcome_msg(uncertainty=u)).document()))
+    assert doc['uncertainty'] == [1e-6, 2e-6, 3e-6, None, 1e-5, None]
+
+
+def test_json_text_is_strict_json() -> None:
+    doc = {'a': np.float64('nan'), 'b': np.array([1.0, -np.inf]), 'c': (np.int64(3), True),
+           'd': {'e': np.bool_(False)}}
+    assert json.loads(cf.json_text(doc)) == {'a': None, 'b': [1.0, None], 'c': [3, True],
+                                             'd': {'e': False}}
+
+
+def test_a_command_document_keeps_its_own_four_keys() -> None:
+    doc = cf.command_document('status', 5, 'gone', {'code': 'success', 'exit_code': 0})
+    assert doc['exit_code'] == 5 and doc['code'] == 'success' and doc['error'] == 'gone'
+
+
+def test_outcome_text() -> None:
+    text = cell.outcome_of(outcome_msg(uncertainty=[1e-6] * 3 + [1e-5] * 3)).text()
+    lines = text.splitlines()
+    assert lines[0] == 'success (0): settled within 10 µm'
+    assert 'user position' in lines[1] and '10.0000' in lines[1] and '-2.5000' in lines[1]
+    assert lines[1].rstrip().endswith('deg') and ' mm ' in lines[1]
+    assert 'error' in lines[2] and '5.0 µm' in lines[2] and '0.00100 deg' in lines[2]
+    assert 'uncertainty' in lines[3] and '1.0 1.0 1.0 µm' in lines[3]
+    assert 'uncertainty' not in cell.outcome_of(outcome_msg()).text()  # NaN: not measured
+
+
+def test_a_refusal_says_only_why() -> None:
+    outcome = cell.outcome_of(outcome_msg(MoveOutcome.REFUSED_LIMITS, 'refused_limits'))
+    assert not outcome.moved and outcome.exit_code == cf.EXIT_REFUSED
+    assert outcome.text() == 'refused_limits (11): settled within 10 µm'
+    assert list(cell.outcome_of(MoveOutcome()).document()['attained']['human']) == [0.0] * 6
+
+
+def test_a_pose_that_is_not_a_rotation_has_no_human_numbers() -> None:
+    doc = cf.pose_document([0, 0, 0], [0, 0, 0, 0])
+    assert doc['pose6'] is None and doc['human'] is None
+    assert json.loads(cf.json_text(doc))['quaternion_xyzw'] == [0, 0, 0, 0]
+
+
+def test_progress_line() -> None:
+    line = cf.progress_line('moving', 0.5, [0.0, 3e-6, 4e-6], width=10)
+    assert line == 'moving     [#####.....]  50%  |Δp| 5.0 µm'
+    assert cf.progress_line('settling', 7.0, width=4) == 'settling   [####] 100%'
+    assert cf.progress_line('', math.nan, width=2) == '...        [..]   0%'
+
+
+# -- check, status, limits, speeds ---------------------------------------------------------------
+def check_response(valid: bool) -> Any:
+    response = CheckPose.Response(valid=valid, duration=2.5 if valid else 0.0)
+    response.goal.header.frame_id = BASE_FRAME
+    response.goal.pose.position.z = 0.19
+    if not valid:
+        response.validity.bits = 2 | 128
+        response.validity.bit_names = ['stroke', 'machine_limits']
+        response.validity.violations = ['factory: leg 1 at 0.2210 m above 0.2200 m',
+                                        'machine limits: Tx 15 mm above 10 mm']
+    response.validity.margin_names = ['stroke', 'machine_limits']
+    response.validity.margins = [0.001, -0.005 if not valid else 0.002]
+    return response
+
+
+def test_check_valid_and_invalid() -> None:
+    valid = cell.check_of(check_response(True))
+    assert valid.exit_code == cf.EXIT_OK
+    assert valid.text().splitlines()[0] == 'valid: the move takes 2.50 s'
+    invalid = cell.check_of(check_response(False))
+    assert invalid.exit_code == cf.EXIT_REFUSED
+    text = invalid.text()
+    assert text.startswith('not valid (bits 130): stroke, machine_limits')
+    assert '  - machine limits: Tx 15 mm above 10 mm' in text
+    assert 'machine_limits  -0.005' in text
+    doc = json.loads(cf.json_text(invalid.document()))
+    assert doc['valid'] is False and doc['bits'] == 130
+    assert doc['bit_names'] == ['stroke', 'machine_limits'] and len(doc['violations']) == 2
+    assert doc['margins'] == [{'name': 'stroke', 'value': 0.001},
+                              {'name': 'machine_limits', 'value': -0.005}]
+    assert doc['goal']['frame'] == BASE_FRAME and doc['goal']['human'][2] == pytest.approx(190)
+    assert doc['duration_s'] == 0.0
+
+
+def test_status_positions_in_the_machine_and_user_cs() -> None:
+    home = MECH.home_position
+    systems = CoordinateSystems(user=Transform.from_human([10, 0, 0, 0, 0, 0]))
+    report = cf.StatusReport(
+        positioner={'state': 'settled', 'reason': 'within 5 µm', 'mode': 'model',
+                    'code': 'success', 'referenced': 'True'},
+        driver={'enabled': 'true', 'state': 'holding'},
+        target=(home + [0.001, 0, 0], quaternion_deg(0, 0, 0)),
+        estimate=(home + [0.0011, 0, 0], quaternion_deg(0, 0, 0.5)),
+        systems=systems, mechanism=MECH)
+    doc = json.loads(cf.json_text(report.document()))
+    assert (doc['state'], doc['reason'], doc['mode'], doc['code']) == \
+        ('settled', 'within 5 µm', 'model', 'success')
+    assert doc['referenced'] is True and doc['drives_enabled'] is True
+    assert doc['driver_state'] == 'holding'
+    positions = doc['positions']
+    np.testing.assert_allclose(positions['machine']['target']['human'], [1, 0, 0, 0, 0, 0],
+                               atol=1e-9)
+    np.testing.assert_allclose(positions['user']['target']['human'], [-9, 0, 0, 0, 0, 0],
+                               atol=1e-9)
+    np.testing.assert_allclose(positions['user']['estimated']['human'],
+                               [-8.9, 0, 0, 0, 0, 0.5], atol=1e-9)
+    np.testing.assert_allclose(positions['base']['target']['position_m'], home + [0.001, 0, 0])
+    text = report.text()
+    assert 'state       settled: within 5 µm' in text and 'enabled yes (holding)' in text
+    assert text.count('target') == 2 and text.count('estimated') == 2
+
+
+def test_status_without_the_mechanism_or_a_target() -> None:
+    report = cf.StatusReport(positioner={'state': 'idle'}, estimate=(MECH.home_position,
+                             [0, 0, 0, 1]), notes=['no target'])
+    doc = report.document()
+    assert doc['referenced'] is None and doc['drives_enabled'] is None
+    assert doc['positions']['machine'] == {'target': None, 'estimated': None}
+    assert doc['positions']['base']['estimated'] is not None
+    assert 'unknown' in report.text() and 'note: no target' in report.text()
+    assert json.loads(cf.json_text(doc))['coordinate_systems'] is None
+
+
+def test_parse_bool() -> None:
+    assert [cf.parse_bool(t) for t in ('True', 'false', '1', 'no', 'maybe', None)] == \
+        [True, False, True, False, None, None]
+
+
+def test_limits_text_and_json() -> None:
+    factory = cf.box_of([-0.02] * 3 + [-0.5] * 3, [0.02] * 3 + [0.5] * 3)
+    user = cf.box_of([-math.inf] * 6, [math.inf] * 6)
+    text = cf.limits_text(factory, factory, user, ['stroke 0.18..0.22 m'])
+    assert 'Tx mm' in text and 'Rz deg' in text and '-20.000' in text and '28.6479' in text
+    assert text.count(cf.NO_LIMIT) == 12 and text.endswith('stroke 0.18..0.22 m')
+    doc = json.loads(cf.json_text(cf.limits_document(factory, factory, user)))
+    assert doc['user']['lower'] == [None] * 6
+    assert doc['factory']['upper_human'][0] == pytest.approx(20.0)
+
+
+def test_speeds_text() -> None:
+    text = cf.speeds_text(cf.SpeedValues(0.01, math.radians(5), 0.05, math.radians(20)),
+                          cf.SpeedValues(0.05, math.radians(30), 0.2, math.radians(100)))
+    assert 'linear speed' in text and '10.000 mm/s' in text and '(max 50.000)' in text
+    assert '5.000 deg/s' in text and '(max 100.000)' in text
+
+
+# -- the goal loop, against stand-ins of rclpy's action client ------------------------------------
+@dataclass
+class Done:
+    value: Any
+
+    def done(self) -> bool:
+        return True
+
+    def result(self) -> Any:
+        return self.value
+
+
+class Pending:
+    def done(self) -> bool:
+        return False
+
+
+class Handle:
+    """A goal handle whose result comes once the goal is cancelled (or at once)."""
+
+    def __init__(self, accepted: bool = True, outcome: MoveOutcome | None = None,
+                 at_once: bool = False) -> None:
+        self.accepted = accepted
+        self.cancels = 0
+        self.outcome = outcome or outcome_msg(MoveOutcome.ABORTED_STOP, 'aborted_stop')
+        self.at_once = at_once
+
+    def get_result_async(self) -> Any:
+        handle = self
+
+        class Result:
+            def done(self) -> bool:
+                return handle.at_once or handle.cancels > 0
+
+            def result(self) -> Any:
+                response = MoveToPose.Impl.GetResultService.Response(status=5)
+                response.result.outcome = handle.outcome
+                return response
+
+        return Result()
+
+    def cancel_goal_async(self) -> Any:
+        self.cancels += 1
+        return Pending()
+
+
+class Action:
+    """A GoalClient's stand-in: its action client and the spin of its answers."""
+
+    def __init__(self, handle: Handle | None, on_send: Callable[[], None] = lambda: None):
+        self.handle = handle
+        self.on_send = on_send
+        self.action = self
+
+    def spin_once(self, timeout: float) -> None:
+        time.sleep(timeout)
+
+    def send_goal_async(self, goal: Any, feedback_callback: Any = None) -> Any:
+        self.on_send()
+        feedback_callback(MoveToPose.Impl.FeedbackMessage(
+            feedback=MoveToPose.Feedback(phase_name='moving', progress=0.5)))
+        return Pending() if self.handle is None else Done(self.handle)
+
+
+def session(timeout: float = 5.0) -> tuple[cell.Session, io.StringIO]:
+    err = io.StringIO()
+    return cell.Session(None, cell.Signals(), cell.Output(False, io.StringIO(), err),  # type: ignore[arg-type]
+                        timeout), err
+
+
+def drive(s: cell.Session, action: Action) -> cell.GoalRun:
+    with s.signals.deferred():
+        return cell._drive(s, action, None, lambda f: f'{f.phase_name} {f.progress}')  # type: ignore[arg-type]
+
+
+def test_a_goal_that_ends_by_itself() -> None:
+    s, err = session()
+    run = drive(s, Action(Handle(outcome=outcome_msg(), at_once=True)))
+    assert run.accepted and not run.cancelled and run.exit_code == cf.EXIT_OK
+    assert run.goal_status == 5 and run.outcome is not None
+    assert err.getvalue() == ''  # not a terminal: no progress bar
+    assert set(run.fields()) == {'accepted', 'cancelled', 'cancel_cause', 'goal_status',
+                                 'outcome'}
+
+
+def test_ctrl_c_cancels_and_the_result_is_awaited() -> None:
+    s, err = session()
+    handle = Handle()
+    run = drive(s, Action(handle, on_send=lambda: s.signals(2, None)))  # SIGINT, deferred
+    assert handle.cancels == 1 and run.cancelled and run.cancel_cause == 'interrupt'
+    assert run.outcome is not None and run.outcome.code_name == 'aborted_stop'
+    assert run.exit_code == cf.EXIT_ABORTED and 'cancelling' in err.getvalue()
+    assert run.text().splitlines()[0] == 'cancelled (Ctrl-C)'
+
+
+def test_the_timeout_cancels() -> None:
+    s, _ = session(timeout=0.05)
+    handle = Handle()
+    run = drive(s, Action(handle))
+    assert handle.cancels == 1 and run.cancel_cause == 'timeout'
+    assert run.exit_code == cf.EXIT_ABORTED
+
+
+def test_a_second_ctrl_c_stops_waiting() -> None:
+    s, _ = session()
+
+    def twice() -> None:
+        s.signals(2, None)
+        s.signals(2, None)
+
+    run = drive(s, Action(Handle(), on_send=twice))
+    assert run.outcome is None and run.exit_code == cf.EXIT_INTERRUPTED and run.error
+
+
+def test_a_rejected_goal_is_refused() -> None:
+    s, _ = session()
+    run = drive(s, Action(Handle(accepted=False)))
+    assert run.accepted is False and run.exit_code == cf.EXIT_REFUSED
+
+
+def test_no_outcome_counts_as_aborted() -> None:
+    s, _ = session()
+    run = drive(s, Action(Handle(outcome=MoveOutcome(), at_once=True)))
+    assert run.outcome is None and run.exit_code == cf.EXIT_ABORTED
+    assert run.error is not None and 'no outcome' in run.error
+
+
+def test_no_answer_after_the_cancel_is_not_there(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(cell, 'CANCEL_WAIT', 0.05)
+    s, _ = session(timeout=0.05)
+    run = drive(s, Action(None))  # the goal's acceptance never comes
+    assert run.accepted is None and run.exit_code == cf.EXIT_NOT_THERE
+
+
+def test_signals_raise_outside_a_goal() -> None:
+    signals = cell.Signals()
+    with pytest.raises(cell.InterruptedCommandError):
+        signals(2, None)
+    with signals.deferred():
+        signals(15, None)
+    assert signals.count == 2
+
+
+def test_output_one_json_line_or_text() -> None:
+    out, err = io.StringIO(), io.StringIO()
+    cell.Output(True, out, err).emit('stop', cell.Report(cf.EXIT_REFUSED, {'success': False},
+                                                         'text', 'refused: busy'))
+    assert json.loads(out.getvalue()) == {'command': 'stop', 'exit_code': 3,
+                                          'exit_name': 'refused', 'error': 'refused: busy',
+                                          'success': False}
+    assert out.getvalue().count('\n') == 1 and 'refused: busy' in err.getvalue()
+    out = io.StringIO()
+    cell.Output(False, out, io.StringIO()).emit('stop', cell.Report(0, {}, 'stopped'))
+    assert out.getvalue() == 'stopped\n'
+
+
+# -- --help --------------------------------------------------------------------------------------
+HELPS = [[], ['status'], ['move'], ['check'], ['frames'], ['frames', 'get'], ['frames', 'set'],
+         ['home'], ['stop'], ['jog'], ['speed'], ['limits'], ['limits', 'get'],
+         ['limits', 'set']]
+
+
+def test_help_of_cell_and_of_every_subcommand_exits_0(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Every subcommand's --help, in this process (the installed `cell --help` runs in
+    test_package)."""
+    parser = cf.build_parser()
+    for args in HELPS:
+        with pytest.raises(SystemExit) as done:
+            parser.parse_args([*args, '--help'])
+        assert done.value.code == 0, args
+        assert capsys.readouterr().out.startswith('usage: cell'), args
+    assert {c.split()[0] for c in cf.COMMANDS} == {a[0] for a in HELPS if a}
