@@ -57,11 +57,11 @@ def pose6_of(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 # -- the validity bitmask -------------------------------------------------------------------------
 def test_the_bits_are_those_of_the_message() -> None:
-    assert {b.name: int(b) for b in Validity} == {
-        'WORKSPACE': 1, 'STROKE': 2, 'PHI': 4, 'THETA': 8, 'SPHERICAL_TILT': 16,
-        'LEG_DISTANCE': 32, 'SINGULARITY': 64, 'MACHINE_LIMITS': 128, 'USER_LIMITS': 256,
-        'NOT_REFERENCED': 512, 'DRIVES_OFF': 1024, 'INVALID_GOAL': 2048, 'BUSY': 4096,
-        'DRIVE_FAULT': 8192}
+    from positioning_cell_interfaces.msg import Validity as ValidityMsg
+    constants = {k: v for k, v in vars(ValidityMsg).items() if k.isupper() and k[0] != '_'
+                 and isinstance(v, int)}
+    assert {b.name: int(b) for b in Validity} == constants
+    assert constants['WORKSPACE'] == 1 and constants['TRACKER_SILENT'] == 32768
 
 
 def test_every_constraint_of_the_core_has_a_bit_in_order() -> None:

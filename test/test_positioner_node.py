@@ -182,6 +182,14 @@ def test_check_pose_sets_one_bit_per_violated_constraint(positioner: Positioner)
     wait_until(lambda: positioner.plan('/positioner/check_pose', command(
         HOME_P, HOME_Q)).validity.bits == Validity.DRIVES_OFF, 20.0, 'the drives-off bit')
     positioner.driver.report(enabled=True)
+    wait_until(lambda: positioner.plan('/positioner/check_pose', command(HOME_P, HOME_Q)).valid,
+               20.0, 'the drives back on')
+    # the measured mode needs the tracker, and there is none here
+    assert positioner.client.set_parameter('positioner', 'compensation.mode',
+                                           'measured').successful
+    silent = positioner.plan('/positioner/check_pose', command(HOME_P, HOME_Q))
+    assert silent.validity.bits == Validity.TRACKER_SILENT, silent.validity.violations
+    assert 'laser tracker not responding' in silent.validity.violations[0]
 
 
 def test_a_move_sends_one_trajectory_and_returns_the_executed_path(

@@ -52,6 +52,8 @@ class Validity(IntFlag):
     INVALID_GOAL = 2048  # a malformed request (NaN, bad frame, bad tolerance...)
     BUSY = 4096  # a command is running
     DRIVE_FAULT = 8192  # a drive is in fault
+    DRIVER_SILENT = 16384  # no encoder readings (or no pose estimate), drives not connected
+    TRACKER_SILENT = 32768  # no tracker readings while the measured mode needs them
 
 
 #: The empty mask: valid.
@@ -64,7 +66,8 @@ FACTORY_BITS = (Validity.WORKSPACE | Validity.STROKE | Validity.PHI | Validity.T
 POSE_BITS = FACTORY_BITS | Validity.MACHINE_LIMITS | Validity.USER_LIMITS
 #: The bits of the state of the machine and of the request, whatever the pose.
 STATE_BITS = (Validity.NOT_REFERENCED | Validity.DRIVES_OFF | Validity.INVALID_GOAL
-              | Validity.BUSY | Validity.DRIVE_FAULT)
+              | Validity.BUSY | Validity.DRIVE_FAULT | Validity.DRIVER_SILENT
+              | Validity.TRACKER_SILENT)
 
 #: Every bit.
 ALL_BITS = POSE_BITS | STATE_BITS
@@ -90,7 +93,9 @@ _REFUSALS = (
     (Validity.INVALID_GOAL, ResultCode.REFUSED_INVALID_GOAL),
     (Validity.DRIVES_OFF, ResultCode.REFUSED_DRIVES_OFF),
     (Validity.DRIVE_FAULT, ResultCode.REFUSED_DRIVE_FAULT),
+    (Validity.DRIVER_SILENT, ResultCode.REFUSED_DRIVER_SILENT),
     (Validity.NOT_REFERENCED, ResultCode.REFUSED_NOT_REFERENCED),
+    (Validity.TRACKER_SILENT, ResultCode.REFUSED_TRACKER_SILENT),
     (POSE_BITS, ResultCode.REFUSED_LIMITS),
 )
 

@@ -39,6 +39,7 @@ from positioning_cell.limits.speed import Speeds, motion_limits, scaled, set_spe
 from positioning_cell.limits.validity import (
     VALID,
     CheckResult,
+    Validity,
     factory_check,
     invalid_goal,
     state_check,
@@ -254,6 +255,12 @@ class Controller:
         result = state_check(referenced=mover.referenced,
                              drives_enabled=driver.get('enabled', 'true').lower() != 'false',
                              drive_fault=fault, busy=busy)
+        try:  # the world's liveness, as a move would find it (silent driver or tracker)
+            mover.ready(homing=True)
+        except MoveAbortedError as err:
+            bit = _LIVENESS_BITS.get(err.code)
+            if bit is not None:
+                result = result.merged(CheckResult(bit, (f'state: {err}',)))
         return result if result.bits != VALID else CheckResult()
 
     # -- jog ------------------------------------------------------------------------------------
@@ -281,3 +288,9 @@ class Controller:
             s.jog_length_acceleration if linear else s.jog_theta_acceleration,
             mover.settings.trajectory.period)
         return mover.jog(times, joints)
+
+
+#: The bit of each liveness refusal of the mover (the others are :func:`state_check`'s).
+_LIVENESS_BITS = {ResultCode.REFUSED_DRIVER_SILENT: Validity.DRIVER_SILENT,
+                  ResultCode.REFUSED_NO_ESTIMATE: Validity.DRIVER_SILENT,
+                  ResultCode.REFUSED_TRACKER_SILENT: Validity.TRACKER_SILENT}

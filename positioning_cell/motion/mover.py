@@ -312,7 +312,7 @@ class Mover:
         (None: the configured ``motion``); ``path_check``: further limits on the planned path
         (:data:`PathCheck`)."""
         goal = self._goal(frame_id, position, quaternion)
-        self._ready()
+        self.ready()
         try:
             return self._checked(self.plan_path(*goal, limits), path_check)
         except MoveAbortedError as err:
@@ -332,13 +332,13 @@ class Mover:
                 tol = self.settings.goal_tolerance.for_request(float(tolerance))
             except InputError as err:
                 raise self.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
-            self._ready()
+            self.ready()
             return self._execute(*goal, tol, limits, path_check)
 
     def home(self) -> MoveResult:
         """Reference the drives if they are not, then move to the home pose."""
         with self._exclusive():
-            self._ready(homing=True)
+            self.ready(homing=True)
             if not self.referenced:
                 if not self.machine.reference_drives():
                     raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
@@ -383,7 +383,7 @@ class Mover:
         drives need not be referenced; aborted (drives stopped) like a move. The next move
         plans from where the encoders are. Returns the encoder reading at the end."""
         with self._exclusive():
-            self._ready(homing=True)
+            self.ready(homing=True)
             rates = np.gradient(joints, times, axis=0) if len(times) > 1 else np.zeros_like(joints)
             estimate = self.estimate
             p = np.broadcast_to(estimate.position if estimate else self.mech.home_position,
@@ -424,7 +424,7 @@ class Mover:
         except InputError as err:
             raise self.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
 
-    def _ready(self, *, homing: bool = False) -> None:
+    def ready(self, *, homing: bool = False) -> None:
         """Refuse when the world is not ready for motion: no or silent joint states, drives
         off or in fault, not referenced (homing references), no pose estimate, a silent
         tracker in ``measured`` mode."""

@@ -164,13 +164,15 @@ class FaultCell:
         node.create_subscription(PoseStamped, names.TRUE_POSE, self._on_true_pose, STREAM_QOS)
         node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
                                  self._on_measured, STREAM_QOS)
+        node.create_subscription(PoseStamped, names.ESTIMATED_POSE, self._on_estimate,
+                                 STREAM_QOS)
         self.trajectories = node.create_publisher(JointTrajectory, names.JOINT_TRAJECTORY,
                                                   COMMAND_QOS)
         overrides = log_dir / 'fault_matrix.yaml'
         overrides.write_text(f'{names.NODE_RECORDER}:\n  ros__parameters:\n'
                              f'    output: {log_dir / "bag"}\n')
         self._params = [self.config, overrides]
-        self._goal = 1
+        self.estimate: np.ndarray | None = None
         self._lock = threading.Lock()
 
     # -- what the client sees -------------------------------------------------------------------
@@ -190,9 +192,13 @@ class FaultCell:
             self.true_pose.append((time.monotonic(), pose_arrays(msg.pose)[0]))
             del self.true_pose[:-1000]
 
+    def _on_estimate(self, msg: PoseStamped) -> None:
+        self.estimate = pose_arrays(msg.pose)[0]
+
     def _on_measured(self, msg: PoseWithCovarianceStamped) -> None:
         self.tracker_sigma = float(np.sqrt(np.max(np.diag(
             np.reshape(msg.pose.covariance, (6, 6)))[:3])))
+
 
     def result_after(self, since: float) -> tuple[float, str, str] | None:
         """The first positioner status received after ``since`` that carries a result code:
@@ -304,9 +310,12 @@ class FaultCell:
         return self.mech.home_position + offset, np.array(self.mech.home_quaternion)
 
     def move(self) -> tuple[float, threading.Thread, tuple[np.ndarray, np.ndarray]]:
-        """Start a move to the other trial goal in a thread: (start time, thread, goal)."""
-        self._goal = 1 - self._goal
-        goal = self.goal(self._goal)
+        """Start a move to the trial goal farther from where the positioner estimates the
+        platform (a goal it is already at succeeds without moving) in a thread: (start time,
+        thread, goal)."""
+        here = self.estimate if self.estimate is not None else self.mech.home_position
+        goal = max((self.goal(k) for k in (0, 1)),
+                   key=lambda g: float(np.linalg.norm(g[0] - here)))
         thread = threading.Thread(target=lambda: self.client.plan(
             names.MOVE_TO_POSE, *goal, timeout=120.0), daemon=True)
         started = time.monotonic()
