@@ -98,9 +98,9 @@ class OperatorInterface:
             err = box['error']
             return om.outcome(err.code, str(err))
         result: MoveResult = box['result']
-        attained_p = goal[0] + result.position_error
         return om.outcome(ResultCode.SUCCESS, result.reason, result, goal,
-                          self.controller.user_position(attained_p, goal[1]), self._now())
+                          self.controller.user_position(*om.attained(result, goal)),
+                          self._now())
 
     def _feedback(self, goal_handle: Any, kind: Any) -> Callable[[tuple[Any, Any]], None]:
         """A progress callback that cancels on request and publishes the feedback."""

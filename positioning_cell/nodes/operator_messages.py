@@ -49,6 +49,14 @@ def move_command(msg: MoveCommandMsg) -> MoveCommand:
                        float(msg.tolerance), float(msg.speed_scale))
 
 
+def attained(result: MoveResult, goal: tuple[Any, Any]) -> tuple[Any, Any]:
+    """The attained platform pose in base: the goal (p, q) ⊕ the result's error (Δp, and the
+    rotation vector of R_goalᵀ·R_attained)."""
+    p = np.asarray(goal[0]) + np.asarray(result.position_error)
+    q = (Rotation.from_quat(goal[1]) * Rotation.from_rotvec(result.orientation_error)).as_quat()
+    return p, q
+
+
 def outcome(code: ResultCode, reason: str, result: MoveResult | None = None,
             goal: tuple[Any, Any] | None = None, user: Transform | None = None,
             stamp: Any = None) -> MoveOutcome:
@@ -59,8 +67,7 @@ def outcome(code: ResultCode, reason: str, result: MoveResult | None = None,
     out.uncertainty = [math.nan] * 6
     if result is not None and goal is not None:
         e_p, e_r = np.asarray(result.position_error), np.asarray(result.orientation_error)
-        p = np.asarray(goal[0]) + e_p
-        q = (Rotation.from_quat(goal[1]) * Rotation.from_rotvec(e_r)).as_quat()
+        p, q = attained(result, goal)
         out.attained.header.frame_id = 'base'
         if stamp is not None:
             out.attained.header.stamp = stamp
