@@ -30,8 +30,10 @@ from positioning_cell.frames.systems import (
     CoordinateSystems,
 )
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.limits.speed import Speeds as LibrarySpeeds
 from positioning_cell.motion.outcomes import ResultCode
 from positioning_cell.names import BASE_FRAME
+from positioning_cell.nodes import operator_messages as om
 from positioning_cell.tools import cell
 from positioning_cell.tools import cell_format as cf
 
@@ -178,10 +180,10 @@ def test_speed_request_in_si_and_zero_keeps() -> None:
     assert request.linear_speed == pytest.approx(0.020)
     assert request.angular_acceleration == pytest.approx(math.pi / 2)
     assert request.angular_speed == request.linear_acceleration == 0.0
-    assert not request.is_query and cf.speed_request(parse('speed')).is_query
-    msg = cell.speeds_msg(request)
-    assert isinstance(msg, Speeds) and cell.speeds_of(msg) == request
-    doc = request.document()
+    assert request != LibrarySpeeds.keep() == cf.speed_request(parse('speed'))
+    msg = om.speeds_msg(request)
+    assert isinstance(msg, Speeds) and om.speeds(msg) == request
+    doc = cf.speeds_document(request)
     assert doc['linear_speed_mm_s'] == pytest.approx(20.0)
     assert doc['angular_acceleration_deg_s2'] == pytest.approx(90.0)
 
@@ -446,8 +448,8 @@ def test_limits_text_and_json() -> None:
 
 
 def test_speeds_text() -> None:
-    text = cf.speeds_text(cf.SpeedValues(0.01, math.radians(5), 0.05, math.radians(20)),
-                          cf.SpeedValues(0.05, math.radians(30), 0.2, math.radians(100)))
+    text = cf.speeds_text(LibrarySpeeds(0.01, math.radians(5), 0.05, math.radians(20)),
+                          LibrarySpeeds(0.05, math.radians(30), 0.2, math.radians(100)))
     assert 'linear speed' in text and '10.000 mm/s' in text and '(max 50.000)' in text
     assert '5.000 deg/s' in text and '(max 100.000)' in text
 

@@ -68,7 +68,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from positioning_cell_interfaces.action import Home, MoveToPose
-from positioning_cell_interfaces.msg import BoxLimits, MoveCommand, MoveOutcome, Speeds
+from positioning_cell_interfaces.msg import BoxLimits, MoveCommand, MoveOutcome
 from positioning_cell_interfaces.msg import CoordinateSystems as SystemsMsg
 from positioning_cell_interfaces.srv import (
     CheckPose,
@@ -86,10 +86,10 @@ from positioning_cell import names
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
-from positioning_cell.frames.transforms import Transform
+from positioning_cell.limits.speed import Speeds as LibrarySpeeds
+from positioning_cell.nodes import operator_messages as om
 from positioning_cell.nodes.messages import (
     pose_arrays,
-    pose_msg,
     pose_stamped,
     status_level,
     status_values,
@@ -252,14 +252,12 @@ def check_of(response: Any) -> cf.CheckReport:
 
 def systems_of(msg: SystemsMsg) -> CoordinateSystems:
     """The library's coordinate systems of a CoordinateSystems message."""
-    return CoordinateSystems(user=Transform.from_pq(*pose_arrays(msg.user)),
-                             object=Transform.from_pq(*pose_arrays(msg.object)))
+    return CoordinateSystems(user=om.transform(msg.user), object=om.transform(msg.object))
 
 
 def systems_msg(systems: CoordinateSystems) -> SystemsMsg:
     """The CoordinateSystems message of the library's."""
-    return SystemsMsg(user=pose_msg(*systems.user.to_pq()),
-                      object=pose_msg(*systems.object.to_pq()))
+    return om.systems_msg(systems.user, systems.object)
 
 
 def box_of(msg: BoxLimits) -> cf.Box:
@@ -268,17 +266,6 @@ def box_of(msg: BoxLimits) -> cf.Box:
 
 def box_msg(box: cf.Box) -> BoxLimits:
     return BoxLimits(lower=[float(v) for v in box[0]], upper=[float(v) for v in box[1]])
-
-
-def speeds_of(msg: Speeds) -> cf.SpeedValues:
-    return cf.SpeedValues(float(msg.linear_speed), float(msg.angular_speed),
-                          float(msg.linear_acceleration), float(msg.angular_acceleration))
-
-
-def speeds_msg(speeds: cf.SpeedValues) -> Speeds:
-    return Speeds(linear_speed=speeds.linear_speed, angular_speed=speeds.angular_speed,
-                  linear_acceleration=speeds.linear_acceleration,
-                  angular_acceleration=speeds.angular_acceleration)
 
 
 def _plain_parameter(value: Any) -> Any:
@@ -550,12 +537,12 @@ def cmd_limits_set(session: Session, args: Any) -> Report:
 def cmd_speed(session: Session, args: Any) -> Report:
     request = cf.speed_request(args)
     response = session.call(SetSpeed, names.SET_SPEED,
-                            SetSpeed.Request(request=speeds_msg(request)))
+                            SetSpeed.Request(request=om.speeds_msg(request)))
     success, reason = bool(response.success), str(response.reason)
-    current, maximum = speeds_of(response.current), speeds_of(response.maximum)
-    fields = {'query': request.is_query, 'success': success, 'reason': reason,
-              'requested': request.document(), 'current': current.document(),
-              'maximum': maximum.document()}
+    current, maximum = om.speeds(response.current), om.speeds(response.maximum)
+    fields = {'query': request == LibrarySpeeds.keep(), 'success': success, 'reason': reason,
+              'requested': cf.speeds_document(request), 'current': cf.speeds_document(current),
+              'maximum': cf.speeds_document(maximum)}
     text = cf.speeds_text(current, maximum)
     if not success:
         return Report(cf.EXIT_REFUSED, fields, text, f'refused: {reason}')

@@ -40,6 +40,7 @@ from positioning_cell.frames.transforms import (
     human_from_pose6,
     pq_from_pose6,
 )
+from positioning_cell.limits.speed import Speeds
 from positioning_cell.motion.outcomes import ResultCode
 
 FloatArray = NDArray[np.float64]
@@ -477,42 +478,27 @@ def jog_unit(axis: str) -> str:
     return 'mm' if is_length(axis) else 'deg'
 
 
-@dataclass(frozen=True)
-class SpeedValues:
-    """Speeds and accelerations of moves, SI (m/s, rad/s, m/s², rad/s²); 0 in a request: keep
-    that one."""
-
-    linear_speed: float = 0.0
-    angular_speed: float = 0.0
-    linear_acceleration: float = 0.0
-    angular_acceleration: float = 0.0
-
-    @property
-    def is_query(self) -> bool:
-        """All zero: a request that changes nothing."""
-        return not any((self.linear_speed, self.angular_speed, self.linear_acceleration,
-                        self.angular_acceleration))
-
-    def document(self) -> dict[str, Any]:
-        """SI and human values for JSON."""
-        return {'linear_speed_m_s': self.linear_speed,
-                'angular_speed_rad_s': self.angular_speed,
-                'linear_acceleration_m_s2': self.linear_acceleration,
-                'angular_acceleration_rad_s2': self.angular_acceleration,
-                'linear_speed_mm_s': self.linear_speed * MM_PER_M,
-                'angular_speed_deg_s': math.degrees(self.angular_speed),
-                'linear_acceleration_mm_s2': self.linear_acceleration * MM_PER_M,
-                'angular_acceleration_deg_s2': math.degrees(self.angular_acceleration)}
+def speeds_document(speeds: Speeds) -> dict[str, Any]:
+    """Speeds and accelerations (SI; 0 in a request: keep that one) with their human values,
+    for JSON."""
+    return {'linear_speed_m_s': speeds.linear_speed,
+            'angular_speed_rad_s': speeds.angular_speed,
+            'linear_acceleration_m_s2': speeds.linear_acceleration,
+            'angular_acceleration_rad_s2': speeds.angular_acceleration,
+            'linear_speed_mm_s': speeds.linear_speed * MM_PER_M,
+            'angular_speed_deg_s': math.degrees(speeds.angular_speed),
+            'linear_acceleration_mm_s2': speeds.linear_acceleration * MM_PER_M,
+            'angular_acceleration_deg_s2': math.degrees(speeds.angular_acceleration)}
 
 
-def speed_request(args: argparse.Namespace) -> SpeedValues:
+def speed_request(args: argparse.Namespace) -> Speeds:
     """The SetSpeed request of ``speed`` (mm → m, deg → rad; an option left out: 0, keep)."""
     def si(value: float | None, linear: bool) -> float:
         if value is None:
             return 0.0
         return value / MM_PER_M if linear else math.radians(value)
 
-    return SpeedValues(si(args.linear, True), si(args.angular, False),
+    return Speeds(si(args.linear, True), si(args.angular, False),
                        si(args.linear_acceleration, True), si(args.angular_acceleration, False))
 
 
@@ -758,7 +744,7 @@ def limits_text(factory: Box, machine: Box, user: Box, constraints: Sequence[str
     return '\n'.join(lines)
 
 
-def speeds_text(current: SpeedValues, maximum: SpeedValues) -> str:
+def speeds_text(current: Speeds, maximum: Speeds) -> str:
     """Current speeds and accelerations with their maxima, mm and deg."""
     rows = (('linear speed', current.linear_speed, maximum.linear_speed, 'mm/s', True),
             ('angular speed', current.angular_speed, maximum.angular_speed, 'deg/s', False),
