@@ -19,6 +19,7 @@ from positioning_cell_interfaces.srv import CheckPose, MoveToPose
 from rcl_interfaces.msg import SetParametersResult
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.action.client import ActionClient
+from rclpy.action.graph import get_action_server_names_and_types_by_node
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -280,8 +281,24 @@ class GoalClient:
     def ready(self, timeout: float) -> None:
         """Wait for the server, then for its node to know this client
         (:meth:`CellClient.handshake`: its answers would be lost otherwise)."""
-        wait_until(self.action.server_is_ready, timeout, f'the action server {self.name}')
+        try:
+            wait_until(self.action.server_is_ready, timeout, f'the action server {self.name}')
+        except TimeoutError as err:
+            raise TimeoutError(f'{err} ({self._graph_view()})') from None
         self.cell.handshake(serving_node(self.name), timeout)
+
+    def _graph_view(self) -> str:
+        """What this client's graph knows of the server: whether its node announces the action
+        (not discovered at all) or does (discovered, this client's endpoints not matched)."""
+        node = serving_node(self.name)
+        try:
+            served = get_action_server_names_and_types_by_node(self.node, node, '/')
+        except Exception:  # rclpy raises when the node is unknown to the graph
+            return f'node /{node} not in the graph'
+        if any(name == self.name for name, _ in served):
+            return (f'/{node} announces it: its endpoints are known, this client\'s are not '
+                    'matched with them yet')
+        return f'/{node} announces only {sorted(name for name, _ in served)}'
 
     def send(self, goal: Any, feedback: Callable[[Any], None] | None = None,
              timeout: float = 30.0) -> Any:
