@@ -17,6 +17,7 @@ CONSOLE_SCRIPTS = [
     'kinematics_node = positioning_cell.nodes.entry:kinematics_node',
     'accuracy_monitor_node = positioning_cell.nodes.entry:accuracy_monitor_node',
     'calibrator_node = positioning_cell.nodes.entry:calibrator_node',
+    'live_view_node = positioning_cell.nodes.entry:live_view_node',
     'analyze_bag = positioning_cell.tools.analyze_bag:main',
     'run_cell = positioning_cell.tools.run_cell:main',
     'calibrate_cell = positioning_cell.tools.calibrate_cell:main',
@@ -38,6 +39,8 @@ CELL = [
     'mcap==1.6.0',
     'mcap-ros2-support==0.6.0',
     'matplotlib==3.11.2',
+    'foxglove-sdk==0.30.3',
+    'rich==15.0.0',
 ]
 TEST = [
     'pytest==9.2.0',
@@ -47,6 +50,8 @@ TEST = [
     'mypy==2.4.1',
     'types-PyYAML==6.0.12.20261113',
     'colcon-common-extensions==0.3.0',
+    'websockets==17.4',
+    'protobuf==7.36.2',
 ]
 
 setup(
@@ -56,7 +61,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
-        (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')
+         + glob('config/*.json')),
         (f'share/{PACKAGE}/launch', glob('launch/*.py')),
     ],
     # Every third-party runtime import (test/test_dependencies.py checks it against the code),
@@ -65,7 +71,7 @@ setup(
     # comes from the ROS install or the `cell` extra's wheels.
     install_requires=['setuptools', 'numpy>=1.25', 'scipy>=1.11', 'numba>=0.59',
                       'PyYAML>=6', 'rosbags>=0.10', 'ruamel.yaml>=0.17', 'mcap>=1.1',
-                      'matplotlib>=3.6'],
+                      'matplotlib>=3.6', 'foxglove-sdk>=0.30', 'rich>=13'],
     extras_require={'cell': CELL, 'test': TEST},
     zip_safe=True,
     maintainer='positioning_cell developers',

@@ -285,18 +285,23 @@ def run(seconds: float, log_dir: Path) -> int:
     return 0
 
 
+def standalone_environment(name: str) -> None:
+    """This process's environment for a benchmark run by hand: nothing depends on the
+    caller's ROS environment (the same settings as make bench), logs under the temp folder."""
+    tmp = Path(tempfile.gettempdir())
+    os.environ.setdefault('ROS_LOG_DIR', str(tmp / f'{name}_ros_log'))
+    os.environ.setdefault('ROS_HOME', str(tmp / f'{name}_ros_home'))
+    os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+    os.environ.update(cell_environment(0))  # loopback only, as the cell (the domain is set later)
+    os.environ.pop('RMW_IMPLEMENTATION', None)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seconds', type=float, default=20.0,
                         help='length of each measurement window, s (default 20)')
     args = parser.parse_args(argv)
-    tmp = Path(tempfile.gettempdir())
-    # Nothing depends on the caller's ROS environment (the same settings as make bench).
-    os.environ.setdefault('ROS_LOG_DIR', str(tmp / 'idlecpu_ros_log'))
-    os.environ.setdefault('ROS_HOME', str(tmp / 'idlecpu_ros_home'))
-    os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    os.environ.update(cell_environment(0))  # loopback only, as the cell (the domain is set later)
-    os.environ.pop('RMW_IMPLEMENTATION', None)
+    standalone_environment('idlecpu')
     with tempfile.TemporaryDirectory(prefix='idle_cpu_') as log_dir:
         try:
             return run(args.seconds, Path(log_dir))

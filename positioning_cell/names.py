@@ -27,6 +27,7 @@ NODE_MONITOR = 'accuracy_monitor'
 NODE_RECORDER = 'recorder'
 NODE_PLAYER = 'bag_player'
 NODE_CALIBRATOR = 'calibrator'
+NODE_LIVE_VIEW = 'live_view'
 
 #: The cell's nodes in start order: the launch file and the run driver start these.
 CELL_NODES = (
@@ -38,8 +39,10 @@ CELL_NODES = (
 RECORDER = CellNode('recorder_node', NODE_RECORDER)
 PLAYER = CellNode('bag_player_node', NODE_PLAYER)
 CALIBRATOR = CellNode('calibrator_node', NODE_CALIBRATOR)
+#: The Foxglove live view (read-only; its WebSocket server on 127.0.0.1:8765 by default).
+LIVE_VIEW = CellNode('live_view_node', NODE_LIVE_VIEW)
 #: Every node executable of the package.
-NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR)
+NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR, LIVE_VIEW)
 
 # -- topics ---------------------------------------------------------------------------------------
 JOINT_TRAJECTORY = '/legs/joint_trajectory'
@@ -50,6 +53,9 @@ TRUE_JOINT_STATES = '/sim/legs/true_joint_states'
 TARGET = '/positioner/target'
 ESTIMATED_POSE = '/positioner/pose'
 MARKERS = '/positioner/markers'
+#: The user and object coordinate systems in force (latched; positioning_cell_interfaces
+#: CoordinateSystems), published at start and on every change.
+COORDINATE_SYSTEMS = '/positioner/coordinate_systems'
 MEASURED_POSE = '/metrology/pose'
 TRUE_POSE = '/sim/platform/true_pose'
 POSITION_ERROR = '/accuracy/position_error'
@@ -61,12 +67,32 @@ PROGRAM = '/cell/program'
 #: (JSON in std_msgs/String).
 CALIBRATION = '/cell/calibration'
 
-#: Every topic of the cell, in the README's table order: what the recorder takes by default.
+#: Every topic of the cell, in the README's table order: what the recorder takes by default
+#: (not COORDINATE_SYSTEMS: its type, of positioning_cell_interfaces, is not in the bags'
+#: Jazzy typestore).
 CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
     ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRUE_POSE, POSITION_ERROR, ORIENTATION_ERROR,
     DIAGNOSTICS, PROGRAM, CALIBRATION,
 )
+
+#: Parameter changes of every node (rcl_interfaces ParameterEvent, ROS's own topic): the watch
+#: windows follow the accuracy monitor's dynamic tolerances on it.
+PARAMETER_EVENTS = '/parameter_events'
+
+# -- Foxglove live view channels (live_view_node's WebSocket server, not ROS topics) ----------
+#: The positioner in 3-D (foxglove.SceneUpdate).
+LIVE_SCENE = '/live/scene'
+#: base → platform (estimated), platform_commanded, platform_measured, user; platform → object
+#: (foxglove.FrameTransforms).
+LIVE_TRANSFORMS = '/live/transforms'
+#: The 6-D deviation, |Δp|, |Δθ| and the in/out verdict (JSON).
+LIVE_DEVIATION = '/live/deviation'
+#: The positioner's state and the accuracy monitor's last verdict (JSON).
+LIVE_STATUS = '/live/status'
+#: Frames of the live view besides base and platform (the estimate from the encoders).
+PLATFORM_COMMANDED_FRAME = 'platform_commanded'
+PLATFORM_MEASURED_FRAME = 'platform_measured'
 
 # -- services (positioning_cell_interfaces unless named otherwise) ------------------------------
 #: Move and return when settled (srv MoveToPose).
@@ -116,3 +142,4 @@ STATUS_MEASUREMENT = 'pose_measurement'
 STATUS_MONITOR_VERDICT = 'accuracy_monitor: settled pose'
 STATUS_MONITOR_INPUT = 'accuracy_monitor: input'
 STATUS_RECORDER = 'recorder'
+STATUS_LIVE_VIEW = 'live_view'

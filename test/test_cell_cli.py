@@ -151,8 +151,18 @@ def test_common_options_and_default_timeouts() -> None:
     assert {parse(*a).command for a in (['status'], ['move', *'000000'], ['check', *'000000'],
                                          ['frames', 'get'], ['frames', 'set'], ['home'],
                                          ['stop'], ['jog', 'leg1_theta', '1'], ['speed'],
-                                         ['limits', 'get'], ['limits', 'set'])} == \
+                                         ['limits', 'get'], ['limits', 'set'], ['watch'])} == \
         set(cf.COMMANDS) == set(cell.COMMANDS)
+
+
+def test_watch_options_are_checked() -> None:
+    args = parse('watch')
+    assert (args.command, args.frame, args.rate) == ('watch', 'user', cf.WATCH_RATE)
+    assert parse('watch', '--frame', 'base', '--rate', '2.5').rate == 2.5
+    for bad in (['--frame', 'tracker'], ['--rate', '0'], ['--rate', '31'], ['--rate', 'nan']):
+        with pytest.raises(SystemExit) as exc:
+            parse('watch', *bad)
+        assert exc.value.code == cf.EXIT_USAGE, bad
 
 
 def test_jog_lengths_in_mm_and_angles_in_degrees() -> None:
@@ -613,7 +623,7 @@ def test_output_one_json_line_or_text() -> None:
 # -- --help --------------------------------------------------------------------------------------
 HELPS = [[], ['status'], ['move'], ['check'], ['frames'], ['frames', 'get'], ['frames', 'set'],
          ['home'], ['stop'], ['jog'], ['speed'], ['limits'], ['limits', 'get'],
-         ['limits', 'set']]
+         ['limits', 'set'], ['watch']]
 
 
 def test_help_of_cell_and_of_every_subcommand_exits_0(

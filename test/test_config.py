@@ -13,12 +13,14 @@ from positioning_cell.nodes.bag_player_node import BagPlayerNode
 from positioning_cell.nodes.calibrator_node import CalibratorNode
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.nodes.leg_driver_node import LegDriverNode
+from positioning_cell.nodes.live_view_node import LiveViewNode
 from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
 from positioning_cell.nodes.recorder_node import RecorderNode
 from positioning_cell.parameters import declarations, parse
 
 NODES = {n.NAME: n for n in (PositionerNode, LegDriverNode, PoseMeasurementNode,
-                             AccuracyMonitorNode, RecorderNode, BagPlayerNode, CalibratorNode)}
+                             AccuracyMonitorNode, RecorderNode, BagPlayerNode, CalibratorNode,
+                             LiveViewNode)}
 CELL = load_parameter_file(config_path('cell.yaml'))
 
 

@@ -19,7 +19,8 @@ REPO = Path(__file__).resolve().parent.parent
 ROSDEP = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'numba': 'python3-numba',
           'pyyaml': 'python3-yaml', 'matplotlib': 'python3-matplotlib',
           'ruamel-yaml': 'python3-ruamel.yaml', 'rosbags': 'python3-rosbags-pip',
-          'mcap': 'mcap-ros2-support'}
+          'mcap': 'mcap-ros2-support', 'rich': 'python3-rich',
+          'foxglove-sdk': 'python3-foxglove-sdk-pip'}
 #: Declared but never imported: the build system's own.
 BUILD_ONLY = {'setuptools'}
 

@@ -1,6 +1,7 @@
 """Loopback only by default: with the shipped Fast DDS profile (config/fastdds_loopback.xml) every
-UDP and TCP socket of the cell's processes, and of a client in this process, is bound to
-127.0.0.1 (``ss``), while the nodes still discover each other and exchange messages."""
+UDP and TCP socket of the cell's processes (the live view's WebSocket listener too), and of a
+client in this process, is bound to 127.0.0.1 (``ss``), while the nodes still discover each
+other and exchange messages."""
 
 from __future__ import annotations
 
@@ -24,7 +25,9 @@ pytestmark = pytest.mark.nodes
 PROFILE = config_path('fastdds_loopback.xml')
 PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'  # what Fast DDS 2.14 (Jazzy) reads
 STARTUP = 60.0  # s; process start and discovery on a loaded 2-core VM (usually ~3 s)
-NODES = ('leg_driver_node', 'pose_measurement_node')
+NODES = ('leg_driver_node', 'pose_measurement_node', 'live_view_node')
+#: The live view's WebSocket server on any free port (its TCP listener is checked too).
+ARGS = {'live_view_node': ('-p', f'{names.NODE_LIVE_VIEW}:port:=0')}
 
 
 def sockets(pids: set[int]) -> list[tuple[str, str]]:
@@ -109,10 +112,12 @@ def test_no_cell_socket_is_bound_to_a_non_loopback_address(tmp_path: Path) -> No
             Client(domain, 'network_test') as client:
         assert group.env[PROFILE_VARIABLE] == str(PROFILE)
         truth = client.collect(PoseStamped, names.TRUE_POSE, STREAM_QOS)
-        procs = {exe: group.start(exe) for exe in NODES}
+        procs = {exe: group.start(exe, *ARGS.get(exe, ())) for exe in NODES}
+        live_view = client.statuses(names.STATUS_LIVE_VIEW)
         # The truth needs the driver's joint states at pose_measurement: the two talk.
         wait_until(lambda: truth or group.dead(), STARTUP, 'the nodes exchanging messages')
         assert not group.dead(), {k: group.log(k)[-1500:] for k in group.dead()}
+        wait_until(lambda: live_view, STARTUP, 'the live view serving')
 
         cell = sockets(set().union(*(session(p.pid) for p in procs.values())))
         own = sockets({os.getpid()})
@@ -124,6 +129,9 @@ def test_no_cell_socket_is_bound_to_a_non_loopback_address(tmp_path: Path) -> No
         not_loopback(cell))
     for exe, proc in procs.items():  # each process has its own sockets, all checked
         assert any(f'pid={proc.pid},' in line for _, line in cell), exe
+    websocket = [line for _, line in cell if line.startswith('LISTEN')
+                 and f'pid={procs["live_view_node"].pid},' in line]
+    assert websocket, 'the live view listens nowhere: the check would prove nothing'
     # Positive control: the client in this process (conftest's environment) is loopback too.
     assert own, 'no socket found for the test process'
     assert not not_loopback(own), 'test process sockets not on 127.0.0.1:\n' + '\n'.join(

@@ -44,6 +44,8 @@ from positioning_cell.frames import file as frames_file
 from positioning_cell.frames.systems import CoordinateSystems as Systems
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.nodes.messages import pose_arrays, pose_msg
+from positioning_cell.nodes.qos import LATCHED_QOS
+from positioning_cell.tools.polling import wait_until
 from positioning_cell.tools.ros import GoalClient
 
 pytestmark = pytest.mark.nodes
@@ -84,8 +86,15 @@ def ik(p: Any, q: Any) -> np.ndarray:
 
 def test_coordinate_systems_are_persisted_and_never_move(positioner: Positioner,
                                                          tmp_path: Path) -> None:
+    published = positioner.client.collect(CoordinateSystems, '/positioner/coordinate_systems',
+                                          LATCHED_QOS)
+    wait_until(lambda: published, 20.0, 'the coordinate systems at start (latched)')
+    assert Transform.from_pq(*pose_arrays(published[0].user)) == Transform.identity()
     answer = set_systems(positioner, USER, OBJECT)
     assert answer.success, answer.reason
+    wait_until(lambda: len(published) >= 2, 20.0, 'the coordinate systems after the set')
+    np.testing.assert_allclose(Transform.from_pq(*pose_arrays(published[-1].user)).to_pose6(),
+                               USER.to_pose6(), atol=1e-12)
     got = positioner.client.call(GetCoordinateSystems, '/positioner/get_coordinate_systems',
                                  GetCoordinateSystems.Request())
     assert got.file == str(tmp_path / 'coordinate_systems.yaml')
@@ -101,6 +110,7 @@ def test_coordinate_systems_are_persisted_and_never_move(positioner: Positioner,
                                      SetCoordinateSystems.Request(systems=bad))
     assert not refused.success and 'quaternion' in refused.reason
     assert frames_file.load(got.file).user == saved.user  # nothing changed
+    assert len(published) == 2  # a refused set publishes nothing
 
 
 def test_a_user_move_commands_t_user_g_t_object_inverse(positioner: Positioner) -> None:

@@ -15,17 +15,11 @@ from pathlib import Path
 import pytest
 from cell_harness import REPO, Client, isolated_domain, wait_until
 
+from positioning_cell import names
+
 PACKAGE = 'positioning_cell'
-# Node names of the executables (design/interfaces.md).
-NODE_NAMES = {
-    'kinematics_node': 'positioner',
-    'leg_driver_node': 'leg_driver',
-    'pose_measurement_node': 'pose_measurement',
-    'accuracy_monitor_node': 'accuracy_monitor',
-    'recorder_node': 'recorder',
-    'bag_player_node': 'bag_player',
-    'calibrator_node': 'calibrator',
-}
+# Node names of the executables (the one table: positioning_cell.names).
+NODE_NAMES = {node.executable: node.name for node in names.NODE_EXECUTABLES}
 
 
 def declared_executables() -> dict[str, str]:
@@ -115,7 +109,8 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
     # Nodes that need an argument to run get one: the player a one-message bag, looped.
     # (`-p node:name:=value`: a node-specific rule, which beats the file's node section.)
     node_args = {'bag_player_node': ['-p', f'bag_player:bag:={one_message_bag(tmp_path / "bag")}',
-                                     '-p', 'bag_player:loop:=true']}
+                                     '-p', 'bag_player:loop:=true'],
+                 'live_view_node': ['-p', 'live_view:port:=0']}  # any free port
     with isolated_domain() as domain:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
         env.pop('_ROS_WHEELS_BOOTSTRAP_COMPLETE', None)

@@ -46,6 +46,7 @@ __all__ = [
     'Transform',
     'compose_poses',
     'distance',
+    'euler_angles',
     'format_human',
     'human_from_pose6',
     'pose6_from_human',
@@ -72,8 +73,9 @@ def _as_quaternions(value: ArrayLike, name: str) -> FloatArray:
     return as_unit_quaternions(arr.reshape(-1, 4), name).reshape(arr.shape)
 
 
-def _euler(rotation: Rotation) -> FloatArray:
-    """Rx, Ry, Rz rad of ``rotation``; at gimbal lock Rz = 0 (scipy's choice), silently."""
+def euler_angles(rotation: Rotation) -> FloatArray:
+    """Rx, Ry, Rz rad (R = Rz·Ry·Rx) of ``rotation`` ((3,) or (N, 3)); at gimbal lock Rz = 0
+    (scipy's choice), silently."""
     with warnings.catch_warnings():
         warnings.filterwarnings('ignore', 'Gimbal lock detected', UserWarning)
         return np.asarray(rotation.as_euler(EULER_SEQUENCE), dtype=float)
@@ -87,7 +89,7 @@ def pose6_from_pq(position: ArrayLike, quaternion: ArrayLike) -> FloatArray:
     q = _as_quaternions(quaternion, 'quaternion')
     if p.shape[:-1] != q.shape[:-1]:
         raise InputError(f'position {p.shape} and quaternion {q.shape} differ in batch shape')
-    angles = _euler(Rotation.from_quat(q.reshape(-1, 4))).reshape(p.shape)
+    angles = euler_angles(Rotation.from_quat(q.reshape(-1, 4))).reshape(p.shape)
     return np.concatenate([p, angles], axis=-1)
 
 
@@ -193,7 +195,7 @@ class Transform:
 
     def to_pose6(self) -> FloatArray:
         """SI six numbers (6,): tx, ty, tz m, rx, ry, rz rad (R = Rz·Ry·Rx)."""
-        return np.concatenate([self.p, _euler(Rotation.from_matrix(self.R))])
+        return np.concatenate([self.p, euler_angles(Rotation.from_matrix(self.R))])
 
     def to_human(self) -> FloatArray:
         """Human six numbers (6,): Tx, Ty, Tz mm, Rx, Ry, Rz deg (R = Rz·Ry·Rx)."""

@@ -11,6 +11,7 @@ from typing import Any
 
 from positioning_cell_interfaces import action as act
 from positioning_cell_interfaces import srv
+from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
@@ -24,7 +25,7 @@ from positioning_cell.motion.correction import deviation
 from positioning_cell.motion.mover import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.nodes import messages as m
 from positioning_cell.nodes import operator_messages as om
-from positioning_cell.nodes.qos import SERVICE_QOS
+from positioning_cell.nodes.qos import LATCHED_QOS, SERVICE_QOS
 
 #: The action feedback's phase of each state.
 _PHASES = {State.MOVING: act.MoveToPose.Feedback.MOVING,
@@ -58,6 +59,14 @@ class OperatorInterface:
                          cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group),
             ActionServer(node, act.Home, names.HOME_ACTION, self._act_home,
                          cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)]
+        self._pub_systems = node.create_publisher(CoordinateSystemsMsg, names.COORDINATE_SYSTEMS,
+                                                  LATCHED_QOS)
+        self._publish_systems()
+
+    def _publish_systems(self) -> None:
+        """The coordinate systems in force, latched (the watch windows draw the user frame)."""
+        systems = self.controller.systems
+        self._pub_systems.publish(om.systems_msg(systems.user, systems.object))
 
     def _now(self) -> Any:
         return self.node.get_clock().now().to_msg()
@@ -169,6 +178,7 @@ class OperatorInterface:
             path = self.controller.set_systems(om.transform(request.systems.user),
                                                om.transform(request.systems.object))
             response.success, response.reason = True, f'coordinate systems written to {path}'
+            self._publish_systems()
         except (InputError, PositioningError) as err:
             response.success, response.reason = False, str(err)
         self._status_changed()

@@ -7,21 +7,22 @@ changes."""
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Generic, TypeVar
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
     ParameterDescriptor,
+    ParameterValue,
     SetParametersResult,
 )
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
+from rclpy.parameter import Parameter, parameter_value_to_python
 
 from positioning_cell.errors import ConfigError
-from positioning_cell.parameters import Declaration, Kind, declarations, parse
+from positioning_cell.parameters import Declaration, Kind, block, declarations, parse
 
 T = TypeVar('T')
 
@@ -52,17 +53,31 @@ def descriptor(declaration: Declaration) -> ParameterDescriptor:
     return desc
 
 
-def _plain(value: Any) -> Any:
+def plain(value: Any) -> Any:
     """A parameter value as plain Python (rclpy gives arrays as array.array)."""
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     return list(value)
 
 
+def requested_names(cls: type, prefix: str) -> list[str]:
+    """The parameter names of settings type ``cls`` under ``prefix`` (``'mechanism.'``): what a
+    GetParameters request for them lists, in :func:`parse_answer`'s order."""
+    return [d.name for d in declarations(cls, prefix)]
+
+
+def parse_answer(cls: type[T], prefix: str, values: Sequence[ParameterValue]) -> T:
+    """Settings of type ``cls`` from another node's GetParameters answer ``values`` to
+    :func:`requested_names` (ConfigError names a value that does not parse)."""
+    names = requested_names(cls, prefix)
+    flat = {n: plain(parameter_value_to_python(v)) for n, v in zip(names, values, strict=False)}
+    return parse(cls, block(flat, prefix.rstrip('.')), prefix)
+
+
 def _value(node: Node, name: str) -> Any:
     """The plain value of a declared parameter; None while it is declared without one."""
     try:
-        return _plain(node.get_parameter(name).value)
+        return plain(node.get_parameter(name).value)
     except ParameterUninitializedException:
         return None
 
@@ -94,7 +109,7 @@ class NodeParameters(Generic[T]):
         candidate = dict(self.values)
         for p in params:
             if p.name in self._declared:
-                candidate[p.name] = _plain(p.value)
+                candidate[p.name] = plain(p.value)
         names = frozenset(p.name for p in params)
         try:
             settings = parse(self._cls, candidate)

@@ -50,7 +50,8 @@ def stop_commands(run_dir: Path) -> dict[str, list[str]]:
     override.write_text(
         f'{names.NODE_RECORDER}:\n  ros__parameters:\n    output: {run_dir / "bag"}\n'
         f'{names.NODE_PLAYER}:\n  ros__parameters:\n    bag: {source}\n    loop: true\n'
-        '    wait_for_subscribers_s: 0.0\n')
+        '    wait_for_subscribers_s: 0.0\n'
+        f'{names.NODE_LIVE_VIEW}:\n  ros__parameters:\n    port: 0\n')  # any free port
     return {node.executable: [executable(node.executable), '--ros-args', '--params-file',
                               str(config_path('cell.yaml')), '--params-file', str(override)]
             for node in names.NODE_EXECUTABLES}

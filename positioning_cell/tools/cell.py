@@ -12,6 +12,7 @@ instead (:mod:`positioning_cell.tools.cell_format`: ``command``, ``exit_code``, 
     cell check TX TY TZ RX RY RZ [same options]  the checks of that move, nothing moves
     cell frames get
     cell frames set [--user 6] [--object 6]      one left out stays as it is
+    cell watch [--frame user|base] [--rate HZ]   the live watch window; q or Ctrl-C quits
     cell home                                    reference if needed, then home (action)
     cell stop                                    controlled stop of whatever runs
     cell jog AXIS DELTA                          leg1_length ... (mm), leg1_theta ... (deg)
@@ -80,7 +81,6 @@ from positioning_cell_interfaces.srv import (
     SetSpeed,
 )
 from rcl_interfaces.srv import GetParameters
-from rclpy.parameter import parameter_value_to_python
 
 from positioning_cell import names
 from positioning_cell.core.mechanism import Mechanism
@@ -94,9 +94,10 @@ from positioning_cell.nodes.messages import (
     status_level,
     status_values,
 )
+from positioning_cell.nodes.parameters import parse_answer, requested_names
 from positioning_cell.nodes.qos import LATCHED_QOS, LATEST_QOS
-from positioning_cell.parameters import block, declarations, parse
 from positioning_cell.tools import cell_format as cf
+from positioning_cell.tools.cell_watch import watch
 from positioning_cell.tools.polling import wait_until
 from positioning_cell.tools.processes import loopback_only
 from positioning_cell.tools.ros import CellClient, GoalClient
@@ -268,21 +269,13 @@ def box_msg(box: cf.Box) -> BoxLimits:
     return BoxLimits(lower=[float(v) for v in box[0]], upper=[float(v) for v in box[1]])
 
 
-def _plain_parameter(value: Any) -> Any:
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    return list(value)
-
-
 def positioner_mechanism(session: Session) -> Mechanism:
     """The positioner's mechanism, from its ``mechanism.*`` parameters (TimeoutError if it
     does not answer; PositioningError if they are not a mechanism)."""
-    decls = declarations(Mechanism, 'mechanism.')
     response = session.call(GetParameters, f'/{names.NODE_POSITIONER}/get_parameters',
-                            GetParameters.Request(names=[d.name for d in decls]))
-    values = {d.name: _plain_parameter(parameter_value_to_python(v))
-              for d, v in zip(decls, response.values, strict=False)}
-    return parse(Mechanism, block(values, 'mechanism'), 'mechanism.')
+                            GetParameters.Request(names=requested_names(Mechanism,
+                                                                        'mechanism.')))
+    return parse_answer(Mechanism, 'mechanism.', response.values)
 
 
 # -- goals (actions) ------------------------------------------------------------------------------
@@ -573,11 +566,18 @@ def cmd_stop(session: Session, args: Any) -> Report:
     return Report(cf.EXIT_OK, fields, message or 'stopped')
 
 
+def cmd_watch(session: Session, args: Any) -> Report:
+    """The live watch window (:mod:`positioning_cell.tools.cell_watch`) until q or Ctrl-C."""
+    with session.signals.deferred():
+        watch(session.client, args.frame, args.rate, lambda: session.signals.count > 0)
+    return Report(cf.EXIT_OK)
+
+
 COMMANDS: dict[str, Callable[[Session, Any], Report]] = {
     'status': cmd_status, 'move': cmd_move, 'check': cmd_check,
     'frames get': cmd_frames_get, 'frames set': cmd_frames_set, 'home': cmd_home,
     'stop': cmd_stop, 'jog': cmd_jog, 'speed': cmd_speed, 'limits get': cmd_limits_get,
-    'limits set': cmd_limits_set,
+    'limits set': cmd_limits_set, 'watch': cmd_watch,
 }
 
 

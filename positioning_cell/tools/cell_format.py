@@ -42,6 +42,7 @@ from positioning_cell.frames.transforms import (
 )
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.motion.outcomes import ResultCode
+from positioning_cell.watch.deviation import WATCH_FRAMES
 
 FloatArray = NDArray[np.float64]
 
@@ -226,7 +227,7 @@ MODE_NAMES = {MODE_ABSOLUTE: 'absolute', MODE_RELATIVE_USER: 'relative_user',
 
 #: Every subcommand (``command`` of the parsed arguments and of the JSON document).
 COMMANDS = ('status', 'move', 'check', 'frames get', 'frames set', 'home', 'stop', 'jog',
-            'speed', 'limits get', 'limits set')
+            'speed', 'limits get', 'limits set', 'watch')
 #: Default --timeout (s): moves and homing may take minutes; anything else is a quick answer.
 GOAL_TIMEOUT = 300.0
 QUICK_TIMEOUT = 20.0
@@ -340,6 +341,17 @@ def _leaf(subparsers: Any, name: str, command: str, help_text: str) -> argparse.
     return parser
 
 
+#: cell watch: redraws per second, and the most allowed.
+WATCH_RATE, WATCH_RATE_MAX = 5.0, 30.0
+
+
+def _watch_rate(text: str) -> float:
+    value = _finite_number(text)
+    if not 0.0 < value <= WATCH_RATE_MAX:
+        raise argparse.ArgumentTypeError(f'{text}: must be > 0 and <= {WATCH_RATE_MAX:g} Hz')
+    return value
+
+
 def build_parser(description: str = '') -> argparse.ArgumentParser:
     """The command line of ``cell`` (every subcommand and its options; the common options
     --json, --timeout, --domain on each)."""
@@ -370,6 +382,14 @@ def build_parser(description: str = '') -> argparse.ArgumentParser:
     frames_set.add_argument('--object', nargs=6, type=_finite_number, metavar=_POSE_METAVAR,
                             help='the object CS in the platform frame (its origin: the pivot)')
 
+    watch = _leaf(sub, 'watch', 'watch', 'the live watch window: per axis commanded, measured, '
+                  'deviation, tolerance (in/out in colour), uncertainty; q or Ctrl-C quits')
+    watch.add_argument('--frame', choices=WATCH_FRAMES, default=USER_FRAME,
+                       help='the frame of the deviation (default: user, the object in the '
+                       'user CS; base: the platform in base)')
+    watch.add_argument('--rate', type=_watch_rate, default=WATCH_RATE, metavar='HZ',
+                       help=f'redraws per second (default {WATCH_RATE:g}, at most '
+                       f'{WATCH_RATE_MAX:g})')
     _leaf(sub, 'home', 'home', 'reference the drives if needed and move home, with progress; '
           'Ctrl-C cancels')
     _leaf(sub, 'stop', 'stop', 'controlled stop of whatever runs')

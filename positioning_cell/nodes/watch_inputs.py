@@ -1,0 +1,180 @@
+"""What a watch window reads of the running cell, into a
+:class:`~positioning_cell.watch.state.WatchState`: the command, the estimate, the tracker's
+measurements, the coordinate systems, the positioner's state and the monitor's verdicts, and
+two other nodes' parameters (the accuracy monitor's tolerances, the tracker's target layout),
+asked for until they answer and followed on /parameter_events. Read-only: nothing here
+publishes to the cell or sets anything. Used by ``live_view_node`` and ``cell watch``."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
+from rcl_interfaces.msg import ParameterEvent, ParameterValue
+from rcl_interfaces.srv import GetParameters
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
+
+from positioning_cell import names
+from positioning_cell.accuracy.verdicts import Tolerances
+from positioning_cell.errors import PositioningError
+from positioning_cell.frames.systems import CoordinateSystems
+from positioning_cell.metrology.targets import TargetLayout
+from positioning_cell.nodes import messages as m
+from positioning_cell.nodes import operator_messages as om
+from positioning_cell.nodes.parameters import parse_answer, requested_names
+from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
+from positioning_cell.watch.state import Snapshot, Status, WatchState
+
+#: A viewer takes the newest samples and never holds a writer back: best effort, shallow.
+WATCH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
+#: How often another node's parameters are asked for until it answers, s (a graph query
+#: while its service is not there).
+ASK_PERIOD = 0.1
+#: A request unanswered this long is asked again, s: discovery is not symmetric, and an answer
+#: the server sends before it has matched this client's reader is lost.
+ANSWER_WAIT = 2.0
+
+
+class RemoteParameters:
+    """The parameters under ``prefix`` of settings type ``cls`` on node ``remote``, parsed and
+    passed to ``apply`` when first answered and after each change on /parameter_events (a
+    value that does not parse is logged and ignored)."""
+
+    def __init__(self, node: Node, remote: str, cls: type, prefix: str,
+                 apply: Callable[[Any], None]) -> None:
+        self.node, self.remote, self.cls, self.prefix, self.apply = \
+            node, remote, cls, prefix, apply
+        self.names = requested_names(cls, prefix)
+        self.values: dict[str, ParameterValue] | None = None
+        self._client = node.create_client(GetParameters, f'/{remote}/get_parameters',
+                                          qos_profile=SERVICE_QOS)
+        self._pending: Any = None
+        self._asked = 0.0
+        self._timer = node.create_timer(ASK_PERIOD, self._ask)
+        node.create_subscription(ParameterEvent, names.PARAMETER_EVENTS, self._on_event, 100)
+        self._ask()
+
+    def _ask(self) -> None:
+        if self.values is not None:
+            self._timer.cancel()
+            return
+        now = time.monotonic()
+        if self._pending is not None and now - self._asked > ANSWER_WAIT:
+            self._client.remove_pending_request(self._pending)
+            self._pending = None
+        if self._pending is None and self._client.service_is_ready():
+            self._asked = now
+            self._pending = self._client.call_async(GetParameters.Request(names=self.names))
+            self._pending.add_done_callback(self._on_answer)
+
+    def _on_answer(self, future: Any) -> None:
+        if future is self._pending:
+            self._pending = None
+        if future.cancelled():
+            return
+        response = future.result()
+        if response is None or len(response.values) != len(self.names):
+            return
+        self._set(dict(zip(self.names, response.values, strict=True)))
+
+    def _on_event(self, event: ParameterEvent) -> None:
+        if event.node != f'/{self.remote}' or self.values is None:
+            return
+        changed = {p.name: p.value for p in [*event.new_parameters, *event.changed_parameters]
+                   if p.name in self.names}
+        if changed:
+            self._set({**self.values, **changed})
+
+    def _set(self, values: dict[str, ParameterValue]) -> None:
+        try:
+            parsed: Any = parse_answer(self.cls, self.prefix, [values[n] for n in self.names])
+        except PositioningError as err:
+            self.node.get_logger().warning(f'/{self.remote} {self.prefix}*: {err}')
+            return
+        self.values = values
+        self.apply(parsed)
+
+
+class WatchInputs:
+    """Subscriptions of ``node`` feeding ``state``; ``on_measurement()`` runs after each
+    tracker measurement is stored (the live view sends from there)."""
+
+    def __init__(self, node: Node, state: WatchState,
+                 on_measurement: Callable[[], None] | None = None) -> None:
+        self.node, self.state = node, state
+        self._on_measurement = on_measurement
+        self.rejected = 0
+        node.create_subscription(PoseStamped, names.TARGET, self._target, LATCHED_QOS)
+        # The estimate comes at the encoders' rate (100 Hz) and only the newest is drawn: taken
+        # serialised, deserialised once per send (:meth:`snapshot`).
+        self._estimate_raw: bytes | None = None
+        node.create_subscription(PoseStamped, names.ESTIMATED_POSE, self._estimate, WATCH_QOS,
+                                 raw=True)
+        node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
+                                 self._measured, WATCH_QOS)
+        node.create_subscription(CoordinateSystemsMsg, names.COORDINATE_SYSTEMS, self._systems,
+                                 LATCHED_QOS)
+        node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._diagnostics,
+                                 DIAGNOSTICS_QOS)
+        self.parameters = [
+            RemoteParameters(node, names.NODE_MONITOR, Tolerances, 'tolerance.',
+                             state.tolerances),
+            RemoteParameters(node, names.NODE_MEASUREMENT, TargetLayout, 'targets.',
+                             lambda layout: state.targets(layout.array))]
+
+    def _guard(self, what: str, update: Callable[[], None]) -> bool:
+        """Run ``update``; a message the state refuses is counted and logged, never fatal."""
+        try:
+            update()
+            return True
+        except PositioningError as err:
+            self.rejected += 1
+            self.node.get_logger().warning(f'{what} ignored: {err}',
+                                           throttle_duration_sec=5.0)
+            return False
+
+    def _target(self, msg: PoseStamped) -> None:
+        self._guard(names.TARGET, lambda: self.state.command(
+            *m.pose_arrays(msg.pose), m.seconds(msg.header.stamp)))
+
+    def _estimate(self, raw: bytes) -> None:
+        self._estimate_raw = raw
+
+    def snapshot(self) -> Snapshot:
+        """The state now, with the newest estimate taken in."""
+        raw, self._estimate_raw = self._estimate_raw, None
+        if raw is not None:
+            msg = deserialize_message(raw, PoseStamped)
+            self._guard(names.ESTIMATED_POSE,
+                        lambda: self.state.estimate(*m.pose_arrays(msg.pose)))
+        return self.state.snapshot()
+
+    def _measured(self, msg: PoseWithCovarianceStamped) -> None:
+        reading = m.measurement(msg)
+        if self._guard(names.MEASURED_POSE, lambda: self.state.measurement(
+                reading.position, reading.quaternion, reading.covariance,
+                m.seconds(msg.header.stamp))) and self._on_measurement is not None:
+            self._on_measurement()
+
+    def _systems(self, msg: CoordinateSystemsMsg) -> None:
+        self._guard(names.COORDINATE_SYSTEMS, lambda: self.state.coordinate_systems(
+            CoordinateSystems(om.transform(msg.user), om.transform(msg.object))))
+
+    def _diagnostics(self, msg: DiagnosticArray) -> None:
+        now = self.node.get_clock().now().nanoseconds * 1e-9
+        for status in msg.status:
+            if status.name == names.STATUS_POSITIONER:
+                self.state.positioner(Status(m.status_level(status), status.message, now))
+            elif status.name == names.STATUS_MONITOR_VERDICT:
+                self.state.verdict(Status(m.status_level(status), status.message, now))
+
+
+__all__ = ['WATCH_QOS', 'RemoteParameters', 'WatchInputs']

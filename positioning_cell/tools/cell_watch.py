@@ -1,0 +1,150 @@
+"""``cell watch``: the terminal watch window (rich): per axis the commanded and measured value,
+the deviation, the tolerance with an in/out marker in colour, and the tracker's standard
+uncertainty, in the ``user`` or ``base`` frame (:mod:`positioning_cell.watch`); above it the
+positioner's state and the accuracy monitor's last verdict. Redrawn ``--rate`` times a second
+(5 by default) in the terminal's alternate screen; works over SSH and in tmux (plain ANSI
+colours, ASCII markers). ``q`` or Ctrl-C quits (exit 0). Read-only: it subscribes and reads
+parameters, it never commands the cell."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import select
+import sys
+import termios
+import time
+import tty
+from collections.abc import Callable
+from typing import IO, Any
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from positioning_cell import names
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.nodes.watch_inputs import RemoteParameters, WatchInputs
+from positioning_cell.tools.ros import CellClient
+from positioning_cell.watch.state import Snapshot, Status, WatchState
+from positioning_cell.watch.table import HEADERS, rows
+
+#: Keys that quit.
+QUIT_KEYS = frozenset('qQ')
+#: Redraw period until the deviation first shows (then 1 / --rate), s.
+FIRST_PERIOD = 0.05
+#: A measurement older than this is shown as stale, s.
+STALE_AFTER = 1.0
+_LEVEL_STYLES = {0: 'green', 1: 'yellow', 2: 'bold red', 3: 'magenta'}
+_LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
+
+
+class Keys:
+    """Single key presses from a terminal's stdin (cbreak mode while open, restored after);
+    on a stdin that is not a terminal, none come and :meth:`wait` only waits."""
+
+    def __init__(self, stdin: IO[str] | None = None) -> None:
+        self.stdin = stdin or sys.stdin
+        try:
+            self.fd: int | None = self.stdin.fileno() if self.stdin.isatty() else None
+        except (AttributeError, ValueError, OSError):
+            self.fd = None
+        self._saved: Any = None
+
+    def __enter__(self) -> Keys:
+        if self.fd is not None:
+            self._saved = termios.tcgetattr(self.fd)
+            tty.setcbreak(self.fd)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.fd is not None and self._saved is not None:
+            termios.tcsetattr(self.fd, termios.TCSADRAIN, self._saved)
+
+    def wait(self, timeout: float) -> str | None:
+        """A key pressed within ``timeout`` s, or None."""
+        if self.fd is None:
+            time.sleep(timeout)
+            return None
+        ready, _, _ = select.select([self.fd], [], [], timeout)
+        return os.read(self.fd, 1).decode(errors='replace') if ready else None
+
+
+def _status_text(label: str, status: Status | None, missing: str) -> Text:
+    line = Text(f'{label}: ', style='bold')
+    if status is None:
+        return line.append(missing, style='dim')
+    return line.append(f'{_LEVEL_NAMES.get(status.level, "?")} ', style=_LEVEL_STYLES.get(
+        status.level, '')).append(status.message)
+
+
+def render(snapshot: Snapshot, frame: str, now: float) -> Group:
+    """The watch window of ``snapshot`` in ``frame`` at wall time ``now`` (s)."""
+    dev = snapshot.deviation(frame)
+    title = Text.assemble(('cell watch', 'bold'), f'  frame {frame}  ',
+                          time.strftime('%H:%M:%S', time.localtime(now)))
+    parts: list[Any] = [
+        title, _status_text('positioner', snapshot.positioner, 'no status yet'),
+        _status_text('last verdict', snapshot.verdict, 'none since the watch started')]
+    waiting = snapshot.waiting_for()
+    if frame != names.BASE_FRAME and not snapshot.systems_known:
+        waiting.append(f'{names.COORDINATE_SYSTEMS} (identity user and object CS meanwhile)')
+    if snapshot.tolerances is None:
+        waiting.append(f'/{names.NODE_MONITOR} tolerances (the defaults meanwhile)')
+    if waiting:
+        parts.append(Text('waiting for: ' + ', '.join(waiting), style='yellow'))
+    if dev is None:
+        parts.append(Text('no deviation yet: a command and a measurement are needed',
+                          style='dim'))
+    else:
+        age = now - snapshot.measured_stamp
+        stale = not math.isfinite(age) or age > STALE_AFTER
+        table = Table(*HEADERS, title_justify='left', expand=False,
+                      caption=f'measurement {age:.2f} s old' + (' (STALE)' if stale else ''),
+                      caption_style='yellow' if stale else 'dim')
+        for row in rows(dev):
+            cells = list(row.cells())
+            style = 'bold green' if row.ok else 'bold red'
+            table.add_row(*cells[:5], Text(cells[5], style=style), cells[6])
+        parts += [table, Text.assemble(('pose: ', 'bold'), ('IN TOLERANCE', 'bold green')
+                                       if dev.ok else ('OUT OF TOLERANCE', 'bold red'))]
+    parts.append(Text('q or Ctrl-C quits', style='dim'))
+    return Group(*parts)
+
+
+class WatchWindow:
+    """The watch's inputs on ``client``'s node: the cell's topics and the positioner's,
+    monitor's and tracker's parameters (:class:`~positioning_cell.nodes.watch_inputs.
+    WatchInputs`), the machine from the positioner's ``mechanism.*``."""
+
+    def __init__(self, client: CellClient) -> None:
+        self.state = WatchState(None)
+        self.inputs = WatchInputs(client.node, self.state)
+        self.machine = RemoteParameters(client.node, names.NODE_POSITIONER, Mechanism,
+                                        'mechanism.', self.state.mechanism)
+
+
+def watch(client: CellClient, frame: str, rate: float, stop: Callable[[], bool],
+          console: Console | None = None, keys: Keys | None = None) -> None:
+    """Draw the watch window ``rate`` times a second until ``q`` is pressed or ``stop()``
+    (Ctrl-C / SIGTERM counted by the caller) is true; every :data:`FIRST_PERIOD` s until
+    the deviation can first be drawn."""
+    window = WatchWindow(client)
+    console = console or Console()
+    period, shown = 1.0 / rate, False
+    with contextlib.ExitStack() as stack:
+        pressed = stack.enter_context(keys or Keys())
+        live = stack.enter_context(Live(render(window.inputs.snapshot(), frame, time.time()),
+                                        console=console, auto_refresh=False,
+                                        screen=console.is_terminal))
+        while not stop():
+            snapshot = window.inputs.snapshot()
+            live.update(render(snapshot, frame, time.time()), refresh=True)
+            shown = shown or snapshot.deviation(frame) is not None
+            if pressed.wait(period if shown else min(period, FIRST_PERIOD)) in QUIT_KEYS:
+                return
+
+
+__all__ = ['Keys', 'WatchWindow', 'render', 'watch']

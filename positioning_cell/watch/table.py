@@ -1,0 +1,72 @@
+"""The watch window's table as text (the terminal watch draws it with rich; a test reads it
+back): one row per axis with the commanded and measured value, the deviation, the tolerance,
+an in/out marker and the measurement's standard uncertainty, then |Δp| and |Δθ| with the
+pose's verdict. Positions: values in mm, deviations in µm; rotations in degrees."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from positioning_cell.frames.transforms import MM_PER_M
+from positioning_cell.watch.deviation import AXES, Deviation
+
+#: The in/out markers (plain ASCII: they survive any terminal, SSH and tmux).
+IN, OUT = 'IN', 'OUT'
+#: Column headers of :func:`rows`.
+HEADERS = ('axis', 'commanded', 'measured', 'deviation', 'tolerance', '', 'u (k=1)')
+UM_PER_M = 1e6
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of the table, every cell already text; ``ok`` drives the colour."""
+
+    axis: str
+    commanded: str
+    measured: str
+    deviation: str
+    tolerance: str
+    marker: str
+    uncertainty: str
+    ok: bool
+
+    def cells(self) -> tuple[str, ...]:
+        """The cells in :data:`HEADERS` order."""
+        return (self.axis, self.commanded, self.measured, self.deviation, self.tolerance,
+                self.marker, self.uncertainty)
+
+
+def _marker(ok: bool) -> str:
+    return IN if ok else OUT
+
+
+def rows(dev: Deviation) -> list[Row]:
+    """The table of ``dev``: six axis rows, then |Δp| and |Δθ|."""
+    out = []
+    ok = dev.axis_ok
+    for i, axis in enumerate(AXES):
+        if i < 3:
+            value = (f'{dev.commanded[i] * MM_PER_M:.4f} mm',
+                     f'{dev.measured[i] * MM_PER_M:.4f} mm',
+                     f'{dev.deviation[i] * UM_PER_M:+.1f} µm',
+                     f'±{dev.axis_tolerance[i] * UM_PER_M:.1f} µm',
+                     f'{dev.uncertainty[i] * UM_PER_M:.1f} µm')
+        else:
+            value = (f'{math.degrees(dev.commanded[i]):.5f}°',
+                     f'{math.degrees(dev.measured[i]):.5f}°',
+                     f'{math.degrees(dev.deviation[i]):+.5f}°',
+                     f'±{math.degrees(dev.axis_tolerance[i]):.5f}°',
+                     f'{math.degrees(dev.uncertainty[i]):.5f}°')
+        out.append(Row(axis, value[0], value[1], value[2], value[3], _marker(bool(ok[i])),
+                       value[4], bool(ok[i])))
+    verdict = dev.verdict
+    out.append(Row('|Δp|', '', '', f'{dev.position_error * UM_PER_M:.1f} µm',
+                   f'≤{dev.tolerances.position * UM_PER_M:.1f} µm',
+                   _marker(verdict.position_ok), f'{dev.position_uncertainty * UM_PER_M:.1f} µm',
+                   verdict.position_ok))
+    out.append(Row('|Δθ|', '', '', f'{math.degrees(dev.orientation_error):.5f}°',
+                   f'≤{math.degrees(dev.tolerances.orientation):.5f}°',
+                   _marker(verdict.orientation_ok),
+                   f'{math.degrees(dev.orientation_uncertainty):.5f}°', verdict.orientation_ok))
+    return out

@@ -1,0 +1,86 @@
+"""``cell watch`` in a real terminal: the executable runs in a tmux pane (its own tmux server
+socket) against poses the test publishes on a private domain, and the pane (``capture-pane``)
+shows the deviation of the known pose in the user frame with the right numbers and the in/out
+markers in colour; ``q`` quits with exit 0. The time to the first full table is a figure of
+benchmarks/live_view.py (the issue's 2 s), not a timed assertion here."""
+
+from __future__ import annotations
+
+import shlex
+import shutil
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cell_harness import Client, executable, isolated_domain, wait_until
+from fake_cell import FakeCell, stand_in_positioner
+from scipy.spatial.transform import Rotation
+from tmux_pane import TmuxPane
+
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.tools.processes import cell_environment
+
+pytestmark = [pytest.mark.nodes,
+              pytest.mark.skipif(shutil.which('tmux') is None, reason='needs tmux')]
+
+MECH = Mechanism.default()
+HOME_Q = np.array([0.0, 0.0, 0.0, 1.0])
+OFFSET = np.array([60e-6, -20e-6, 10e-6])  # measured − commanded in base, m
+# The user CS turned 90° about z: user x = base y, user y = −base x. The object is the
+# platform frame: the watched point is the platform origin.
+USER_Q = Rotation.from_euler('z', 90, degrees=True).as_quat()
+
+
+@pytest.fixture
+def cell(tmp_path: Path) -> Iterator[tuple[int, Client]]:
+    """A private domain with the test playing the cell: the positioner's mechanism
+    parameters, the coordinate systems, the command, and the tracker at 20 Hz."""
+    with isolated_domain() as domain, Client(domain, 'watch_test') as client:
+        positioner = stand_in_positioner(client.context)
+        client.executor.add_node(positioner)
+        fake = FakeCell(client.node)
+        fake.command(MECH.home_position, HOME_Q)
+        fake.coordinate_systems(([0.0, 0.0, 0.0], USER_Q))
+        stop = threading.Event()
+
+        def tracker() -> None:
+            while not stop.wait(0.05):
+                fake.measure(MECH.home_position + OFFSET, HOME_Q, 5e-6, 1e-5)
+
+        thread = threading.Thread(target=tracker, daemon=True)
+        thread.start()
+        try:
+            yield domain, client
+        finally:
+            stop.set()
+            thread.join(timeout=5.0)
+            client.executor.remove_node(positioner)
+            positioner.destroy_node()
+
+
+def test_the_watch_shows_the_known_deviation_in_colour_and_q_quits(
+        cell: tuple[int, Client], tmp_path: Path) -> None:
+    domain, _ = cell
+    command = f'{shlex.quote(executable("cell"))} watch --frame user --domain {domain}'
+    with TmuxPane(f'pc_watch_{domain}', command, cell_environment(domain), tmp_path) as pane:
+        def full_table() -> str | None:
+            s = pane.screen(escapes=True)
+            return s if '-60.0 µm' in s and '-20.0 µm' in s else None
+
+        start = time.monotonic()
+        shown = wait_until(full_table, 90.0, 'the deviation in the watch window')
+        print(f'first full table after {time.monotonic() - start:.2f} s')
+        lines = {line.split('│')[1].strip(): line for line in shown.splitlines()
+                 if line.count('│') > 3}
+        # user x along base y: −20 µm, in; user y along −base x: −60 µm, out; z +10 µm
+        assert '-20.0 µm' in lines['x'] and '\x1b[32mIN' in lines['x'], lines['x']
+        assert '-60.0 µm' in lines['y'] and '\x1b[31mOUT' in lines['y'], lines['y']
+        assert '+10.0 µm' in lines['z'] and '5.0 µm' in lines['z']
+        assert '64.0 µm' in lines['|Δp|'] and 'OUT' in lines['|Δp|']
+        assert 'frame user' in shown and 'OUT OF TOLERANCE' in shown
+        pane.keys('q')
+        wait_until(lambda: 'exited' in pane.screen(), 30.0, 'the watch to quit on q')
+        assert 'exited 0' in pane.screen()
