@@ -36,8 +36,9 @@ WATCH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.BEST_EFFORT,
                        durability=DurabilityPolicy.VOLATILE)
 #: How often another node's parameters are asked for until it answers, s (a graph query
-#: while its service is not there).
-ASK_PERIOD = 0.1
+#: while its service is not there): first every ASK_PERIOD, 1.5 times longer after each
+#: attempt, at most every ASK_PERIOD_MAX (an absent node costs next to nothing).
+ASK_PERIOD, ASK_PERIOD_MAX = 0.1, 2.0
 #: A request unanswered this long is asked again, s: discovery is not symmetric, and an answer
 #: the server sends before it has matched this client's reader is lost.
 ANSWER_WAIT = 2.0
@@ -58,6 +59,7 @@ class RemoteParameters:
                                           qos_profile=SERVICE_QOS)
         self._pending: Any = None
         self._asked = 0.0
+        self._period = ASK_PERIOD
         self._timer = node.create_timer(ASK_PERIOD, self._ask)
         node.create_subscription(ParameterEvent, names.PARAMETER_EVENTS, self._on_event, 100)
         self._ask()
@@ -74,6 +76,9 @@ class RemoteParameters:
             self._asked = now
             self._pending = self._client.call_async(GetParameters.Request(names=self.names))
             self._pending.add_done_callback(self._on_answer)
+        if self._period < ASK_PERIOD_MAX:
+            self._period = min(ASK_PERIOD_MAX, 1.5 * self._period)
+            self._timer.timer_period_ns = int(self._period * 1e9)
 
     def _on_answer(self, future: Any) -> None:
         if future is self._pending:

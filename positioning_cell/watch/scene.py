@@ -71,10 +71,12 @@ def scene(mech: Mechanism, estimated: Pose | None, commanded: Pose | None,
     given = {k: v for k, v in (('shown', shown), ('commanded', commanded),
                                ('measured', measured)) if v is not None}
     joints: dict[str, FloatArray] = {}
+    validated: dict[str, Pose] = {}
     if given:
         p, q = as_pose_batch(np.array([v[0] for v in given.values()]),
                              np.array([v[1] for v in given.values()]))
         joints = dict(zip(given, platform_points(mech, p, q), strict=True))
+        validated = {k: (p[i], q[i]) for i, k in enumerate(given)}
     platform = joints.get('shown')
     stroke = colours = None
     if platform is not None:
@@ -83,8 +85,9 @@ def scene(mech: Mechanism, estimated: Pose | None, commanded: Pose | None,
         colours = stroke_colour(stroke)
     targets = None
     if measured is not None and targets_platform is not None:
-        p, q = as_pose_batch(*measured)
-        targets = p[0] + np.asarray(targets_platform, dtype=float) @ matrix_from_quaternion(q)[0].T
+        p_meas, q_meas = validated['measured']
+        targets = p_meas + (np.asarray(targets_platform, dtype=float)
+                            @ matrix_from_quaternion(q_meas[np.newaxis])[0].T)
     arrow = centre = None
     if commanded is not None:
         centre = np.asarray(commanded[0], dtype=float).copy()

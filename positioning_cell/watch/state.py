@@ -20,6 +20,8 @@ from positioning_cell.watch.deviation import Deviation, deviation
 from positioning_cell.watch.scene import Scene, scene
 
 Pose = tuple[FloatArray, FloatArray]
+#: The monitor's defaults, judged against until its own tolerances are known.
+DEFAULT_TOLERANCES = Tolerances()
 
 
 @dataclass(frozen=True)
@@ -63,7 +65,7 @@ class Snapshot:
     @property
     def judged_tolerances(self) -> Tolerances:
         """The monitor's tolerances, or the defaults while they are not known."""
-        return self.tolerances if self.tolerances is not None else Tolerances()
+        return self.tolerances if self.tolerances is not None else DEFAULT_TOLERANCES
 
     def waiting_for(self) -> list[str]:
         """What has not come yet: the pose topics, and the machine while it is unknown."""
