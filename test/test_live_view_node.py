@@ -19,6 +19,7 @@ from rclpy.node import Node
 from scipy.spatial.transform import Rotation
 
 from positioning_cell import names
+from positioning_cell.errors import ConfigError
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
 from positioning_cell.nodes.live_view_node import LiveViewNode
 
@@ -163,3 +164,9 @@ def test_the_live_view_commands_nothing(live: Any) -> None:
     assert topics <= {names.DIAGNOSTICS, '/rosout', names.PARAMETER_EVENTS}, topics
     assert {c.srv_name for c in live.clients} <= {
         f'/{names.NODE_MONITOR}/get_parameters', f'/{names.NODE_MEASUREMENT}/get_parameters'}
+
+
+def test_a_taken_port_is_refused_with_the_reason(ros: InProcess, live: Any) -> None:
+    port = live.server.port
+    with pytest.raises(ConfigError, match=f'cannot serve on 127.0.0.1:{port}.*in use'):
+        ros.start(LiveViewNode, port=port)

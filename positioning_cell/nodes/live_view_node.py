@@ -17,6 +17,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 
 from positioning_cell import names
+from positioning_cell.errors import ConfigError
 from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.live_view_messages import LiveChannels
 from positioning_cell.nodes.parameters import NodeParameters
@@ -44,8 +45,12 @@ class LiveViewNode(Node):
         self.state = WatchState(settings.mechanism)
         self.foxglove = foxglove.Context()
         self.channels = LiveChannels(self.foxglove)
-        self.server = foxglove.start_server(name='positioning_cell', host=settings.host,
-                                            port=settings.port, context=self.foxglove)
+        try:
+            self.server = foxglove.start_server(name='positioning_cell', host=settings.host,
+                                                port=settings.port, context=self.foxglove)
+        except RuntimeError as err:  # FoxgloveError: the address is taken or not this host's
+            raise ConfigError(f'live_view: cannot serve on {settings.host}:{settings.port} '
+                              f'(host, port): {err}') from None
         self.url = f'ws://{settings.host}:{self.server.port}'
         self._lock = threading.Lock()
         self._throttle = Throttle(settings.rate_hz)
@@ -90,7 +95,8 @@ class LiveViewNode(Node):
              'rejected': self.inputs.rejected}, self.get_clock().now().to_msg()))
 
     def close(self) -> None:
-        """Stop the WebSocket server (clients are disconnected)."""
+        """Stop asking for parameters, stop the WebSocket server (clients are disconnected)."""
+        self.inputs.close()
         self.server.stop()
 
 

@@ -80,6 +80,13 @@ class RemoteParameters:
             self._period = min(ASK_PERIOD_MAX, 1.5 * self._period)
             self._timer.timer_period_ns = int(self._period * 1e9)
 
+    def close(self) -> None:
+        """Stop asking (before the node is destroyed)."""
+        self._timer.cancel()
+        if self._pending is not None:
+            self._client.remove_pending_request(self._pending)
+            self._pending = None
+
     def _on_answer(self, future: Any) -> None:
         if future is self._pending:
             self._pending = None
@@ -134,6 +141,11 @@ class WatchInputs:
                              state.tolerances),
             RemoteParameters(node, names.NODE_MEASUREMENT, TargetLayout, 'targets.',
                              lambda layout: state.targets(layout.array))]
+
+    def close(self) -> None:
+        """Stop asking other nodes for their parameters."""
+        for remote in self.parameters:
+            remote.close()
 
     def _guard(self, what: str, update: Callable[[], None]) -> bool:
         """Run ``update``; a message the state refuses is counted and logged, never fatal."""
