@@ -23,6 +23,17 @@ Quad = tuple[float, float, float, float]
 QUATERNION_UNIT_TOLERANCE = 1e-6
 
 
+def as_number(value: object, name: str) -> float:
+    """``value`` as a float; InputError ``'<name> = <value>: expected a number'`` for a bool,
+    text or anything else float() refuses (range and finiteness are the caller's rule)."""
+    if isinstance(value, bool):
+        raise InputError(f'{name} = {value!r}: expected a number')
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as err:
+        raise InputError(f'{name} = {value!r}: expected a number') from err
+
+
 def as_vectors(value: ArrayLike, width: int, name: str) -> FloatArray:
     """``value`` as a finite float array (N, width); a single (width,) row becomes N = 1."""
     try:

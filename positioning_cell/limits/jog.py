@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
+from positioning_cell.core.poses import as_number
 from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -67,10 +68,7 @@ def _joints(value: ArrayLike, name: str) -> FloatArray:
 
 
 def _positive(name: str, value: float, unit: str) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError) as err:
-        raise InputError(f'{name} = {value!r}: expected a number') from err
+    number = as_number(value, name)
     if not (math.isfinite(number) and number > 0.0):
         raise InputError(f'{name} = {value!r}: must be a finite number > 0 {unit}')
     return number
@@ -88,10 +86,7 @@ def jog_target(mech: Mechanism, joints_now: ArrayLike, axis: str | int, delta: f
     largest = (_positive('largest_step_linear', largest_step_linear, 'm') if k < LINEAR_AXES
                else _positive('largest_step_angular', largest_step_angular, 'rad'))
     name = JOINT_NAMES[k]
-    try:
-        step = float(delta)
-    except (TypeError, ValueError) as err:
-        raise InputError(f'jog {name}: step {delta!r} is not a number') from err
+    step = as_number(delta, f'jog {name}: step')
     if not math.isfinite(step):
         raise InputError(f'jog {name}: step {step!r} is not finite')
     if abs(step) > largest:

@@ -8,6 +8,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, fields
 
+from positioning_cell.core.poses import as_number
 from positioning_cell.errors import InputError
 from positioning_cell.motion.trajectory import MotionLimits
 from positioning_cell.parameters import ParameterError
@@ -33,14 +34,7 @@ class Speeds:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool):
-                raise InputError(f'{f.name} = {value!r}: expected a number')
-            try:
-                number = float(value)
-            except (TypeError, ValueError) as err:
-                raise InputError(f'{f.name} = {value!r}: expected a number') from err
-            object.__setattr__(self, f.name, number)
+            object.__setattr__(self, f.name, as_number(getattr(self, f.name), f.name))
 
     @classmethod
     def of(cls, limits: MotionLimits) -> Speeds:
@@ -99,12 +93,7 @@ def scaled(speeds: Speeds, scale: float) -> Speeds:
     """The speeds of a move at ``scale`` in (0, 1] of ``speeds``: speeds times ``scale``,
     accelerations times ``scale``² (the same move, played 1/scale times slower); InputError
     outside (0, 1] or not finite."""
-    if isinstance(scale, bool):
-        raise InputError(f'speed scale = {scale!r}: expected a number in (0, 1]')
-    try:
-        scale = float(scale)
-    except (TypeError, ValueError) as err:
-        raise InputError(f'speed scale = {scale!r}: expected a number in (0, 1]') from err
+    scale = as_number(scale, 'speed scale')
     if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
         raise InputError(f'speed scale = {scale!r}: must be in (0, 1]')
     return Speeds(speeds.linear_speed * scale, speeds.angular_speed * scale,
