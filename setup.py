@@ -19,6 +19,7 @@ CONSOLE_SCRIPTS = [
     'calibrator_node = positioning_cell.nodes.entry:calibrator_node',
     'live_view_node = positioning_cell.nodes.entry:live_view_node',
     'analyze_bag = positioning_cell.tools.analyze_bag:main',
+    'analyze_bags = positioning_cell.tools.analyze_bags:main',
     'run_cell = positioning_cell.tools.run_cell:main',
     'calibrate_cell = positioning_cell.tools.calibrate_cell:main',
     'cell = positioning_cell.tools.cell:main',
@@ -37,10 +38,14 @@ CELL = [
     'rosbags==0.11.9',
     'ruamel.yaml==0.19.1',
     'mcap==1.6.0',
+    'zstandard==0.25.0',
+    'lz4==4.4.5',
     'mcap-ros2-support==0.6.0',
     'matplotlib==3.11.2',
     'foxglove-sdk==0.30.3',
     'rich==15.0.0',
+    'dask==2026.8.0',
+    'distributed==2026.8.0',
 ]
 TEST = [
     'pytest==9.2.0',
@@ -71,7 +76,9 @@ setup(
     # comes from the ROS install or the `cell` extra's wheels.
     install_requires=['setuptools', 'numpy>=1.25', 'scipy>=1.11', 'numba>=0.59',
                       'PyYAML>=6', 'rosbags>=0.10', 'ruamel.yaml>=0.17', 'mcap>=1.1',
-                      'matplotlib>=3.6', 'foxglove-sdk>=0.30', 'rich>=13'],
+                      'zstandard>=0.20', 'lz4>=4',
+                      'matplotlib>=3.6', 'foxglove-sdk>=0.30', 'rich>=13',
+                      'dask[distributed]>=2024.1'],
     extras_require={'cell': CELL, 'test': TEST},
     zip_safe=True,
     maintainer='positioning_cell developers',

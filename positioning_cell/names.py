@@ -66,6 +66,9 @@ PROGRAM = '/cell/program'
 #: A calibration run's measured poses (calibrate_cell): which readings belong to which pose
 #: (JSON in std_msgs/String).
 CALIBRATION = '/cell/calibration'
+#: An axis test's measured stops (run_cell --axis-test): axis, target, direction, cycle,
+#: commanded, tracker and true values (JSON in std_msgs/String).
+AXIS_TEST = '/cell/axis_test'
 
 #: Every topic of the cell, in the README's table order: what the recorder takes by default
 #: (not COORDINATE_SYSTEMS: its type, of positioning_cell_interfaces, is not in the bags'
@@ -73,7 +76,7 @@ CALIBRATION = '/cell/calibration'
 CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
     ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRUE_POSE, POSITION_ERROR, ORIENTATION_ERROR,
-    DIAGNOSTICS, PROGRAM, CALIBRATION,
+    DIAGNOSTICS, PROGRAM, CALIBRATION, AXIS_TEST,
 )
 
 #: Parameter changes of every node (rcl_interfaces ParameterEvent, ROS's own topic): the watch

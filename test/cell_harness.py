@@ -24,10 +24,22 @@ from positioning_cell.tools.processes import Processes, cell_environment, execut
 from positioning_cell.tools.ros import CellClient as Client
 
 __all__ = ['CELL_YAML', 'REPO', 'Client', 'InProcess', 'ProcessGroup', 'executable',
-           'in_process', 'isolated_domain', 'wait_until']
+           'in_process', 'isolated_domain', 'processes_naming', 'wait_until']
 
 REPO = Path(__file__).resolve().parent.parent
 CELL_YAML = REPO / 'config' / 'cell.yaml'
+
+
+def processes_naming(marker: Path) -> list[int]:
+    """PIDs of processes whose command line names ``marker`` (e.g. a run's override file)."""
+    found = []
+    for proc in Path('/proc').iterdir():
+        if not proc.name.isdigit():
+            continue
+        with contextlib.suppress(OSError):
+            if str(marker).encode() in (proc / 'cmdline').read_bytes():
+                found.append(int(proc.name))
+    return found
 
 
 class ProcessGroup(Processes):

@@ -3,11 +3,14 @@ synthetic series, streaming == batch, tolerance verdicts and bad input. No ROS."
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
@@ -315,8 +318,53 @@ def test_tracker_errors_streaming_equals_batch() -> None:
             stream.add_measured(tm[i], pm[i], qm[i])
             if not truth_first and keep[i]:
                 stream.add_truth(t[i], pt[i], qt[i])
-        assert stream.statistics() == batch
+        _same_statistics(stream.statistics(), batch)
     assert acc.TrackerErrorAccumulator(1e-3).statistics() is None
+
+
+def _same_statistics(a: acc.ErrorStatistics | None, b: acc.ErrorStatistics | None) -> None:
+    """Equal counts and maxima; sums equal but for their last bits (another grouping)."""
+    assert a is not None and b is not None and a.samples == b.samples
+    assert (a.max_position_error, a.max_orientation_error) == (b.max_position_error,
+                                                               b.max_orientation_error)
+    np.testing.assert_allclose(
+        [*a.mean_position_error, a.rms_position_error, a.rms_orientation_error],
+        [*b.mean_position_error, b.rms_position_error, b.rms_orientation_error],
+        rtol=1e-12, atol=1e-20)
+
+
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 3), st.booleans()), min_size=1,
+                max_size=60),
+       st.lists(st.integers(1, 9), min_size=1, max_size=20), st.integers(0, 2**32 - 1))
+def test_tracker_pairing_streams_equal_the_batch_rule(
+        gaps: list[tuple[int, int, bool]], batches: list[int], seed: int) -> None:
+    """However the two series arrive (interleaved, in batches of any size), the pairs are
+    those of pair_by_stamp over everything given so far: near-ties, repeated stamps, truths
+    missing or extra included (stamps on a 0.5 ms grid, tolerance 1 ms)."""
+    rng = np.random.default_rng(seed)
+    tm = np.cumsum([g[0] for g in gaps]) * 5e-4
+    tt = np.cumsum([g[1] for g in gaps]) * 5e-4 + 2.5e-4 * np.array([g[2] for g in gaps])
+    tt = np.sort(tt)
+    pm, pt = rng.normal(0, 1e-3, (tm.size, 3)), rng.normal(0, 1e-3, (tt.size, 3))
+    qm = Rotation.from_rotvec(rng.normal(0, 1e-3, (tm.size, 3))).as_quat()
+    qt = Rotation.from_rotvec(rng.normal(0, 1e-3, (tt.size, 3))).as_quat()
+    stream = acc.TrackerErrorAccumulator(1e-3)
+    im = it = 0
+    k = 0
+    while im < tm.size or it < tt.size:
+        size = batches[k % len(batches)]
+        if (k % 2 == 0 and im < tm.size) or it >= tt.size:
+            stream.add_measured(tm[im:im + size], pm[im:im + size], qm[im:im + size])
+            im += size
+        else:
+            stream.add_truth(tt[it:it + size], pt[it:it + size], qt[it:it + size])
+            it += size
+        k += 1
+        batch = acc.tracker_errors(tm[:im], pm[:im], qm[:im], tt[:it], pt[:it], qt[:it], 1e-3)
+        if batch is None:
+            assert stream.statistics() is None
+        else:
+            _same_statistics(stream.statistics(), batch)
 
 
 # -- verdicts --------------------------------------------------------------------------------
@@ -403,3 +451,97 @@ def test_stream_refuses_out_of_order_events_and_changes_nothing() -> None:
     with pytest.raises(InputError, match='not finite'):
         stream.add_target(math.nan, HOME, ID)
     assert stream.target is not None and stream.target[3] == 1
+
+
+# -- one monitor core: the same figures however the messages are grouped ---------------------
+def _stream(seed: int) -> list[tuple[str, float, str, Arr, Arr]]:
+    """A short run's messages in arrival order (topic, stamp, frame, p, q): two poses, two
+    cycles, a target repeated, a measurement in the wrong frame, one with NaN, one with a
+    quaternion off unit length, one older than the one before it, a true pose missing."""
+    from positioning_cell.testing.synthetic_run import synthetic_run
+
+    run = synthetic_run([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2]], [ID, ID], modes=('model',),
+                        cycles=2, dwell_time=1.5, seed=seed)
+    out: list[tuple[float, int, tuple[str, float, str, Arr, Arr]]] = []
+    for i, t in enumerate(run.target_time):
+        out.append((t, 0, ('target', t, 'base', run.target_position[i],
+                           run.target_quaternion[i])))
+    out.append((run.target_time[1] + 0.01, 0, ('target', run.target_time[1] + 0.01, 'base',
+                                                run.target_position[1],
+                                                run.target_quaternion[1])))
+    for i, t in enumerate(run.time):
+        out.append((t, 1, ('measured', t, 'base', run.position[i], run.quaternion[i])))
+        if i != 33:
+            out.append((t, 2, ('truth', t, 'base', run.true_position[i],
+                               run.true_quaternion[i])))
+    events = [e for _, _, e in sorted(out, key=lambda x: (x[0], x[1]))]
+    bad_p = np.array([np.nan, 0.0, 0.2])
+    events.insert(40, ('measured', events[39][1], 'tracker', HOME, ID))
+    events.insert(80, ('measured', events[79][1], 'base', bad_p, ID))
+    events.insert(120, ('measured', events[119][1], 'base', HOME, 2 * ID))
+    events.insert(160, ('measured', events[150][1] - 0.2, 'base', HOME, ID))
+    events.insert(200, ('target', events[199][1], 'tracker', HOME, ID))
+    return events
+
+
+def _fed(events: list[tuple[str, float, str, Arr, Arr]], start: int) -> dict[str, object]:
+    rows: dict[str, list[tuple[int, float, str, Arr, Arr]]] = {
+        'target': [], 'measured': [], 'truth': []}
+    for k, (topic, t, frame, p, q) in enumerate(events):
+        rows[topic].append((start + k, t, frame, p, q))
+
+    def messages(kind: str) -> acc.PoseMessages:
+        mine = rows[kind]
+        if not mine:
+            return acc.PoseMessages.empty()
+        return acc.PoseMessages(np.array([r[0] for r in mine]), np.array([r[1] for r in mine]),
+                                np.array([r[2] for r in mine], dtype=object),
+                                np.array([r[3] for r in mine]), np.array([r[4] for r in mine]))
+
+    return {'targets': messages('target'), 'measured': messages('measured'),
+            'truth': messages('truth')}
+
+
+@functools.cache
+def _one_by_one(seed: int) -> acc.Monitor:
+    """The monitor fed :func:`_stream` one message at a time (as the live node)."""
+    events = _stream(seed)
+    monitor = acc.Monitor()
+    for topic, t, frame, p, q in events:
+        {'target': monitor.target, 'measured': monitor.measurement,
+         'truth': monitor.truth}[topic](t, frame, p, q)
+    return monitor
+
+
+@settings(max_examples=25)
+@given(st.lists(st.integers(1, 300), min_size=1, max_size=10), st.integers(0, 2))
+def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
+        sizes: list[int], seed: int) -> None:
+    """One message at a time (the live node) and any grouping into feeds of arrays (the replay
+    of a bag): the same visits, verdicts, ISO figures and ignored messages, exactly; the
+    tracker's figures to their last bits (its sums are grouped differently)."""
+    events = _stream(seed)
+    live = _one_by_one(seed)
+    grouped = acc.Monitor()
+    start = 0
+    while start < len(events):
+        size = sizes[start % len(sizes)]
+        grouped.feed(**_fed(events[start:start + size], start))  # type: ignore[arg-type]
+        start += size
+    a, b = live.report(), grouped.report()
+    assert a['verdicts']['ok'] + a['verdicts']['error'] == 4
+    tracker_a, tracker_b = a.pop('tracker'), b.pop('tracker')
+    assert a == b
+    assert tracker_a['samples'] == tracker_b['samples'] > 200
+    np.testing.assert_allclose(_numbers_of(tracker_a), _numbers_of(tracker_b), rtol=1e-12,
+                               atol=1e-20)
+    assert live.ignored == grouped.ignored and len(live.ignored) == 5
+    assert [i.topic for i in live.ignored].count('/metrology/pose') == 4
+
+
+def _numbers_of(doc: dict[str, object]) -> list[float]:
+    out: list[float] = []
+    for key in sorted(doc):
+        value = doc[key]
+        out.extend(value if isinstance(value, list) else [value])  # type: ignore[list-item]
+    return out

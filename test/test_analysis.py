@@ -6,6 +6,7 @@ clear message and a non-zero exit. No ROS graph."""
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import json
 import math
 from pathlib import Path
@@ -16,13 +17,17 @@ import yaml
 
 from positioning_cell import accuracy
 from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings
-from positioning_cell.analysis import analyse_bag
+from positioning_cell.analysis import analyse_bag, message_batches, replay
 from positioning_cell.analysis.program import load_program
 from positioning_cell.analysis.replay import BEFORE_PROGRAM
 from positioning_cell.analysis.report import markdown
+from positioning_cell.analysis.summary import ANALYSED_TOPICS
+from positioning_cell.analysis.trace import ErrorTrace
+from positioning_cell.bag import BagReader
 from positioning_cell.config import config_path
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
+from positioning_cell.names import MEASURED_POSE, TARGET
 from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
 from positioning_cell.tools.analyze_bag import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL, analyze, main
 
@@ -308,3 +313,144 @@ def test_the_shipped_program_is_an_iso_cube_inside_the_workspace(tmp_path: Path)
         'P1': {'position': [0.0, 0.0, 0.196]}, 'far': {'position': [0.0, 0.0, 0.30]}}}}))
     with pytest.raises(ConfigError, match='far is outside the workspace'):
         load_program(bad, mech)
+
+
+# -- the make run bag: the same figures as before the streaming analysis ---------------------
+MAKE_RUN = Path(__file__).resolve().parent / 'data' / 'makerun'
+
+
+def _compare(old: object, new: object, path: str = '') -> list[str]:
+    """Where two JSON documents differ: numbers beyond 1e-12 relative and 1e-14 absolute (the
+    last bits of a sum or of a mean rotation), anything else at all."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = [f'{path}: keys {sorted(set(old) ^ set(new))}'] if set(old) != set(new) else []
+        return out + [d for k in old if k in new for d in _compare(old[k], new[k], f'{path}.{k}')]
+    if isinstance(old, list) and isinstance(new, list):
+        if len(old) != len(new):
+            return [f'{path}: {len(old)} != {len(new)} items']
+        return [d for i, (a, b) in enumerate(zip(old, new, strict=True))
+                for d in _compare(a, b, f'{path}[{i}]')]
+    if isinstance(old, float) and isinstance(new, float):
+        same = (old == new or (math.isnan(old) and math.isnan(new))
+                or abs(old - new) <= 1e-12 * max(abs(old), abs(new)) + 1e-14)
+        return [] if same else [f'{path}: {old!r} != {new!r}']
+    return [] if old == new else [f'{path}: {old!r} != {new!r}']
+
+
+def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
+    """test/data/makerun/bag is a `make run` recording (the calibration run, the three modes;
+    the analysed topics, every tenth joint state, zstd chunks) and
+    summary_before_issue15.json.gz what analyze_bag wrote for it when it still read every
+    message through rosbags and replayed them one by one. Reading through the index and
+    replaying arrays gives every figure, count, label and verdict again."""
+    with gzip.open(MAKE_RUN / 'summary_before_issue15.json.gz', 'rt') as f:
+        before = json.load(f)
+    analysis = analyse_bag(MAKE_RUN / 'bag', SETTINGS)
+    now = json.loads(json.dumps(analysis.to_dict()))
+    assert not analysis.problems and len(analysis.replay.visits) == 65
+    for key in ('bag', 'plots', 'context', 'axis_tests'):  # the bag's path, files, new ones
+        before.pop(key, None)
+        now.pop(key, None)
+    assert _compare(before, now) == []
+    # what only the new analysis gives: the context for the trends
+    context = analysis.context
+    assert [c.file is None for c in context.calibrations] == [True, False]
+    assert [r.poses for r in context.calibration_runs] == [36]
+    assert len(context.registrations) == 1 and context.registrations[0].residual_rms_um > 0
+
+
+def test_rosbags_decoding_gives_the_same_replay_as_the_indexed_read() -> None:
+    """The same bag decoded message by message by rosbags (an independent decoder) and
+    batched gives the same monitor report as the indexed read with vectorised decoding."""
+    with BagReader(MAKE_RUN / 'bag') as reader:
+        topics = [t for t in ANALYSED_TOPICS if t in reader.topics]
+        slow = replay(message_batches(reader.messages(topics), size=997), SETTINGS)
+    fast = analyse_bag(MAKE_RUN / 'bag', SETTINGS).replay
+    a, b = slow.monitor.report(), fast.monitor.report()
+    tracker_a, tracker_b = a.pop('tracker'), b.pop('tracker')
+    assert a == b and tracker_a['samples'] == tracker_b['samples']
+    assert slow.segments == fast.segments and slow.program == fast.program
+    assert slow.measured.count == fast.measured.count == 3030
+
+
+def test_the_error_trace_keeps_a_bounded_envelope() -> None:
+    """However long the run, at most `capacity` bins; per bin the min and max of the errors
+    that fell in it, as a direct computation with the final bin width gives."""
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.exponential(0.05, 20_000))
+    dp = rng.normal(0, 1e-5, (t.size, 3))
+    rv = rng.normal(0, 1e-5, (t.size, 3))
+    trace = ErrorTrace(capacity=256)
+    for part in np.array_split(np.arange(t.size), 37):
+        trace.add(t[part], dp[part], rv[part])
+    env = trace.envelope()
+    assert env.time.size <= 256 and env.count.sum() == t.size == trace.samples
+    index = np.floor((t - t[0]) / trace.width).astype(int)
+    d = np.linalg.norm(dp, axis=1)
+    for k, (lo, hi) in enumerate(zip(env.position_min, env.position_max, strict=True)):
+        mine = d[index == np.unique(index)[k]]
+        assert (lo, hi) == (mine.min(), mine.max())
+    short = ErrorTrace()  # a short run at the tracker's 20 Hz: every sample apart
+    t20 = 1.7e9 + np.arange(50) / 20.0
+    short.add(t20, dp[:50], rv[:50])
+    np.testing.assert_array_equal(short.envelope().time, t20)
+    np.testing.assert_array_equal(short.envelope().position_max, d[:50])
+
+
+def test_an_axis_test_in_the_bag_gets_its_iso230_2_tables(tmp_path: Path) -> None:
+    """The /cell/axis_test markers of a recorded axis test become the report's ISO 230-2
+    tables: the figures of iso230_2 on the markers' deviations, from the tracker and, when the
+    markers carry it, from the truth."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from positioning_cell.accuracy import iso230_2
+    from positioning_cell.analysis.axis_test import UP, AxisTestMarker
+    from positioning_cell.bag import BagWriter
+    from positioning_cell.names import AXIS_TEST
+
+    rng = np.random.default_rng(11)
+    targets = np.array([-0.001, -0.0003, 0.0004, 0.001])
+    x = {d: rng.normal(30e-6 if d == UP else 26e-6, 2e-6, (3, 4)) for d in ('up', 'down')}
+    store = get_typestore(Stores.ROS2_JAZZY)
+    T = store.types
+    stamped = 'geometry_msgs/msg/PoseStamped'
+    path = tmp_path / 'axis'
+    t0 = 1.7e9
+    with BagWriter(path) as bag:
+        for topic, msgtype in ((TARGET, stamped), (MEASURED_POSE, stamped),
+                               (AXIS_TEST, 'std_msgs/msg/String')):
+            bag.add_topic(topic, msgtype)
+        pose = T['geometry_msgs/msg/Pose'](T['geometry_msgs/msg/Point'](0.0, 0.0, 0.196),
+                                           T['geometry_msgs/msg/Quaternion'](0.0, 0.0, 0.0,
+                                                                              1.0))
+        for k, topic in enumerate((TARGET, MEASURED_POSE)):
+            t = t0 + k
+            header = T['std_msgs/msg/Header'](T['builtin_interfaces/msg/Time'](int(t), 0),
+                                              'base')
+            bag.write(topic, stamped, bytes(store.serialize_cdr(T[stamped](header, pose),
+                                                                stamped)), int(t * 1e9))
+        log = t0 + 2
+        for c in range(3):
+            for direction in ('up', 'down'):
+                for i in (range(4) if direction == 'up' else reversed(range(4))):
+                    marker = AxisTestMarker('run1', 'leg2_length', i, float(targets[i]),
+                                            direction, c + 1, 0.2 + targets[i],
+                                            0.2 + targets[i],
+                                            0.2 + targets[i] + x[direction][c, i], None, log,
+                                            log + 0.2, 5)
+                    text = T['std_msgs/msg/String'](marker.to_json())
+                    bag.write(AXIS_TEST, 'std_msgs/msg/String',
+                              bytes(store.serialize_cdr(text, 'std_msgs/msg/String')),
+                              int(log * 1e9))
+                    log += 1.0
+    analysis = analyse_bag(path, SETTINGS)
+    (test,) = analysis.axis_tests
+    (result,) = test.results  # the tracker's (no truth in these markers)
+    expected = iso230_2(targets, targets + x['up'], targets + x['down'])
+    assert (result.axis, result.source) == ('leg2_length', 'tracker')
+    for name in ('A', 'R', 'B', 'B_mean', 'E', 'E_up', 'E_down', 'M'):
+        assert getattr(result.figures, name) == pytest.approx(getattr(expected, name),
+                                                              rel=1e-9, abs=1e-15)
+    text = markdown(analysis)
+    assert '## Axis test (ISO 230-2), run run1' in text and 'leg2_length' in text
+    assert analysis.to_dict()['axis_tests'][0]['results'][0]['axis'] == 'leg2_length'

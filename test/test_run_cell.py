@@ -1,9 +1,11 @@
 """run_cell (`make run`) end to end with a short program: every node started, recorded, driven,
-stopped and analysed; no process left behind, also when interrupted with SIGINT."""
+stopped and analysed; no process left behind, also when interrupted with SIGINT. The main run
+also runs a tiny axis test (``--axis-test``: one axis, three targets, two cycles): its markers
+are in the bag, the printed ISO 230-2 tables are those of the recorded markers and of the
+analysis report, and the simulation truth shows the machine's zero offset."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
@@ -14,11 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from cell_harness import CELL_YAML, executable, wait_until
+from cell_harness import CELL_YAML, executable, processes_naming, wait_until
 
+from positioning_cell import names
+from positioning_cell.analysis.axis_test import TRUTH, AxisTestMarker, axis_test_figures
 from positioning_cell.bag import BagReader
 from positioning_cell.calibration import file as calfile
-from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.config import load_parameter_file, node_parameters
+from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
+from positioning_cell.parameters import parse
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 
 MECH = Mechanism.default()
 
@@ -28,22 +35,15 @@ SHORT_PROGRAM = {'program': {'cycles': 1, 'modes': ['none', 'model'],
     'P2': {'position': [0.004, 0.004, 0.2], 'orientation': [0.0, 0.0, 0.0, 1.0]}}}}
 
 
-def _cell_processes(marker: Path) -> list[int]:
-    """PIDs of processes whose command line names ``marker`` (the run's override file)."""
-    found = []
-    for proc in Path('/proc').iterdir():
-        if not proc.name.isdigit():
-            continue
-        with contextlib.suppress(OSError):
-            if str(marker).encode() in (proc / 'cmdline').read_bytes():
-                found.append(int(proc.name))
-    return found
-
-
 def _run_dir(runs: Path) -> Path:
     dirs = [d for d in runs.iterdir() if d.is_dir()]
     assert len(dirs) == 1, dirs
     return dirs[0]
+
+
+#: A tiny axis test: one axis, three targets, two bidirectional cycles (12 measured stops).
+AXIS_TEST = {'axis_test': {'cycles': 2, 'samples': 4, 'dwell': 0.05, 'axes': {
+    'leg2_length': {'targets': [-0.0005, 0.00012, 0.0005], 'overshoot': 0.0002}}}}
 
 
 @pytest.fixture
@@ -68,11 +68,12 @@ def _fast_config(folder: Path) -> Path:
     return path
 
 
-def _start(program: Path, runs: Path) -> tuple[subprocess.Popen[str], list[str]]:
+def _start(program: Path, runs: Path, *options: str
+           ) -> tuple[subprocess.Popen[str], list[str]]:
     proc = subprocess.Popen([executable('run_cell'), '--program', str(program), '--runs',
-                             str(runs), '--config', str(_fast_config(program.parent))],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+                             str(runs), '--config', str(_fast_config(program.parent)),
+                             *options], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
     lines: list[str] = []
 
     def read() -> None:
@@ -109,12 +110,14 @@ def _finish(proc: subprocess.Popen[str], timeout: float) -> int:
 
 def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path: Path) -> None:
     runs = tmp_path / 'runs'
-    proc, lines = _start(program, runs)
-    code = _finish(proc, 150.0)
+    axes = tmp_path / 'axis.yaml'
+    axes.write_text(yaml.safe_dump(AXIS_TEST, sort_keys=False))
+    proc, lines = _start(program, runs, '--axis-test', str(axes))
+    code = _finish(proc, 200.0)
     text = ''.join(lines)
     assert code == 0, text
     run = _run_dir(runs)
-    assert not _cell_processes(run / 'run_overrides.yaml'), 'a cell process outlived run_cell'
+    assert not processes_naming(run / 'run_overrides.yaml'), 'a cell process outlived run_cell'
     for line in ('calibrating: 8 poses + 1 hold-out', '[9/9] hold_out',
                  'the positioner loaded it', 'identified parameters within 3 sigma of the truth',
                  '[1/4] none     cycle 1 P1',
@@ -149,6 +152,37 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     assert live['verdicts'] == summary['monitor']['verdicts']
     # the home pose, the calibration poses the monitor saw settle, then the program's moves
     assert sum(live['verdicts'].values()) >= 1 + 4
+    _check_the_axis_test(run, text, summary)
+
+
+def _check_the_axis_test(run: Path, text: str, summary: dict[str, object]) -> None:
+    """The axis test ran after the calibration, before the program: its markers are in the
+    bag, the tables printed, written and in the analysis report are theirs, and by the truth
+    the axis's mean deviation is its zero offset (the drives hold their counts)."""
+    assert 'axis test (ISO 230-2): 1 axis, 12 measured stops (2 cycles)' in text
+    assert '[12/12] leg2_length cycle 2 ↓ P1' in text
+    assert 'the recorder took the markers (/cell/axis_test)' in text
+    assert text.index('[12/12]') < text.index('[1/4] none     cycle 1 P1')
+    with BagReader(run / 'bag') as bag:
+        assert bag.topics[names.AXIS_TEST].message_count == 12
+        markers = [AxisTestMarker.from_json(item.message.data)
+                   for item in bag.messages([names.AXIS_TEST])]
+    results = axis_test_figures(markers)
+    assert [(r.axis, r.source) for r in results] == [('leg2_length', 'tracker'),
+                                                       ('leg2_length', 'truth')]
+    for line in results.markdown() + results.summary():
+        assert line in text
+    expected = json.loads(json.dumps(results.to_dict()))
+    assert json.loads((run / 'axis_test.json').read_text()) == expected
+    assert summary['axis_tests'] == [expected]
+    report = (run / 'report.md').read_text()
+    assert all(line in report for line in results.markdown())
+    sim = parse(PoseMeasurementSettings, node_parameters(load_parameter_file(CELL_YAML),
+                                                         names.NODE_MEASUREMENT))
+    offset = sim.true_machine().length_offsets[JOINT_NAMES.index('leg2_length')]
+    truth = next(r for r in results if r.source == TRUTH)
+    assert abs(float(np.mean(truth.figures.x_mean)) - offset) < 2e-6
+    assert truth.figures.E < 2e-6
 
 
 def test_an_interrupted_run_stops_every_process_and_keeps_a_readable_bag(
@@ -167,7 +201,7 @@ def test_an_interrupted_run_stops_every_process_and_keeps_a_readable_bag(
     assert code == 130, text
     assert 'interrupted (SIGINT): stopping the cell' in text
     run = _run_dir(runs)
-    assert not _cell_processes(run / 'run_overrides.yaml'), 'a cell process outlived run_cell'
+    assert not processes_naming(run / 'run_overrides.yaml'), 'a cell process outlived run_cell'
     assert 'stopped: recorder_node (0)' in text  # the recorder closed its bag itself
     with BagReader(run / 'bag') as bag:
         assert bag.topics['/positioner/target'].message_count >= 1

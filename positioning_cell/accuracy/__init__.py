@@ -9,6 +9,7 @@ Pure numpy/scipy over arrays of samples; no ROS.
 - :mod:`.monitor`: the accuracy monitor's rules (node and offline replay).
 """
 
+from positioning_cell.accuracy.iso230_2 import AxisFigures, iso230_2
 from positioning_cell.accuracy.iso9283 import (
     PoseFigures,
     iso9283,
@@ -16,20 +17,29 @@ from positioning_cell.accuracy.iso9283 import (
     wrap_angle,
 )
 from positioning_cell.accuracy.monitor import (
+    Fed,
     Ignored,
     Measured,
     Monitor,
     MonitorSettings,
+    NewSegment,
+    PoseBatch,
+    PoseMessages,
     TrackerErrorSettings,
 )
 from positioning_cell.accuracy.settle import (
     AccuracyAccumulator,
     AccuracyResult,
+    CheckedSamples,
     PoseKeys,
+    SampleBatch,
     SampleUpdate,
+    SegmentStart,
     SettleSettings,
+    Targets,
     Visit,
     analyse,
+    check_samples,
     figures_by_pose,
     measurement_error,
     settled_visits,
@@ -37,6 +47,7 @@ from positioning_cell.accuracy.settle import (
 )
 from positioning_cell.accuracy.tracker_errors import (
     ErrorStatistics,
+    ErrorSums,
     TrackerErrorAccumulator,
     error_statistics,
     pair_by_stamp,
@@ -49,6 +60,7 @@ from positioning_cell.accuracy.verdicts import (
     Verdict,
     judge,
     judge_visit,
+    judge_visits,
 )
 from positioning_cell.core.poses import EULER_SEQUENCE
 
@@ -58,26 +70,39 @@ __all__ = [
     'POSITION_TOLERANCE',
     'AccuracyAccumulator',
     'AccuracyResult',
+    'AxisFigures',
+    'CheckedSamples',
     'ErrorStatistics',
+    'ErrorSums',
+    'Fed',
     'Ignored',
     'Measured',
     'Monitor',
     'MonitorSettings',
+    'NewSegment',
+    'PoseBatch',
     'PoseFigures',
     'PoseKeys',
+    'PoseMessages',
+    'SampleBatch',
     'SampleUpdate',
+    'SegmentStart',
     'SettleSettings',
+    'Targets',
     'Tolerances',
     'TrackerErrorAccumulator',
     'TrackerErrorSettings',
     'Verdict',
     'Visit',
     'analyse',
+    'check_samples',
     'error_statistics',
     'figures_by_pose',
+    'iso230_2',
     'iso9283',
     'judge',
     'judge_visit',
+    'judge_visits',
     'measurement_error',
     'orientation_angles',
     'pair_by_stamp',

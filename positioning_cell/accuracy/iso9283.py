@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,7 @@ from positioning_cell.core.poses import (
     triple,
 )
 from positioning_cell.errors import InputError
+from positioning_cell.records import plain_fields
 
 FloatArray = NDArray[np.float64]
 
@@ -75,7 +76,7 @@ class PoseFigures:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict (tuples as lists; None for undefined terms)."""
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+        return plain_fields(self)
 
     def for_people(self) -> dict[str, str]:
         """The figures formatted for people: µm and degrees ('n/a' where undefined)."""

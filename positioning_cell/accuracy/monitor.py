@@ -1,36 +1,47 @@
-"""The accuracy monitor's rules, the one implementation the live node and the offline replay of
-a bag both run.
+"""The accuracy monitor's rules, the one implementation the live node (one message at a time)
+and the offline replay of a bag (thousands at a time, as arrays) both run.
 
-Messages go in one at a time, in the order they arrive (stamp s, frame id, position (3,) m,
-quaternion (4,) x, y, z, w): a pose message not in the ``base`` frame, or one the accumulators
-refuse (InputError: a quaternion off unit length, a sample older than the previous one), is
-ignored with its reason; a target is clamped to just after the last sample
-(``add_target(..., clamp=True)``) and goes to both the measured and the truth accumulators; a
-measurement goes to the measured accumulator, then to the tracker pairing; a true pose to the
-truth accumulator, then to the tracker pairing. Each settled measured visit gets a verdict
-against the tolerances in force when it settled.
+Messages go in in the order they arrived (stamp s, frame id, position (3,) m, quaternion (4,)
+x, y, z, w): a pose message not in the ``base`` frame, not finite, with a quaternion off unit
+length or older than the latest taken from its topic is ignored with its reason; a target is
+clamped to just after the last sample (``add_target(..., clamp=True)``) and goes to both the
+measured and the truth accumulators at its place among the samples; measurements go to the
+measured accumulator and to the tracker pairing; true poses to the truth accumulator and to the
+tracker pairing. Each settled measured visit gets a verdict against the tolerances in force
+when it settled. However the messages are grouped into feeds, the figures are the same (the
+accumulators' batch form: :meth:`positioning_cell.accuracy.settle.AccuracyAccumulator.add`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from numpy.typing import ArrayLike
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.accuracy.settle import (
     AccuracyAccumulator,
+    CheckedSamples,
+    SampleBatch,
     SampleUpdate,
     SettleSettings,
+    Targets,
     Visit,
+    as_time,
+    check_samples,
 )
 from positioning_cell.accuracy.tracker_errors import TrackerErrorAccumulator
-from positioning_cell.accuracy.verdicts import Tolerances, Verdict, judge_visit
+from positioning_cell.accuracy.verdicts import Tolerances, Verdict, judge_visits
 from positioning_cell.config import load_parameter_file, node_parameters
+from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import InputError
 from positioning_cell.names import BASE_FRAME, MEASURED_POSE, NODE_MONITOR, TARGET, TRUE_POSE
 from positioning_cell.parameters import check_fields, group, parse, setting
+
+FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -85,67 +96,243 @@ class Measured:
     verdict: Verdict | None = None
 
 
-class Monitor:
-    """Messages in, the monitor's state out: :meth:`target`, :meth:`measurement` and
-    :meth:`truth` take one message each; :meth:`report` is /accuracy_monitor/report."""
+@dataclass(frozen=True)
+class PoseMessages:
+    """N pose messages of one topic, in arrival order: ``rank`` (N,) their places in the
+    arrival order of everything fed together (increasing; comparable across topics), header
+    stamps (N,) s, frame ids (N,), positions (N, 3) m, quaternions (N, 4) x, y, z, w (as
+    received: the monitor checks them)."""
 
-    def __init__(self, settings: MonitorSettings | None = None) -> None:
+    rank: NDArray[np.intp]
+    stamp: FloatArray
+    frame: NDArray[np.object_]
+    position: FloatArray
+    quaternion: FloatArray
+
+    @classmethod
+    def empty(cls) -> PoseMessages:
+        """No message."""
+        return cls(np.empty(0, dtype=np.intp), np.empty(0), np.empty(0, dtype=object),
+                   np.empty((0, 3)), np.empty((0, 4)))
+
+    @classmethod
+    def one(cls, stamp: float, frame: str, position: ArrayLike,
+            quaternion: ArrayLike) -> PoseMessages:
+        """A single message (its values checked by the monitor, not here)."""
+        try:
+            p = np.asarray(position, dtype=float).reshape(1, 3)
+            q = np.asarray(quaternion, dtype=float).reshape(1, 4)
+        except (TypeError, ValueError) as err:
+            raise InputError(f'expected a position (3,) and a quaternion (4,), got '
+                             f'{position!r}, {quaternion!r}') from err
+        return cls(np.zeros(1, dtype=np.intp), np.array([stamp], dtype=float),
+                   np.array([frame], dtype=object), p, q)
+
+    @property
+    def count(self) -> int:
+        """N."""
+        return int(self.rank.size)
+
+
+@dataclass(frozen=True)
+class PoseBatch:
+    """What the pose messages of one source gave: ``samples`` the accumulator's answer per
+    message (an ignored message is not accepted there), ``segment`` (N,) the segment each fell
+    in (numbered since the monitor started, −1: before any target), the ``ignored`` rows in
+    row order with their reasons, and the (row, verdict) of each visit they settled
+    (measurements only)."""
+
+    samples: SampleBatch
+    segment: NDArray[np.intp]
+    ignored: tuple[tuple[int, Ignored], ...] = ()
+    verdicts: tuple[tuple[int, Verdict], ...] = ()
+
+
+@dataclass(frozen=True)
+class NewSegment:
+    """A target that started a segment: its index among the targets fed, the time it took
+    effect for the measured and for the true poses (s; each clamped after its own samples),
+    its pose key, position (3,) m and unit quaternion (4,)."""
+
+    target: int
+    time: float
+    truth_time: float
+    key: int
+    position: FloatArray
+    quaternion: FloatArray
+
+
+@dataclass(frozen=True)
+class Fed:
+    """What :meth:`Monitor.feed` did: the targets ignored (index, reason), the segments
+    started, and the measured and true poses' batches."""
+
+    targets_ignored: tuple[tuple[int, Ignored], ...]
+    segments: tuple[NewSegment, ...]
+    measured: PoseBatch
+    truth: PoseBatch
+
+
+_EMPTY = np.empty((0, 3))
+#: What a source without messages or targets gives.
+_NOTHING = PoseBatch(SampleBatch(np.zeros(0, dtype=bool), {}, np.empty(0, dtype=np.intp), _EMPTY,
+                                 _EMPTY), np.empty(0, dtype=np.intp))
+_NOTHING_CHECKED = CheckedSamples(np.empty(0), _EMPTY, np.empty((0, 4)), np.zeros(0, dtype=bool),
+                                  {})
+
+
+class Monitor:
+    """Messages in, the monitor's state out. :meth:`feed` takes the targets, measured and true
+    poses that arrived together (any number, interleaved by their ranks: one implementation,
+    vectorised over the samples and across segments, the same figures however the messages are
+    split into feeds); :meth:`target`, :meth:`measurement` and :meth:`truth` feed one message;
+    :meth:`report` is /accuracy_monitor/report. With ``per_segment`` the tracker's pairs are
+    also summed per pair of segments the measurement and the truth came in (the offline
+    analysis' per-mode figures)."""
+
+    def __init__(self, settings: MonitorSettings | None = None, *,
+                 per_segment: bool = False) -> None:
         self.settings = settings or MonitorSettings()
         self.tolerances = self.settings.tolerance
         self.measured = AccuracyAccumulator(self.settings.settle)
         self.truth_accumulator = AccuracyAccumulator(self.settings.settle)
         self.tracker = TrackerErrorAccumulator(self.settings.tracker_error.max_stamp_difference)
+        self.per_segment = per_segment
+        #: Targets taken that started a segment since the start (reset keeps counting).
+        self.segments = 0
         self.truth_seen = False
         self.verdicts: list[Verdict] = []
         self.ignored: list[Ignored] = []
+        # The latest stamp taken per source: an older sample is ignored (kept over reset).
+        self._latest = {MEASURED_POSE: -math.inf, TRUE_POSE: -math.inf}
 
-    def _ignore(self, topic: str, stamp: float, reason: str) -> Ignored:
-        item = Ignored(topic, stamp, reason)
-        self.ignored.append(item)
-        return item
+    def _targets(self, targets: PoseMessages) -> tuple[NDArray[np.intp], Targets,
+                                                       list[tuple[int, Ignored]]]:
+        """The valid targets (their indices and values) and the ignored ones."""
+        ignored: list[tuple[int, Ignored]] = []
+        keep: list[int] = []
+        for k in range(targets.count):  # over targets, not samples
+            stamp, frame = float(targets.stamp[k]), str(targets.frame[k])
+            if frame != BASE_FRAME:
+                ignored.append((k, Ignored(TARGET, stamp,
+                                           f'frame_id {frame!r}: expected {BASE_FRAME!r}')))
+                continue
+            try:
+                as_time(stamp, 'target time')
+                as_pose_batch(targets.position[k], targets.quaternion[k])
+            except InputError as err:
+                ignored.append((k, Ignored(TARGET, stamp, str(err))))
+                continue
+            keep.append(k)
+        rows = np.array(keep, dtype=np.intp)
+        _, q = as_pose_batch(targets.position[rows], targets.quaternion[rows]) if keep else (
+            None, np.empty((0, 4)))
+        return rows, Targets(np.zeros(rows.size, dtype=np.intp), targets.stamp[rows],
+                             targets.position[rows], q), ignored
+
+    def _source(self, topic: str, accumulator: AccuracyAccumulator, poses: PoseMessages,
+                target_rank: NDArray[np.intp], targets: Targets
+                ) -> tuple[PoseBatch, NDArray[np.intp], CheckedSamples]:
+        """The messages of one source the monitor takes (frame ``base``, the sample checks,
+        not older than the latest taken) through ``accumulator`` with the targets; the rows
+        taken and the checked values."""
+        n = poses.count
+        if n == 0 and targets.count == 0:  # nothing for this source (one message of another)
+            return _NOTHING, np.empty(0, dtype=np.intp), _NOTHING_CHECKED
+        in_base = poses.frame == BASE_FRAME if n else np.zeros(0, dtype=bool)
+        base_rows = np.flatnonzero(in_base)
+        checked = check_samples(poses.stamp[base_rows], poses.position[base_rows],
+                                poses.quaternion[base_rows], self._latest[topic])
+        rows = base_rows[checked.accepted]
+        at = np.searchsorted(poses.rank[rows], target_rank)
+        batch = accumulator.add(checked.time[checked.accepted],
+                                checked.position[checked.accepted],
+                                checked.quaternion[checked.accepted],
+                                Targets(at, targets.time, targets.position, targets.quaternion))
+        if rows.size:
+            self._latest[topic] = float(checked.time[checked.accepted][-1])
+        reasons = {int(i): f'frame_id {poses.frame[i]!r}: expected {BASE_FRAME!r}'
+                   for i in np.flatnonzero(~in_base)}
+        reasons.update({int(base_rows[i]): r for i, r in checked.reasons.items()})
+        accepted = np.zeros(n, dtype=bool)
+        accepted[rows] = batch.accepted
+        local = np.full(n, -1, dtype=np.intp)
+        local[rows] = batch.segment
+        segment = np.where(local >= 0, self.segments - 1 + local, -1)
+        dp, rv = np.full((n, 3), math.nan), np.full((n, 3), math.nan)
+        dp[rows], rv[rows] = batch.position_error, batch.orientation_error
+        samples = SampleBatch(accepted, reasons, local, dp, rv, batch.started,
+                              tuple((int(rows[r]), v) for r, v in batch.visits))
+        ignored = tuple((i, Ignored(topic, float(poses.stamp[i]), reasons[i]))
+                        for i in sorted(reasons))
+        return PoseBatch(samples, segment, ignored), rows, checked
+
+    def feed(self, targets: PoseMessages | None = None, measured: PoseMessages | None = None,
+             truth: PoseMessages | None = None) -> Fed:
+        """Targets (/positioner/target), measurements (/metrology/pose) and true poses
+        (/sim/platform/true_pose) that arrived together, each topic in arrival order and the
+        three interleaved by their ``rank``. A message is ignored with its reason when not in
+        ``base``, not finite, with a quaternion off unit length, or (a pose) older than the
+        latest taken from its topic; every target goes to both accumulators at its place.
+        Each visit a measurement settles gets a verdict against the tolerances in force."""
+        targets = targets or PoseMessages.empty()
+        measured = measured or PoseMessages.empty()
+        truth = truth or PoseMessages.empty()
+        valid, values, targets_ignored = self._targets(targets)
+        rank = targets.rank[valid]
+        m_batch, m_rows, m_checked = self._source(MEASURED_POSE, self.measured, measured,
+                                                  rank, values)
+        t_batch, t_rows, t_checked = self._source(TRUE_POSE, self.truth_accumulator, truth,
+                                                  rank, values)
+        truth_started = {s.target: s.time for s in t_batch.samples.started}
+        segments = tuple(NewSegment(int(valid[s.target]), s.time,
+                                    truth_started.get(s.target, s.time), s.key,
+                                    values.position[s.target], values.quaternion[s.target])
+                         for s in m_batch.samples.started)
+        self.segments += len(segments)
+        label_m = m_batch.segment[m_rows] if self.per_segment else 0
+        label_t = t_batch.segment[t_rows] if self.per_segment else 0
+        ok_m, ok_t = m_checked.accepted, t_checked.accepted
+        self.tracker.add_measured(m_checked.time[ok_m], m_checked.position[ok_m],
+                                  m_checked.quaternion[ok_m], label_m)
+        self.tracker.add_truth(t_checked.time[ok_t], t_checked.position[ok_t],
+                               t_checked.quaternion[ok_t], label_t)
+        self.truth_seen = self.truth_seen or bool(t_rows.size)
+        judged = judge_visits([v for _, v in m_batch.samples.visits], self.tolerances)
+        self.verdicts.extend(judged)
+        verdicts = tuple(zip([r for r, _ in m_batch.samples.visits], judged, strict=True))
+        m_batch = PoseBatch(m_batch.samples, m_batch.segment, m_batch.ignored, verdicts)
+        ranked = sorted([(int(targets.rank[i]), x) for i, x in targets_ignored]
+                        + [(int(measured.rank[i]), x) for i, x in m_batch.ignored]
+                        + [(int(truth.rank[i]), x) for i, x in t_batch.ignored],
+                        key=lambda item: item[0])
+        self.ignored.extend(x for _, x in ranked)
+        return Fed(tuple(targets_ignored), segments, m_batch, t_batch)
 
     def target(self, stamp: float, frame: str, position: ArrayLike,
                quaternion: ArrayLike) -> Ignored | None:
-        """A /positioner/target message; None when it was taken (even if it repeats the
+        """One /positioner/target message; None when it was taken (even if it repeats the
         current target)."""
-        if frame != BASE_FRAME:
-            return self._ignore(TARGET, stamp, f'frame_id {frame!r}: expected {BASE_FRAME!r}')
-        try:
-            self.measured.add_target(stamp, position, quaternion, clamp=True)
-            self.truth_accumulator.add_target(stamp, position, quaternion, clamp=True)
-        except InputError as err:
-            return self._ignore(TARGET, stamp, str(err))
-        return None
+        fed = self.feed(targets=PoseMessages.one(stamp, frame, position, quaternion))
+        return fed.targets_ignored[0][1] if fed.targets_ignored else None
 
     def measurement(self, stamp: float, frame: str, position: ArrayLike,
                     quaternion: ArrayLike) -> Measured | Ignored:
-        """A /metrology/pose message: the update and the verdict of a visit it settled."""
-        if frame != BASE_FRAME:
-            return self._ignore(MEASURED_POSE, stamp,
-                                f'frame_id {frame!r}: expected {BASE_FRAME!r}')
-        try:
-            update = self.measured.add_sample(stamp, position, quaternion)
-            self.tracker.add_measured(stamp, position, quaternion)
-        except InputError as err:
-            return self._ignore(MEASURED_POSE, stamp, str(err))
-        verdict = None
-        if update.visit is not None:
-            verdict = judge_visit(update.visit, self.tolerances)
-            self.verdicts.append(verdict)
-        return Measured(update, verdict)
+        """One /metrology/pose message: the update and the verdict of a visit it settled."""
+        batch = self.feed(measured=PoseMessages.one(stamp, frame, position, quaternion)
+                          ).measured
+        if batch.ignored:
+            return batch.ignored[0][1]
+        return Measured(batch.samples.update(0), batch.verdicts[0][1] if batch.verdicts
+                        else None)
 
     def truth(self, stamp: float, frame: str, position: ArrayLike,
               quaternion: ArrayLike) -> SampleUpdate | Ignored:
-        """A /sim/platform/true_pose message: the truth accumulator's update."""
-        if frame != BASE_FRAME:
-            return self._ignore(TRUE_POSE, stamp, f'frame_id {frame!r}: expected {BASE_FRAME!r}')
-        try:
-            update = self.truth_accumulator.add_sample(stamp, position, quaternion)
-            self.tracker.add_truth(stamp, position, quaternion)
-        except InputError as err:
-            return self._ignore(TRUE_POSE, stamp, str(err))
-        self.truth_seen = True
-        return update
+        """One /sim/platform/true_pose message: the truth accumulator's update."""
+        batch = self.feed(truth=PoseMessages.one(stamp, frame, position, quaternion)).truth
+        if batch.ignored:
+            return batch.ignored[0][1]
+        return batch.samples.update(0)
 
     def figures_of(self, visit: Visit) -> dict[str, str]:
         """The ISO 9283 figures (for people) of the pose that ``visit`` is a visit of."""

@@ -27,18 +27,18 @@ live node and an offline run over a recorded bag give identical figures.
 
 from __future__ import annotations
 
+import functools
 import math
-from collections import deque
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.accuracy.iso9283 import PoseFigures, iso9283
 from positioning_cell.core.poses import (
+    QUATERNION_UNIT_TOLERANCE,
     Quad,
     Triple,
     as_pose_batch,
@@ -50,6 +50,7 @@ from positioning_cell.core.poses import (
 )
 from positioning_cell.errors import InputError
 from positioning_cell.parameters import check_fields, parse, setting, to_params
+from positioning_cell.records import plain_fields
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -132,7 +133,7 @@ class Visit:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict (tuples as lists)."""
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+        return plain_fields(self)
 
 class PoseKeys:
     """Registry of commanded poses: the key of a target is the index of the first registered
@@ -146,23 +147,50 @@ class PoseKeys:
 
     def key_for(self, position: FloatArray, quaternion: FloatArray) -> int:
         """Key of the pose (3,), (4,), registering it when new."""
-        if self._positions:
-            same = self.same(np.array(self._positions), np.array(self._quaternions),
-                             position, quaternion)
-            hits = np.flatnonzero(same)
-            if hits.size:
-                return int(hits[0])
+        return self.match(position, quaternion)[1]
+
+    def match(self, position: FloatArray, quaternion: FloatArray,
+              current: tuple[FloatArray, FloatArray] | None = None) -> tuple[bool, int]:
+        """Whether the pose (3,), (4,) equals ``current`` (position, quaternion; None: no
+        current pose), and if not its key (registered when new; −1 when it equals ``current``):
+        one comparison against both."""
+        known = len(self._positions)
+        poses_p = ([current[0]] if current is not None else []) + self._positions
+        poses_q = ([current[1]] if current is not None else []) + self._quaternions
+        same = (self.same(np.array(poses_p), np.array(poses_q), position, quaternion)
+                if poses_p else np.zeros(0, dtype=bool))
+        if current is not None and same[0]:
+            return True, -1
+        hits = np.flatnonzero(same[1:] if current is not None else same)
+        if hits.size:
+            return False, int(hits[0])
         self._positions.append(np.array(position, dtype=float))
         self._quaternions.append(np.array(quaternion, dtype=float))
-        return len(self._positions) - 1
+        return False, known
 
     def same(self, positions: FloatArray, quaternions: FloatArray, position: FloatArray,
              quaternion: FloatArray) -> NDArray[np.bool_]:
         """Which of the poses (K, 3), (K, 4) equal the pose (3,), (4,) within the tolerances."""
-        dp, rv = pose_error(positions, quaternions, position[np.newaxis],
-                            quaternion[np.newaxis])
-        return np.asarray((np.sqrt((dp ** 2).sum(axis=1)) <= self.position_tolerance)
-                          & (np.sqrt((rv ** 2).sum(axis=1)) <= self.angle_tolerance))
+        arrays = [np.ascontiguousarray(a, dtype=float) for a in (positions, quaternions,
+                                                                  position, quaternion)]
+        found = _same_poses(*(a.tobytes() for a in arrays), self.position_tolerance,
+                            self.angle_tolerance)
+        return np.frombuffer(found, dtype=bool)
+
+
+@functools.lru_cache(maxsize=16)
+def _same_poses(positions: bytes, quaternions: bytes, position: bytes, quaternion: bytes,
+                position_tolerance: float, angle_tolerance: float) -> bytes:
+    """:meth:`PoseKeys.same` on the poses' bytes (float64), the answer as bytes of bools:
+    cached, because the monitor's two accumulators compare the same targets against the same
+    registered poses."""
+    dp, rv = pose_error(np.frombuffer(positions).reshape(-1, 3),
+                        np.frombuffer(quaternions).reshape(-1, 4),
+                        np.frombuffer(position).reshape(1, 3),
+                        np.frombuffer(quaternion).reshape(1, 4))
+    same: NDArray[np.bool_] = ((np.sqrt((dp ** 2).sum(axis=1)) <= position_tolerance)
+                               & (np.sqrt((rv ** 2).sum(axis=1)) <= angle_tolerance))
+    return same.tobytes()
 
 def _window_spreads(values: FloatArray, starts: IntArray, ends: IntArray) -> FloatArray:
     """Bounding-box diagonals (M,) of the windows values[starts[m]:ends[m] + 1] of (N, 3)."""
@@ -174,11 +202,28 @@ def _window_spreads(values: FloatArray, starts: IntArray, ends: IntArray) -> Flo
     low = np.minimum.reduceat(padded, index, axis=0)[0::2]
     return row_norms(high - low)
 
-def _window_pose(position: FloatArray, quaternion: FloatArray) -> tuple[Triple, Quad]:
-    """Attained pose of a settle window: mean position and chordal L2 mean rotation."""
-    p = np.ascontiguousarray(position).mean(axis=0)
-    q = Rotation.from_quat(np.ascontiguousarray(quaternion)).mean().as_quat(canonical=True)
-    return triple(p), quad(q)
+def window_poses(position: FloatArray, quaternion: FloatArray, starts: IntArray,
+                 stops: IntArray) -> tuple[FloatArray, FloatArray]:
+    """Attained poses of V settle windows, rows ``starts[v]:stops[v]`` (ascending, disjoint) of
+    positions (N, 3) m and unit quaternions (N, 4): mean positions (V, 3) and chordal L2 mean
+    rotations (V, 4), w >= 0: the unit quaternion maximising Σ (q·q_i)², the eigenvector of the
+    largest eigenvalue of Σ q_i q_iᵀ (Markley et al. 2007, as scipy's ``Rotation.mean``). One
+    batched computation; a window's result does not depend on the others."""
+    if starts.size == 0:
+        return np.empty((0, 3)), np.empty((0, 4))
+    rows = np.concatenate([np.arange(a, b) for a, b in zip(starts.tolist(), stops.tolist(),
+                                                          strict=True)])
+    offsets = np.concatenate([[0], np.cumsum(stops - starts)[:-1]]).astype(np.intp)
+    count = (stops - starts).astype(float)
+    p = np.add.reduceat(position[rows], offsets, axis=0) / count[:, np.newaxis]
+    q = quaternion[rows]
+    outer = np.add.reduceat(q[:, :, np.newaxis] * q[:, np.newaxis, :], offsets, axis=0)
+    mean = np.linalg.eigh(outer)[1][:, :, -1]
+    flip = (mean[:, 3] < 0.0) | ((mean[:, 3] == 0.0) & (
+        np.take_along_axis(mean[:, :3], np.argmax(mean[:, :3] != 0.0, axis=1)[:, np.newaxis],
+                           axis=1)[:, 0] < 0.0))
+    return p, np.where(flip[:, np.newaxis], -mean, mean)
+
 
 def as_times(value: ArrayLike, name: str) -> FloatArray:
     t = as_vectors(np.reshape(np.asarray(value, dtype=float), (-1, 1)), 1, name)[:, 0]
@@ -245,24 +290,26 @@ def settled_visits(times: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
               & (_window_spreads(rv, start[cand], cand) <= settings.angle_threshold))
     settled = cand[stable]
     _, first_of_segment = np.unique(seg[settled], return_index=True)
-    visits: list[Visit] = []
-    cycles: dict[int, int] = {}
-    for i in settled[first_of_segment]:  # one per settled segment
-        s, (seg_t, seg_pos, seg_quat, key) = int(start[i]), segments[int(seg[i])]
-        cycles[key] = cycles.get(key, 0) + 1
-        visits.append(_visit(key, cycles[key], seg_t, seg_pos, seg_quat, t[s:i + 1],
-                             p[s:i + 1], q[s:i + 1]))
-    return visits
+    ends = settled[first_of_segment]  # one per settled segment
+    return _visits([segments[int(k)] for k in seg[ends]], start[ends], ends + 1, t, p, q, {})
 
-def _visit(key: int, cycle: int, target_time: float, target_position: FloatArray,
-           target_quaternion: FloatArray, t: FloatArray, p: FloatArray,
-           q: FloatArray) -> Visit:
-    position, quaternion = _window_pose(p, q)
-    return Visit(key=key, cycle=cycle, target_time=target_time, window_start=float(t[0]),
-                 settle_time=float(t[-1]), samples=int(t.size),
-                 commanded_position=triple(target_position),
-                 commanded_quaternion=quad(target_quaternion), position=position,
-                 quaternion=quaternion)
+
+def _visits(targets: Sequence[tuple[float, FloatArray, FloatArray, int]], starts: IntArray,
+            stops: IntArray, t: FloatArray, p: FloatArray, q: FloatArray,
+            cycles: dict[int, int]) -> list[Visit]:
+    """The visits of the settle windows ``starts[v]:stops[v]`` of the samples t, p, q, each of
+    the segment of ``targets[v]`` (time, position, quaternion, key), in time order; ``cycles``
+    (visits so far per key) is counted on."""
+    position, quaternion = window_poses(p, q, starts, stops)
+    out = []
+    for v, (target_time, target_p, target_q, key) in enumerate(targets):
+        cycles[key] = cycles.get(key, 0) + 1
+        out.append(Visit(key=key, cycle=cycles[key], target_time=target_time,
+                         window_start=float(t[starts[v]]), settle_time=float(t[stops[v] - 1]),
+                         samples=int(stops[v] - starts[v]), commanded_position=triple(target_p),
+                         commanded_quaternion=quad(target_q), position=triple(position[v]),
+                         quaternion=quad(quaternion[v])))
+    return out
 
 def figures_by_pose(visits: Sequence[Visit]) -> list[PoseFigures]:
     """ISO 9283 figures per pose key (ascending) from settled visits in time order. The
@@ -309,10 +356,130 @@ class SampleUpdate:
     orientation_error: FloatArray | None = None
     visit: Visit | None = None
 
+
+@dataclass(frozen=True)
+class Targets:
+    """K targets among a batch of samples, in arrival order: ``at`` (K,) how many of the
+    batch's samples arrived before each (non-decreasing), times (K,) s, positions (K, 3) m,
+    quaternions (K, 4) x, y, z, w (valid: :func:`positioning_cell.core.poses.as_pose_batch`)."""
+
+    at: IntArray
+    time: FloatArray
+    position: FloatArray
+    quaternion: FloatArray
+
+    @classmethod
+    def none(cls) -> Targets:
+        """No target."""
+        return cls(np.empty(0, dtype=np.intp), np.empty(0), np.empty((0, 3)),
+                   np.empty((0, 4)))
+
+    @property
+    def count(self) -> int:
+        """K."""
+        return int(self.time.size)
+
+
+@dataclass(frozen=True)
+class SegmentStart:
+    """A target of a batch that started a segment (one equal to the current target does not):
+    its index among the batch's targets, the time it took effect (s) and its pose key."""
+
+    target: int
+    time: float
+    key: int
+
+
+@dataclass(frozen=True)
+class SampleBatch:
+    """What a batch of N samples and the targets among them gave.
+
+    ``accepted`` (N,): taken; a refused sample (not finite, a quaternion off unit length, or
+    earlier than the previous sample) is named in ``reasons`` {row: why} and changes nothing.
+    ``segment`` (N,): the segment each sample fell in, −1 without a target, 0 the segment
+    current when the batch began, s >= 1 the one ``started[s − 1]`` began.
+    ``position_error`` (N, 3) m and ``orientation_error`` (N, 3) rad against that segment's
+    target, NaN where refused or without a target. ``visits``: (row that completed the stable
+    window, visit), in time order."""
+
+    accepted: NDArray[np.bool_]
+    reasons: Mapping[int, str]
+    segment: IntArray
+    position_error: FloatArray
+    orientation_error: FloatArray
+    started: tuple[SegmentStart, ...] = ()
+    visits: tuple[tuple[int, Visit], ...] = ()
+
+    def update(self, row: int) -> SampleUpdate:
+        """The :class:`SampleUpdate` of one accepted row."""
+        if self.segment[row] < 0:
+            return SampleUpdate()
+        visit = next((v for r, v in self.visits if r == row), None)
+        return SampleUpdate(self.position_error[row], self.orientation_error[row], visit)
+
+
+@dataclass(frozen=True)
+class CheckedSamples:
+    """Samples as :func:`check_samples` found them: times (N,) s, positions (N, 3) m, unit
+    quaternions (N, 4) (rows of refused samples as given), ``accepted`` (N,) and the
+    ``reasons`` of the refused rows."""
+
+    time: FloatArray
+    position: FloatArray
+    quaternion: FloatArray
+    accepted: NDArray[np.bool_]
+    reasons: dict[int, str]
+
+
+def check_samples(time: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
+                  previous: float, *, ordered_from: int = 0) -> CheckedSamples:
+    """The samples that can be taken, vectorised: finite time, position and quaternion, a
+    quaternion within 1e-6 of unit length (normalised), and, from row ``ordered_from`` on, a
+    time not earlier than ``previous`` (s) nor than any sample taken before it from that row
+    on. A refused row's reason is the message the one-sample checks give (:func:`as_time`,
+    :func:`positioning_cell.core.poses.as_pose_batch`). A batch of the wrong shape raises
+    InputError."""
+    try:
+        t = np.asarray(time, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as err:
+        raise InputError(f'sample time: expected numbers of seconds, got {time!r}') from err
+    p = as_vectors(position, 3, 'position', finite=False) if t.size else np.empty((0, 3))
+    q = (as_vectors(quaternion, 4, 'quaternion', finite=False) if t.size
+         else np.empty((0, 4)))
+    if not t.size == p.shape[0] == q.shape[0]:
+        raise InputError(f'{t.size} sample times, {p.shape[0]} positions and {q.shape[0]} '
+                         'quaternions')
+    norm = np.sqrt((q * q).sum(axis=1))
+    valid = (np.isfinite(t) & np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1)
+             & (np.abs(norm - 1.0) <= QUATERNION_UNIT_TOLERANCE))
+    accepted = valid.copy()
+    latest = np.full(t.size, previous)
+    ordered = valid & (np.arange(t.size) >= ordered_from)
+    if ordered.any():
+        tv = t[ordered]
+        before = np.maximum.accumulate(np.concatenate([[previous], tv[:-1]]))
+        latest[ordered] = before
+        accepted[ordered] = tv >= before
+    reasons: dict[int, str] = {}
+    for i in np.flatnonzero(~accepted):  # refused rows only: rare
+        row = int(i)
+        try:
+            as_time(float(t[row]), 'sample time')
+            as_pose_batch(p[row], q[row])
+            reasons[row] = (f'sample time {float(t[row])!r} s is earlier than the previous '
+                            f'sample ({float(latest[row])!r} s)')
+        except InputError as err:
+            reasons[row] = str(err)
+    unit = np.where(valid, norm, 1.0)
+    return CheckedSamples(t, p, q / unit[:, np.newaxis], accepted, reasons)
+
+
 class AccuracyAccumulator:
-    """Message-by-message form of :func:`analyse`: on the same time-ordered events it gives
-    exactly the same visits and figures. Targets go to :meth:`add_target`, measurements to
-    :meth:`add_sample`; memory is one window plus the visits."""
+    """Streaming form of :func:`analyse`: on the same time-ordered events it gives exactly the
+    same visits and figures, however the events are split into batches (one code path:
+    :meth:`add_sample` is a batch of one sample, :meth:`add_target` of one target).
+    :meth:`add` takes N samples and the targets among them, vectorised over the samples and
+    across segments; memory is one window plus the visits."""
 
     def __init__(self, settings: SettleSettings | None = None) -> None:
         self.settings = settings or SettleSettings()
@@ -323,7 +490,12 @@ class AccuracyAccumulator:
         self._visits: list[Visit] = []
         self._cycles: dict[int, int] = {}
         self._settled = False
-        self._window: deque[tuple[float, FloatArray, FloatArray, FloatArray]] = deque()
+        self._clear_window()
+
+    def _clear_window(self) -> None:
+        """No sample in the stability window (times, positions, quaternions, rotation
+        vectors against the target)."""
+        self._window = (np.empty(0), np.empty((0, 3)), np.empty((0, 4)), np.empty((0, 3)))
 
     def reset(self, *, keep_target: bool = False) -> None:
         """Forget every sample, visit and pose key; with ``keep_target`` the current target
@@ -335,7 +507,7 @@ class AccuracyAccumulator:
         self._cycles = {}
         self._target = None
         self._settled = False
-        self._window.clear()
+        self._clear_window()
         if target is not None:
             self._target = (target[0], target[1], target[2],
                             self._keys.key_for(target[1], target[2]))
@@ -348,6 +520,12 @@ class AccuracyAccumulator:
         return self._target
 
     @property
+    def last_sample(self) -> float:
+        """Time (s) of the latest sample taken against a target (−inf: none since the last
+        reset without target)."""
+        return self._last_sample
+
+    @property
     def visits(self) -> tuple[Visit, ...]:
         """Settled visits so far, in time order."""
         return tuple(self._visits)
@@ -355,6 +533,26 @@ class AccuracyAccumulator:
     def result(self) -> AccuracyResult:
         """Visits and ISO 9283 figures so far."""
         return AccuracyResult.from_visits(self._visits)
+
+    def _take_target(self, time: float, position: FloatArray, quaternion: FloatArray,
+                     last_sample: float, clamp: bool) -> float | None:
+        """A valid target (3,), (4,) after samples up to ``last_sample`` s: the time it takes
+        effect when it starts a segment, None when it equals the current target."""
+        current = self._target
+        earliest = max(float(np.nextafter(last_sample, math.inf)),
+                       current[0] if current is not None else -math.inf)
+        if not clamp and time < earliest and not (current is not None and self._keys.same(
+                current[1][np.newaxis], current[2][np.newaxis], position, quaternion)[0]):
+            raise InputError(f'target time {time!r} s is not after the last sample '
+                             f'({last_sample!r} s) and the current target')
+        is_current, key = self._keys.match(position, quaternion, None if current is None
+                                           else (current[1], current[2]))
+        if is_current:
+            return None
+        self._target = (max(time, earliest), position, quaternion, key)
+        self._settled = False
+        self._clear_window()
+        return self._target[0]
 
     def add_target(self, time: float, position: ArrayLike, quaternion: ArrayLike, *,
                    clamp: bool = False) -> float:
@@ -364,56 +562,121 @@ class AccuracyAccumulator:
         A target equal to the current one (key tolerances) changes nothing."""
         t = as_time(time, 'target time')
         p, q = as_pose_batch(position, quaternion)
-        if self._target is not None and self._keys.same(
-                self._target[1][np.newaxis], self._target[2][np.newaxis], p[0], q[0])[0]:
-            return self._target[0]
-        earliest = max(float(np.nextafter(self._last_sample, math.inf)),
-                       self._target[0] if self._target is not None else -math.inf)
-        if t < earliest:
-            if not clamp:
-                raise InputError(f'target time {t!r} s is not after the last sample '
-                                 f'({self._last_sample!r} s) and the current target')
-            t = earliest
-        self._target = (float(t), p[0], q[0], self._keys.key_for(p[0], q[0]))
-        self._settled = False
-        self._window.clear()
-        return float(t)
+        taken = self._take_target(t, p[0], q[0], self._last_sample, clamp)
+        assert self._target is not None
+        return self._target[0] if taken is None else taken
 
     def add_sample(self, time: float, position: ArrayLike,
                    quaternion: ArrayLike) -> SampleUpdate:
         """One measured pose at ``time`` s (non-decreasing): its error against the current
-        target, and the visit it settled, if it completed a stable window."""
-        t = as_time(time, 'sample time')
-        p, q = as_pose_batch(position, quaternion)
-        if p.shape[0] != 1:
-            raise InputError(f'add_sample takes one pose, got {p.shape[0]}')
-        if self._target is None:
-            return SampleUpdate()
-        if t < self._last_sample:
-            raise InputError(f'sample time {t!r} s is earlier than the previous sample '
-                             f'({self._last_sample!r} s)')
-        self._last_sample = float(t)
-        seg_t, seg_p, seg_q, key = self._target
-        dp, rv = pose_error(p, q, seg_p[np.newaxis], seg_q[np.newaxis])
-        update = SampleUpdate(dp[0], rv[0])
-        if self._settled or t < seg_t:
-            return update
-        s = self.settings
+        target, and the visit it settled, if it completed a stable window. A sample that cannot
+        be taken raises InputError and changes nothing."""
+        if np.size(time) != 1:
+            raise InputError(f'add_sample takes one pose, got {np.size(time)}')
+        batch = self.add(np.reshape(np.asarray(time, dtype=float), 1), position, quaternion)
+        if not batch.accepted[0]:
+            raise InputError(batch.reasons[0])
+        return batch.update(0)
+
+    def add(self, time: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
+            targets: Targets | None = None) -> SampleBatch:
+        """N measured poses at ``time`` (N,) s, positions (N, 3) m, quaternions (N, 4), and the
+        ``targets`` among them (each takes effect clamped, as ``add_target(clamp=True)``), all
+        in arrival order: the rule of the module docstring, vectorised over the samples and
+        across the segments. Samples before any target are taken and give nothing."""
+        targets = targets or Targets.none()
+        k_count = targets.count
+        first_ordered = 0 if self._target is not None else (
+            int(targets.at[0]) if k_count else np.size(time))
+        checked = check_samples(time, position, quaternion, self._last_sample,
+                                ordered_from=first_ordered)
+        n, ok = checked.time.size, checked.accepted
+        # The latest sample taken against a target after each number of rows.
+        counted = np.where(ok & (np.arange(n) >= first_ordered), checked.time, -math.inf)
+        latest = np.maximum.accumulate(np.concatenate([[self._last_sample], counted]))
+        # Segments: 0 the current one (None if no target yet), then those targets start.
+        segs: list[tuple[float, FloatArray, FloatArray, int] | None] = [self._target]
+        settled = [self._settled]
         window = self._window
-        window.append((float(t), p[0], q[0], rv[0]))
-        while window and window[0][0] <= t - s.window:
-            window.popleft()
-        if not (t - s.window >= seg_t + s.dwell and len(window) >= s.min_samples):
-            return update
-        wp = np.array([w[1] for w in window])
-        wr = np.array([w[3] for w in window])
-        spreads = row_norms(np.array([wp.max(axis=0) - wp.min(axis=0),
-                                   wr.max(axis=0) - wr.min(axis=0)]))
-        if spreads[0] > s.position_threshold or spreads[1] > s.angle_threshold:
-            return update
-        self._settled = True
-        self._cycles[key] = self._cycles.get(key, 0) + 1
-        visit = _visit(key, self._cycles[key], seg_t, seg_p, seg_q,
-                       np.array([w[0] for w in window]), wp, np.array([w[2] for w in window]))
-        self._visits.append(visit)
-        return SampleUpdate(dp[0], rv[0], visit)
+        started: list[SegmentStart] = []
+        starts_at: list[int] = []
+        for k in range(k_count):  # over targets, not samples
+            taken = self._take_target(float(targets.time[k]), targets.position[k],
+                                      targets.quaternion[k], float(latest[targets.at[k]]),
+                                      True)
+            if taken is not None:
+                assert self._target is not None
+                segs.append(self._target)
+                settled.append(False)
+                started.append(SegmentStart(k, taken, self._target[3]))
+                starts_at.append(int(targets.at[k]))
+        self._last_sample = float(latest[-1])
+        segment = np.searchsorted(np.array(starts_at, dtype=np.intp), np.arange(n),
+                                  side='right')
+        if segs[0] is None:
+            segment = np.where(segment == 0, -1, segment)
+        dp = np.full((n, 3), math.nan)
+        rv = np.full((n, 3), math.nan)
+        rows = np.flatnonzero(ok & (segment >= 0))
+        visits: list[tuple[int, Visit]] = []
+        if rows.size:
+            seg_t = np.array([g[0] if g is not None else math.nan for g in segs])
+            seg_p = np.array([g[1] if g is not None else np.zeros(3) for g in segs])
+            seg_q = np.array([g[2] if g is not None else (0.0, 0.0, 0.0, 1.0) for g in segs])
+            sr = segment[rows]
+            dp[rows], rv[rows] = pose_error(checked.position[rows], checked.quaternion[rows],
+                                            seg_p[sr], seg_q[sr])
+            eligible = rows[(checked.time[rows] >= seg_t[sr])
+                            & ~np.array(settled)[sr]]
+            visits = self._settle(segs, segment, eligible, checked, rv, window, seg_t)
+        return SampleBatch(ok, checked.reasons, segment, dp, rv, tuple(started), tuple(visits))
+
+    def _settle(self, segs: list[tuple[float, FloatArray, FloatArray, int] | None],
+                segment: IntArray, eligible: IntArray, checked: CheckedSamples,
+                rv: FloatArray, window: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+                seg_t: FloatArray) -> list[tuple[int, Visit]]:
+        """The stable windows of the eligible rows (those not before their target, of a
+        segment not settled yet), the window carried in (segment 0) first: the first stable
+        window of each segment settles it (module docstring); the last segment keeps its
+        window for the next batch."""
+        s = self.settings
+        last = len(segs) - 1
+        k0 = window[0].size  # empty once segment 0 settled
+        et = np.concatenate([window[0], checked.time[eligible]])
+        ep = np.concatenate([window[1], checked.position[eligible]])
+        eq = np.concatenate([window[2], checked.quaternion[eligible]])
+        er = np.concatenate([window[3], rv[eligible]])
+        es = np.concatenate([np.zeros(k0, dtype=np.intp), segment[eligible]])
+        visits: list[tuple[int, Visit]] = []
+        if et.size == 0:
+            return visits
+        index = np.arange(et.size)
+        first = np.searchsorted(es, es, side='left')
+        start = np.maximum(np.searchsorted(et, et - s.window, side='right'), first)
+        complete = ((et - s.window >= seg_t[es] + s.dwell) & (index - start + 1 >= s.min_samples)
+                    & (index >= k0))
+        cand = np.flatnonzero(complete)
+        settled_segs: set[int] = set()
+        if cand.size:
+            stable = ((_window_spreads(ep, start[cand], cand) <= s.position_threshold)
+                      & (_window_spreads(er, start[cand], cand) <= s.angle_threshold))
+            hits = cand[stable]
+            _, firsts = np.unique(es[hits], return_index=True)
+            ends = hits[firsts]  # one per settled segment
+            targets = [segs[int(k)] for k in es[ends]]
+            found = _visits([g for g in targets if g is not None], start[ends], ends + 1, et, ep,
+                            eq, self._cycles)
+            self._visits.extend(found)
+            visits = [(int(eligible[i - k0]), v) for i, v in zip(ends.tolist(), found,
+                                                                   strict=True)]
+            settled_segs = {int(k) for k in es[ends]}
+        if last in settled_segs:
+            self._settled = True
+            self._clear_window()
+            return visits
+        mine = np.flatnonzero(es == last)
+        if mine.size:
+            keep = max(int(np.searchsorted(et, et[mine[-1]] - s.window, side='right')),
+                       int(mine[0]))
+            self._window = (et[keep:], ep[keep:], eq[keep:], er[keep:])
+        return visits

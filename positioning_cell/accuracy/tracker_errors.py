@@ -4,14 +4,14 @@ stamps, batch and message by message. SI: m, rad, s."""
 from __future__ import annotations
 
 import math
-from collections import deque
-from dataclasses import asdict, dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from positioning_cell.accuracy.settle import as_time, as_times
+from positioning_cell.accuracy.settle import as_times
 from positioning_cell.core.poses import (
     Triple,
     as_pose_batch,
@@ -22,6 +22,7 @@ from positioning_cell.core.poses import (
 )
 from positioning_cell.errors import InputError
 from positioning_cell.parameters import ParameterError
+from positioning_cell.records import plain_fields
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -41,21 +42,22 @@ class ErrorStatistics:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict."""
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+        return plain_fields(self)
 
 def error_statistics(position_error: ArrayLike, orientation_error: ArrayLike) -> ErrorStatistics:
-    """Statistics of errors Δp (N, 3) m and rotation vectors (N, 3) rad, N >= 1."""
+    """Statistics of errors Δp (N, 3) m and rotation vectors (N, 3) rad, N >= 1 (through
+    :class:`ErrorSums`, as the streaming accumulator computes them)."""
     dp = as_vectors(position_error, 3, 'position_error')
     rv = as_vectors(orientation_error, 3, 'orientation_error')
     if dp.shape[0] != rv.shape[0] or dp.shape[0] == 0:
         raise InputError(f'need equal, non-zero counts: {dp.shape[0]} position and '
                          f'{rv.shape[0]} orientation errors')
-    d, a = row_norms(dp), row_norms(rv)
-    return ErrorStatistics(samples=int(dp.shape[0]), mean_position_error=triple(dp.mean(axis=0)),
-                           rms_position_error=float(np.sqrt((d * d).mean())),
-                           max_position_error=float(d.max()),
-                           rms_orientation_error=float(np.sqrt((a * a).mean())),
-                           max_orientation_error=float(a.max()))
+    sums = ErrorSums()
+    sums.add(dp, rv)
+    stats = sums.statistics()
+    assert stats is not None
+    return stats
+
 
 def pair_by_stamp(times_a: ArrayLike, times_b: ArrayLike,
                   tolerance: float) -> tuple[IntArray, IntArray]:
@@ -85,53 +87,239 @@ def tracker_errors(times: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
     pt, qt = as_pose_batch(truth_position, truth_quaternion)
     return error_statistics(*pose_error(p[ia], q[ia], pt[ib], qt[ib]))
 
-class TrackerErrorAccumulator:
-    """Message-by-message form of :func:`tracker_errors`: pairs each measurement with the
-    truth of the nearest stamp within ``tolerance`` s, whichever arrives first (up to
-    ``buffer`` unpaired of each kept). Equal to the batch when the stamps of each series are
-    more than 2·tolerance apart."""
+#: True poses kept while no measurement waits for them (a truth-only stream, e.g. a tracker
+#: that has not measured yet): beyond this many the oldest are dropped.
+MAX_UNPAIRED_TRUTHS = 10_000
 
-    def __init__(self, tolerance: float, buffer: int = 200) -> None:
+
+def _two_sum(a: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """a + b and the rounding error of that sum, elementwise (Neumaier)."""
+    total = a + b
+    return total, np.where(np.abs(a) >= np.abs(b), (a - total) + b, (b - total) + a)
+
+
+class ErrorSums:
+    """Running sums of paired pose errors, for :class:`ErrorStatistics` in bounded memory:
+    count, Σ Δp (3,) m, Σ |Δp|², max |Δp|, Σ angle², max angle (rad). The sums are
+    compensated (Neumaier), so adding the same errors in other groupings changes a figure
+    only in its last bits."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self._sum = np.zeros(5)          # Σ Δx, Σ Δy, Σ Δz, Σ |Δp|², Σ angle²
+        self._carry = np.zeros(5)
+        self.max_position = 0.0
+        self.max_angle = 0.0
+
+    def add(self, position_error: FloatArray, orientation_error: FloatArray) -> None:
+        """Add errors Δp (N, 3) m and rotation vectors (N, 3) rad."""
+        if position_error.shape[0] == 0:
+            return
+        d, a = row_norms(position_error), row_norms(orientation_error)
+        part = np.concatenate([position_error.sum(axis=0), [(d * d).sum(), (a * a).sum()]])
+        self._sum, error = _two_sum(self._sum, part)
+        self._carry = self._carry + error
+        self.count += int(position_error.shape[0])
+        self.max_position = max(self.max_position, float(d.max()))
+        self.max_angle = max(self.max_angle, float(a.max()))
+
+    @staticmethod
+    def grouped(label_m: IntArray, label_t: IntArray, position_error: FloatArray,
+                orientation_error: FloatArray) -> dict[tuple[int, int], ErrorSums]:
+        """The sums of errors Δp (N, 3) m and rotation vectors (N, 3) rad per pair of labels
+        (N,), (N,): one sort and one reduction for all groups."""
+        if position_error.shape[0] == 0:
+            return {}
+        order = np.lexsort((label_t, label_m))
+        lm, lt = label_m[order], label_t[order]
+        starts = np.flatnonzero(np.r_[True, (lm[1:] != lm[:-1]) | (lt[1:] != lt[:-1])])
+        dp, rv = position_error[order], orientation_error[order]
+        d, a = row_norms(dp), row_norms(rv)
+        parts = np.column_stack([np.add.reduceat(dp, starts, axis=0),
+                                 np.add.reduceat(d * d, starts), np.add.reduceat(a * a, starts)])
+        max_d, max_a = np.maximum.reduceat(d, starts), np.maximum.reduceat(a, starts)
+        counts = np.diff(np.r_[starts, order.size])
+        out: dict[tuple[int, int], ErrorSums] = {}
+        for g, start in enumerate(starts.tolist()):  # over groups, not samples
+            sums = ErrorSums()
+            sums.count = int(counts[g])
+            sums._sum = parts[g].copy()
+            sums.max_position, sums.max_angle = float(max_d[g]), float(max_a[g])
+            out[int(lm[start]), int(lt[start])] = sums
+        return out
+
+    def merged(self, other: ErrorSums) -> ErrorSums:
+        """These sums and ``other``'s together (a new object)."""
+        return ErrorSums.total([self, other])
+
+    @staticmethod
+    def total(parts: Iterable[ErrorSums]) -> ErrorSums:
+        """The sums of all ``parts`` together (a new object): each component the correctly
+        rounded sum of the parts' sums and carries (``math.fsum``), whatever their order."""
+        parts = list(parts)
+        out = ErrorSums()
+        out.count = sum(p.count for p in parts)
+        out._sum = np.array([math.fsum([v for p in parts for v in (p._sum[i], p._carry[i])])
+                             for i in range(5)])
+        out.max_position = max((p.max_position for p in parts), default=0.0)
+        out.max_angle = max((p.max_angle for p in parts), default=0.0)
+        return out
+
+    def statistics(self) -> ErrorStatistics | None:
+        """The statistics of everything added; None when nothing was."""
+        if self.count == 0:
+            return None
+        s = (self._sum + self._carry) / self.count
+        return ErrorStatistics(samples=self.count, mean_position_error=triple(s[:3]),
+                               rms_position_error=float(np.sqrt(s[3])),
+                               max_position_error=self.max_position,
+                               rms_orientation_error=float(np.sqrt(s[4])),
+                               max_orientation_error=self.max_angle)
+
+
+class _Series:
+    """Poses of one source in stamp order, the oldest dropped once no pairing needs them:
+    times (N,) s, positions (N, 3), quaternions (N, 4), labels (N,), and the index in the
+    whole series of the first one kept."""
+
+    def __init__(self) -> None:
+        self.time = np.empty(0)
+        self.position = np.empty((0, 3))
+        self.quaternion = np.empty((0, 4))
+        self.label = np.empty(0, dtype=np.intp)
+        self.base = 0
+        self.last = -math.inf
+
+    def add(self, t: FloatArray, p: FloatArray, q: FloatArray, label: IntArray) -> None:
+        self.time = np.concatenate([self.time, t])
+        self.position = np.concatenate([self.position, p])
+        self.quaternion = np.concatenate([self.quaternion, q])
+        self.label = np.concatenate([self.label, label])
+        if t.size:
+            self.last = float(t[-1])
+
+    def drop(self, count: int) -> None:
+        """Forget the first ``count`` kept."""
+        if count > 0:
+            self.time, self.position = self.time[count:], self.position[count:]
+            self.quaternion, self.label = self.quaternion[count:], self.label[count:]
+            self.base += count
+
+
+class TrackerErrorAccumulator:
+    """Streaming form of :func:`tracker_errors`: at any moment :meth:`statistics` is that of
+    :func:`pair_by_stamp` over every measurement and true pose given so far, whatever order and
+    batches they came in (each series in non-decreasing stamps: InputError otherwise).
+
+    A measurement is paired for good once a true pose stamped at or after it has arrived (its
+    nearest truth can no longer change); the pairs go into running sums (:class:`ErrorSums`)
+    per pair of labels (the measurement's and the truth's: e.g. the segment of a run each was
+    taken in); only the measurements still waiting and the
+    true poses they may pair with are kept, so memory stays bounded however long the run."""
+
+    def __init__(self, tolerance: float) -> None:
         if not (math.isfinite(tolerance) and tolerance > 0.0):
             raise ParameterError('max_stamp_difference', tolerance, 'must be finite and > 0 s')
         self.tolerance = tolerance
-        self._measured: deque[tuple[float, FloatArray, FloatArray]] = deque(maxlen=buffer)
-        self._truth: deque[tuple[float, FloatArray, FloatArray]] = deque(maxlen=buffer)
-        self._pairs: list[tuple[float, FloatArray, FloatArray]] = []
+        self.reset()
 
     def reset(self) -> None:
         """Forget every pair and unpaired sample."""
-        self._measured.clear()
-        self._truth.clear()
-        self._pairs.clear()
+        self._measured = _Series()
+        self._truth = _Series()
+        self._claimed = -1                      # truth index taken by the last pair
+        self._sums: dict[tuple[int, int], ErrorSums] = {}
 
-    def add_measured(self, time: float, position: ArrayLike, quaternion: ArrayLike) -> None:
-        """A measured pose at ``time`` s."""
-        self._add(time, position, quaternion, self._measured, self._truth, measured=True)
+    @property
+    def last_measured(self) -> float:
+        """Stamp (s) of the latest measurement given (−inf: none)."""
+        return self._measured.last
 
-    def add_truth(self, time: float, position: ArrayLike, quaternion: ArrayLike) -> None:
-        """A true pose at ``time`` s."""
-        self._add(time, position, quaternion, self._truth, self._measured, measured=False)
+    @property
+    def last_truth(self) -> float:
+        """Stamp (s) of the latest true pose given (−inf: none)."""
+        return self._truth.last
 
-    def _add(self, time: float, position: ArrayLike, quaternion: ArrayLike,
-             mine: deque[tuple[float, FloatArray, FloatArray]],
-             other: deque[tuple[float, FloatArray, FloatArray]], *, measured: bool) -> None:
-        t = as_time(time, 'time')
-        p, q = as_pose_batch(position, quaternion)
-        gaps = np.abs(np.array([o[0] for o in other]) - t)
-        if gaps.size == 0 or gaps.min() > self.tolerance:
-            mine.append((t, p, q))
+    def add_measured(self, time: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
+                     label: ArrayLike | int = 0) -> None:
+        """Measured poses: stamps (N,) s, positions (N, 3) m, quaternions (N, 4); ``label``
+        (N,) or one for all, the key their pairs are summed under."""
+        self._add(self._measured, time, position, quaternion, label, 'measurement')
+
+    def add_truth(self, time: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
+                  label: ArrayLike | int = 0) -> None:
+        """True poses: stamps (N,) s, positions (N, 3) m, quaternions (N, 4); ``label`` (N,)
+        or one for all."""
+        self._add(self._truth, time, position, quaternion, label, 'true pose')
+        excess = self._truth.time.size - MAX_UNPAIRED_TRUTHS
+        if excess > 0 and self._measured.time.size == 0:
+            self._truth.drop(excess)
+
+    def _add(self, series: _Series, time: ArrayLike, position: ArrayLike,
+             quaternion: ArrayLike, label: ArrayLike | int, what: str) -> None:
+        t = as_times(np.reshape(np.asarray(time, dtype=float), -1), f'{what} time')
+        if t.size == 0:
             return
-        best = int(gaps.argmin())
-        t_o, p_o, q_o = other[best]
-        del other[best]
-        meas, truth = ((t, p, q), (t_o, p_o, q_o)) if measured else ((t_o, p_o, q_o), (t, p, q))
-        dp, rv = pose_error(meas[1], meas[2], truth[1], truth[2])
-        self._pairs.append((meas[0], dp[0], rv[0]))
+        p, q = as_pose_batch(position, quaternion)
+        if t.size != p.shape[0]:
+            raise InputError(f'{t.size} {what} times for {p.shape[0]} poses')
+        if t.size and t[0] < series.last:
+            raise InputError(f'{what} time {float(t[0])!r} s is earlier than the previous '
+                             f'one ({series.last!r} s)')
+        labels = np.broadcast_to(np.asarray(label, dtype=np.intp), t.shape)
+        series.add(t, p, q, np.array(labels))
+        self._pair(final=True)
+
+    def _nearest(self, a: FloatArray) -> IntArray:
+        """Index (into the kept truths) of the nearest truth to each stamp of ``a`` by
+        :func:`pair_by_stamp`'s rule (the earlier one on a tie)."""
+        tb = self._truth.time
+        right = np.clip(np.searchsorted(tb, a), 0, tb.size - 1)
+        left = np.clip(right - 1, 0, tb.size - 1)
+        return np.where(np.abs(tb[left] - a) <= np.abs(tb[right] - a), left, right)
+
+    def _pair(self, *, final: bool) -> dict[tuple[int, int], ErrorSums]:
+        """Pair the waiting measurements: with ``final`` only those whose nearest truth is
+        settled (committed to the sums, then forgotten); otherwise all of them, as if the
+        series ended now (returned, nothing committed)."""
+        m, tb = self._measured, self._truth.time
+        if m.time.size == 0 or tb.size == 0:
+            return {}
+        n = int(np.searchsorted(m.time, tb[-1], side='right')) if final else m.time.size
+        a = m.time[:n]
+        near = self._nearest(a)
+        ok = np.abs(tb[near] - a) <= self.tolerance
+        rows = np.flatnonzero(ok)
+        taken = near[rows] + self._truth.base
+        first = taken != np.concatenate([[self._claimed], taken[:-1]])
+        rows, near = rows[first], near[rows[first]]
+        out: dict[tuple[int, int], ErrorSums] = {}
+        if rows.size:
+            dp, rv = pose_error(m.position[rows], m.quaternion[rows], self._truth.position[near],
+                                self._truth.quaternion[near])
+            out = ErrorSums.grouped(m.label[rows], self._truth.label[near], dp, rv)
+        if final:
+            if rows.size:
+                self._claimed = int(near[-1]) + self._truth.base
+            for label, sums in out.items():
+                self._sums[label] = self._sums.get(label, ErrorSums()).merged(sums)
+            m.drop(n)
+            # Keep the truths a later measurement may pair with: from the last one before the
+            # earliest stamp still to come, and the last two (a measurement after every truth
+            # is weighed against both until a later truth arrives).
+            earliest = m.time[0] if m.time.size else m.last
+            keep = min(int(np.searchsorted(tb, earliest, side='left')) - 1, tb.size - 2)
+            self._truth.drop(max(keep, 0))
+        return out
+
+    def sums(self) -> dict[tuple[int, int], ErrorSums]:
+        """Per (measurement's label, truth's label), the sums of every pair so far (waiting
+        measurements paired as if the series ended now)."""
+        pending = self._pair(final=False)
+        return {k: ErrorSums.total(s for s in (self._sums.get(k), pending.get(k))
+                                   if s is not None)
+                for k in sorted(set(self._sums) | set(pending))}
 
     def statistics(self) -> ErrorStatistics | None:
-        """Statistics over the pairs so far (in measurement-time order), None without pairs."""
-        if not self._pairs:
-            return None
-        pairs = sorted(self._pairs, key=lambda x: x[0])
-        return error_statistics([x[1] for x in pairs], [x[2] for x in pairs])
+        """Statistics over every pair so far, None without pairs."""
+        return ErrorSums.total(self.sums().values()).statistics()

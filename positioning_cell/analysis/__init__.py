@@ -1,16 +1,20 @@
 """Offline analysis of recorded cell runs (pure library, no rclpy): the run program
-(:mod:`.program`), a bag read in recorded order (:mod:`.reading`), replayed through the
-accuracy monitor's rules (:mod:`positioning_cell.accuracy.monitor`, :mod:`.replay`),
-summarised per compensation mode and commanded pose (:mod:`.summary`), written as a Markdown
-report and a JSON summary (:mod:`.report`) and plotted (:mod:`.plots`)."""
+(:mod:`.program`), a bag read in recorded order in batches of arrays (:mod:`.reading`),
+replayed through the accuracy monitor's rules (:mod:`positioning_cell.accuracy.monitor`,
+:mod:`.replay`) with the error over time kept as a bounded trace (:mod:`.trace`) and the run's
+context (calibration, tracker registrations: :mod:`.context`), summarised per compensation
+mode and commanded pose (:mod:`.summary`), written as a Markdown report and a JSON summary
+(:mod:`.report`) and plotted (:mod:`.plots`)."""
 
 from positioning_cell.analysis.program import Program, ProgramStep, load_program
-from positioning_cell.analysis.reading import BagContents, read_bag
+from positioning_cell.analysis.reading import Recording, message_batches, with_recording
 from positioning_cell.analysis.replay import (
     OPTIONAL_TOPICS,
     REQUIRED_TOPICS,
     LabelledVisit,
+    MessageBatch,
     Replay,
+    Replayer,
     Segment,
     replay,
 )
@@ -26,19 +30,22 @@ from positioning_cell.analysis.summary import (
 __all__ = [
     'OPTIONAL_TOPICS',
     'REQUIRED_TOPICS',
-    'BagContents',
     'Extremes',
     'LabelledVisit',
+    'MessageBatch',
     'ModeSummary',
     'PoseSummary',
     'Program',
     'ProgramStep',
+    'Recording',
     'Replay',
+    'Replayer',
     'RunAnalysis',
     'Segment',
     'analyse_bag',
     'load_program',
-    'read_bag',
+    'message_batches',
     'replay',
     'summarise',
+    'with_recording',
 ]

@@ -1,13 +1,13 @@
-"""Plots (PNG, matplotlib Agg) of a recorded run, in µm and degrees: the error over time with
-the moves marked, the per-axis error per pose, the attained poses around each commanded pose
-and the error distribution per compensation mode."""
+"""Plots (PNG) of a recorded run, in µm and degrees: the error over time with the moves marked,
+the per-axis error per pose, the attained poses around each commanded pose and the error
+distribution per compensation mode. Each draws what the analysis kept, never the samples one by
+one: the error over time is the bounded envelope of :mod:`positioning_cell.analysis.trace`."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from positioning_cell import accuracy
 from positioning_cell.analysis.replay import LabelledVisit
 from positioning_cell.analysis.summary import RunAnalysis
+from positioning_cell.plotting import colours, figure, save
 
 FloatArray = NDArray[np.float64]
 UM = 1e6
@@ -23,22 +24,10 @@ DEG = 180.0 / math.pi
 MAX_MARKED_MOVES = 200
 
 
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _colours(modes: Sequence[str]) -> dict[str, Any]:
-    cmap = _pyplot().get_cmap('tab10')
-    return {m: cmap(i % 10) for i, m in enumerate(modes)}
-
-
 def _visit_errors(visits: Sequence[LabelledVisit]) -> tuple[FloatArray, FloatArray]:
     """Attained minus commanded of each visit: Δp (n, 3) m, rotation vectors (n, 3) rad."""
+    if not visits:
+        return np.empty((0, 3)), np.empty((0, 3))
     return accuracy.measurement_error([v.visit.position for v in visits],
                                       [v.visit.quaternion for v in visits],
                                       [v.visit.commanded_position for v in visits],
@@ -46,77 +35,90 @@ def _visit_errors(visits: Sequence[LabelledVisit]) -> tuple[FloatArray, FloatArr
 
 
 def plot_error_over_time(analysis: RunAnalysis, path: Path) -> Path:
-    """|Δp| (µm) and rotation angle (°) of every measurement against its target over the run
-    (log scale), moves marked with their pose (up to :data:`MAX_MARKED_MOVES`), modes shaded,
-    settled visits dotted."""
-    plt = _pyplot()
+    """|Δp| (µm) and rotation angle (°) of the measurements against their target over the run
+    (log scale; the band from the smallest to the largest error of each time bin), moves
+    marked with their pose (up to :data:`MAX_MARKED_MOVES`), modes shaded, settled visits
+    dotted."""
     r = analysis.replay
-    m = r.measured
-    t0 = float(m.time[0]) if m.count else 0.0
-    fig, axes = plt.subplots(2, 1, figsize=(12, 6.5), sharex=True)
-    ok = ~np.isnan(m.position_error[:, 0])
-    d = np.linalg.norm(m.position_error[ok], axis=1) * UM
-    a = np.linalg.norm(m.orientation_error[ok], axis=1) * DEG
-    colours = _colours([s.mode for s in analysis.modes] or ['measured'])
-    for ax, values, unit in ((axes[0], d, '|Δp| µm'), (axes[1], a, 'angle °')):
-        ax.plot(m.time[ok] - t0, np.maximum(values, 1e-3), lw=0.8, color='0.2')
+    env = r.measured.errors
+    t0 = float(env.time[0]) if env.time.size else 0.0
+    fig, axes = figure(12, 6.5, 2, 1, sharex=True, margins=(0.07, 0.98, 0.94, 0.08),
+                       space=(0.2, 0.08))
+    axes = axes[:, 0]
+    time = env.time - t0
+    for ax, low, high, scale, unit in ((axes[0], env.position_min, env.position_max, UM,
+                                        '|Δp| µm'),
+                                       (axes[1], env.angle_min, env.angle_max, DEG, 'angle °')):
+        lo, hi = np.maximum(low * scale, 1e-3), np.maximum(high * scale, 1e-3)
+        ax.fill_between(time, lo, hi, step='mid', color='0.2', lw=0.6)
         ax.set_yscale('log')
         ax.set_ylabel(unit)
-        ax.grid(True, which='both', alpha=0.3)
+        ax.grid(True, alpha=0.3)
     tol = analysis.settings.tolerance
     axes[0].axhline(tol.position * UM, color='red', ls='--', lw=0.8, label='tolerance')
     axes[1].axhline(tol.orientation * DEG, color='red', ls='--', lw=0.8)
     segs = r.segments
-    end = float(m.time[-1]) - t0 if m.count else 1.0
-    starts = [s.time - t0 for s in segs]
-    for i, s in enumerate(segs):  # one shaded span per block of moves in one mode
-        if i == 0 or segs[i - 1].mode != s.mode:
-            stop = next((starts[j] for j in range(i + 1, len(segs))
-                         if segs[j].mode != s.mode), end)
-            for ax in axes:
-                ax.axvspan(starts[i], stop, color=colours.get(s.mode, '0.9'), alpha=0.08,
-                           lw=0)
+    end = float(time[-1]) if time.size else 1.0
+    starts = np.array([s.time - t0 for s in segs])
+    mode_colour = colours([s.mode for s in analysis.modes] or ['measured'])
+    changes = [i for i in range(len(segs)) if i == 0 or segs[i - 1].mode != segs[i].mode]
+    for n, i in enumerate(changes):  # one shaded span per block of moves in one mode
+        stop = float(starts[changes[n + 1]]) if n + 1 < len(changes) else end
+        for ax in axes:
+            ax.axvspan(float(starts[i]), stop, color=mode_colour.get(segs[i].mode, '0.9'),
+                       alpha=0.08, lw=0)
     if len(segs) <= MAX_MARKED_MOVES:  # beyond, the marks would hide the curve
         for ax in axes:
             ax.vlines(starts, 0, 1, transform=ax.get_xaxis_transform(), color='0.5', lw=0.5)
         for s, start in zip(segs, starts, strict=True):
-            axes[0].annotate(s.pose, (start, 1.0), xycoords=('data', 'axes fraction'),
+            axes[0].annotate(s.pose, (float(start), 1.0), xycoords=('data', 'axes fraction'),
                              fontsize=6, va='bottom', rotation=90)
-    for mode, colour in colours.items():
+    for mode, colour in mode_colour.items():
         mine = [v for v in r.visits if v.mode == mode]
         settled = np.array([v.visit.settle_time - t0 for v in mine])
         axes[0].plot(settled, [v.verdict.position_error * UM for v in mine], 'o', ms=3,
                      color=colour)
         axes[1].plot(settled, [v.verdict.orientation_error * DEG for v in mine], 'o', ms=3,
                      color=colour)
-    handles = [plt.Rectangle((0, 0), 1, 1, color=c, alpha=0.4) for c in colours.values()]
-    axes[0].legend(handles, list(colours), loc='upper right', fontsize=7, title='mode')
+    from matplotlib.patches import Rectangle
+
+    handles = [Rectangle((0, 0), 1, 1, color=c, alpha=0.4) for c in mode_colour.values()]
+    axes[0].legend(handles, list(mode_colour), loc='upper right', fontsize=7, title='mode')
     axes[1].set_xlabel('time since the first measurement, s')
-    fig.suptitle('Measured pose minus commanded pose (lines: moves; dots: settled poses)',
-                 y=0.995)
-    return _save(fig, path)
+    fig.suptitle('Measured pose minus commanded pose (band: min to max per time bin; lines: '
+                 'moves; dots: settled poses)', y=0.99)
+    return save(fig, path)
+
+
+def _grouped(analysis: RunAnalysis, mode: str
+             ) -> tuple[list[str], FloatArray, FloatArray, NDArray[np.intp]]:
+    """The pose names of a mode (in order), the errors Δp, rotation vectors of its visits
+    and the index of each visit's pose among the names."""
+    visits = [v for v in analysis.replay.visits if v.mode == mode]
+    names = [p.pose for m in analysis.modes if m.mode == mode for p in m.poses]
+    dp, rv = _visit_errors(visits)
+    index = np.array([names.index(v.pose) for v in visits], dtype=np.intp)
+    return names, dp, rv, index
 
 
 def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
     """Per mode (columns): the mean error per axis of each pose over its cycles, with the
     standard deviation as error bars: Δx, Δy, Δz (µm) and rotation vector x, y, z (°)."""
-    plt = _pyplot()
     modes = analysis.modes
-    fig, axes = plt.subplots(2, max(len(modes), 1), figsize=(4.2 * max(len(modes), 1), 6.5),
-                             squeeze=False)
+    cols = max(len(modes), 1)
+    fig, axes = figure(4.2 * cols, 6.5, 2, cols, margins=(0.06, 0.99, 0.9, 0.06),
+                       space=(0.3, 0.3))
     for col, mode in enumerate(modes):
-        visits = [v for v in analysis.replay.visits if v.mode == mode.mode]
-        dp, rv = _visit_errors(visits)
-        names = [p.pose for p in mode.poses]
+        names, dp, rv, index = _grouped(analysis, mode.mode)
         x = np.arange(len(names))
+        count = np.maximum(np.bincount(index, minlength=len(names)), 1)
         for row, (values, scale, unit) in enumerate(((dp, UM, 'µm'), (rv, DEG, '°'))):
             ax = axes[row, col]
             for k, axis in enumerate('xyz'):
-                mean = [values[[v.pose == n for v in visits]][:, k].mean() * scale
-                        for n in names]
-                std = [values[[v.pose == n for v in visits]][:, k].std() * scale
-                       for n in names]
-                ax.bar(x + (k - 1) * 0.27, mean, 0.27, yerr=std, capsize=2,
+                v = values[:, k] * scale
+                mean = np.bincount(index, v, minlength=len(names)) / count
+                var = np.bincount(index, (v - mean[index]) ** 2, minlength=len(names)) / count
+                ax.bar(x + (k - 1) * 0.27, mean, 0.27, yerr=np.sqrt(var), capsize=2,
                        label=f'{"Δ" if row == 0 else "r"}{axis}')
             ax.axhline(0.0, color='k', lw=0.5)
             ax.set_xticks(x, names)
@@ -127,24 +129,26 @@ def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
             ax.legend(fontsize=7)
     fig.suptitle('Error per axis per pose (attained minus commanded; bars: mean over cycles, '
                  'whiskers: std)', fontsize=10)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
     """Per commanded pose (columns): the attained positions relative to it (µm), x-y (top)
     and x-z (bottom), one colour per mode, crosses at each mode's barycentre (ISO AP)."""
-    plt = _pyplot()
     visits = analysis.replay.visits
     poses = list(dict.fromkeys(v.pose for v in sorted(visits, key=lambda v: v.visit.key)))
-    colours = _colours([m.mode for m in analysis.modes])
+    mode_colour = colours([m.mode for m in analysis.modes])
     n = max(len(poses), 1)
-    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 6.4), squeeze=False)
-    dp, _ = _visit_errors(visits) if visits else (np.empty((0, 3)), None)
+    fig, axes = figure(3.2 * n, 6.4, 2, n, margins=(0.05, 0.99, 0.9, 0.08),
+                       space=(0.35, 0.3))
+    dp, _ = _visit_errors(visits)
+    pose_of = np.array([v.pose for v in visits], dtype=object)
+    mode_of = np.array([v.mode for v in visits], dtype=object)
     for col, pose in enumerate(poses):
         for row, (i, j) in enumerate(((0, 1), (0, 2))):
             ax = axes[row, col]
-            for mode, colour in colours.items():
-                sel = np.array([v.pose == pose and v.mode == mode for v in visits])
+            for mode, colour in mode_colour.items():
+                sel = (pose_of == pose) & (mode_of == mode)
                 if not sel.any():
                     continue
                 pts = dp[sel] * UM
@@ -161,19 +165,18 @@ def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
         axes[0, 0].legend(fontsize=7)
     fig.suptitle('Attained poses around each commanded pose (+: commanded, x: barycentre)',
                  fontsize=10)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
     """Per mode: the distribution of the settled pose errors |Δp| (µm) and angle (°), box
     plots with every visit drawn, the tolerances dashed."""
-    plt = _pyplot()
     modes = [m.mode for m in analysis.modes]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    fig, axes = figure(10, 4.5, 1, 2, margins=(0.07, 0.98, 0.9, 0.08), space=(0.25, 0.2))
     tol = analysis.settings.tolerance
     for ax, attr, scale, unit, limit in (
-            (axes[0], 'position_error', UM, '|Δp| µm', tol.position * UM),
-            (axes[1], 'orientation_error', DEG, 'angle °', tol.orientation * DEG)):
+            (axes[0, 0], 'position_error', UM, '|Δp| µm', tol.position * UM),
+            (axes[0, 1], 'orientation_error', DEG, 'angle °', tol.orientation * DEG)):
         data = [np.array([getattr(v.verdict, attr) for v in analysis.replay.visits
                           if v.mode == m]) * scale for m in modes]
         if modes:
@@ -184,10 +187,10 @@ def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
         ax.axhline(limit, color='red', ls='--', lw=0.8, label='tolerance')
         ax.set_yscale('log')
         ax.set_ylabel(unit)
-        ax.grid(True, which='both', alpha=0.3)
+        ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle('Settled pose error per compensation mode', fontsize=10)
-    return _save(fig, path)
+    return save(fig, path)
 
 
 def write_plots(analysis: RunAnalysis, out_dir: Path) -> list[Path]:
@@ -200,11 +203,3 @@ def write_plots(analysis: RunAnalysis, out_dir: Path) -> list[Path]:
                   plot_clusters(analysis, out_dir / 'clusters.png'),
                   plot_error_distribution(analysis, out_dir / 'error_distribution.png')]
     return paths
-
-
-def _save(fig: Any, path: Path) -> Path:
-    """Lay out, write as PNG (110 dpi) and release a figure."""
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    _pyplot().close(fig)
-    return path

@@ -1,16 +1,22 @@
-"""Reading a recorded bag for analysis: decoded messages of chosen topics in recorded order,
-including from a bag whose recording did not end cleanly or whose files are damaged.
+"""Reading a recorded bag for analysis: the messages of the topics the analysis uses, in
+recorded order, as :class:`positioning_cell.analysis.replay.MessageBatch` es of arrays, in
+bounded memory; also from a bag whose recording did not end cleanly or whose files are damaged.
+This is the one place that reads bags for the analysis.
 
-Every storage file is verified first (:func:`positioning_cell.bag.verify_bag`: MCAP magic, each
-chunk's CRC or structure, the data-section CRC). A file that is no MCAP file at all (empty,
-too short, wrong magic) holds nothing to analyse: when no file is left, BagError says what
-each one is. A sound bag is read with :class:`positioning_cell.bag.BagReader`. A bag with
-damage (corrupt chunks, a truncated file), or one the reader refuses (no metadata.yaml because
-the recorder was killed), is linked into a temporary folder and repaired there with
-:func:`positioning_cell.bag.recover_bag` (the sound chunks of every file, the readable records
-of a truncated one; the original is left as it is); :attr:`BagContents.problems` names each
-corrupt chunk with the time range lost (UTC and seconds into the bag) and the messages lost
-when the index says. This is the one place that reads bags for the analysis.
+A sound MCAP bag is read through its index (:class:`positioning_cell.bag.IndexedBag`): only the
+chunks and records of the wanted topics are parsed, each chunk read is checked against its CRC
+and every message used against its index record, the whole data section against its CRC, and
+the fixed-layout messages (poses, strings) are decoded as arrays
+(:mod:`positioning_cell.bag.cdr`); diagnostics are decoded by rosbags, only those holding the
+positioner's or the tracker's status. A bag the indexed read refuses (no summary: the recorder
+was killed; a corrupt chunk; a data-section CRC mismatch), whether on opening or half way
+through, is verified whole (:func:`positioning_cell.bag.verify_bag`), its sound chunks linked
+into a temporary folder and repaired there (:func:`positioning_cell.bag.recover_bag`; the
+original is left as it is), and the analysis runs again from the start on the repaired copy;
+:attr:`Recording.problems` then names each corrupt chunk with the time range lost (UTC and
+seconds into the bag) and the messages lost when the index says. A bag that is not MCAP
+(rosbag2 sqlite3) is read by rosbags (:class:`positioning_cell.bag.BagReader`), decoded message
+by message and batched the same way.
 """
 
 from __future__ import annotations
@@ -18,10 +24,18 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass, replace
+from itertools import islice
 from pathlib import Path
+from typing import Any, TypeVar
 
+import numpy as np
+from numpy.typing import NDArray
+
+from positioning_cell.accuracy.monitor import PoseMessages
+from positioning_cell.accuracy.settle import stamp_seconds
+from positioning_cell.analysis.replay import MessageBatch
 from positioning_cell.bag import (
     BagError,
     BagMessage,
@@ -30,30 +44,167 @@ from positioning_cell.bag import (
     FileRecovery,
     recover_bag,
 )
+from positioning_cell.bag.cdr import Columns, Strings
+from positioning_cell.bag.indexed import Block, IndexedBag, IndexedReadError
 from positioning_cell.bag.verify import BagCheck, storage_files, verify_bag
+from positioning_cell.names import (
+    AXIS_TEST,
+    CALIBRATION,
+    DIAGNOSTICS,
+    MEASURED_POSE,
+    PROGRAM,
+    STATUS_MEASUREMENT,
+    STATUS_POSITIONER,
+    TARGET,
+    TRUE_POSE,
+)
+
+T = TypeVar('T')
+FloatArray = NDArray[np.float64]
+
+#: The pose topics and the MessageBatch field each fills.
+POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth'}
+#: The text topics (std_msgs/String) and their MessageBatch field.
+TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test'}
+#: A /diagnostics message is decoded only when it holds one of these statuses.
+DIAGNOSTIC_STATUSES = (STATUS_POSITIONER.encode(), STATUS_MEASUREMENT.encode())
+#: Messages per batch where a bag is read message by message (not MCAP).
+MESSAGES_PER_BATCH = 20_000
 
 
 @dataclass(frozen=True)
-class BagContents:
-    """What was read: the wanted messages in recorded (log time) order, every topic of the bag
-    with its ROS type and count, the total message count, the problems found (empty for a
-    sound bag) and the verification of its storage files (None when the bag has none to
-    verify)."""
+class Recording:
+    """A bag open for analysis: every topic with its ROS type and message count, the total
+    message count, the log times (ns) of its first and last message (0 for an empty bag), the
+    problems found (empty for a sound bag), the verification of its storage files (None when
+    not verified whole: a sound bag read through its index, or not MCAP), and :meth:`batches`:
+    the wanted messages in recorded order (each call reads the bag again)."""
 
     path: Path
-    messages: tuple[BagMessage, ...]
     topics: dict[str, tuple[str, int]]
     message_count: int
+    start_ns: int
+    end_ns: int
     problems: tuple[str, ...]
-    check: BagCheck | None = None
+    check: BagCheck | None
+    read: Callable[[], Iterator[MessageBatch]]
+
+    def batches(self) -> Iterator[MessageBatch]:
+        """The wanted messages, batch by batch, in recorded order."""
+        return self.read()
 
 
-def _read(path: Path, topics: Collection[str]) -> BagContents:
-    with BagReader(path) as reader:
-        present = [t for t in topics if t in reader.topics]
-        messages = tuple(reader.messages(present)) if present else ()
-        info = {t.name: (t.msgtype, t.message_count) for t in reader.topics.values()}
-        return BagContents(path, messages, info, reader.message_count, ())
+def _pose_rows(columns: Columns, rank: NDArray[np.intp]) -> PoseMessages:
+    """A PoseStamped or PoseWithCovarianceStamped column set as rows (the stamp as
+    :func:`stamp_seconds` makes it)."""
+    pose = 'pose.pose' if 'pose.pose.position.x' in columns.fields else 'pose'
+    frame = columns['header.frame_id']
+    assert isinstance(frame, Strings)
+    stamp = (columns.array('header.stamp.sec').astype(float)
+             + columns.array('header.stamp.nanosec').astype(float) * 1e-9)
+    position = np.column_stack([columns.array(f'{pose}.position.{a}') for a in 'xyz'])
+    quaternion = np.column_stack([columns.array(f'{pose}.orientation.{a}') for a in 'xyzw'])
+    return PoseMessages(rank, stamp, np.array(frame.values, dtype=object)[frame.codes],
+                    position.astype(float), quaternion.astype(float))
+
+
+def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> MessageBatch:
+    """A block of the indexed read as a MessageBatch."""
+    order = block.order
+    fields: dict[str, Any] = {}
+    for code, name in enumerate(order.names):
+        if name not in block.topics or name not in topics:
+            continue
+        rank = np.flatnonzero(order.topic == code)
+        if name in POSE_TOPICS:
+            decoded = bag.decode(block, name)
+            if decoded.columns is None:
+                raise BagError(bag.path, f'{name} is {decoded.msgtype}, not a pose message')
+            fields[POSE_TOPICS[name]] = _pose_rows(decoded.columns, rank)
+        elif name in TEXT_TOPICS:
+            decoded = bag.decode(block, name)
+            data = decoded.columns['data'] if decoded.columns is not None else None
+            if not isinstance(data, Strings):
+                raise BagError(bag.path, f'{name} is {decoded.msgtype}, not std_msgs/String')
+            fields[TEXT_TOPICS[name]] = tuple(zip(decoded.log_time_ns.tolist(), data.tolist(),
+                                                  strict=True))
+        elif name == DIAGNOSTICS:
+            m = block.topics[name]
+            store, msgtype = bag.typestore, m.msgtype
+            diagnostics = []
+            for i in range(m.log_time_ns.shape[0]):  # few: the statuses that matter only
+                raw = block.payload(name, i)
+                if any(s in raw for s in DIAGNOSTIC_STATUSES):
+                    diagnostics.append((int(m.log_time_ns[i]),
+                                        store.deserialize_cdr(raw, msgtype)))
+            fields['diagnostics'] = tuple(diagnostics)
+    return MessageBatch(**fields)
+
+
+def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
+    """Decoded messages (rosbags objects, in recorded order) as a MessageBatch."""
+    poses: dict[str, list[tuple[int, Any]]] = {name: [] for name in POSE_TOPICS}
+    texts: dict[str, list[tuple[int, str]]] = {name: [] for name in TEXT_TOPICS}
+    diagnostics: list[tuple[int, Any]] = []
+    for rank, item in enumerate(messages, start=offset):
+        if item.topic in POSE_TOPICS:
+            poses[item.topic].append((rank, item.message))
+        elif item.topic in TEXT_TOPICS:
+            texts[item.topic].append((item.log_time_ns, item.message.data))
+        elif item.topic == DIAGNOSTICS:
+            diagnostics.append((item.log_time_ns, item.message))
+    rows: dict[str, PoseMessages] = {}
+    for topic, found in poses.items():
+        pose = [getattr(m.pose, 'pose', m.pose) for _, m in found]
+        rows[topic] = PoseMessages(
+            np.array([r for r, _ in found], dtype=np.intp),
+            np.array([stamp_seconds(m.header.stamp.sec, m.header.stamp.nanosec)
+                      for _, m in found], dtype=float),
+            np.array([m.header.frame_id for _, m in found], dtype=object),
+            np.array([(p.position.x, p.position.y, p.position.z) for p in pose],
+                     dtype=float).reshape(-1, 3),
+            np.array([(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)
+                      for p in pose], dtype=float).reshape(-1, 4))
+    return MessageBatch(targets=rows[TARGET], measured=rows[MEASURED_POSE],
+                        truth=rows[TRUE_POSE], program=tuple(texts[PROGRAM]),
+                        diagnostics=tuple(diagnostics), calibration=tuple(texts[CALIBRATION]),
+                        axis_test=tuple(texts[AXIS_TEST]))
+
+
+def message_batches(messages: Iterator[BagMessage], size: int = MESSAGES_PER_BATCH
+                    ) -> Iterator[MessageBatch]:
+    """Decoded messages (rosbags objects, in recorded order) as MessageBatch es of ``size``
+    messages: the analysis of a bag read message by message, and an independent way into the
+    replay for tests."""
+    offset = 0
+    while True:
+        chunk = list(islice(messages, size))
+        if not chunk:
+            return
+        yield _message_batch(chunk, offset)
+        offset += len(chunk)
+
+
+def _indexed(path: Path, bag: IndexedBag, topics: Collection[str],
+             problems: tuple[str, ...] = (), check: BagCheck | None = None) -> Recording:
+    present = [t for t in topics if t in bag.topics]
+    start, end = (bag.start_ns, bag.end_ns) if bag.message_count else (0, 0)
+
+    def read() -> Iterator[MessageBatch]:
+        for block in bag.blocks(present):
+            yield _block_batch(bag, block, present)
+
+    return Recording(path, {t.name: (t.msgtype, t.message_count) for t in bag.topics.values()},
+                     bag.message_count, start, end, problems, check, read)
+
+
+def _rosbags(path: Path, reader: BagReader, topics: Collection[str]) -> Recording:
+    present = [t for t in topics if t in reader.topics]
+    return Recording(path, {t.name: (t.msgtype, t.message_count)
+                            for t in reader.topics.values()},
+                     reader.message_count, reader.start_ns, reader.end_ns, (), None,
+                     lambda: message_batches(reader.messages(present)) if present
+                     else iter(()))
 
 
 def _place(source: Path, target: Path) -> None:
@@ -97,31 +248,14 @@ def _problems(check: BagCheck, first: str | None, kept: int,
     return tuple(out)
 
 
-def read_bag(path: str | Path, topics: Collection[str]) -> BagContents:
-    """The messages of ``topics`` (those the bag has) from the bag at ``path`` (a rosbag2
-    folder or an ``.mcap`` file). Raises BagError when nothing readable is there (no bag, or
-    no storage file that is an MCAP file)."""
-    path = Path(path)
-    if not path.exists():
-        raise BagError(path, 'no such file or folder')
+def _repaired(path: Path, topics: Collection[str], work: Callable[[Recording], T],
+              first: str | None) -> T:
+    """``work`` on a repaired copy of the MCAP bag at ``path`` (module docstring)."""
     files = storage_files(path) if path.is_dir() else [path]
-    mcap = bool(files) and all(f.suffix == '.mcap' for f in files)
-    check = verify_bag(path, files) if mcap else None
-    usable = [f for f in check.files if f.usable] if check is not None else []
-    if check is not None and not usable:
+    check = verify_bag(path, files)
+    usable = [f for f in check.files if f.usable]
+    if not usable:
         raise _unusable(path, check.files)
-    first: str | None = None
-    if check is None or check.sound:
-        try:
-            contents = _read(path, topics)
-        except BagError as err:
-            first = err.reason
-        else:
-            return BagContents(path, contents.messages, contents.topics,
-                               contents.message_count, (), check)
-        if not mcap:
-            raise BagError(path, f'not a bag ({first})')
-    assert check is not None
     with tempfile.TemporaryDirectory(prefix='analyze_bag_') as tmp:
         copy = Path(tmp) / 'bag'
         copy.mkdir()
@@ -130,11 +264,41 @@ def read_bag(path: str | Path, topics: Collection[str]) -> BagContents:
         try:
             report = recover_bag(copy, checked=[replace(f, path=copy / f.path.name)
                                                 for f in usable])
-            contents = _read(copy, topics)
+            bag = IndexedBag(copy)
         except BagError as err:  # name the user's bag, not the copy
             raise BagError(path, f'not a readable bag: {err.reason}'
                                  f'{f" ({first})" if first else ""}') from err
-    problems = _problems(check, first, contents.message_count,
-                         [r for r in report.files if r.status != 'complete'])
-    return BagContents(path, contents.messages, contents.topics, contents.message_count,
-                       problems, check)
+        with bag:
+            problems = _problems(check, first, bag.message_count,
+                                 [r for r in report.files if r.status != 'complete'])
+            return work(_indexed(path, bag, topics, problems, check))
+
+
+def with_recording(path: str | Path, topics: Collection[str],
+                   work: Callable[[Recording], T]) -> T:
+    """Run ``work`` on the bag at ``path`` (a rosbag2 folder or an ``.mcap`` file) opened for
+    the messages of ``topics`` (those it has); returns what ``work`` returns. Should the
+    indexed read find damage while ``work`` reads, ``work`` runs again from the start on the
+    repaired copy (module docstring), so it must not keep state between calls. BagError when
+    nothing readable is there (no bag, or no storage file that is an MCAP file)."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError(path, 'no such file or folder')
+    files = storage_files(path) if path.is_dir() else [path]
+    if not files or not all(f.suffix == '.mcap' for f in files):
+        try:
+            reader = BagReader(path)
+        except BagError as err:
+            raise BagError(path, f'not a bag ({err.reason})') from err
+        with reader:
+            return work(_rosbags(path, reader, topics))
+    try:
+        bag = IndexedBag(path)
+    except BagError as err:  # no summary, a damaged one, a file that is not MCAP among others
+        return _repaired(path, topics, work, err.reason)
+    with bag:
+        try:
+            return work(_indexed(path, bag, topics))
+        except IndexedReadError as err:  # damage found while reading: start again, repaired
+            first = err.reason
+    return _repaired(path, topics, work, first)

@@ -1,5 +1,12 @@
-"""A recorded run through the monitor's rules, message by message in recorded order, with
-every settled visit labelled by the compensation mode and program pose it belongs to.
+"""A recorded run through the monitor's rules in recorded order, batch by batch, with every
+settled visit labelled by the compensation mode and program pose it belongs to.
+
+The recording arrives as :class:`MessageBatch` es (:mod:`.reading`): the pose messages of each
+topic as arrays, with their place in the recorded order. Between two targets the measured and
+the true poses go to the monitor as arrays (:meth:`Monitor.measurements`, :meth:`Monitor.truths`:
+the one implementation the live node runs one message at a time, giving the same figures for
+any batching); each target goes alone, at its place. Memory is one batch plus what the run
+found (segments, visits, program steps, a bounded error trace), whatever the bag's length.
 
 Labels come from ``/cell/program`` (std_msgs/String, JSON written by :meth:`ProgramStep.to_json`:
 ``{"mode": "model", "cycle": 2, "pose": "P3", "stamp": 1700000000.25}``) published by the run
@@ -24,19 +31,22 @@ live node reports) keep the target's own stamp.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
-from positioning_cell.accuracy.monitor import Ignored, Monitor, MonitorSettings
+from positioning_cell.accuracy.monitor import Monitor, MonitorSettings, PoseBatch, PoseMessages
+from positioning_cell.analysis.context import ContextCollector
 from positioning_cell.analysis.program import ProgramStep
-from positioning_cell.bag import BagMessage
+from positioning_cell.analysis.trace import Envelope, ErrorTrace
 from positioning_cell.errors import InputError
 from positioning_cell.names import (
+    AXIS_TEST,
+    CALIBRATION,
     DIAGNOSTICS,
     MEASURED_POSE,
     PROGRAM,
@@ -50,12 +60,31 @@ IntArray = NDArray[np.intp]
 
 #: Without these there is nothing to analyse.
 REQUIRED_TOPICS = (TARGET, MEASURED_POSE)
-#: Used when present: the simulation truth, the program labels, the positioner's mode.
+#: Used when present (the report names those missing): the simulation truth, the program
+#: labels, the positioner's mode (and calibration, the tracker's registration).
 OPTIONAL_TOPICS = (TRUE_POSE, PROGRAM, DIAGNOSTICS)
+#: Read when present: the calibration runs recorded in the run, its axis tests.
+CONTEXT_TOPICS = (CALIBRATION, AXIS_TEST)
 UNKNOWN_MODE = 'unknown'
 #: The label of a segment that starts before the first program step of a run that has steps
 #: (the homing move of run_cell): in the monitor's figures, not in the per-mode summaries.
 BEFORE_PROGRAM = 'before program'
+
+
+@dataclass(frozen=True)
+class MessageBatch:
+    """Consecutive messages of a recording, as the analysis needs them: the pose topics as
+    :class:`PoseMessages`, the other topics as (log time ns, message) pairs in recorded order
+    (program steps, calibration and axis-test markers as their JSON text, diagnostics as decoded
+    DiagnosticArray messages: those with the positioner's or the tracker's status suffice)."""
+
+    targets: PoseMessages = field(default_factory=PoseMessages.empty)
+    measured: PoseMessages = field(default_factory=PoseMessages.empty)
+    truth: PoseMessages = field(default_factory=PoseMessages.empty)
+    program: tuple[tuple[int, str], ...] = ()
+    diagnostics: tuple[tuple[int, Any], ...] = ()
+    calibration: tuple[tuple[int, str], ...] = ()
+    axis_test: tuple[tuple[int, str], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -90,79 +119,58 @@ class LabelledVisit:
 
 
 @dataclass(frozen=True)
-class Samples:
-    """Accepted pose samples of one source: stamps (N,) s, positions (N, 3) m, quaternions
-    (N, 4), the error against the current target (N, 3) m and rotation vectors (N, 3) rad
-    (NaN before the first target), and the segment index of each (−1: none)."""
+class SampleTrace:
+    """The pose samples of one source the monitor took: how many, the stamp (s) of the first
+    (NaN: none), and their error against the target over time (:class:`Envelope`)."""
 
-    time: FloatArray
-    position: FloatArray
-    quaternion: FloatArray
-    position_error: FloatArray
-    orientation_error: FloatArray
-    segment: IntArray
-
-    @property
-    def count(self) -> int:
-        """Number of samples."""
-        return int(self.time.size)
-
-
-class _SampleLog:
-    """Growing columns of one source (appends per message; arrays once at the end)."""
-
-    def __init__(self) -> None:
-        self.rows: list[tuple[float, Any, Any, Any, Any, int]] = []
-
-    def add(self, t: float, p: Any, q: Any, update: accuracy.SampleUpdate, seg: int) -> None:
-        self.rows.append((t, p, q, update.position_error, update.orientation_error, seg))
+    count: int
+    first: float
+    errors: Envelope
 
     def start(self, target_time: float) -> float:
         """Start of a segment as the bag shows it: the later of ``target_time`` and the first
         sample."""
-        return max(target_time, self.rows[0][0]) if self.rows else target_time
-
-    def arrays(self) -> Samples:
-        n = len(self.rows)
-        nan3 = np.full(3, math.nan)
-        if n == 0:
-            empty = np.empty((0, 3))
-            return Samples(np.empty(0), empty, np.empty((0, 4)), empty, empty,
-                           np.empty(0, dtype=np.intp))
-        cols = list(zip(*self.rows, strict=True))
-        return Samples(np.array(cols[0], dtype=float), np.array(cols[1], dtype=float),
-                       np.array(cols[2], dtype=float),
-                       np.array([nan3 if v is None else v for v in cols[3]], dtype=float),
-                       np.array([nan3 if v is None else v for v in cols[4]], dtype=float),
-                       np.array(cols[5], dtype=np.intp))
+        return target_time if math.isnan(self.first) else max(target_time, self.first)
 
 
 @dataclass(frozen=True)
 class Replay:
     """Everything the replay found: the monitor (its :meth:`Monitor.report` equals the
-    live node's), the segments, the labelled measured and true visits, the accepted samples,
-    the program steps and the notes they carried."""
+    live node's), the segments, the labelled measured and true visits, the samples taken per
+    source, the program steps and the notes they carried."""
 
     monitor: Monitor
     segments: tuple[Segment, ...]
     visits: tuple[LabelledVisit, ...]
     truth_visits: tuple[LabelledVisit, ...]
-    measured: Samples
-    truth: Samples
+    measured: SampleTrace
+    truth: SampleTrace
     program: tuple[ProgramStep, ...]
     notes: tuple[str, ...]
     problems: tuple[str, ...]
 
 
-def _pose(msg: Any) -> tuple[float, str, tuple[float, float, float],
-                             tuple[float, float, float, float]]:
-    """(stamp s, frame id, position, quaternion) of a PoseStamped or a
-    PoseWithCovarianceStamped."""
-    h, pose = msg.header, msg.pose
-    pose = getattr(pose, 'pose', pose)
-    p, o = pose.position, pose.orientation
-    return (accuracy.stamp_seconds(h.stamp.sec, h.stamp.nanosec), h.frame_id,
-            (p.x, p.y, p.z), (o.x, o.y, o.z, o.w))
+class _Source:
+    """What the replay keeps of one pose source: its count, first stamp and error trace."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.first = math.nan
+        self.trace = ErrorTrace()
+
+    def took(self, rows: PoseMessages, batch: PoseBatch) -> None:
+        samples = batch.samples
+        ok = np.flatnonzero(samples.accepted)
+        if ok.size == 0:
+            return
+        stamps = rows.stamp[ok]
+        if self.count == 0:
+            self.first = float(stamps[0])
+        self.count += int(ok.size)
+        self.trace.add(stamps, samples.position_error[ok], samples.orientation_error[ok])
+
+    def result(self) -> SampleTrace:
+        return SampleTrace(self.count, self.first, self.trace.envelope())
 
 
 def _diagnostic_modes(msg: Any) -> list[tuple[float, str]]:
@@ -171,59 +179,75 @@ def _diagnostic_modes(msg: Any) -> list[tuple[float, str]]:
             for kv in status.values if kv.key == 'mode']
 
 
-def replay(messages: Sequence[BagMessage], settings: MonitorSettings | None = None) -> Replay:
-    """Feed the recorded messages (in recorded order) through the monitor's rules
-    (:class:`Monitor`) as the live monitor took them, and label what settled."""
-    monitor = Monitor(settings)
-    steps: list[ProgramStep] = []
-    modes: list[tuple[float, str]] = []
-    problems: list[str] = []
-    raw_segments: list[tuple[float, float, int, Any, Any, float]] = []  # meas t, truth t, ...
-    measured, truth = _SampleLog(), _SampleLog()
-    for item in messages:
-        topic, msg = item.topic, item.message
-        if topic == PROGRAM:
+class Replayer:
+    """The replay, batch by batch: :meth:`feed` each :class:`MessageBatch` in recorded order,
+    then :meth:`finish`."""
+
+    def __init__(self, settings: MonitorSettings | None = None) -> None:
+        self.monitor = Monitor(settings, per_segment=True)
+        self._steps: list[ProgramStep] = []
+        self._modes: list[tuple[float, str]] = []
+        self._problems: list[str] = []
+        # Per segment: measured target time, truth target time, key, p, q, target stamp.
+        self._segments: list[tuple[float, float, int, Any, Any, float]] = []
+        self._measured, self._truth = _Source(), _Source()
+        self.context = ContextCollector()
+        #: The /cell/axis_test markers (JSON), one per measured stop of an axis test.
+        self.axis_test: list[str] = []
+
+    def feed(self, batch: MessageBatch) -> None:
+        """The batch's messages, through the monitor in their recorded order."""
+        for log_ns, text in batch.program:
             try:
-                steps.append(ProgramStep.from_json(msg.data, item.log_time_ns * 1e-9))
+                self._steps.append(ProgramStep.from_json(text, log_ns * 1e-9))
             except InputError as err:
-                problems.append(str(err))
-        elif topic == DIAGNOSTICS:
-            modes.extend(_diagnostic_modes(msg))
-        elif topic == TARGET:
-            before = monitor.measured.target
-            stamp, frame, p, q = _pose(msg)
-            taken = monitor.target(stamp, frame, p, q) is None
-            after = monitor.measured.target if taken else before
-            if after is not None and after is not before:
-                truth_target = monitor.truth_accumulator.target
-                raw_segments.append((after[0], truth_target[0] if truth_target else after[0],
-                                     after[3], after[1], after[2], stamp))
-        elif topic == MEASURED_POSE:
-            stamp, frame, p, q = _pose(msg)
-            result = monitor.measurement(stamp, frame, p, q)
-            if not isinstance(result, Ignored):
-                measured.add(stamp, p, q, result.update, len(raw_segments) - 1)
-        elif topic == TRUE_POSE:
-            stamp, frame, p, q = _pose(msg)
-            update = monitor.truth(stamp, frame, p, q)
-            if not isinstance(update, Ignored):
-                truth.add(stamp, p, q, update, len(raw_segments) - 1)
-    segments = _label(raw_segments, steps, modes)
-    by_time = {s[0]: i for i, s in enumerate(raw_segments)}
-    by_truth_time = {s[1]: i for i, s in enumerate(raw_segments)}
-    tolerances = monitor.tolerances
-    visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
-                                 segments[by_time[v.target_time]].pose, verdict,
-                                 measured.start(v.target_time))
-                   for v, verdict in zip(monitor.measured.visits, monitor.verdicts, strict=True))
-    truth_visits = tuple(
-        LabelledVisit(v, segments[by_truth_time[v.target_time]].mode,
-                      segments[by_truth_time[v.target_time]].pose,
-                      accuracy.judge_visit(v, tolerances), truth.start(v.target_time))
-        for v in monitor.truth_accumulator.visits)
-    notes = tuple(dict.fromkeys(s.note for s in steps if s.note))
-    return Replay(monitor, segments, visits, truth_visits, measured.arrays(), truth.arrays(),
-                  tuple(steps), notes, tuple(problems))
+                self._problems.append(str(err))
+        for _, msg in batch.diagnostics:
+            self._modes.extend(_diagnostic_modes(msg))
+            self.context.diagnostics(
+                accuracy.stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec),
+                msg.status)
+        for log_ns, text in batch.calibration:
+            self.context.calibration_marker(log_ns * 1e-9, text)
+        self.axis_test.extend(text for _, text in batch.axis_test)
+        fed = self.monitor.feed(batch.targets, batch.measured, batch.truth)
+        for seg in fed.segments:
+            self._segments.append((seg.time, seg.truth_time, seg.key, seg.position,
+                                   seg.quaternion, float(batch.targets.stamp[seg.target])))
+        self._measured.took(batch.measured, fed.measured)
+        self._truth.took(batch.truth, fed.truth)
+
+    def finish(self) -> Replay:
+        """The replay of everything fed."""
+        monitor = self.monitor
+        segments = _label(self._segments, self._steps, self._modes)
+        by_time = {s[0]: i for i, s in enumerate(self._segments)}
+        by_truth_time = {s[1]: i for i, s in enumerate(self._segments)}
+        measured, truth = self._measured.result(), self._truth.result()
+        visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
+                                     segments[by_time[v.target_time]].pose, verdict,
+                                     measured.start(v.target_time))
+                       for v, verdict in zip(monitor.measured.visits, monitor.verdicts,
+                                             strict=True))
+        true = monitor.truth_accumulator.visits
+        truth_visits = tuple(
+            LabelledVisit(v, segments[by_truth_time[v.target_time]].mode,
+                          segments[by_truth_time[v.target_time]].pose, verdict,
+                          truth.start(v.target_time))
+            for v, verdict in zip(true, accuracy.judge_visits(true, monitor.tolerances),
+                                  strict=True))
+        notes = tuple(dict.fromkeys(s.note for s in self._steps if s.note))
+        return Replay(monitor, segments, visits, truth_visits, measured, truth,
+                      tuple(self._steps), notes, (*self._problems, *self.context.problems))
+
+
+def replay(batches: Iterable[MessageBatch], settings: MonitorSettings | None = None) -> Replay:
+    """Feed the recorded batches (in recorded order) through the monitor's rules
+    (:class:`Monitor`) as the live monitor took them, and label what settled."""
+    replayer = Replayer(settings)
+    for batch in batches:
+        replayer.feed(batch)
+    return replayer.finish()
 
 
 def _label(raw: Sequence[tuple[float, float, int, Any, Any, float]],

@@ -15,15 +15,17 @@ REPORT_FILE = 'report.md'
 SUMMARY_FILE = 'summary.json'
 
 
-def _um(value: float | None) -> str:
+def um(value: float | None) -> str:
+    """A length in m as µm for people, one decimal ('n/a' for None)."""
     return 'n/a' if value is None else f'{value * 1e6:.1f}'
 
 
-def _deg(value: float | None) -> str:
+def deg(value: float | None) -> str:
+    """An angle in rad as degrees for people, four decimals ('n/a' for None)."""
     return 'n/a' if value is None else f'{math.degrees(value):.4f}'
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     """A Markdown table (a ``|`` inside a cell is escaped)."""
     def row(cells: Sequence[str]) -> str:
         return '| ' + ' | '.join(c.replace('|', r'\|') for c in cells) + ' |'
@@ -39,9 +41,9 @@ COMPARISON_HEADER = ('mode', 'visits', 'in tol.', 'max |Δp| µm', 'RMS |Δp| µ
 def comparison_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     """One row per mode: the comparison table (µm, degrees, s)."""
     return [[m.mode, str(m.extremes.n), f'{m.extremes.within_tolerance}/{m.extremes.n}',
-             _um(m.extremes.position_error_max), _um(m.extremes.position_error_rms),
-             _deg(m.extremes.orientation_error_max), _deg(m.extremes.orientation_error_rms),
-             _um(m.ap_p_max), _um(m.rp_l_max), _deg(m.ap_angle_max), _deg(m.rp_angle_max),
+             um(m.extremes.position_error_max), um(m.extremes.position_error_rms),
+             deg(m.extremes.orientation_error_max), deg(m.extremes.orientation_error_rms),
+             um(m.ap_p_max), um(m.rp_l_max), deg(m.ap_angle_max), deg(m.rp_angle_max),
              f'{m.extremes.settle_time_mean:.2f}/{m.extremes.settle_time_max:.2f}']
             for m in modes]
 
@@ -62,10 +64,10 @@ def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
             f, e = p.figures, p.extremes
             rows.append([m.mode, p.pose, str(f.n),
                          ', '.join(f'{v * 1e3:.3f}' for v in f.commanded_position),
-                         _um(f.ap_p), _um(f.ap_x), _um(f.ap_y), _um(f.ap_z), _um(f.rp_l),
-                         _deg(f.ap_a), _deg(f.ap_b), _deg(f.ap_c), _deg(f.rp_a), _deg(f.rp_b),
-                         _deg(f.rp_c), _um(e.position_error_max), _um(e.position_error_rms),
-                         _deg(e.orientation_error_max), _deg(e.orientation_error_rms),
+                         um(f.ap_p), um(f.ap_x), um(f.ap_y), um(f.ap_z), um(f.rp_l),
+                         deg(f.ap_a), deg(f.ap_b), deg(f.ap_c), deg(f.rp_a), deg(f.rp_b),
+                         deg(f.rp_c), um(e.position_error_max), um(e.position_error_rms),
+                         deg(e.orientation_error_max), deg(e.orientation_error_rms),
                          f'{e.settle_time_mean:.2f}/{e.settle_time_max:.2f}',
                          f'{e.within_tolerance}/{e.n}'])
     return rows
@@ -80,9 +82,9 @@ POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p µm', 'AP_x', 
 def _tracker_line(label: str, stats: ErrorStatistics | None) -> str:
     if stats is None:
         return f'- {label}: no measurement paired with a true pose'
-    return (f'- {label}: {stats.samples} pairs, |Δp| RMS {_um(stats.rms_position_error)} µm, '
-            f'max {_um(stats.max_position_error)} µm; angle RMS '
-            f'{_deg(stats.rms_orientation_error)}°, max {_deg(stats.max_orientation_error)}°')
+    return (f'- {label}: {stats.samples} pairs, |Δp| RMS {um(stats.rms_position_error)} µm, '
+            f'max {um(stats.max_position_error)} µm; angle RMS '
+            f'{deg(stats.rms_orientation_error)}°, max {deg(stats.max_orientation_error)}°')
 
 
 def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
@@ -90,10 +92,10 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
     a, s = analysis, analysis.settings
     out = [f'# Positioning cell run: {a.bag.name}', '',
            f'Bag `{a.bag}`: {a.message_count} messages, {len(a.topics)} topics.',
-           f'Tolerances: position {_um(s.tolerance.position)} µm, orientation '
-           f'{_deg(s.tolerance.orientation)}°. Settle: window {s.settle.window} s, dwell '
+           f'Tolerances: position {um(s.tolerance.position)} µm, orientation '
+           f'{deg(s.tolerance.orientation)}°. Settle: window {s.settle.window} s, dwell '
            f'{s.settle.dwell} s, ≥ {s.settle.min_samples} samples, spread ≤ '
-           f'{_um(s.settle.position_threshold)} µm / {_deg(s.settle.angle_threshold)}°.', '']
+           f'{um(s.settle.position_threshold)} µm / {deg(s.settle.angle_threshold)}°.', '']
     if a.problems:
         out += ['## Problems', '', *(f'- {p}' for p in a.problems), '']
     if a.missing_optional:
@@ -110,7 +112,7 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 'monitor\'s figures only, not in the comparison of modes.', '']
     out += ['## Comparison of compensation modes (measured by the tracker)', '']
     if a.modes:
-        out += _table(COMPARISON_HEADER, comparison_rows(a.modes))
+        out += markdown_table(COMPARISON_HEADER, comparison_rows(a.modes))
     else:
         out += ['No commanded pose settled: nothing to compare.']
     out += ['', 'AP, RP: ISO 9283:1998 §7.2.1 pose accuracy and §7.2.2 repeatability over the '
@@ -118,14 +120,23 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
             'mean) minus commanded pose; settle: target (or the bag\'s first sample, if the '
             'target is older) to end of the settle window.', '']
     if a.modes:
-        out += ['## Per commanded pose', '', *_table(POSE_HEADER, _pose_rows(a.modes)), '']
+        out += ['## Per commanded pose', '', *markdown_table(POSE_HEADER, _pose_rows(a.modes)), '']
     if a.truth_modes:
         out += ['## Simulation truth', '', 'The true platform pose against the target (what '
                 'the tracker measures, without its error):', '',
-                *_table(COMPARISON_HEADER, comparison_rows(a.truth_modes)), '',
+                *markdown_table(COMPARISON_HEADER, comparison_rows(a.truth_modes)), '',
                 'The tracker against the truth (measured minus true pose):', '',
                 _tracker_line('whole run', a.tracker),
                 *(_tracker_line(m.mode, m.tracker) for m in a.modes), '']
+    for test in a.axis_tests:
+        out += [f'## Axis test (ISO 230-2), run {test.run}', '',
+                'Each actuator driven through its targets in both directions (config/'
+                'axis_test.yaml); x = actual − commanded, the actual position from the '
+                'tracker (inverse kinematics of the averaged measured pose) and, in '
+                'simulation, from the truth (judging only). ISO 230-2:2014 figures: A '
+                'accuracy, R repeatability, B reversal, E systematic deviation (over the '
+                'means of both directions), M range of the bidirectional means.', '',
+                *test.markdown(level=3)]
     monitor = a.monitor['verdicts']
     out += ['## Monitor', '', f'Replaying the bag through the accuracy monitor\'s rules gives '
             f'{monitor["ok"] + monitor["error"]} verdicts: {monitor["ok"]} within tolerance, '
@@ -144,5 +155,5 @@ def write_report(analysis: RunAnalysis, out_dir: Path, plots: Sequence[Path] = (
     md.write_text(markdown(analysis, plots), encoding='utf-8')
     js = out_dir / SUMMARY_FILE
     doc = {**analysis.to_dict(), 'plots': [p.name for p in plots]}
-    js.write_text(json.dumps(doc, indent=1), encoding='utf-8')
+    js.write_text(json.dumps(doc), encoding='utf-8')  # compact: the C encoder
     return md, js

@@ -12,7 +12,8 @@ its settle window, so it never exceeds what the bag covers.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property, partial
 from pathlib import Path
 from typing import Any
 
@@ -20,14 +21,18 @@ import numpy as np
 
 from positioning_cell import accuracy
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
-from positioning_cell.analysis.reading import read_bag
+from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
+from positioning_cell.analysis.axis_test import runs as axis_runs
+from positioning_cell.analysis.context import RunContext
+from positioning_cell.analysis.reading import Recording, with_recording
 from positioning_cell.analysis.replay import (
     BEFORE_PROGRAM,
+    CONTEXT_TOPICS,
     OPTIONAL_TOPICS,
     REQUIRED_TOPICS,
     LabelledVisit,
     Replay,
-    replay,
+    Replayer,
 )
 from positioning_cell.bag import BagError
 
@@ -132,24 +137,16 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
     return tuple(out)
 
 
-def _with_tracker(modes: tuple[ModeSummary, ...], result: Replay,
-                  tolerance: float) -> tuple[ModeSummary, ...]:
-    """Each mode with the tracker's error against the truth over that mode's samples
-    (:func:`accuracy.tracker_errors`)."""
-    m, t = result.measured, result.truth
-    if t.count == 0 or m.count == 0:
-        return modes
-    seg_mode = np.array([s.mode for s in result.segments] + [''], dtype=object)
-    out = []
-    for mode in modes:
-        im = seg_mode[m.segment] == mode.mode
-        it = seg_mode[t.segment] == mode.mode
-        stats = accuracy.tracker_errors(m.time[im], m.position[im], m.quaternion[im],
-                                        t.time[it], t.position[it], t.quaternion[it],
-                                        tolerance) if im.any() and it.any() else None
-        out.append(ModeSummary(mode.mode, mode.extremes, mode.ap_p_max, mode.rp_l_max,
-                               mode.ap_angle_max, mode.rp_angle_max, mode.poses, stats))
-    return tuple(out)
+def _with_tracker(modes: tuple[ModeSummary, ...], result: Replay) -> tuple[ModeSummary, ...]:
+    """Each mode with the tracker's error against the truth over the pairs whose measurement
+    and true pose were both taken in that mode's segments (the monitor's pairs,
+    :class:`accuracy.TrackerErrorAccumulator`, summed per pair of segments)."""
+    per_segment = result.monitor.tracker.sums()
+    mode_of = [s.mode for s in result.segments]
+    return tuple(replace(mode, tracker=accuracy.ErrorSums.total(
+        sums for (seg_m, seg_t), sums in per_segment.items()
+        if min(seg_m, seg_t) >= 0 and mode_of[seg_m] == mode_of[seg_t] == mode.mode
+    ).statistics()) for mode in modes)
 
 
 @dataclass(frozen=True)
@@ -163,11 +160,13 @@ class RunAnalysis:
     replay: Replay
     modes: tuple[ModeSummary, ...]
     truth_modes: tuple[ModeSummary, ...]
+    context: RunContext
+    axis_tests: tuple[AxisTestResults, ...] = ()
     problems: tuple[str, ...] = ()
     missing_optional: tuple[str, ...] = ()
     ignored: tuple[Ignored, ...] = field(default_factory=tuple)
 
-    @property
+    @cached_property
     def monitor(self) -> dict[str, Any]:
         """What the live monitor's /accuracy_monitor/report gave at the end of the run."""
         return self.replay.monitor.report()
@@ -202,35 +201,52 @@ class RunAnalysis:
                         'segment_start': v.start, 'settle_duration': v.settle_duration,
                         **v.visit.to_dict()} for v in self.replay.visits],
             'ignored': [i.__dict__ for i in self.ignored],
+            'context': self.context.to_dict(),
+            'axis_tests': [a.to_dict() for a in self.axis_tests],
             'monitor': self.monitor,
         }
 
 
-def analyse_bag(path: str | Path, settings: MonitorSettings | None = None) -> RunAnalysis:
-    """Read the bag at ``path``, replay it through the monitor's rules and summarise it per
-    mode and pose. BagError when it is not a readable bag (nothing in it is an MCAP file: an
-    empty or too short file, wrong magic) or lacks a topic of :data:`REQUIRED_TOPICS`; a
-    truncated or damaged bag is analysed as far as it is readable: its sound chunks
-    (``problems`` names each corrupt chunk and the time range and messages lost)."""
-    settings = settings or MonitorSettings()
-    contents = read_bag(path, (*REQUIRED_TOPICS, *OPTIONAL_TOPICS))
-    missing = [t for t in REQUIRED_TOPICS if t not in contents.topics]
+#: The topics the analysis reads.
+ANALYSED_TOPICS = (*REQUIRED_TOPICS, *OPTIONAL_TOPICS, *CONTEXT_TOPICS)
+
+
+def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
+    """The analysis of an open recording (:func:`analyse_bag`)."""
+    missing = [t for t in REQUIRED_TOPICS if t not in recording.topics]
     if missing:
-        have = ', '.join(sorted(contents.topics)) or 'none'
-        raise BagError(Path(path), f'lacks {", ".join(missing)}, which the analysis needs '
-                                   f'(the bag has: {have})')
-    result = replay(contents.messages, settings)
+        have = ', '.join(sorted(recording.topics)) or 'none'
+        raise BagError(recording.path, f'lacks {", ".join(missing)}, which the analysis '
+                                       f'needs (the bag has: {have})')
+    replayer = Replayer(settings)
+    for batch in recording.batches():
+        replayer.feed(batch)
+    result = replayer.finish()
     truth = bool(result.truth.count)
 
     def in_program(visits: Sequence[LabelledVisit]) -> list[LabelledVisit]:
         return [v for v in visits if v.mode != BEFORE_PROGRAM]
 
+    markers, bad_markers = parse_markers(replayer.axis_test)
+
     return RunAnalysis(
-        bag=Path(path), message_count=contents.message_count, topics=contents.topics,
+        bag=recording.path, message_count=recording.message_count, topics=recording.topics,
         settings=settings, replay=result,
-        modes=_with_tracker(summarise(in_program(result.visits)), result,
-                           settings.tracker_error.max_stamp_difference),
+        modes=_with_tracker(summarise(in_program(result.visits)), result),
         truth_modes=summarise(in_program(result.truth_visits)) if truth else (),
-        problems=(*contents.problems, *result.problems),
-        missing_optional=tuple(t for t in OPTIONAL_TOPICS if t not in contents.topics),
+        context=replayer.context.result(recording.start_ns * 1e-9, recording.end_ns * 1e-9),
+        axis_tests=tuple(axis_test_figures(markers, run) for run in axis_runs(markers)),
+        problems=(*recording.problems, *result.problems, *bad_markers),
+        missing_optional=tuple(t for t in OPTIONAL_TOPICS if t not in recording.topics),
         ignored=tuple(result.monitor.ignored))
+
+
+def analyse_bag(path: str | Path, settings: MonitorSettings | None = None) -> RunAnalysis:
+    """Read the bag at ``path`` in recorded order, batch by batch, replay it through the
+    monitor's rules and summarise it per mode and pose. BagError when it is not a readable bag
+    (nothing in it is an MCAP file: an empty or too short file, wrong magic) or lacks a topic
+    of :data:`REQUIRED_TOPICS`; a truncated or damaged bag is analysed as far as it is
+    readable: its sound chunks (``problems`` names each corrupt chunk and the time range and
+    messages lost; :mod:`positioning_cell.analysis.reading`)."""
+    settings = settings or MonitorSettings()
+    return with_recording(path, ANALYSED_TOPICS, partial(_analyse, settings=settings))

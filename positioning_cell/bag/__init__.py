@@ -3,6 +3,8 @@
 - :class:`BagWriter`: serialized messages → ``<bag>/<bag>_N.mcap`` + ``metadata.yaml``, small
   chunks flushed on demand, optional zstd chunk compression, size / duration splits.
 - :class:`BagReader`: a bag read back through rosbags, raw (for replay) or decoded (analysis).
+- :class:`IndexedBag`: chosen topics read through the MCAP index in blocks, in bounded memory,
+  decoded vectorised (:mod:`positioning_cell.bag.cdr`); IndexedReadError when it cannot.
 - :func:`verify_bag`: every storage file checked (MCAP magic, chunk and data-section CRCs,
   records): the corrupt chunks with the log times and messages they covered.
 - :func:`recover_bag`: a bag whose recorder was killed, or with corrupt chunks → valid,
@@ -11,6 +13,13 @@
 """
 
 from positioning_cell.bag.errors import BagError
+from positioning_cell.bag.indexed import (
+    DamagedBagError,
+    IndexedBag,
+    IndexedReadError,
+    UnindexedBagError,
+    UnsupportedBagError,
+)
 from positioning_cell.bag.metadata import (
     FileSummary,
     TopicMeta,
@@ -31,10 +40,13 @@ __all__ = [
     'BagMessage',
     'BagReader',
     'BagWriter',
+    'DamagedBagError',
     'DamagedChunk',
     'FileCheck',
     'FileRecovery',
     'FileSummary',
+    'IndexedBag',
+    'IndexedReadError',
     'PlaybackTiming',
     'PlayerSettings',
     'RawMessage',
@@ -44,6 +56,8 @@ __all__ = [
     'TopicInfo',
     'TopicMeta',
     'TopicSelection',
+    'UnindexedBagError',
+    'UnsupportedBagError',
     'message_definition',
     'play',
     'playback_qos',

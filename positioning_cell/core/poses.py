@@ -34,8 +34,9 @@ def as_number(value: object, name: str) -> float:
         raise InputError(f'{name} = {value!r}: expected a number') from err
 
 
-def as_vectors(value: ArrayLike, width: int, name: str) -> FloatArray:
-    """``value`` as a finite float array (N, width); a single (width,) row becomes N = 1."""
+def as_vectors(value: ArrayLike, width: int, name: str, *, finite: bool = True) -> FloatArray:
+    """``value`` as a float array (N, width), every value finite unless ``finite`` is False;
+    a single (width,) row becomes N = 1."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as err:
@@ -45,7 +46,7 @@ def as_vectors(value: ArrayLike, width: int, name: str) -> FloatArray:
     if arr.ndim != 2 or arr.shape[1] != width:
         raise InputError(
             f'{name}: expected shape ({width},) or (N, {width}), got {np.shape(value)}')
-    bad = ~np.isfinite(arr).all(axis=1)
+    bad = ~np.isfinite(arr).all(axis=1) if finite else np.zeros(0, dtype=bool)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise InputError(f'{name}[{i}] = {arr[i].tolist()} is not finite (NaN or infinite)')
@@ -90,9 +91,29 @@ def quaternion_from_matrix(matrix: FloatArray, *, orthonormal: bool = False) -> 
 
 def pose_error(position: FloatArray, quaternion: FloatArray, position_ref: FloatArray,
                quaternion_ref: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Pose minus reference: Δp (N, 3) in m, base frame; rotation vector of R_refᵀ·R (N, 3) rad."""
-    rot = Rotation.from_quat(quaternion_ref).inv() * Rotation.from_quat(quaternion)
-    return position - position_ref, np.asarray(rot.as_rotvec())
+    """Pose minus reference: Δp (N, 3) in m, base frame; rotation vector of R_refᵀ·R (N, 3) rad.
+
+    Either side may be one pose (1, 3), (1, 4) against N. The rotation is the quaternion
+    product q_ref* ⊗ q (both normalised, x, y, z, w), taken with w >= 0, as the rotation vector
+    2·atan2(|v|, w)·v/|v| (angle in [0, π]; exact to the last bits for small angles, where
+    |v| ≈ angle/2). Elementwise numpy: a row's result does not depend on the batch it is in."""
+    q = np.asarray(quaternion, dtype=float)
+    r = np.asarray(quaternion_ref, dtype=float)
+    q = q / np.sqrt((q * q).sum(axis=-1))[..., np.newaxis]
+    r = r / np.sqrt((r * r).sum(axis=-1))[..., np.newaxis]
+    x1, y1, z1, w1 = -r[..., 0], -r[..., 1], -r[..., 2], r[..., 3]
+    x2, y2, z2, w2 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+    v = np.stack([w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                  w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                  w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+    sign = np.where(w < 0.0, -1.0, 1.0)
+    w = w * sign
+    norm = np.sqrt((v * v).sum(axis=-1))
+    safe = np.where(norm > 0.0, norm, 1.0)
+    scale = np.where(norm > 0.0, 2.0 * np.arctan2(norm, w) / safe, 0.0) * sign
+    return (np.asarray(position, dtype=float) - np.asarray(position_ref, dtype=float),
+            v * scale[..., np.newaxis])
 
 
 def triple(v: ArrayLike) -> Triple:

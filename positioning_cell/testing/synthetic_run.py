@@ -28,12 +28,15 @@ from scipy.spatial.transform import Rotation
 from positioning_cell.analysis.program import ProgramStep
 from positioning_cell.bag.metadata import make_qos
 from positioning_cell.bag.writer import DEFAULT_CHUNK_BYTES, BagWriter
-from positioning_cell.core.poses import as_pose_batch
+from positioning_cell.calibration.collect import FIT, Marker
+from positioning_cell.core.poses import as_pose_batch, quad, triple
 from positioning_cell.names import (
+    CALIBRATION,
     DIAGNOSTICS,
     JOINT_STATES,
     MEASURED_POSE,
     PROGRAM,
+    STATUS_MEASUREMENT,
     STATUS_POSITIONER,
     TARGET,
     TRUE_POSE,
@@ -121,7 +124,10 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
                   joint_state_rate: float = 0.0, latency: float = 0.002,
                   truncate_to: float | None = None, writer: str = 'cell',
                   compression: str = 'none', chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                  latched_target_age: float = 0.0) -> int:
+                  latched_target_age: float = 0.0, calibration: str | None = None,
+                  calibration_run: str | None = None,
+                  registration_um: Sequence[float] | None = None,
+                  variance_factor: float = 1.0) -> int:
     """Write ``run`` as a bag at ``path`` (must not exist): targets, measurements, and as
     asked the truth, the program steps, the positioner's mode diagnostics and filler
     /legs/joint_states at ``joint_state_rate`` Hz (same bytes, stamps patched). Log time =
@@ -131,8 +137,13 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
     (the first target's pose, where the platform already is), stamped that many seconds
     before the first measurement and logged with it, as a recorder started after that move
     receives the latched target. ``truncate_to`` (0..1) then cuts the .mcap file to that
-    fraction and removes metadata.yaml, as a killed recorder leaves it. Returns the messages
-    written."""
+    fraction and removes metadata.yaml, as a killed recorder leaves it. The run's context, as
+    asked: ``calibration``, the positioner's ``calibration`` value in each of its statuses
+    (a file, or ``none``); ``calibration_run``: the /cell/calibration markers of a calibration
+    run of that name, three poses at the first target's pose just after the first
+    measurement; ``registration_um``: a tracker registration (residual of each base target,
+    µm; their RMS and max, ``variance_factor``) in the pose_measurement diagnostics at the
+    first and the last measurement. Returns the messages written."""
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -143,6 +154,11 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
 
     def header(t: float) -> Any:
         return Header(stamp=Time(*_stamp(t)), frame_id='base')
+
+    def status(name: str, message: str, values: Mapping[str, Any]) -> Any:
+        return T['diagnostic_msgs/msg/DiagnosticStatus'](
+            level=0, name=name, message=message, hardware_id='cell',
+            values=[T['diagnostic_msgs/msg/KeyValue'](k, str(v)) for k, v in values.items()])
 
     def pose(p: FloatArray, q: FloatArray) -> Any:
         return Pose(position=Point(*(float(v) for v in p)),
@@ -165,18 +181,33 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
         if truth:
             events.append((t, TRUE_POSE, stamped, T[stamped](
                 header(t), pose(run.true_position[i], run.true_quaternion[i]))))
+    string, diag = T['std_msgs/msg/String'], 'diagnostic_msgs/msg/DiagnosticArray'
     if program:
-        string = T['std_msgs/msg/String']
         events += [(s.stamp, PROGRAM, 'std_msgs/msg/String', string(s.to_json()))
                    for s in run.steps]
     if diagnostics:
-        diag = 'diagnostic_msgs/msg/DiagnosticArray'
         for s, t in zip(run.steps, run.target_time, strict=True):
-            status = T['diagnostic_msgs/msg/DiagnosticStatus'](
-                level=0, name=STATUS_POSITIONER, message='moving', hardware_id='cell',
-                values=[T['diagnostic_msgs/msg/KeyValue']('mode', s.mode)])
-            events.append((t + 0.001, DIAGNOSTICS, diag, T[diag](header(t + 0.001),
-                                                                       [status])))
+            values = {'mode': s.mode} if calibration is None else {
+                'mode': s.mode, 'calibration': calibration}
+            events.append((t + 0.001, DIAGNOSTICS, diag, T[diag](header(t + 0.001), [
+                status(STATUS_POSITIONER, 'moving', values)])))
+    if registration_um is not None:
+        r = np.asarray(registration_um, dtype=float)
+        located: dict[str, Any] = {
+            'locations': 1, 'locate_residual_rms_um': float(np.sqrt((r * r).mean())),
+            'locate_residual_max_um': float(r.max()), 'locate_residuals_um': r.tolist(),
+            'locate_variance_factor': variance_factor,
+            'registration_sigma_position_um': [1.0, 1.0, 1.0],
+            'registration_sigma_rotation_urad': [2.0, 2.0, 2.0]}
+        events += [(float(t), DIAGNOSTICS, diag, T[diag](header(float(t)), [
+            status(STATUS_MEASUREMENT, 'tracker located', located)]))
+            for t in (run.time[0], run.time[-1])]
+    if calibration_run is not None:
+        for k in range(3):
+            t = float(run.time[0]) + 0.01 * (k + 1)
+            marker = Marker(calibration_run, k, FIT, triple(run.target_position[0]),
+                            quad(run.target_quaternion[0]), t, 5)
+            events.append((t, CALIBRATION, 'std_msgs/msg/String', string(marker.to_json())))
     filler = b''
     if joint_state_rate > 0:
         js = T['sensor_msgs/msg/JointState'](header(0.0), [f'j{k}' for k in range(6)],
@@ -232,3 +263,30 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
         mcap.write_bytes(data[:int(len(data) * truncate_to)])
     return len(events)
 
+
+
+#: The ISO 9283 cube of config/program.yaml: its centre and four points on its diagonal plane.
+CUBE_POSITIONS = np.array([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2], [-0.004, -0.004, 0.2],
+                           [-0.004, -0.004, 0.192], [0.004, 0.004, 0.192]])
+#: A move every this many seconds in a long run (1 s moving, the rest still).
+LONG_RUN_PERIOD = 2.5
+#: Share of a recorded run's messages that /legs/joint_states is (the analysed topics are the
+#: rest: ~13 %, 5 100 of 43 900 in a `make run` bag).
+JOINT_STATE_SHARE = 0.87
+
+
+def long_run(messages: int, *, start: float = 1.7e9, seed: int = 0,
+             rate: float = 20.0) -> tuple[SyntheticRun, float]:
+    """A synthetic run of about ``messages`` bag messages for the benchmarks: the cube's five
+    poses visited in cycles under the three compensation modes, a move every
+    :data:`LONG_RUN_PERIOD` s, the tracker at ``rate`` Hz; and the /legs/joint_states rate
+    (Hz) that makes them :data:`JOINT_STATE_SHARE` of the bag (write_run_bag's
+    ``joint_state_rate``)."""
+    analysed_rate = 2 * rate + 2.0 / LONG_RUN_PERIOD  # measurement, truth, program, diagnostics
+    filler_rate = analysed_rate * JOINT_STATE_SHARE / (1.0 - JOINT_STATE_SHARE)
+    duration = messages / (analysed_rate + filler_rate) * 1.01
+    cycles = max(2, int(np.ceil(duration / LONG_RUN_PERIOD / 3 / len(CUBE_POSITIONS))))
+    run = synthetic_run(CUBE_POSITIONS, np.tile([0.0, 0.0, 0.0, 1.0], (5, 1)), cycles=cycles,
+                        rate=rate, move_time=1.0, dwell_time=LONG_RUN_PERIOD - 1.0, start=start,
+                        seed=seed)
+    return run, filler_rate

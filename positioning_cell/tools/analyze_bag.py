@@ -1,14 +1,15 @@
-"""``analyze_bag BAG [--out DIR] [--config F]``: the offline analysis of a recorded cell run.
+"""``analyze_bag BAG [--out DIR] [--config F] [--no-plots]``: the offline analysis of a
+recorded cell run.
 
-Reads the bag with rosbags (no ROS graph), replays it through the accuracy monitor's rules
+Reads the topics the analysis uses through the bag's MCAP index, verifying what it reads
+(:mod:`positioning_cell.analysis.reading`), replays them through the accuracy monitor's rules
 with the monitor's settings from ``config/cell.yaml`` (or ``--config``), and writes
-``report.md``, ``summary.json`` and PNG plots into ``--out`` (default: ``<bag>_analysis``
-beside the bag). The bag's storage files are verified first (MCAP magic, every chunk's CRC, the
-data-section CRC: :mod:`positioning_cell.bag.verify`). Exit status: 0 analysed; 2 nothing
-analysed (not a bag, an empty or too short ``.mcap``, a bag without the needed topics, a bad
-config); 3 analysed only in part (a truncated bag, or corrupt chunks: each one with the time
-range and messages lost is printed and in the report, the figures cover the rest).
-:func:`analyze` does the work; :func:`main` parses the command line.
+``report.md``, ``summary.json`` and (unless ``--no-plots``) PNG plots into ``--out`` (default:
+``<bag>_analysis`` beside the bag). Exit status: 0 analysed; 2 nothing analysed (not a bag, an
+empty or too short ``.mcap``, a bag without the needed topics, a bad config); 3 analysed only
+in part (a truncated bag, or corrupt chunks: each one with the time range and messages lost is
+printed and in the report, the figures cover the rest). :func:`analyze` does the work;
+:func:`main` parses the command line.
 """
 
 from __future__ import annotations
@@ -46,16 +47,17 @@ def default_out_dir(bag: Path) -> Path:
 
 
 def analyze(bag: str | Path, out_dir: str | Path | None = None,
-            config: str | Path | None = None) -> AnalysisOutput:
-    """Analyse the bag and write the report, summary and plots into ``out_dir``. Raises
-    PositioningError (BagError, ConfigError) when nothing can be analysed."""
+            config: str | Path | None = None, *, plots: bool = True) -> AnalysisOutput:
+    """Analyse the bag and write the report, summary and (unless ``plots`` is False) the
+    plots into ``out_dir``. Raises PositioningError (BagError, ConfigError) when nothing can
+    be analysed."""
     bag = Path(bag)
     settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
     analysis = analyse_bag(bag, settings)
     out = Path(out_dir) if out_dir is not None else default_out_dir(bag)
-    plots = write_plots(analysis, out)
-    report, summary = write_report(analysis, out, plots)
-    return AnalysisOutput(analysis, report, summary, tuple(plots))
+    pngs = write_plots(analysis, out) if plots else []
+    report, summary = write_report(analysis, out, pngs)
+    return AnalysisOutput(analysis, report, summary, tuple(pngs))
 
 
 def describe(output: AnalysisOutput) -> str:
@@ -66,8 +68,9 @@ def describe(output: AnalysisOutput) -> str:
         lines.append(comparison_table(a.modes).rstrip('\n'))
     else:
         lines.append('analyze_bag: no commanded pose settled in this bag')
-    lines += [f'report:  {output.report}', f'summary: {output.summary}',
-              'plots:   ' + ', '.join(str(p) for p in output.plots)]
+    lines += [f'report:  {output.report}', f'summary: {output.summary}']
+    if output.plots:
+        lines.append('plots:   ' + ', '.join(str(p) for p in output.plots))
     return '\n'.join(lines) + '\n'
 
 
@@ -80,9 +83,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, help='output folder (default: <bag>_analysis)')
     parser.add_argument('--config', type=Path, help='ROS 2 parameter file with the monitor\'s '
                         'settings (default: the shipped config/cell.yaml)')
+    parser.add_argument('--no-plots', action='store_true',
+                        help='write the report and the JSON summary only (the plots take '
+                        'about 2 s whatever the bag\'s length)')
     args = parser.parse_args(argv)
     try:
-        output = analyze(args.bag, args.out, args.config)
+        output = analyze(args.bag, args.out, args.config, plots=not args.no_plots)
     except PositioningError as err:
         print(f'analyze_bag: error: {err}', file=sys.stderr)
         return EXIT_FAILED

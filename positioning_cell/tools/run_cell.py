@@ -10,6 +10,12 @@ verdict; stops every process (SIGINT, SIGKILL after a grace period, also on Ctrl
 analyses the bag (``positioning_cell.tools.analyze_bag``) into the same folder; prints the
 comparison table and where the bag, report and plots are.
 
+With ``--axis-test [FILE]`` (default ``config/axis_test.yaml``) the driver runs the axis test
+after the calibration and before the modes (ISO 230-2:2014 per actuator,
+:mod:`positioning_cell.tools.axis_test`): a line per measured stop, a marker per stop on
+``/cell/axis_test`` (recorded), and at the end the ISO 230-2 table of each axis, also written to
+``axis_test.md`` and ``axis_test.json`` in the run folder.
+
 Before each move the driver publishes the step on ``/cell/program`` (std_msgs/String,
 transient-local, JSON of :class:`positioning_cell.analysis.ProgramStep`), which is recorded, so
 the analysis knows the mode and pose name of every move. Exit status: 0 done; 1 done, but a
@@ -23,6 +29,7 @@ import argparse
 import contextlib
 import json
 import os
+import re
 import signal
 import sys
 import time
@@ -36,6 +43,7 @@ import numpy as np
 import yaml
 
 from positioning_cell import names
+from positioning_cell.analysis.axis_test import AxisTest, load_axis_test
 from positioning_cell.analysis.program import Program, ProgramStep, load_program
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration.program import ProgramSettings
@@ -46,6 +54,9 @@ from positioning_cell.parameters import parse
 from positioning_cell.sim.campaign import truth_table
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.tools.analyze_bag import EXIT_OK, analyze, describe
+from positioning_cell.tools.axis_test import AxisTestError
+from positioning_cell.tools.axis_test import run_live as run_axis_test
+from positioning_cell.tools.axis_test import write as write_axis_test
 from positioning_cell.tools.calibrate_cell import Machine, run_live
 from positioning_cell.tools.domains import DomainError, free_domain
 from positioning_cell.tools.polling import wait_until
@@ -62,6 +73,8 @@ RECORDED = (names.TARGET, names.MEASURED_POSE, names.TRUE_POSE, names.DIAGNOSTIC
 MONITORED = (names.TARGET, names.MEASURED_POSE)
 MONITOR_INPUTS = (*MONITORED, names.TRUE_POSE)
 EXIT_MOVE_FAILED, EXIT_NOT_STARTED, EXIT_INTERRUPTED = 1, 2, 130
+#: ``--axis-test`` without a file: the shipped config/axis_test.yaml.
+SHIPPED_AXIS_TEST = Path('<shipped axis_test.yaml>')
 #: After the monitor's verdict, wait up to this long (s) for the true pose to settle as well,
 #: so the simulation-truth figures have every visit.
 TRUTH_WAIT = 1.5
@@ -128,10 +141,33 @@ def _judge_calibration(path: Path, config: Path, say: Callable[[str], None]) -> 
     say(f'truth table: {table}: {lines[-1].split(" (")[0]}')
 
 
+def axis_test(client: CellClient, test: AxisTest, config: Path, run_dir: Path,
+              say: Callable[[str], None]) -> bool:
+    """The run's axis test (:mod:`positioning_cell.tools.axis_test`): a line per measured
+    stop, then the ISO 230-2 table of each axis, written to ``axis_test.md`` and
+    ``axis_test.json`` in ``run_dir``. False when it could not be completed (the positioner is
+    asked to home so that the run continues)."""
+    try:
+        _, results = run_axis_test(client, test, config, say)
+    except (AxisTestError, TimeoutError, PositioningError) as err:
+        say(f'run_cell: axis test failed: {err}')
+        with contextlib.suppress(TimeoutError):
+            client.home()
+        return False
+    md, js = write_axis_test(results, run_dir)
+    say('axis test, ISO 230-2:2014 per axis (x = actual - commanded):')
+    say('\n'.join(results.summary()))
+    say('\n'.join(results.markdown()))
+    say(f'axis test: {md}, {js}')
+    return bool(results.results)
+
+
 def _overrides(run_dir: Path) -> Path:
     path = run_dir / 'run_overrides.yaml'
+    # the run driver's topics, besides the recorder's list of the config
+    pattern = '|'.join(re.escape(t) for t in (names.PROGRAM, names.AXIS_TEST))
     path.write_text(yaml.safe_dump({names.NODE_RECORDER: {'ros__parameters': {
-        'output': str(run_dir / 'bag'), 'topic_pattern': names.PROGRAM}}}))
+        'output': str(run_dir / 'bag'), 'topic_pattern': pattern}}}))
     return path
 
 
@@ -256,8 +292,10 @@ def _same_figures(live: dict[str, Any], offline: dict[str, Any]) -> bool:
 
 
 def run(program_path: Path | None = None, config: Path | None = None,
-        runs_dir: Path = Path('runs'), say: Callable[[str], None] = print) -> int:
-    """The whole run (module docstring); returns the exit status."""
+        runs_dir: Path = Path('runs'), say: Callable[[str], None] = print,
+        axis_test_path: Path | None = None) -> int:
+    """The whole run (module docstring); returns the exit status. ``axis_test_path``: run
+    that axis test after the calibration (None: none)."""
     config = config or config_path('cell.yaml')
     program_path = program_path or config_path('program.yaml')
     try:
@@ -265,6 +303,7 @@ def run(program_path: Path | None = None, config: Path | None = None,
         mech = Mechanism.from_params(node_parameters(params, names.NODE_POSITIONER)
                                      .get('mechanism', {}))
         program = load_program(program_path, mech)
+        axes = None if axis_test_path is None else load_axis_test(axis_test_path, mech)
     except PositioningError as err:
         say(f'run_cell: error: {err}')
         return EXIT_NOT_STARTED
@@ -293,7 +332,9 @@ def run(program_path: Path | None = None, config: Path | None = None,
                 say(f'ROS_DOMAIN_ID {domain}, logs in {run_dir / "logs"}')
                 _start(procs, client, config, _overrides(run_dir), program, say)
                 note = calibrate(client, program, config, run_dir, say)
-                failed = drive(client, program, note, say)
+                if axes is not None and not axis_test(client, axes, config, run_dir, say):
+                    failed += 1
+                failed += drive(client, program, note, say)
                 live = _call(client.monitor_report)
             except StartError as err:
                 say(f'run_cell: error: {err}')
@@ -346,7 +387,7 @@ def _analyse(bag: Path, run_dir: Path, config: Path, live: dict[str, Any] | None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``run_cell [--program F] [--config F] [--runs DIR]``."""
+    """Command line: ``run_cell [--program F] [--config F] [--runs DIR] [--axis-test [F]]``."""
     parser = argparse.ArgumentParser(
         prog='run_cell', description='Run the positioning cell (all nodes, recorder) through '
         'a program of poses under each compensation mode, then analyse the recording.')
@@ -356,9 +397,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='ROS 2 parameter file of the cell (default: config/cell.yaml)')
     parser.add_argument('--runs', type=Path, default=Path('runs'),
                         help='folder for the run folders (default: ./runs)')
+    parser.add_argument('--axis-test', type=Path, nargs='?', const=SHIPPED_AXIS_TEST,
+                        metavar='FILE', help='after the calibration, run the axis test '
+                        '(ISO 230-2 per actuator) of FILE (default: the shipped '
+                        'config/axis_test.yaml)')
     args = parser.parse_args(argv)
+    axis_file = args.axis_test
+    if axis_file == SHIPPED_AXIS_TEST:
+        axis_file = config_path('axis_test.yaml')
     try:
-        return run(args.program, args.config, args.runs, lambda s: print(s, flush=True))
+        return run(args.program, args.config, args.runs, lambda s: print(s, flush=True),
+                   axis_file)
     except KeyboardInterrupt:  # during the analysis, after every process has stopped
         print('run_cell: interrupted', flush=True)
         return EXIT_INTERRUPTED

@@ -1,0 +1,41 @@
+"""Figures for the reports (PNG through matplotlib's Agg renderer, no pyplot: no global state,
+safe in worker processes and threads), one place for how a figure is made and saved."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+#: Resolution of every report figure (a 12-inch figure is 1320 pixels wide).
+DPI = 110
+
+
+def figure(width: float, height: float, rows: int = 1, columns: int = 1, *,
+           margins: tuple[float, float, float, float] = (0.07, 0.98, 0.93, 0.1),
+           space: tuple[float, float] = (0.25, 0.35), **subplots: Any) -> tuple[Any, Any]:
+    """A figure of ``width`` × ``height`` inches and its ``rows`` × ``columns`` axes (a 2-D
+    array; ``subplots`` go to ``Figure.subplots``, e.g. ``sharex``). The layout is fixed:
+    ``margins`` (left, right, top, bottom) and ``space`` (wspace, hspace) as figure fractions,
+    no layout engine (a tight or constrained layout draws every figure once more)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    axes = fig.subplots(rows, columns, squeeze=False, **subplots)
+    left, right, top, bottom = margins
+    fig.subplots_adjust(left=left, right=right, top=top, bottom=bottom, wspace=space[0],
+                        hspace=space[1])
+    return fig, axes
+
+
+def colours(names: list[str]) -> dict[str, Any]:
+    """One colour of matplotlib's tab10 per name, in order."""
+    from matplotlib import colormaps
+
+    cmap = colormaps['tab10']
+    return {name: cmap(i % 10) for i, name in enumerate(names)}
+
+
+def save(fig: Any, path: Path) -> Path:
+    """Write the figure as PNG at :data:`DPI`; returns ``path``."""
+    fig.savefig(path, dpi=DPI)
+    return path

@@ -1,0 +1,263 @@
+"""``analyze_bags PATH... [--out DIR] [--config F] [--scheduler tcp://host:port] [--workers N]``:
+trends over many recorded cell runs (a folder tree of bags) on Dask distributed.
+
+Each PATH is a bag (a rosbag2 folder or an ``.mcap`` file) or a folder searched for bags
+(:func:`positioning_cell.analysis.fleet.find_bags`). Every bag is one task
+(:func:`positioning_cell.analysis.fleet.digest_bag`: ``analyse_bag`` with the monitor's
+settings of ``config/cell.yaml`` or ``--config``, then the run's compact digest; only the
+digest comes back), gathered as the tasks complete, with a progress line each. The trends over
+all runs (:mod:`positioning_cell.analysis.fleet`) are written to ``--out`` (default
+``fleet_trends`` in the current folder): ``trends.md``, ``trends.json`` and PNG plots
+(:mod:`positioning_cell.analysis.fleet_report`).
+
+Where the work runs: without ``--scheduler``, a ``dask.distributed.LocalCluster`` on this
+machine, one single-threaded worker process per core (``--workers`` N instead; never more
+than there are bags), on the loopback interface only, no dashboard; stopped at the end, on an
+error and on Ctrl-C. With ``--scheduler tcp://host:port``, the workers of that running Dask
+scheduler: each must have this package installed (the same version) and see the bags at the
+same absolute paths as this machine.
+
+Exit status: 0 every bag analysed; 2 nothing analysed (no bag found, a path that is neither a
+bag nor holds one, a bad config, the scheduler not reachable, every bag failed); 3 analysed in
+part (a bag failed: its reason is printed and in the report; or a bag was damaged and analysed
+as far as it was readable); 130 interrupted (Ctrl-C; the cluster is stopped).
+:func:`analyze_fleet` does the work; :func:`main` parses the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from positioning_cell.accuracy.monitor import MonitorSettings
+from positioning_cell.analysis.fleet import (
+    BagFailure,
+    RunDigest,
+    Trends,
+    digest_bag,
+    find_bags,
+    trends,
+)
+from positioning_cell.analysis.fleet_report import write_plots, write_report
+from positioning_cell.config import config_path
+from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.tools.analyze_bag import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
+
+EXIT_INTERRUPTED = 130
+DEFAULT_OUT = Path('fleet_trends')
+#: Seconds to wait for a scheduler given with --scheduler before giving up.
+CONNECT_TIMEOUT = 30.0
+
+
+@dataclass(frozen=True)
+class FleetOutput:
+    """The trends, the bags that failed, and the files written: report, JSON, plots."""
+
+    trends: Trends
+    failures: tuple[BagFailure, ...]
+    report: Path
+    summary: Path
+    plots: tuple[Path, ...]
+
+
+def cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def _distributed() -> Any:
+    """``dask.distributed``, imported on first use (it takes seconds; its API is untyped)."""
+    import dask.distributed
+
+    return dask.distributed
+
+
+@contextmanager
+def _interrupts_ignored() -> Iterator[None]:
+    """Meanwhile SIGINT is ignored, so that the processes started meanwhile (the workers)
+    ignore it for life: a Ctrl-C of the terminal reaches every process of its group, and
+    this process stops the workers itself. A Ctrl-C pressed meanwhile (while the workers
+    start, seconds) is lost. Only in the main thread (elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, handler)
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+    """A ``dask.distributed.Client``: of the scheduler at ``scheduler`` (``tcp://host:port``),
+    else of a new LocalCluster of ``workers`` (default: one per core) single-threaded worker
+    processes on 127.0.0.1 without a dashboard, logging errors only, started with Ctrl-C ignored
+    (:func:`_interrupts_ignored`). Closed (the local cluster stopped) on leaving, however that
+    happens, Ctrl-C included. InputError if the scheduler cannot be reached."""
+    dd = _distributed()
+    if scheduler is not None:
+        try:
+            client = dd.Client(scheduler, timeout=CONNECT_TIMEOUT)
+        except (OSError, ValueError) as err:
+            raise InputError(f'cannot reach the Dask scheduler at {scheduler}: {err}') from None
+        with client:
+            yield client
+        return
+    cluster = None
+    try:
+        with _interrupts_ignored():
+            cluster = dd.LocalCluster(n_workers=workers or cores(), threads_per_worker=1,
+                                      processes=True, host='127.0.0.1',
+                                      dashboard_address=None, silence_logs=logging.ERROR)
+        with dd.Client(cluster) as client:
+            yield client
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
+def _outcome(future: Any, bag: str) -> RunDigest | BagFailure:
+    """What a completed task gave: its digest or failure, or a failure saying why the task
+    failed outside the analysis (a worker lost, the task cancelled, a result that did not
+    arrive)."""
+    try:
+        if future.status == 'finished':
+            result: RunDigest | BagFailure = future.result()
+            return result
+        err = future.exception() if future.status == 'error' else None
+    except Exception as caught:
+        err = caught
+    return BagFailure(bag, f'{type(err).__name__}: {err}' if err is not None
+                      else f'the task was {future.status}')
+
+
+def digest_bags(client: Any, bags: Sequence[Path], settings: MonitorSettings | None = None,
+                say: Callable[[str], None] = print
+                ) -> tuple[list[RunDigest], list[BagFailure]]:
+    """One :func:`digest_bag` task per bag on ``client``'s workers; the digests and the
+    failures, gathered as the tasks complete (``say`` gets a progress line each: the count,
+    the bag, what it held or why it failed, the seconds since the start)."""
+    start = time.perf_counter()
+    futures = client.map(digest_bag, [str(b) for b in bags], settings=settings, pure=False)
+    bag_of = {f.key: str(b) for f, b in zip(futures, bags, strict=True)}
+    digests: list[RunDigest] = []
+    failures: list[BagFailure] = []
+    try:
+        for done, future in enumerate(_distributed().as_completed(futures), 1):
+            bag = bag_of[future.key]
+            result = _outcome(future, bag)
+            future.release()
+            head = f'[{done}/{len(bags)}] {bag}'
+            took = f'{time.perf_counter() - start:.1f} s'
+            if isinstance(result, BagFailure):
+                failures.append(result)
+                say(f'{head}: FAILED: {result.reason} ({took})')
+            else:
+                digests.append(result)
+                damaged = f', {len(result.problems)} problem(s)' if result.problems else ''
+                say(f'{head}: {len(result.modes)} mode(s), {len(result.poses)} mode × pose'
+                    f'{damaged} ({took})')
+    finally:
+        client.cancel(futures)  # nothing left running when interrupted
+    return digests, failures
+
+
+def analyze_fleet(paths: Sequence[str | Path], out_dir: str | Path = DEFAULT_OUT,
+                  config: str | Path | None = None, scheduler: str | None = None,
+                  workers: int | None = None, say: Callable[[str], None] = print
+                  ) -> FleetOutput:
+    """Find the bags under ``paths``, digest each on Dask (:func:`dask_client`), and write
+    the trend report, JSON and plots into ``out_dir``. Raises PositioningError (InputError,
+    ConfigError) when nothing can be analysed: no bag, a bad config, no scheduler."""
+    bags = find_bags(paths)
+    settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
+    local = min(workers or cores(), len(bags))
+    where = (f'the scheduler at {scheduler}' if scheduler is not None else
+             f'{local} local worker process(es)')
+    say(f'analyze_bags: {len(bags)} bag(s) on {where}')
+    with dask_client(scheduler, local) as client:
+        digests, failures = digest_bags(client, bags, settings, say)
+    result = trends(digests)
+    out = Path(out_dir)
+    plots = write_plots(result, out)
+    report, summary = write_report(result, out, failures, plots)
+    return FleetOutput(result, tuple(failures), report, summary, tuple(plots))
+
+
+def describe(output: FleetOutput) -> str:
+    """What to print at the end: the counts and the files."""
+    t = output.trends
+    lines = [f'analyze_bags: {len(t.runs)} run(s) analysed, {len(output.failures)} failed; '
+             f'{len(t.series)} mode × pose series, {len(t.epochs)} calibration epoch(s), '
+             f'{t.registrations.time.size} registration(s)',
+             f'report:  {output.report}', f'summary: {output.summary}',
+             'plots:   ' + (', '.join(str(p) for p in output.plots) or 'none')]
+    return '\n'.join(lines) + '\n'
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'{text}: expected at least 1')
+    return value
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line; see the module docstring for the exit status."""
+    parser = argparse.ArgumentParser(
+        prog='analyze_bags', description='Trends over many recorded positioning cell runs: '
+        'ISO 9283 AP/RP per pose and mode over time, drift since each calibration, the '
+        'tracker\'s registration residuals; on Dask distributed.')
+    parser.add_argument('paths', nargs='+', type=Path, metavar='PATH',
+                        help='a bag (rosbag2 folder or .mcap file) or a folder of bags')
+    parser.add_argument('--out', type=Path, default=DEFAULT_OUT,
+                        help=f'output folder (default: ./{DEFAULT_OUT})')
+    parser.add_argument('--config', type=Path, help='ROS 2 parameter file with the monitor\'s '
+                        'settings (default: the shipped config/cell.yaml)')
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument('--scheduler', metavar='tcp://host:port',
+                       help='a running Dask scheduler whose workers do the work (they need '
+                            'this package and the bags at the same paths)')
+    where.add_argument('--workers', type=_positive,
+                       help='local worker processes (default: one per core)')
+    args = parser.parse_args(argv)
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+
+    try:
+        output = analyze_fleet(args.paths, args.out, args.config, args.scheduler,
+                               args.workers, say)
+    except PositioningError as err:
+        print(f'analyze_bags: error: {err}', file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print('analyze_bags: interrupted; the workers are stopped', file=sys.stderr)
+        return EXIT_INTERRUPTED
+    sys.stdout.write(describe(output))
+    for failure in output.failures:
+        print(f'analyze_bags: failed: {failure.bag}: {failure.reason}', file=sys.stderr)
+    if not output.trends.runs:
+        print('analyze_bags: no bag could be analysed', file=sys.stderr)
+        return EXIT_FAILED
+    if output.failures or any(r.problems for r in output.trends.runs):
+        return EXIT_PARTIAL
+    return EXIT_OK
+
+
+if __name__ == '__main__':
+    sys.exit(main())
