@@ -35,6 +35,7 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 		positioning_cell_interfaces ./$(INTERFACES) -e '.[cell,test]'
 	# Compile the numba kernels once now (cached on disk), not in the first process that needs them.
 	$(PY) -c 'from positioning_cell.core import kinematics; kinematics.warm_up()'
+	$(PY) -c 'from positioning_cell.tolerance import montecarlo; montecarlo.warm_up()'
 	touch $(STAMP)
 
 test: $(STAMP)

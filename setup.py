@@ -12,6 +12,7 @@ CONSOLE_SCRIPTS = [
     'bag_player_node = positioning_cell.nodes.entry:bag_player_node',
     'recover_bag = positioning_cell.tools.recover_bag:main',
     'predict_accuracy = positioning_cell.tools.predict_accuracy:main',
+    'tolerance_analysis = positioning_cell.tools.tolerance_analysis:main',
     'leg_driver_node = positioning_cell.nodes.entry:leg_driver_node',
     'pose_measurement_node = positioning_cell.nodes.entry:pose_measurement_node',
     'kinematics_node = positioning_cell.nodes.entry:kinematics_node',

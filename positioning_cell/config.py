@@ -43,19 +43,27 @@ def config_path(name: str = 'cell.yaml') -> Path:
     return path
 
 
-def load_parameter_file(path: str | Path) -> dict[str, Any]:
-    """Parse a ROS 2 parameter file; ConfigError for a missing file or invalid YAML."""
+def load_yaml_mapping(path: str | Path, what: str, expected: str) -> dict[str, Any]:
+    """Parse a YAML file that must hold a mapping; ConfigError naming ``what`` (e.g.
+    'parameter file') and the file for a missing file, invalid YAML, or another top level
+    (``expected`` says what the mapping holds)."""
     try:
         text = Path(path).read_text()
     except OSError as err:
-        raise ConfigError(f'cannot read parameter file {path}: {err}') from err
+        raise ConfigError(f'cannot read {what} {path}: {err}') from err
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ConfigError(f'parameter file {path} is not valid YAML: {err}') from err
+        raise ConfigError(f'{what} {path} is not valid YAML: {err}') from err
     if not isinstance(data, dict):
-        raise ConfigError(f'parameter file {path}: expected a mapping of node names')
+        raise ConfigError(f'{what} {path}: expected a mapping of {expected}, got '
+                          f'{type(data).__name__}')
     return data
+
+
+def load_parameter_file(path: str | Path) -> dict[str, Any]:
+    """Parse a ROS 2 parameter file; ConfigError for a missing file or invalid YAML."""
+    return load_yaml_mapping(path, 'parameter file', 'node names')
 
 
 def node_parameters(data: Mapping[str, Any], node_name: str) -> dict[str, Any]:

@@ -12,13 +12,18 @@ DPI = 110
 
 def figure(width: float, height: float, rows: int = 1, columns: int = 1, *,
            margins: tuple[float, float, float, float] = (0.07, 0.98, 0.93, 0.1),
-           space: tuple[float, float] = (0.25, 0.35), **subplots: Any) -> tuple[Any, Any]:
+           space: tuple[float, float] = (0.25, 0.35), constrained: bool = False,
+           **subplots: Any) -> tuple[Any, Any]:
     """A figure of ``width`` × ``height`` inches and its ``rows`` × ``columns`` axes (a 2-D
-    array; ``subplots`` go to ``Figure.subplots``, e.g. ``sharex``). The layout is fixed:
-    ``margins`` (left, right, top, bottom) and ``space`` (wspace, hspace) as figure fractions,
-    no layout engine (a tight or constrained layout draws every figure once more)."""
+    array; ``subplots`` go to ``Figure.subplots``, e.g. ``sharex``). By default the layout is
+    fixed: ``margins`` (left, right, top, bottom) and ``space`` (wspace, hspace) as figure
+    fractions, no layout engine (a tight or constrained layout draws every figure once more);
+    ``constrained`` lets matplotlib's constrained layout place colour bars and long labels."""
     from matplotlib.figure import Figure
 
+    if constrained:
+        fig = Figure(figsize=(width, height), layout='constrained')
+        return fig, fig.subplots(rows, columns, squeeze=False, **subplots)
     fig = Figure(figsize=(width, height))
     axes = fig.subplots(rows, columns, squeeze=False, **subplots)
     left, right, top, bottom = margins

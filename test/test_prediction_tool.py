@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import gzip
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +20,7 @@ from positioning_cell.prediction.sources import load_tolerance_spec
 from positioning_cell.tools.predict_accuracy import main, predict, shipped_config
 
 MECH = Mechanism.default()
+DATA = Path(__file__).resolve().parent / 'data' / 'predict_accuracy'
 
 
 def test_predict_writes_figures_and_a_consistent_summary(tmp_path: Path) -> None:
@@ -108,3 +111,28 @@ def test_library_and_tool_import_without_rclpy() -> None:
             'import positioning_cell.tools.predict_accuracy\n'
             'assert "rclpy" not in sys.modules, "rclpy imported"\n')
     subprocess.run([sys.executable, '-c', code], check=True, timeout=120)
+
+
+def test_the_prediction_through_the_general_engine_gives_the_figures_it_gave_before(
+        tmp_path: Path) -> None:
+    """test/data/predict_accuracy/before_issue16.json.gz holds what predict() gave (at a
+    20 000-sample Monte Carlo) before the 3-UPS became an instance of the general tolerance
+    engine (positioning_cell.tolerance: T = C − D·U⁻¹·A, worst case, RSS, yield): the same
+    sensitivity matrix, closure Jacobian, comparison, worst norms, yields and printed text,
+    to the last bit."""
+    with gzip.open(DATA / 'before_issue16.json.gz', 'rt') as f:
+        before = json.load(f)
+    r = predict(tmp_path, samples=20_000, seed=4, grid=5, half_width=0.04, stacked_runs=200,
+                global_runs=10)
+    assert np.array_equal(r.linearisation.matrix, before['matrix'])
+    assert np.array_equal(r.linearisation.closure, before['closure'])
+    for key, value in before['comparison'].items():
+        assert np.array_equal(getattr(r.comparison, key), value), key
+    for worst, doc in ((r.worst_position, before['worst_position']),
+                       (r.worst_orientation, before['worst_orientation'])):
+        assert (worst.attained, worst.bound, worst.simple_bound) == (
+            doc['attained'], doc['bound'], doc['simple_bound'])
+        assert np.array_equal(worst.sources, doc['sources'])
+    assert r.yield_nonlinear.__dict__ == before['yield_nonlinear']
+    assert r.yield_linear.__dict__ == before['yield_linear']
+    assert r.converged == before['converged'] and r.text == before['text']

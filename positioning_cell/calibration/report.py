@@ -19,6 +19,7 @@ from positioning_cell.calibration.identify import CalibrationData, Identificatio
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import pose_error
+from positioning_cell.plotting import figure, save
 
 FloatArray = NDArray[np.float64]
 
@@ -61,13 +62,9 @@ def write_report(folder: Path, result: Identification, fit: Prediction,
                  hold_out: Prediction | None, title: str = 'Calibration') -> Path:
     """``folder/calibration_report.md`` with ``calibration_errors.png`` and
     ``calibration_singular_values.png``; returns the Markdown path."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
     folder.mkdir(parents=True, exist_ok=True)
     sets = [('fit', fit)] + ([('hold-out', hold_out)] if hold_out is not None else [])
-    fig, axes = plt.subplots(1, len(sets), figsize=(6 * len(sets), 3.5), squeeze=False)
+    fig, axes = figure(6 * len(sets), 3.5, 1, len(sets), constrained=True)
     for ax, (label, pred) in zip(axes[0], sets, strict=True):
         for name, (e_p, _) in (('nominal', pred.nominal), ('calibrated', pred.calibrated)):
             ax.plot(np.linalg.norm(e_p, axis=1) * 1e6, 'o-', ms=3, label=name)
@@ -76,17 +73,14 @@ def write_report(folder: Path, result: Identification, fit: Prediction,
         ax.set_ylabel('|measured - predicted| position, um')
         ax.legend()
         ax.grid(True, which='both', alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(folder / 'calibration_errors.png', dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    save(fig, folder / 'calibration_errors.png')
+    fig, grid = figure(6, 3.5, constrained=True)
+    ax = grid[0, 0]
     ax.semilogy(result.identifiability.singular_values, 'o-')
     ax.set_xlabel('index')
     ax.set_ylabel('singular value (scaled, whitened)')
     ax.grid(True, which='both', alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(folder / 'calibration_singular_values.png', dpi=110)
-    plt.close(fig)
+    save(fig, folder / 'calibration_singular_values.png')
     ident = result.identifiability
     lines = [f'# {title}', '',
              f'{ident.rank} of {cp.COUNT} parameters identified from {len(fit.nominal[0])} '

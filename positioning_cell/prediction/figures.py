@@ -6,34 +6,25 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from positioning_cell.plotting import figure, save
 from positioning_cell.prediction.angular import AngleFits, Strategy
 from positioning_cell.prediction.maps import WorkspaceMaps
 
 FloatArray = NDArray[np.float64]
 
 
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_workspace_maps(maps: WorkspaceMaps, out_dir: Path) -> list[Path]:
     """Write ``map_position.png`` and ``map_orientation.png`` (worst case, 3σ, dominant kind of
     source) into ``out_dir``; returns the paths."""
-    plt = _pyplot()
+    from matplotlib import colormaps
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
     extent = (maps.x[0] * 1e3, maps.x[-1] * 1e3, maps.y[0] * 1e3, maps.y[-1] * 1e3)
-    colours = plt.get_cmap('tab10')(np.arange(len(maps.kinds)))
+    colours = colormaps['tab10'](np.arange(len(maps.kinds)))
     kind_cmap = ListedColormap(colours).with_extremes(under='white')
     kind_norm = BoundaryNorm(np.arange(len(maps.kinds) + 1) - 0.5, len(maps.kinds))
     paths = []
@@ -42,7 +33,8 @@ def plot_workspace_maps(maps: WorkspaceMaps, out_dir: Path) -> list[Path]:
              1e6, 'µm'),
             ('orientation', maps.worst_orientation, maps.sigma3_orientation,
              maps.dominant_orientation, 1e3, 'mrad')):
-        fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), constrained_layout=True)
+        fig, grid = figure(16, 4.8, 1, 3, constrained=True)
+        axes = grid[0]
         for ax, data, title in ((axes[0], worst, 'worst case (seed 004 eq. 15)'),
                                 (axes[1], sigma3, '3σ (linear model)')):
             im = ax.imshow(data * scale, origin='lower', extent=extent, cmap='viridis')
@@ -58,18 +50,15 @@ def plot_workspace_maps(maps: WorkspaceMaps, out_dir: Path) -> list[Path]:
             ax.set_ylabel('platform y (mm, base frame)')
         fig.suptitle(f'3-UPS predicted {what} accuracy at z = {maps.z * 1e3:.1f} mm '
                      '(white: outside the limits)')
-        path = out_dir / f'map_{what}.png'
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(save(fig, out_dir / f'map_{what}.png'))
     return paths
 
 
 def plot_angle_fits(angles: FloatArray, fits: AngleFits, path: Path,
                     title: str = 'platform-normal angle error') -> Path:
     """Histogram of angles (N,) rad with the fitted Rice and GEV densities, in mrad."""
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 4.8), constrained_layout=True)
+    fig, grid = figure(7.5, 4.8, constrained=True)
+    ax = grid[0, 0]
     data = angles[np.isfinite(angles)] * 1e3
     ax.hist(data, bins=120, density=True, color='0.75', label=f'Monte Carlo ({data.size} samples)')
     grid = np.linspace(0.0, float(np.quantile(data, 0.9995)), 400)
@@ -81,17 +70,13 @@ def plot_angle_fits(angles: FloatArray, fits: AngleFits, path: Path,
     ax.set_ylabel('probability density (1/mrad)')
     ax.set_title(title)
     ax.legend()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def plot_stacked_stages(curves: Mapping[int, Mapping[Strategy, FloatArray]], path: Path) -> Path:
     """Mean and standard deviation of the stack angle (rad → mrad) against the number of parts,
     one panel per seed 003 example; ``curves[example][strategy]`` is (runs, parts)."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, len(curves), figsize=(6.5 * len(curves), 4.8),
-                             constrained_layout=True, squeeze=False)
+    fig, axes = figure(6.5 * len(curves), 4.8, 1, len(curves), constrained=True)
     for ax, (example, by_strategy) in zip(axes[0], curves.items(), strict=True):
         for strategy, angles in by_strategy.items():
             parts = np.arange(1, angles.shape[1] + 1)
@@ -104,6 +89,4 @@ def plot_stacked_stages(curves: Mapping[int, Mapping[Strategy, FloatArray]], pat
         ax.set_title(f'seed 003 example {example}: stacked parts, k clocking positions')
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)

@@ -22,7 +22,6 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse import csr_array
-from scipy.stats import binomtest
 
 from positioning_cell.core.compiled import available_cpus, kernel, kernel_array
 from positioning_cell.core.kinematics import forward, inverse
@@ -37,6 +36,7 @@ from positioning_cell.prediction.sensitivity import (
     worst_case,
 )
 from positioning_cell.prediction.sources import Requirement, ToleranceSpec, draw_sources
+from positioning_cell.tolerance.stackup import YieldEstimate, estimate_yield
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -58,19 +58,6 @@ class MonteCarloResult:
     deviations: FloatArray
     linear: FloatArray
     converged: BoolArray
-
-
-@dataclass(frozen=True)
-class YieldEstimate:
-    """Probability that the pose meets the requirement: ``inside`` of ``trials`` samples,
-    estimate ``probability`` and its Wilson interval [``low``, ``high``] at ``confidence``."""
-
-    inside: int
-    trials: int
-    probability: float
-    low: float
-    high: float
-    confidence: float
 
 
 @dataclass(frozen=True)
@@ -329,19 +316,6 @@ def inside_requirement(deviations: FloatArray, requirement: Requirement) -> Bool
     with np.errstate(invalid='ignore'):
         inside: BoolArray = (pos <= requirement.position) & (ang <= requirement.orientation)
     return inside
-
-
-def estimate_yield(inside: BoolArray, confidence: float = 0.95) -> YieldEstimate:
-    """Yield from per-sample pass flags (n,), with the Wilson score interval
-    (``scipy.stats.binomtest(...).proportion_ci``)."""
-    trials = int(inside.size)
-    if trials == 0:
-        raise InputError('estimate_yield: no samples')
-    if not 0.0 < confidence < 1.0:
-        raise InputError(f'confidence = {confidence!r}: must lie in (0, 1)')
-    k = int(np.count_nonzero(inside))
-    ci = binomtest(k, trials).proportion_ci(confidence_level=confidence, method='wilson')
-    return YieldEstimate(k, trials, k / trials, float(ci.low), float(ci.high), confidence)
 
 
 def compare(lin: Linearisation, spec: ToleranceSpec, result: MonteCarloResult) -> Comparison:

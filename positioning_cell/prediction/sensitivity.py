@@ -33,6 +33,8 @@ from positioning_cell.core.kinematics import inverse, leg_directions
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch, matrix_from_quaternion
 from positioning_cell.prediction.sources import GapModel, ToleranceSpec
+from positioning_cell.tolerance.linear import sensitivity
+from positioning_cell.tolerance.stackup import root_sum_square, worst_case
 
 FloatArray = NDArray[np.float64]
 
@@ -41,6 +43,13 @@ N_PRIMITIVES = 24
 _L, _T, _A, _B = 0, 3, 6, 15
 #: Pose-coordinate labels, the rows of T.
 COORDINATES = ('x', 'y', 'z', 'rx', 'ry', 'rz')
+#: The closure's equations (rows of U): leg i's x, y, z; and its unknowns (columns).
+CLOSURE_EQUATIONS = tuple(f'leg {i} {c}' for i in (1, 2, 3) for c in 'xyz')
+CLOSURE_UNKNOWNS = (*(f'd{c}' for c in COORDINATES), 'dphi1', 'dphi2', 'dphi3')
+
+__all__ = ['COORDINATES', 'Linearisation', 'closure_jacobians', 'gap_directions',
+           'kind_variances', 'linearise', 'root_sum_square', 'skew', 'source_map',
+           'split_norms', 'worst_case']
 _EZ = np.array([0.0, 0.0, 1.0])
 
 
@@ -152,37 +161,19 @@ def linearise(mech: Mechanism, spec: ToleranceSpec, position: ArrayLike,
     """Sensitivity T = −[I₆ 0]·U⁻¹·A (seed 004 eq. 14) at poses (N, 3) m, (N, 4) x, y, z, w.
 
     Columns follow ``spec.sources``; rows :data:`COORDINATES`. Raises InputError for malformed
-    poses; at a singular pose U is singular and numpy raises LinAlgError.
+    poses, and SingularLoopsError (an InputError) where U is singular or ill-conditioned (a
+    singular pose of the mechanism).
     """
     p, q = as_pose_batch(position, quaternion)
     closure, prim = closure_jacobians(mech, p, q)
     gap_u, gap_s = gap_directions(mech, spec.gap, p, q)
     smap = source_map(spec, matrix_from_quaternion(q), gap_u, gap_s)
-    matrix = np.asarray(-np.linalg.solve(closure, prim @ smap)[:, :6, :], dtype=np.float64)
+    n, sources = p.shape[0], len(spec.sources)
+    # The open loop is the pose itself: Gap = (δp, δρ), C = 0, D = [I₆ 0].
+    gap_of_unknowns = np.broadcast_to(np.eye(6, 9), (n, 6, 9))
+    matrix = sensitivity(prim @ smap, closure, np.zeros((n, 6, sources)), gap_of_unknowns,
+                         equations=CLOSURE_EQUATIONS, unknowns=CLOSURE_UNKNOWNS)
     return Linearisation(p, q, closure, prim, smap, matrix)
-
-
-def worst_case(matrix: FloatArray, bounds: FloatArray,
-               balls: tuple[tuple[int, int], ...] = ()) -> FloatArray:
-    """Worst-case deviation per pose coordinate (seed 004 eq. 15 over boxes and balls): T
-    (..., R, S), bounds (S,), ``balls`` index ranges of offset vectors with |e_j| ≤ r_j
-    (:attr:`.sources.ToleranceSpec.balls`; r_j = the bound of their columns) → (..., R) in m and
-    rad: Σ_box |T_ci|·t_i + Σ_j r_j·‖T_c,j‖₂, the exact maximum of |(T·x)_c| (attained by
-    x_i = ±t_i and e_j = ±r_j·T_c,jᵀ/‖T_c,j‖). Without balls, Σ_i |T_ci|·t_i."""
-    box = np.ones(matrix.shape[-1], dtype=bool)
-    members = np.array([range(a, b) for a, b in balls], dtype=np.int64).reshape(-1, 3)
-    box[members.ravel()] = False
-    out: FloatArray = np.abs(matrix[..., box]) @ bounds[box]
-    if members.size:
-        out = out + np.linalg.norm(matrix[..., members], axis=-1) @ bounds[members[:, 0]]
-    return out
-
-
-def root_sum_square(matrix: FloatArray, scale: FloatArray) -> FloatArray:
-    """sqrt(Σ_i (T_i·s_i)²) per pose coordinate (..., 6): with s the bounds, the classic RSS
-    stack-up; with s the standard deviations, the linear-model σ."""
-    out: FloatArray = np.sqrt(np.sum((matrix * scale) ** 2, axis=-1))
-    return out
 
 
 def split_norms(per_coordinate: FloatArray) -> FloatArray:

@@ -47,7 +47,8 @@ from scipy.stats import truncnorm
 
 from positioning_cell.config import load_parameter_file
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.errors import ConfigError
+from positioning_cell.tolerance.sampling import draw_laws
 
 FloatArray = NDArray[np.float64]
 
@@ -335,23 +336,8 @@ def draw_sources(spec: ToleranceSpec, n: int, rng: np.random.Generator) -> Float
     model, :attr:`ToleranceSpec.balls`) is x·d: x the first component's draw from the law, d
     uniform on the unit sphere (normalised standard normals), so |e| ≤ r.
     """
-    if n < 0:
-        raise InputError(f'n = {n}: the number of samples must be >= 0')
-    unit = np.empty((len(spec.sources), n))
-    for first, stop, law in spec.law_runs:
-        rows = unit[first:stop]
-        if law == 'normal':
-            rng.standard_normal(out=rows)
-            outside = np.abs(rows) > _SIGMAS
-            while outside.any():
-                rows[outside] = rng.standard_normal(size=int(outside.sum()))
-                outside = np.abs(rows) > _SIGMAS
-            rows *= (spec.bounds[first:stop] / _SIGMAS)[:, None]
-        else:  # uniform on ±bound: 2·bound·U[0, 1) − bound
-            rng.random(out=rows)
-            bounds = spec.bounds[first:stop, None]
-            rows *= 2.0 * bounds
-            rows -= bounds
+    unit = draw_laws(spec.bounds, [(a, b, law, _SIGMAS) for a, b, law in spec.law_runs], n,
+                     rng)
     if spec.balls:
         heads = np.array([b[0] for b in spec.balls])
         d = rng.standard_normal(size=(heads.size, 3, n))
