@@ -245,10 +245,11 @@ class Monitor:
                                 poses.quaternion[base_rows], self._latest[topic])
         rows = base_rows[checked.accepted]
         at = np.searchsorted(poses.rank[rows], target_rank)
-        batch = accumulator.add(checked.time[checked.accepted],
-                                checked.position[checked.accepted],
-                                checked.quaternion[checked.accepted],
-                                Targets(at, targets.time, targets.position, targets.quaternion))
+        ok = checked.accepted
+        batch = accumulator.add_checked(
+            CheckedSamples(checked.time[ok], checked.position[ok], checked.quaternion[ok],
+                           np.ones(rows.size, dtype=bool), {}),
+            Targets(at, targets.time, targets.position, targets.quaternion))
         if rows.size:
             self._latest[topic] = float(checked.time[checked.accepted][-1])
         reasons = {int(i): f'frame_id {poses.frame[i]!r}: expected {BASE_FRAME!r}'

@@ -585,11 +585,20 @@ class AccuracyAccumulator:
         in arrival order: the rule of the module docstring, vectorised over the samples and
         across the segments. Samples before any target are taken and give nothing."""
         targets = targets or Targets.none()
+        first_ordered = 0 if self._target is not None else (
+            int(targets.at[0]) if targets.count else np.size(time))
+        return self.add_checked(check_samples(time, position, quaternion, self._last_sample,
+                                              ordered_from=first_ordered), targets)
+
+    def add_checked(self, checked: CheckedSamples, targets: Targets | None = None
+                    ) -> SampleBatch:
+        """:meth:`add` of samples already checked by :func:`check_samples` with rules at least
+        as strict as this accumulator's (the monitor's: every accepted sample is not older than
+        any taken before): the checks are not made twice."""
+        targets = targets or Targets.none()
         k_count = targets.count
         first_ordered = 0 if self._target is not None else (
-            int(targets.at[0]) if k_count else np.size(time))
-        checked = check_samples(time, position, quaternion, self._last_sample,
-                                ordered_from=first_ordered)
+            int(targets.at[0]) if k_count else checked.time.size)
         n, ok = checked.time.size, checked.accepted
         # The latest sample taken against a target after each number of rows.
         counted = np.where(ok & (np.arange(n) >= first_ordered), checked.time, -math.inf)
