@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -118,21 +119,49 @@ def test_the_prediction_through_the_general_engine_gives_the_figures_it_gave_bef
     """test/data/predict_accuracy/before_issue16.json.gz holds what predict() gave (at a
     20 000-sample Monte Carlo) before the 3-UPS became an instance of the general tolerance
     engine (positioning_cell.tolerance: T = C − D·U⁻¹·A, worst case, RSS, yield): the same
-    sensitivity matrix, closure Jacobian, comparison, worst norms, yields and printed text,
-    to the last bit."""
+    sensitivity matrix, closure Jacobian, comparison and worst norms within floating-point
+    noise (:func:`_close`), the same yields and printed text."""
     with gzip.open(DATA / 'before_issue16.json.gz', 'rt') as f:
         before = json.load(f)
     r = predict(tmp_path, samples=20_000, seed=4, grid=5, half_width=0.04, stacked_runs=200,
                 global_runs=10)
-    assert np.array_equal(r.linearisation.matrix, before['matrix'])
-    assert np.array_equal(r.linearisation.closure, before['closure'])
+    _close(r.linearisation.matrix, before['matrix'], 'matrix')
+    _close(r.linearisation.closure, before['closure'], 'closure')
     for key, value in before['comparison'].items():
-        assert np.array_equal(getattr(r.comparison, key), value), key
+        _close(getattr(r.comparison, key), value, key)
     for worst, doc in ((r.worst_position, before['worst_position']),
                        (r.worst_orientation, before['worst_orientation'])):
-        assert (worst.attained, worst.bound, worst.simple_bound) == (
-            doc['attained'], doc['bound'], doc['simple_bound'])
-        assert np.array_equal(worst.sources, doc['sources'])
+        for key in ('attained', 'bound', 'simple_bound'):
+            _close(getattr(worst, key), doc[key], key)
+        # ‖T·x‖ = ‖T·(−x)‖: the worst combination and its mirror tie, and rounding picks either
+        sign = 1.0 if np.dot(worst.sources, doc['sources']) >= 0.0 else -1.0
+        _close(sign * np.asarray(worst.sources), doc['sources'], 'sources')
     assert r.yield_nonlinear.__dict__ == before['yield_nonlinear']
     assert r.yield_linear.__dict__ == before['yield_linear']
-    assert r.converged == before['converged'] and r.text == before['text']
+    assert r.converged == before['converged']
+    assert _canonical(r.text) == _canonical(before['text'])
+
+
+def _canonical(text: str) -> str:
+    """``text`` with each printed negative zero ("-0.0000": a value of size 1e-17 either side
+    of zero) written as a positive one, keeping the width, and each list of worst-case gap
+    directions written with its first component positive (the worst combination and its
+    mirror give the same norm; rounding picks either)."""
+    lines = []
+    for line in re.sub(r'-(0\.0+)\b', r' \1', text).splitlines(keepends=True):
+        head, colon, tail = line.partition(':')
+        sign = re.search(r'[-+]', tail)
+        if 'gap directions' in head and sign is not None and sign.group() == '-':
+            tail = tail.translate(str.maketrans('+-', '-+'))
+        lines.append(head + colon + tail)
+    return ''.join(lines)
+
+
+def _close(actual: object, expected: object, what: str) -> None:
+    """Equal to the stored figures within floating-point noise at their scale: 1e-9 relative
+    and 1e-12 of the largest entry absolute (another processor's BLAS and libm round the
+    last bits differently; entries of size 1e-33 next to ones of size 1 are zeros)."""
+    a, e = np.asarray(actual, dtype=float), np.asarray(expected, dtype=float)
+    assert a.shape == e.shape, (what, a.shape, e.shape)
+    scale = float(np.max(np.abs(e), initial=0.0))
+    np.testing.assert_allclose(a, e, rtol=1e-9, atol=1e-12 * scale, err_msg=what)
