@@ -50,6 +50,9 @@ JOINT_STATES = '/legs/joint_states'
 #: The drives' answer to each trajectory: accepted or refused, keyed by its fingerprint.
 TRAJECTORY_STATUS = '/legs/trajectory_status'
 TRUE_JOINT_STATES = '/sim/legs/true_joint_states'
+#: The positioner's heartbeat to the leg driver (std_msgs/Header, stamped when sent): the
+#: drives stop a move when it falls silent.
+HEARTBEAT = '/positioner/heartbeat'
 TARGET = '/positioner/target'
 ESTIMATED_POSE = '/positioner/pose'
 MARKERS = '/positioner/markers'
@@ -139,6 +142,8 @@ def set_parameters_service(node: str) -> str:
 
 # -- diagnostic status names (DiagnosticStatus.name on /diagnostics) ------------------------------
 STATUS_POSITIONER = 'positioner: state'
+#: Who publishes the positioner's inputs: other nodes on them are reported (and ignored).
+STATUS_POSITIONER_INPUTS = 'positioner: inputs'
 STATUS_DRIVER = 'leg_driver'
 STATUS_TRAJECTORY = 'leg_driver: trajectory'
 STATUS_MEASUREMENT = 'pose_measurement'

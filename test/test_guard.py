@@ -128,6 +128,7 @@ def test_a_referencing_run_moves_to_home_slowly_then_references() -> None:
     t = 0.0
     while driver.referencing and t < 30.0:
         t += 0.005
+        driver.heartbeat(t)  # the positioner waits for the referencing, alive
         driver.step(t)
         speeds.append(np.abs(driver.servos.state.velocity))
     assert driver.referenced and not driver.referencing
@@ -174,3 +175,73 @@ def test_an_encoder_without_signal_faults_its_drive() -> None:
     level, _, values = driver.status()
     assert level == 'error' and values['fault_axis'] == 'leg3_length'
     assert not follow(driver, *points(np.zeros(6))).accepted
+
+
+# -- whom the drives obey, and the bounds of a command (issue 21) --------------------------------
+def test_only_the_commander_is_obeyed_and_others_are_reported() -> None:
+    driver = LegDriver(SETTINGS)
+    times, positions, velocities = points(np.array([1e-3, 0, 0, 0, 0, 0]))
+    outcome = driver.follow(JOINT_NAMES, times, positions, velocities, None, 0.0, '/rogue')
+    assert not outcome.accepted and outcome.code is Refusal.FOREIGN_SENDER
+    assert outcome.message == ('trajectory refused: sent by /rogue: this driver takes commands '
+                               'only from /positioner (command.commander)')
+    assert driver.servos.pending is None and not driver.servos.moving
+    assert driver.publishers(['/positioner', '/rogue', '/rogue'])
+    level, message, values = driver.status()
+    assert level == 'error' and message.startswith(
+        'foreign publisher on /legs/joint_trajectory: /rogue (only /positioner is obeyed')
+    assert values['commander_seen'] and values['foreign_publishers'] == '/rogue'
+    assert driver.publishers(['/positioner']) and driver.status()[0] == 'ok'
+    assert driver.follow(JOINT_NAMES, times, positions, velocities, None, 0.0,
+                         '/positioner').accepted
+
+
+@pytest.mark.parametrize(('start', 'code', 'words'), [
+    (10.0 - 0.6, Refusal.OLD_HEADER_TIMESTAMP,
+     'header stamp 0.600 s in the past (command.stamp_tolerance 0.05 s): too old to start'),
+    (10.0 + 4.0, Refusal.FUTURE_HEADER_TIMESTAMP,
+     'header stamp 4.000 s ahead (command.max_start_delay 1 s): too far in the future'),
+])
+def test_a_start_stamp_too_old_or_too_far_ahead_is_refused(start: float, code: Refusal,
+                                                           words: str) -> None:
+    driver = LegDriver(SETTINGS, 10.0)
+    times, positions, velocities = points(np.array([1e-3, 0, 0, 0, 0, 0]))
+    outcome = driver.follow(JOINT_NAMES, times, positions, velocities, start, 10.0)
+    assert not outcome.accepted and outcome.code is code and outcome.message.endswith(words)
+    ok = driver.follow(JOINT_NAMES, times, positions, velocities, 10.0 + 0.5, 10.0)
+    assert ok.accepted and driver.servos.pending is not None  # 0.5 s ahead is within bounds
+
+
+def test_more_points_than_max_points_are_refused() -> None:
+    settings = parse(DriverSettings, {'referenced_at_start': True, 'command.max_points': 20})
+    driver = LegDriver(settings)
+    outcome = follow(driver, *points(np.array([1e-3, 0, 0, 0, 0, 0]), n=21))
+    assert outcome.code is Refusal.TOO_MANY_POINTS  # type: ignore[attr-defined]
+    assert outcome.message.endswith(  # type: ignore[attr-defined]
+        '21 points: more than command.max_points = 20')
+
+
+def test_a_move_stops_when_the_commander_falls_silent() -> None:
+    """Heartbeats keep a move going; without them the drives stop under control
+    heartbeat_timeout after the last word, far before the trajectory's end."""
+    driver = LegDriver(SETTINGS)
+    delta = np.array([4e-3, 0, 0, 0, 0, 0])
+    follow(driver, *points(delta, duration=3.0))
+    t, stopped = 0.0, None
+    while t < 1.0:  # alive for a second
+        t += 0.005
+        driver.heartbeat(t)
+        assert driver.step(t).stopped is None
+    while stopped is None and t < 3.0:
+        t += 0.005
+        stopped = driver.step(t).stopped
+    assert stopped is not None and 1.5 <= t <= 1.51
+    assert stopped.startswith('commander /positioner silent for 0.50 s during a move '
+                              '(heartbeat_timeout 0.5 s): controlled stop')
+    assert driver.status()[2]['silence_stops'] == 1
+    while driver.servos.moving:
+        t += 0.005
+        driver.step(t)
+    assert driver.servos.state.position[0] < HOME[0] + 0.9 * delta[0]  # stopped short
+    # At rest nobody needs a heartbeat: no further stop.
+    assert driver.step(t + 10.0).stopped is None

@@ -12,16 +12,18 @@ from builtin_interfaces.msg import Duration
 from cell_harness import CELL_YAML, Client, InProcess, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from positioning_cell import names
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.mechanics.statics import actuator_efforts
 from positioning_cell.motion.trajectory import time_law
 from positioning_cell.nodes.leg_driver_node import LegDriverNode
-from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, HEARTBEAT_QOS, STREAM_QOS
 from positioning_cell.parameters import parse
 from positioning_cell.sim.drives import DriverSettings
 
@@ -35,10 +37,13 @@ STARTUP = 30.0  # s; process start and discovery on a loaded 2-core VM
 
 
 class Cell:
-    """The driver node and a test client with its subscriptions and publisher."""
+    """The driver node and a test client with its subscriptions and publisher: the client is
+    the driver's commander (``command.commander``) and sends its heartbeat."""
 
     def __init__(self, client: Client) -> None:
         self.client = client
+        beat = client.node.create_publisher(Header, names.HEARTBEAT, HEARTBEAT_QOS)
+        client.node.create_timer(0.05, lambda: beat.publish(Header()))
         self.states: list[JointState] = client.collect(JointState, '/legs/joint_states',
                                                        STREAM_QOS)
         self.truth: list[JointState] = client.collect(JointState, '/sim/legs/true_joint_states',
@@ -84,9 +89,13 @@ class Cell:
         return self.client.set_parameter('leg_driver', name, value)
 
 
+COMMANDER = '/test_client'  # the in-process client (cell_harness.InProcess)
+COMMANDED = {'command.commander': COMMANDER}
+
+
 @pytest.fixture
 def cell(ros: InProcess) -> Iterator[Cell]:
-    ros.start(LegDriverNode, referenced_at_start=True)
+    ros.start(LegDriverNode, referenced_at_start=True, **COMMANDED)
     yield Cell(ros.client)
 
 
@@ -205,7 +214,7 @@ def test_unreferenced_drives_refuse_and_answer_every_trajectory(ros: InProcess) 
     """As shipped the drives start unreferenced; each trajectory gets an answer on
     /legs/trajectory_status naming the rule; a trajectory beyond the stroke (the issue's probe:
     leg 1 to 0.240 m, published straight to the driver) is refused and the axes hold."""
-    ros.start(LegDriverNode)
+    ros.start(LegDriverNode, **COMMANDED)
     cell = Cell(ros.client)
     answers = ros.client.collect(DiagnosticStatus, '/legs/trajectory_status', STREAM_QOS)
     start = cell.position()

@@ -122,6 +122,9 @@ class World:
         self.position = HOME_JOINTS.copy()
         self.truth, self.follow, self.samples = truth, follow, samples
         self.bias = np.zeros(6)
+        self.velocity = np.zeros(6)  # what the encoders say the axes do
+        self.tracker_shift = np.zeros(3)  # the platform moved where only the tracker sees it
+        self.identity = ''
         self.refuse: str | None = None
         self.answering = True
         self.silent = False
@@ -143,7 +146,8 @@ class World:
                        trajectory_answers=self.answers, reference_drives=self.reference,
                        drives_connected=lambda: self.connected,
                        state_changed=lambda s, r, c: self.states.append((s, r, c)),
-                       refused=lambda c, r: self.refusals.append((c, r)))
+                       refused=lambda c, r: self.refusals.append((c, r)),
+                       identity=self.identity)
 
     def send(self, traj: Trajectory) -> None:
         with self.lock:
@@ -174,7 +178,7 @@ class World:
                 return None
             reading = self.position.copy()
             reading[self.unreadable] = np.nan
-            return JointReading(reading, np.zeros(6))
+            return JointReading(reading, self.velocity.copy())
 
     def attained(self) -> tuple[np.ndarray, np.ndarray]:
         with self.lock:
@@ -183,7 +187,8 @@ class World:
         return att.position[0], att.quaternion[0]
 
     def measurements(self) -> list[Measurement]:
-        return [Measurement(*self.attained(), TRACKER_COVARIANCE)] * self.samples
+        p, q = self.attained()
+        return [Measurement(p + self.tracker_shift, q, TRACKER_COVARIANCE)] * self.samples
 
 
 DRIVES_READY = {'enabled': 'true', 'state': 'holding', 'referenced': 'true'}
@@ -193,6 +198,7 @@ def settings(mode: str = 'none', **changes: object) -> PositionerSettings:
     """Positioner settings for fast tests: no dwell, short timeouts."""
     values = {'compensation.mode': mode, 'compensation.clearance.model': 'none',
               'settle_time': 0.0, 'arrival.timeout': 0.3, 'measurement_timeout': 0.5,
+              'liveness.discovery_timeout': 0.2,
               **changes}
     return parse(PositionerSettings, values)
 
@@ -566,3 +572,139 @@ def test_measured_mode_does_not_chase_an_error_within_the_measurement_noise() ->
     quiet.bias[:3] = 4e-6
     result = mover(quiet, 'measured').move('base', GOAL, GOAL_Q, tolerance=2e-6)
     assert result.reason.startswith('settled within tolerance') and len(quiet.trajectories) > 1
+
+
+# -- standstill monitoring ---------------------------------------------------------------------
+def watch_until_fault(m: Mover, within: float = 0.5) -> float:
+    """Feed the mover as the node's pose timer does until it reports a fault; how long it took
+    (s). Fails after ``within`` s."""
+    start = time.monotonic()
+    while m.state is not State.FAULT:
+        assert time.monotonic() - start < within, f'no fault within {within} s: {m.reason}'
+        m.estimate_pose()
+        time.sleep(0.01)
+    return time.monotonic() - start
+
+
+def test_uncommanded_motion_at_standstill_stops_the_drives_and_the_next_move_re_plans() -> None:
+    world = World(samples=0)  # the encoders alone (the tracker has its own test)
+    m = mover(world)
+    m.move('base', GOAL, GOAL_Q)
+    for _ in range(5):  # at rest: nothing happens
+        assert m.estimate_pose() is not None and m.state is State.SETTLED
+    stops = world.stops
+    with world.lock:
+        world.position[0] += 0.2e-3  # leg 1 pulled 0.2 mm by something nobody commanded
+    watch_until_fault(m)
+    assert world.stops == stops + 1
+    _, reason, code = world.states[-1]
+    assert code is ResultCode.UNCOMMANDED_MOTION
+    assert 'uncommanded motion at standstill: leg1_length moved 0.' in reason
+    assert 'tolerance 0.050 mm' in reason and 'the next move plans from the encoders' in reason
+    assert not m.position_confirmed
+    # The same goal is moved to again, planned from where the encoders are (no jump).
+    sent = len(world.trajectories)
+    m.move('base', GOAL, GOAL_Q)
+    assert len(world.trajectories) == sent + 1 and m.position_confirmed
+    first = np.concatenate([world.trajectories[-1].lengths[0], world.trajectories[-1].thetas[0]])
+    np.testing.assert_allclose(first[0], world.trajectories[-2].lengths[-1][0] + 0.2e-3,
+                               atol=2e-6)
+
+
+def test_the_tracker_sees_the_platform_move_while_the_encoders_stand_still() -> None:
+    world = World(samples=1)
+    m = mover(world)
+    m.move('base', GOAL, GOAL_Q)
+    for _ in range(6):
+        m.estimate_pose()
+    world.tracker_shift = np.array([0.0, 0.0, 0.3e-3])  # one stray reading: not motion
+    m.estimate_pose()
+    world.tracker_shift = np.zeros(3)
+    for _ in range(6):
+        m.estimate_pose()
+    assert m.state is State.SETTLED
+    world.tracker_shift = np.array([0.0, 0.0, 0.3e-3])  # pushed 0.3 mm through the clearance
+    watch_until_fault(m)
+    assert 'the tracker measures the platform 0.300 mm from where it came to rest' in m.reason
+    assert world.states[-1][2] is ResultCode.UNCOMMANDED_MOTION
+
+
+def test_axes_still_moving_after_the_command_ended_are_uncommanded_motion() -> None:
+    world = World()
+    m = mover(world, **{'standstill.rest_timeout': 0.2})
+    m.move('base', GOAL, GOAL_Q)
+    world.velocity[4] = 0.01  # theta 2 keeps turning after the move ended
+    watch_until_fault(m)
+    assert 'leg2_theta still moving' in m.reason and 'rest_timeout 0.2 s' in m.reason
+
+
+def test_noise_within_the_tolerance_is_not_motion_and_a_move_is_not_watched() -> None:
+    """Encoder noise of 10 µm (a noise burst) at standstill, and the motion of a move itself:
+    no fault."""
+    rng = np.random.default_rng(3)
+    world = World(samples=0)
+    m = mover(world)
+    m.move('base', GOAL, GOAL_Q)
+    rest = world.position.copy()
+    for _ in range(200):
+        with world.lock:
+            world.position = rest + rng.normal(0.0, 10e-6, 6) * np.array([1, 1, 1, 10, 10, 10])
+        m.estimate_pose()
+    assert m.state is State.SETTLED
+    m.move('base', MECH.home_position, MECH.home_quaternion)
+    assert m.state is State.SETTLED and world.states[-1][2] is ResultCode.SUCCESS
+
+
+# -- a positioner (re)started beside a running driver -------------------------------------------
+def test_a_first_command_waits_for_inputs_not_seen_yet() -> None:
+    world = World()
+    world.silent = True
+    m = Mover(settings(**{'liveness.discovery_timeout': 5.0}), world.machine())
+
+    def driver_comes() -> None:
+        world.silent = False
+        m.estimate_pose()  # the node's pose timer
+        m.driver_status(DRIVES_READY)
+
+    threading.Timer(0.2, driver_comes).start()
+    assert m.move('base', GOAL, GOAL_Q).reason.startswith('settled within tolerance')
+    world.silent = True
+    quiet = Mover(settings(), world.machine())
+    started = time.monotonic()
+    with pytest.raises(MoveAbortedError) as info:
+        quiet.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_DRIVER_SILENT
+    assert str(info.value).endswith('for ever') and time.monotonic() - started >= 0.2
+
+
+def test_a_driver_bound_to_another_commander_or_not_seeing_it_refuses() -> None:
+    world = World()
+    world.identity = '/positioner'
+    m = mover(world)
+    m.driver_status({**DRIVES_READY, 'commander': '/other', 'commander_seen': 'false'})
+    with pytest.raises(MoveAbortedError) as info:
+        m.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_NOT_COMMANDER
+    assert 'takes commands only from /other, not from this positioner (/positioner)' in str(
+        info.value)
+    m.driver_status({**DRIVES_READY, 'commander': '/positioner', 'commander_seen': 'false'})
+    with pytest.raises(MoveAbortedError) as info:
+        m.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_DRIVER_SILENT
+    assert "not discovered this positioner's publisher" in str(info.value)
+    assert world.trajectories == []
+    m.driver_status({**DRIVES_READY, 'commander': '/positioner', 'commander_seen': 'true'})
+    assert m.move('base', GOAL, GOAL_Q).reason.startswith('settled within tolerance')
+
+
+def test_drives_that_stopped_the_move_for_a_silent_heartbeat_abort_it_at_once() -> None:
+    """A positioner slow enough for the drives to stop its move (no heartbeat in time) learns
+    it from their status at once, not after the arrival timeout."""
+    world = World(follow=False)
+    m = mover(world, **{'arrival.timeout': 60.0, 'liveness.freeze_window': 5.0})
+    err, after = abort(m, world, lambda: m.driver_status(
+        {**DRIVES_READY, 'silence_stops': '1',
+         'last_event': 'commander /positioner silent for 0.51 s during a move'}))
+    assert err.code is ResultCode.ABORTED_DRIVER_LOST and after < 0.5
+    assert 'the drives stopped the move: they heard no heartbeat' in str(err)
+    assert world.stops == 1

@@ -116,6 +116,8 @@ class Positioner:
         # not a lost driver. Liveness itself is proven on real processes (test_faults).
         self.node = ros.start(PositionerNode, **{'compensation.mode': 'none',
                                                  'settle_time': 0.0,
+                                                 # the test client plays the driver
+                                                 'sources.leg_driver': '/test_client',
                                                  'liveness.joint_silence': 1.0,
                                                  'operator.coordinate_systems_file':
                                                      str(systems_file)})

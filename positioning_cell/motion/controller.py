@@ -293,4 +293,5 @@ class Controller:
 #: The bit of each liveness refusal of the mover (the others are :func:`state_check`'s).
 _LIVENESS_BITS = {ResultCode.REFUSED_DRIVER_SILENT: Validity.DRIVER_SILENT,
                   ResultCode.REFUSED_NO_ESTIMATE: Validity.DRIVER_SILENT,
+                  ResultCode.REFUSED_NOT_COMMANDER: Validity.DRIVER_SILENT,
                   ResultCode.REFUSED_TRACKER_SILENT: Validity.TRACKER_SILENT}

@@ -39,6 +39,7 @@ from positioning_cell.motion.calibrated import calibrated_machine
 from positioning_cell.motion.correction import corrected_command, deviation, mean_pose
 from positioning_cell.motion.outcomes import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
+from positioning_cell.motion.standstill import Motion, StandstillWatch
 from positioning_cell.motion.trajectory import MotionLimits, Trajectory, fingerprint, plan_move
 from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
 from positioning_cell.names import (
@@ -140,7 +141,8 @@ class Machine:
     a trajectory and answer it (a driver that was just restarted is not, until discovery has
     matched both ways); ``state_changed(state, reason, code)`` reports a new state,
     ``refused(code, reason)`` a refusal (the state stays); ``clock()`` is a monotonic clock
-    in s.
+    in s; ``identity`` the name the drives must take commands from (the positioner node's fully
+    qualified name; '' when not checked).
     """
 
     send_trajectory: Callable[[Trajectory], None]
@@ -154,6 +156,7 @@ class Machine:
     state_changed: Callable[[State, str, ResultCode | None], None] = field(default=_nothing)
     refused: Callable[[ResultCode, str], None] = field(default=_nothing)
     clock: Callable[[], float] = time.monotonic
+    identity: str = ''
 
 
 #: How often a wait re-reads the world and re-checks stop, faults and liveness, s.
@@ -195,10 +198,18 @@ class Mover:
         self.estimate: Estimate | None = None
         self._path: list[tuple[FloatArray, FloatArray]] | None = None
         self._motion: tuple[float, Trajectory, FreezeWatch] | None = None
+        self._silence_stops = '0'
         self.stop_requested = False
         self._sent: tuple[float, float] | None = None
         self._move_limits: tuple[MotionLimits | None, PathCheck | None] = (None, None)
         self.state, self.reason = State.IDLE, 'waiting for encoder readings'
+        #: Standstill monitoring (fed while no command runs; armed again after every motion).
+        self.standstill = StandstillWatch(settings.standstill)
+        self.standstill.arm(machine.clock())
+        self._commanding = False
+        self._moved = False
+        #: False once the machine moved while nothing was commanded, until a move settles.
+        self.position_confirmed = True
 
     # -- inputs ---------------------------------------------------------------------------------
     def reconfigure(self, settings: PositionerSettings) -> None:
@@ -216,6 +227,7 @@ class Mover:
                                     else calibrated_machine(settings))
                 self._pending, self.command = None, None
             self.settings = settings
+            self.standstill.settings = settings.standstill
 
     def prepare(self, settings: PositionerSettings) -> None:
         """Check new settings before they are accepted: a new calibration file is loaded now
@@ -247,6 +259,32 @@ class Mover:
                 self.measurement_time = now
                 del self.measurements[:-MEASUREMENTS_KEPT]
             self.answers.extend(answers)
+            if not self._commanding:
+                self._watch_standstill(joints, taken, now)
+
+    def _watch_standstill(self, joints: JointReading | None, taken: list[Measurement],
+                          now: float) -> None:
+        """Standstill monitoring of what just came in (called under the lock while no command
+        runs): motion found stops the drives at once (:meth:`_uncommanded`)."""
+        found: Motion | None = None
+        if joints is not None and np.all(np.isfinite(joints.position)):
+            found = self.standstill.joints(joints.position, joints.velocity,
+                                           self.settings.arrival.speed_tolerance, now)
+        for reading in taken:
+            found = found or self.standstill.tracker(reading.position, reading.quaternion)
+        if found is not None:
+            self._uncommanded(found, now)
+
+    def _uncommanded(self, motion: Motion, now: float) -> None:
+        """The machine moved while nothing was commanded (under the lock): stop the drives,
+        mark the position unconfirmed, plan the next move from the encoders, watch again."""
+        self.machine.stop_drives()
+        self.command = None
+        self.position_confirmed = False
+        self.standstill.arm(now)
+        self._set_state(State.FAULT, f'{motion.reason}; drives stopped, the position is '
+                        'unconfirmed: the next move plans from the encoders',
+                        ResultCode.UNCOMMANDED_MOTION)
 
     @property
     def mode(self) -> CompensationMode:
@@ -340,6 +378,8 @@ class Mover:
         with self._exclusive():
             self.ready(homing=True)
             if not self.referenced:
+                with self.cond:
+                    self._moved = True  # a referencing run moves the axes
                 if not self.machine.reference_drives():
                     raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
                                         f'the drives cannot be referenced: {DRIVER_REFERENCE} '
@@ -426,9 +466,12 @@ class Mover:
 
     def ready(self, *, homing: bool = False) -> None:
         """Refuse when the world is not ready for motion: no or silent joint states, drives
-        off or in fault, not referenced (homing references), no pose estimate, a silent
-        tracker in ``measured`` mode."""
-        self._refresh()
+        not connected or bound to another commander, drives off or in fault, not referenced
+        (homing references), no pose estimate, a silent tracker in ``measured`` mode. Inputs
+        never seen yet (a positioner just started beside a running driver) are waited for up
+        to ``liveness.discovery_timeout`` first; inputs that went silent are refused at
+        once."""
+        self._await_inputs()
         live = self.settings.liveness
         with self.cond:
             silence = self.machine.clock() - self.joints_time
@@ -441,6 +484,16 @@ class Mover:
             raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
                                 f'leg driver not connected: no subscriber on {JOINT_TRAJECTORY} '
                                 f'or no publisher on {TRAJECTORY_STATUS} yet')
+        bound, me = driver.get('commander', ''), self.machine.identity
+        if me and bound and bound != me:
+            raise self.refusal(ResultCode.REFUSED_NOT_COMMANDER,
+                                f'the leg driver takes commands only from {bound}, not from '
+                                f'this positioner ({me}): its command.commander names another '
+                                'node')
+        if driver.get('commander_seen') == 'false':
+            raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
+                                "leg driver not connected: it has not discovered this "
+                                f"positioner's publisher on {JOINT_TRAJECTORY} yet")
         if driver.get('enabled', 'true').lower() == 'false':
             raise self.refusal(ResultCode.REFUSED_DRIVES_OFF,
                                 f'drives disabled: enable them with {DRIVER_ENABLE}')
@@ -462,6 +515,28 @@ class Mover:
                                    else f'{tracker_silence:.2f} s')
                                 + ' (the measured mode needs it)')
 
+    def _unseen(self) -> bool:
+        """Some input of :meth:`ready` has never been seen yet (called under the lock)."""
+        driver = self.driver
+        return (self.joints is None or not driver or driver.get('commander_seen') == 'false'
+                or (self.estimate is None and self.command is None)
+                or (self.mode is CompensationMode.MEASURED
+                    and math.isinf(self.measurement_time))
+                or not self.machine.drives_connected())
+
+    def _await_inputs(self) -> None:
+        """Wait (bounded by ``liveness.discovery_timeout``) until every input has been seen
+        once: the first joint state, the driver's status naming this positioner seen, the
+        driver matched both ways, a pose estimate, in ``measured`` mode a tracker reading."""
+        deadline = self.machine.clock() + self.settings.liveness.discovery_timeout
+        while True:
+            self._refresh()
+            with self.cond:
+                remaining = deadline - self.machine.clock()
+                if remaining <= 0.0 or not self._unseen():
+                    return
+                self.cond.wait(min(remaining, POLL_PERIOD))
+
     def plan_path(self, p: FloatArray, q: FloatArray,
                   limits: MotionLimits | None = None) -> Trajectory:
         """The move from the last command (or, after an abort, from where the encoders are)
@@ -479,12 +554,18 @@ class Mover:
         return plan_move(self.mech, *command, p, q, period=self.settings.trajectory.period,
                          limits=limits or self.settings.motion, clearance=self._model())
 
-    @staticmethod
-    def _checked(traj: Trajectory, path_check: PathCheck | None) -> Trajectory:
-        """``traj`` if it violates no limit (the mechanism's, then ``path_check``'s);
-        MoveAbortedError REFUSED_LIMITS naming what it violates."""
+    def _checked(self, traj: Trajectory, path_check: PathCheck | None) -> Trajectory:
+        """``traj`` if it violates no limit (the mechanism's, then ``path_check``'s, then the
+        most points the drives take, as their status says); MoveAbortedError REFUSED_LIMITS
+        naming what it violates."""
         if not traj.limits.ok:
             raise MoveAbortedError(ResultCode.REFUSED_LIMITS, _refused_path(traj.limits))
+        most = int(self.driver.get('max_points', '0') or 0)
+        if most and traj.times.size > most:
+            raise MoveAbortedError(
+                ResultCode.REFUSED_LIMITS, f'path refused, {traj.times.size} trajectory points '
+                f'({traj.duration:.1f} s): the leg driver takes at most {most} '
+                '(its command.max_points): move in shorter steps')
         violations = path_check(traj.position, traj.quaternion) if path_check else []
         if violations:
             raise MoveAbortedError(ResultCode.REFUSED_LIMITS,
@@ -538,6 +619,7 @@ class Mover:
             with self.cond:
                 path, self._path = self._path or [], None
             self._move_limits = (None, None)
+        self.position_confirmed = True
         self._set_state(State.SETTLED, reason, ResultCode.SUCCESS)
         return MoveResult(np.array([x[0] for x in path]).reshape(-1, 3),
                           np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r, sigma)
@@ -629,10 +711,12 @@ class Mover:
             if self.stop_requested:
                 raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
             self.command = command
+            self._moved = True
             self.answers.clear()
             counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
             self._motion = (self.machine.clock(), traj,
                             FreezeWatch(live.freeze_window, live.freeze_motion, counts))
+            self._silence_stops = self.driver.get('silence_stops', '0')
             self._sent = (self._motion[0], traj.duration)
             self.machine.send_trajectory(traj)
         measuring = self.mode is CompensationMode.MEASURED  # the tracker must stay live
@@ -724,6 +808,10 @@ class Mover:
         if driver.get('enabled', 'true').lower() == 'false':
             raise MoveAbortedError(ResultCode.ABORTED_DRIVES_OFF, 'drives disabled during the '
                                    f'move: {driver.get("message", "")}')
+        if self._motion is not None and driver.get('silence_stops', '0') != self._silence_stops:
+            raise MoveAbortedError(ResultCode.ABORTED_DRIVER_LOST,
+                                   'the drives stopped the move: they heard no heartbeat from '
+                                   f'this positioner in time ({driver.get("last_event", "")})')
         silence = now - self.joints_time
         if silence > live.joint_silence:
             raise MoveAbortedError(ResultCode.ABORTED_DRIVER_LOST,
@@ -758,17 +846,27 @@ class Mover:
 
 
 class _Exclusive:
-    """One command at a time: a second one while busy is refused and changes nothing."""
+    """One command at a time: a second one while busy is refused and changes nothing. While
+    it runs the standstill watch is not fed; a command that moved the axes arms it again at
+    its end."""
 
     def __init__(self, mover: Mover) -> None:
         self.mover = mover
 
     def __enter__(self) -> None:
-        if not self.mover._busy.acquire(blocking=False):
-            raise self.mover.refusal(ResultCode.REFUSED_BUSY, 'busy: a move is in progress')
+        m = self.mover
+        if not m._busy.acquire(blocking=False):
+            raise m.refusal(ResultCode.REFUSED_BUSY, 'busy: a move is in progress')
+        with m.cond:
+            m._commanding, m._moved = True, False
 
     def __exit__(self, *exc: object) -> None:
-        self.mover._busy.release()
+        m = self.mover
+        with m.cond:
+            if m._moved:
+                m.standstill.arm(m.machine.clock())
+            m._commanding = m._moved = False
+        m._busy.release()
 
 
 def _refused_path(report: LimitReport) -> str:

@@ -42,6 +42,7 @@ class ResultCode(Enum):
     REFUSED_BUSY = 'refused_busy'
     REFUSED_NO_ESTIMATE = 'refused_no_estimate'
     REFUSED_TRACKER_SILENT = 'refused_tracker_silent'
+    REFUSED_NOT_COMMANDER = 'refused_not_commander'
     ABORTED_STOP = 'aborted_stop'
     ABORTED_FAULT = 'aborted_fault'
     ABORTED_DRIVES_OFF = 'aborted_drives_off'
@@ -52,6 +53,9 @@ class ResultCode(Enum):
     ABORTED_TRACKER_INCONSISTENT = 'aborted_tracker_inconsistent'
     ABORTED_TIMEOUT = 'aborted_timeout'
     OUT_OF_TOLERANCE = 'out_of_tolerance'
+    #: Not the end of a command: the machine moved while nothing was commanded (standstill
+    #: monitoring); the drives were stopped.
+    UNCOMMANDED_MOTION = 'uncommanded_motion'
 
     @property
     def refused(self) -> bool:

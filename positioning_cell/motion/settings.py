@@ -15,7 +15,9 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.limits.boxes import FactoryBoxSettings
 from positioning_cell.mechanics.statics import Payload, Structure
+from positioning_cell.motion.standstill import StandstillSettings
 from positioning_cell.motion.trajectory import MotionLimits
+from positioning_cell.names import NODE_DRIVER, NODE_MEASUREMENT
 from positioning_cell.parameters import ParameterError, check_fields, group, setting
 
 FloatArray = NDArray[np.float64]
@@ -147,6 +149,15 @@ class LivenessSettings:
                                    low=1.0, high=1000.0, dynamic=True)
     homing_timeout: float = setting(120.0, 'referencing must complete within this', 's',
                                     low=1.0, high=3600.0, dynamic=True)
+    discovery_timeout: float = setting(
+        5.0, 'a command waits at most this long for inputs never seen yet (the first joint '
+        "state, the driver's status, the driver matched both ways): a positioner started or "
+        'restarted beside a running driver works on its first command', 's', low=0.0,
+        high=60.0, dynamic=True)
+    heartbeat_period: float = setting(
+        0.05, 'period of the heartbeat to the leg driver (/positioner/heartbeat), which stops '
+        "a move when it falls silent (leg_driver's command.heartbeat_timeout)", 's', low=0.005,
+        high=1.0)
     linear_count: float = setting(1e-6, 'one linear encoder count, for the freeze rule', 'm',
                                   low=1e-9, high=1e-3)
     rotary_count: float = setting(6e-6, 'one rotary encoder count, for the freeze rule',
@@ -154,6 +165,24 @@ class LivenessSettings:
 
     def __post_init__(self) -> None:
         check_fields(self)
+
+
+@dataclass(frozen=True)
+class InputSources:
+    """The nodes the positioner takes its inputs from (``sources:``, fully qualified names):
+    encoder readings and trajectory answers from the leg driver, poses from the tracker.
+    Messages of any other node on those topics are ignored and reported."""
+
+    leg_driver: str = setting('/' + NODE_DRIVER, 'the node whose /legs/joint_states and '
+                              '/legs/trajectory_status are taken')
+    tracker: str = setting('/' + NODE_MEASUREMENT, 'the node whose /metrology/pose is taken')
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        for name in ('leg_driver', 'tracker'):
+            if not getattr(self, name).startswith('/'):
+                raise ParameterError(name, getattr(self, name),
+                                     "a fully qualified node name ('/leg_driver', '/ns/node')")
 
 
 @dataclass(frozen=True)
@@ -219,6 +248,9 @@ class PositionerSettings:
     trajectory: TrajectorySettings = group(TrajectorySettings, 'the joint trajectories')
     arrival: ArrivalSettings = group(ArrivalSettings, 'arrival of the drives')
     liveness: LivenessSettings = group(LivenessSettings, 'silent, frozen or refusing inputs')
+    standstill: StandstillSettings = group(StandstillSettings, 'motion while nothing is '
+                                           'commanded')
+    sources: InputSources = group(InputSources, 'the nodes the inputs are taken from')
     operator: OperatorSettings = group(OperatorSettings, "the operator's surface: coordinate "
                                        'systems, limit layers, speed maxima, jog')
     settle_time: float = setting(0.2, 'dwell after arrival before the pose counts as settled',

@@ -13,6 +13,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
@@ -29,12 +30,14 @@ from positioning_cell.motion.mover import (
     State,
 )
 from positioning_cell.nodes import messages as m
-from positioning_cell.nodes.latest import Reader
+from positioning_cell.nodes.latest import SourceReader
 from positioning_cell.nodes.operator_interface import OperatorInterface
 from positioning_cell.nodes.parameters import NodeParameters
 from positioning_cell.nodes.qos import (
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
+    HEARTBEAT_QOS,
+    JOINT_READER_QOS,
     LATCHED_QOS,
     SERVICE_QOS,
     STREAM_QOS,
@@ -56,9 +59,15 @@ class PositionerNode(Node):
                                      lambda s, _: self.mover.prepare(s))
         settings = self.params.settings
         kinematics.warm_up()  # compiled FK ready before the first command
-        self._joints = Reader(self, JointState, names.JOINT_STATES)
-        self._tracker = Reader(self, PoseWithCovarianceStamped, names.MEASURED_POSE, STREAM_QOS)
-        self._answers = Reader(self, DiagnosticStatus, names.TRAJECTORY_STATUS, STREAM_QOS)
+        sources = settings.sources
+        self._joints = SourceReader(self, JointState, names.JOINT_STATES, sources.leg_driver,
+                                    JOINT_READER_QOS)
+        self._tracker = SourceReader(self, PoseWithCovarianceStamped, names.MEASURED_POSE,
+                                     sources.tracker, STREAM_QOS)
+        self._answers = SourceReader(self, DiagnosticStatus, names.TRAJECTORY_STATUS,
+                                     sources.leg_driver, STREAM_QOS)
+        self._inputs = (self._joints, self._tracker, self._answers)
+        self._inputs_message = ''
         self.pub_traj = self.create_publisher(JointTrajectory, names.JOINT_TRAJECTORY,
                                               COMMAND_QOS)
         self.pub_target = self.create_publisher(PoseStamped, names.TARGET, LATCHED_QOS)
@@ -82,7 +91,8 @@ class PositionerNode(Node):
             drives_connected=lambda: (self.pub_traj.get_subscription_count() > 0
                                       and self._answers.publisher_count() > 0),
             state_changed=self._state_changed,
-            refused=self._refused))
+            refused=self._refused,
+            identity=self.get_fully_qualified_name()))
         self.controller = Controller(self.mover, settings.operator)  # ConfigError: no start
         self._estimates = 0
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
@@ -94,6 +104,10 @@ class PositionerNode(Node):
                                           self._publish_diagnostics)
         self.create_timer(1.0 / settings.pose_rate_hz, self._publish_pose, callback_group=topics)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=topics)
+        # The heartbeat on a group of its own: a slow pose estimate never delays it.
+        self.pub_heartbeat = self.create_publisher(Header, names.HEARTBEAT, HEARTBEAT_QOS)
+        self.create_timer(settings.liveness.heartbeat_period, self._heartbeat,
+                          callback_group=MutuallyExclusiveCallbackGroup())
 
     def _reference_drives(self) -> bool:
         """Ask the drives to reference (False: the service is not there, nothing sent)."""
@@ -111,8 +125,13 @@ class PositionerNode(Node):
                 self.mover.driver_status({**m.status_values(status), 'message': status.message})
 
     # -- outputs --------------------------------------------------------------------------------
+    def _heartbeat(self) -> None:
+        self.pub_heartbeat.publish(Header(stamp=self._now()))
+
     def _publish_pose(self) -> None:
         estimate = self.mover.estimate_pose()
+        if any(reader.unreported() for reader in self._inputs):
+            self._publish_inputs()
         if estimate is None:
             return
         msg = m.pose_stamped(estimate.position, estimate.quaternion, self._now())
@@ -131,6 +150,7 @@ class PositionerNode(Node):
         values: dict[str, Any] = {
             'state': mover.state.value, 'reason': mover.reason, 'mode': mover.mode.value,
             'code': code.value if code else '', 'referenced': mover.referenced,
+            'position_confirmed': mover.position_confirmed,
             'calibration': mover.settings.compensation.calibration_file or 'none'}
         if op is not None:
             values.update(op.status_values())
@@ -143,6 +163,25 @@ class PositionerNode(Node):
 
     def _publish_diagnostics(self) -> None:
         self._state_changed(self.mover.state, self.mover.reason, None)
+        self._publish_inputs()
+
+    def _publish_inputs(self) -> None:
+        """Who else publishes on the inputs (their messages are ignored): ERROR while any
+        does."""
+        found = {reader.topic: reader.foreign() for reader in self._inputs}
+        others = {topic: nodes for topic, nodes in found.items() if nodes}
+        values = {topic: ' '.join(nodes) for topic, nodes in found.items()}
+        if others:
+            message = '; '.join(f'second publisher on {topic}: {", ".join(nodes)}'
+                                for topic, nodes in others.items()) + ' (ignored)'
+            if message != self._inputs_message:
+                self.get_logger().error(message)
+        else:
+            message = 'inputs from ' + ' and '.join(sorted({r.source for r in self._inputs}))
+        self._inputs_message = message
+        self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER_INPUTS,
+                                           'error' if others else 'ok', message, values,
+                                           self._now()))
 
     def _refused(self, code: ResultCode, reason: str) -> None:
         self._status('warn', f'refused ({code.value}): {reason}', code)

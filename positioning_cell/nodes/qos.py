@@ -49,6 +49,16 @@ MARKER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 LATEST_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+#: The positioner's encoder readings, taken with their sender: a few kept, so that a second
+#: publisher cannot push the driver's newest reading out of a one-deep history.
+JOINT_READER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
+#: The positioner's heartbeat: only the newest matters, and a lost one is replaced by the next
+#: (best effort, no history).
+HEARTBEAT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                           reliability=ReliabilityPolicy.BEST_EFFORT,
+                           durability=DurabilityPolicy.VOLATILE)
 #: Services: a burst of concurrent callers is queued, not dropped (rclpy's default keeps 10).
 SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                          reliability=ReliabilityPolicy.RELIABLE,

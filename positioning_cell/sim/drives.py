@@ -8,6 +8,7 @@ publication is due. Time is the driver's own clock in s (any origin shared by al
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -20,11 +21,18 @@ from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.statics import Payload, Structure, actuator_efforts
 from positioning_cell.motion.trajectory import fingerprint
+from positioning_cell.names import JOINT_TRAJECTORY, NODE_POSITIONER
 from positioning_cell.parameters import ParameterError, check_fields, group, setting
 from positioning_cell.sim.encoders import EncoderReading, Encoders, EncoderSettings
 from positioning_cell.sim.faults import DriveFaults
 from positioning_cell.sim.guard import AxisGuard, Refusal, TrajectoryRefusedError, check_path
-from positioning_cell.sim.paths import JointNamesError, JointPath, path_from_points
+from positioning_cell.sim.paths import (
+    JointNamesError,
+    JointPath,
+    Points,
+    Times,
+    path_from_points,
+)
 from positioning_cell.sim.servo import AxisState, Fault, LegServos, ServoSettings
 
 FloatArray = NDArray[np.float64]
@@ -44,6 +52,34 @@ class HomingSettings:
 
 
 @dataclass(frozen=True)
+class CommandSettings:
+    """Whom the drives obey and what a command may be (the ``command:`` block)."""
+
+    commander: str = setting('/' + NODE_POSITIONER, 'fully qualified name of the only node '
+                             'whose trajectories and heartbeats are taken; any other '
+                             'publisher on the command topic is refused and reported')
+    heartbeat_timeout: float = setting(
+        0.5, 'a move in progress stops under control when the commander has sent neither a '
+        "heartbeat nor a trajectory for this long (the positioner's "
+        'liveness.heartbeat_period is 0.05 s)', 's', low=0.02, high=10.0, dynamic=True)
+    max_points: int = setting(60_000, 'trajectories with more points are refused before '
+                              'their points are read (10 min at the 0.01 s period)', low=2,
+                              high=1_000_000)
+    stamp_tolerance: float = setting(
+        0.05, 'a trajectory whose header stamp lies further in the past is refused as too old '
+        '(a zero stamp starts on receipt)', 's', low=0.0, high=10.0, dynamic=True)
+    max_start_delay: float = setting(
+        1.0, 'a trajectory whose header stamp lies further in the future is refused', 's',
+        low=0.0, high=60.0, dynamic=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if not self.commander.startswith('/'):
+            raise ParameterError('commander', self.commander,
+                                 "a fully qualified node name ('/positioner', '/ns/node')")
+
+
+@dataclass(frozen=True)
 class DriverSettings:
     """Every parameter of the ``leg_driver`` node (config/cell.yaml)."""
 
@@ -53,6 +89,8 @@ class DriverSettings:
     servo: ServoSettings = group(ServoSettings, 'the six position servos')
     encoder: EncoderSettings = group(EncoderSettings, 'the six encoders')
     fault: DriveFaults = group(DriveFaults, 'injected faults (dynamic)')
+    command: CommandSettings = group(CommandSettings, 'whom the drives obey, and the bounds of '
+                                     'a command')
     physics_rate: float = setting(200.0, 'servo integration timer', 'Hz', low=10.0,
                                   high=2000.0)
     publish_every: int = setting(2, 'joint states are published every this many physics '
@@ -102,10 +140,12 @@ class DriverSettings:
 
 class Step(NamedTuple):
     """What one physics step gave: a fault that tripped in it (the axes then stop and hold),
-    and whether a joint-state publication is due."""
+    whether a joint-state publication is due, and the reason of a stop the drives made by
+    themselves in it (the commander fell silent)."""
 
     fault: Fault | None
     publish: bool
+    stopped: str | None = None
 
 
 class Outcome(NamedTuple):
@@ -118,6 +158,17 @@ class Outcome(NamedTuple):
     key: str = ''
     code: Refusal | None = None
     sequence: int = 0
+
+
+class Prepared(NamedTuple):
+    """A trajectory that passed every check of :meth:`LegDriver.prepare`: its key, its path,
+    its start (s on the drives' clock; None: on receipt) and the setpoint it was checked
+    joined to."""
+
+    key: str
+    path: JointPath
+    start: float | None
+    setpoint: tuple[FloatArray, FloatArray]
 
 
 class LegDriver:
@@ -142,6 +193,17 @@ class LegDriver:
         self.effort: FloatArray | None = None
         self._effort_position: FloatArray | None = None
         self._phis: FloatArray | None = None
+        #: Last word from the commander (a heartbeat or a trajectory), s; a commanded motion
+        #: is in progress while ``_following`` (cleared once it ended or was stopped).
+        self._heard = now
+        self._following = False
+        #: Moves stopped because the commander fell silent (on /diagnostics: the commander,
+        #: when it was only slow, learns its move was stopped).
+        self.silence_stops = 0
+        #: Other nodes publishing on the command topic (the graph), and whether the commander
+        #: is among its publishers.
+        self.foreign: tuple[str, ...] = ()
+        self.commander_seen = False
 
     def reconfigure(self, settings: DriverSettings, changed: Collection[str],
                     now: float) -> None:
@@ -153,6 +215,14 @@ class LegDriver:
         self.servos.stuck = self.faults.stuck
         if changed:
             self.event = f'fault injection set: {", ".join(sorted(changed))}'
+        axis, distance = settings.fault.uncommanded_motion
+        if 'fault.uncommanded_motion' in changed and distance and self.servos.mode != 'fault':
+            self.servos.advance(now)
+            start, _ = self.servos.setpoint()
+            goal = start.copy()
+            goal[int(axis)] += distance
+            with contextlib.suppress(TrajectoryRefusedError):  # drives off: nothing moves
+                self.servos.command(self._smooth_path(start, goal, 0.2), now)
 
     def step(self, now: float) -> Step:
         """Integrate to ``now`` (s); a referencing run that has arrived references the axes;
@@ -165,11 +235,53 @@ class LegDriver:
             if self.servos.fault is None and self.servos.enabled:
                 self.referenced = True
                 self.event = 'referenced: referencing run complete'
+        stopped = self._watch_commander(now)
         self._steps += 1
         s = self.settings
         if self._steps % max(1, round(s.physics_rate / s.effort_rate)) == 0:
             self.update_effort()
-        return Step(fault, self._steps % s.publish_every == 0)
+        return Step(fault, self._steps % s.publish_every == 0, stopped)
+
+    def heartbeat(self, now: float) -> None:
+        """The commander is alive at ``now`` (a heartbeat of the commander's came)."""
+        self._heard = max(self._heard, now)
+
+    def _watch_commander(self, now: float) -> str | None:
+        """A commanded motion in progress whose commander fell silent for longer than
+        ``command.heartbeat_timeout`` stops under control; the reason, or None."""
+        if not self._following:
+            return None
+        if not self.servos.moving and self.servos.pending is None:
+            self._following = False
+            return None
+        silence = now - self._heard
+        timeout = self.settings.command.heartbeat_timeout
+        if silence <= timeout:
+            return None
+        self.servos.stop()
+        self._following = False
+        self.silence_stops += 1
+        self.event = (f'commander {self.settings.command.commander} silent for {silence:.2f} s '
+                      f'during a move (heartbeat_timeout {timeout:g} s): controlled stop')
+        return self.event
+
+    def note_foreign(self, sender: str) -> bool:
+        """A command came from ``sender``, not the commander: reported as foreign from now
+        (until the graph no longer lists it). True when it was not reported yet."""
+        if not sender or sender in self.foreign:
+            return False
+        self.foreign = tuple(sorted({*self.foreign, sender}))
+        return True
+
+    def publishers(self, nodes: Sequence[str]) -> bool:
+        """The nodes now publishing on the command topic (from the graph): the commander seen
+        or not, the others foreign. True when that changed."""
+        commander = self.settings.command.commander
+        foreign = tuple(sorted({n for n in nodes if n != commander}))
+        seen = commander in nodes
+        changed = (foreign, seen) != (self.foreign, self.commander_seen)
+        self.foreign, self.commander_seen = foreign, seen
+        return changed
 
     def readings(self) -> tuple[EncoderReading, AxisState]:
         """The encoder reading of the current state, and the true state. An encoder that gives
@@ -198,43 +310,107 @@ class LegDriver:
             self._effort_position = q.copy()
         return self.effort
 
-    def follow(self, names: Sequence[str], times: Sequence[float],
-               positions: Sequence[Sequence[float]], velocities: Sequence[Sequence[float]],
-               start: float | None, now: float) -> Outcome:
+    def follow(self, names: Sequence[str], times: Times, positions: Points, velocities: Points,
+               start: float | None, now: float, sender: str | None = None) -> Outcome:
         """Follow trajectory points (trajectory_msgs/JointTrajectory fields) from ``start``
-        (s on this clock; None: on receipt), after every check of :mod:`.guard`. A refused
-        trajectory changes nothing; the outcome says why, with the trajectory's key."""
+        (s on this clock; None: on receipt), sent by node ``sender`` (its fully qualified
+        name; None: not known, as in a test of the rules alone): :meth:`prepare` then
+        :meth:`apply`. A refused trajectory changes nothing; the outcome says why, with the
+        trajectory's key."""
         self.servos.advance(now)
-        self.received += 1
+        prepared = self.prepare(names, times, positions, velocities, start, now, sender,
+                                self.setpoint_at(start, now))
+        return self.apply(prepared, now)
+
+    def setpoint_at(self, start: float | None, now: float) -> tuple[FloatArray, FloatArray]:
+        """The setpoint (position, velocity (6,)) a trajectory starting at ``start`` (None: on
+        receipt, ``now``) joins, as the drives stand now."""
+        return self.servos.setpoint(max(now if start is None else start, self.servos.time))
+
+    def prepare(self, names: Sequence[str], times: Times, positions: Points,
+                velocities: Points, start: float | None, now: float, sender: str | None,
+                setpoint: tuple[FloatArray, FloatArray]) -> Prepared | Outcome:
+        """Every check of a trajectory received at ``now``, without touching the drives (it
+        may run on another thread while they move): the sender is the commander, at most
+        ``command.max_points`` points, a start stamp neither older than
+        ``command.stamp_tolerance`` nor later than ``command.max_start_delay``, then every
+        check of :mod:`.guard` on the path joined to ``setpoint`` (:meth:`setpoint_at`). The
+        prepared trajectory for :meth:`apply`, or the refusal (sequence 0: not counted
+        yet)."""
         key = _key(times, positions)
         try:
+            self._check_command(sender, len(times), start, now)
             path = self._path(names, times, positions, velocities)
+            position, velocity = setpoint
+            check_path(path.starting_from(position, velocity), self.guard, position)
+        except TrajectoryRefusedError as err:
+            return Outcome(False, f'trajectory refused: {err}', key, err.code)
+        return Prepared(key, path, start, setpoint)
+
+    def apply(self, prepared: Prepared | Outcome, now: float) -> Outcome:
+        """Follow a prepared trajectory (or count and report its refusal): refused when the
+        drives are not referenced, disabled or in fault; checked again when the setpoint it
+        joins is no longer the one it was prepared against (a command that replaces a running
+        motion)."""
+        self.servos.advance(now)
+        self.received += 1
+        if isinstance(prepared, Outcome):
+            self.event = prepared.message
+            return prepared._replace(sequence=self.received)
+        key, path, start = prepared.key, prepared.path, prepared.start
+        try:
             if not self.referenced:
                 raise TrajectoryRefusedError(
                     Refusal.NOT_REFERENCED, 'axes not referenced: home them first '
                     '(/positioner/home or /leg_driver/reference)')
-            self._command(path, now if start is None else start)
+            position, velocity = self.setpoint_at(start, now)
+            if not (np.array_equal(position, prepared.setpoint[0])
+                    and np.array_equal(velocity, prepared.setpoint[1])):
+                check_path(path.starting_from(position, velocity), self.guard, position)
+            self.servos.command(path, now if start is None else start)
         except TrajectoryRefusedError as err:
             self.event = f'trajectory refused: {err}'
             return Outcome(False, self.event, key, err.code, self.received)
-        self.event = f'trajectory accepted: {len(times)} points, {path.duration:.3f} s'
+        self._following, self._heard = True, max(self._heard, now)
+        self.event = f'trajectory accepted: {path.times.size} points, {path.duration:.3f} s'
         return Outcome(True, self.event, key, None, self.received)
 
-    def _path(self, names: Sequence[str], times: Sequence[float],
-              positions: Sequence[Sequence[float]],
-              velocities: Sequence[Sequence[float]]) -> JointPath:
+    def refuse(self, code: Refusal, reason: str, key: str = '') -> Outcome:
+        """A command refused before it could be read as points (``reason``), e.g. bytes that
+        are not a trajectory or one from a foreign sender: nothing changes."""
+        self.received += 1
+        self.event = f'trajectory refused: {reason}'
+        return Outcome(False, self.event, key, code, self.received)
+
+    def _check_command(self, sender: str | None, points: int, start: float | None,
+                       now: float) -> None:
+        """The command rules that do not look at the points (TrajectoryRefusedError)."""
+        c = self.settings.command
+        if sender is not None and sender != c.commander:
+            raise TrajectoryRefusedError(Refusal.FOREIGN_SENDER, foreign_sender(sender, c))
+        if points > c.max_points:
+            raise TrajectoryRefusedError(Refusal.TOO_MANY_POINTS,
+                                         f'{points} points: more than command.max_points = '
+                                         f'{c.max_points}')
+        if start is None:
+            return
+        if now - start > c.stamp_tolerance:
+            raise TrajectoryRefusedError(
+                Refusal.OLD_HEADER_TIMESTAMP, f'header stamp {now - start:.3f} s in the past '
+                f'(command.stamp_tolerance {c.stamp_tolerance:g} s): too old to start')
+        if start - now > c.max_start_delay:
+            raise TrajectoryRefusedError(
+                Refusal.FUTURE_HEADER_TIMESTAMP, f'header stamp {start - now:.3f} s ahead '
+                f'(command.max_start_delay {c.max_start_delay:g} s): too far in the future')
+
+    def _path(self, names: Sequence[str], times: Times, positions: Points,
+              velocities: Points) -> JointPath:
         try:
             return path_from_points(names, times, positions, velocities)
         except JointNamesError as err:
             raise TrajectoryRefusedError(Refusal.INVALID_JOINTS, str(err)) from err
         except InputError as err:
             raise TrajectoryRefusedError(Refusal.INVALID_GOAL, str(err)) from err
-
-    def _command(self, path: JointPath, start: float) -> None:
-        """Check ``path`` joined to the setpoint at ``start``, then follow it."""
-        position, velocity = self.servos.setpoint(max(start, self.servos.time))
-        check_path(path.starting_from(position, velocity), self.guard, position)
-        self.servos.command(path, start)
 
     def reference(self, now: float) -> str:
         """Reference the axes: at once (virtual homing), or by a referencing run to the home
@@ -251,25 +427,33 @@ class LegDriver:
             self.event = 'referenced (virtual homing: where the axes stand)'
             return self.event
         start, _ = s.setpoint()
-        goal = self.settings.home_positions()
-        v = self.settings.servo.velocity_limits * self.settings.homing.speed_fraction
-        a = self.settings.servo.acceleration_limits * self.settings.homing.speed_fraction
+        path = self._smooth_path(start, self.settings.home_positions(),
+                                 self.settings.homing.speed_fraction)
+        duration = path.duration
+        self.referenced, self.referencing = False, True
+        s.command(path, now)
+        self._following, self._heard = True, max(self._heard, now)
+        self.event = f'referencing run to the home position, {duration:.1f} s'
+        return self.event
+
+    def _smooth_path(self, start: FloatArray, goal: FloatArray, fraction: float) -> JointPath:
+        """Rest to rest from ``start`` to ``goal`` (6,) (smoothstep), at about ``fraction`` of
+        each axis's speed and acceleration limits."""
+        v = self.settings.servo.velocity_limits * fraction
+        a = self.settings.servo.acceleration_limits * fraction
         duration = float(np.max(np.abs(goal - start) / v + v / a, initial=0.0)) + 1e-3
         times = np.linspace(0.0, duration, 51)
         tau = times / duration
-        shape = tau * tau * (3.0 - 2.0 * tau)  # smoothstep: rest to rest
+        shape = tau * tau * (3.0 - 2.0 * tau)
         rate = 6.0 * tau * (1.0 - tau) / duration
-        path = JointPath(times, start + shape[:, None] * (goal - start),
+        return JointPath(times, start + shape[:, None] * (goal - start),
                          rate[:, None] * (goal - start))
-        self.referenced, self.referencing = False, True
-        s.command(path, now)
-        self.event = f'referencing run to the home position, {duration:.1f} s'
-        return self.event
 
     def stop(self, now: float) -> str:
         """Controlled stop from the current setpoint, then hold."""
         self.servos.advance(now)
         self.servos.stop()
+        self._following = False
         self.event = 'stop: empty trajectory, controlled deceleration'
         return self.event
 
@@ -292,15 +476,32 @@ class LegDriver:
         mode = s.mode
         level = level or {'fault': 'error', 'disabled': 'warn'}.get(mode, 'ok')
         message = s.fault.message() if s.fault else (event or mode)
+        if self.foreign and not s.fault:
+            level = 'error'
+            message = (f'foreign publisher on {JOINT_TRAJECTORY}: {", ".join(self.foreign)} '
+                       f'(only {self.settings.command.commander} is obeyed; its trajectories '
+                       'are refused)' + (f'; {event}' if event else ''))
         values = {'state': mode, 'enabled': s.enabled, 'moving': s.moving,
                   'referenced': self.referenced, 'referencing': self.referencing,
+                  'commander': self.settings.command.commander,
+                  'commander_seen': self.commander_seen,
+                  'foreign_publishers': ' '.join(self.foreign),
+                  'max_points': self.settings.command.max_points,
+                  'silence_stops': self.silence_stops,
                   'fault_axis': s.fault.name if s.fault else '', 'last_event': self.event,
                   **{f'following_error.{n}': f'{e:.3e}'
                      for n, e in zip(JOINT_NAMES, s.following_error, strict=True)}}
         return level, message, values
 
 
-def _key(times: Sequence[float], positions: Sequence[Sequence[float]]) -> str:
+def foreign_sender(sender: str, command: CommandSettings) -> str:
+    """The refusal of a command from ``sender``, not the commander."""
+    who = sender or 'a publisher the graph does not name yet'
+    return (f'sent by {who}: this driver takes commands only from {command.commander} '
+            '(command.commander)')
+
+
+def _key(times: Times, positions: Points) -> str:
     """The fingerprint of a trajectory as received, also of one the drives refuse as
     malformed (its sender must learn of the refusal); '' when it has no points or ragged
     ones."""

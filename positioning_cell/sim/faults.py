@@ -1,5 +1,5 @@
-"""Fault injection of the simulated drives: failed encoders, jammed axes and noise bursts,
-set while the driver runs (the ``fault:`` block, dynamic)."""
+"""Fault injection of the simulated drives: failed encoders, jammed axes, noise bursts and a
+motion nobody commanded, set while the driver runs (the ``fault:`` block, dynamic)."""
 
 from __future__ import annotations
 
@@ -46,6 +46,10 @@ class DriveFaults:
     stuck_axis: str = setting('', 'jammed axes: joint names or indices 0-5', dynamic=True)
     noise_burst: tuple[float, float] = setting((1.0, 0.0), '[noise sigma scale >= 1, duration '
                                                's], starts when set', dynamic=True)
+    uncommanded_motion: tuple[float, float] = setting(
+        (0.0, 0.0), '[axis index 0-5, distance m or rad]: when set, the drives move that axis '
+        'by that distance on their own (a stale motion block nobody sent), at a fifth of its '
+        'speed limit; any command or stop replaces it', 'index, m or rad', dynamic=True)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -58,6 +62,11 @@ class DriveFaults:
         if scale < 1.0 or duration < 0.0:
             raise ParameterError('noise_burst', list(self.noise_burst),
                                  'expected [scale >= 1, duration s >= 0]')
+        axis, distance = self.uncommanded_motion
+        if axis not in range(AXES) or abs(distance) > 0.01:
+            raise ParameterError('uncommanded_motion', list(self.uncommanded_motion),
+                                 f'expected [axis index 0-{AXES - 1}, distance within '
+                                 '+-0.01 m or rad]')
 
     @cached_property
     def dropout(self) -> BoolArray:

@@ -18,6 +18,10 @@ from positioning_cell.errors import InputError
 from positioning_cell.sim.axes import AXES, unit_of
 
 FloatArray = NDArray[np.float64]
+#: Trajectory point times (K,) s, as a message's list or a decoded array.
+Times = Sequence[float] | FloatArray
+#: Per point values (K, n), as a message's lists or a decoded array.
+Points = Sequence[Sequence[float]] | FloatArray
 
 
 class JointNamesError(InputError):
@@ -115,14 +119,13 @@ def stop_path(position: ArrayLike, velocity: ArrayLike, acceleration: ArrayLike)
     return JointPath(np.array([0.0, stop_time]), np.vstack([p, p + 0.5 * v * stop_time]),
                      np.vstack([v, np.zeros(AXES)]))
 
-def path_from_points(names: Sequence[str], times: Sequence[float],
-                     positions: Sequence[Sequence[float]],
-                     velocities: Sequence[Sequence[float]],
+def path_from_points(names: Sequence[str], times: Times, positions: Points, velocities: Points,
                      v_max: FloatArray | None = None) -> JointPath:
     """A JointPath from trajectory points (trajectory_msgs/JointTrajectory): ``names`` the six
     JOINT_NAMES in any order; per point k its time_from_start ``times[k]`` (s), ``positions[k]``
     and ``velocities[k]`` (one value per name; velocities empty on every point = linear
-    interpolation). Columns are reordered to JOINT_NAMES. With ``v_max`` (6,), point velocities
+    interpolation; decoded arrays (K, 6) take the same checks without a loop over points).
+    Columns are reordered to JOINT_NAMES. With ``v_max`` (6,), point velocities
     and mean segment velocities above it are refused. Raises InputError naming the problem.
     """
     names = list(names)
@@ -137,12 +140,20 @@ def path_from_points(names: Sequence[str], times: Sequence[float],
                               'together')
     if len(times) == 0:
         raise InputError('a trajectory needs at least one point (an empty one stops)')
-    for k, row in enumerate(positions):
-        if len(row) != AXES:
-            raise InputError(f'point {k} has {len(row)} positions, expected {AXES}')
-    given = [len(row) for row in velocities]
+    if isinstance(positions, np.ndarray) and positions.ndim == 2:  # decoded: one layout
+        if positions.shape[1] != AXES:
+            raise InputError(f'point 0 has {positions.shape[1]} positions, expected {AXES}')
+    else:
+        for k, row in enumerate(positions):
+            if len(row) != AXES:
+                raise InputError(f'point {k} has {len(row)} positions, expected {AXES}')
+    if isinstance(velocities, np.ndarray) and velocities.ndim == 2:
+        given = [velocities.shape[1]] * len(velocities)
+    else:
+        given = [len(row) for row in velocities]
     if any(n not in (0, AXES) for n in given) or 0 < given.count(AXES) < len(given):
-        raise InputError(f'velocities: give {AXES} on every point or none, got counts {given}')
+        raise InputError(f'velocities: give {AXES} on every point or none, got counts '
+                         f'{given if len(given) <= 20 else sorted(set(given))}')
     order = [names.index(n) for n in JOINT_NAMES]
     pos = np.asarray(positions, dtype=float)[:, order]
     vel = np.asarray(velocities, dtype=float)[:, order] if given and given[0] else None
@@ -152,7 +163,7 @@ def path_from_points(names: Sequence[str], times: Sequence[float],
         _check_speeds(path, v_max)
     return path
 
-def _check_finite(times: Sequence[float], positions: FloatArray,
+def _check_finite(times: Times, positions: FloatArray,
                   velocities: FloatArray | None) -> None:
     """InputError for a NaN or infinite number, naming the point and the axis."""
     t = np.asarray(times, dtype=float)

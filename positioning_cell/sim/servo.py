@@ -260,6 +260,11 @@ class LegServos:
             self._stop_from_actual()
 
     @property
+    def pending(self) -> tuple[JointPath, float] | None:
+        """A path commanded to start later: (path, start time s), or None."""
+        return self._pending
+
+    @property
     def following_error(self) -> FloatArray:
         """x_sp − x (6,), m and rad."""
         return self.setpoint()[0] - self.state.position

@@ -1,0 +1,167 @@
+"""Standstill monitoring: while the positioner commands nothing, the axes and the platform must
+stay where they came to rest (the drive-safety pattern of a monitored standstill, IEC 61800-5-2's
+safe operating stop, done here by the commanding controller on its own sensors).
+
+After every command that moved the axes the watch is re-armed (:meth:`StandstillWatch.arm`);
+while a command runs the mover does not feed it. The encoders' rest
+position is taken at the first reading with every axis slower than its rest speed; from then
+on the mean of the readings of the last ``window`` s may not leave it by more than the
+tolerance of its axis. The tracker's rest pose is the mean of its first ``TRACKER_READINGS``
+readings after that; the median (per component) of the deviations of the last
+``TRACKER_READINGS`` readings may not exceed the tracker tolerances, so one stray reading is
+not motion. Axes that do not come to rest within ``rest_timeout`` of the command's end are
+motion too. Positions in m and rad (JOINT_NAMES order), poses in the base frame (m, unit
+quaternions x, y, z, w), times in s on one monotonic clock.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.motion.correction import deviation, mean_pose
+from positioning_cell.parameters import check_fields, setting
+
+FloatArray = NDArray[np.float64]
+
+#: Tracker readings that make the rest pose, and whose median deviation is judged.
+TRACKER_READINGS = 3
+
+
+@dataclass(frozen=True)
+class StandstillSettings:
+    """The ``standstill:`` block of the positioner: how far the machine may move while nothing
+    is commanded. The defaults sit above the encoders' and the tracker's noise (encoder noise
+    0.2 µm / 2 µrad, 50 times that in a noise burst, averaged over ``window``; tracker σ a few
+    µm) and far below a motion that matters to a panel."""
+
+    length_tolerance: float = setting(50e-6, 'largest motion of a leg length at standstill '
+                                      '(mean of the readings over window)', 'm', low=1e-7,
+                                      high=0.01, dynamic=True)
+    theta_tolerance: float = setting(5e-4, 'largest motion of a theta angle at standstill',
+                                     'rad', low=1e-6, high=0.1, dynamic=True)
+    tracker_position_tolerance: float = setting(
+        100e-6, 'largest displacement of the measured platform at standstill (median of the '
+        'last 3 tracker readings)', 'm', low=1e-6, high=0.01, dynamic=True)
+    tracker_orientation_tolerance: float = setting(
+        5e-4, 'largest rotation of the measured platform at standstill', 'rad', low=1e-6,
+        high=0.1, dynamic=True)
+    window: float = setting(0.1, 'encoder readings averaged for the standstill check', 's',
+                            low=0.0, high=1.0, dynamic=True)
+    rest_timeout: float = setting(2.0, 'after a command ends, the axes must be at rest within '
+                                  'this', 's', low=0.1, high=60.0, dynamic=True)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+    @property
+    def joint_tolerance(self) -> FloatArray:
+        """Tolerance per axis (6,), m and rad."""
+        return np.array([self.length_tolerance] * 3 + [self.theta_tolerance] * 3)
+
+
+class Motion(NamedTuple):
+    """Uncommanded motion found: the words for it (naming the axis or the tracker, how far,
+    and the tolerance)."""
+
+    reason: str
+
+
+def _amount(axis: int, value: float) -> str:
+    if axis < 3:
+        return f'{value * 1e3:.3f} mm'
+    return f'{math.degrees(value):.4f} deg'
+
+
+class StandstillWatch:
+    """The rule of the module docstring over the readings fed to it. Not thread-safe: the
+    mover feeds it under its lock."""
+
+    def __init__(self, settings: StandstillSettings) -> None:
+        self.settings = settings
+        self._armed_at: float | None = None
+        self._rest: FloatArray | None = None
+        self._window: deque[tuple[float, FloatArray]] = deque()
+        self._tracker_rest: tuple[FloatArray, FloatArray] | None = None
+        self._tracker: deque[tuple[FloatArray, FloatArray]] = deque(maxlen=TRACKER_READINGS)
+
+    @property
+    def armed(self) -> bool:
+        """The watch has been armed (it judges what it is fed)."""
+        return self._armed_at is not None
+
+    @property
+    def at_rest(self) -> bool:
+        """The encoders' rest position is known."""
+        return self._rest is not None
+
+    def arm(self, now: float) -> None:
+        """Motion ended (or the watch starts) at ``now``: watch from here, the rest positions
+        taken anew."""
+        self._armed_at = now
+        self._rest, self._tracker_rest = None, None
+        self._window.clear()
+        self._tracker.clear()
+
+    def joints(self, position: FloatArray, velocity: FloatArray, rest_speed: FloatArray,
+               now: float) -> Motion | None:
+        """An encoder reading (6,) m / rad with its velocity (6,) at ``now``; ``rest_speed``
+        (6,) the speed below which an axis is at rest. Returns the motion it reveals."""
+        if self._armed_at is None:
+            return None
+        s = self.settings
+        if self._rest is None:
+            if np.all(np.abs(velocity) <= rest_speed):
+                self._rest = np.array(position, dtype=float)
+                self._window.clear()
+            elif now - self._armed_at > s.rest_timeout:
+                axis = int(np.argmax(np.abs(velocity) / rest_speed))
+                return Motion(f'uncommanded motion: {JOINT_NAMES[axis]} still moving '
+                              f'{now - self._armed_at:.2f} s after the last command ended '
+                              f'(rest_timeout {s.rest_timeout:g} s)')
+            return None
+        self._window.append((now, np.array(position, dtype=float)))
+        while self._window and self._window[0][0] < now - s.window:
+            self._window.popleft()
+        moved = np.mean([p for _, p in self._window], axis=0) - self._rest
+        excess = np.abs(moved) / s.joint_tolerance
+        axis = int(np.argmax(excess))
+        if excess[axis] <= 1.0:
+            return None
+        tolerance = float(s.joint_tolerance[axis])
+        return Motion(f'uncommanded motion at standstill: {JOINT_NAMES[axis]} moved '
+                      f'{_amount(axis, float(moved[axis]))} from where it came to rest '
+                      f'(tolerance {_amount(axis, tolerance)})')
+
+    def tracker(self, position: FloatArray, quaternion: FloatArray) -> Motion | None:
+        """A tracker reading of the platform (base frame). Returns the motion it reveals; the
+        tracker is judged only once the encoders are at rest."""
+        if self._armed_at is None or self._rest is None:
+            return None
+        self._tracker.append((np.array(position, dtype=float), np.array(quaternion, dtype=float)))
+        if len(self._tracker) < TRACKER_READINGS:
+            return None
+        if self._tracker_rest is None:
+            self._tracker_rest = mean_pose([p for p, _ in self._tracker],
+                                           [q for _, q in self._tracker])
+            return None
+        errors = [deviation(p, q, *self._tracker_rest) for p, q in self._tracker]
+        e_p = np.median([e[0] for e in errors], axis=0)
+        e_r = np.median([e[1] for e in errors], axis=0)
+        s = self.settings
+        if np.linalg.norm(e_p) > s.tracker_position_tolerance:
+            return Motion(f'uncommanded motion at standstill: the tracker measures the platform '
+                          f'{np.linalg.norm(e_p) * 1e3:.3f} mm from where it came to rest '
+                          f'(tolerance {s.tracker_position_tolerance * 1e3:.3f} mm)')
+        if np.linalg.norm(e_r) > s.tracker_orientation_tolerance:
+            return Motion(f'uncommanded motion at standstill: the tracker measures the platform '
+                          f'turned {math.degrees(float(np.linalg.norm(e_r))):.4f} deg from how '
+                          f'it came to rest (tolerance '
+                          f'{math.degrees(s.tracker_orientation_tolerance):.4f} deg)')
+        return None
