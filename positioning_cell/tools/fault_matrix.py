@@ -8,8 +8,10 @@ The README's "Fault matrix" table is :data:`FAULTS` (:func:`markdown_table`);
 reaction times. A trial runs against a :class:`FaultCell`: the four nodes and the recorder as
 processes on a private domain, homed. Reaction time: from the injection (just before the
 parameter call, the kill, the publish) to the receipt of the positioner's status carrying the
-result code (the driver's answer for a trajectory sent to it directly; the last reply for a
-flood of calls). The truth is read here only to judge.
+result code (the driver's answer for a trajectory sent to it directly; the driver's status
+for a silent commander; the positioner's input status for a second publisher; the last reply
+for a flood of calls); for motion nobody commanded, from the moment the true position passes
+the standstill tolerance. The truth is read here only to judge.
 
 ``python -m positioning_cell.tools.fault_matrix [fault ...]`` runs one trial of each named
 fault (all without names) on a fresh cell and prints the results.
@@ -37,7 +39,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.msg import MoveCommand
 from positioning_cell_interfaces.srv import CheckPose, MoveToPose
+from rclpy.duration import Duration
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -71,6 +75,16 @@ LAX_LIVENESS = {f.name: f.metadata[RULE].high for f in fields(LivenessSettings)
                               'tracker_silence', 'scatter_limit')}
 DRIVER = next(n for n in names.CELL_NODES if n.name == names.NODE_DRIVER)
 TRACKER = next(n for n in names.CELL_NODES if n.name == names.NODE_MEASUREMENT)
+POSITIONER = next(n for n in names.CELL_NODES if n.name == names.NODE_POSITIONER)
+#: The client's node: what the cell sees as the sender of a foreign message.
+CLIENT_NODE = 'fault_matrix'
+#: How far ahead the foreign trajectory is stamped (the issue's probe: run 4 s later).
+AHEAD_S = 4.0
+#: A spoofed input: how far it is off, how many messages at what period.
+SPOOF_OFFSET = 1.7e-3
+SPOOF_MESSAGES, SPOOF_PERIOD = 50, 0.01
+#: The motion nobody commands: [axis index, distance m] (fault.uncommanded_motion).
+UNCOMMANDED = (0.0, 2e-3)
 
 
 @dataclass
@@ -110,7 +124,10 @@ class Fault:
     ``bound_s`` s, the drives at rest after it (``stops``), and what ``after`` checks next.
     ``restore`` puts the cell back;
     ``kind`` picks the trial: ``move`` (a move with the fault), ``trajectory`` (a trajectory
-    sent to the driver directly), ``flood`` (concurrent calls to every service)."""
+    sent to the driver directly by another node), ``flood`` (concurrent calls to every
+    service), ``standstill`` (motion while nothing is commanded), ``spoof`` (a second
+    publisher on an input of the positioner: ``topic``), ``commander`` (the positioner
+    killed mid-move)."""
 
     name: str
     injection: str
@@ -126,6 +143,7 @@ class Fault:
     after: Callable[[FaultCell, Trial], None] = lambda cell, trial: None
     restore: Action = _nothing
     kind: str = 'move'
+    topic: str = ''
 
 
 class FaultCell:
@@ -147,9 +165,12 @@ class FaultCell:
         self.domain = self._stack.enter_context(free_domain())
         self.procs = self._stack.enter_context(
             Processes(cell_environment(self.domain), log_dir))
-        self.client = self._stack.enter_context(CellClient(self.domain, 'fault_matrix'))
+        self.client = self._stack.enter_context(CellClient(self.domain, CLIENT_NODE))
         node = self.client.node
         self.positioner: list[tuple[float, DiagnosticStatus]] = []
+        self.inputs: list[tuple[float, DiagnosticStatus]] = []
+        self.driver: list[tuple[float, DiagnosticStatus]] = []
+        self.standstill_tolerance = positioner.standstill.joint_tolerance
         self.answers: list[tuple[float, DiagnosticStatus]] = []
         self.truth: list[tuple[float, np.ndarray, np.ndarray]] = []
         self.true_pose: list[tuple[float, np.ndarray]] = []
@@ -166,8 +187,7 @@ class FaultCell:
                                  self._on_measured, STREAM_QOS)
         node.create_subscription(PoseStamped, names.ESTIMATED_POSE, self._on_estimate,
                                  STREAM_QOS)
-        self.trajectories = node.create_publisher(JointTrajectory, names.JOINT_TRAJECTORY,
-                                                  COMMAND_QOS)
+        self.estimates: list[tuple[float, np.ndarray]] = []
         overrides = log_dir / 'fault_matrix.yaml'
         overrides.write_text(f'{names.NODE_RECORDER}:\n  ros__parameters:\n'
                              f'    output: {log_dir / "bag"}\n')
@@ -179,7 +199,13 @@ class FaultCell:
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         now = time.monotonic()
         with self._lock:
-            self.positioner += [(now, s) for s in msg.status if s.name == names.STATUS_POSITIONER]
+            for status in msg.status:
+                into = {names.STATUS_POSITIONER: self.positioner,
+                        names.STATUS_POSITIONER_INPUTS: self.inputs,
+                        names.STATUS_DRIVER: self.driver}.get(status.name)
+                if into is not None:
+                    into.append((now, status))
+                    del into[:-5000]
 
     def _on_truth(self, msg: JointState) -> None:
         with self._lock:
@@ -194,6 +220,9 @@ class FaultCell:
 
     def _on_estimate(self, msg: PoseStamped) -> None:
         self.estimate = pose_arrays(msg.pose)[0]
+        with self._lock:
+            self.estimates.append((time.monotonic(), self.estimate))
+            del self.estimates[:-5000]
 
     def _on_measured(self, msg: PoseWithCovarianceStamped) -> None:
         self.tracker_sigma = float(np.sqrt(np.max(np.diag(
@@ -210,6 +239,13 @@ class FaultCell:
             if t > since and code:
                 return t, code, status.message
         return None
+
+    def status_after(self, statuses: list[tuple[float, DiagnosticStatus]], since: float,
+                     words: str) -> tuple[float, DiagnosticStatus] | None:
+        """The first of ``statuses`` received after ``since`` whose message has ``words``."""
+        with self._lock:
+            return next(((t, s) for t, s in statuses if t > since and words in s.message),
+                        None)
 
     def answer_after(self, since: float) -> tuple[float, DiagnosticStatus] | None:
         """The first answer of the drives received after ``since``."""
@@ -238,6 +274,7 @@ class FaultCell:
         """Start ``node`` again after it was killed and wait until it answers."""
         self.procs.stop(node.executable, signal.SIGKILL, grace=5.0)
         self.procs.start(node.executable, params=self._params, label=node.executable)
+        self.client.forget(node.name)
         wait_until(lambda: self.client.spinning(node.name), 90.0, f'{node.name} to answer')
 
     def close(self) -> dict[str, int]:
@@ -281,6 +318,7 @@ class FaultCell:
             (names.NODE_DRIVER, 'fault.stuck_axis', ''),
             (names.NODE_DRIVER, 'fault.encoder_dropout_mode', 'freeze'),
             (names.NODE_DRIVER, 'fault.noise_burst', [1.0, 0.0]),
+            (names.NODE_DRIVER, 'fault.uncommanded_motion', [0.0, 0.0]),
             (names.NODE_MEASUREMENT, 'fault.occlusion_probability', 0.0),
             (names.NODE_MEASUREMENT, 'fault.outlier_probability', 0.0)]
         for node, name, value in cleared:
@@ -372,8 +410,9 @@ def run_trial(cell: FaultCell, fault: Fault) -> Trial:
         cell.ready(fault.mode)
         began = time.monotonic()
         try:
-            {'move': _move_trial, 'trajectory': _trajectory_trial,
-             'flood': _flood_trial}[fault.kind](cell, fault, trial)
+            {'move': _move_trial, 'trajectory': _trajectory_trial, 'flood': _flood_trial,
+             'standstill': _standstill_trial, 'spoof': _spoof_trial,
+             'commander': _commander_trial}[fault.kind](cell, fault, trial)
             fault.after(cell, trial)
         except _LandedLateError as late:
             if attempt == ATTEMPTS:
@@ -462,31 +501,144 @@ def _judge_success(cell: FaultCell, trial: Trial, goal: np.ndarray, received: fl
 
 
 def _trajectory_trial(cell: FaultCell, fault: Fault, trial: Trial) -> None:
-    """A trajectory beyond the axis limits sent straight to the driver (at a legal speed):
-    refused, with the axis, value and limit named, and the axes hold."""
+    """A trajectory from another node (this client) beyond the axis limits at a legal speed,
+    stamped AHEAD_S s ahead: refused as foreign, the driver names the publisher on
+    /diagnostics, and the axes hold, also after the stamp's time has come."""
     wait_until(lambda: cell.truth_after(time.monotonic() - 0.5), 10.0, 'true joint states')
     here = cell.truth_after(-math.inf)[-1][1]
     beyond = here.copy()
     beyond[[0, 1, 3]] = 0.240, 0.150, 1.2  # leg 1, leg 2 lengths (m), theta 1 (rad)
-    msg = JointTrajectory(joint_names=list(JOINT_NAMES))  # zero stamp: start on receipt
+    node = cell.client.node
+    msg = JointTrajectory(joint_names=list(JOINT_NAMES))
+    msg.header.stamp = (node.get_clock().now() + Duration(seconds=AHEAD_S)).to_msg()
     msg.points = [JointTrajectoryPoint(positions=here.tolist(), velocities=[0.0] * 6,
                                        time_from_start=duration(0.0)),
                   JointTrajectoryPoint(positions=beyond.tolist(), velocities=[0.0] * 6,
                                        time_from_start=duration(20.0))]
-    injected = time.monotonic()
-    fault.inject(cell)
-    cell.trajectories.publish(msg)
-    received, answer = wait_until(lambda: cell.answer_after(injected), 10.0, 'the answer')
-    values = status_values(answer)
-    trial.code = values.get('code', '') if values.get('accepted') == 'false' else 'accepted'
-    trial.reason, trial.reaction_s = answer.message, received - injected
-    _judge(trial, fault)
-    wait_until(lambda: cell.truth_after(received + 0.5), 10.0, 'true joint states')
+    created = time.monotonic()
+    publisher = node.create_publisher(JointTrajectory, names.JOINT_TRAJECTORY, COMMAND_QOS)
+    try:
+        # The driver reports the new publisher from the graph before it has sent anything
+        # (and once it has, both sides have matched: the reaction below is the driver's).
+        words = f'foreign publisher on {names.JOINT_TRAJECTORY}: /{CLIENT_NODE}'
+        wait_until(lambda: cell.status_after(cell.driver, created, words), 10.0,
+                   f'the driver to report {words!r}')
+        injected = time.monotonic()
+        fault.inject(cell)
+        publisher.publish(msg)
+        received, answer = wait_until(lambda: cell.answer_after(injected), 10.0, 'the answer')
+        values = status_values(answer)
+        trial.code = values.get('code', '') if values.get('accepted') == 'false' else 'accepted'
+        trial.reason, trial.reaction_s = answer.message, received - injected
+        _judge(trial, fault)
+        wait_until(lambda: cell.truth_after(received + AHEAD_S + 0.5), AHEAD_S + 10.0,
+                   'true joint states after the stamp')
+    finally:
+        node.destroy_publisher(publisher)
     held = np.array([p for _, p, _ in cell.truth_after(received)])
     if np.ptp(held, axis=0).max() > 1e-7:
         trial.problems.append(f'the axes moved {np.ptp(held, axis=0).max():.2e} after the '
                               'refusal')
     trial.stopped_s = 0.0
+
+
+def _standstill_trial(cell: FaultCell, fault: Fault, trial: Trial) -> None:
+    """Motion nobody commanded while the cell stands still: the positioner reports it
+    (uncommanded_motion) within the bound of the true position leaving the standstill
+    tolerance, the drives stop short of the motion's end, and the next move succeeds,
+    planned from where the encoders are."""
+    wait_until(lambda: cell.rest_time(time.monotonic() - 1.0), 10.0, 'the axes at rest')
+    rest = cell.truth_after(time.monotonic() - 0.2)[-1][1]
+    injected = time.monotonic()
+    fault.inject(cell)
+    trial.inject_s = time.monotonic() - injected
+    received, trial.code, trial.reason = wait_until(
+        lambda: cell.result_after(injected), fault.bound_s + 10.0, 'the positioner to react')
+    beyond = next((t for t, p, _ in cell.truth_after(injected)
+                   if np.any(np.abs(p - rest) > cell.standstill_tolerance)), None)
+    if beyond is None:
+        trial.problems.append('reported before the true motion passed the tolerance')
+        beyond = received
+    trial.reaction_s = received - beyond
+    _judge(trial, fault)
+    _judge_stop(cell, trial, beyond, received)
+    moved = max(float(np.max(np.abs(p - rest))) for _, p, _ in cell.truth_after(injected))
+    if moved > 0.9 * abs(UNCOMMANDED[1]):
+        trial.problems.append(f'the axis moved {moved * 1e3:.3f} mm: the drives were not '
+                              'stopped short of the motion')
+    started, thread, _ = cell.move()
+    thread.join(timeout=120.0)
+    result = cell.result_after(started)
+    if result is None or result[1] != ResultCode.SUCCESS.value:
+        trial.problems.append(f'the next move gave {result}')
+
+
+def _spoof_trial(cell: FaultCell, fault: Fault, trial: Trial) -> None:
+    """A second publisher (this client) on an input of the positioner, SPOOF_MESSAGES
+    messages SPOOF_OFFSET off the truth while the cell stands still: the positioner names it
+    within the bound, and neither its estimate moves nor a fault follows."""
+    wait_until(lambda: cell.rest_time(time.monotonic() - 1.0), 10.0, 'the axes at rest')
+    node = cell.client.node
+    kind = JointState if fault.topic == names.JOINT_STATES else PoseWithCovarianceStamped
+    publisher = node.create_publisher(kind, fault.topic, STREAM_QOS)
+    before = cell.estimate
+    try:
+        wait_until(lambda: publisher.get_subscription_count() > 0, 10.0, 'the cell to match')
+        msg = _spoof_message(cell, kind)
+        injected = time.monotonic()
+        for _ in range(SPOOF_MESSAGES):  # paced like a sensor
+            publisher.publish(msg)
+            time.sleep(SPOOF_PERIOD)
+        words = f'second publisher on {fault.topic}: /{CLIENT_NODE}'
+        received, status = wait_until(lambda: cell.status_after(cell.inputs, injected, words),
+                                      fault.bound_s + 10.0, f'the positioner to report {words}')
+    finally:
+        node.destroy_publisher(publisher)
+    trial.code, trial.reason = 'second_publisher', status.message
+    trial.reaction_s = received - injected
+    _judge(trial, fault)
+    with cell._lock:
+        estimates = [p for t, p in cell.estimates if t > injected]
+    if before is not None and estimates:
+        jump = max(float(np.linalg.norm(p - before)) for p in estimates)
+        if jump > 10e-6:
+            trial.problems.append(f'the estimate moved {jump * 1e6:.1f} um')
+    late = cell.result_after(injected)
+    if late is not None:
+        trial.problems.append(f'a result {late[1]!r} followed: {late[2]}')
+    trial.stopped_s = 0.0
+
+
+def _spoof_message(cell: FaultCell, kind: Any) -> Any:
+    """A reading SPOOF_OFFSET off the truth: encoders (leg 1 longer) or tracker (z)."""
+    stamp = cell.client.node.get_clock().now().to_msg()
+    if kind is JointState:
+        position = cell.truth_after(-math.inf)[-1][1].copy()
+        position[0] += SPOOF_OFFSET
+        return JointState(header=Header(stamp=stamp), name=list(JOINT_NAMES),
+                          position=position.tolist(), velocity=[0.0] * 6)
+    with cell._lock:
+        true_position = cell.true_pose[-1][1]
+    msg = PoseWithCovarianceStamped(header=Header(stamp=stamp, frame_id=names.BASE_FRAME))
+    msg.pose.pose = pose_stamped(true_position + [0.0, 0.0, SPOOF_OFFSET],
+                                 cell.mech.home_quaternion, stamp).pose
+    msg.pose.covariance = (np.eye(6) * 1e-12).ravel().tolist()
+    return msg
+
+
+def _commander_trial(cell: FaultCell, fault: Fault, trial: Trial) -> None:
+    """The positioner killed mid-move: the drives stop under control when its heartbeat falls
+    silent (the driver's status says so) instead of finishing the trajectory unsupervised."""
+    started, _, _ = cell.move()
+    wait_until(lambda: cell.moving(started), 30.0, 'the axes to move')
+    injected = time.monotonic()
+    fault.inject(cell)
+    received, status = wait_until(lambda: cell.status_after(cell.driver, injected, 'silent'),
+                                  fault.bound_s + 10.0, 'the driver to stop the axes')
+    trial.code, trial.reason = 'commander_silent', status.message
+    trial.reaction_s = received - injected
+    _judge(trial, fault)
+    _judge_stop(cell, trial, injected, received)
 
 
 def _flood_trial(cell: FaultCell, fault: Fault, trial: Trial) -> None:
@@ -537,6 +689,24 @@ def _restart(node: names.CellNode) -> Action:
     return restore
 
 
+def _first_move_after_restart(cell: FaultCell, trial: Trial) -> None:
+    """The positioner started again beside the running driver: its very first move succeeds
+    (it waits for the inputs it has not seen yet and plans from where the encoders are)."""
+    cell.restart(POSITIONER)
+    started, thread, _ = cell.move()
+    thread.join(timeout=120.0)
+    result = cell.result_after(started)
+    if result is None or result[1] != ResultCode.SUCCESS.value:
+        trial.problems.append(f'the first move of the restarted positioner gave {result}')
+
+
+def _running(node: names.CellNode) -> Action:
+    def restore(cell: FaultCell) -> None:
+        if node.executable in cell.procs.dead():
+            cell.restart(node)
+    return restore
+
+
 def _refused_while_driver_gone(cell: FaultCell, trial: Trial) -> None:
     """After the driver was killed: a new move is refused as silent."""
     asked = time.monotonic()
@@ -548,11 +718,13 @@ def _refused_while_driver_gone(cell: FaultCell, trial: Trial) -> None:
 
 R = ResultCode
 FAULTS: tuple[Fault, ...] = (
-    Fault('trajectory beyond limits',
-          'a JointTrajectory on /legs/joint_trajectory at a legal speed taking leg1 to 240 mm, '
-          'leg2 to 150 mm, theta1 to 1.2 rad',
-          'the driver refuses it, naming the axis, value and limit; the axes hold',
-          (Refusal.OUT_OF_RANGE.value,), 'its limit', 0.1, kind='trajectory'),
+    Fault('foreign trajectory',
+          'a JointTrajectory from another node (the matrix\'s client) on /legs/joint_trajectory, '
+          f'stamped {AHEAD_S:g} s ahead, taking leg1 to 240 mm, leg2 to 150 mm, theta1 to '
+          '1.2 rad',
+          'the driver refuses it, naming the sender; it reports the foreign publisher on '
+          '/diagnostics; the axes hold, also when the stamp\'s time has come',
+          (Refusal.FOREIGN_SENDER.value,), f'sent by /{CLIENT_NODE}', 0.1, kind='trajectory'),
     Fault('encoder NaN', 'fault.encoder_dropout leg2_length, mode missing, mid-move',
           'the move aborts: the reading is not a number (or the driver faults: encoder lost), '
           'naming the axis',
@@ -594,6 +766,32 @@ FAULTS: tuple[Fault, ...] = (
           'the move settles within tolerance (the closed loop is on the tracker); no false '
           'fault', (R.SUCCESS.value,), 'settled within tolerance', 30.0,
           _set(names.NODE_DRIVER, 'fault.noise_burst', [50.0, 2.0]), mode='measured'),
+    Fault('uncommanded motion',
+          f'fault.uncommanded_motion: the drives move leg1 by {UNCOMMANDED[1] * 1e3:g} mm on '
+          'their own while the cell stands still',
+          'the positioner\'s standstill monitoring: a fault naming the axis, the drives stopped '
+          'short, the position unconfirmed; the next move succeeds, planned from the encoders',
+          (R.UNCOMMANDED_MOTION.value,), 'uncommanded motion at standstill: leg1_length', 0.5,
+          _set(names.NODE_DRIVER, 'fault.uncommanded_motion', list(UNCOMMANDED)),
+          kind='standstill'),
+    Fault('spoofed encoders',
+          f'a second node publishes /legs/joint_states with leg1 {SPOOF_OFFSET * 1e3:g} mm off '
+          f'({SPOOF_MESSAGES} messages at {1 / SPOOF_PERIOD:g} Hz) at standstill',
+          'the positioner names the second publisher and ignores its messages: the estimate '
+          'does not move, no fault', ('second_publisher',),
+          f'second publisher on {names.JOINT_STATES}: /{CLIENT_NODE}', 1.0, kind='spoof',
+          topic=names.JOINT_STATES),
+    Fault('spoofed tracker',
+          f'a second node publishes /metrology/pose {SPOOF_OFFSET * 1e3:g} mm off at standstill',
+          'the positioner names the second publisher and ignores its messages: no fault',
+          ('second_publisher',), f'second publisher on {names.MEASURED_POSE}: /{CLIENT_NODE}',
+          1.0, kind='spoof', topic=names.MEASURED_POSE),
+    Fault('positioner killed', 'SIGKILL of kinematics_node, mid-move; then started again',
+          'the drives stop under control when its heartbeat falls silent (instead of finishing '
+          'the trajectory unsupervised); the restarted positioner\'s first move succeeds',
+          ('commander_silent',), 'commander /positioner silent', 1.0,
+          lambda cell: cell.kill(POSITIONER), kind='commander',
+          after=_first_move_after_restart, restore=_running(POSITIONER)),
     Fault('flood of calls', f'{FLOOD_CALLS} concurrent calls to every service of the cell',
           'every call answered (success, busy or a refusal)', (), '', 60.0, kind='flood',
           stops=False),

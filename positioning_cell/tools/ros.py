@@ -89,6 +89,11 @@ class CellClient:
             self._known.add(name)
         return client
 
+    def forget(self, node: str) -> None:
+        """Node ``node`` was restarted: its services are handshaken again before the next
+        call (the new process has not matched this client's endpoints)."""
+        self._known = {name for name in self._known if serving_node(name) != node}
+
     def handshake(self, node: str, timeout: float = 30.0, attempt: float = 2.0) -> None:
         """Wait until node ``node`` knows every endpoint this client created so far: one
         idempotent request of a new client (its /<node>/list_parameters) answered, retried
