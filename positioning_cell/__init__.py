@@ -4,9 +4,10 @@ Everything outside ``positioning_cell.nodes`` (and the tools' one ROS module,
 ``positioning_cell.tools.ros``) is a pure library (numpy, scipy, numba, PyYAML, rosbags; no
 rclpy), so every rule is reachable from a unit test without DDS. The folders name the
 concepts: ``core`` (the machine and its kinematics), ``clearance``, ``mechanics``, ``motion``,
-``accuracy``, ``metrology``, ``sim`` (the simulated machine: the only code that knows the
-truth), ``prediction``, ``bag``, ``analysis``, ``testing``, ``nodes``, ``tools``; ``names`` holds
-every topic, service, frame and node name, ``parameters`` the way settings are declared.
+``limits``, ``frames``, ``accuracy``, ``metrology``, ``calibration``, ``sim`` (the simulated
+machine: the only code that knows the truth), ``prediction``, ``tolerance``, ``bag``,
+``analysis``, ``watch``, ``testing``, ``nodes``, ``tools``; ``names`` holds every topic,
+service, frame and node name, ``parameters`` the way settings are declared.
 
 The short forms ``from positioning_cell import Mechanism, kinematics, clearance`` work too.
 """

@@ -1,6 +1,7 @@
-"""The package builds with colcon as on a ROS install: ament index marker, share files, and
-every declared executable where `ros2 run` looks (<prefix>/lib/positioning_cell/<exe>),
-each of which starts."""
+"""The package builds with colcon as on a ROS install (without --symlink-install: a copy, as a
+release build installs it): ament index marker, share files, every module of the source tree,
+each importing from the install alone, and every declared executable where `ros2 run` looks
+(<prefix>/lib/positioning_cell/<exe>), each of which starts."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from cell_harness import REPO, Client, isolated_domain, wait_until
+from installed import check_installed_copy
 
 from positioning_cell import names
 
@@ -88,6 +90,15 @@ def test_config_found_through_the_index(colcon_install: Path) -> None:
     assert found == str(colcon_install / PACKAGE / 'share' / PACKAGE / 'config' / 'cell.yaml')
 
 
+def test_the_install_holds_every_module_and_each_imports_from_it_alone(
+        colcon_install: Path, tmp_path: Path) -> None:
+    """The copy colcon installed, not the source tree (which the venv's editable install and a
+    symlink install serve, hiding a folder the copy lacks)."""
+    site = (colcon_install / PACKAGE / 'lib' /
+            f'python{sys.version_info.major}.{sys.version_info.minor}' / 'site-packages')
+    check_installed_copy(site, declared_executables(), tmp_path)
+
+
 def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Path,
                                                               tmp_path: Path) -> None:
     executables = declared_executables()
@@ -149,7 +160,8 @@ def test_colcon_finds_both_packages_from_the_documented_base_paths() -> None:
     """README "Building": `colcon build --base-paths . interfaces` (colcon does not look for a
     package inside another package's folder)."""
     colcon = Path(sys.executable).parent / 'colcon'
-    result = subprocess.run([str(colcon), 'list', '--base-paths', '.', 'interfaces'],
+    result = subprocess.run([str(colcon), '--log-base', os.devnull, 'list', '--base-paths', '.',
+                             'interfaces'],
                             cwd=REPO, capture_output=True, text=True, check=False, timeout=60)
     assert result.returncode == 0, result.stderr
     found = {line.split('\t')[0]: line.split('\t')[-1] for line in result.stdout.splitlines()}

@@ -1,0 +1,1 @@
+"""Calibrating the machine from its own measurements: pure library (numpy/scipy, no rclpy)."""
