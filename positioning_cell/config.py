@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -14,8 +15,9 @@ PACKAGE = 'positioning_cell'
 
 
 def share_directory() -> Path:
-    """``share/positioning_cell`` of the install (ament index), else the source tree (editable
-    installs and checkouts)."""
+    """``share/positioning_cell`` of the install (ament index), else of the Python environment
+    (``pip install .`` without ROS), else the source tree (editable installs and
+    checkouts)."""
     try:
         from ament_index_python.packages import (
             PackageNotFoundError,
@@ -32,6 +34,10 @@ def share_directory() -> Path:
         else:
             if (share / 'config').is_dir():
                 return share
+    # pip installs the data files under the environment's prefix (no ament index needed).
+    installed = Path(sys.prefix) / 'share' / PACKAGE
+    if (installed / 'config').is_dir():
+        return installed
     return Path(__file__).resolve().parent.parent
 
 

@@ -76,3 +76,21 @@ def test_declarations_say_what_a_user_needs() -> None:
     assert (iterations.rule.low, iterations.rule.high) == (0, 50)
     assert by_name['compensation.mode'].rule.choices == ('none', 'model', 'measured')
     assert by_name['pose_rate_hz'].read_only
+
+
+def test_a_pip_install_finds_its_config_under_the_prefix_without_ros(
+        tmp_path: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`pip install .` puts config/ in <prefix>/share/positioning_cell (data_files); without
+    a ROS environment (no ament index) that is where the shipped files are found."""
+    import sys
+    from pathlib import Path
+
+    from positioning_cell.config import share_directory
+
+    share = Path(str(tmp_path)) / 'share' / 'positioning_cell'
+    (share / 'config').mkdir(parents=True)
+    monkeypatch.delenv('AMENT_PREFIX_PATH', raising=False)
+    monkeypatch.setattr(sys, 'prefix', str(tmp_path))
+    assert share_directory() == share
+    monkeypatch.setattr(sys, 'prefix', str(Path(str(tmp_path)) / 'elsewhere'))
+    assert (share_directory() / 'config' / 'cell.yaml').is_file()  # the source tree
