@@ -4,10 +4,19 @@ section parses into its settings, and the declarations carry what ROS shows a us
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import pytest
 
 from positioning_cell import names
-from positioning_cell.config import config_path, flatten, load_parameter_file, node_parameters
+from positioning_cell.config import (
+    config_path,
+    flatten,
+    load_parameter_file,
+    node_parameters,
+    share_directory,
+)
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
 from positioning_cell.nodes.bag_player_node import BagPlayerNode
 from positioning_cell.nodes.calibrator_node import CalibratorNode
@@ -79,18 +88,13 @@ def test_declarations_say_what_a_user_needs() -> None:
 
 
 def test_a_pip_install_finds_its_config_under_the_prefix_without_ros(
-        tmp_path: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`pip install .` puts config/ in <prefix>/share/positioning_cell (data_files); without
     a ROS environment (no ament index) that is where the shipped files are found."""
-    import sys
-    from pathlib import Path
-
-    from positioning_cell.config import share_directory
-
-    share = Path(str(tmp_path)) / 'share' / 'positioning_cell'
+    share = tmp_path / 'share' / 'positioning_cell'
     (share / 'config').mkdir(parents=True)
     monkeypatch.delenv('AMENT_PREFIX_PATH', raising=False)
     monkeypatch.setattr(sys, 'prefix', str(tmp_path))
     assert share_directory() == share
-    monkeypatch.setattr(sys, 'prefix', str(Path(str(tmp_path)) / 'elsewhere'))
+    monkeypatch.setattr(sys, 'prefix', str(tmp_path / 'elsewhere'))
     assert (share_directory() / 'config' / 'cell.yaml').is_file()  # the source tree
