@@ -708,3 +708,14 @@ def test_drives_that_stopped_the_move_for_a_silent_heartbeat_abort_it_at_once() 
     assert err.code is ResultCode.ABORTED_DRIVER_LOST and after < 0.5
     assert 'the drives stopped the move: they heard no heartbeat' in str(err)
     assert world.stops == 1
+
+
+def test_the_inputs_report_names_every_second_publisher() -> None:
+    from positioning_cell.motion.inputs import inputs_report
+
+    assert inputs_report({'/a': [], '/b': []}, ['/leg_driver', '/pose_measurement',
+                                                '/leg_driver']) == (
+        'ok', 'inputs from /leg_driver and /pose_measurement', {'/a': '', '/b': ''})
+    level, message, values = inputs_report({'/a': ['/x', '/y'], '/b': []}, ['/leg_driver'])
+    assert level == 'error' and message == 'second publisher on /a: /x, /y (ignored)'
+    assert values == {'/a': '/x /y', '/b': ''}

@@ -21,6 +21,7 @@ from visualization_msgs.msg import MarkerArray
 from positioning_cell import names
 from positioning_cell.core import kinematics
 from positioning_cell.motion.controller import Controller
+from positioning_cell.motion.inputs import inputs_report
 from positioning_cell.motion.mover import (
     Machine,
     MoveAbortedError,
@@ -30,18 +31,10 @@ from positioning_cell.motion.mover import (
     State,
 )
 from positioning_cell.nodes import messages as m
+from positioning_cell.nodes import qos
 from positioning_cell.nodes.latest import SourceReader
 from positioning_cell.nodes.operator_interface import OperatorInterface
 from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import (
-    COMMAND_QOS,
-    DIAGNOSTICS_QOS,
-    HEARTBEAT_QOS,
-    JOINT_READER_QOS,
-    LATCHED_QOS,
-    SERVICE_QOS,
-    STREAM_QOS,
-)
 from positioning_cell.nodes.spin import Spin, run
 
 _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
@@ -59,22 +52,21 @@ class PositionerNode(Node):
                                      lambda s, _: self.mover.prepare(s))
         settings = self.params.settings
         kinematics.warm_up()  # compiled FK ready before the first command
-        sources = settings.sources
-        self._joints = SourceReader(self, JointState, names.JOINT_STATES, sources.leg_driver,
-                                    JOINT_READER_QOS)
-        self._tracker = SourceReader(self, PoseWithCovarianceStamped, names.MEASURED_POSE,
-                                     sources.tracker, STREAM_QOS)
-        self._answers = SourceReader(self, DiagnosticStatus, names.TRAJECTORY_STATUS,
-                                     sources.leg_driver, STREAM_QOS)
-        self._inputs = (self._joints, self._tracker, self._answers)
-        self._inputs_message = ''
+        src, self._inputs_message = settings.sources, ''
+        self._inputs = self._joints, self._tracker, self._answers = (  # from their source only
+            SourceReader(self, JointState, names.JOINT_STATES, src.leg_driver,
+                         qos.JOINT_READER_QOS),
+            SourceReader(self, PoseWithCovarianceStamped, names.MEASURED_POSE, src.tracker,
+                         qos.STREAM_QOS),
+            SourceReader(self, DiagnosticStatus, names.TRAJECTORY_STATUS, src.leg_driver,
+                         qos.STREAM_QOS))
         self.pub_traj = self.create_publisher(JointTrajectory, names.JOINT_TRAJECTORY,
-                                              COMMAND_QOS)
-        self.pub_target = self.create_publisher(PoseStamped, names.TARGET, LATCHED_QOS)
-        self.pub_pose = self.create_publisher(PoseStamped, names.ESTIMATED_POSE, STREAM_QOS)
-        self.pub_markers = self.create_publisher(MarkerArray, names.MARKERS, STREAM_QOS)
+                                              qos.COMMAND_QOS)
+        self.pub_target = self.create_publisher(PoseStamped, names.TARGET, qos.LATCHED_QOS)
+        self.pub_pose = self.create_publisher(PoseStamped, names.ESTIMATED_POSE, qos.STREAM_QOS)
+        self.pub_markers = self.create_publisher(MarkerArray, names.MARKERS, qos.STREAM_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
-                                              DIAGNOSTICS_QOS)
+                                              qos.DIAGNOSTICS_QOS)
         topics, services = MutuallyExclusiveCallbackGroup(), ReentrantCallbackGroup()
         self._reference = self.create_client(Trigger, names.DRIVER_REFERENCE,
                                              callback_group=topics)
@@ -96,17 +88,19 @@ class PositionerNode(Node):
         self.controller = Controller(self.mover, settings.operator)  # ConfigError: no start
         self._estimates = 0
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
-                                 DIAGNOSTICS_QOS, callback_group=topics)
+                                 qos.DIAGNOSTICS_QOS, callback_group=topics)
         for name, kind, cb in ((names.HOME, Trigger, self._srv_home),
                                (names.STOP, Trigger, self._srv_stop)):
-            self.create_service(kind, name, cb, qos_profile=SERVICE_QOS, callback_group=services)
+            self.create_service(kind, name, cb, qos_profile=qos.SERVICE_QOS,
+                                callback_group=services)
         self.operator = OperatorInterface(self, self.controller, services,
                                           self._publish_diagnostics)
         self.create_timer(1.0 / settings.pose_rate_hz, self._publish_pose, callback_group=topics)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=topics)
         # The heartbeat on a group of its own: a slow pose estimate never delays it.
-        self.pub_heartbeat = self.create_publisher(Header, names.HEARTBEAT, HEARTBEAT_QOS)
-        self.create_timer(settings.liveness.heartbeat_period, self._heartbeat,
+        beat = self.create_publisher(Header, names.HEARTBEAT, qos.HEARTBEAT_QOS)
+        self.create_timer(settings.liveness.heartbeat_period,
+                          lambda: beat.publish(Header(stamp=self._now())),
                           callback_group=MutuallyExclusiveCallbackGroup())
 
     def _reference_drives(self) -> bool:
@@ -125,9 +119,6 @@ class PositionerNode(Node):
                 self.mover.driver_status({**m.status_values(status), 'message': status.message})
 
     # -- outputs --------------------------------------------------------------------------------
-    def _heartbeat(self) -> None:
-        self.pub_heartbeat.publish(Header(stamp=self._now()))
-
     def _publish_pose(self) -> None:
         estimate = self.mover.estimate_pose()
         if any(reader.unreported() for reader in self._inputs):
@@ -167,21 +158,14 @@ class PositionerNode(Node):
 
     def _publish_inputs(self) -> None:
         """Who else publishes on the inputs (their messages are ignored): ERROR while any
-        does."""
-        found = {reader.topic: reader.foreign() for reader in self._inputs}
-        others = {topic: nodes for topic, nodes in found.items() if nodes}
-        values = {topic: ' '.join(nodes) for topic, nodes in found.items()}
-        if others:
-            message = '; '.join(f'second publisher on {topic}: {", ".join(nodes)}'
-                                for topic, nodes in others.items()) + ' (ignored)'
-            if message != self._inputs_message:
-                self.get_logger().error(message)
-        else:
-            message = 'inputs from ' + ' and '.join(sorted({r.source for r in self._inputs}))
+        does, logged once per change."""
+        level, message, values = inputs_report({r.topic: r.foreign() for r in self._inputs},
+                                               [r.source for r in self._inputs])
+        if level != 'ok' and message != self._inputs_message:
+            self.get_logger().error(message)
         self._inputs_message = message
-        self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER_INPUTS,
-                                           'error' if others else 'ok', message, values,
-                                           self._now()))
+        self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER_INPUTS, level, message,
+                                           values, self._now()))
 
     def _refused(self, code: ResultCode, reason: str) -> None:
         self._status('warn', f'refused ({code.value}): {reason}', code)

@@ -9,15 +9,14 @@ receipt), and answers each on /legs/trajectory_status; stops a move when the com
 heartbeat (/positioner/heartbeat) falls silent; reports any other publisher on its command
 topic; publishes the encoder readings on /legs/joint_states and the truth on
 /sim/legs/true_joint_states. One physics timer does it all, in this order: take the commands
-that came (decoded as arrays, :mod:`positioning_cell.sim.trajectory_wire`, so a long
-trajectory costs milliseconds, not a stalled publication), integrate, publish. Switched by
-/leg_driver/enable, referenced by /leg_driver/reference; reports on /diagnostics.
+that came, apply those whose checks are done (:mod:`positioning_cell.sim.commands`: decoded as
+arrays and checked on a thread of their own, so a long trajectory never holds up a
+publication), integrate, publish. Switched by /leg_driver/enable, referenced by
+/leg_driver/reference; reports on /diagnostics.
 """
 
 from __future__ import annotations
 
-from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -40,22 +39,11 @@ from positioning_cell.nodes.qos import (
     SERVICE_QOS,
     STREAM_QOS,
 )
-from positioning_cell.nodes.senders import IdentifiedSubscription, Taken
+from positioning_cell.nodes.senders import IdentifiedSubscription
 from positioning_cell.nodes.spin import run
-from positioning_cell.sim.drives import (
-    DriverSettings,
-    LegDriver,
-    Outcome,
-    Prepared,
-    foreign_sender,
-)
-from positioning_cell.sim.guard import Refusal, TrajectoryRefusedError
-from positioning_cell.sim.trajectory_wire import (
-    Peek,
-    TrajectoryWireError,
-    decode_joint_trajectory,
-    peek,
-)
+from positioning_cell.sim.commands import CommandQueue
+from positioning_cell.sim.drives import DriverSettings, LegDriver, Outcome
+from positioning_cell.sim.guard import TrajectoryRefusedError
 
 #: How often the graph is asked who publishes on the command topic, s.
 GRAPH_PERIOD_S = 0.25
@@ -83,11 +71,7 @@ class LegDriverNode(Node):
         self._commands = IdentifiedSubscription(self, JointTrajectory, names.JOINT_TRAJECTORY,
                                                 COMMAND_QOS)
         self._heartbeats = IdentifiedSubscription(self, Header, names.HEARTBEAT, HEARTBEAT_QOS)
-        # Trajectories from the commander wait here, in order, for the checker thread.
-        self._queue: deque[tuple[Taken, float, Peek]] = deque()
-        self._checker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='trajectory_checks')
-        self._work: Future[Prepared | Outcome] | None = None
-        self._cancelled = False
+        self.queue = CommandQueue(self.driver, self._t0)
         self.create_service(SetBool, names.DRIVER_ENABLE, self._on_enable,
                             qos_profile=SERVICE_QOS)
         self.create_service(Trigger, names.DRIVER_REFERENCE, self._on_reference,
@@ -128,78 +112,20 @@ class LegDriverNode(Node):
                                               true_state.velocity, effort))
 
     def _take_commands(self) -> None:
-        """The commander's heartbeats and every trajectory that came since the last step: a
-        foreign one refused and a stop applied at once, the others queued for the checker
-        thread (:meth:`_pump`)."""
-        now, command = self._now(), self.driver.settings.command
-        if any(t.sender == command.commander for t in self._heartbeats.take()):
+        """The commander's heartbeats and the commands that came since the last step
+        (:class:`~positioning_cell.sim.commands.CommandQueue`)."""
+        now = self._now()
+        if any(t.sender == self.driver.settings.command.commander
+               for t in self._heartbeats.take()):
             self.driver.heartbeat(now)
         for taken in self._commands.take():
-            if taken.sender != command.commander:
-                if self.driver.note_foreign(taken.sender):
-                    self.get_logger().error(f'foreign publisher on {names.JOINT_TRAJECTORY}: '
-                                            f'{taken.sender}')
-                self._finish(self.driver.refuse(Refusal.FOREIGN_SENDER,
-                                                foreign_sender(taken.sender, command)))
-                continue
-            try:
-                header = peek(taken.data)
-            except TrajectoryWireError as err:
-                self._finish(self.driver.refuse(Refusal.INVALID_GOAL,
-                                                f'not a trajectory the drives take: {err}'))
-                continue
-            if header.points == 0:
-                self._stop_now(now)
-            else:
-                self._queue.append((taken, now, header))
-        self._pump(now)
-
-    def _stop_now(self, now: float) -> None:
-        """The commander's stop: at once; what it sent before and is not following yet is
-        superseded."""
-        superseded = len(self._queue) + (self._work is not None)
-        self._queue.clear()
-        self._cancelled = self._work is not None
-        self._report(self.driver.stop(now))
-        for _ in range(superseded - self._cancelled):
-            self._finish(self.driver.refuse(Refusal.SUPERSEDED, 'superseded by a stop before '
-                                            'it was checked'))
-
-    def _pump(self, now: float) -> None:
-        """Apply the trajectory the checker thread has finished (in the order received), then
-        hand it the next: the checks of a long trajectory (tens of ms for 50 000 points) run
-        beside the physics and publication, never in their way."""
-        if self._work is not None:
-            if not self._work.done():
-                return
-            prepared = self._work.result()
-            self._work = None
-            if self._cancelled:
-                self._cancelled = False
-                key = prepared.key
-                self._finish(self.driver.refuse(Refusal.SUPERSEDED, 'superseded by a stop '
-                                                'before it started', key))
-            else:
-                self._finish(self.driver.apply(prepared, now))
-        if self._queue and self._work is None:
-            taken, received, header = self._queue.popleft()
-            start = (None if header.stamp == (0, 0) else
-                     (Time(seconds=header.stamp[0], nanoseconds=header.stamp[1]).nanoseconds
-                      - self._t0) * 1e-9)
-            self._work = self._checker.submit(self._prepare, taken, received, start,
-                                              self.driver.setpoint_at(start, received))
-
-    def _prepare(self, taken: Taken, received: float, start: float | None,
-                 setpoint: tuple[Any, Any]) -> Prepared | Outcome:
-        """On the checker thread: decode and check (:meth:`LegDriver.prepare`)."""
-        try:
-            msg = decode_joint_trajectory(taken.data, self.driver.settings.command.max_points)
-        except TrajectoryWireError as err:
-            code = Refusal.TOO_MANY_POINTS if 'max_points' in str(err) else Refusal.INVALID_GOAL
-            return Outcome(False, f'trajectory refused: not a trajectory the drives take: '
-                                  f'{err}', '', code)
-        return self.driver.prepare(msg.joint_names, msg.times, msg.positions, msg.velocities,
-                                   start, received, taken.sender, setpoint)
+            outcomes, stopped = self.queue.receive(taken.data, taken.sender, now)
+            if stopped is not None:
+                self._report(stopped)
+            for outcome in outcomes:
+                self._finish(outcome)
+        for outcome in self.queue.pump(now):
+            self._finish(outcome)
 
     def _finish(self, outcome: Outcome) -> None:
         """Answer a trajectory and report what became of it."""
@@ -220,7 +146,7 @@ class LegDriverNode(Node):
 
     def close(self) -> None:
         """At shutdown: the checker thread stops (what it checks is not applied)."""
-        self._checker.shutdown(wait=False, cancel_futures=True)
+        self.queue.close()
 
     def _answer(self, outcome: Outcome) -> None:
         """The answer to a trajectory, keyed by its fingerprint (/legs/trajectory_status)."""
