@@ -356,10 +356,16 @@ def test_summary_damage(bags: dict[str, Path], tmp_path: Path) -> None:
     mcap.write_bytes(bytes(data))
     with pytest.raises(DamagedBagError, match='summary section CRC mismatch'):
         IndexedBag(mcap.parent)
-    struct.pack_into('<Q', data, len(data) - 8 - 20, 0)  # no summary
+    struct.pack_into('<Q', data, len(data) - 8 - 20, 0)  # a footer that says: no summary
     mcap.write_bytes(bytes(data))
-    with pytest.raises(UnindexedBagError, match='no summary section'):
-        IndexedBag(mcap.parent)
+    with pytest.raises(DamagedBagError, match='summary section CRC mismatch: the footer'):
+        IndexedBag(mcap.parent)  # its CRC covers the footer's fields too
+    struct.pack_into('<I', data, len(data) - 8 - 4, 0)  # and no CRC: a valid unindexed file
+    mcap.write_bytes(bytes(data))
+    with IndexedBag(mcap.parent) as indexed:
+        assert indexed.scans == {mcap.name: 'no summary section'}
+        assert list(indexed.raw_messages(ANALYSED)) == _reference(bags['cell-none-64k'],
+                                                                  ANALYSED)
 
 
 def test_unknown_compression(bags: dict[str, Path], tmp_path: Path) -> None:
@@ -463,7 +469,7 @@ def test_types_from_the_bags_own_definitions(tmp_path: Path) -> None:
 def test_files_of_the_mcap_library(bags: dict[str, Path], tmp_path: Path,
                                    compression: str) -> None:
     """A third writer, the ``mcap`` library's (lz4 or zstd chunks, all CRCs; or no chunks at
-    all: not indexed, refused)."""
+    all: no chunk index, read by a scan of the records)."""
     source = _rosbags(bags['cell-none-1k'])
     messages = source.subsets[ANALYSED]
     types = {name: source.topics[name].msgtype for name in ANALYSED}
@@ -482,11 +488,9 @@ def test_files_of_the_mcap_library(bags: dict[str, Path], tmp_path: Path,
         for m in messages:
             writer.add_message(channels[m.topic], m.log_time_ns, m.data, m.log_time_ns)
         writer.finish()
-    if compression == 'unchunked':
-        with pytest.raises(UnindexedBagError, match='no chunk index'):
-            IndexedBag(mcap)
-        return
     with IndexedBag(mcap, block_bytes=10_000) as indexed:
+        assert indexed.scans == ({mcap.name: 'no chunk index'} if compression == 'unchunked'
+                                 else {})
         assert list(indexed.raw_messages(ANALYSED)) == messages
         assert list(indexed.raw_messages((PROGRAM,))) == [m for m in messages
                                                           if m.topic == PROGRAM]
