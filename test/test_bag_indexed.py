@@ -48,6 +48,7 @@ from positioning_cell.names import (
     TARGET,
     TRUE_POSE,
 )
+from positioning_cell.testing.layouts import LAYOUTS, Layout, rewrite_bag
 from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
 
 ANALYSED = (TARGET, MEASURED_POSE, TRUE_POSE, PROGRAM, DIAGNOSTICS)
@@ -197,6 +198,25 @@ def test_chunks_overlapping_in_time(tmp_path: Path, seed: int, compression: str)
             assert np.all(np.diff(np.concatenate(times)) >= 0)  # across blocks too
             if block_bytes == 3000:
                 assert len(times) > 5
+
+
+def test_unindexed_files_out_of_time_order(tmp_path: Path) -> None:
+    """The same records out of log-time order, unchunked (rosbags refuses such a file) or in
+    chunks without any index (rosbags too: it reads them in file order): scanned, they come
+    out in rosbags' order for the indexed files, (log time, place in the file): as rosbags
+    reads them from one chunk holding them all, and from the 1 KiB chunks of the original."""
+    bag = _overlapping_bag(tmp_path / 'bag', 3)
+    one_chunk = rewrite_bag(bag, tmp_path / 'one', Layout(compression='none', chunk_size=2**24))
+    unchunked = rewrite_bag(bag, tmp_path / 'flat', LAYOUTS['fastwrite'])
+    unindexed = rewrite_bag(bag, tmp_path / 'noindex', Layout(index='none', chunk_size=1024))
+    with BagReader(unchunked) as reader, pytest.raises(BagError, match='not in timestamp'):
+        list(reader.raw_messages())
+    for subset in (('/a', '/b', '/c'), ('/a', '/c')):
+        assert _reference(one_chunk, subset) == _reference(bag, subset)
+        for scanned in (unchunked, unindexed):
+            with IndexedBag(scanned, block_bytes=3000) as indexed:
+                assert indexed.scans and indexed.topics == _rosbags(one_chunk).topics
+                assert list(indexed.raw_messages(subset)) == _reference(bag, subset)
 
 
 def test_read_decodes_like_rosbags(bags: dict[str, Path]) -> None:
