@@ -56,14 +56,14 @@ from positioning_cell.tools.calibrate_cell import read_bag
 
 MAKE_RUN = Path(__file__).resolve().parent / 'data' / 'makerun' / 'bag'
 SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
-#: The layouts whose files are scanned, and why; the others are read through their indexes.
+#: The layouts whose files are scanned, and why; the others are read through their indexes
+#: (definitions-only-in-chunks too: its channels and schemas from its first chunk).
 SCANNED = {
     'fastwrite': 'no chunk index',
     'unchunked-with-crcs': 'no chunk index',
     'chunks-without-any-index': 'no chunk index',
     'chunk-index-only': 'chunks without message indexes',
     'message-index-only': 'no chunk index',
-    'definitions-only-in-chunks': 'no channel record 1 in the summary',
     'no-summary': 'no summary section',
     'no-summary-unchunked': 'no summary section',
     'fastwrite-split-in-2': 'no chunk index',

@@ -14,20 +14,22 @@ decides). The file is then read through that index
 
 Every valid MCAP file is read (MCAP spec, https://mcap.dev/spec: chunks, message indexes,
 the summary and its parts, the CRCs are all optional). The index is used when the summary
-has a chunk index, every chunk it lists has message indexes, and it defines every channel
-they name and those channels' schemas: the files the cell's recorder, rosbags and
-``ros2 bag record`` (default and zstd presets) write. Otherwise the file's records are
-scanned once, front to back, when it is opened (:class:`_Scan`): no summary section at all
-(``summary_start`` 0), no chunk index (an unchunked file such as rosbag2's ``fastwrite``
-preset writes, or chunks without a chunk index), chunks without message indexes, channels or
-schemas only in the data section. The scan walks the top-level records (schemas, channels,
-messages, chunks; message indexes, attachments and metadata skipped), decompresses each chunk
-(checked against its CRC when nonzero) and walks its records, and notes each message's
-channel, log time and place: the segment (a chunk, or a run of at most one block of
-consecutive top-level records) and the byte offset of its record in the segment's records.
-The same read then serves both kinds of file: a segment is read as a chunk is. The
-data-section CRC is checked during the scan (when nonzero), the messages found against the
-statistics (when the summary has them). Memory: 32 bytes per message of a scanned file.
+has a chunk index and every chunk it lists has message indexes: the files the cell's
+recorder, rosbags and ``ros2 bag record`` (default and zstd presets) write. The channels the
+message indexes name and their schemas come from the summary, or, for a writer that does not
+repeat them there, from the first chunks (read in file order until all are defined).
+Otherwise the file's records are scanned once, front to back, when it is opened
+(:class:`_Scan`): no summary section at all (``summary_start`` 0), no chunk index (an
+unchunked file such as rosbag2's ``fastwrite`` preset writes, or chunks without a chunk
+index), chunks without message indexes, definitions outside the chunks. The scan walks the
+top-level records (schemas, channels, messages, chunks; message indexes, attachments and
+metadata skipped), decompresses each chunk (checked against its CRC when nonzero) and walks
+its records, and notes each message's channel, log time and place: the segment (a chunk, or a
+run of at most one block of consecutive top-level records) and the byte offset of its record
+in the segment's records. The same read then serves both kinds of file: a segment is read as
+a chunk is. The data-section CRC is checked during the scan (when nonzero), the messages
+found against the statistics (when the summary has them). Memory: 32 bytes per message of a
+scanned file.
 
 A file without a footer (a recording killed before it closed the file) raises
 :class:`UnindexedBagError`; damage (a CRC mismatch, broken framing, an index that contradicts
@@ -439,32 +441,66 @@ def read_index(bag: Path, path: Path, number: int, fd: int, segment_bytes: int) 
     stats = summary.statistics
     chunks = summary.chunks()
     nothing = not chunks.offset.size and stats is not None and not stats[0]  # no message
-    reason = '' if nothing else _not_indexed(summary, chunks)
+    reason = '' if nothing else _not_indexed(chunks)
+    schemas, channels = summary.schemas, summary.channels
+    if not reason:
+        _check_chunks(path, chunks, data_start, data_end)
+        if _undefined(schemas, channels, chunks):
+            found = _definitions(path, fd, chunks, summary)
+            if found is None:
+                reason = f'{_undefined(schemas, channels, chunks)} in the file'
+            else:
+                schemas, channels = found
     if reason:
         return _scan(path, number, fd, data_start, summary_start, data_end, summary,
                      segment_bytes, reason)
-    _check_chunks(path, chunks, data_start, data_end)
-    return FileIndex(path, number, data_start, data_end, int(data_crc), summary.schemas,
-                     summary.channels, chunks, stats[0] if stats else None,
-                     stats[1] if stats else None)
+    return FileIndex(path, number, data_start, data_end, int(data_crc), schemas, channels,
+                     chunks, stats[0] if stats else None, stats[1] if stats else None)
 
 
-def _not_indexed(summary: _Records, chunks: Chunks) -> str:
-    """Why the summary does not say where every message is ('' when it does)."""
+def _not_indexed(chunks: Chunks) -> str:
+    """Why the chunk indexes do not say where every message is ('' when they do)."""
     if not chunks.offset.size:
         return 'no chunk index'
     indexes = np.bincount(chunks.mi_chunk, minlength=chunks.offset.shape[0])
     if not indexes.all():
         return 'chunks without message indexes'
-    channels = summary.channels
+    return ''
+
+
+def _undefined(schemas: Mapping[int, SchemaInfo], channels: Mapping[int, ChannelInfo],
+               chunks: Chunks) -> str:
+    """A channel the message indexes name, or a schema such a channel uses, that ``channels``
+    / ``schemas`` do not define ('' when they define all)."""
     missing = sorted(set(np.unique(chunks.mi_channel).tolist()) - set(channels))
     if missing:
-        return f'no channel record {missing[0]} in the summary'
-    schemas = sorted({ch.schema_id for ch in channels.values()
-                      if ch.schema_id and ch.schema_id not in summary.schemas})
-    if schemas:
-        return f'no schema record {schemas[0]} in the summary'
-    return ''
+        return f'no channel record {missing[0]}'
+    used = {ch.schema_id for ch in channels.values()} - {0}
+    undefined = sorted(used - set(schemas))
+    return f'no schema record {undefined[0]}' if undefined else ''
+
+
+def _definitions(path: Path, fd: int, chunks: Chunks, summary: _Records,
+                 ) -> tuple[dict[int, SchemaInfo], dict[int, ChannelInfo]] | None:
+    """The summary's schemas and channels completed from the records of the chunks (a writer
+    that does not repeat them in the summary puts them in the chunk of their first message),
+    read in file order until every channel the message indexes name and its schema are
+    defined; None if the chunks do not define them all."""
+    with mmap.mmap(fd, 0, access=mmap.ACCESS_READ) as data:
+        scan = _Scan(path, data, DEFAULT_BLOCK_BYTES)
+        for at, length in zip(chunks.offset.tolist(), chunks.length.tolist(), strict=True):
+            if _HEAD(data, at) != (Opcode.CHUNK, length - RECORD):
+                raise DamagedBagError(path, 'no chunk record at the offset the summary\'s '
+                                            'chunk index gives', scan.chunks, at)
+            try:
+                scan.chunk(at, at + length)
+            except (struct.error, UnicodeDecodeError) as err:
+                raise DamagedBagError(path, f'a record does not parse ({err})',
+                                      scan.chunks - 1, at) from err
+            schemas, channels = scan.definitions(summary)
+            if not _undefined(schemas, channels, chunks):
+                return schemas, channels
+    return None
 
 
 # -- the scan of a file without the index the fast read needs ---------------------------------
