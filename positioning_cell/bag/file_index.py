@@ -522,6 +522,31 @@ class _Scan:
         self.run_found = 0     # len(found) when it started
         self.chunks = 0        # chunk records met
         self.zstd = zstandard.ZstdDecompressor()
+        self.released = 0      # the pages before this offset are out of this process's memory
+
+    def release(self, upto: int) -> None:
+        """Drop the file's pages before ``upto`` from this process's memory once a block of
+        them is walked (they stay in the page cache): the scan of a long file holds about one
+        block of it, not the whole file."""
+        end = upto - upto % mmap.PAGESIZE
+        if end - self.released >= DEFAULT_BLOCK_BYTES:
+            self.data.madvise(mmap.MADV_DONTNEED, self.released, end - self.released)
+            self.released = end
+
+    def crc(self, end: int) -> int:
+        """CRC-32 of the file's bytes 0 .. ``end``, a block at a time (each released once
+        fed to it)."""
+        crc, at = 0, 0
+        with memoryview(self.data) as view:
+            while at < end:
+                stop = min(end, at + DEFAULT_BLOCK_BYTES)
+                with view[at:stop] as part:
+                    crc = zlib.crc32(part, crc)
+                pages = (stop - at) - (stop - at) % mmap.PAGESIZE
+                if pages:
+                    self.data.madvise(mmap.MADV_DONTNEED, at, pages)
+                at = stop
+        return crc
 
     def damaged(self, reason: str, chunk: int | None = None, offset: int | None = None,
                 ) -> DamagedBagError:
@@ -560,6 +585,8 @@ class _Scan:
                 if op == Opcode.CHUNK:
                     self.chunk(pos, end)
             pos = end
+            if pos - self.released > DEFAULT_BLOCK_BYTES:
+                self.release(pos)
 
     def close_run(self, pos: int) -> None:
         """End the open run of top-level records at ``pos``: a segment if it holds messages."""
@@ -656,8 +683,7 @@ def _scan(path: Path, number: int, fd: int, data_start: int, stop: int, data_end
         if length < 4:
             raise DamagedBagError(path, f'the DataEnd record at byte {end} is damaged')
         if data_crc:
-            with memoryview(data) as view, view[:end] as part:
-                computed = zlib.crc32(part)
+            computed = scan.crc(end)
             if computed != data_crc:
                 raise DamagedBagError(path, f'data section CRC mismatch (stored '
                                             f'{data_crc:08x}, computed {computed:08x}): bytes 0 '
