@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from json_compare import differences
 
 from positioning_cell import accuracy
 from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings
@@ -319,24 +320,6 @@ def test_the_shipped_program_is_an_iso_cube_inside_the_workspace(tmp_path: Path)
 MAKE_RUN = Path(__file__).resolve().parent / 'data' / 'makerun'
 
 
-def _compare(old: object, new: object, path: str = '') -> list[str]:
-    """Where two JSON documents differ: numbers beyond 1e-12 relative and 1e-14 absolute (the
-    last bits of a sum or of a mean rotation), anything else at all."""
-    if isinstance(old, dict) and isinstance(new, dict):
-        out = [f'{path}: keys {sorted(set(old) ^ set(new))}'] if set(old) != set(new) else []
-        return out + [d for k in old if k in new for d in _compare(old[k], new[k], f'{path}.{k}')]
-    if isinstance(old, list) and isinstance(new, list):
-        if len(old) != len(new):
-            return [f'{path}: {len(old)} != {len(new)} items']
-        return [d for i, (a, b) in enumerate(zip(old, new, strict=True))
-                for d in _compare(a, b, f'{path}[{i}]')]
-    if isinstance(old, float) and isinstance(new, float):
-        same = (old == new or (math.isnan(old) and math.isnan(new))
-                or abs(old - new) <= 1e-12 * max(abs(old), abs(new)) + 1e-14)
-        return [] if same else [f'{path}: {old!r} != {new!r}']
-    return [] if old == new else [f'{path}: {old!r} != {new!r}']
-
-
 def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
     """test/data/makerun/bag is a `make run` recording (the calibration run, the three modes;
     the analysed topics, every tenth joint state, zstd chunks) and
@@ -351,7 +334,7 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
     for key in ('bag', 'plots', 'context', 'axis_tests'):  # the bag's path, files, new ones
         before.pop(key, None)
         now.pop(key, None)
-    assert _compare(before, now) == []
+    assert differences(before, now) == []
     # what only the new analysis gives: the context for the trends
     context = analysis.context
     assert [c.file is None for c in context.calibrations] == [True, False]

@@ -48,6 +48,7 @@ from positioning_cell.names import (
     TARGET,
     TRUE_POSE,
 )
+from positioning_cell.testing.layouts import LAYOUTS, Layout, rewrite_bag
 from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
 
 ANALYSED = (TARGET, MEASURED_POSE, TRUE_POSE, PROGRAM, DIAGNOSTICS)
@@ -197,6 +198,25 @@ def test_chunks_overlapping_in_time(tmp_path: Path, seed: int, compression: str)
             assert np.all(np.diff(np.concatenate(times)) >= 0)  # across blocks too
             if block_bytes == 3000:
                 assert len(times) > 5
+
+
+def test_unindexed_files_out_of_time_order(tmp_path: Path) -> None:
+    """The same records out of log-time order, unchunked (rosbags refuses such a file) or in
+    chunks without any index (rosbags too: it reads them in file order): scanned, they come
+    out in rosbags' order for the indexed files, (log time, place in the file): as rosbags
+    reads them from one chunk holding them all, and from the 1 KiB chunks of the original."""
+    bag = _overlapping_bag(tmp_path / 'bag', 3)
+    one_chunk = rewrite_bag(bag, tmp_path / 'one', Layout(compression='none', chunk_size=2**24))
+    unchunked = rewrite_bag(bag, tmp_path / 'flat', LAYOUTS['fastwrite'])
+    unindexed = rewrite_bag(bag, tmp_path / 'noindex', Layout(index='none', chunk_size=1024))
+    with BagReader(unchunked) as reader, pytest.raises(BagError, match='not in timestamp'):
+        list(reader.raw_messages())
+    for subset in (('/a', '/b', '/c'), ('/a', '/c')):
+        assert _reference(one_chunk, subset) == _reference(bag, subset)
+        for scanned in (unchunked, unindexed):
+            with IndexedBag(scanned, block_bytes=3000) as indexed:
+                assert indexed.scans and indexed.topics == _rosbags(one_chunk).topics
+                assert list(indexed.raw_messages(subset)) == _reference(bag, subset)
 
 
 def test_read_decodes_like_rosbags(bags: dict[str, Path]) -> None:
@@ -356,10 +376,16 @@ def test_summary_damage(bags: dict[str, Path], tmp_path: Path) -> None:
     mcap.write_bytes(bytes(data))
     with pytest.raises(DamagedBagError, match='summary section CRC mismatch'):
         IndexedBag(mcap.parent)
-    struct.pack_into('<Q', data, len(data) - 8 - 20, 0)  # no summary
+    struct.pack_into('<Q', data, len(data) - 8 - 20, 0)  # a footer that says: no summary
     mcap.write_bytes(bytes(data))
-    with pytest.raises(UnindexedBagError, match='no summary section'):
-        IndexedBag(mcap.parent)
+    with pytest.raises(DamagedBagError, match='summary section CRC mismatch: the footer'):
+        IndexedBag(mcap.parent)  # its CRC covers the footer's fields too
+    struct.pack_into('<I', data, len(data) - 8 - 4, 0)  # and no CRC: a valid unindexed file
+    mcap.write_bytes(bytes(data))
+    with IndexedBag(mcap.parent) as indexed:
+        assert indexed.scans == {mcap.name: 'no summary section'}
+        assert list(indexed.raw_messages(ANALYSED)) == _reference(bags['cell-none-64k'],
+                                                                  ANALYSED)
 
 
 def test_unknown_compression(bags: dict[str, Path], tmp_path: Path) -> None:
@@ -463,7 +489,7 @@ def test_types_from_the_bags_own_definitions(tmp_path: Path) -> None:
 def test_files_of_the_mcap_library(bags: dict[str, Path], tmp_path: Path,
                                    compression: str) -> None:
     """A third writer, the ``mcap`` library's (lz4 or zstd chunks, all CRCs; or no chunks at
-    all: not indexed, refused)."""
+    all: no chunk index, read by a scan of the records)."""
     source = _rosbags(bags['cell-none-1k'])
     messages = source.subsets[ANALYSED]
     types = {name: source.topics[name].msgtype for name in ANALYSED}
@@ -482,11 +508,9 @@ def test_files_of_the_mcap_library(bags: dict[str, Path], tmp_path: Path,
         for m in messages:
             writer.add_message(channels[m.topic], m.log_time_ns, m.data, m.log_time_ns)
         writer.finish()
-    if compression == 'unchunked':
-        with pytest.raises(UnindexedBagError, match='no chunk index'):
-            IndexedBag(mcap)
-        return
     with IndexedBag(mcap, block_bytes=10_000) as indexed:
+        assert indexed.scans == ({mcap.name: 'no chunk index'} if compression == 'unchunked'
+                                 else {})
         assert list(indexed.raw_messages(ANALYSED)) == messages
         assert list(indexed.raw_messages((PROGRAM,))) == [m for m in messages
                                                           if m.topic == PROGRAM]

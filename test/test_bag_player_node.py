@@ -1,5 +1,6 @@
-"""bag_player_node as a separate process: a small bag written by the library is played to a test
-client, every message arrives in order, with its timing roughly kept at rates 1 and 2."""
+"""bag_player_node as a separate process: a small bag written by the library (and the same
+written as another recorder lays it out) is played to a test client, every message arrives in
+order, with its timing roughly kept at rates 1 and 2."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from positioning_cell.bag import BagWriter
 from positioning_cell.bag.metadata import make_qos
 from positioning_cell.bag.writer import jazzy_typestore
 from positioning_cell.nodes.qos import LATCHED_QOS, STREAM_QOS
+from positioning_cell.testing.layouts import LAYOUTS, rewrite_bag
 
 pytestmark = pytest.mark.nodes
 
@@ -66,9 +68,15 @@ def _receive(client: Client, msg_type: Any, topic: str, qos: Any) -> list[tuple[
     return received
 
 
-@pytest.mark.parametrize('rate', [1.0, 2.0])
-def test_plays_every_message_in_order_with_its_timing(tmp_path: Path, rate: float) -> None:
+@pytest.mark.parametrize(('rate', 'layout'), [(1.0, None), (2.0, None),
+                                              (2.0, 'fastwrite-split-in-2')])
+def test_plays_every_message_in_order_with_its_timing(tmp_path: Path, rate: float,
+                                                      layout: str | None) -> None:
+    """The cell's own bag, and the same written as rosbag2's fastwrite preset writes (no
+    chunk, no index, no CRC) split into two files."""
     bag = _bag(tmp_path / 'bag')
+    if layout is not None:
+        bag = rewrite_bag(bag, tmp_path / layout, LAYOUTS[layout])
     override = tmp_path / 'player.yaml'
     override.write_text(f'bag_player:\n  ros__parameters:\n    bag: {bag}\n    rate: {rate}\n'
                         '    wait_for_subscribers_s: 20.0\n')

@@ -3,20 +3,24 @@ recorded order, as :class:`positioning_cell.analysis.replay.MessageBatch` es of 
 bounded memory; also from a bag whose recording did not end cleanly or whose files are damaged.
 This is the one place that reads bags for the analysis.
 
-A sound MCAP bag is read through its index (:class:`positioning_cell.bag.IndexedBag`): only the
-chunks and records of the wanted topics are parsed, each chunk read is checked against its CRC
-and every message used against its index record, the whole data section against its CRC, and
-the fixed-layout messages (poses, strings) are decoded as arrays
-(:mod:`positioning_cell.bag.cdr`); diagnostics are decoded by rosbags, only those holding the
-positioner's or the tracker's status. A bag the indexed read refuses (no summary: the recorder
-was killed; a corrupt chunk; a data-section CRC mismatch), whether on opening or half way
-through, is verified whole (:func:`positioning_cell.bag.verify_bag`), its sound chunks linked
-into a temporary folder and repaired there (:func:`positioning_cell.bag.recover_bag`; the
-original is left as it is), and the analysis runs again from the start on the repaired copy;
-:attr:`Recording.problems` then names each corrupt chunk with the time range lost (UTC and
-seconds into the bag) and the messages lost when the index says. A bag that is not MCAP
-(rosbag2 sqlite3) is read by rosbags (:class:`positioning_cell.bag.BagReader`), decoded message
-by message and batched the same way.
+An MCAP bag is read by :class:`positioning_cell.bag.IndexedBag`, whatever its layout: a file
+whose summary has chunk and message indexes (the cell's recorder, rosbags, ``ros2 bag record``
+by default) through them, only the chunks and records of the wanted topics parsed; any other
+valid file (no summary, no chunk index, no message index: unchunked files as rosbag2's
+``fastwrite`` preset writes them, for one) from one sequential scan of its records when it is
+opened, then the same way. Each chunk read is checked against its CRC and every message used
+against its index record (or the scan's), the whole data section against its CRC (a CRC of 0
+is "not computed" and not checked), and the fixed-layout messages (poses, strings) are decoded
+as arrays (:mod:`positioning_cell.bag.cdr`); diagnostics are decoded by rosbags, only those
+holding the positioner's or the tracker's status. A bag that cannot be read as it is (a file
+without footer: the recorder was killed; a corrupt chunk; a data-section CRC mismatch; broken
+record framing), whether on opening or half way through, is verified whole
+(:func:`positioning_cell.bag.verify_bag`), its sound chunks linked into a temporary folder and
+repaired there (:func:`positioning_cell.bag.recover_bag`; the original is left as it is), and
+the analysis runs again from the start on the repaired copy; :attr:`Recording.problems` then
+names each corrupt chunk with the time range lost (UTC and seconds into the bag) and the
+messages lost when the index says. A bag that is not MCAP (rosbag2 sqlite3) is read by rosbags
+(:class:`positioning_cell.bag.BagReader`), decoded message by message and batched the same way.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from positioning_cell.bag import (
 )
 from positioning_cell.bag.cdr import Columns, Strings
 from positioning_cell.bag.indexed import Block, IndexedBag, IndexedReadError
+from positioning_cell.bag.opening import mcap_files
 from positioning_cell.bag.verify import BagCheck, storage_files, verify_bag
 from positioning_cell.names import (
     AXIS_TEST,
@@ -284,8 +289,7 @@ def with_recording(path: str | Path, topics: Collection[str],
     path = Path(path)
     if not path.exists():
         raise BagError(path, 'no such file or folder')
-    files = storage_files(path) if path.is_dir() else [path]
-    if not files or not all(f.suffix == '.mcap' for f in files):
+    if mcap_files(path) is None:
         try:
             reader = BagReader(path)
         except BagError as err:

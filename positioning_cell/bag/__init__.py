@@ -2,9 +2,15 @@
 
 - :class:`BagWriter`: serialized messages → ``<bag>/<bag>_N.mcap`` + ``metadata.yaml``, small
   chunks flushed on demand, optional zstd chunk compression, size / duration splits.
-- :class:`BagReader`: a bag read back through rosbags, raw (for replay) or decoded (analysis).
-- :class:`IndexedBag`: chosen topics read through the MCAP index in blocks, in bounded memory,
-  decoded vectorised (:mod:`positioning_cell.bag.cdr`); IndexedReadError when it cannot.
+- :class:`BagReader`: a bag read back through rosbags, raw or decoded.
+- :class:`IndexedBag`: chosen topics of an MCAP bag read through its index in blocks, in
+  bounded memory, decoded vectorised (:mod:`positioning_cell.bag.cdr`); a file without the
+  index this needs (any valid MCAP layout) is scanned when it is opened
+  (:mod:`positioning_cell.bag.file_index`); IndexedReadError when a file cannot be read as
+  it is (truncated, damaged).
+- :func:`open_bag`: a bag open for reading whatever its storage (MCAP: IndexedBag; sqlite3:
+  BagReader), as a :class:`MessageSource`: what the player and ``calibrate_cell --from-bag``
+  read.
 - :func:`verify_bag`: every storage file checked (MCAP magic, chunk and data-section CRCs,
   records): the corrupt chunks with the log times and messages they covered.
 - :func:`recover_bag`: a bag whose recorder was killed, or with corrupt chunks → valid,
@@ -12,20 +18,21 @@
 - :class:`PlaybackTiming`, :func:`play`: replay with the recorded timing.
 """
 
-from positioning_cell.bag.errors import BagError
-from positioning_cell.bag.indexed import (
+from positioning_cell.bag.errors import (
+    BagError,
     DamagedBagError,
-    IndexedBag,
     IndexedReadError,
     UnindexedBagError,
     UnsupportedBagError,
 )
+from positioning_cell.bag.indexed import IndexedBag
 from positioning_cell.bag.metadata import (
     FileSummary,
     TopicMeta,
     playback_qos,
     recording_qos,
 )
+from positioning_cell.bag.opening import MessageSource, open_bag
 from positioning_cell.bag.playback import PlaybackTiming, play
 from positioning_cell.bag.reader import BagMessage, BagReader, RawMessage, TopicInfo
 from positioning_cell.bag.recovery import FileRecovery, RecoveryReport, recover_bag
@@ -47,6 +54,7 @@ __all__ = [
     'FileSummary',
     'IndexedBag',
     'IndexedReadError',
+    'MessageSource',
     'PlaybackTiming',
     'PlayerSettings',
     'RawMessage',
@@ -59,6 +67,7 @@ __all__ = [
     'UnindexedBagError',
     'UnsupportedBagError',
     'message_definition',
+    'open_bag',
     'play',
     'playback_qos',
     'recording_qos',

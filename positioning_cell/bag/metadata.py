@@ -114,6 +114,16 @@ def parse_qos_yaml(text: str, path: str | Path) -> tuple[Qos, ...]:
             from err
 
 
+def topic_meta(topic: str, msgtype: str, encoding: str, metadata: Mapping[str, str],
+               path: str | Path) -> TopicMeta:
+    """The TopicMeta of an MCAP channel: its topic, its schema's type name, its message
+    encoding and metadata (``offered_qos_profiles``, ``topic_type_hash``, as rosbag2 stores
+    them); BagError naming ``path`` if the QoS does not parse."""
+    return TopicMeta(topic, msgtype, parse_qos_yaml(metadata.get('offered_qos_profiles', ''),
+                                                    path),
+                     metadata.get('topic_type_hash', ''), encoding)
+
+
 # -- metadata.yaml -----------------------------------------------------------------------------
 def bag_metadata(topics: Sequence[TopicMeta], files: Sequence[FileSummary],
                  custom_data: Mapping[str, str] | None = None) -> dict[str, Metadata]:

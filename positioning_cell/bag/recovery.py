@@ -14,25 +14,23 @@ covered is reported (:attr:`FileRecovery.lost`).
 from __future__ import annotations
 
 import os
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from mcap.exceptions import McapError
-from mcap.reader import SeekingReader
 from mcap.records import Channel, Schema
-from mcap.stream_reader import MAGIC_SIZE, CRCValidationError
+from mcap.stream_reader import MAGIC_SIZE
 from rosbags.rosbag2.errors import ReaderError
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
 
 from positioning_cell.bag.errors import BagError
+from positioning_cell.bag.file_index import summarise
 from positioning_cell.bag.metadata import (
     METADATA_FILE,
     FileSummary,
     TopicMeta,
-    parse_qos_yaml,
+    topic_meta,
     write_metadata,
 )
 from positioning_cell.bag.verify import (
@@ -47,9 +45,6 @@ from positioning_cell.bag.writer import McapFile
 
 __all__ = ['MCAP_MAGIC', 'FileRecovery', 'RecoveryReport', 'recover_bag', 'storage_files']
 
-#: Everything a damaged summary section can raise while being parsed.
-_STREAM_ERRORS = (McapError, CRCValidationError, struct.error, ValueError, UnicodeDecodeError,
-                  EOFError, IndexError, KeyError, MemoryError)
 RECOVER_CHUNK_BYTES = 1024 * 1024
 #: Suffix of the kept original, by status.
 BACKUP_SUFFIX = {'recovered': '.truncated', 'repaired': '.damaged'}
@@ -108,16 +103,15 @@ class _Inspection:
 
 
 def _topic(channel: Channel, schema: Schema | None, path: Path) -> TopicMeta:
-    meta = channel.metadata
-    return TopicMeta(channel.topic, schema.name if schema is not None else '',
-                     parse_qos_yaml(meta.get('offered_qos_profiles', ''), path),
-                     meta.get('topic_type_hash', ''), channel.message_encoding)
+    return topic_meta(channel.topic, schema.name if schema is not None else '',
+                      channel.message_encoding, channel.metadata, path)
 
 
 def _inspect(path: Path, check: FileCheck | None) -> _Inspection:
-    """Is ``path`` an MCAP file (else BagError), and is it complete (footer, summary and
-    statistics readable) and sound (:func:`verify_file`, unless ``check`` is its verification
-    already)? For a complete, sound file, its topics and counts from the summary."""
+    """Is ``path`` an MCAP file (else BagError), and is it complete (a footer) and sound
+    (:func:`verify_file`, unless ``check`` is its verification already) and readable as it
+    is (:func:`positioning_cell.bag.file_index.summarise`: any valid layout, indexed or not)?
+    For such a file, its topics and counts."""
     size = path.stat().st_size
     with path.open('rb') as stream:
         head = stream.read(MAGIC_SIZE)
@@ -128,22 +122,11 @@ def _inspect(path: Path, check: FileCheck | None) -> _Inspection:
         return _Inspection(path, False)
     if not check.sound:
         return _Inspection(path, False, check=check)
-    with path.open('rb') as stream:
-        try:
-            summary = SeekingReader(stream).get_summary()
-        except _STREAM_ERRORS:
-            return _Inspection(path, False, check=check)
-    if summary is None or summary.statistics is None:
+    try:
+        summary, topics = summarise(path)
+    except BagError:  # sound by its CRCs and framing, yet not readable as it is
         return _Inspection(path, False, check=check)
-    stats = summary.statistics
-    topics = tuple(_topic(c, summary.schemas.get(c.schema_id), path)
-                   for c in summary.channels.values())
-    counts = {c.topic: stats.channel_message_counts.get(c.id, 0)
-              for c in summary.channels.values()}
-    count = stats.message_count
-    return _Inspection(path, True, topics, FileSummary(
-        path.name, stats.message_start_time if count else 0,
-        stats.message_end_time if count else 0, count, counts))
+    return _Inspection(path, True, topics, summary)
 
 
 def _rewrite(path: Path, compression: str) -> tuple[FileSummary, tuple[TopicMeta, ...]]:

@@ -155,7 +155,8 @@ class FileCheck:
     ``data_crc`` / ``summary_crc``: ``ok``, ``mismatch``, ``absent`` (0 in the file) or
     ``unchecked`` (no such record). ``damaged``: the corrupt chunks; ``problems``: damage outside
     the chunks (or the reason the file is unusable). ``start_ns`` / ``end_ns``: the log-time
-    range of its chunks, damaged ones included (None when unknown); ``message_count``: messages
+    range of its chunks, damaged ones included, and of its messages outside chunks (None when
+    unknown); ``message_count``: messages
     by the summary's statistics (None without a summary).
     """
 
@@ -275,7 +276,10 @@ def _parse(op: int, body: bytes) -> McapRecord:
 
 def _index_counts(ci: ChunkIndex) -> dict[int, int]:
     """Messages per channel of an indexed chunk, from the message index offsets and lengths
-    (each message index record is 15 + 16·n bytes, written one after the other)."""
+    (each message index record is 15 + 16·n bytes, written one after the other); empty for a
+    chunk without message indexes (not known)."""
+    if not ci.message_index_offsets:
+        return {}
     ends = sorted((offset, cid) for cid, offset in ci.message_index_offsets.items())
     limit = ci.chunk_start_offset + ci.chunk_length + ci.message_index_length
     bounds = [o for o, _ in ends[1:]] + [limit]
@@ -297,6 +301,8 @@ class _Walk:
         self.chunks = 0
         self.crc_chunks = 0
         self.times: list[tuple[int, int]] = []
+        self.loose = 0  # messages outside chunks (an unchunked file)
+        self.loose_times = (2**64, -1)  # their first and last log time
         self.truncated_at: int | None = None
         self.data_crc = 'unchecked'
         self.summary_crc = 'unchecked'
@@ -450,6 +456,9 @@ class _Walk:
             self.channels.setdefault(record.id, record)
             return record
         if isinstance(record, Message):
+            self.loose += 1
+            first, last = self.loose_times
+            self.loose_times = (min(first, record.log_time), max(last, record.log_time))
             return record
         return None
 
@@ -626,7 +635,8 @@ class _Walk:
         self.chunks = max(self.chunks, number + 1)
         if ci is not None:
             item = _Pending(number, pos, ci.chunk_length, reason, ci.message_start_time,
-                            ci.message_end_time, _index_counts(ci), True)
+                            ci.message_end_time, _index_counts(ci),
+                            bool(ci.message_index_offsets))
         elif chunk is not None and chunk.message_start_time <= chunk.message_end_time:
             item = _Pending(number, pos, length, reason, chunk.message_start_time,
                             chunk.message_end_time)
@@ -645,7 +655,8 @@ class _Walk:
                 self.pending.append(_Pending(i, ci.chunk_start_offset, ci.chunk_length,
                                              'no readable chunk record at its indexed offset',
                                              ci.message_start_time, ci.message_end_time,
-                                             _index_counts(ci), True))
+                                             _index_counts(ci),
+                                             bool(ci.message_index_offsets)))
                 self.times.append((ci.message_start_time, ci.message_end_time))
         self.pending.sort(key=lambda p: p.offset)
         for p in self.pending:
@@ -656,9 +667,14 @@ class _Walk:
                 if before is not None and after is not None:
                     p.start_ns, p.end_ns = before[1], after[0]
         if self.data_crc == 'mismatch' and not self.pending and not self.problems:
-            self.problems.append('data section CRC mismatch: damage outside the chunks\' '
-                                 'records (chunk headers, message indexes or metadata); no '
-                                 'message is lost')
+            self.problems.append(
+                f'data section CRC mismatch: damage in the {self.loose} messages stored '
+                'outside chunks (one may be corrupt; none is lost) or in chunk headers, '
+                'message indexes or metadata' if self.loose else
+                'data section CRC mismatch: damage outside the chunks\' records (chunk '
+                'headers, message indexes or metadata); no message is lost')
+        if self.loose:
+            self.times.append(self.loose_times)
 
     def result(self) -> FileCheck:
         damaged = tuple(DamagedChunk(

@@ -1,5 +1,8 @@
 """bag_player: publishes a recorded bag back onto its topics with the recorded timing.
 
+The bag is read by :func:`positioning_cell.bag.open_bag`: an MCAP bag of any layout (indexed
+or not, chunked or not, any chunk compression, split) or a rosbag2 sqlite3 bag.
+
 Each selected topic gets a publisher of its recorded type with the QoS its publishers offered
 (reliable; transient-local for latched topics such as /positioner/target). Playback waits up
 to ``wait_for_subscribers_s`` for every topic to have a subscriber, then publishes the stored
@@ -22,10 +25,10 @@ from rclpy.node import Node
 from positioning_cell import names
 from positioning_cell.bag import (
     BagError,
-    BagReader,
     PlaybackTiming,
     PlayerSettings,
     RawMessage,
+    open_bag,
     play,
     playback_qos,
 )
@@ -49,7 +52,7 @@ class BagPlayerNode(Node):
         self.settings = p = NodeParameters(self, self.SETTINGS).settings
         if not p.bag:
             raise ConfigError('bag: the bag directory to play is required')
-        self._reader = BagReader(p.bag)
+        self._reader = open_bag(p.bag)
         try:
             self._topics = list(p.topics) or sorted(self._reader.topics)
             self._timing = PlaybackTiming.starting(self._reader.start_ns, p.rate,

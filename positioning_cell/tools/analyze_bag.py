@@ -1,7 +1,8 @@
 """``analyze_bag BAG [--out DIR] [--config F] [--no-plots]``: the offline analysis of a
 recorded cell run.
 
-Reads the topics the analysis uses through the bag's MCAP index, verifying what it reads
+Reads the topics the analysis uses through the bag's MCAP index (a file without one, as other
+recorders write them, from a scan of its records), verifying what it reads
 (:mod:`positioning_cell.analysis.reading`), replays them through the accuracy monitor's rules
 with the monitor's settings from ``config/cell.yaml`` (or ``--config``), and writes
 ``report.md``, ``summary.json`` and (unless ``--no-plots``) PNG plots into ``--out`` (default:

@@ -46,7 +46,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
-from positioning_cell.bag.reader import BagReader
+from positioning_cell.bag.opening import open_bag
 from positioning_cell.calibration import collect as col
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
@@ -163,7 +163,7 @@ def read_bag(path: Path, run: str | None = None,
     rec = Recording()
     handlers = {names.CALIBRATION: rec.on_marker, names.JOINT_STATES: rec.on_joints,
                 names.MEASURED_POSE: rec.on_pose}
-    with BagReader(path) as reader:
+    with open_bag(path) as reader:
         missing = [t for t in handlers if t not in reader.topics]
         if missing:
             raise PositioningError(f'{path}: not a calibration run: no {", ".join(missing)}')
