@@ -12,9 +12,17 @@ liveness rules as lax as their parameters allow (joint silence, answer timeout a
 measurement timeouts), its median reaction time and how many trials still gave the expected
 reaction.
 
-Run: .venv/bin/python benchmarks/faults.py [--trials 20] [--baseline-trials 3] [fault ...]
-Targets (issue 11): every reaction within its bound, the expected code in every trial, no
-motion beyond a limit in any trial. Exits 1 if one is not met.
+Then the probes only the driver's commander can send (positioning_cell.tools.driver_probes:
+stamps 0.6 s in the past and 4 s ahead, 100 000 and 50 000 points), --driver-trials times each
+on a driver bound to this benchmark: the time to the driver's answer and the largest interval
+between two of its encoder publications around it, median and max; the baseline: the largest
+interval over 60 publications while nothing is sent, from the same driver.
+
+Run: .venv/bin/python benchmarks/faults.py [--trials 20] [--baseline-trials 3]
+[--driver-trials 5] [fault ...]
+Targets (issues 11, 21): every reaction within its bound, the expected code in every trial, no
+motion beyond a limit in any trial; every driver probe answered as expected with no
+publication interval above 0.1 s. Exits 1 if one is not met.
 """
 
 from __future__ import annotations
@@ -26,7 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+from positioning_cell.tools.driver_probes import PROBES, CommandedDriver, ProbeResult
 from positioning_cell.tools.fault_matrix import FAULTS, FaultCell, Trial, fault, run_trial
+
+#: Largest interval between two encoder publications of the driver while it takes a command.
+LARGEST_GAP_S = 0.1
 
 
 def _stats(values: list[float]) -> str:
@@ -37,6 +49,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--trials', type=int, default=20)
     parser.add_argument('--baseline-trials', type=int, default=3)
+    parser.add_argument('--driver-trials', type=int, default=5)
     parser.add_argument('faults', nargs='*', help='names of rows (default: all)')
     args = parser.parse_args()
     chosen = [fault(n) for n in args.faults] or list(FAULTS)
@@ -77,9 +90,37 @@ def main() -> int:
         codes = sorted({t.code for t in trials})
         print(f'    codes seen: {", ".join(codes)}')
         met &= good == len(trials) and limits
-    print(f'\ntargets (every reaction expected and in bound, no axis beyond a limit): '
-          f'{"met" if met else "NOT met"}')
+    met &= _driver_probes(args.driver_trials)
+    print(f'\ntargets (every reaction expected and in bound, no axis beyond a limit, every '
+          f'driver probe answered as expected without a publication gap above '
+          f'{LARGEST_GAP_S:g} s): {"met" if met else "NOT met"}')
     return 0 if met else 1
+
+
+def _driver_probes(trials: int) -> bool:
+    """The commander's probes, ``trials`` times each; True when every one was as expected."""
+    results: dict[str, list[ProbeResult]] = {p.name: [] for p in PROBES}
+    quiet: list[float] = []
+    with tempfile.TemporaryDirectory(prefix='driver_probes_') as tmp:
+        driver = CommandedDriver(Path(tmp))
+        try:
+            for _ in range(trials):
+                quiet.append(driver.quiet_gap() * 1e3)
+                for probe in PROBES:
+                    results[probe.name].append(driver.probe(probe))
+        finally:
+            driver.close()
+    print(f'\n{"driver probe":26s} {"answer ms med / max":>22s} '
+          f'{"largest gap ms med / max":>26s} {"expected":>9s}')
+    met = True
+    for name, done in results.items():
+        answer = [r.answer_s * 1e3 for r in done]
+        gap = [r.largest_gap_s * 1e3 for r in done]
+        good = sum(r.expected and r.largest_gap_s < LARGEST_GAP_S for r in done)
+        print(f'{name:26s} {_stats(answer):>22s} {_stats(gap):>26s} {good:4d}/{len(done):<4d}')
+        met &= good == len(done)
+    print(f'{"baseline: nothing sent":26s} {"":>22s} {_stats(quiet):>26s}')
+    return met
 
 
 if __name__ == '__main__':
