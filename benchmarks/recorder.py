@@ -14,13 +14,22 @@
    to last log time of the burst) and the messages lost (a keep-last writer overwrites what
    the recorder has not acknowledged when its history is full).
 
+4. The stop of a recorder whose disk fails: ``recorder_node`` with its files limited to
+   4 MiB (RLIMIT_FSIZE: a real EFBIG, positioning_cell.testing.disks) records the publisher's
+   full-rate burst until the limit; reported: its exit status, the time from its log line
+   "recording stopped: ..." (written once the bag is closed: the salvage, some ms, comes
+   before it) to the process's end, and the bag (indexed and sound, messages lost), idle and
+   with the CPU hog.
+
 Run: ``.venv/bin/python benchmarks/recorder.py`` (add ``--quick`` for a short run).
-Target (issue 11): 0 lost at 20 k msgs/s with the cell's QoS, idle and loaded.
+Targets: (issue 11) 0 lost at 20 k msgs/s with the cell's QoS, idle and loaded; (issue 21) a
+failed recorder exits within 2 s, its bag closed with nothing lost.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import signal
 import subprocess
@@ -32,14 +41,18 @@ from pathlib import Path
 import numpy as np
 
 from positioning_cell import names
-from positioning_cell.bag import BagReader, BagWriter
+from positioning_cell.bag import BagReader, BagWriter, verify_bag
 from positioning_cell.bag.writer import jazzy_typestore
 from positioning_cell.names import CELL_TOPICS
 from positioning_cell.nodes.qos import STREAM_QOS
+from positioning_cell.nodes.recorder_node import EXIT_WRITE_FAILED
+from positioning_cell.testing.disks import file_size_limited
 from positioning_cell.tools.processes import cell_environment
 
 REPO = Path(__file__).resolve().parent.parent
 TARGET_RATE = 20_000.0  # msgs/s aggregated, issue 11
+FAILED_STOP_TARGET_S = 2.0  # a recorder whose disk failed exits within this, issue 21
+FILE_LIMIT = 4 * 2**20  # bytes, the failing-disk run's file size limit
 BIN = Path(sys.executable).parent
 
 # (topic, type) of the cell's streams (design/interfaces.md) used in every benchmark.
@@ -206,11 +219,57 @@ def bench_recorder(count: int, rate: float, workdir: Path, domain: int, hog: boo
     return count - got
 
 
+def bench_failed_stop(workdir: Path, domain: int, hog: bool) -> float:
+    """One recorder stopped by a file size limit (with a CPU hog if ``hog``); prints what
+    happened, returns the time from its failure line to its exit (s; inf if it did not exit
+    as a failed recorder with a sound bag)."""
+    bag = workdir / f'failing_{int(hog)}'
+    env = cell_environment(domain)
+    env.setdefault('ROS_LOG_DIR', str(workdir / 'ros_log'))
+    override = workdir / 'recorder_override.yaml'
+    override.write_text(f'recorder:\n  ros__parameters:\n    output: {bag}\n')
+    log = workdir / f'failing_{int(hog)}.log'
+    recorder = subprocess.Popen(
+        file_size_limited(FILE_LIMIT, [str(BIN / 'recorder_node')])
+        + ['--ros-args', '--params-file', str(REPO / 'config/cell.yaml'), '--params-file',
+           str(override)], env=env, stdout=log.open('wb'), stderr=subprocess.STDOUT,
+        start_new_session=True)
+    hogger = subprocess.Popen([sys.executable, '-c', HOG]) if hog else None
+    try:
+        publisher = subprocess.Popen([sys.executable, '-c', PUBLISHER, '400000', '0',
+                                      str(Path(__file__).parent)], env=env,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        code = recorder.wait(timeout=300)
+        exited = time.time()
+        publisher.kill()
+        publisher.wait()
+    finally:
+        if hogger is not None:
+            hogger.kill()
+            hogger.wait()
+        if recorder.poll() is None:
+            recorder.kill()
+    text = log.read_text(errors='replace')
+    line = re.search(r'\[ERROR\] \[(\d+\.\d+)\] \[recorder\]: (recording stopped: .*)', text)
+    check = verify_bag(bag) if (bag / 'metadata.yaml').exists() else None
+    sound = check is not None and check.sound
+    stop = exited - float(line.group(1)) if line else float('inf')
+    print(f'recorder on a failing disk (EFBIG at {FILE_LIMIT / 2**20:.0f} MiB), '
+          f'{"CPU hog" if hog else "idle"}: exit {code}, {stop:.2f} s from the failure line to '
+          f'the exit; bag {"sound" if sound else "NOT sound"}; '
+          f'{line.group(2) if line else "no failure line"}', flush=True)
+    shutil.rmtree(bag, ignore_errors=True)
+    return stop if code == EXIT_WRITE_FAILED and sound and ', 0 lost' in text else float('inf')
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--quick', action='store_true', help='small counts')
     parser.add_argument('--large-bag-messages', type=int, default=1_000_000)
     parser.add_argument('--dds-messages', type=int, default=100_000)
+    parser.add_argument('--failed-stops', type=int, default=5,
+                        help='failing-disk runs, idle and loaded each')
+    parser.add_argument('--only-failed-stops', action='store_true')
     args = parser.parse_args()
     quick = args.quick
     sys.path.insert(0, str(REPO / 'test'))
@@ -219,6 +278,13 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix='recorder_bench_') as tmp, \
             isolated_domain() as domain:
         workdir = Path(tmp)
+        stops = [bench_failed_stop(workdir, domain, hog) for hog in (False, True)
+                 for _ in range(1 if quick else args.failed_stops)]
+        print(f'failed recorder stops: median {np.median(stops):.2f} s, largest '
+              f'{max(stops):.2f} s; target {FAILED_STOP_TARGET_S:.0f} s with a sound bag: '
+              f'{"met" if max(stops) <= FAILED_STOP_TARGET_S else "NOT met"}')
+        if args.only_failed_stops:
+            return 0
         bench_writer(50_000 if quick else 200_000, workdir)
         bench_large_bag(50_000 if quick else args.large_bag_messages)
         n = 10_000 if quick else args.dds_messages

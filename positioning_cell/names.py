@@ -149,5 +149,7 @@ STATUS_TRAJECTORY = 'leg_driver: trajectory'
 STATUS_MEASUREMENT = 'pose_measurement'
 STATUS_MONITOR_VERDICT = 'accuracy_monitor: settled pose'
 STATUS_MONITOR_INPUT = 'accuracy_monitor: input'
+#: The monitor's reading of the recorder (positioning_cell.recording.status.recording).
+STATUS_MONITOR_RECORDING = 'accuracy_monitor: recording'
 STATUS_RECORDER = 'recorder'
 STATUS_LIVE_VIEW = 'live_view'

@@ -1,6 +1,7 @@
 """The accuracy_monitor node in the test process: error topics, settled-pose verdicts on
 /diagnostics, the report equal to the library's batch analysis of the same samples, reset, and
-validated tolerance parameters."""
+validated tolerance parameters; the recording's state from the recorder's status (failed,
+silent)."""
 
 from __future__ import annotations
 
@@ -20,8 +21,9 @@ from std_srvs.srv import Trigger
 from positioning_cell import accuracy as acc
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
-from positioning_cell.nodes.messages import pose_msg, pose_stamped
+from positioning_cell.nodes.messages import diagnostic, pose_msg, pose_stamped, status_level
 from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
+from positioning_cell.recording import SILENT_AFTER_S
 
 pytestmark = pytest.mark.nodes
 
@@ -247,3 +249,47 @@ def test_accuracy_monitor_node(ros: InProcess) -> None:
     assert 'pose 1 cycle 1' in verdicts[4].message
     assert cell.report()['measured'] == jsonable(cell.batch(cell.meas).to_dict())
 
+
+
+def test_the_monitor_tells_when_recording_stopped(ros: InProcess) -> None:
+    """The monitor reads the recorder's status (here the test's) through the library's rule:
+    nothing before a recorder is heard of; its state while it records; recording stopped,
+    with the reason, in the report and in the monitor's own status when it fails or falls
+    silent."""
+    client = ros.client
+    ros.start(AccuracyMonitorNode)
+    diagnostics = client.collect(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+    pub = client.node.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+
+    def report() -> Any:
+        response = client.call(Trigger, '/accuracy_monitor/report', Trigger.Request())
+        return json.loads(response.message)['recording']
+
+    def recorder(level: str, message: str, state: str) -> None:
+        pub.publish(diagnostic('recorder', level, message, {'state': state},
+                               client.node.get_clock().now().to_msg()))
+
+    def told(level: int) -> list[DiagnosticStatus]:
+        return [s for a in list(diagnostics) for s in a.status
+                if s.name == 'accuracy_monitor: recording' and status_level(s) == level]
+
+    assert report() is None
+    wait_until(lambda: recorder('ok', 'recording', 'recording') or report(), 10.0,
+               'the monitor to hear the recorder')
+    assert report() == {'level': 0, 'message': 'recording', 'stopped': False}
+    failure = ('recording stopped: ENOSPC (No space left on device) on write of '
+               '/runs/x/bag/bag_0.mcap; bag closed with 1234 messages, 0 lost')
+    recorder('error', failure, 'failed')
+    wait_until(lambda: report()['stopped'], 10.0, 'the monitor to see the failure')
+    assert report() == {'level': 2, 'message': failure, 'stopped': True}
+    assert wait_until(lambda: told(2), 10.0, "the monitor's status")[0].message == failure
+
+    # A recorder again, which then falls silent: recording stopped after SILENT_AFTER_S.
+    wait_until(lambda: recorder('ok', 'recording', 'recording') or not report()['stopped'],
+               10.0, 'the monitor to hear the recorder again')
+    silent = wait_until(lambda: (r := report())['stopped'] and r, SILENT_AFTER_S + 10.0,
+                        'the monitor to find the recorder silent')
+    assert silent['level'] == 2
+    assert silent['message'].startswith('recording stopped: recorder silent since ')
+    wait_until(lambda: any(s.message == silent['message'] for s in told(2)), 10.0,
+               "the monitor's status on the silence")

@@ -1,13 +1,18 @@
 """positioning_cell.bag without ROS: write → read round trips through two independent decoders
 (rosbags, and mcap + mcap_ros2), splits, compression, metadata.yaml, recovery of truncated
-files, replay timing, and clear errors on bad input."""
+files, replay timing, clear errors on bad input, and a failing disk (faults injected at every
+call that writes, a file size limit, a dead disk; a real full tmpfs where mounting is allowed):
+the bag closed with every message accepted, or left for recover_bag."""
 
 from __future__ import annotations
 
+import errno
+import os
 import subprocess
 import sys
 import zlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -32,9 +37,10 @@ from positioning_cell.bag import (
     verify_bag,
 )
 from positioning_cell.bag.metadata import make_qos
-from positioning_cell.bag.writer import jazzy_typestore
+from positioning_cell.bag.writer import RESERVE_FILE, BagWriteError, jazzy_typestore
 from positioning_cell.errors import InputError
 from positioning_cell.names import CELL_TOPICS
+from positioning_cell.testing.disks import FaultyDisk, MountError, small_filesystem
 from positioning_cell.tools import recover_bag as recover_tool
 
 TS = jazzy_typestore()
@@ -428,6 +434,166 @@ def test_play_waits_for_due_times() -> None:
         PlaybackTiming(0.0, T0)
     with pytest.raises(InputError, match='start_offset_s'):
         PlaybackTiming.starting(T0, 1.0, -1.0)
+
+
+# -- a failing disk ----------------------------------------------------------------------------
+def _read_back(bag: Path) -> list[RawMessage]:
+    """Every message of a closed bag, checked sound first (verify_bag: CRCs, index)."""
+    check = verify_bag(bag)
+    assert check.sound and all(f.complete for f in check.files), check
+    return _read_rosbags(bag)
+
+
+@pytest.mark.parametrize('code', [errno.ENOSPC, errno.EIO], ids=['ENOSPC', 'EIO'])
+@pytest.mark.parametrize('operation', ['write', 'flush', 'split', 'close'])
+def test_a_failed_write_closes_the_bag_with_every_message(tmp_path: Path, code: int,
+                                                          operation: str,
+                                                          monkeypatch: pytest.MonkeyPatch
+                                                          ) -> None:
+    """The disk fails once, in the middle of a record, at each call that writes: the bag is
+    closed (the torn record cut off, the chunk being filled written after all) with every
+    message accepted, and the failure names the errno, the call and the file."""
+    disk = FaultyDisk(monkeypatch)
+    written = _messages(1200)
+    # 'split': chunks only at a flush or a split (1 MiB), a new file every 100 ms of log time
+    options: dict[str, Any] = ({'chunk_bytes': 2**20, 'split_max_duration_s': 0.1}
+                               if operation == 'split' else {'chunk_bytes': 4096})
+    writer = BagWriter(tmp_path / 'bag', **options)
+    writer.add_topic('/positioner/target', 'geometry_msgs/msg/PoseStamped', [LATCHED])
+    accepted = 0
+    with pytest.raises(BagWriteError) as raised:
+        for i, m in enumerate(written):
+            if i == 450:
+                disk.fail(code, after=37)
+                if operation == 'flush':
+                    writer.flush()
+                elif operation == 'close':
+                    writer.close()
+            accepted += 1
+            writer.write(m.topic, m.msgtype, m.data, m.log_time_ns)
+            if i % 100 == 99 and operation != 'split':  # a split flushes on its own
+                writer.flush()
+    failure = raised.value.failure
+    assert disk.failures == 1 and writer.closed and writer.failure == failure
+    assert (failure.operation, failure.errno) == (operation, code)
+    assert failure.error == errno.errorcode[code]
+    assert failure.file.parent == tmp_path / 'bag' and failure.file.suffix == '.mcap'
+    assert failure.closed and failure.lost == 0 and failure.messages == accepted
+    assert failure.line() == (f'{errno.errorcode[code]} ({os.strerror(code)}) on {operation} '
+                              f'of {failure.file}; bag closed with {accepted} messages, 0 lost')
+    assert _read_back(tmp_path / 'bag') == written[:accepted]
+    assert not (tmp_path / 'bag' / RESERVE_FILE).exists()
+    assert writer.close() == tmp_path / 'bag'  # closed already: nothing more happens
+    with pytest.raises(BagError, match='closed'):
+        writer.write(*written[0][:2], written[0].data, T0)
+
+
+@pytest.mark.parametrize('compression', ['none', 'zstd'])
+def test_a_file_size_limit_moves_the_last_chunks_to_one_more_file(
+        tmp_path: Path, compression: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """EFBIG for good at 48 kB a file (as RLIMIT_FSIZE): no room for the summary after the last
+    chunk, so chunks go back out of the file until it fits, and into a second file; nothing
+    is lost."""
+    disk = FaultyDisk(monkeypatch)
+    disk.limit(48_000)
+    written = _messages(20_000)
+    writer = BagWriter(tmp_path / 'bag', chunk_bytes=4096, compression=compression,
+                       reserve=False)
+    accepted = 0
+    with pytest.raises(BagWriteError) as raised:
+        for m in written:
+            accepted += 1
+            writer.write(m.topic, m.msgtype, m.data, m.log_time_ns)
+    failure = raised.value.failure
+    assert failure.error == 'EFBIG' and failure.operation == 'write'
+    assert failure.closed and failure.lost == 0 and failure.messages == accepted
+    assert [f.name for f in writer.files] == ['bag_0.mcap', 'bag_1.mcap']
+    assert all(f.stat().st_size <= 48_000 for f in writer.files)
+    assert _read_back(tmp_path / 'bag') == written[:accepted]
+    assert _metadata(tmp_path / 'bag')['message_count'] == accepted
+
+
+def test_a_dead_disk_leaves_what_recover_bag_restores(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """EIO for good, cutting back included: the file cannot be finished. No metadata.yaml
+    (a reader says to run recover_bag); the failure counts what is on disk, and recover_bag
+    restores exactly that, a prefix of what was written."""
+    disk = FaultyDisk(monkeypatch)
+    written = _messages(2000)
+    writer = BagWriter(tmp_path / 'bag', chunk_bytes=4096)
+    accepted = 0
+    with pytest.raises(BagWriteError) as raised:
+        for i, m in enumerate(written):
+            if i == 900:
+                disk.fail(errno.EIO, after=100, once=False)
+                disk.cut_fails = True
+            accepted += 1
+            writer.write(m.topic, m.msgtype, m.data, m.log_time_ns)
+    failure = raised.value.failure
+    assert failure.error == 'EIO' and not failure.closed
+    assert 0 < failure.messages < accepted and failure.lost == accepted - failure.messages
+    assert f'bag NOT closed: recover_bag {tmp_path / "bag"} restores {failure.messages} ' \
+           f'messages' in failure.line()
+    assert not (tmp_path / 'bag' / 'metadata.yaml').exists()
+    with pytest.raises(BagError, match='recover_bag'):
+        BagReader(tmp_path / 'bag')
+    monkeypatch.undo()  # the disk is repaired
+    report = recover_bag(tmp_path / 'bag')
+    assert report.message_count == failure.messages
+    assert _read_back(tmp_path / 'bag') == written[:failure.messages]
+
+
+def test_the_reserve_grows_with_the_index_and_goes_at_close(tmp_path: Path) -> None:
+    writer = BagWriter(tmp_path / 'bag', chunk_bytes=1024)
+    reserve = tmp_path / 'bag' / RESERVE_FILE
+    first = writer.reserve_bytes
+    assert first >= 2 * 1024 and reserve.stat().st_size == first
+    for i, m in enumerate(_messages(30_000)):
+        writer.write(m.topic, m.msgtype, m.data, m.log_time_ns)
+        if i % 1000 == 999:
+            writer.flush()
+    # Closing needs the index of ~3400 chunks now: the reserve grew to twice that at least.
+    current = writer._file
+    assert current is not None
+    assert writer.reserve_bytes >= 2 * current.close_bytes() > first
+    assert reserve.stat().st_size == writer.reserve_bytes
+    data_bytes, reserved = current.size(), writer.reserve_bytes
+    writer.close()
+    assert not reserve.exists() and writer.reserve_bytes == 0
+    tail = writer.files[0].stat().st_size - data_bytes
+    assert tail + len((tmp_path / 'bag' / 'metadata.yaml').read_bytes()) < reserved / 2
+    print(f'close wrote {tail} + metadata.yaml bytes; reserve {reserved}')
+    assert BagWriter(tmp_path / 'none', reserve=False).reserve_bytes == 0
+
+
+def test_a_disk_refusing_the_first_bytes_leaves_nothing(tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    FaultyDisk(monkeypatch).fail(errno.ENOSPC, after=0, once=False)
+    with pytest.raises(BagError, match='cannot start the bag: No space left on device'):
+        BagWriter(tmp_path / 'parent' / 'bag')
+    assert not (tmp_path / 'parent' / 'bag').exists()
+
+
+def test_a_full_filesystem_closes_the_bag_with_the_reserve(tmp_path: Path) -> None:
+    """A real ENOSPC: a 2 MiB tmpfs filled by the writer. The reserve's space closes the bag
+    with every message accepted (needs the right to mount: root, as in CI)."""
+    written = _messages(60_000)
+    try:
+        with small_filesystem(tmp_path / 'disk', 2 * 2**20) as disk:
+            writer = BagWriter(disk / 'bag', chunk_bytes=16384, compression='zstd')
+            accepted = 0
+            with pytest.raises(BagWriteError) as raised:
+                for i, m in enumerate(written):
+                    accepted += 1
+                    writer.write(m.topic, m.msgtype, m.data, m.log_time_ns)
+                    if i % 500 == 499:
+                        writer.flush()
+            failure = raised.value.failure
+            assert failure.error == 'ENOSPC' and failure.closed and failure.lost == 0
+            assert failure.messages == accepted > 10_000
+            assert _read_back(disk / 'bag') == written[:accepted]
+    except MountError as err:
+        pytest.skip(f'a full filesystem needs a tmpfs: {err}')
 
 
 def test_library_imports_without_rclpy() -> None:

@@ -1,8 +1,9 @@
 """``cell watch`` in a real terminal: the executable runs in a tmux pane (its own tmux server
 socket) against poses the test publishes on a private domain, and the pane (``capture-pane``)
 shows the deviation of the known pose in the user frame with the right numbers and the in/out
-markers in colour; ``q`` quits with exit 0. The time to the first full table is a figure of
-benchmarks/live_view.py (the issue's 2 s), not a timed assertion here."""
+markers in colour, and the recording line tells when the recorder fails; ``q`` quits with
+exit 0. The time to the first full table is a figure of benchmarks/live_view.py (the issue's
+2 s), not a timed assertion here."""
 
 from __future__ import annotations
 
@@ -16,11 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cell_harness import Client, executable, isolated_domain, wait_until
+from diagnostic_msgs.msg import DiagnosticArray
 from fake_cell import FakeCell, stand_in_positioner
 from scipy.spatial.transform import Rotation
 from tmux_pane import TmuxPane
 
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.nodes.messages import diagnostic
+from positioning_cell.nodes.qos import DIAGNOSTICS_QOS
 from positioning_cell.tools.processes import cell_environment
 
 pytestmark = [pytest.mark.nodes,
@@ -63,7 +67,7 @@ def cell(tmp_path: Path) -> Iterator[tuple[int, Client]]:
 
 def test_the_watch_shows_the_known_deviation_in_colour_and_q_quits(
         cell: tuple[int, Client], tmp_path: Path) -> None:
-    domain, _ = cell
+    domain, client = cell
     command = f'{shlex.quote(executable("cell"))} watch --frame user --domain {domain}'
     with TmuxPane(f'pc_watch_{domain}', command, cell_environment(domain), tmp_path) as pane:
         def full_table() -> str | None:
@@ -81,6 +85,22 @@ def test_the_watch_shows_the_known_deviation_in_colour_and_q_quits(
         assert '+10.0 µm' in lines['z'] and '5.0 µm' in lines['z']
         assert '64.0 µm' in lines['|Δp|'] and 'OUT' in lines['|Δp|']
         assert 'frame user' in shown and 'OUT OF TOLERANCE' in shown
+        assert 'recording: no recorder seen' in pane.screen()
+        # A recorder that fails: the watch shows that recording stopped, with the reason.
+        failure = 'recording stopped: ENOSPC (No space left on device) on write of /b/b_0.mcap'
+        wait_until(lambda: client.node.count_subscribers('/diagnostics') > 0, 30.0,
+                   "the watch's /diagnostics subscription")
+        status = client.node.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+
+        def stopped() -> str | None:
+            status.publish(diagnostic('recorder', 'error', failure, {'state': 'failed'},
+                                      client.node.get_clock().now().to_msg()))
+            s = pane.screen(escapes=True)
+            return s if 'recording stopped: ENOSPC' in s else None
+        line = next(x for x in wait_until(stopped, 30.0, 'the recording line').splitlines()
+                    if 'recording:' in x)
+        assert '\x1b[31mERROR' in line, line  # in red
+        assert failure in ' '.join(pane.screen().split())  # (wrapped at the pane's width)
         pane.keys('q')
         wait_until(lambda: 'exited' in pane.screen(), 30.0, 'the watch to quit on q')
         assert 'exited 0' in pane.screen()

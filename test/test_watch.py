@@ -1,7 +1,8 @@
 """The watch window's library (positioning_cell.watch): the 6-D deviation in base and in the
 user frame against independent constructions (hand-built matrices, the monitor's pose_error,
 finite differences of the uncertainty map), the scene against the kinematics, the state's
-refusals, the table and the rich rendering with its colours."""
+refusals, the table and the rich rendering with its colours, and the recording line (the
+recorder's status through positioning_cell.recording's rule)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ from positioning_cell.core.poses import pose_error
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.nodes.live_view_messages import status_document
+from positioning_cell.recording import SILENT_AFTER_S, RecorderReport
 from positioning_cell.tools.cell_watch import render
 from positioning_cell.watch.deviation import deviation, watched_pose
 from positioning_cell.watch.scene import arrow_quaternion, scene, stroke_colour
@@ -216,3 +219,32 @@ def test_throttle_passes_jittered_inputs_at_the_limit_and_thins_faster_ones() ->
     for bad in ((0.0, 2.0), (float('nan'), 2.0), (20.0, 0.5)):
         with pytest.raises(InputError):
             Throttle(*bad)
+
+
+def test_the_watch_tells_when_recording_stopped() -> None:
+    """The recording line of ``cell watch`` and the live view's status follow the recorder's
+    status through the one rule (positioning_cell.recording): no recorder heard of, recording,
+    silent, failed."""
+    state = WatchState(MECH)
+
+    def shown(now: float, styles: bool = False) -> str:
+        console = Console(record=True, width=200, force_terminal=True,
+                          color_system='standard', file=io.StringIO())
+        console.print(render(state.snapshot(), 'base', now))
+        return console.export_text(styles=styles)
+
+    assert 'recording: no recorder seen' in shown(100.0)
+    assert status_document(state.snapshot(), 100.0)['recording'] is None
+    state.recorder(RecorderReport(0, 'recording', {'state': 'recording'}, 100.0))
+    assert 'recording: OK recording' in shown(101.0)
+    assert status_document(state.snapshot(), 101.0)['recording'] == {
+        'level': 0, 'message': 'recording', 'stopped': False}
+    silent = shown(100.0 + SILENT_AFTER_S + 1.0)
+    assert 'recording: ERROR recording stopped: recorder silent since' in silent
+    failure = ('recording stopped: ENOSPC (No space left on device) on write of '
+               '/runs/x/bag/bag_0.mcap; bag closed with 1234 messages, 0 lost')
+    state.recorder(RecorderReport(2, failure, {'state': 'failed'}, 102.0))
+    assert f'recording: ERROR {failure}' in shown(102.5)
+    assert f'recording: \x1b[0m\x1b[1;31mERROR \x1b[0m\x1b[1m{failure}' in shown(102.5, True)
+    assert status_document(state.snapshot(), 200.0)['recording'] == {
+        'level': 2, 'message': failure, 'stopped': True}

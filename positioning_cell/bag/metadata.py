@@ -174,9 +174,14 @@ def metadata_yaml(metadata: Mapping[str, Any], *, inner: bool = False) -> str:
 
 def write_metadata(bag_dir: Path, topics: Sequence[TopicMeta], files: Sequence[FileSummary],
                    custom_data: Mapping[str, str] | None = None) -> Path:
-    """Write ``bag_dir/metadata.yaml`` atomically (temporary file, then rename)."""
+    """Write ``bag_dir/metadata.yaml`` atomically (temporary file, then rename; an OSError
+    leaves no part of it behind)."""
     path = bag_dir / METADATA_FILE
     tmp = path.with_suffix('.yaml.tmp')
-    tmp.write_text(metadata_yaml(bag_metadata(topics, files, custom_data)), encoding='utf-8')
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(metadata_yaml(bag_metadata(topics, files, custom_data)), encoding='utf-8')
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
     return path

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from positioning_cell.bag.writer import MAX_CHUNK_BYTES
 from positioning_cell.parameters import check_fields, group, setting
+from positioning_cell.recording.disk import DiskSettings
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,7 @@ class RecorderSettings:
     queue_depth: int = setting(0, 'subscription history per topic (0: keep all)', 'messages',
                                low=0, high=1_000_000)
     split: SplitSettings = group(SplitSettings, 'file splits')
+    disk: DiskSettings = group(DiskSettings, 'free space of the bag\'s filesystem (WARN margins)')
 
     def __post_init__(self) -> None:
         check_fields(self)

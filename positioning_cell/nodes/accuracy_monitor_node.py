@@ -3,14 +3,22 @@
 the simulation truth published, the true pose against the target and the tracker against the
 truth, reported apart. The rules: :class:`positioning_cell.accuracy.monitor.Monitor`.
 
+It also watches the recorder's status on /diagnostics and tells when recording stopped (the
+rule: :func:`positioning_cell.recording.recording`): its own status ``accuracy_monitor:
+recording`` every second once a recorder was heard of, and at once on a change (ERROR
+``recording stopped: <reason>`` when the recorder failed or went silent, WARN when it was
+stopped; logged once), and ``recording`` in the report.
+
 /accuracy_monitor/report returns its JSON (:meth:`Monitor.report`, plus the publishers each
-input matched); /accuracy_monitor/reset clears the statistics but keeps the current target.
+input matched and the recording's state); /accuracy_monitor/reset clears the statistics but
+keeps the current target.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -25,6 +33,9 @@ from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.parameters import NodeParameters
 from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
 from positioning_cell.nodes.spin import run
+from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recording, recording
+
+_LEVELS = ('ok', 'warn', 'error')
 
 
 def _pose(header: Any, pose: Any) -> tuple[float, str, Any, Any]:
@@ -57,6 +68,12 @@ class AccuracyMonitorNode(Node):
                                                       self._on_truth, STREAM_QOS)}
         self.create_service(Trigger, names.MONITOR_REPORT, self._report, qos_profile=SERVICE_QOS)
         self.create_service(Trigger, names.MONITOR_RESET, self._reset, qos_profile=SERVICE_QOS)
+        # The recorder's latest status (received on the wall clock, s) and what was told of it.
+        self.recorder: RecorderReport | None = None
+        self.recording: Recording | None = None
+        self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
+                                 DIAGNOSTICS_QOS)
+        self.create_timer(STATUS_PERIOD_S, lambda: self._check_recording(periodic=True))
 
     def _on_change(self, settings: MonitorSettings, changed: frozenset[str]) -> None:
         self.monitor.tolerances = settings.tolerance
@@ -104,11 +121,38 @@ class AccuracyMonitorNode(Node):
         else:
             self.get_logger().error(message)
 
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name == names.STATUS_RECORDER:
+                self.recorder = RecorderReport(m.status_level(status), status.message,
+                                               m.status_values(status), time.time())
+                self._check_recording()
+
+    def _check_recording(self, periodic: bool = False) -> None:
+        """Publish the recording's state (periodically, and when it changed: the recorder
+        failed, stopped or went silent, or recovers); log a stop once."""
+        state = recording(self.recorder, time.time())
+        changed = state != self.recording
+        if state is None or not (changed or periodic):
+            return
+        self.recording = state
+        self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_RECORDING, _LEVELS[state.level],
+                                           state.message, {'stopped': state.stopped},
+                                           self.get_clock().now().to_msg()))
+        if not changed:
+            return
+        if state.level >= 2:  # rclpy ties one severity to each logging call site
+            self.get_logger().error(state.message)
+        elif state.stopped:
+            self.get_logger().warning(state.message)
+
     def _report(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         doc = self.monitor.report()
         # Publishers each input subscription has matched: a driver waits for these before the
         # first command, so that no early message reaches the monitor out of order.
         doc['publishers'] = {t: sub.get_publisher_count() for t, sub in self.inputs.items()}
+        state = recording(self.recorder, time.time())
+        doc['recording'] = None if state is None else state.to_dict()
         response.success, response.message = True, json.dumps(doc)
         return response
 

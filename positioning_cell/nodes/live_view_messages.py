@@ -177,10 +177,14 @@ def _status(status: Status | None) -> dict[str, Any] | None:
     return None if status is None else {'level': status.level, 'message': status.message}
 
 
-def status_document(snapshot: Snapshot) -> dict[str, Any]:
-    """The /live/status message: the positioner's state, the last verdict, what has not come
-    yet, and whether the monitor's tolerances and the coordinate systems are known."""
+def status_document(snapshot: Snapshot, now: float) -> dict[str, Any]:
+    """The /live/status message at wall time ``now`` (s): the positioner's state, the last
+    verdict, the recording (``stopped`` true when the recorder failed, stopped or went silent;
+    null while no recorder was heard of), what has not come yet, and whether the monitor's
+    tolerances and the coordinate systems are known."""
+    record = snapshot.recording(now)
     return {'positioner': _status(snapshot.positioner), 'verdict': _status(snapshot.verdict),
+            'recording': None if record is None else record.to_dict(),
             'waiting_for': snapshot.waiting_for(),
             'tolerances_known': snapshot.tolerances is not None,
             'coordinate_systems_known': snapshot.systems_known}
@@ -207,6 +211,9 @@ def status_schema() -> dict[str, Any]:
         'level': {'type': 'integer'}, 'message': {'type': 'string'}}}
     return {'type': 'object', 'properties': {
         'positioner': status, 'verdict': status,
+        'recording': {'type': ['object', 'null'], 'properties': {
+            'level': {'type': 'integer'}, 'message': {'type': 'string'},
+            'stopped': {'type': 'boolean'}}},
         'waiting_for': {'type': 'array', 'items': {'type': 'string'}},
         'tolerances_known': {'type': 'boolean'},
         'coordinate_systems_known': {'type': 'boolean'}}}
@@ -245,7 +252,7 @@ class LiveChannels:
             self._commanded = snapshot.commanded
             self.scene.log(scene_update(scene, stamp, static=full or changed))
         self.transforms.log(frame_transforms(snapshot, stamp))
-        self.status.log(status_document(snapshot))
+        self.status.log(status_document(snapshot, stamp))
         dev = snapshot.deviation(frame)
         if dev is not None:
             self.deviation.log(deviation_document(dev, snapshot.measured_stamp))

@@ -39,7 +39,8 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
     """Init, build the node, spin until SIGINT / SIGTERM / shutdown, clean up (the node's
     ``close()`` if it has one, then destroy it, then shut the context down). A node that cannot
     be built (invalid parameters, an unreadable bag: a PositioningError) prints the reason and
-    exits 2.
+    exits 2. A node with an ``exit_status`` attribute ends its own run by setting it (an int,
+    not None; also from ``close()``): the spin returns and that is the exit status (else 0).
 
     rclpy's own signal handlers are not installed: they shut the context down at once, while a
     timer callback may be publishing on it ("publisher's context is invalid", a FATAL log and a
@@ -64,7 +65,7 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
                     else EventsExecutor())
         executor.add_node(node)
         never: Future = Future()
-        while rclpy.ok() and not stop_requested():
+        while rclpy.ok() and not stop_requested() and _exit_status(node) is None:
             executor.spin_until_future_complete(never, timeout_sec=STOP_POLL_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -83,4 +84,10 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return _exit_status(node) or 0
+
+
+def _exit_status(node: Node | None) -> int | None:
+    """The exit status a node asked for (its ``exit_status``), None if it did not."""
+    status = getattr(node, 'exit_status', None)
+    return status if isinstance(status, int) else None

@@ -1,6 +1,7 @@
 """What a watch window reads of the running cell, into a
 :class:`~positioning_cell.watch.state.WatchState`: the command, the estimate, the tracker's
-measurements, the coordinate systems, the positioner's state and the monitor's verdicts, and
+measurements, the coordinate systems, the positioner's state, the monitor's verdicts and the
+recorder's status, and
 two other nodes' parameters (the accuracy monitor's tolerances, the tracker's target layout),
 asked for until they answer and followed on /parameter_events. Read-only: nothing here
 publishes to the cell or sets anything. Used by ``live_view_node`` and ``cell watch``."""
@@ -29,6 +30,7 @@ from positioning_cell.nodes import messages as m
 from positioning_cell.nodes import operator_messages as om
 from positioning_cell.nodes.parameters import parse_answer, requested_names
 from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
+from positioning_cell.recording.status import RecorderReport
 from positioning_cell.watch.state import Snapshot, Status, WatchState
 
 #: A viewer takes the newest samples and never holds a writer back: best effort, shallow.
@@ -192,6 +194,9 @@ class WatchInputs:
                 self.state.positioner(Status(m.status_level(status), status.message, now))
             elif status.name == names.STATUS_MONITOR_VERDICT:
                 self.state.verdict(Status(m.status_level(status), status.message, now))
+            elif status.name == names.STATUS_RECORDER:
+                self.state.recorder(RecorderReport(m.status_level(status), status.message,
+                                                   m.status_values(status), now))
 
 
 __all__ = ['WATCH_QOS', 'RemoteParameters', 'WatchInputs']

@@ -1,10 +1,11 @@
 """``cell watch``: the terminal watch window (rich): per axis the commanded and measured value,
 the deviation, the tolerance with an in/out marker in colour, and the tracker's standard
 uncertainty, in the ``user`` or ``base`` frame (:mod:`positioning_cell.watch`); above it the
-positioner's state and the accuracy monitor's last verdict. Redrawn ``--rate`` times a second
-(5 by default) in the terminal's alternate screen; works over SSH and in tmux (plain ANSI
-colours, ASCII markers). ``q`` or Ctrl-C quits (exit 0). Read-only: it subscribes and reads
-parameters, it never commands the cell."""
+positioner's state, the accuracy monitor's last verdict and the recording (``recording
+stopped: <reason>`` when the recorder failed, stopped or went silent). Redrawn ``--rate``
+times a second (5 by default) in the terminal's alternate screen; works over SSH and in tmux
+(plain ANSI colours, ASCII markers). ``q`` or Ctrl-C quits (exit 0). Read-only: it
+subscribes and reads parameters, it never commands the cell."""
 
 from __future__ import annotations
 
@@ -85,9 +86,12 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
     dev = snapshot.deviation(frame)
     title = Text.assemble(('cell watch', 'bold'), f'  frame {frame}  ',
                           time.strftime('%H:%M:%S', time.localtime(now)))
+    record = snapshot.recording(now)
     parts: list[Any] = [
         title, _status_text('positioner', snapshot.positioner, 'no status yet'),
-        _status_text('last verdict', snapshot.verdict, 'none since the watch started')]
+        _status_text('last verdict', snapshot.verdict, 'none since the watch started'),
+        _status_text('recording', None if record is None else
+                     Status(record.level, record.message, now), 'no recorder seen')]
     waiting = snapshot.waiting_for()
     if frame != names.BASE_FRAME and not snapshot.systems_known:
         waiting.append(f'{names.COORDINATE_SYSTEMS} (identity user and object CS meanwhile)')

@@ -16,6 +16,7 @@ from positioning_cell.core.poses import FloatArray, as_pose_batch
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import USER_FRAME, CoordinateSystems, machine_origin
 from positioning_cell.names import ESTIMATED_POSE, MEASURED_POSE, NODE_POSITIONER, TARGET
+from positioning_cell.recording.status import RecorderReport, Recording, recording
 from positioning_cell.watch.deviation import Deviation, deviation
 from positioning_cell.watch.scene import Scene, scene
 
@@ -44,7 +45,8 @@ class Snapshot:
     T_machine_user and ``object_in_platform`` T_platform_object as (p (3,) m, q (4,)), once
     the coordinate systems and the machine are known; ``mech`` the machine (None while
     unknown: the user frame, which starts at its home pose, and the scene wait for it);
-    stamps in s (header stamps of the poses)."""
+    ``recorder`` the recorder's latest status (:meth:`recording` reads it); stamps in s
+    (header stamps of the poses)."""
 
     mech: Mechanism | None
     commanded: Pose | None = None
@@ -59,6 +61,7 @@ class Snapshot:
     targets_platform: FloatArray | None = None
     positioner: Status | None = None
     verdict: Status | None = None
+    recorder: RecorderReport | None = None
     user_in_base: Pose | None = None
     object_in_platform: Pose | None = None
 
@@ -73,6 +76,12 @@ class Snapshot:
                                               (MEASURED_POSE, self.measured),
                                               (ESTIMATED_POSE, self.estimated)) if value is None]
         return missing + ([f'/{NODE_POSITIONER} mechanism.*'] if self.mech is None else [])
+
+    def recording(self, now: float) -> Recording | None:
+        """The recording's state at wall time ``now`` (s) from the recorder's latest status
+        (:func:`positioning_cell.recording.recording`: stopped when it failed, stopped or went
+        silent); None while no recorder was heard of."""
+        return recording(self.recorder, now)
 
     def deviation(self, frame: str) -> Deviation | None:
         """The measured pose's :class:`~positioning_cell.watch.deviation.Deviation` from the
@@ -175,3 +184,7 @@ class WatchState:
     def verdict(self, status: Status) -> None:
         """The accuracy monitor's last settled-pose verdict."""
         self._update(verdict=status)
+
+    def recorder(self, report: RecorderReport) -> None:
+        """The recorder's latest status (its ``received`` time on the wall clock, s)."""
+        self._update(recorder=report)
