@@ -26,7 +26,8 @@ a text from elsewhere (a YAML error) through :func:`shorten`, and :func:`brief_e
 what a reader's own checks raise to :data:`MESSAGE_CHARS`.
 
 :func:`within` bounds the time of a load that a caller must not wait on indefinitely (the
-positioner's parameter callback): it runs in a worker thread and is given up after a bound.
+positioner's parameter callback): it runs in a worker thread and is given up after a bound, or
+at once when the process stops (:func:`abandon_loads`: no stop waits for a file).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import os
 import reprlib
 import stat
 import threading
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -355,11 +357,28 @@ def load_yaml(path: str | os.PathLike[str], kind: FileKind,
 
 
 # -- time ------------------------------------------------------------------------------------
+#: Set once the process stops (:func:`abandon_loads`).
+_STOPPING = threading.Event()
+#: How often a wait in :func:`within` looks whether the process stops (s).
+_POLL_S = 0.02
+
+
+def abandon_loads() -> None:
+    """The process stops (the nodes' spin loop calls this on SIGINT / SIGTERM): every load
+    waited on in :func:`within`, now or later, is given up at once, so that no stop waits for
+    a file (the workers are left to end on their own)."""
+    _STOPPING.set()
+
+
 def within(seconds: float, work: Callable[[], T], what: str,
-           error: type[ConfigError] = ConfigError) -> T:
+           error: type[ConfigError] = ConfigError, *,
+           cancel: threading.Event = _STOPPING) -> T:
     """``work()`` run in a worker thread and waited for at most ``seconds``: its value, or the
-    exception it raised; ``error`` saying that ``what`` did not finish in time otherwise (the
-    worker is left to end on its own, its result dropped)."""
+    exception it raised; ``error`` saying that ``what`` did not finish in time otherwise, or
+    at once when ``cancel`` is set (by default: once the process stops, :func:`abandon_loads`).
+    A worker given up on is left to end on its own, its result dropped."""
+    if cancel.is_set():
+        raise error(f'{what}: not loaded: the process is stopping')
     done = threading.Event()
     box: dict[str, Any] = {}
 
@@ -372,11 +391,14 @@ def within(seconds: float, work: Callable[[], T], what: str,
             done.set()
 
     threading.Thread(target=run, name=f'load: {shorten(what, 40)}', daemon=True).start()
-    if not done.wait(seconds):
-        raise error(f'{what}: not loaded within {seconds:g} s (a slow or stalled file '
-                    'system?)')
+    deadline = time.monotonic() + seconds
+    while not done.wait(min(_POLL_S, max(deadline - time.monotonic(), 0.0))):
+        if cancel.is_set():
+            raise error(f'{what}: not loaded: the process is stopping')
+        if time.monotonic() >= deadline:
+            raise error(f'{what}: not loaded within {seconds:g} s (a slow or stalled file '
+                        'system?)')
     if 'error' in box:
         raise box['error']
     value: T = box['value']
     return value
-

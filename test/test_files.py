@@ -271,6 +271,13 @@ def test_within_gives_up_on_a_load_that_does_not_finish() -> None:
                        match=r"^calibration file 'x': not loaded within 0.2 s"):
         files.within(0.2, lambda: release.wait(60.0), "calibration file 'x'",
                      calfile.CalibrationFileError)
+    stopping = threading.Event()
+    threading.Timer(0.2, stopping.set).start()
+    with pytest.raises(ConfigError, match=r"^calibration file 'x': not loaded: the process "
+                                          r'is stopping$'):
+        files.within(60.0, lambda: release.wait(60.0), "calibration file 'x'", cancel=stopping)
+    with pytest.raises(ConfigError, match='the process is stopping'):  # a later load too
+        files.within(60.0, lambda: 42, 'w', cancel=stopping)
     release.set()
     assert files.within(5.0, lambda: 42, 'w') == 42
     with pytest.raises(ZeroDivisionError):

@@ -29,15 +29,23 @@ def _exit_now(signum: int, frame: FrameType | None) -> None:
     os._exit(0)
 
 
+_on_stop: list[Callable[[], None]] = []
+
+
 def _remember(signum: int, frame: FrameType | None) -> None:
     _stop_requested.set()
+    for call in _on_stop:
+        call()
 
 
-def hold_stops() -> None:
-    """SIGINT / SIGTERM only set a flag (:func:`stop_requested`). Installed just before
+def hold_stops(on_stop: Callable[[], None] | None = None) -> None:
+    """SIGINT / SIGTERM only set a flag (:func:`stop_requested`) and call ``on_stop`` (quick,
+    no exception: it runs in the main thread between two bytecodes). Installed just before
     ``rclpy.init`` (which installs no handlers of its own): no exception lands in the middle
     of a callback, the context is not shut down under a publishing timer, and the spin loop
     returns between two callbacks once the flag is up."""
+    if on_stop is not None:
+        _on_stop.append(on_stop)
     for sig in _STOP_SIGNALS:
         signal.signal(sig, _remember)
 
