@@ -27,7 +27,8 @@ what a reader's own checks raise to :data:`MESSAGE_CHARS`.
 
 :func:`within` bounds the time of a load that a caller must not wait on indefinitely (the
 positioner's parameter callback): it runs in a worker thread and is given up after a bound, or
-at once when the process stops (:func:`abandon_loads`: no stop waits for a file).
+at once when the process stops (:func:`abandon_loads`, which also ends any parse under way: no
+stop waits for a file).
 """
 
 from __future__ import annotations
@@ -69,9 +70,9 @@ class FileKind:
 
 #: ROS 2 parameter files (config/cell.yaml: 20 KB) and what is read as one: run programs, axis
 #: tests, tolerance specs (each a few KB).
-PARAMETER_FILE = FileKind('parameter file', 2 * MIB)
+PARAMETER_FILE = FileKind('parameter file', 1 * MIB)
 #: Tolerance-analysis mechanisms (examples/: at most 7 KB).
-MECHANISM_FILE = FileKind('mechanism file', 1 * MIB)
+MECHANISM_FILE = FileKind('mechanism file', 512 * KIB)
 #: calibration.yaml (about 10 to 30 KB: 26 parameters and their covariance).
 CALIBRATION_FILE = FileKind('calibration file', 256 * KIB)
 #: The positioner's coordinate systems file (under 1 KB).
@@ -97,6 +98,8 @@ PLAIN_TAGS = frozenset(_YAML_TAG + t for t in ('str', 'int', 'float', 'bool', 'n
                                                  'map')) | {'!'}
 #: The event source: libyaml's parser, else PyYAML's own (same events, slower).
 _EVENTS: Any = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+#: Set once the process stops (:func:`abandon_loads`).
+_STOPPING = threading.Event()
 _OPEN_FLAGS = os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
 _READ_CHUNK = 1 * MIB
 
@@ -248,6 +251,10 @@ class RefusedYAMLError(yaml.MarkedYAMLError):
     """Valid YAML that the bounded loader does not build (module docstring)."""
 
 
+class _StoppingError(Exception):
+    """The process stops: a parse under way is given up (:func:`abandon_loads`)."""
+
+
 class BoundedSafeLoader(Composer, SafeConstructor, Resolver):
     """PyYAML's safe loader with the composer bounded (module docstring): the events come from
     libyaml's parser (PyYAML's where it is missing), the nodes from PyYAML's composer with
@@ -277,7 +284,14 @@ class BoundedSafeLoader(Composer, SafeConstructor, Resolver):
     def dispose(self) -> None:
         self._events.dispose()
 
+    def construct_object(self, node: Node, deep: bool = False) -> Any:
+        if _STOPPING.is_set():
+            raise _StoppingError
+        return super().construct_object(node, deep)
+
     def compose_node(self, parent: Node | None, index: Any) -> Node:
+        if _STOPPING.is_set():
+            raise _StoppingError
         event: Any = self.peek_event()
         if isinstance(event, AliasEvent):
             node: Any = super().compose_node(parent, index)  # ComposerError: undefined
@@ -336,6 +350,8 @@ def parse_yaml(text: str, where: str, error: type[ConfigError] = ConfigError) ->
         return loader.get_single_data()
     except RefusedYAMLError as err:
         raise error(f'{where}: refused: {_yaml_problem(err)}') from None
+    except _StoppingError:
+        raise error(f'{where}: not loaded: the process is stopping') from None
     except yaml.YAMLError as err:
         raise error(f'{where}: not valid YAML ({_yaml_problem(err)})') from None
     except (ValueError, OverflowError, RecursionError) as err:  # e.g. an integer too long
@@ -357,16 +373,15 @@ def load_yaml(path: str | os.PathLike[str], kind: FileKind,
 
 
 # -- time ------------------------------------------------------------------------------------
-#: Set once the process stops (:func:`abandon_loads`).
-_STOPPING = threading.Event()
 #: How often a wait in :func:`within` looks whether the process stops (s).
 _POLL_S = 0.02
 
 
 def abandon_loads() -> None:
     """The process stops (the nodes' spin loop calls this on SIGINT / SIGTERM): every load
-    waited on in :func:`within`, now or later, is given up at once, so that no stop waits for
-    a file (the workers are left to end on their own)."""
+    waited on in :func:`within`, now or later, is given up at once, and every YAML parse under
+    way or to come stops at its next node, so that no stop waits for a file (a worker given up
+    on ends on its own)."""
     _STOPPING.set()
 
 

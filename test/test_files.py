@@ -202,6 +202,18 @@ def test_plain_yaml_with_a_few_aliases_and_plain_tags_is_read() -> None:
     assert yaml.safe_load(text) == data  # the same values as PyYAML's safe loader
 
 
+def test_without_libyaml_the_bounds_are_the_same(monkeypatch: pytest.MonkeyPatch) -> None:
+    """PyYAML's own parser (a PyYAML built without libyaml) gives the composer the same
+    events: the same refusals, the same values."""
+    monkeypatch.setattr(files, '_EVENTS', yaml.SafeLoader)
+    with pytest.raises(ConfigError, match='refused: its aliases name more than 100000 nodes'):
+        files.parse_yaml(ALIAS_BOMB, 'bomb')
+    with pytest.raises(ConfigError, match=r'refused: tag !!python/object/apply:os\.system'):
+        files.parse_yaml('!!python/object/apply:os.system ["true"]\n', 'f')
+    assert files.parse_yaml('a: &a [1.5, x]\nb: *a\n', 'f') == {'a': [1.5, 'x'],
+                                                                'b': [1.5, 'x']}
+
+
 @pytest.mark.parametrize(('text', 'words'), [
     ('a: [1, 2', "while parsing a flow sequence, did not find expected ',' or ']' at line 2"),
     ('a: 1\n---\nb: 2\n', 'expected a single document in the stream'),
@@ -282,6 +294,17 @@ def test_within_gives_up_on_a_load_that_does_not_finish() -> None:
     assert files.within(5.0, lambda: 42, 'w') == 42
     with pytest.raises(ZeroDivisionError):
         files.within(5.0, lambda: 1 / 0, 'w')
+
+
+def test_a_stopping_process_parses_no_further(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Once the process stops (abandon_loads: SIGINT / SIGTERM in a node), a parse stops at
+    its next node: a large file read at a node's start does not hold its stop."""
+    stopping = threading.Event()
+    monkeypatch.setattr(files, '_STOPPING', stopping)
+    assert files.parse_yaml('a: [1, 2]', 'f') == {'a': [1, 2]}
+    files.abandon_loads()
+    with pytest.raises(ConfigError, match=r'^f: not loaded: the process is stopping$'):
+        files.parse_yaml('a: [1, 2]', 'f')
 
 
 # -- one reader --------------------------------------------------------------------------------
