@@ -252,8 +252,8 @@ def stalled(path, *args, **kwargs):
         threading.Event().wait()  # a read that never returns
     return real(path, *args, **kwargs)
 files.read_text = stalled
-from positioning_cell.nodes.kinematics_node import main
-sys.exit(main())
+from positioning_cell.nodes.entry import kinematics_node  # the console entry point
+sys.exit(kinematics_node())
 """
 
 

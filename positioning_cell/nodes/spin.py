@@ -3,6 +3,7 @@ exit on SIGINT and SIGTERM."""
 
 from __future__ import annotations
 
+import gc
 import sys
 from collections.abc import Callable, Sequence
 from enum import Enum
@@ -14,6 +15,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from rclpy.utilities import get_default_context
 
 from positioning_cell import files
 from positioning_cell.errors import PositioningError
@@ -58,6 +60,19 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
     hold_stops(files.abandon_loads)
     rclpy.init(args=list(args) if args is not None else None,
                signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        return _spin(node_factory, spin, threads)
+    finally:
+        rclpy.try_shutdown()
+        # The participant goes now, its shared memory with it, rather than in the interpreter's
+        # finalization (which entry.end_process skips): once the node's and the executor's
+        # handles are collected, the context is no longer in use and is destroyed at once.
+        gc.collect()
+        get_default_context().destroy()
+
+
+def _spin(node_factory: Callable[[], Node], spin: Spin, threads: int) -> int:
+    """:func:`run` from the node's construction to its destruction (the exit code)."""
     node: Node | None = None
     executor: Executor | None = None
     try:
@@ -93,5 +108,4 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
             executor.shutdown(timeout_sec=SHUTDOWN_WAIT_S)
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
     return 0
