@@ -7,8 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from positioning_cell import files
 from positioning_cell.errors import ConfigError
 
 PACKAGE = 'positioning_cell'
@@ -49,27 +48,22 @@ def config_path(name: str = 'cell.yaml') -> Path:
     return path
 
 
-def load_yaml_mapping(path: str | Path, what: str, expected: str) -> dict[str, Any]:
-    """Parse a YAML file that must hold a mapping; ConfigError naming ``what`` (e.g.
-    'parameter file') and the file for a missing file, invalid YAML, or another top level
+def load_yaml_mapping(path: str | Path, kind: files.FileKind, expected: str) -> dict[str, Any]:
+    """The YAML mapping of the file ``path`` of ``kind`` (read and parsed by
+    :func:`positioning_cell.files.load_yaml`: a regular file within the kind's size, bounded
+    YAML); ConfigError naming the kind and the file for a missing or unreadable file, one that
+    is not a regular file or too large, invalid or refused YAML, or another top level
     (``expected`` says what the mapping holds)."""
-    try:
-        text = Path(path).read_text()
-    except OSError as err:
-        raise ConfigError(f'cannot read {what} {path}: {err}') from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ConfigError(f'{what} {path} is not valid YAML: {err}') from err
+    data = files.load_yaml(path, kind)
     if not isinstance(data, dict):
-        raise ConfigError(f'{what} {path}: expected a mapping of {expected}, got '
+        raise ConfigError(f'{files.describe(kind, path)}: expected a mapping of {expected}, got '
                           f'{type(data).__name__}')
     return data
 
 
 def load_parameter_file(path: str | Path) -> dict[str, Any]:
-    """Parse a ROS 2 parameter file; ConfigError for a missing file or invalid YAML."""
-    return load_yaml_mapping(path, 'parameter file', 'node names')
+    """Parse a ROS 2 parameter file (:func:`load_yaml_mapping`); ConfigError says why not."""
+    return load_yaml_mapping(path, files.PARAMETER_FILE, 'node names')
 
 
 def node_parameters(data: Mapping[str, Any], node_name: str) -> dict[str, Any]:

@@ -123,7 +123,7 @@ def test_the_program_file_is_read_and_the_travel_checked(tmp_path: Path) -> None
                                                     'overshoot': 0.001})))
     test = load_axis_test(path, MECH)
     assert test == AxisTest((AxisPlan('leg3_theta', (-0.002, 0.001, 0.003), 0.001),), 2, 3, 0.0)
-    with pytest.raises(ConfigError, match='cannot read parameter file'):
+    with pytest.raises(ConfigError, match=r"parameter file '.*missing\.yaml': cannot be read"):
         load_axis_test(tmp_path / 'missing.yaml', MECH)
 
 

@@ -250,7 +250,7 @@ def test_unreadable_and_non_yaml_files_are_refused(tmp_path: Path) -> None:
     with pytest.raises(calfile.CalibrationFileError, match='cannot be read'):
         calfile.load(tmp_path / 'missing.yaml', MECH)
     (tmp_path / 'junk.yaml').write_text('calibration: [unclosed')
-    with pytest.raises(calfile.CalibrationFileError, match='not YAML'):
+    with pytest.raises(calfile.CalibrationFileError, match='not valid YAML'):
         calfile.load(tmp_path / 'junk.yaml', MECH)
 
 

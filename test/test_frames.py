@@ -491,7 +491,7 @@ _GOOD_OBJECT = '  object: {position_m: [0.0, 0.0, 0.0], quaternion_xyzw: [0.0, 0
 
 
 @pytest.mark.parametrize(('text', 'message'), [
-    ('coordinate_systems: [unclosed\n', 'not YAML'),
+    ('coordinate_systems: [unclosed\n', 'not valid YAML'),
     ('', 'expected exactly one mapping "coordinate_systems:", found NoneType'),
     ('systems: {}\n', r"found \['systems'\]"),
     ('coordinate_systems: 3\n', '"coordinate_systems" is not a mapping'),
@@ -553,4 +553,12 @@ def test_a_failed_write_changes_nothing(tmp_path: Path, monkeypatch: pytest.Monk
     assert sorted(os.listdir(tmp_path)) == ['cs.yaml']
     monkeypatch.undo()
     with pytest.raises(CoordinateSystemsFileError, match='cannot be written'):
-        write(tmp_path / 'missing' / 'cs.yaml', SYSTEMS)
+        write(path / 'cs.yaml', SYSTEMS)  # its folder would be a file
+
+
+def test_a_missing_folder_is_created(tmp_path: Path) -> None:
+    """A fresh ROS_HOME has no positioning_cell/ folder: the first write makes it."""
+    path = tmp_path / 'fresh_ros_home' / 'positioning_cell' / 'coordinate_systems.yaml'
+    assert load(path) == CoordinateSystems()
+    assert write(path, SYSTEMS) == path
+    assert_close(load(path).user, SYSTEMS.user, 1e-15)

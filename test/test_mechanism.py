@@ -73,5 +73,5 @@ def test_bad_parameter_file(tmp_path: pytest.TempPathFactory) -> None:
     path.write_text('a: [1, 2')
     with pytest.raises(ConfigError, match='not valid YAML'):
         load_parameter_file(path)
-    with pytest.raises(ConfigError, match='cannot read'):
+    with pytest.raises(ConfigError, match='cannot be read'):
         load_parameter_file(tmp_path / 'missing.yaml')  # type: ignore[operator]

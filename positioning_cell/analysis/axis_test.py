@@ -39,6 +39,7 @@ from positioning_cell.core.kinematics import forward, inverse
 from positioning_cell.core.limits import check_poses
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.files import brief_errors, excerpt
 from positioning_cell.limits.jog import LINEAR_AXES, axis_range
 
 FloatArray = NDArray[np.float64]
@@ -173,21 +174,22 @@ def home_joints(mech: Mechanism) -> FloatArray:
 def _integer(block: Mapping[str, Any], key: str, default: int, low: int) -> int:
     value = block.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise ConfigError(f'axis_test.{key} = {value!r}: must be an integer >= {low}')
+        raise ConfigError(f'axis_test.{key} = {excerpt(value)}: must be an integer >= {low}')
     return value
 
 
 def _number(value: Any, name: str, *, positive: bool) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(
             value) or (value <= 0.0 if positive else value < 0.0):
-        raise ConfigError(f'{name} = {value!r}: must be a number {"> 0" if positive else ">= 0"}')
+        raise ConfigError(f'{name} = {excerpt(value)}: must be a number '
+                          f'{"> 0" if positive else ">= 0"}')
     return float(value)
 
 
 def _finite(value: Any, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(
             value):
-        raise ConfigError(f'{name} = {value!r}: must be a finite number')
+        raise ConfigError(f'{name} = {excerpt(value)}: must be a finite number')
     return float(value)
 
 
@@ -202,13 +204,14 @@ def _plan(axis: Any, spec: Any) -> AxisPlan:
         raise ConfigError(f'{name}.{unknown[0]}: unknown key (targets, overshoot)')
     targets = spec.get('targets')
     if not isinstance(targets, list) or len(targets) < 2:
-        raise ConfigError(f'{name}.targets = {targets!r}: a list of at least 2 target positions '
+        raise ConfigError(f'{name}.targets = {excerpt(targets)}: a list of at least 2 target '
+                          'positions '
                           '(ISO 230-2: at least 5)')
     values = tuple(_finite(v, f'{name}.targets[{i}]') for i, v in enumerate(targets))
     for i in range(1, len(values)):
         if not values[i] > values[i - 1]:
-            raise ConfigError(f'{name}.targets[{i}] = {values[i]!r}: the targets must be '
-                              f'strictly increasing (targets[{i - 1}] = {values[i - 1]!r})')
+            raise ConfigError(f'{name}.targets[{i}] = {excerpt(values[i])}: the targets must be '
+                              f'strictly increasing (targets[{i - 1}] = {excerpt(values[i - 1])})')
     return AxisPlan(str(axis), values, _number(spec.get('overshoot'), f'{name}.overshoot',
                                                positive=True))
 
@@ -286,7 +289,9 @@ def _platform_along(mech: Mechanism, home: FloatArray, k: int, travel: FloatArra
 
 def load_axis_test(path: str | Path, mech: Mechanism) -> AxisTest:
     """Read and check an axis-test file (:func:`axis_test_from`)."""
-    return axis_test_from(load_parameter_file(path), mech)
+    data = load_parameter_file(path)
+    with brief_errors():
+        return axis_test_from(data, mech)
 
 
 # -- what the live procedure measures ------------------------------------------------------------

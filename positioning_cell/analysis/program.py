@@ -19,6 +19,7 @@ from positioning_cell.core.limits import check_poses
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.files import brief_errors, excerpt
 
 FloatArray = NDArray[np.float64]
 MODES = ('none', 'model', 'measured')
@@ -68,7 +69,7 @@ def _number(block: Mapping[str, Any], key: str, default: float, low: float) -> f
     value = block.get(key, default)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
             math.isfinite(value) and value >= low):
-        raise ConfigError(f'program.{key} = {value!r}: must be a number >= {low}')
+        raise ConfigError(f'program.{key} = {excerpt(value)}: must be a number >= {low}')
     return float(value)
 
 
@@ -84,11 +85,12 @@ def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
         raise ConfigError('program.poses: expected a mapping of pose names to poses')
     cycles = block.get('cycles', 1)
     if isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 1:
-        raise ConfigError(f'program.cycles = {cycles!r}: must be an integer >= 1')
+        raise ConfigError(f'program.cycles = {excerpt(cycles)}: must be an integer >= 1')
     modes = block.get('modes', list(MODES))
     if (not isinstance(modes, list) or not modes
             or any(m not in MODES for m in modes) or len(set(modes)) != len(modes)):
-        raise ConfigError(f'program.modes = {modes!r}: a list of distinct modes from {MODES}')
+        raise ConfigError(f'program.modes = {excerpt(modes)}: a list of distinct modes from '
+                          f'{MODES}')
     names, positions, quaternions = [], [], []
     for name, pose in poses.items():
         if not isinstance(pose, Mapping) or 'position' not in pose:
@@ -121,7 +123,7 @@ def _calibrating(block: Mapping[str, Any]) -> Calibrating | None:
     for key, low in (('poses', 8), ('hold_out', 0), ('samples', 1)):
         value = cal.get(key)
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise ConfigError(f'program.calibration.{key} = {value!r}: must be an integer '
+            raise ConfigError(f'program.calibration.{key} = {excerpt(value)}: must be an integer '
                               f'>= {low}')
         values.append(value)
     unknown = set(cal) - {'poses', 'hold_out', 'samples'}
@@ -132,7 +134,9 @@ def _calibrating(block: Mapping[str, Any]) -> Calibrating | None:
 
 def load_program(path: str | Path, mech: Mechanism) -> Program:
     """Read and check a program file (:func:`program_from`)."""
-    return program_from(load_parameter_file(path), mech)
+    data = load_parameter_file(path)
+    with brief_errors():
+        return program_from(data, mech)
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from positioning_cell import files
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.identify import Identification
 from positioning_cell.calibration.machine import MachineModel
@@ -97,8 +98,10 @@ def document(result: Identification, nominal: Mechanism, seating_force: float,
 
 
 def write(path: str | Path, content: dict[str, Any]) -> Path:
-    """Write the document to ``path`` (through a temporary file: never half a file)."""
+    """Write the document to ``path`` (through a temporary file: never half a file; its
+    folder created when missing)."""
     out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + '.part')
     tmp.write_text(yaml.safe_dump(content, sort_keys=False))
     tmp.replace(out)
@@ -107,30 +110,35 @@ def write(path: str | Path, content: dict[str, Any]) -> Path:
 
 def load(path: str | Path, nominal: Mechanism) -> Calibration:
     """Read and check a calibration file for the nominal machine ``nominal``;
-    CalibrationFileError naming what is wrong otherwise."""
-    where = f'calibration file {str(path)!r}'
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except OSError as err:
-        raise CalibrationFileError(f'{where}: cannot be read ({err.strerror})') from None
-    except yaml.YAMLError as err:
-        raise CalibrationFileError(f'{where}: not YAML ({err})') from None
+    CalibrationFileError naming what is wrong otherwise (in a short message: the file is read
+    by :func:`positioning_cell.files.load_yaml`, at most
+    :data:`~positioning_cell.files.CALIBRATION_FILE`'s size, its values quoted in excerpts)."""
+    data = files.load_yaml(path, files.CALIBRATION_FILE, CalibrationFileError)
+    with files.brief_errors():
+        return _calibration(data, nominal, files.describe(files.CALIBRATION_FILE, path))
+
+
+def _calibration(data: Any, nominal: Mechanism, where: str) -> Calibration:
+    """The calibration of a loaded document (:func:`load`)."""
     body = data.get('calibration') if isinstance(data, dict) else None
     if not isinstance(body, dict):
         raise CalibrationFileError(f'{where}: no "calibration:" mapping')
     if body.get('format') != FORMAT:
-        raise CalibrationFileError(f'{where}: format {body.get("format")!r}, expected {FORMAT}')
+        raise CalibrationFileError(f'{where}: format {files.excerpt(body.get("format"))}, '
+                                   f'expected {FORMAT}')
     mine = fingerprint(nominal)
     if body.get('mechanism_fingerprint') != mine:
         raise CalibrationFileError(
-            f'{where}: belongs to mechanism {body.get("mechanism_fingerprint")!r}, this '
-            f'positioner is {mine!r} (identified on another machine or geometry)')
+            f'{where}: belongs to mechanism {files.excerpt(body.get("mechanism_fingerprint"))},'
+            f' this positioner is {mine!r} (identified on another machine or geometry)')
     params = body.get('parameters')
     if not isinstance(params, dict):
         raise CalibrationFileError(f'{where}: no "parameters:" mapping')
     missing = [n for n in cp.PARAMETER_NAMES if n not in params]
     if missing:
-        raise CalibrationFileError(f'{where}: lacks parameters {", ".join(missing)}')
+        listed = ', '.join(missing[:4]) + (f' and {len(missing) - 4} more' if len(missing) > 4
+                                           else '')
+        raise CalibrationFileError(f'{where}: lacks parameters {listed}')
     x = np.empty(cp.COUNT)
     sigma = np.full(cp.COUNT, np.nan)
     identified = np.zeros(cp.COUNT, dtype=bool)
@@ -139,16 +147,23 @@ def load(path: str | Path, nominal: Mechanism) -> Calibration:
         value = entry.get('value') if isinstance(entry, dict) else None
         if isinstance(value, bool) or not isinstance(value, (int, float)) \
                 or not math.isfinite(value):
-            raise CalibrationFileError(f'{where}: {name}.value = {value!r}: not a finite number')
+            raise CalibrationFileError(f'{where}: {name}.value = {files.excerpt(value)}: not a '
+                                       'finite number')
         x[k] = value
         identified[k] = bool(entry.get('identified', False))
-        if entry.get('sigma') is not None:
-            sigma[k] = float(entry['sigma'])
+        spread = entry.get('sigma')
+        if spread is not None:
+            if isinstance(spread, bool) or not isinstance(spread, (int, float)) \
+                    or not math.isfinite(spread) or spread < 0.0:
+                raise CalibrationFileError(f'{where}: {name}.sigma = {files.excerpt(spread)}: '
+                                           'not a finite number >= 0 (or null: fixed)')
+            sigma[k] = spread
     if x[cp.R_A] < 0.0 or x[cp.R_B] < 0.0:
         raise CalibrationFileError(f'{where}: a clearance is negative')
     seating = body.get('seating_force', 1.0)
     if isinstance(seating, bool) or not isinstance(seating, (int, float)) or seating <= 0.0:
-        raise CalibrationFileError(f'{where}: seating_force = {seating!r}: must be > 0 N')
+        raise CalibrationFileError(f'{where}: seating_force = {files.excerpt(seating)}: must '
+                                   'be > 0 N')
     try:
         covariance = np.asarray(body.get('covariance'), dtype=float)
     except (TypeError, ValueError):

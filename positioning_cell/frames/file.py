@@ -16,9 +16,11 @@ that a hand edit of it alone is refused rather than silently ignored::
 
 :func:`write` replaces the file atomically (temporary file in the same directory, flushed to
 disk, then renamed): a reader sees the old file or the new one, never half of one.
-:func:`load` of a missing file gives the identity systems (nothing was ever defined); any other
-problem (unreadable, not YAML, a missing or unknown key, not numbers, NaN or infinite, a
-non-unit quaternion, a ``human`` field that disagrees) raises
+:func:`write` creates the file's folder when missing. :func:`load` of a missing file gives the
+identity systems (nothing was ever defined); any other problem (unreadable, not a regular file,
+larger than 64 KiB, not YAML or YAML the bounded loader refuses (:mod:`positioning_cell.files`),
+a missing or unknown key, not numbers, NaN or infinite, a non-unit quaternion, a ``human``
+field that disagrees) raises
 :class:`CoordinateSystemsFileError` naming the file and the problem, and changes nothing.
 """
 
@@ -34,6 +36,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from positioning_cell import files
 from positioning_cell.core.poses import as_unit_quaternions
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.frames.systems import CoordinateSystems
@@ -81,12 +84,14 @@ def dump(systems: CoordinateSystems) -> str:
 
 
 def write(path: str | Path, systems: CoordinateSystems) -> Path:
-    """Write ``systems`` to ``path`` atomically (module docstring); the path written.
+    """Write ``systems`` to ``path`` atomically (module docstring), its folder created when
+    missing (``$ROS_HOME/positioning_cell`` on a fresh ROS_HOME); the path written.
     CoordinateSystemsFileError if it cannot be written (the old file then stays as it was)."""
     out = Path(path)
     text = dump(systems)
     tmp: str | None = None
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f'.{out.name}.', suffix='.tmp', dir=out.parent)
         with os.fdopen(fd, 'w', encoding='utf-8') as stream:
             stream.write(text)
@@ -121,27 +126,23 @@ def _sync_directory(directory: Path) -> None:
 # -- reading -------------------------------------------------------------------------------------
 def load(path: str | Path) -> CoordinateSystems:
     """The coordinate systems of the file ``path``; the identity systems if it does not
-    exist. CoordinateSystemsFileError naming the file and the problem otherwise."""
-    where = f'coordinate systems file {str(path)!r}'
-    try:
-        text = Path(path).read_text(encoding='utf-8')
-    except FileNotFoundError:
+    exist. CoordinateSystemsFileError naming the file and the problem otherwise (read by
+    :func:`positioning_cell.files.load_yaml`: a regular file of at most
+    :data:`~positioning_cell.files.COORDINATE_SYSTEMS_FILE`'s size; a short message)."""
+    data = files.load_yaml(path, files.COORDINATE_SYSTEMS_FILE, CoordinateSystemsFileError,
+                           missing_ok=True)
+    if data is files.MISSING:
         return CoordinateSystems()
-    except (OSError, UnicodeDecodeError) as err:
-        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
-        raise CoordinateSystemsFileError(f'{where}: cannot be read ({reason})') from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise CoordinateSystemsFileError(f'{where}: not YAML ({err})') from None
-    return parse(data, where)
+    with files.brief_errors():
+        return parse(data, files.describe(files.COORDINATE_SYSTEMS_FILE, path))
 
 
 def parse(data: Any, where: str = 'coordinate systems') -> CoordinateSystems:
     """The coordinate systems of a loaded document (:func:`document`'s form);
     CoordinateSystemsFileError prefixed with ``where`` if it is not one."""
     if not isinstance(data, dict) or set(data) != {ROOT_KEY}:
-        found = sorted(map(str, data)) if isinstance(data, dict) else type(data).__name__
+        found = (files.excerpt(sorted(map(str, data))) if isinstance(data, dict)
+                 else type(data).__name__)
         raise CoordinateSystemsFileError(
             f'{where}: expected exactly one mapping "{ROOT_KEY}:", found {found}')
     body = data[ROOT_KEY]
@@ -170,11 +171,11 @@ def _numbers(value: Any, count: int, name: str, where: str) -> list[float]:
         hint = ''
         if isinstance(value, list) and any(isinstance(v, str) and _is_float(v) for v in value):
             hint = ' (YAML reads 1e-3 as text: write 1.0e-3)'
-        raise CoordinateSystemsFileError(f'{where}: {name} = {value!r}: expected a list of '
-                                         f'{count} numbers{hint}')
+        raise CoordinateSystemsFileError(f'{where}: {name} = {files.excerpt(value)}: expected '
+                                         f'a list of {count} numbers{hint}')
     if not all(math.isfinite(v) for v in value):
-        raise CoordinateSystemsFileError(f'{where}: {name} = {value!r}: not finite (NaN or '
-                                         'infinite)')
+        raise CoordinateSystemsFileError(f'{where}: {name} = {files.excerpt(value)}: not '
+                                         'finite (NaN or infinite)')
     return [float(v) for v in value]
 
 
@@ -209,12 +210,14 @@ def _check_human(value: Any, transform: Transform, name: str, where: str) -> Non
         with contextlib.suppress(ValueError):
             numbers = [float(t) for i, t in enumerate(tokens) if i not in (3, 7)]
     if len(numbers) != 6 or not np.isfinite(numbers).all():
-        raise CoordinateSystemsFileError(f"{where}: {name} = {value!r}: expected 'Tx Ty Tz mm "
-                                         "Rx Ry Rz deg' (six finite numbers)")
+        raise CoordinateSystemsFileError(f'{where}: {name} = {files.excerpt(value, 100)}: '
+                                         "expected 'Tx Ty Tz mm Rx Ry Rz deg' (six finite "
+                                         'numbers)')
     dp, angle = distance(transform, Transform.from_human(numbers))
     if dp > HUMAN_POSITION_TOLERANCE or angle > HUMAN_ANGLE_TOLERANCE:
         said = format_human(transform.to_human())
         raise CoordinateSystemsFileError(
-            f'{where}: {name} = {value!r} disagrees with position_m and quaternion_xyzw '
-            f'({said!r}; off by {dp * 1e3:.3g} mm, {math.degrees(angle):.3g} deg): edit the '
+            f'{where}: {name} = {files.excerpt(value, 100)} disagrees with position_m and '
+            f'quaternion_xyzw ({said!r}; off by {dp * 1e3:.3g} mm, {math.degrees(angle):.3g} '
+            'deg): edit the '
             "SI fields, and correct or delete 'human'")

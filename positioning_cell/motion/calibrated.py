@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from positioning_cell.calibration.file import load
+from positioning_cell import files
+from positioning_cell.calibration.file import CalibrationFileError, load
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.motion.settings import PositionerSettings
@@ -17,14 +18,28 @@ from positioning_cell.parameters import parse
 CALIBRATION_FILE = 'compensation.calibration_file'
 
 
-def calibrated_machine(settings: PositionerSettings) -> MachineModel | None:
+#: Longest time the positioner waits for a calibration file to load (s): a real one loads in
+#: some 20 ms, the largest accepted (256 KiB) in some 0.2 s; the bound keeps the node's
+#: parameter services and its stop answering whatever the file system does.
+LOAD_TIMEOUT_S = 1.0
+
+
+def calibrated_machine(settings: PositionerSettings,
+                       timeout: float = LOAD_TIMEOUT_S) -> MachineModel | None:
     """The machine identified in ``settings``' calibration file, carrying its payload (None:
-    no file set). CalibrationFileError (a ConfigError) when the file cannot be used."""
+    no file set), loaded in a worker thread within ``timeout`` s
+    (:func:`positioning_cell.files.within`). CalibrationFileError (a ConfigError) when the
+    file cannot be used or does not load in time."""
     path = settings.compensation.calibration_file
     if not path:
         return None
-    return load(path, settings.mechanism).model(settings.mechanism, settings.payload,
-                                                settings.structure)
+
+    def build() -> MachineModel:
+        return load(path, settings.mechanism).model(settings.mechanism, settings.payload,
+                                                    settings.structure)
+
+    return files.within(timeout, build, files.describe(files.CALIBRATION_FILE, path),
+                        CalibrationFileError)
 
 
 def machine_settings(config: str | Path) -> PositionerSettings:

@@ -22,6 +22,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 
 from positioning_cell.errors import ConfigError
+from positioning_cell.files import shorten
 from positioning_cell.parameters import Declaration, Kind, block, declarations, parse
 
 T = TypeVar('T')
@@ -115,8 +116,8 @@ class NodeParameters(Generic[T]):
             settings = parse(self._cls, candidate)
             if self._check is not None:
                 self._check(settings, names)
-        except ConfigError as err:
-            return SetParametersResult(successful=False, reason=str(err))
+        except ConfigError as err:  # the reason in a few hundred characters at most
+            return SetParametersResult(successful=False, reason=shorten(str(err)))
         self.values, self.settings = candidate, settings
         if self._on_change is not None:
             self._on_change(settings, names)

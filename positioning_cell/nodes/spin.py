@@ -3,6 +3,7 @@ exit on SIGINT and SIGTERM."""
 
 from __future__ import annotations
 
+import gc
 import sys
 from collections.abc import Callable, Sequence
 from enum import Enum
@@ -14,7 +15,9 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
+from rclpy.utilities import get_default_context
 
+from positioning_cell import files
 from positioning_cell.errors import PositioningError
 from positioning_cell.nodes.entry import hold_stops, stop_requested
 
@@ -22,7 +25,10 @@ STOP_POLL_S = 0.1
 """Longest time from SIGINT / SIGTERM to the executor returning (s), besides a running callback."""
 
 SHUTDOWN_WAIT_S = 5.0
-"""Longest wait for running callbacks after a stop (s)."""
+"""Longest wait for running callbacks after a stop (s), before the node is destroyed under
+them. Not what bounds a stop: a callback still running holds the process at its exit anyway
+(the executor's threads are joined), so callbacks must return at a stop: the positioner's do
+at once (close() ends a move, :func:`positioning_cell.files.abandon_loads` a file load)."""
 
 
 class Spin(Enum):
@@ -50,9 +56,24 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
     the node closed and the context shut down. A stop that came before ``rclpy.init`` is
     honoured after it.
     """
-    hold_stops()
+    # A stop gives up the loads waited on at once (files.within), even while the node is
+    # being built (the positioner loads its calibration file then).
+    hold_stops(files.abandon_loads)
     rclpy.init(args=list(args) if args is not None else None,
                signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        return _spin(node_factory, spin, threads)
+    finally:
+        rclpy.try_shutdown()
+        # The participant goes now, its shared memory with it, rather than in the interpreter's
+        # finalization (which entry.end_process skips): once the node's and the executor's
+        # handles are collected, the context is no longer in use and is destroyed at once.
+        gc.collect()
+        get_default_context().destroy()
+
+
+def _spin(node_factory: Callable[[], Node], spin: Spin, threads: int) -> int:
+    """:func:`run` from the node's construction to its destruction (the exit code)."""
     node: Node | None = None
     executor: Executor | None = None
     try:
@@ -70,11 +91,16 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except PositioningError as err:
+        if stop_requested():  # stopped while it was being built (a load given up)
+            return 0
         print(f'{Path(sys.argv[0]).name}: {err}', file=sys.stderr)
         return 2
     finally:
-        # close() first: it ends what a worker thread may still wait on (a move), so the
-        # executor's shutdown then finds its callbacks returning.
+        # No callback waits for a file any more (a calibration file's load in the positioner's
+        # parameter callback: given up since the signal); then close(): it ends what a worker
+        # thread may still wait on (a move), so the executor's shutdown then finds its
+        # callbacks returning.
+        files.abandon_loads()
         if node is not None:
             close = getattr(node, 'close', None)
             if callable(close):
@@ -83,7 +109,6 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
             executor.shutdown(timeout_sec=SHUTDOWN_WAIT_S)
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
     return _exit_status(node) or 0
 
 

@@ -48,6 +48,7 @@ from scipy.stats import truncnorm
 from positioning_cell.config import load_parameter_file
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
+from positioning_cell.files import excerpt, shorten
 from positioning_cell.tolerance.sampling import draw_laws
 
 FloatArray = NDArray[np.float64]
@@ -150,9 +151,10 @@ class GapModel:
     def __post_init__(self) -> None:
         if self.mode not in _GAP_MODES:
             raise ConfigError(
-                f'clearance_direction = {self.mode!r}: expected one of {", ".join(_GAP_MODES)}')
+                f'clearance_direction = {excerpt(self.mode)}: expected one of '
+                f'{", ".join(_GAP_MODES)}')
         if len(self.twist) != 6 or not all(math.isfinite(v) for v in self.twist):
-            raise ConfigError(f'motion = {self.twist!r}: expected 6 finite numbers (v, ω)')
+            raise ConfigError(f'motion = {excerpt(self.twist)}: expected 6 finite numbers (v, ω)')
 
 
 @dataclass(frozen=True)
@@ -222,7 +224,8 @@ def _positive(key: str, value: Any, *, allow_zero: bool = True) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(
             value) or value < 0.0 or (value == 0.0 and not allow_zero):
         need = '>= 0' if allow_zero else '> 0'
-        raise ConfigError(f'{key} = {value!r}: must be a finite number {need} (SI: m or rad)')
+        raise ConfigError(f'{key} = {excerpt(value)}: must be a finite number {need} (SI: m or '
+                          'rad)')
     return float(value)
 
 
@@ -238,15 +241,15 @@ def parse_tolerance_spec(data: Mapping[str, Any], mech: Mechanism) -> ToleranceS
     (``u_clearance_2_x``), negative or non-finite values raise :class:`ConfigError` naming them.
     """
     if not isinstance(data, Mapping):
-        raise ConfigError(f'tolerance spec: expected a mapping, got {data!r}')
+        raise ConfigError(f'tolerance spec: expected a mapping, got {excerpt(data)}')
     for key in data:
         if key not in _SPEC_KEYS:
             raise ConfigError(
-                f'tolerance spec: unknown key {key!r} (known: {", ".join(_SPEC_KEYS)})')
+                f'tolerance spec: unknown key {excerpt(key)} (known: {", ".join(_SPEC_KEYS)})')
     tolerances = data.get('tolerances')
     if not isinstance(tolerances, Mapping) or not tolerances:
-        raise ConfigError(f'tolerance spec: tolerances = {tolerances!r}: expected a mapping '
-                          'of source names to tolerances (m or rad)')
+        raise ConfigError(f'tolerance spec: tolerances = {excerpt(tolerances)}: expected a '
+                          'mapping of source names to tolerances (m or rad)')
     gap = _gap(data)
     entries = catalogue(gap.mode)
     values = {name: 0.0 for name, *_ in entries}
@@ -260,30 +263,32 @@ def parse_tolerance_spec(data: Mapping[str, Any], mech: Mechanism) -> ToleranceS
         matched = [(name, kind) for name, kind, *_ in entries
                    if name == key or name.startswith(f'{key}_')]
         if not isinstance(key, str) or not matched:
-            raise ConfigError(f'tolerances: unknown source {key!r} (groups: {", ".join(KINDS)}; '
+            raise ConfigError(f'tolerances: unknown source {excerpt(key)} (groups: '
+                              f'{", ".join(KINDS)}; '
                               'or one leg / coordinate, e.g. leg_length_1, u_centre_2_x)')
         if matched[0][1] in BALL_KINDS and key not in {matched[0][1], *(
                 f'{matched[0][1]}_{leg}' for leg in (1, 2, 3))}:
-            raise ConfigError(f'tolerances: {key!r} names one component of a clearance; a '
+            raise ConfigError(f'tolerances: {excerpt(key)} names one component of a clearance; a '
                               'clearance bounds the length of its offset vector: name the '
                               'joint (e.g. u_clearance_2)')
         value = _positive(f'tolerances.{key}', tolerances[key])
         limit = _MAX_ANGLE if matched[0][1] in _ANGLE_KINDS else _MAX_LENGTH
         if value > limit:
             unit = 'rad' if limit == _MAX_ANGLE else 'm'
-            raise ConfigError(f'tolerances.{key} = {value!r}: larger than {limit} {unit}; '
+            raise ConfigError(f'tolerances.{key} = {excerpt(value)}: larger than {limit} {unit}; '
                               'the spec is in SI units (m, rad), not mm or degrees')
         for name, _kind in matched:
             values[name] = value
     distributions = dict(_DEFAULT_DISTRIBUTION)
     given = data.get('distributions') or {}
     if not isinstance(given, Mapping):
-        raise ConfigError(f'distributions = {given!r}: expected a mapping kind -> law')
+        raise ConfigError(f'distributions = {excerpt(given)}: expected a mapping kind -> law')
     for kind, law in given.items():
         if kind not in KINDS:
-            raise ConfigError(f'distributions: unknown kind {kind!r} (known: {", ".join(KINDS)})')
+            raise ConfigError(f'distributions: unknown kind {excerpt(kind)} (known: '
+                              f'{", ".join(KINDS)})')
         if law not in DISTRIBUTIONS:
-            raise ConfigError(f'distributions.{kind} = {law!r}: expected normal or uniform')
+            raise ConfigError(f'distributions.{kind} = {excerpt(law)}: expected normal or uniform')
         distributions[kind] = law
     sources = tuple(ErrorSource(name, kind, leg, axis, values[name], distributions[kind])
                     for name, kind, leg, axis in entries)
@@ -292,13 +297,15 @@ def parse_tolerance_spec(data: Mapping[str, Any], mech: Mechanism) -> ToleranceS
 
 def _requirement(block: Any) -> Requirement:
     if not isinstance(block, Mapping):
-        raise ConfigError(f'requirement = {block!r}: expected position (m) and orientation (rad)')
+        raise ConfigError(f'requirement = {excerpt(block)}: expected position (m) and '
+                          'orientation (rad)')
     for key in block:
         if key not in ('position', 'orientation'):
-            raise ConfigError(f'requirement: unknown key {key!r} (known: position, orientation)')
+            raise ConfigError(f'requirement: unknown key {excerpt(key)} (known: position, '
+                              'orientation)')
     if 'position' not in block or 'orientation' not in block:
-        raise ConfigError(f'requirement = {dict(block)!r}: needs position (m) and orientation '
-                          '(rad)')
+        raise ConfigError(f'requirement = {excerpt(dict(block))}: needs position (m) and '
+                          'orientation (rad)')
     return Requirement(_positive('requirement.position', block['position'], allow_zero=False),
                        _positive('requirement.orientation', block['orientation'],
                                  allow_zero=False))
@@ -310,9 +317,10 @@ def _gap(data: Mapping[str, Any]) -> GapModel:
     try:
         twist = tuple(float(v) for v in motion)
     except (TypeError, ValueError) as err:
-        raise ConfigError(f'motion = {motion!r}: expected 6 numbers (v m/s, ω rad/s)') from err
+        raise ConfigError(f'motion = {excerpt(motion)}: expected 6 numbers (v m/s, ω rad/s)'
+                          ) from err
     if len(twist) != 6:
-        raise ConfigError(f'motion = {motion!r}: expected 6 numbers (v m/s, ω rad/s)')
+        raise ConfigError(f'motion = {excerpt(motion)}: expected 6 numbers (v m/s, ω rad/s)')
     return GapModel(str(mode), twist)
 
 
@@ -322,7 +330,7 @@ def load_tolerance_spec(path: str | Path, mech: Mechanism) -> ToleranceSpec:
     try:
         return parse_tolerance_spec(data, mech)
     except ConfigError as err:
-        raise ConfigError(f'{path}: {err}') from err
+        raise ConfigError(shorten(f'{path}: {err}')) from err
 
 
 def draw_sources(spec: ToleranceSpec, n: int, rng: np.random.Generator) -> FloatArray:

@@ -64,6 +64,7 @@ from typing import Any
 
 from scipy.stats import truncnorm
 
+from positioning_cell import files
 from positioning_cell.config import load_yaml_mapping
 from positioning_cell.errors import ConfigError
 from positioning_cell.tolerance.expressions import (
@@ -286,7 +287,7 @@ class _Reader:
         self.alpha_of: dict[str, str] = {}
 
     def fail(self, key: str, value: Any, why: str) -> ConfigError:
-        return ConfigError(f'{self.origin}: {key} = {value!r}: {why}')
+        return ConfigError(f'{self.origin}: {key} = {files.excerpt(value)}: {why}')
 
     def where(self, key: str) -> str:
         return f'{self.origin}: {key}'
@@ -298,8 +299,8 @@ class _Reader:
         if keys is not None:
             for k in value:
                 if k not in keys:
-                    raise ConfigError(f'{self.origin}: {key}: unknown key {k!r} (known: '
-                                      f'{", ".join(keys)})')
+                    raise ConfigError(f'{self.origin}: {key}: unknown key {files.excerpt(k)} '
+                                      f'(known: {", ".join(keys)})')
         for k in required:
             if k not in value:
                 raise ConfigError(f'{self.origin}: {key}: missing key {k!r}')
@@ -635,8 +636,12 @@ def parse_mechanism(data: Mapping[str, Any], origin: str = '<dict>') -> Mechanis
 
 
 def load_mechanism(path: str | Path) -> Mechanism:
-    """Read and parse a mechanism file (YAML); ConfigError names the file, the key and the
-    value (a missing file, invalid YAML, any refusal of :func:`parse_mechanism`)."""
-    data = load_yaml_mapping(path, 'mechanism file',
+    """Read and parse a mechanism file (YAML, read by :func:`positioning_cell.files.load_yaml`:
+    a regular file of at most :data:`~positioning_cell.files.MECHANISM_FILE`'s size); a short
+    ConfigError names the file, the key and the value (a missing file, one that is not a
+    regular file or too large, invalid or refused YAML, any refusal of
+    :func:`parse_mechanism`)."""
+    data = load_yaml_mapping(path, files.MECHANISM_FILE,
                              'name, units, sources, unknowns, closed_loops, ...')
-    return parse_mechanism(data, str(path))
+    with files.brief_errors():
+        return parse_mechanism(data, str(path))

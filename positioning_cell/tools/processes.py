@@ -39,13 +39,16 @@ def loopback_only(env: dict[str, str]) -> None:
     0.0.0.0 and every interface (ROS_LOCALHOST_ONLY=1 would mean LOCALHOST too). With the
     caller's own profile (a deliberate choice, e.g. a multi-machine cell), the caller's range,
     by default LOCALHOST."""
+    from positioning_cell import files
     from positioning_cell.config import config_path
+    from positioning_cell.errors import ConfigError
 
     shipped = config_path('fastdds_loopback.xml')
     own = env.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
     try:
-        ours = not own or Path(own).read_bytes() == shipped.read_bytes()
-    except OSError:  # the caller's missing file: theirs to fix (Fast DDS logs it)
+        ours = not own or (files.read_bytes(own, files.FAST_DDS_PROFILE)
+                           == files.read_bytes(shipped, files.FAST_DDS_PROFILE))
+    except ConfigError:  # the caller's missing or odd file: theirs to fix (Fast DDS logs it)
         ours = False
     if not ours:
         env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
