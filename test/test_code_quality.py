@@ -15,9 +15,10 @@ import positioning_cell
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'positioning_cell'
-#: The ROS layer: the nodes, the tools' client of a running cell, the fault matrix and the live
-#: calibration (which drive a running cell with ROS messages).
-ROS_LAYER = ('nodes/', 'tools/ros.py', 'tools/fault_matrix.py', 'tools/calibrate_cell.py',
+#: The ROS layer: the nodes, the tools' client of a running cell, the fault matrix, the driver
+#: probes and the live calibration (which drive a running cell with ROS messages).
+ROS_LAYER = ('nodes/', 'tools/ros.py', 'tools/fault_matrix.py', 'tools/driver_probes.py',
+             'tools/calibrate_cell.py',
              'tools/cell.py', 'tools/cell_watch.py', 'tools/axis_test.py')
 
 

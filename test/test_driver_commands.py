@@ -3,7 +3,8 @@ issue 21 probed it (positioning_cell.tools.driver_probes): a trajectory stamped 
 past is refused as too old (it used to be accepted, then fault the drive), one stamped 4 s
 ahead as too far in the future; a 100 000-point trajectory is refused before its points are
 read and a 50 000-point one is taken, and neither holds up the encoder publication (it used to
-stall 1.49 s); SIGINT then stops the driver within 2 s.
+stall 1.49 s); SIGINT then stops the driver (the 2 s
+target: benchmarks/shutdown.py).
 
 Multi-process tier: the driver runs in its own process, so the time this test spends building
 its big messages does not hold it up; its publication is judged from the stamps it gives (its
@@ -24,7 +25,8 @@ pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 #: command (its period is 0.01 s; a loaded 2-core machine delays a timer by tens of ms; the
 #: positioner calls the driver lost after 0.2 s).
 LARGEST_GAP_S = 0.15
-STOP_BOUND_S = 2.0
+#: A stop that hangs fails here; the 2 s target of issue 21 is benchmarks/shutdown.py's.
+STOP_BOUND_S = 5.0
 
 
 def test_the_commanders_probes(tmp_path: Path) -> None:

@@ -41,7 +41,6 @@ import os
 import re
 import shutil
 import struct
-import sys
 import zlib
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
@@ -52,6 +51,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, NamedTuple
 
+import zstandard
 from rosbags.interfaces import (
     Connection,
     ConnectionExtRosbag2,
@@ -75,11 +75,6 @@ from rosbags.rosbag2.storage_mcap import (
 )
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
-
-if sys.version_info >= (3, 14):
-    from compression import zstd
-else:
-    from backports import zstd
 
 from positioning_cell.bag.errors import BagError
 from positioning_cell.bag.metadata import (
@@ -226,7 +221,9 @@ class _CrcMcapWriter(McapWriter):
         self.channels = []
         self.chunks = []
         self.chunk = PendingChunk(_NO_TIME, 0, io.BytesIO(), defaultdict(list))
-        self.compressor = zstd.compress if compression == CompressionMode.STORAGE else bytes
+        # zstd at level 3, the level rosbags' own storage writer compresses with.
+        self.compressor = (zstandard.ZstdCompressor(level=3).compress
+                           if compression == CompressionMode.STORAGE else bytes)
         self.compression = 'zstd' if compression == CompressionMode.STORAGE else ''
         self.message_start_time = _NO_TIME
         self.message_end_time = 0

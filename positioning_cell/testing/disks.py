@@ -19,12 +19,17 @@ import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
-    from pytest import MonkeyPatch
-
     from positioning_cell.bag.writer import _CrcRaw
+
+
+class Patcher(Protocol):
+    """What :class:`FaultyDisk` needs of a patcher that undoes itself (pytest's
+    ``monkeypatch``; the library does not depend on pytest)."""
+
+    def setattr(self, target: Any, name: str, value: Any) -> None: ...
 
 
 class MountError(RuntimeError):
@@ -61,7 +66,7 @@ class FaultyDisk:
     transient fault) or for good; ``limit(size)``: no file grows past ``size`` bytes (EFBIG,
     as RLIMIT_FSIZE does it); ``cut_fails``: cutting a file back fails too (EIO)."""
 
-    def __init__(self, monkeypatch: MonkeyPatch) -> None:
+    def __init__(self, monkeypatch: Patcher) -> None:
         self.budget: int | None = None
         self.code = errno.EIO
         self.once = True
