@@ -30,8 +30,8 @@ import yaml
 from positioning_cell import files
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import parameters as cp
+from positioning_cell.calibration.calibrated import LOAD_TIMEOUT_S, calibrated_machine
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.motion.calibrated import LOAD_TIMEOUT_S, calibrated_machine
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.parameters import parse
 

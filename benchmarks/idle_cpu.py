@@ -38,13 +38,13 @@ from sensor_msgs.msg import JointState
 import positioning_cell
 from positioning_cell import names
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
-from positioning_cell.nodes.qos import STREAM_QOS
 from positioning_cell.parameters import parse
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.domains import free_domain
+from positioning_cell.ros.processes import Processes, cell_environment
+from positioning_cell.ros.qos import STREAM_QOS
 from positioning_cell.sim.drives import DriverSettings
-from positioning_cell.tools.domains import free_domain
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.processes import Processes, cell_environment
-from positioning_cell.tools.ros import CellClient
 
 CELL_YAML = config_path('cell.yaml')
 #: Executable -> node name, in start order.

@@ -40,11 +40,11 @@ from idle_cpu import BARE_NODE, cpu_seconds, standalone_environment
 from positioning_cell import names
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.nodes.messages import status_values
-from positioning_cell.tools.domains import free_domain
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.processes import Processes, cell_environment, executable
-from positioning_cell.tools.ros import CellClient
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.domains import free_domain
+from positioning_cell.ros.messages import status_values
+from positioning_cell.ros.processes import Processes, cell_environment, executable
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO / 'test'))

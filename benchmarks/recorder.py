@@ -6,7 +6,7 @@
 3. Recording through DDS across processes, with the cell's own QoS: ``recorder_node`` (as
    config/cell.yaml sets it up) in its own process, a publisher process sends N
    pre-serialized messages round-robin over the cell's stream topics with the publishers' QoS
-   of the cell's nodes (``STREAM_QOS``, positioning_cell.nodes.qos: reliable, keep-last of a
+   of the cell's nodes (``STREAM_QOS``, positioning_cell.ros.qos: reliable, keep-last of a
    depth sized for bursts), at full speed and paced at 10 k and 20 k msgs/s aggregated, after
    one acknowledged warm-up message per topic; then SIGINT, and the bag is read back to
    count. Each rate runs twice: on an idle machine, and with a CPU hog (a busy loop pinned to
@@ -44,10 +44,10 @@ from positioning_cell import names
 from positioning_cell.bag import BagReader, BagWriter, verify_bag
 from positioning_cell.bag.writer import jazzy_typestore
 from positioning_cell.names import CELL_TOPICS
-from positioning_cell.nodes.qos import STREAM_QOS
 from positioning_cell.nodes.recorder_node import EXIT_WRITE_FAILED
+from positioning_cell.ros.processes import cell_environment
+from positioning_cell.ros.qos import STREAM_QOS
 from positioning_cell.testing.disks import file_size_limited
-from positioning_cell.tools.processes import cell_environment
 
 REPO = Path(__file__).resolve().parent.parent
 TARGET_RATE = 20_000.0  # msgs/s aggregated, issue 11
@@ -138,8 +138,8 @@ PUBLISHER = r'''
 import sys, time
 import rclpy
 from rclpy.node import Node
-from positioning_cell.nodes.messages import message_class
-from positioning_cell.nodes.qos import STREAM_QOS as qos
+from positioning_cell.ros.messages import message_class
+from positioning_cell.ros.qos import STREAM_QOS as qos
 sys.path.insert(0, sys.argv[3])
 from recorder import STREAMS, sample_messages
 count = int(sys.argv[1]); rate = float(sys.argv[2])

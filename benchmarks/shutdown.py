@@ -24,9 +24,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+from positioning_cell.ros.domains import free_domain
+from positioning_cell.ros.processes import cell_environment
 from positioning_cell.testing.stops import Stop, stop_after, stop_commands
-from positioning_cell.tools.domains import free_domain
-from positioning_cell.tools.processes import cell_environment
 
 BARE = 'bare_rclpy_node'
 #: Longest stop of a node of the package (issue 21), s.

@@ -14,7 +14,7 @@ from launch_ros.actions import Node
 
 from launch import LaunchDescription
 from positioning_cell.names import CALIBRATOR, CELL_NODES, LIVE_VIEW, RECORDER
-from positioning_cell.tools.processes import loopback_only
+from positioning_cell.ros.processes import loopback_only
 
 
 def generate_launch_description() -> LaunchDescription:

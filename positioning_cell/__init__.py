@@ -1,7 +1,7 @@
 """positioning_cell: a 3-UPS aircraft-panel positioner, its clearance model and its cell.
 
 Everything outside ``positioning_cell.nodes`` (and the tools' one ROS module,
-``positioning_cell.tools.ros``) is a pure library (numpy, scipy, numba, PyYAML, rosbags; no
+``positioning_cell.ros.client``) is a pure library (numpy, scipy, numba, PyYAML, rosbags; no
 rclpy), so every rule is reachable from a unit test without DDS. The folders name the
 concepts: ``core`` (the machine and its kinematics), ``clearance``, ``mechanics``, ``motion``,
 ``limits``, ``frames``, ``accuracy``, ``metrology``, ``calibration``, ``sim`` (the simulated

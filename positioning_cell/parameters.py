@@ -8,7 +8,7 @@ change while a node runs. From that single declaration come
   Python is held to the same rules as one read from a file;
 - parsing of parameter blocks, nested (a YAML file) or dotted (what rclpy gives): :func:`parse`;
 - a node's ROS declarations (:func:`declarations`): dotted name, default, type, rule, which
-  ``positioning_cell.nodes.parameters`` turns into ParameterDescriptors (double and integer
+  ``positioning_cell.ros.parameters`` turns into ParameterDescriptors (double and integer
   ranges, read-only flag, constraints text).
 
 A field whose type is itself such a dataclass is a group: its fields appear under the field's

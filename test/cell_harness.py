@@ -18,10 +18,10 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from positioning_cell.tools.domains import free_domain as isolated_domain
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.processes import Processes, cell_environment, executable
-from positioning_cell.tools.ros import CellClient as Client
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient as Client
+from positioning_cell.ros.domains import free_domain as isolated_domain
+from positioning_cell.ros.processes import Processes, cell_environment, executable
 
 __all__ = ['CELL_YAML', 'REPO', 'Client', 'InProcess', 'ProcessGroup', 'executable',
            'in_process', 'isolated_domain', 'processes_naming', 'wait_until']

@@ -15,9 +15,9 @@ from rclpy.node import Node
 
 from positioning_cell import names
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.nodes.messages import pose_msg, pose_stamped
-from positioning_cell.nodes.qos import LATCHED_QOS, STREAM_QOS
 from positioning_cell.parameters import declarations
+from positioning_cell.ros.messages import pose_msg, pose_stamped
+from positioning_cell.ros.qos import LATCHED_QOS, STREAM_QOS
 
 IDENTITY = (0.0, 0.0, 0.0, 1.0)
 

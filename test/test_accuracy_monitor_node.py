@@ -21,9 +21,9 @@ from std_srvs.srv import Trigger
 from positioning_cell import accuracy as acc
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
-from positioning_cell.nodes.messages import diagnostic, pose_msg, pose_stamped, status_level
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
 from positioning_cell.recording import SILENT_AFTER_S
+from positioning_cell.ros.messages import diagnostic, pose_msg, pose_stamped, status_level
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.nodes
 

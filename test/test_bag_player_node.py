@@ -18,7 +18,7 @@ from sensor_msgs.msg import JointState
 from positioning_cell.bag import BagWriter
 from positioning_cell.bag.metadata import make_qos
 from positioning_cell.bag.writer import jazzy_typestore
-from positioning_cell.nodes.qos import LATCHED_QOS, STREAM_QOS
+from positioning_cell.ros.qos import LATCHED_QOS, STREAM_QOS
 from positioning_cell.testing.layouts import LAYOUTS, rewrite_bag
 
 pytestmark = pytest.mark.nodes

@@ -18,9 +18,9 @@ from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration import program as prog
+from positioning_cell.calibration.calibrated import calibrated_machine
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.kinematics import inverse
-from positioning_cell.motion.calibrated import calibrated_machine
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.parameters import parse
 from positioning_cell.sim.campaign import measure_program

@@ -19,10 +19,10 @@ from positioning_cell_interfaces.action import Calibrate
 
 from positioning_cell import names
 from positioning_cell.calibration import file as calfile
-from positioning_cell.motion.calibrated import CALIBRATION_FILE, machine_settings
-from positioning_cell.nodes.messages import status_values
-from positioning_cell.nodes.qos import STREAM_QOS
-from positioning_cell.tools.ros import GoalClient
+from positioning_cell.motion.settings import CALIBRATION_FILE, machine_settings
+from positioning_cell.ros.client import GoalClient
+from positioning_cell.ros.messages import status_values
+from positioning_cell.ros.qos import STREAM_QOS
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 

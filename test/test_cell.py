@@ -31,9 +31,9 @@ from workspace import MECH
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.poses import pose_error
 from positioning_cell.metrology.fit import pose_covariance
-from positioning_cell.nodes.messages import pose_arrays, pose_stamped
-from positioning_cell.nodes.qos import STREAM_QOS
 from positioning_cell.parameters import parse
+from positioning_cell.ros.messages import pose_arrays, pose_stamped
+from positioning_cell.ros.qos import STREAM_QOS
 from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSettings,
     PoseMeasurementSimulator,

@@ -31,9 +31,9 @@ from positioning_cell.frames.systems import (
 )
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.speed import Speeds as LibrarySpeeds
-from positioning_cell.motion.outcomes import ResultCode
+from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.names import BASE_FRAME
-from positioning_cell.nodes import operator_messages as om
+from positioning_cell.ros import operator_messages as om
 from positioning_cell.tools import cell
 from positioning_cell.tools import cell_format as cf
 

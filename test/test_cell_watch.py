@@ -23,9 +23,9 @@ from scipy.spatial.transform import Rotation
 from tmux_pane import TmuxPane
 
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.nodes.messages import diagnostic
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS
-from positioning_cell.tools.processes import cell_environment
+from positioning_cell.ros.messages import diagnostic
+from positioning_cell.ros.processes import cell_environment
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS
 
 pytestmark = [pytest.mark.nodes,
               pytest.mark.skipif(shutil.which('tmux') is None, reason='needs tmux')]

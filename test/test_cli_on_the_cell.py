@@ -20,8 +20,8 @@ from sensor_msgs.msg import JointState
 
 from positioning_cell import names
 from positioning_cell.frames.transforms import Transform
-from positioning_cell.nodes.qos import STREAM_QOS
-from positioning_cell.tools.processes import cell_environment
+from positioning_cell.ros.processes import cell_environment
+from positioning_cell.ros.qos import STREAM_QOS
 
 pytestmark = pytest.mark.nodes
 

@@ -15,16 +15,29 @@ import positioning_cell
 
 REPO = Path(__file__).resolve().parent.parent
 PACKAGE = REPO / 'positioning_cell'
-#: The ROS layer: the nodes, the tools' client of a running cell, the fault matrix, the driver
-#: probes and the live calibration (which drive a running cell with ROS messages).
-ROS_LAYER = ('nodes/', 'tools/ros.py', 'tools/fault_matrix.py', 'tools/driver_probes.py',
-             'tools/calibrate_cell.py',
-             'tools/cell.py', 'tools/cell_watch.py', 'tools/axis_test.py')
+#: The ROS layer, by folder: the nodes and the ROS adapter they share with the tools. Nothing
+#: else imports rclpy or a ROS message type.
+ROS_LAYER = ('nodes/', 'ros/')
+#: The command lines (argparse shells) and the test harness: they may use the ROS adapter,
+#: never rclpy itself.
+ADAPTER_USERS = ('tools/', 'testing/')
+#: Tools still being moved onto the adapter (issue 22): to be emptied.
+ROS_TOOLS_LEFT = ('tools/fault_matrix.py', 'tools/driver_probes.py', 'tools/calibrate_cell.py',
+                  'tools/cell.py', 'tools/cell_watch.py', 'tools/axis_test.py')
+
+
+def _rel(path: Path) -> str:
+    return path.relative_to(PACKAGE).as_posix()
 
 
 def in_ros_layer(path: Path) -> bool:
-    rel = path.relative_to(PACKAGE).as_posix()
-    return any(rel == r or rel.startswith(r) for r in ROS_LAYER)
+    rel = _rel(path)
+    return any(rel.startswith(r) for r in ROS_LAYER) or rel in ROS_TOOLS_LEFT
+
+
+def in_library(path: Path) -> bool:
+    """Neither the ROS layer nor a command line nor the test harness: the pure library."""
+    return not in_ros_layer(path) and not _rel(path).startswith(ADAPTER_USERS)
 
 
 def sources() -> list[Path]:
@@ -68,8 +81,9 @@ def dynamic_imports(path: Path) -> list[int]:
 
 
 def test_nothing_outside_the_ros_layer_reaches_ros() -> None:
-    """Outside the ROS layer: no import of rclpy, the launch system, a ROS message
-    package or the nodes (at any depth), and no import by name at run time."""
+    """Outside ``nodes/`` and ``ros/``: no import of rclpy, the launch system, a ROS message
+    package or the nodes (at any depth), and no import by name at run time; the library
+    (outside ``tools/`` too) does not import the ROS adapter either."""
     found = []
     for path in sources():
         if in_ros_layer(path):
@@ -79,21 +93,121 @@ def test_nothing_outside_the_ros_layer_reaches_ros() -> None:
             top = module.split('.')[0]
             if is_ros_package(top) or module.startswith('positioning_cell.nodes'):
                 found.append(f'{rel}:{line} imports {module}')
+            elif in_library(path) and module.startswith('positioning_cell.ros'):
+                found.append(f'{rel}:{line} imports the ROS adapter {module}')
         found += [f'{rel}:{line} imports by name' for line in dynamic_imports(path)]
     assert not found, found
     # The rule can fail: the ROS layer itself does reach ROS.
     assert any(is_ros_package(m.split('.')[0])
-               for _, m in imported_modules(PACKAGE / 'nodes' / 'spin.py'))
+               for _, m in imported_modules(PACKAGE / 'ros' / 'spin.py'))
+
+
+def module_name(path: Path) -> str:
+    return '.'.join(path.relative_to(REPO).with_suffix('').parts).removesuffix('.__init__')
+
+
+def module_imports(path: Path, known: set[str]) -> set[str]:
+    """The project's modules that ``path`` imports when it is loaded: the imports at module
+    level (under ``if TYPE_CHECKING`` and ``try`` too), not those in function bodies."""
+    tree = ast.parse(path.read_text(), str(path))
+    package = module_name(path) if path.name == '__init__.py' else \
+        module_name(path).rpartition('.')[0]
+    found: set[str] = set()
+
+    def visit(body: list[ast.stmt]) -> None:
+        for node in body:
+            if isinstance(node, ast.If):
+                visit(node.body)
+                visit(node.orelse)
+            elif isinstance(node, ast.Try):
+                visit(node.body)
+                visit(node.orelse)
+                visit(node.finalbody)
+            elif isinstance(node, ast.Import):
+                found.update(a.name for a in node.names if a.name in known)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ''
+                if node.level:
+                    parts = package.split('.')
+                    base = '.'.join(parts[:len(parts) - node.level + 1] + ([base] if base else []))
+                for alias in node.names:
+                    sub = f'{base}.{alias.name}'
+                    found.add(sub if sub in known else base)
+    visit(tree.body)
+    return found & known
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module → the project's modules it imports at load time."""
+    paths = {module_name(p): p for p in sources()}
+    known = set(paths)
+    return {m: module_imports(p, known) - {m} for m, p in paths.items()}
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def connect(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                connect(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            connect(v)
+    return found
+
+
+def test_no_import_cycle() -> None:
+    """No module imports, through others, itself when it loads."""
+    assert cycles(import_graph()) == []
+    # The check can fail: a cycle it is shown is found.
+    assert cycles({'a': {'b'}, 'b': {'c'}, 'c': {'a'}, 'd': set()}) == [['a', 'b', 'c']]
+
+
+#: Below the positioner's move state machine: the library that ``motion/`` uses and that must
+#: not use it back (the motion vocabulary lives in ``moves/``).
+BELOW_MOTION = ('core', 'clearance', 'mechanics', 'limits', 'moves', 'calibration', 'frames',
+                'metrology', 'sim', 'accuracy', 'prediction', 'tolerance', 'bag', 'recording')
+
+
+def test_no_arrow_from_the_library_up_into_motion() -> None:
+    """The library under ``motion/`` does not import it."""
+    graph = import_graph()
+    up = [f'{m} -> {d}' for m, deps in graph.items() for d in deps
+          if m.split('.')[1:2] and m.split('.')[1] in BELOW_MOTION
+          and d.startswith('positioning_cell.motion')]
+    assert not up, up
+    assert 'positioning_cell.moves.trajectory' in graph['positioning_cell.motion.mover']
 
 
 def test_the_library_imports_without_rclpy() -> None:
-    """Importing every module but the ROS layer (and the tools that drive it) loads no rclpy."""
-    ros_users = {'positioning_cell.tools.run_cell'}  # imports tools.ros: a ROS entry point
+    """Importing every module of the library and the command lines loads no rclpy, but for
+    the command lines that use the ROS adapter."""
     names = []
     for path in sources():
-        module = '.'.join(path.relative_to(REPO).with_suffix('').parts).removesuffix('.__init__')
-        if not in_ros_layer(path) and module not in ros_users:
-            names.append(module)
+        imports_adapter = any(m.startswith('positioning_cell.ros')
+                              for _, m in imported_modules(path))
+        if not in_ros_layer(path) and not imports_adapter:
+            names.append(module_name(path))
     assert 'positioning_cell.core.kinematics' in names and 'positioning_cell.clearance' in names
     code = ('import importlib, sys\n'
             f'for name in {names!r}:\n'

@@ -11,9 +11,9 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.parameters import parse
+from positioning_cell.polling import wait_until
 from positioning_cell.sim.commands import CommandQueue
 from positioning_cell.sim.drives import DriverSettings, LegDriver, Outcome
-from positioning_cell.tools.polling import wait_until
 
 SETTINGS = parse(DriverSettings, {'referenced_at_start': True})
 HOME = SETTINGS.home_positions()

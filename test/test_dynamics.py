@@ -11,7 +11,7 @@ from workspace import MECH
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics import dynamics
 from positioning_cell.mechanics import statics as st
-from positioning_cell.motion.trajectory import MotionLimits, Trajectory, plan_move
+from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move
 
 FAST = MotionLimits(linear_speed=0.1, linear_acceleration=1.0, angular_speed=1.0,
                     angular_acceleration=10.0)

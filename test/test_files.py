@@ -25,12 +25,12 @@ from positioning_cell.accuracy.monitor import MonitorSettings
 from positioning_cell.analysis.axis_test import load_axis_test
 from positioning_cell.analysis.program import load_program
 from positioning_cell.calibration import file as calfile
+from positioning_cell.calibration.calibrated import calibrated_machine
 from positioning_cell.config import config_path, load_parameter_file
 from positioning_cell.errors import ConfigError
 from positioning_cell.frames import file as frames_file
 from positioning_cell.frames.systems import CoordinateSystems
-from positioning_cell.motion.calibrated import calibrated_machine, machine_settings
-from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.motion.settings import PositionerSettings, machine_settings
 from positioning_cell.parameters import parse
 from positioning_cell.prediction.sources import load_tolerance_spec
 from positioning_cell.tolerance.model import load_mechanism

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.motion.trajectory import fingerprint, time_law
+from positioning_cell.moves.trajectory import fingerprint, time_law
 from positioning_cell.parameters import parse
 from positioning_cell.sim.drives import DriverSettings, LegDriver
 from positioning_cell.sim.guard import Refusal

@@ -21,10 +21,10 @@ from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.mechanics.statics import actuator_efforts
-from positioning_cell.motion.trajectory import time_law
+from positioning_cell.moves.trajectory import time_law
 from positioning_cell.nodes.leg_driver_node import LegDriverNode
-from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, HEARTBEAT_QOS, STREAM_QOS
 from positioning_cell.parameters import parse
+from positioning_cell.ros.qos import COMMAND_QOS, DIAGNOSTICS_QOS, HEARTBEAT_QOS, STREAM_QOS
 from positioning_cell.sim.drives import DriverSettings
 
 pytestmark = pytest.mark.nodes

@@ -9,13 +9,13 @@ from workspace import MECH
 
 from positioning_cell.core import kinematics
 from positioning_cell.core.limits import (
+    LimitError,
     check_poses,
     require_within_limits,
     segment_distance,
     within_limits,
 )
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.errors import LimitError
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 

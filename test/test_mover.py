@@ -18,7 +18,6 @@ from workspace import MECH
 from positioning_cell import clearance as cl
 from positioning_cell.core import kinematics
 from positioning_cell.errors import InputError
-from positioning_cell.motion.correction import corrected_command, deviation, mean_pose
 from positioning_cell.motion.mover import (
     Answer,
     JointReading,
@@ -33,9 +32,10 @@ from positioning_cell.motion.mover import (
     validate_goal,
 )
 from positioning_cell.motion.settings import GoalTolerance
-from positioning_cell.motion.trajectory import Trajectory, fingerprint
+from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
+from positioning_cell.moves.trajectory import Trajectory, fingerprint
 from positioning_cell.parameters import parse
-from positioning_cell.tools.polling import wait_until
+from positioning_cell.polling import wait_until
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 

@@ -17,8 +17,8 @@ from geometry_msgs.msg import PoseStamped
 
 from positioning_cell import names
 from positioning_cell.config import config_path
-from positioning_cell.nodes.qos import STREAM_QOS
-from positioning_cell.tools.processes import cell_environment
+from positioning_cell.ros.processes import cell_environment
+from positioning_cell.ros.qos import STREAM_QOS
 
 pytestmark = pytest.mark.nodes
 

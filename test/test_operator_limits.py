@@ -41,8 +41,8 @@ from positioning_cell.limits.validity import (
     result_code,
     state_check,
 )
-from positioning_cell.motion.outcomes import ResultCode
-from positioning_cell.motion.trajectory import MotionLimits
+from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.moves.trajectory import MotionLimits
 from positioning_cell.parameters import parse
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])

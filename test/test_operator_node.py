@@ -43,10 +43,10 @@ from positioning_cell.core import kinematics
 from positioning_cell.frames import file as frames_file
 from positioning_cell.frames.systems import CoordinateSystems as Systems
 from positioning_cell.frames.transforms import Transform
-from positioning_cell.nodes.messages import pose_arrays, pose_msg
-from positioning_cell.nodes.qos import LATCHED_QOS
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.ros import GoalClient
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import GoalClient
+from positioning_cell.ros.messages import pose_arrays, pose_msg
+from positioning_cell.ros.qos import LATCHED_QOS
 
 pytestmark = pytest.mark.nodes
 

@@ -11,7 +11,6 @@ import pytest
 from rcl_interfaces.msg import ParameterDescriptor
 
 from positioning_cell.errors import ConfigError
-from positioning_cell.nodes.parameters import descriptor
 from positioning_cell.parameters import (
     Kind,
     ParameterError,
@@ -22,6 +21,7 @@ from positioning_cell.parameters import (
     setting,
     to_params,
 )
+from positioning_cell.ros.parameters import descriptor
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,10 @@ from positioning_cell import names
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.kinematics import inverse
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
-from positioning_cell.nodes.messages import joint_state, pose_arrays
 from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, STREAM_QOS
 from positioning_cell.parameters import parse
+from positioning_cell.ros.messages import joint_state, pose_arrays
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 
 pytestmark = pytest.mark.nodes

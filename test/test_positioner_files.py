@@ -33,11 +33,12 @@ from workspace import MECH
 
 from positioning_cell import files, names
 from positioning_cell.calibration import file as calfile
+from positioning_cell.calibration.calibrated import LOAD_TIMEOUT_S
 from positioning_cell.calibration.parameters import PARAMETER_NAMES
-from positioning_cell.motion.calibrated import CALIBRATION_FILE, LOAD_TIMEOUT_S
+from positioning_cell.motion.settings import CALIBRATION_FILE
 from positioning_cell.nodes.kinematics_node import PositionerNode
+from positioning_cell.ros.processes import cell_environment
 from positioning_cell.testing.stops import CRASH_SIGNS
-from positioning_cell.tools.processes import cell_environment
 
 pytestmark = pytest.mark.nodes
 
@@ -252,7 +253,7 @@ def stalled(path, *args, **kwargs):
         threading.Event().wait()  # a read that never returns
     return real(path, *args, **kwargs)
 files.read_text = stalled
-from positioning_cell.nodes.entry import kinematics_node  # the console entry point
+from positioning_cell.ros.entry import kinematics_node  # the console entry point
 sys.exit(kinematics_node())
 """
 

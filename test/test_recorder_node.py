@@ -26,9 +26,9 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from positioning_cell.bag import BagError, BagReader, verify_bag
-from positioning_cell.nodes.messages import status_level
-from positioning_cell.nodes.qos import LATCHED_QOS, STREAM_QOS
 from positioning_cell.nodes.recorder_node import EXIT_WRITE_FAILED
+from positioning_cell.ros.messages import status_level
+from positioning_cell.ros.qos import LATCHED_QOS, STREAM_QOS
 from positioning_cell.testing.disks import MountError, file_size_limited, small_filesystem
 
 pytestmark = pytest.mark.nodes

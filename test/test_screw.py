@@ -11,8 +11,7 @@ from scipy.spatial.transform import Rotation
 from workspace import MECH, random_poses
 
 from positioning_cell.core import kinematics
-from positioning_cell.core.limits import check_poses
-from positioning_cell.errors import LimitError
+from positioning_cell.core.limits import LimitError, check_poses
 from positioning_cell.mechanics import screw, singularity
 
 EZ = np.array([0.0, 0.0, 1.0])

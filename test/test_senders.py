@@ -1,4 +1,4 @@
-"""Messages taken with the node that sent them (positioning_cell.nodes.senders, through rcl's
+"""Messages taken with the node that sent them (positioning_cell.ros.senders, through rcl's
 message info, which rclpy in Jazzy does not pass on), and the readers built on it: the
 positioner's inputs from their source node only, a second publisher dropped and named."""
 
@@ -11,9 +11,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory
 
-from positioning_cell.nodes.latest import SourceReader
-from positioning_cell.nodes.qos import COMMAND_QOS, JOINT_READER_QOS
-from positioning_cell.nodes.senders import IdentifiedSubscription
+from positioning_cell.ros.latest import SourceReader
+from positioning_cell.ros.qos import COMMAND_QOS, JOINT_READER_QOS
+from positioning_cell.ros.senders import IdentifiedSubscription
 
 pytestmark = pytest.mark.nodes
 

@@ -12,7 +12,7 @@ import pytest
 
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.motion.trajectory import time_law
+from positioning_cell.moves.trajectory import time_law
 from positioning_cell.parameters import parse
 from positioning_cell.sim.axes import AXES, LINEAR_AXES
 from positioning_cell.sim.drives import DriverSettings

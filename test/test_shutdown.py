@@ -20,8 +20,8 @@ import pytest
 from cell_harness import Client, isolated_domain
 
 from positioning_cell import names
+from positioning_cell.ros.processes import cell_environment
 from positioning_cell.testing.stops import Stop, stop_after, stop_commands
-from positioning_cell.tools.processes import cell_environment
 
 #: A clean stop takes well under this on a loaded 2-core machine (the recorder drains its
 #: queue, the player closes its bag).

@@ -11,7 +11,7 @@ from workspace import MECH
 from positioning_cell import clearance as cl
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.motion.trajectory import MotionLimits, plan_move
+from positioning_cell.moves.trajectory import MotionLimits, plan_move
 from positioning_cell.parameters import parse
 from positioning_cell.sim.drives import DriverSettings, LegDriver
 

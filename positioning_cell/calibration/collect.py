@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.calibration.identify import CalibrationData
 from positioning_cell.errors import InputError
-from positioning_cell.motion.correction import mean_pose
+from positioning_cell.moves.correction import mean_pose
 
 FloatArray = NDArray[np.float64]
 

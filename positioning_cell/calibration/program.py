@@ -24,7 +24,7 @@ from positioning_cell.core.limits import within_limits
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import Triple
 from positioning_cell.mechanics.statics import Payload, Structure
-from positioning_cell.motion.trajectory import MotionLimits, plan_profile
+from positioning_cell.moves.trajectory import MotionLimits, plan_profile
 from positioning_cell.parameters import check_fields, setting
 
 FloatArray = NDArray[np.float64]
@@ -137,7 +137,7 @@ def approach_pose(position: FloatArray, approach: float) -> FloatArray:
 def duration(mech: Mechanism, p: FloatArray, q: FloatArray, limits: MotionLimits,
              dwell: float, approach: float = 0.0, approach_dwell: float = 0.0) -> float:
     """Cell time (s) of visiting poses (N, 3), (N, 4) in order from home and back, each move
-    planned as the positioner plans it (:func:`positioning_cell.motion.trajectory
+    planned as the positioner plans it (:func:`positioning_cell.moves.trajectory
     .plan_profile`), with ``dwell`` s at each pose (settling and the averaged measurement),
     each reached through its :func:`approach_pose` (``approach_dwell`` s there) if
     ``approach`` > 0."""

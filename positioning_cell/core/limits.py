@@ -19,7 +19,7 @@ from positioning_cell.core.kinematics import (
 )
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch, matrix_from_quaternion
-from positioning_cell.errors import LimitError
+from positioning_cell.errors import PositioningError
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -111,6 +111,15 @@ class LimitReport:
         """Raise :class:`LimitError` carrying this report when anything is violated."""
         if not self.ok:
             raise LimitError(self)
+
+
+class LimitError(PositioningError):
+    """A pose or path violates a joint, stroke, collision or singularity limit (the report
+    says which)."""
+
+    def __init__(self, report: LimitReport) -> None:
+        super().__init__(report.message())
+        self.report = report
 
 
 def segment_distance(p1: FloatArray, q1: FloatArray, p2: FloatArray,

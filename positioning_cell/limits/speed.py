@@ -1,6 +1,6 @@
 """The operator's speeds and accelerations of a move: set within configured maxima (a value
 above its maximum is refused, never clamped), scaled for one move, and turned into the
-:class:`positioning_cell.motion.trajectory.MotionLimits` a move is planned with."""
+:class:`positioning_cell.moves.trajectory.MotionLimits` a move is planned with."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from dataclasses import dataclass, fields
 
 from positioning_cell.core.poses import as_number
 from positioning_cell.errors import InputError
-from positioning_cell.motion.trajectory import MotionLimits
+from positioning_cell.moves.trajectory import MotionLimits
 from positioning_cell.parameters import ParameterError
 
 _UNITS = {

@@ -29,7 +29,7 @@ from positioning_cell.core.limits import (
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import InputError
-from positioning_cell.motion.outcomes import ResultCode
+from positioning_cell.moves.outcomes import ResultCode
 
 FloatArray = NDArray[np.float64]
 

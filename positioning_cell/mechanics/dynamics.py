@@ -25,7 +25,7 @@ from positioning_cell.mechanics.statics import (
     efforts_from_wrench,
     required_wrench,
 )
-from positioning_cell.motion.trajectory import Trajectory
+from positioning_cell.moves.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
 
@@ -60,7 +60,7 @@ class EffortProfile(NamedTuple):
 def trajectory_efforts(mech: Mechanism, trajectory: Trajectory, payload: Payload,
                        structure: Structure | None = None) -> EffortProfile:
     """Actuator force and torque profiles along a planned move
-    (:func:`positioning_cell.motion.trajectory.plan_move`). The platform twist is J·q̇ from the
+    (:func:`positioning_cell.moves.trajectory.plan_move`). The platform twist is J·q̇ from the
     trajectory's joint rates; its rate is the second-order finite difference over the sample
     times (numpy.gradient)."""
     times = trajectory.times

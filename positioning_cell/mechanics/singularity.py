@@ -127,7 +127,7 @@ class SingularityReport:
         return LimitReport(self.n_samples, listed, len(self.bad_samples))
 
     def raise_if_violated(self) -> None:
-        """Raise :class:`positioning_cell.errors.LimitError` when a sample is too close."""
+        """Raise :class:`positioning_cell.core.limits.LimitError` when a sample is too close."""
         self.as_limit_report().raise_if_violated()
 
 

@@ -45,9 +45,9 @@ from positioning_cell.limits.validity import (
     state_check,
 )
 from positioning_cell.motion.mover import JointReading, MoveAbortedError, Mover, MoveResult
-from positioning_cell.motion.outcomes import ResultCode, State
 from positioning_cell.motion.settings import OperatorSettings
-from positioning_cell.motion.trajectory import MotionLimits
+from positioning_cell.moves.outcomes import ResultCode, State
+from positioning_cell.moves.trajectory import MotionLimits
 
 FloatArray = NDArray[np.float64]
 

@@ -1,5 +1,5 @@
 """What the positioner says of its inputs: which nodes besides their sources publish on them
-(their messages are ignored, :class:`positioning_cell.nodes.latest.SourceReader`)."""
+(their messages are ignored, :class:`positioning_cell.ros.latest.SourceReader`)."""
 
 from __future__ import annotations
 

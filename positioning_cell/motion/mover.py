@@ -23,25 +23,24 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from positioning_cell.calibration.calibrated import calibrated_machine
 from positioning_cell.clearance import ClearanceModel, attained_pose
 from positioning_cell.core.limits import LimitReport
 from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.errors import InputError, PositioningError
-from positioning_cell.motion.calibrated import calibrated_machine
-from positioning_cell.motion.correction import corrected_command, deviation, mean_pose
-from positioning_cell.motion.outcomes import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
 from positioning_cell.motion.standstill import Motion, StandstillWatch
-from positioning_cell.motion.trajectory import MotionLimits, Trajectory, fingerprint, plan_move
 from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
+from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
+from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
+from positioning_cell.moves.outcomes import MoveAbortedError, MoveResult, ResultCode, State
+from positioning_cell.moves.trajectory import MotionLimits, Trajectory, fingerprint, plan_move
 from positioning_cell.names import (
     BASE_FRAME,
     DRIVER_ENABLE,
@@ -89,32 +88,7 @@ def joints_arrived(position: ArrayLike, velocity: ArrayLike, target: ArrayLike,
                 and np.all(np.abs(vel) <= np.asarray(velocity_tolerance)))
 
 
-# -- the outside world ---------------------------------------------------------------------------
-class JointReading(NamedTuple):
-    """Encoder readings: position (6,) m / rad, velocity (6,) m/s / rad/s."""
-
-    position: FloatArray
-    velocity: FloatArray
-
-
-class Measurement(NamedTuple):
-    """A tracker reading of the platform: position (3,) m, quaternion (4,), covariance (6, 6)
-    (x, y, z, rot-x, rot-y, rot-z; m², rad²)."""
-
-    position: FloatArray
-    quaternion: FloatArray
-    covariance: FloatArray
-
-
-class Answer(NamedTuple):
-    """The drives' answer to a trajectory: its key (:func:`fingerprint`), accepted or not, and
-    the words."""
-
-    key: str
-    accepted: bool
-    reason: str
-
-
+# -- the pose estimate ---------------------------------------------------------------------------
 class Estimate(NamedTuple):
     """The pose estimate from the encoders: position (3,) m, quaternion (4,), passive angles
     φ (3,) rad of the solution."""
@@ -122,41 +96,6 @@ class Estimate(NamedTuple):
     position: FloatArray
     quaternion: FloatArray
     phis: FloatArray
-
-
-def _nothing(*_: object) -> None:
-    """A report nobody listens to."""
-
-
-@dataclass(frozen=True)
-class Machine:
-    """What the mover does to and reads from the world.
-
-    ``send_trajectory(traj)`` commands the drives; ``stop_drives()`` sends the controlled stop;
-    ``publish_target(p, q)`` announces the goal; ``latest_joints()`` gives the newest encoder
-    reading since the last call (None: nothing new); ``new_measurements()`` the tracker
-    readings and ``trajectory_answers()`` the drives' answers that came in since the last call,
-    oldest first; ``reference_drives()`` asks the drives to reference (False: they cannot be
-    asked, nothing was sent); ``drives_connected()`` says whether the drives are there to take
-    a trajectory and answer it (a driver that was just restarted is not, until discovery has
-    matched both ways); ``state_changed(state, reason, code)`` reports a new state,
-    ``refused(code, reason)`` a refusal (the state stays); ``clock()`` is a monotonic clock
-    in s; ``identity`` the name the drives must take commands from (the positioner node's fully
-    qualified name; '' when not checked).
-    """
-
-    send_trajectory: Callable[[Trajectory], None]
-    stop_drives: Callable[[], None]
-    publish_target: Callable[[FloatArray, FloatArray], None]
-    latest_joints: Callable[[], JointReading | None]
-    new_measurements: Callable[[], list[Measurement]]
-    trajectory_answers: Callable[[], list[Answer]]
-    reference_drives: Callable[[], bool] = lambda: True
-    drives_connected: Callable[[], bool] = lambda: True
-    state_changed: Callable[[State, str, ResultCode | None], None] = field(default=_nothing)
-    refused: Callable[[ResultCode, str], None] = field(default=_nothing)
-    clock: Callable[[], float] = time.monotonic
-    identity: str = ''
 
 
 #: How often a wait re-reads the world and re-checks stop, faults and liveness, s.

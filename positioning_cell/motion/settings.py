@@ -6,19 +6,21 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import Enum
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.clearance import ClearanceModel, ClearanceParameters, build
+from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.limits.boxes import FactoryBoxSettings
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.motion.standstill import StandstillSettings
-from positioning_cell.motion.trajectory import MotionLimits
-from positioning_cell.names import NODE_DRIVER, NODE_MEASUREMENT
-from positioning_cell.parameters import ParameterError, check_fields, group, setting
+from positioning_cell.moves.trajectory import MotionLimits
+from positioning_cell.names import NODE_DRIVER, NODE_MEASUREMENT, NODE_POSITIONER
+from positioning_cell.parameters import ParameterError, check_fields, group, parse, setting
 
 FloatArray = NDArray[np.float64]
 
@@ -282,3 +284,18 @@ class PositionerSettings:
     def clearance_model(self) -> ClearanceModel:
         """The compensation's clearance model (ConfigError naming a bad key)."""
         return build(self.compensation.clearance, self.mechanism, self.payload, self.structure)
+
+
+#: The positioner's parameters that other programs read or set (the tools, the calibrator):
+#: its compensation mode and the calibration file it loads (:class:`CompensationSettings`).
+COMPENSATION_MODE = 'compensation.mode'
+CALIBRATION_FILE = 'compensation.calibration_file'
+
+
+def machine_settings(config: str | Path) -> PositionerSettings:
+    """The positioner's settings in a parameter file without its compensation block: the
+    nominal machine, payload, structure and motion a tool needs to calibrate it or predict its
+    accuracy (a compensation block naming a calibration file is not loaded)."""
+    params = node_parameters(load_parameter_file(config), NODE_POSITIONER)
+    params.pop('compensation', None)
+    return parse(PositionerSettings, params)

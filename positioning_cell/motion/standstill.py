@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.motion.correction import deviation, mean_pose
+from positioning_cell.moves.correction import deviation, mean_pose
 from positioning_cell.parameters import check_fields, setting
 
 FloatArray = NDArray[np.float64]

@@ -29,11 +29,11 @@ from std_srvs.srv import Trigger
 from positioning_cell import names
 from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings, Visit, stamp_seconds
 from positioning_cell.accuracy.verdicts import Verdict
-from positioning_cell.nodes import messages as m
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
-from positioning_cell.nodes.spin import run
 from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recording, recording
+from positioning_cell.ros import messages as m
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
+from positioning_cell.ros.spin import run
 
 _LEVELS = ('ok', 'warn', 'error')
 

@@ -33,10 +33,10 @@ from positioning_cell.bag import (
     playback_qos,
 )
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.nodes.messages import message_class
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import profile_from_qos
-from positioning_cell.nodes.spin import run
+from positioning_cell.ros.messages import message_class
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import profile_from_qos
+from positioning_cell.ros.spin import run
 
 ACK_TIMEOUT_S = 5.0
 

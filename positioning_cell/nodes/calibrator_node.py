@@ -20,8 +20,9 @@ from rclpy.node import Node
 from positioning_cell import names
 from positioning_cell.calibration.settings import CalibratorSettings
 from positioning_cell.errors import ConfigError
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.spin import Spin, run
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.spin import Spin, run
 from positioning_cell.tools.calibrate_cell import (
     EXIT_OK,
     InterruptedRunError,
@@ -29,7 +30,6 @@ from positioning_cell.tools.calibrate_cell import (
     Outcome,
     calibrate_live,
 )
-from positioning_cell.tools.ros import CellClient
 
 #: How often the goal's thread looks for a cancel and passes the feedback on, s.
 POLL_S = 0.1

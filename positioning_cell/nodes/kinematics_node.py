@@ -30,12 +30,12 @@ from positioning_cell.motion.mover import (
     ResultCode,
     State,
 )
-from positioning_cell.nodes import messages as m
-from positioning_cell.nodes import qos
-from positioning_cell.nodes.latest import SourceReader
 from positioning_cell.nodes.operator_interface import OperatorInterface
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.spin import Spin, run
+from positioning_cell.ros import messages as m
+from positioning_cell.ros import qos
+from positioning_cell.ros.latest import SourceReader
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.spin import Spin, run
 
 _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
 

@@ -3,7 +3,7 @@
 
 Follows /legs/joint_trajectory from its commander alone (``command.commander``, the
 positioner: each message is taken with the node that published it,
-:mod:`positioning_cell.nodes.senders`) after checking it against the command bounds and every
+:mod:`positioning_cell.ros.senders`) after checking it against the command bounds and every
 axis limit (an empty one stops with controlled deceleration; a zero header stamp starts on
 receipt), and answers each on /legs/trajectory_status; stops a move when the commander's
 heartbeat (/positioner/heartbeat) falls silent; reports any other publisher on its command
@@ -30,17 +30,17 @@ from trajectory_msgs.msg import JointTrajectory
 from positioning_cell import names
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.nodes import messages as m
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import (
+from positioning_cell.ros import messages as m
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import (
     COMMAND_QOS,
     DIAGNOSTICS_QOS,
     HEARTBEAT_QOS,
     SERVICE_QOS,
     STREAM_QOS,
 )
-from positioning_cell.nodes.senders import IdentifiedSubscription
-from positioning_cell.nodes.spin import run
+from positioning_cell.ros.senders import IdentifiedSubscription
+from positioning_cell.ros.spin import run
 from positioning_cell.sim.commands import CommandQueue
 from positioning_cell.sim.drives import DriverSettings, LegDriver, Outcome
 from positioning_cell.sim.guard import TrajectoryRefusedError

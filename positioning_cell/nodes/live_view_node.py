@@ -3,7 +3,7 @@ server (127.0.0.1:8765 by default; parameters ``host``, ``port``) in the node's 
 the 3-D scene, the frame transforms, the 6-D deviation and the status
 (:class:`~positioning_cell.nodes.live_view_messages.LiveChannels`), sent after each tracker
 measurement up to ``rate_hz`` and at least once a second. Read-only: it subscribes to the
-cell (:class:`~positioning_cell.nodes.watch_inputs.WatchInputs`) and never commands it. Open
+cell (:class:`~positioning_cell.ros.watch_inputs.WatchInputs`) and never commands it. Open
 config/foxglove_layout.json in Foxglove (README: "Watching the cell live")."""
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ from rclpy.node import Node
 
 from positioning_cell import names
 from positioning_cell.errors import ConfigError
-from positioning_cell.nodes import messages as m
 from positioning_cell.nodes.live_view_messages import LiveChannels
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS
-from positioning_cell.nodes.spin import Spin, run
-from positioning_cell.nodes.watch_inputs import WatchInputs
+from positioning_cell.ros import messages as m
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS
+from positioning_cell.ros.spin import Spin, run
+from positioning_cell.ros.watch_inputs import WatchInputs
 from positioning_cell.watch.settings import LiveViewSettings
 from positioning_cell.watch.state import WatchState
 from positioning_cell.watch.throttle import Throttle

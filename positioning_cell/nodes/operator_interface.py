@@ -21,11 +21,11 @@ from positioning_cell.errors import InputError, PositioningError
 from positioning_cell.limits.jog import axis_index
 from positioning_cell.limits.validity import factory_constraints
 from positioning_cell.motion.controller import Controller, MoveCommand
-from positioning_cell.motion.correction import deviation
 from positioning_cell.motion.mover import MoveAbortedError, MoveResult, ResultCode, State
-from positioning_cell.nodes import messages as m
-from positioning_cell.nodes import operator_messages as om
-from positioning_cell.nodes.qos import LATCHED_QOS, SERVICE_QOS
+from positioning_cell.moves.correction import deviation
+from positioning_cell.ros import messages as m
+from positioning_cell.ros import operator_messages as om
+from positioning_cell.ros.qos import LATCHED_QOS, SERVICE_QOS
 
 #: The action feedback's phase of each state.
 _PHASES = {State.MOVING: act.MoveToPose.Feedback.MOVING,

@@ -23,11 +23,11 @@ from std_srvs.srv import Trigger
 from positioning_cell import names
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.nodes import messages as m
-from positioning_cell.nodes.latest import Reader
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, SERVICE_QOS, STREAM_QOS
-from positioning_cell.nodes.spin import run
+from positioning_cell.ros import messages as m
+from positioning_cell.ros.latest import Reader
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, SERVICE_QOS, STREAM_QOS
+from positioning_cell.ros.spin import run
 from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSettings,
     PoseMeasurementSimulator,

@@ -30,17 +30,17 @@ from positioning_cell import names
 from positioning_cell.bag import BagError, RecorderSettings, TopicSelection, recording_qos
 from positioning_cell.bag.writer import BagWriteError
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.nodes.messages import diagnostic, message_class
-from positioning_cell.nodes.parameters import NodeParameters
-from positioning_cell.nodes.qos import (
+from positioning_cell.recording.recorder import Recorder
+from positioning_cell.recording.status import STATUS_PERIOD_S
+from positioning_cell.ros.messages import diagnostic, message_class
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import (
     DIAGNOSTICS_QOS,
     SERVICE_QOS,
     profile_from_qos,
     qos_from_profile,
 )
-from positioning_cell.nodes.spin import run
-from positioning_cell.recording.recorder import Recorder
-from positioning_cell.recording.status import STATUS_PERIOD_S
+from positioning_cell.ros.spin import run
 
 #: Exit status when writing the bag failed (sysexits' EX_IOERR; 2: it could not start).
 EXIT_WRITE_FAILED = 74

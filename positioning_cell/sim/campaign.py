@@ -19,7 +19,7 @@ from positioning_cell.core.poses import pose_error
 from positioning_cell.errors import ConvergenceError
 from positioning_cell.metrology.instrument import Tracker
 from positioning_cell.metrology.targets import TargetLayout
-from positioning_cell.motion.correction import mean_pose
+from positioning_cell.moves.correction import mean_pose
 from positioning_cell.sim.encoders import EncoderSettings, quantise
 from positioning_cell.sim.tracker import SimulatedTracker, observe
 from positioning_cell.sim.truth import Truth

@@ -15,8 +15,8 @@ from numpy.typing import NDArray
 from positioning_cell.core.kinematics import inverse
 from positioning_cell.metrology.instrument import Tracker
 from positioning_cell.metrology.targets import TargetLayout
-from positioning_cell.motion.mover import Answer, JointReading, Machine, Measurement
-from positioning_cell.motion.trajectory import Trajectory, fingerprint
+from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
+from positioning_cell.moves.trajectory import Trajectory, fingerprint
 from positioning_cell.sim.tracker import SimulatedTracker, observe
 from positioning_cell.sim.truth import Truth
 

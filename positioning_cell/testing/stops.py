@@ -17,8 +17,8 @@ from pathlib import Path
 
 from positioning_cell import names
 from positioning_cell.config import config_path
+from positioning_cell.ros.processes import executable
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
-from positioning_cell.tools.processes import executable
 
 #: What an unclean stop prints.
 CRASH_SIGNS = ('Traceback', 'terminate called', 'Segmentation fault', 'Aborted', 'core dumped',
@@ -28,7 +28,7 @@ CRASH_SIGNS = ('Traceback', 'terminate called', 'Segmentation fault', 'Aborted',
 def catches_signal(pid: int, sig: int) -> bool:
     """Whether process ``pid`` has a handler installed for ``sig`` (``SigCgt`` of
     /proc/<pid>/status; False once it has exited). A node started through
-    :mod:`positioning_cell.nodes.entry` catches SIGTERM from its first import on."""
+    :mod:`positioning_cell.ros.entry` catches SIGTERM from its first import on."""
     try:
         text = Path(f'/proc/{pid}/status').read_text()
     except OSError:

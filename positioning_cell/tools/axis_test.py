@@ -65,15 +65,14 @@ from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import PositioningError
-from positioning_cell.motion.calibrated import CALIBRATION_FILE, machine_settings
-from positioning_cell.motion.correction import mean_pose
-from positioning_cell.motion.settings import PositionerSettings
-from positioning_cell.nodes.messages import joint_values, pose_arrays, seconds
-from positioning_cell.nodes.qos import MARKER_QOS, STREAM_QOS
+from positioning_cell.motion.settings import CALIBRATION_FILE, PositionerSettings, machine_settings
+from positioning_cell.moves.correction import mean_pose
 from positioning_cell.parameters import parse
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.messages import joint_values, pose_arrays, seconds
+from positioning_cell.ros.qos import MARKER_QOS, STREAM_QOS
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.ros import CellClient
 
 FloatArray = NDArray[np.float64]
 

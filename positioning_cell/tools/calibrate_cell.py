@@ -55,12 +55,11 @@ from positioning_cell.calibration.report import predict, write_report
 from positioning_cell.config import config_path
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import PositioningError
-from positioning_cell.motion.calibrated import CALIBRATION_FILE, machine_settings
-from positioning_cell.motion.settings import PositionerSettings
-from positioning_cell.nodes.messages import joint_values, measurement, seconds
-from positioning_cell.nodes.qos import MARKER_QOS, SERVICE_QOS, STREAM_QOS
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.ros import CellClient
+from positioning_cell.motion.settings import CALIBRATION_FILE, PositionerSettings, machine_settings
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.messages import joint_values, measurement, seconds
+from positioning_cell.ros.qos import MARKER_QOS, SERVICE_QOS, STREAM_QOS
 
 EXIT_OK, EXIT_NOT_IDENTIFIED, EXIT_UNUSABLE, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: The encoders' resolution as a standard uncertainty (1 µm and 2^20 counts per turn, /√12).

@@ -87,20 +87,20 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.limits.speed import Speeds as LibrarySpeeds
-from positioning_cell.nodes import operator_messages as om
-from positioning_cell.nodes.messages import (
+from positioning_cell.polling import wait_until
+from positioning_cell.ros import operator_messages as om
+from positioning_cell.ros.client import CellClient, GoalClient
+from positioning_cell.ros.messages import (
     pose_arrays,
     pose_stamped,
     status_level,
     status_values,
 )
-from positioning_cell.nodes.parameters import parse_answer, requested_names
-from positioning_cell.nodes.qos import LATCHED_QOS, LATEST_QOS
+from positioning_cell.ros.parameters import parse_answer, requested_names
+from positioning_cell.ros.processes import loopback_only
+from positioning_cell.ros.qos import LATCHED_QOS, LATEST_QOS
 from positioning_cell.tools import cell_format as cf
 from positioning_cell.tools.cell_watch import watch
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.processes import loopback_only
-from positioning_cell.tools.ros import CellClient, GoalClient
 
 #: Longest wait for a service or an action server to appear (s; at most --timeout).
 SERVER_WAIT = 30.0

@@ -41,7 +41,7 @@ from positioning_cell.frames.transforms import (
     pq_from_pose6,
 )
 from positioning_cell.limits.speed import Speeds
-from positioning_cell.motion.outcomes import ResultCode
+from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.watch.deviation import WATCH_FRAMES
 
 FloatArray = NDArray[np.float64]
@@ -101,7 +101,7 @@ _OUT_OF_TOLERANCE_CODE = 50
 
 def exit_code(code_name: str, code: int | None = None) -> int:
     """The exit code of a move's or a homing's outcome: by ``code_name`` (a
-    :class:`~positioning_cell.motion.outcomes.ResultCode` value, MoveOutcome's lower-case
+    :class:`~positioning_cell.moves.outcomes.ResultCode` value, MoveOutcome's lower-case
     constant name), else by the number ``code`` in MoveOutcome's ranges; an outcome that is
     neither (a newer positioner's, or none) counts as aborted."""
     try:

@@ -27,8 +27,8 @@ from rich.text import Text
 
 from positioning_cell import names
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.nodes.watch_inputs import RemoteParameters, WatchInputs
-from positioning_cell.tools.ros import CellClient
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.watch_inputs import RemoteParameters, WatchInputs
 from positioning_cell.watch.state import Snapshot, Status, WatchState
 from positioning_cell.watch.table import HEADERS, rows
 
@@ -120,7 +120,7 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
 
 class WatchWindow:
     """The watch's inputs on ``client``'s node: the cell's topics and the positioner's,
-    monitor's and tracker's parameters (:class:`~positioning_cell.nodes.watch_inputs.
+    monitor's and tracker's parameters (:class:`~positioning_cell.ros.watch_inputs.
     WatchInputs`), the machine from the positioner's ``mechanism.*``."""
 
     def __init__(self, client: CellClient) -> None:

@@ -29,12 +29,12 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from positioning_cell import names
 from positioning_cell.config import config_path
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.nodes.messages import status_values
-from positioning_cell.nodes.qos import COMMAND_QOS, HEARTBEAT_QOS, STREAM_QOS
-from positioning_cell.tools.domains import free_domain
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.processes import Processes, cell_environment
-from positioning_cell.tools.ros import CellClient
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.domains import free_domain
+from positioning_cell.ros.messages import status_values
+from positioning_cell.ros.processes import Processes, cell_environment
+from positioning_cell.ros.qos import COMMAND_QOS, HEARTBEAT_QOS, STREAM_QOS
 
 #: The client's node name: the driver's commander.
 COMMANDER = 'driver_probe'

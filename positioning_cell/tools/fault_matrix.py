@@ -48,16 +48,16 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from positioning_cell import names
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.motion.outcomes import ResultCode
 from positioning_cell.motion.settings import LivenessSettings, PositionerSettings
-from positioning_cell.nodes.messages import duration, pose_arrays, pose_stamped, status_values
-from positioning_cell.nodes.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.parameters import RULE, parse
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.domains import free_domain
+from positioning_cell.ros.messages import duration, pose_arrays, pose_stamped, status_values
+from positioning_cell.ros.processes import Processes, cell_environment
+from positioning_cell.ros.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
 from positioning_cell.sim.guard import Refusal
-from positioning_cell.tools.domains import free_domain
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.processes import Processes, cell_environment
-from positioning_cell.tools.ros import CellClient
 
 #: The trial moves run along base z between home - SPAN and home + SPAN (about 1.6 s each at
 #: the shipped 10 mm/s), so a fault lands mid-move.

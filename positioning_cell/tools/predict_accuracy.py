@@ -25,7 +25,7 @@ from positioning_cell.config import config_path, load_parameter_file, node_param
 from positioning_cell.core.limits import require_within_limits
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError, InputError, PositioningError
-from positioning_cell.motion.calibrated import machine_settings
+from positioning_cell.motion.settings import machine_settings
 from positioning_cell.prediction.angular import (
     PAPER_EXAMPLES,
     PAPER_HOLES,

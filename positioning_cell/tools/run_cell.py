@@ -51,6 +51,10 @@ from positioning_cell.config import config_path, load_parameter_file, node_param
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
 from positioning_cell.parameters import parse
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient, verdict_text
+from positioning_cell.ros.domains import DomainError, free_domain
+from positioning_cell.ros.processes import Processes, cell_environment
 from positioning_cell.sim.campaign import truth_table
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.tools.analyze_bag import EXIT_OK, analyze, describe
@@ -58,10 +62,6 @@ from positioning_cell.tools.axis_test import AxisTestError
 from positioning_cell.tools.axis_test import run_live as run_axis_test
 from positioning_cell.tools.axis_test import write as write_axis_test
 from positioning_cell.tools.calibrate_cell import Machine, run_live
-from positioning_cell.tools.domains import DomainError, free_domain
-from positioning_cell.tools.polling import wait_until
-from positioning_cell.tools.processes import Processes, cell_environment
-from positioning_cell.tools.ros import CellClient, verdict_text
 
 T = TypeVar('T')
 

@@ -1,6 +1,6 @@
 """The latest of each input of a watch window, written by ROS callbacks (any thread) and read
 as one consistent :class:`Snapshot` by the view that draws it. Plain data, no ROS: the node
-and the CLI convert messages (:mod:`positioning_cell.nodes.watch_inputs`) and call the
+and the CLI convert messages (:mod:`positioning_cell.ros.watch_inputs`) and call the
 setters. Poses in ``base`` (m, unit quaternions x, y, z, w), times in s."""
 
 from __future__ import annotations

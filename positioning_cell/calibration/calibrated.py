@@ -1,22 +1,16 @@
 """The positioner's calibrated machine: the identified model its ``calibration_file``
-parameter names, built for its payload (:mod:`positioning_cell.calibration.file`); and the
-positioner's machine as the tools read it from a parameter file."""
+parameter names, built for its payload (:mod:`positioning_cell.calibration.file`), loaded within
+a bounded time."""
 
 from __future__ import annotations
 
-from pathlib import Path
+from typing import Protocol
 
 from positioning_cell import files
 from positioning_cell.calibration.file import CalibrationFileError, load
 from positioning_cell.calibration.machine import MachineModel
-from positioning_cell.config import load_parameter_file, node_parameters
-from positioning_cell.motion.settings import PositionerSettings
-from positioning_cell.names import NODE_POSITIONER
-from positioning_cell.parameters import parse
-
-#: The positioner parameter that names the calibration file.
-CALIBRATION_FILE = 'compensation.calibration_file'
-
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.mechanics.statics import Payload, Structure
 
 #: Longest time the positioner waits for a calibration file to load (s): a real one loads in
 #: some 20 ms, the largest accepted (256 KiB) in some 0.2 s; the bound keeps the node's
@@ -24,7 +18,30 @@ CALIBRATION_FILE = 'compensation.calibration_file'
 LOAD_TIMEOUT_S = 1.0
 
 
-def calibrated_machine(settings: PositionerSettings,
+class _Compensation(Protocol):
+    @property
+    def calibration_file(self) -> str: ...
+
+
+class CalibratedSettings(Protocol):
+    """What a calibrated machine is built from: the calibration file of the compensation
+    settings, the nominal mechanism, the payload and the structure (the positioner's settings,
+    :class:`positioning_cell.motion.settings.PositionerSettings`, are one)."""
+
+    @property
+    def compensation(self) -> _Compensation: ...
+
+    @property
+    def mechanism(self) -> Mechanism: ...
+
+    @property
+    def payload(self) -> Payload: ...
+
+    @property
+    def structure(self) -> Structure: ...
+
+
+def calibrated_machine(settings: CalibratedSettings,
                        timeout: float = LOAD_TIMEOUT_S) -> MachineModel | None:
     """The machine identified in ``settings``' calibration file, carrying its payload (None:
     no file set), loaded in a worker thread within ``timeout`` s
@@ -40,12 +57,3 @@ def calibrated_machine(settings: PositionerSettings,
 
     return files.within(timeout, build, files.describe(files.CALIBRATION_FILE, path),
                         CalibrationFileError)
-
-
-def machine_settings(config: str | Path) -> PositionerSettings:
-    """The positioner's settings in a parameter file without its compensation block: the
-    nominal machine, payload, structure and motion a tool needs to calibrate it or predict its
-    accuracy (a compensation block naming a calibration file is not loaded)."""
-    params = node_parameters(load_parameter_file(config), NODE_POSITIONER)
-    params.pop('compensation', None)
-    return parse(PositionerSettings, params)

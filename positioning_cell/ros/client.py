@@ -1,6 +1,6 @@
 """The tools' one ROS module: an rclpy client of the running cell (its own context, spun in a
 background thread) with the calls the tools and tests make. Everything else in ``tools/`` is
-plain Python (starting the cell's processes: :mod:`positioning_cell.tools.processes`)."""
+plain Python (starting the cell's processes: :mod:`positioning_cell.ros.processes`)."""
 
 from __future__ import annotations
 
@@ -31,10 +31,10 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
-from positioning_cell.motion.outcomes import ResultCode
-from positioning_cell.nodes.messages import pose_stamped, status_values
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
-from positioning_cell.tools.polling import wait_until
+from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.messages import pose_stamped, status_values
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
 
 T = TypeVar('T')
 

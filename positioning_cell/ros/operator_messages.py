@@ -32,8 +32,8 @@ from positioning_cell.limits.boxes import BoxLimits
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.limits.validity import CheckResult
 from positioning_cell.motion.controller import MoveCommand
-from positioning_cell.motion.outcomes import MoveResult, ResultCode
-from positioning_cell.nodes.messages import pose_arrays, pose_msg
+from positioning_cell.moves.outcomes import MoveResult, ResultCode
+from positioning_cell.ros.messages import pose_arrays, pose_msg
 
 #: MoveCommand.mode ↔ the library's move kinds.
 KINDS = {MoveCommandMsg.ABSOLUTE: ABSOLUTE, MoveCommandMsg.RELATIVE_USER: RELATIVE_USER,

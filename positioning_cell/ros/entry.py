@@ -6,7 +6,7 @@ handlers would turn SIGINT into a ``KeyboardInterrupt`` traceback and SIGTERM in
 module is imported first (standard library only) and installs handlers that end the process at
 once with exit 0: nothing is open yet (no rclpy context, no file), and an exception raised inside
 an import would surface as a C extension's ImportError, so none is raised. Just before
-``rclpy.init``, :func:`positioning_cell.nodes.spin.run` swaps them for :func:`hold_stops`. Only
+``rclpy.init``, :func:`positioning_cell.ros.spin.run` swaps them for :func:`hold_stops`. Only
 the interpreter's own start (some 50 ms, before any of the package runs) is left to Python's
 defaults.
 

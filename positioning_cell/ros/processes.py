@@ -1,6 +1,6 @@
 """The cell's executables as processes: their environment (a private ROS domain, loopback
 only), where they are installed, and a group of them started and stopped together. Plain
-Python (subprocess); the rclpy client of the running cell is :mod:`positioning_cell.tools.ros`.
+Python (subprocess); the rclpy client of the running cell is :mod:`positioning_cell.ros.client`.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ matches the GID to a node with the graph (``get_publishers_info_by_topic``: each
 ``endpoint_gid`` and node), which is how ``ros2 topic info -v`` names publishers.
 
 A subscription here is created on a node of its own that no executor spins (as
-:class:`positioning_cell.nodes.latest.Reader` does): DDS keeps the history (the QoS depth)
+:class:`positioning_cell.ros.latest.Reader` does): DDS keeps the history (the QoS depth)
 until :meth:`IdentifiedSubscription.take` takes it, so the owner decides when to take, and
 takes in one call everything that came.
 """

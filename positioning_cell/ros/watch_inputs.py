@@ -26,11 +26,11 @@ from positioning_cell.accuracy.verdicts import Tolerances
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.metrology.targets import TargetLayout
-from positioning_cell.nodes import messages as m
-from positioning_cell.nodes import operator_messages as om
-from positioning_cell.nodes.parameters import parse_answer, requested_names
-from positioning_cell.nodes.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
 from positioning_cell.recording.status import RecorderReport
+from positioning_cell.ros import messages as m
+from positioning_cell.ros import operator_messages as om
+from positioning_cell.ros.parameters import parse_answer, requested_names
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
 from positioning_cell.watch.state import Snapshot, Status, WatchState
 
 #: A viewer takes the newest samples and never holds a writer back: best effort, shallow.

@@ -19,7 +19,7 @@ from rclpy.utilities import get_default_context
 
 from positioning_cell import files
 from positioning_cell.errors import PositioningError
-from positioning_cell.nodes.entry import hold_stops, stop_requested
+from positioning_cell.ros.entry import hold_stops, stop_requested
 
 STOP_POLL_S = 0.1
 """Longest time from SIGINT / SIGTERM to the executor returning (s), besides a running callback."""
@@ -51,7 +51,7 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
     rclpy's own signal handlers are not installed: they shut the context down at once, while a
     timer callback may be publishing on it ("publisher's context is invalid", a FATAL log and a
     traceback). SIGINT and SIGTERM only set a flag
-    (:func:`~positioning_cell.nodes.entry.hold_stops`); the executor spins in slices of
+    (:func:`~positioning_cell.ros.entry.hold_stops`); the executor spins in slices of
     :data:`STOP_POLL_S` and returns between two callbacks once the flag is up, and only then is
     the node closed and the context shut down. A stop that came before ``rclpy.init`` is
     honoured after it.

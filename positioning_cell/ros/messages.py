@@ -20,7 +20,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import InputError
 from positioning_cell.motion.mover import Answer, JointReading, Measurement
-from positioning_cell.motion.trajectory import Trajectory
+from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.names import BASE_FRAME
 
 

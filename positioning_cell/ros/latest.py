@@ -16,8 +16,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 
-from positioning_cell.nodes.qos import LATEST_QOS
-from positioning_cell.nodes.senders import IdentifiedSubscription
+from positioning_cell.ros.qos import LATEST_QOS
+from positioning_cell.ros.senders import IdentifiedSubscription
 
 
 class Reader:
@@ -60,7 +60,7 @@ class SourceReader:
     """Messages of ``topic`` taken on demand, as :class:`Reader`, but only those published by
     the node ``source`` (its fully qualified name): a message from any other node is dropped
     and its sender remembered (:meth:`foreign`), so a second publisher on the topic can
-    neither feed the consumer nor go unnoticed (:mod:`positioning_cell.nodes.senders`).
+    neither feed the consumer nor go unnoticed (:mod:`positioning_cell.ros.senders`).
     ``qos`` depth: unread messages kept, of every sender."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, source: str,
