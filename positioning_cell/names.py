@@ -72,6 +72,9 @@ CALIBRATION = '/cell/calibration'
 #: An axis test's measured stops (run_cell --axis-test): axis, target, direction, cycle,
 #: commanded, tracker and true values (JSON in std_msgs/String).
 AXIS_TEST = '/cell/axis_test'
+#: The topics procedures send their markers on (the program steps, the calibration poses, the
+#: axis-test stops): JSON text, kept for a recorder that joins late.
+MARKER_TOPICS = (PROGRAM, CALIBRATION, AXIS_TEST)
 
 #: Every topic of the cell, in the README's table order: what the recorder takes by default
 #: (not COORDINATE_SYSTEMS: its type, of positioning_cell_interfaces, is not in the bags'

@@ -70,6 +70,12 @@ class Verdict:
                 f'{math.degrees(self.tolerances.orientation):.4f}°): '
                 f'{"OK" if self.ok else "OUT OF TOLERANCE"}')
 
+    def short(self) -> str:
+        """In a few words, as a run prints it: ``|Δp| 3.2 µm, 0.0004°: OK``."""
+        return (f'|Δp| {self.position_error * 1e6:.1f} µm, '
+                f'{math.degrees(self.orientation_error):.4f}°: '
+                f'{"OK" if self.ok else "OUT OF TOLERANCE"}')
+
 def judge(position_error: float, orientation_error: float,
           tolerances: Tolerances | None = None) -> Verdict:
     """Verdict of a pose error: ``position_error`` |Δp| (m), ``orientation_error`` the

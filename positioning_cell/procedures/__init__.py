@@ -1,0 +1,6 @@
+"""The cell's procedures, without ROS: the calibration run, the program run, the axis test and
+the fault trials, each written against one small :class:`~.port.CellPort` (home, move, jog,
+compensation mode, tracker readings, the latest joints, markers, stop), with ``say`` (a line
+of progress) and a stop signal injected, returning typed outcomes. The ROS port
+(:mod:`positioning_cell.ros.port`) drives the live cell; the in-process port over the instant
+cell (:mod:`positioning_cell.sim.instant_port`) runs each procedure in a unit test in seconds."""

@@ -1,0 +1,188 @@
+"""The in-process port: :class:`~positioning_cell.procedures.port.CellPort` on the positioner's
+own move logic (:class:`~positioning_cell.motion.mover.Mover` and its operator surface
+:class:`~positioning_cell.motion.controller.Controller`, unchanged) driving an
+:class:`~positioning_cell.sim.instant_cell.InstantCell` (drives that arrive at once, encoders
+that read the axes exactly, the simulated tracker), on a virtual clock. Every procedure runs on
+it in a unit test in seconds, without DDS. The truth stays in the simulator: the port gives
+it out only as the "true" axis positions of :class:`~positioning_cell.procedures.port.Readings`
+(judging only), as the live simulator does on ``/sim/legs/true_joint_states``."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from positioning_cell import names
+from positioning_cell.accuracy.verdicts import Tolerances, judge
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.poses import pose_error
+from positioning_cell.errors import ConfigError, PositioningError
+from positioning_cell.motion.controller import Controller, MoveCommand
+from positioning_cell.motion.mover import Mover
+from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.moves.correction import mean_pose
+from positioning_cell.moves.outcomes import MoveAbortedError
+from positioning_cell.parameters import parse
+from positioning_cell.procedures.port import FloatArray, Moved, ProcedureError, Readings, Seen
+from positioning_cell.sim.instant_cell import DRIVES_READY, InstantCell
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
+from positioning_cell.sim.tracker import observe
+
+#: The simulated tracker's reading rate (Hz): the virtual time a window of readings takes.
+TRACKER_RATE_HZ = 20.0
+
+
+def _moved(action: object) -> Moved:
+    """A finished command as :class:`Moved` (the mover raises MoveAbortedError otherwise)."""
+    return Moved(True, 'success', str(getattr(action, 'reason', 'done')))
+
+
+class InstantPort:
+    """The procedures' cell in process (module docstring): the machine of the simulator
+    ``sim`` (located), driven by a mover with ``settings`` (its settle time should be 0: the
+    drives arrive at once), coordinate systems in ``folder``; ``seed`` draws the tracker's
+    noise."""
+
+    def __init__(self, sim: PoseMeasurementSimulator, settings: PositionerSettings,
+                 folder: Path, seed: int = 2) -> None:
+        if sim.location is None:
+            raise ProcedureError('the simulated tracker has not located itself')
+        self.sim = sim
+        self.cell = InstantCell(sim.truth, sim.instrument, sim.location.tracker,
+                                sim.settings.targets, np.random.default_rng(seed))
+        self.mover = Mover(settings, self.cell.machine())
+        self.mover.driver_status(DRIVES_READY)
+        if self.mover.estimate_pose() is None:  # takes the first encoder reading
+            raise ProcedureError('the simulated cell gives no pose estimate')
+        self.controller = Controller(self.mover, replace(
+            settings.operator, coordinate_systems_file=str(folder / 'systems.yaml')))
+        self.rng = np.random.default_rng(seed + 1)
+        self.clock = 0.0
+        self.tolerances = Tolerances()
+        #: What the procedure sent: (topic, text) per marker, in order.
+        self.marks: list[tuple[str, str]] = []
+        #: Every command, in order: ('home' | 'move' | 'jog', what, Moved).
+        self.commands: list[tuple[str, object, Moved]] = []
+        self.stops = 0
+        self._verdicts: list[str] = []
+        self._goal: tuple[FloatArray, FloatArray] | None = None
+
+    @classmethod
+    def from_config(cls, folder: Path, config: Path | None = None, *, seed: int = 2,
+                    sim_settings: PoseMeasurementSettings | None = None) -> InstantPort:
+        """The cell of a parameter file (default: the shipped ``config/cell.yaml``): its
+        simulator (or ``sim_settings``) and its positioner, settle time 0."""
+        params = load_parameter_file(config or config_path())
+        if sim_settings is None:
+            sim_settings = parse(PoseMeasurementSettings,
+                                 node_parameters(params, names.NODE_MEASUREMENT))
+        positioner = parse(PositionerSettings, node_parameters(params, names.NODE_POSITIONER))
+        return cls(PoseMeasurementSimulator(sim_settings), replace(positioner, settle_time=0.0),
+                   folder, seed)
+
+    def now(self) -> float:
+        return self.clock
+
+    # -- moves ----------------------------------------------------------------------------------
+    def _run(self, kind: str, what: object, command: object) -> Moved:
+        try:
+            moved = _moved(command() if callable(command) else command)
+        except MoveAbortedError as err:
+            moved = Moved(False, err.code.value, str(err))
+        self.commands.append((kind, what, moved))
+        return moved
+
+    def home(self) -> Moved:
+        mech = self.mover.mech
+        self._goal = (np.asarray(mech.home_position, float),
+                      np.asarray(mech.home_quaternion, float))
+        return self._run('home', None, self.mover.home)
+
+    def move(self, position: ArrayLike, quaternion: ArrayLike, tolerance: float = 0.0) -> Moved:
+        p = np.asarray(position, dtype=float)
+        q = np.asarray(quaternion, dtype=float)
+        self._goal = (p, q)
+        command = MoveCommand('absolute', names.BASE_FRAME, p, q, float(tolerance))
+        return self._run('move', (p, q), lambda: self.controller.move(command))
+
+    def jog(self, axis: str, delta: float) -> Moved:
+        self._goal = None
+        return self._run('jog', (axis, delta), lambda: self.controller.jog(axis, delta))
+
+    def stop(self) -> None:
+        self.stops += 1
+        self.mover.stop()
+
+    def rest(self, seconds: float) -> None:
+        self.clock += seconds
+
+    # -- settings -------------------------------------------------------------------------------
+    def _reconfigure(self, settings: PositionerSettings) -> None:
+        self.mover.prepare(settings)
+        self.mover.reconfigure(settings)
+
+    def mode(self) -> str:
+        return str(self.mover.settings.compensation.mode)
+
+    def set_mode(self, mode: str) -> None:
+        s = self.mover.settings
+        try:
+            self._reconfigure(replace(s, compensation=replace(s.compensation, mode=mode)))
+        except (ConfigError, PositioningError, ValueError) as err:
+            raise ProcedureError(f'the positioner refused compensation.mode = {mode}: '
+                                 f'{err}') from err
+
+    def calibration_file(self) -> str:
+        return str(self.mover.settings.compensation.calibration_file)
+
+    def load_calibration(self, path: str) -> tuple[bool, str]:
+        s = self.mover.settings
+        try:
+            self._reconfigure(replace(s, compensation=replace(s.compensation,
+                                                              calibration_file=path)))
+        except (ConfigError, PositioningError) as err:
+            return False, str(err)
+        return True, ''
+
+    # -- readings -------------------------------------------------------------------------------
+    def joints(self) -> FloatArray:
+        return self.cell.position.copy()
+
+    def readings(self, samples: int, timeout: float) -> Readings:
+        p, q = self.cell.true_pose()
+        _, fit = observe(self.cell.instrument, self.cell.located, self.cell.targets,
+                         np.repeat(p[None], samples, 0), np.repeat(q[None], samples, 0),
+                         self.rng)
+        start = self.clock
+        stamps = start + np.arange(samples) / TRACKER_RATE_HZ
+        self.clock = start + samples / TRACKER_RATE_HZ
+        # the encoders read the axes exactly here: the truth is where they stand
+        return Readings(stamps, fit.position, fit.quaternion, fit.covariance,
+                        self.cell.position.copy(), self.cell.position.copy(), start,
+                        float(stamps[-1]))
+
+    # -- markers and the monitor ----------------------------------------------------------------
+    def mark(self, topic: str, text: str) -> None:
+        if topic not in names.MARKER_TOPICS:
+            raise ValueError(f'{topic} is not a marker topic ({", ".join(names.MARKER_TOPICS)})')
+        self.marks.append((topic, text))
+
+    def recorded(self, topic: str) -> bool:
+        return False  # no recorder in process
+
+    def seen(self) -> Seen:
+        return Seen(len(self._verdicts), None)
+
+    def verdict(self, before: Seen, timeout: float) -> str | None:
+        """The monitor's rule on the pose the last move settled at: the mean of ten tracker
+        readings against its goal (None after a jog or before any move)."""
+        if self._goal is None:
+            return None
+        r = self.readings(10, timeout)
+        e_p, e_r = pose_error(*mean_pose(r.position, r.quaternion), *self._goal)
+        verdict = judge(float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r)), self.tolerances)
+        self._verdicts.append(verdict.short())
+        return self._verdicts[before.verdicts] if len(self._verdicts) > before.verdicts else None
