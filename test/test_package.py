@@ -22,6 +22,8 @@ from positioning_cell import names
 PACKAGE = 'positioning_cell'
 # Node names of the executables (the one table: positioning_cell.names).
 NODE_NAMES = {node.executable: node.name for node in names.NODE_EXECUTABLES}
+#: The nodes' console entry points (positioning_cell/ros/entry.py); the tools' are their main().
+NODE_ENTRY = 'positioning_cell.ros.entry:'
 
 
 def declared_executables() -> dict[str, str]:
@@ -108,8 +110,8 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
     lib = prefix / 'lib' / PACKAGE
     for name in executables:
         assert os.access(lib / name, os.X_OK), f'{name} missing from {lib}'
-    nodes = {n: v for n, v in executables.items() if '.nodes.' in v}
-    tools = {n: v for n, v in executables.items() if '.nodes.' not in v}
+    nodes = {n: v for n, v in executables.items() if v.startswith(NODE_ENTRY)}
+    tools = {n: v for n, v in executables.items() if not v.startswith(NODE_ENTRY)}
     helps = {name: subprocess.Popen([str(lib / name), '--help'], stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True) for name in tools}
     for name, proc in helps.items():  # command-line tools answer --help (all at once)
