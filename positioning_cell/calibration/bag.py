@@ -32,7 +32,8 @@ def _joints(msg: Any) -> np.ndarray | None:
     return np.array([msg.position[index[n]] for n in JOINT_NAMES], dtype=float)
 
 
-def read_bag(path: Path, run: str | None = None, say: Callable[[str], None] = print) -> col.Collected:
+def read_bag(path: Path, run: str | None = None,
+             say: Callable[[str], None] = print) -> col.Collected:
     """The calibration data of run ``run`` (its start, as printed; default: the last one)
     recorded in the bag at ``path`` (PositioningError if it lacks the markers, the encoder
     readings or the tracker poses, or holds no such run)."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -15,7 +15,21 @@ from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration.collect import Collected
 from positioning_cell.calibration.report import predict, write_report
-from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.mechanics.statics import Payload, Structure
+
+
+class Nominal(Protocol):
+    """The nominal machine a calibration starts from (the positioner's settings have it)."""
+
+    @property
+    def mechanism(self) -> Mechanism: ...
+
+    @property
+    def payload(self) -> Payload: ...
+
+    @property
+    def structure(self) -> Structure: ...
 
 
 class Figures(NamedTuple):
@@ -43,7 +57,7 @@ def rms(a: Any) -> float:
     return float(np.sqrt(np.mean(np.sum(np.asarray(a)**2, axis=1)))) if len(a) else float('nan')
 
 
-def identify_and_write(settings: PositionerSettings, collected: Collected, out: Path,
+def identify_and_write(settings: Nominal, collected: Collected, out: Path,
                        program: dict[str, Any], say: Callable[[str], None]) -> Written:
     """Identify the machine of ``settings`` (its nominal mechanism, payload, structure) from
     ``collected``, validate it on its hold-out poses, write the file (``program``: how the
@@ -94,7 +108,7 @@ def identify_and_write(settings: PositionerSettings, collected: Collected, out: 
                    f'{len(collected.fit.joints)} poses, written to {path}')
 
 
-def fit_so_far(settings: PositionerSettings, collected: Collected) -> str:
+def fit_so_far(settings: Nominal, collected: Collected) -> str:
     """'; fit so far ...': the residual of an identification on the fit poses measured so far
     (a progress line's tail)."""
     s, data = settings, collected.fit
