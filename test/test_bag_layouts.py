@@ -47,12 +47,12 @@ from positioning_cell.bag import (
     verify_bag,
     verify_file,
 )
+from positioning_cell.calibration.bag import read_bag
 from positioning_cell.calibration.collect import Collected
 from positioning_cell.config import config_path
 from positioning_cell.testing.layouts import LAYOUTS, Layout, rewrite_bag
 from positioning_cell.tools import analyze_bag
 from positioning_cell.tools.calibrate_cell import main as calibrate_main
-from positioning_cell.tools.calibrate_cell import read_bag
 
 MAKE_RUN = Path(__file__).resolve().parent / 'data' / 'makerun' / 'bag'
 SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
@@ -128,7 +128,7 @@ def _played(bag: Path, start_offset_s: float = 0.0,
 
 def _calibration(bag: Path) -> Collected:
     """What calibrate_cell --from-bag identifies from: the data of the bag's last run."""
-    return read_bag(bag, say=lambda _: None).collected()
+    return read_bag(bag, say=lambda _: None)
 
 
 @pytest.fixture(scope='module')

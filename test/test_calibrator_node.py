@@ -170,3 +170,34 @@ def test_cancel_stops_the_move_and_writes_nothing(cell: Cell) -> None:
     again.cancel_goal_async()
     assert cell.result(again, 60.0).status == GoalStatus.STATUS_CANCELED
     print(f'canceled after {len(feedback)} poses; result {stopped_in:.2f} s after the cancel')
+
+
+def test_a_shutdown_mid_calibration_stops_the_move_and_puts_the_mode_back_at_once(
+        cell: Cell) -> None:
+    """SIGINT to the calibrator while the positioner moves to a pose: the goal's stop event
+    stops the drives at once, the mode is put back, nothing written, and the node exits
+    well before its longest wait (CLOSE_WAIT_S) would have run out."""
+    from positioning_cell.nodes.calibrator_node import CLOSE_WAIT_S
+    client = cell.client
+    statuses = client.statuses(names.STATUS_POSITIONER)
+    feedback: list[Any] = []
+    handle = cell.send(feedback)
+    assert handle.accepted
+    result = handle.get_result_async()
+    cell.until(lambda: feedback or result.done(), 90.0, 'the feedback of the first pose')
+    assert feedback, f'the goal ended first: {result.result().result.reason}'
+    cell.until(lambda: statuses and state(statuses[-1]) == 'moving', 10.0,
+               'the move to the next pose')
+    seen = len(statuses)
+    t0 = time.monotonic()
+    exe = names.CALIBRATOR.executable
+    assert cell.procs.stop(exe, grace=2 * CLOSE_WAIT_S) == {exe: 0}, cell.procs.log(exe)[-2000:]
+    closed_in = time.monotonic() - t0
+    assert closed_in < CLOSE_WAIT_S, closed_in
+    codes = [status_values(s).get('code') for s in statuses[seen:]]
+    assert 'aborted_stop' in codes, [(state(s), s.message) for s in statuses[seen:]]
+    assert client.get_parameter(names.NODE_POSITIONER, MODE) == 'measured'  # put back
+    assert client.get_parameter(names.NODE_POSITIONER, CALIBRATION_FILE) == ''
+    assert not (cell.out / 'calibration.yaml').exists()
+    assert 'calibration stopped: drives stopped, nothing written' in cell.procs.log(exe)
+    print(f'the calibrator exited {closed_in:.2f} s after SIGINT, mid-calibration')

@@ -211,13 +211,19 @@ class Controller:
         return self.systems.resolve_goal(command.kind, command.frame_id, pose, current,
                                          self.mech)
 
-    def move(self, command: MoveCommand) -> MoveResult:
-        """Run a request: resolved, planned within every layer at the requested speed, moved
-        and settled within its tolerance (MoveAbortedError names the outcome otherwise)."""
-        try:
-            p, q = self.resolve(command)
-        except InputError as err:
-            raise self.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
+    def move(self, command: MoveCommand,
+             resolved: tuple[FloatArray, FloatArray] | None = None) -> MoveResult:
+        """Run a request: resolved (``resolved``: the goal :meth:`resolve` already gave for
+        it, not resolved again, so that a relative move and the feedback of its caller use
+        one goal), planned within every layer at the requested speed, moved and settled
+        within its tolerance (MoveAbortedError names the outcome otherwise)."""
+        if resolved is not None:
+            p, q = resolved
+        else:
+            try:
+                p, q = self.resolve(command)
+            except InputError as err:
+                raise self.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
         return self.mover.move('base', p, q, command.tolerance,
                                limits=self.limits_for(float(command.speed_scale)),
                                path_check=self._path_check)

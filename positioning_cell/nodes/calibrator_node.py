@@ -1,14 +1,16 @@
-"""calibrator_node (node ``calibrator``): the Calibrate action on /calibrator/calibrate runs
-``calibrate_cell``'s live calibration (:func:`positioning_cell.tools.calibrate_cell.
-calibrate_live`) on the running cell, in a worker thread with its own client of the cell:
-feedback per measured pose, the identification's figures in the result, the positioner told
-to load the file (``load``). One goal at a time (another one meanwhile is rejected); a cancel
-stops the move (/positioner/stop), puts the positioner's mode back and writes nothing."""
+"""calibrator_node (node ``calibrator``): the Calibrate action on /calibrator/calibrate runs the
+live calibration (:func:`positioning_cell.procedures.calibration.calibrate`) on the running
+cell through a :class:`~positioning_cell.ros.port.RosCellPort` (a client node of its own in
+this node's context, for the goal), in a worker thread (:func:`positioning_cell.ros.goals.
+run_goal`): feedback per measured pose, the identification's figures in the result, the
+positioner told to load the file (``load``). One goal at a time (another one meanwhile is
+rejected); a cancel, or the node's shutdown, stops the move at once (/positioner/stop), puts
+the positioner's mode back and writes nothing."""
 
 from __future__ import annotations
 
-import queue
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -20,20 +22,17 @@ from rclpy.node import Node
 from positioning_cell import names
 from positioning_cell.calibration.settings import CalibratorSettings
 from positioning_cell.errors import ConfigError
+from positioning_cell.motion.settings import machine_settings
+from positioning_cell.procedures.calibration import Outcome, calibrate
+from positioning_cell.procedures.stopping import Stopped
 from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.goals import Ran, run_goal
 from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.spin import Spin, run
-from positioning_cell.tools.calibrate_cell import (
-    EXIT_OK,
-    InterruptedRunError,
-    Machine,
-    Outcome,
-    calibrate_live,
-)
 
-#: How often the goal's thread looks for a cancel and passes the feedback on, s.
-POLL_S = 0.1
-#: Longest wait at shutdown for a running calibration to stop the drives and end, s.
+#: Longest wait at shutdown for a running calibration to stop the drives, put the mode back
+#: and end, s (it ends as soon as the stopped move has ended).
 CLOSE_WAIT_S = 10.0
 
 
@@ -46,7 +45,7 @@ class CalibratorNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS)
-        self.machine = Machine.from_config(self.params.settings.machine_file())
+        self.machine = machine_settings(self.params.settings.machine_file())
         self._lock = threading.Lock()
         self._busy = False
         self._closing = threading.Event()
@@ -84,73 +83,49 @@ class CalibratorNode(Node):
         except ConfigError as err:
             goal_handle.abort()
             return Calibrate.Result(success=False, reason=f'invalid goal: {err}')
-        stop = threading.Event()
-        feedback: queue.SimpleQueue[tuple[int, int, str, float]] = queue.SimpleQueue()
-        box: dict[str, Any] = {}
-        worker = threading.Thread(target=self._work, args=(settings, stop, feedback, box),
-                                  daemon=True)
-        worker.start()
-        while worker.is_alive():
-            worker.join(POLL_S)
-            if goal_handle.is_cancel_requested or self._closing.is_set():
-                stop.set()
-            self._pass_on(goal_handle, feedback)
-        self._pass_on(goal_handle, feedback)
-        return self._finish(goal_handle, box)
+        ran = run_goal(goal_handle, lambda stop, feedback: self._work(settings, stop, feedback),
+                       closing=self._closing)
+        return self._finish(goal_handle, ran)
 
     def _work(self, settings: CalibratorSettings, stop: threading.Event,
-              feedback: queue.SimpleQueue[tuple[int, int, str, float]],
-              box: dict[str, Any]) -> None:
-        """The calibration, in its own thread with its own client of the cell (a context of
-        its own on this node's domain, spun in the client's thread)."""
-        try:
-            with CellClient(self.context.get_domain_id(), f'{self.NAME}_client',
-                            signals=False) as client:
-                box['outcome'] = calibrate_live(
-                    client, self.machine, settings.program, settings.samples,
-                    Path(settings.out_dir), self._say, load=settings.load,
-                    timeout=settings.timeout, stop=stop,
-                    progress=lambda *pose: feedback.put(pose))
-        except InterruptedRunError:
-            box['interrupted'] = True
-        except Exception as err:  # reported in the result; the node goes on serving
-            self.get_logger().error(f'calibration failed: {type(err).__name__}: {err}')
-            box['error'] = f'{type(err).__name__}: {err}'
+              feedback: Callable[[Any], None]) -> Outcome:
+        """The calibration, in the goal's worker thread, through a client node of its own
+        in this node's context (spun in the client's thread)."""
+        with CellClient(name=f'{self.NAME}_client', context=self.context) as client:
+            return calibrate(
+                RosCellPort(client), self.machine, settings.program,
+                settings.samples, Path(settings.out_dir), self._say, load=settings.load,
+                timeout=settings.timeout, stop=stop,
+                progress=lambda k, total, which, deviation: feedback(Calibrate.Feedback(
+                    pose=k, poses=total, set_name=which, deviation=deviation)))
 
     def _say(self, text: str) -> None:
         self.get_logger().info(text)
 
-    @staticmethod
-    def _pass_on(goal_handle: Any, feedback: queue.SimpleQueue[tuple[int, int, str, float]]
-                 ) -> None:
-        """Publish the measured poses reported so far as feedback."""
-        while not feedback.empty():
-            k, total, which, deviation = feedback.get()
-            goal_handle.publish_feedback(Calibrate.Feedback(
-                pose=k, poses=total, set_name=which, deviation=deviation))
-
-    def _finish(self, goal_handle: Any, box: dict[str, Any]) -> Calibrate.Result:
+    def _finish(self, goal_handle: Any, ran: Ran[Outcome]) -> Calibrate.Result:
         """End the goal by how the calibration ended: succeeded (written, and loaded if
         asked), canceled (a requested stop), else aborted with the reason."""
-        outcome: Outcome | None = box.get('outcome')
+        outcome = ran.value
         if outcome is None:
-            canceled = 'interrupted' in box and goal_handle.is_cancel_requested
-            stopped = 'canceled' if canceled else 'stopped (the node shuts down)'
-            reason = box.get('error', f'{stopped}: drives stopped, nothing written')
-            if canceled:
+            if isinstance(ran.error, Stopped):
+                why = 'canceled' if ran.canceled else 'stopped (the node shuts down)'
+                reason = f'{why}: drives stopped, nothing written'
+            else:
+                reason = f'{type(ran.error).__name__}: {ran.error}'
+                self.get_logger().error(f'calibration failed: {reason}')
+            if ran.canceled:
                 goal_handle.canceled()
             else:
                 goal_handle.abort()
             return Calibrate.Result(success=False, reason=reason)
-        success = outcome.status == EXIT_OK and outcome.loaded is not False
-        result = Calibrate.Result(success=success, reason=outcome.reason,
+        result = Calibrate.Result(success=outcome.succeeded, reason=outcome.reason,
                                   calibration_file=str(outcome.path.resolve())
                                   if outcome.path is not None else '')
         if outcome.figures is not None:
             result.fit_rms = outcome.figures.fit_rms
             result.hold_out_rms = outcome.figures.hold_out_rms
             result.identified = outcome.figures.identified
-        if success:
+        if outcome.succeeded:
             goal_handle.succeed()
         else:
             goal_handle.abort()

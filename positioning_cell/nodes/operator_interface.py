@@ -5,7 +5,6 @@ speeds and jog, each one call into the operator's surface
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -25,14 +24,13 @@ from positioning_cell.motion.mover import MoveAbortedError, MoveResult, ResultCo
 from positioning_cell.moves.correction import deviation
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
+from positioning_cell.ros.goals import run_goal
 from positioning_cell.ros.qos import LATCHED_QOS, SERVICE_QOS
 
 #: The action feedback's phase of each state.
 _PHASES = {State.MOVING: act.MoveToPose.Feedback.MOVING,
            State.SETTLING: act.MoveToPose.Feedback.SETTLING,
            State.CORRECTING: act.MoveToPose.Feedback.CORRECTING}
-#: Feedback period of the actions, s.
-FEEDBACK_PERIOD = 0.1
 
 
 class OperatorInterface:
@@ -72,65 +70,53 @@ class OperatorInterface:
         return self.node.get_clock().now().to_msg()
 
     # -- moves ----------------------------------------------------------------------------------
-    def _run_move(self, command: MoveCommand, progress: Callable[[tuple[Any, Any]], None]
-                  | None = None) -> Any:
-        """Run a request to its MoveOutcome; ``progress(goal)`` is called every
-        :data:`FEEDBACK_PERIOD` s while it runs (the goal resolved to base)."""
+    def _resolve(self, command: MoveCommand) -> tuple[Any, Any] | Any:
+        """The goal in base of a request, resolved once (the move and its feedback use it), or
+        the MoveOutcome of its refusal."""
         op = self.controller
         try:
-            goal = op.resolve(command)
+            return op.resolve(command)
         except InputError as err:
             op.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err))
             return om.outcome(ResultCode.REFUSED_INVALID_GOAL, str(err))
-        return self._watched(lambda: op.move(command), goal, progress)
 
-    def _watched(self, run: Callable[[], MoveResult], goal: tuple[Any, Any],
-                 progress: Callable[[tuple[Any, Any]], None] | None) -> Any:
-        """Run a move in a worker thread, calling ``progress`` while it runs; its outcome."""
-        box: dict[str, Any] = {}
-
-        def work() -> None:
-            try:
-                box['result'] = run()
-            except MoveAbortedError as err:
-                box['error'] = err
-
-        worker = threading.Thread(target=work, daemon=True)
-        if progress is not None:
-            progress(goal)  # the first feedback: planning
-        worker.start()
-        while worker.is_alive():
-            worker.join(FEEDBACK_PERIOD)
-            if progress is not None and worker.is_alive():
-                progress(goal)
-        if 'error' in box:
-            err = box['error']
-            return om.outcome(err.code, str(err))
-        result: MoveResult = box['result']
+    def _outcome(self, result: MoveResult | None, error: BaseException | None,
+                 goal: tuple[Any, Any]) -> Any:
+        """The MoveOutcome of a move that returned ``result`` or raised ``error``."""
+        if isinstance(error, MoveAbortedError):
+            return om.outcome(error.code, str(error))
+        if error is not None:
+            raise error
+        assert result is not None
         return om.outcome(ResultCode.SUCCESS, result.reason, result, goal,
                           self.controller.user_position(*om.attained(result, goal)),
                           self._now())
 
-    def _feedback(self, goal_handle: Any, kind: Any) -> Callable[[tuple[Any, Any]], None]:
-        """A progress callback that cancels on request and publishes the feedback."""
-        def progress(goal: tuple[Any, Any]) -> None:
-            if goal_handle.is_cancel_requested:
-                self.controller.mover.stop()
-            mover = self.controller.mover
-            feedback = kind.Feedback()
-            state = mover.state
-            if hasattr(feedback, 'phase'):
-                feedback.phase = _PHASES.get(state, kind.Feedback.PLANNING)
-                estimate = mover.estimate
-                if estimate is not None:
-                    e_p, e_r = deviation(estimate.position, estimate.quaternion, *goal)
-                    feedback.position_error = [float(v) for v in e_p]
-                    feedback.orientation_error = [float(v) for v in e_r]
-            feedback.phase_name = state.value
-            feedback.progress = mover.progress() if state is State.MOVING else (
-                1.0 if state in (State.SETTLING, State.CORRECTING, State.SETTLED) else 0.0)
-            goal_handle.publish_feedback(feedback)
-        return progress
+    def _goal(self, goal_handle: Any, kind: Any, run: Callable[[], MoveResult],
+              goal: tuple[Any, Any]) -> Any:
+        """Run a move for an action goal (:func:`run_goal`: feedback every period, a cancel
+        stops the drives); its MoveOutcome."""
+        ran = run_goal(goal_handle, lambda stop, feedback: run(),
+                       on_stop=self.controller.mover.stop,
+                       tick=lambda: self._feedback(kind, goal))
+        return self._outcome(ran.value, ran.error, goal)
+
+    def _feedback(self, kind: Any, goal: tuple[Any, Any]) -> Any:
+        """The action's feedback now: the phase, the deviation from ``goal``, the progress."""
+        mover = self.controller.mover
+        feedback = kind.Feedback()
+        state = mover.state
+        if hasattr(feedback, 'phase'):
+            feedback.phase = _PHASES.get(state, kind.Feedback.PLANNING)
+            estimate = mover.estimate
+            if estimate is not None:
+                e_p, e_r = deviation(estimate.position, estimate.quaternion, *goal)
+                feedback.position_error = [float(v) for v in e_p]
+                feedback.orientation_error = [float(v) for v in e_r]
+        feedback.phase_name = state.value
+        feedback.progress = mover.progress() if state is State.MOVING else (
+            1.0 if state in (State.SETTLING, State.CORRECTING, State.SETTLED) else 0.0)
+        return feedback
 
     @staticmethod
     def _finish(goal_handle: Any, result: Any) -> Any:
@@ -147,19 +133,31 @@ class OperatorInterface:
 
     def _act_move(self, goal_handle: Any) -> Any:
         command = om.move_command(goal_handle.request.command)
-        outcome = self._run_move(command, self._feedback(goal_handle, act.MoveToPose))
+        goal = self._resolve(command)
+        outcome = goal if not isinstance(goal, tuple) else self._goal(
+            goal_handle, act.MoveToPose, lambda: self.controller.move(command, resolved=goal),
+            goal)
         return self._finish(goal_handle, act.MoveToPose.Result(outcome=outcome))
 
     def _act_home(self, goal_handle: Any) -> Any:
         mover = self.controller.mover
-        outcome = self._watched(mover.home, (mover.mech.home_position,
-                                             mover.mech.home_quaternion),
-                                self._feedback(goal_handle, act.Home))
+        outcome = self._goal(goal_handle, act.Home, mover.home,
+                             (mover.mech.home_position, mover.mech.home_quaternion))
         return self._finish(goal_handle, act.Home.Result(outcome=outcome))
 
     # -- services -------------------------------------------------------------------------------
     def _srv_move(self, request: Any, response: Any) -> Any:
-        response.outcome = self._run_move(om.move_command(request.command))
+        command = om.move_command(request.command)
+        goal = self._resolve(command)
+        if not isinstance(goal, tuple):
+            response.outcome = goal
+            return response
+        try:
+            result = self.controller.move(command, resolved=goal)
+        except MoveAbortedError as err:
+            response.outcome = self._outcome(None, err, goal)
+            return response
+        response.outcome = self._outcome(result, None, goal)
         return response
 
     def _srv_check(self, request: Any, response: Any) -> Any:

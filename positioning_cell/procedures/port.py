@@ -41,7 +41,9 @@ class Readings(NamedTuple):
     """What the cell read over a window: the tracker readings' stamps (k,) s, positions (k, 3)
     m, quaternions (k, 4) and covariances (k, 6, 6) (x, y, z, rot-x, rot-y, rot-z; m², rad²);
     the mean encoder values (6,) over the window; the mean true axis positions (6,) (judging
-    only, a simulated cell; else None); the window ``start`` … ``end`` s."""
+    only, a simulated cell; else None); the window ``start`` … ``end`` s; the standard error
+    of the mean encoder values (6,) (std / √n over the window; None: not known, e.g. one
+    exact reading)."""
 
     stamps: FloatArray
     position: FloatArray
@@ -51,6 +53,7 @@ class Readings(NamedTuple):
     true: FloatArray | None
     start: float
     end: float
+    encoder_sem: FloatArray | None = None
 
 
 class Seen(NamedTuple):

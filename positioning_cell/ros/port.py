@@ -21,6 +21,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
+from positioning_cell.calibration.collect import encoder_window
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.motion.settings import CALIBRATION_FILE, COMPENSATION_MODE
 from positioning_cell.polling import wait_until
@@ -36,6 +37,9 @@ HISTORY = 3000
 TRUTH_WAIT = 1.5
 #: How long a call to the positioner may take (s): a move, a homing or a jog.
 MOVE_TIMEOUT = 120.0
+#: After a window of tracker readings, the longest wait (s) for the encoder reading that shows
+#: every encoder reading of the window has come.
+ENCODER_WAIT = 1.0
 
 
 class RosCellPort:
@@ -163,6 +167,11 @@ class RosCellPort:
             raise ProcedureError(str(err)) from err
         taken = sorted(self._since(start), key=lambda e: e[0])[:samples]
         end = taken[-1][0]
+        # the window's encoder readings complete: one stamped after it has come (the encoders
+        # and the tracker publish apart; a bag of the run holds every reading of the window)
+        with contextlib.suppress(TimeoutError):
+            wait_until(lambda: self._joints and self._joints[-1][0] > end,
+                       min(timeout, ENCODER_WAIT), 'an encoder reading after the window')
         with self._lock:
             encoder = [v for t, v in self._joints if start <= t <= end]
             latest = self._joints[-1][1] if self._joints else None
@@ -171,12 +180,12 @@ class RosCellPort:
             if latest is None:
                 raise ProcedureError(f'no encoder reading on {names.JOINT_STATES}')
             encoder = [latest]
+        mean, sem = encoder_window(encoder)
         return Readings(np.array([t for t, _ in taken]),
                         np.array([m.position for _, m in taken]),
                         np.array([m.quaternion for _, m in taken]),
                         np.array([m.covariance for _, m in taken]),
-                        np.mean(encoder, axis=0), np.mean(true, axis=0) if true else None,
-                        start, end)
+                        mean, np.mean(true, axis=0) if true else None, start, end, sem)
 
     # -- markers and the monitor ----------------------------------------------------------------
     def mark(self, topic: str, text: str) -> None:

@@ -1,0 +1,121 @@
+"""From a calibration run's data to the calibration file: identify the machine
+(:mod:`positioning_cell.calibration.identify`), validate it on the hold-out poses, write
+``calibration.yaml`` and ``calibration_report.md`` (with plots) into a folder, with a few
+lines for the person running it. The same for the live run and for a bag."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from positioning_cell.calibration import file as calfile
+from positioning_cell.calibration import identify as idf
+from positioning_cell.calibration.collect import Collected
+from positioning_cell.calibration.report import predict, write_report
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.mechanics.statics import Payload, Structure
+
+
+class Nominal(Protocol):
+    """The nominal machine a calibration starts from (the positioner's settings have it)."""
+
+    @property
+    def mechanism(self) -> Mechanism: ...
+
+    @property
+    def payload(self) -> Payload: ...
+
+    @property
+    def structure(self) -> Structure: ...
+
+
+class Figures(NamedTuple):
+    """An identification in numbers: the fit poses' position residual RMS under the calibrated
+    model (m), measured vs predicted at the hold-out poses (RMS, m; NaN without hold-out
+    poses), and how many of how many parameters were identified."""
+
+    fit_rms: float
+    hold_out_rms: float
+    identified: int
+    parameters: int
+
+
+class Written(NamedTuple):
+    """A calibration written: the file, the report, the figures, a sentence."""
+
+    path: Path
+    report: Path
+    figures: Figures
+    summary: str
+
+
+def rms(a: Any) -> float:
+    """RMS of the norms of the rows of ``a`` (N, k) (NaN when empty)."""
+    return float(np.sqrt(np.mean(np.sum(np.asarray(a)**2, axis=1)))) if len(a) else float('nan')
+
+
+def identify_and_write(settings: Nominal, collected: Collected, out: Path,
+                       program: dict[str, Any], say: Callable[[str], None]) -> Written:
+    """Identify the machine of ``settings`` (its nominal mechanism, payload, structure) from
+    ``collected``, validate it on its hold-out poses, write the file (``program``: how the
+    data were taken, kept in it) and the report into ``out`` (IdentificationError, nothing
+    written, when the data cannot identify the machine)."""
+    s = settings
+    for marker, why in collected.skipped:
+        say(f'left out pose {marker.pose} ({marker.set}): {why}')
+    result = idf.identify(s.mechanism, s.payload, s.structure, collected.fit)
+    model = result.model(s.mechanism, s.payload, s.structure)
+    fit = predict(s.mechanism, model, collected.fit)
+    hold = predict(s.mechanism, model, collected.hold_out) if len(collected.hold_out.joints) \
+        else None
+    hold_doc = None
+    if hold is not None:
+        promised = idf.pose_uncertainty(result.x, result.covariance, s.mechanism, s.payload,
+                                        s.structure, *collected.hold_out_commanded)
+        sigma_p = np.sqrt(np.trace(promised[:, :3, :3], axis1=1, axis2=2))
+        hold_doc = {'poses': len(collected.hold_out.joints),
+                    'promised_sigma_um': round(float(np.sqrt(np.mean(sigma_p**2))) * 1e6, 3),
+                    'nominal_rms_um': round(rms(hold.nominal[0]) * 1e6, 3),
+                    'calibrated_rms_um': round(rms(hold.calibrated[0]) * 1e6, 3),
+                    'calibrated_max_um': round(float(np.linalg.norm(hold.calibrated[0], axis=1)
+                                                     .max()) * 1e6, 3)}
+    out.mkdir(parents=True, exist_ok=True)
+    doc = calfile.document(result, s.mechanism, idf.IdentificationSettings().seating_force,
+                           program, hold_doc)
+    path = calfile.write(out / 'calibration.yaml', doc)
+    report = write_report(out, result, fit, hold)
+    ident = result.identifiability
+    say(f'identified {ident.rank}/{len(ident.identified)} parameters from '
+        f'{len(collected.fit.joints)} poses (chi2/dof {result.chi2 / result.dof:.2f}); fit '
+        f'residual RMS {rms(fit.calibrated[0]) * 1e6:.2f} um (nominal model '
+        f'{rms(fit.nominal[0]) * 1e6:.1f} um)')
+    if hold_doc is not None:
+        say(f'hold-out ({hold_doc["poses"]} poses): measured vs predicted RMS '
+            f'{hold_doc["calibrated_rms_um"]} um, max {hold_doc["calibrated_max_um"]} um '
+            f'(nominal model {hold_doc["nominal_rms_um"]} um); the calibrated model\'s own '
+            f'uncertainty there: {hold_doc["promised_sigma_um"]} um (1 sigma, |dp|)')
+    if ident.merged:
+        say('fixed (not separable): ' + ', '.join(ident.merged))
+    say(f'calibration: {path}\nreport:      {report}')
+    figures = Figures(rms(fit.calibrated[0]),
+                      rms(hold.calibrated[0]) if hold is not None else float('nan'),
+                      ident.rank, len(ident.identified))
+    return Written(path, report, figures,
+                   f'identified {ident.rank}/{len(ident.identified)} parameters from '
+                   f'{len(collected.fit.joints)} poses, written to {path}')
+
+
+def fit_so_far(settings: Nominal, collected: Collected) -> str:
+    """'; fit so far ...': the residual of an identification on the fit poses measured so far
+    (a progress line's tail)."""
+    s, data = settings, collected.fit
+    try:
+        result = idf.identify(s.mechanism, s.payload, s.structure, data)
+    except idf.IdentificationError as err:
+        return f'; fit so far: not yet ({str(err).split(";")[0]})'
+    return (f'; fit so far ({len(data.joints)} poses, {result.identifiability.rank} '
+            f'parameters): residual RMS {rms(result.pose_residual_position[:, None]) * 1e6:.2f}'
+            ' um')
