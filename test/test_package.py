@@ -114,9 +114,15 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
     tools = {n: v for n, v in executables.items() if not v.startswith(NODE_ENTRY)}
     helps = {name: subprocess.Popen([str(lib / name), '--help'], stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True) for name in tools}
-    for name, proc in helps.items():  # command-line tools answer --help (all at once)
-        _, err = proc.communicate(timeout=60)
-        assert proc.returncode == 0, f'{name} --help: {err}'
+    try:
+        for name, proc in helps.items():  # command-line tools answer --help (all at once)
+            _, err = proc.communicate(timeout=60)
+            assert proc.returncode == 0, f'{name} --help: {err}'
+    finally:  # one that does not answer is not left running
+        for proc in helps.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=10)
     if not nodes:
         return
     # Nodes that need an argument to run get one: the player a one-message bag, looped.
