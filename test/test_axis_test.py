@@ -14,6 +14,7 @@ from typing import Any, cast
 import numpy as np
 import pytest
 import yaml
+from exact_calibration import exact_calibration
 
 from positioning_cell import names
 from positioning_cell.accuracy.iso230_2 import iso230_2
@@ -31,9 +32,6 @@ from positioning_cell.analysis.axis_test import (
     load_axis_test,
     parse_markers,
 )
-from positioning_cell.calibration import file as calfile
-from positioning_cell.calibration import parameters as cp
-from positioning_cell.calibration.identify import Identifiability, Identification
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
@@ -474,15 +472,6 @@ def test_the_run_sets_mode_none_puts_it_back_and_judges_by_the_configs_truth(
     assert md.read_text().startswith('# Axis test (ISO 230-2:2014)\n\n### leg3_length')
 
 
-def _calibration_of(machine: MachineModel, nominal: Mechanism, path: Path) -> Path:
-    """A calibration file that identifies ``machine`` exactly (every parameter, tiny sigma)."""
-    x = cp.vector_of(machine, nominal)
-    exact = Identification(x, np.eye(cp.COUNT) * 1e-18, Identifiability(
-        np.ones(cp.COUNT, bool), np.ones(cp.COUNT), {}, np.ones(cp.COUNT)), np.zeros((1, 6)),
-        np.zeros(1), 0.0, 1, 0)
-    return calfile.write(path, calfile.document(exact, nominal, 1.0, {'test': 'exact'}))
-
-
 def test_the_run_measures_through_the_loaded_calibration(tmp_path: Path) -> None:
     """With a calibration file loaded, the measured values go through the calibrated
     machine; here the truth itself written as a calibration file, so the tracker sees the
@@ -491,7 +480,7 @@ def test_the_run_measures_through_the_loaded_calibration(tmp_path: Path) -> None
     settings = machine_settings(config_path())
     truth = simulation_truth(config_path())
     assert truth is not None
-    path = _calibration_of(truth, settings.mechanism, tmp_path / 'calibration.yaml')
+    path = exact_calibration(truth, settings.mechanism, tmp_path / 'calibration.yaml')
 
     def tracker_offset() -> tuple[str, float]:
         """The reference machine named in the markers; the tracker's mean deviation from
