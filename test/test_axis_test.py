@@ -1,20 +1,22 @@
 """The axis test (ISO 230-2 per actuator): the program file (parsing, refusals, limits), the
 stops in the standard's linear cycle order, the markers' JSON, the figures from markers, and
-the whole procedure (positioning_cell.tools.axis_test.run_procedure) on a simulated machine
-without ROS: the positioner's own mover and jog on drives that arrive at once and the
-simulated tracker (positioning_cell.sim.instant_cell), a machine with known zero offsets."""
+the whole procedure (positioning_cell.procedures.axis_test) on a simulated machine without
+ROS: the in-process port (positioning_cell.sim.instant_port: the positioner's own mover and
+jog on drives that arrive at once, the simulated tracker), a machine with known zero offsets."""
 
 from __future__ import annotations
 
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
 import yaml
+from exact_calibration import exact_calibration
 
+from positioning_cell import names
 from positioning_cell.accuracy.iso230_2 import iso230_2
 from positioning_cell.analysis.axis_test import (
     DOWN,
@@ -34,20 +36,21 @@ from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.motion.controller import Controller
-from positioning_cell.motion.mover import Mover
-from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.motion.settings import machine_settings
 from positioning_cell.parameters import parse
-from positioning_cell.sim.instant_cell import DRIVES_READY, InstantCell
-from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
-from positioning_cell.sim.tracker import observe
-from positioning_cell.sim.truth import TruthParameters
-from positioning_cell.tools.axis_test import (
-    AxisTestError,
-    Readings,
+from positioning_cell.procedures.axis_test import (
+    ModeRefusedError,
     Reference,
+    run_axis_test,
     run_procedure,
+    write,
 )
+from positioning_cell.procedures.judging import simulation_truth
+from positioning_cell.procedures.port import Moved, ProcedureError
+from positioning_cell.sim.instant_port import InstantPort
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
+from positioning_cell.sim.truth import TruthParameters
+from positioning_cell.tools.interruption import Interrupted
 
 MECH = Mechanism.default()
 SHIPPED = config_path('axis_test.yaml')
@@ -277,74 +280,64 @@ LENGTH_OFFSETS = (6.0e-5, -9.0e-5, 1.3e-4)
 THETA_OFFSETS = (4.0e-4, -2.5e-4, 3.0e-4)
 
 
-class InstantPort:
-    """The procedure's cell: the positioner's mover and operator surface (its jog) on
-    :class:`InstantCell` (drives that arrive at once, the simulated tracker)."""
+class FaultyPort(InstantPort):
+    """The in-process cell, whose jogs can be made to stop half-way with a result code
+    (``fail``: jog number from 1 -> code), and which notes where each homing left the axes
+    and the mode each jog ran in."""
 
-    def __init__(self, sim: PoseMeasurementSimulator, settings: PositionerSettings,
-                 folder: Path) -> None:
-        assert sim.location is not None
-        self.cell = InstantCell(sim.truth, sim.instrument, sim.location.tracker,
-                                sim.settings.targets, np.random.default_rng(1))
-        self.mover = Mover(settings, self.cell.machine())
-        self.mover.driver_status(DRIVES_READY)
-        assert self.mover.estimate_pose() is not None
-        self.controller = Controller(self.mover, replace(
-            settings.operator, coordinate_systems_file=str(folder / 'systems.yaml')))
-        self.rng = np.random.default_rng(2)
-        self.clock = 0.0
-        self.published: list[AxisTestMarker] = []
-        self.jogs: list[tuple[str, float]] = []
-        self.homed = 0
-        self.homes: list[np.ndarray] = []  # where each homing left the axes
-        self.fail: dict[int, str] = {}  # jog number -> result code to fail with
+    fail: dict[int, str]
+    homes: list[np.ndarray]
+    jog_modes: list[str]
 
-    def home(self) -> None:
-        self.mover.home()
-        self.homed += 1
+    def jog(self, axis: str, delta: float) -> Moved:
+        self.jog_modes.append(self.mode())
+        code = self.fail.pop(len(self.jogs) + 1, None)
+        if code is None:
+            return super().jog(axis, delta)
+        super().jog(axis, delta / 2)  # stopped half-way
+        moved = Moved(False, code, 'stopped half-way (injected)')
+        self.commands[-1] = ('jog', (axis, delta), moved)
+        return moved
+
+    def home(self) -> Moved:
+        moved = super().home()
         self.homes.append(self.cell.position.copy())
+        return moved
 
-    def joints(self) -> np.ndarray:
-        return self.cell.position.copy()
+    @property
+    def jogs(self) -> list[tuple[str, float]]:
+        return [cast(tuple[str, float], what) for kind, what, _ in self.commands
+                if kind == 'jog']
 
-    def jog(self, axis: str, delta: float) -> None:
-        self.jogs.append((axis, delta))
-        code = self.fail.pop(len(self.jogs), None)
-        if code is not None:  # stopped half-way
-            self.controller.jog(axis, delta / 2)
-            raise AxisTestError(f'jog {axis}: {code}', code)
-        self.controller.jog(axis, delta)
+    @property
+    def homed(self) -> int:
+        return sum(1 for kind, _, _ in self.commands if kind == 'home')
 
-    def rest(self, seconds: float) -> None:
-        self.clock += seconds
+    @property
+    def published(self) -> list[AxisTestMarker]:
+        return [AxisTestMarker.from_json(text) for topic, text in self.marks
+                if topic == names.AXIS_TEST]
 
-    def measure(self, samples: int) -> Readings:
-        p, q = self.cell.true_pose()
-        _, fit = observe(self.cell.instrument, self.cell.located, self.cell.targets,
-                         np.repeat(p[None], samples, 0), np.repeat(q[None], samples, 0),
-                         self.rng)
-        start, self.clock = self.clock, self.clock + samples / 20.0
-        # the encoders read the axes exactly here, the truth is where they stand
-        return Readings(fit.position, fit.quaternion, self.cell.position.copy(),
-                        self.cell.position.copy(), start, self.clock)
 
-    def publish(self, marker: AxisTestMarker) -> None:
-        self.published.append(marker)
+def _port(folder: Path, sim_settings: PoseMeasurementSettings | None = None) -> FaultyPort:
+    port = FaultyPort.from_config(folder, sim_settings=sim_settings)
+    assert isinstance(port, FaultyPort)
+    port.fail, port.homes, port.jog_modes = {}, [], []
+    return port
 
 
 @pytest.fixture
-def simulated(tmp_path: Path) -> tuple[InstantPort, PoseMeasurementSimulator, PositionerSettings]:
-    config = load_parameter_file(config_path())
-    sim_settings = parse(PoseMeasurementSettings, node_parameters(config, 'pose_measurement'))
+def simulated(tmp_path: Path) -> FaultyPort:
+    """The shipped cell with a machine of known zero offsets, in mode none (as the live
+    procedure sets it)."""
+    sim_settings = parse(PoseMeasurementSettings,
+                         node_parameters(load_parameter_file(config_path()), 'pose_measurement'))
     truth = replace(sim_settings.truth, geometry_seed=-1, length_offsets=LENGTH_OFFSETS,
                     theta_offsets=THETA_OFFSETS)
     assert isinstance(truth, TruthParameters)
-    sim = PoseMeasurementSimulator(replace(sim_settings, truth=truth))
-    positioner = parse(PositionerSettings, node_parameters(config, 'positioner'))
-    # mode none, as the live procedure sets it
-    positioner = replace(positioner, settle_time=0.0,
-                         compensation=replace(positioner.compensation, mode='none'))
-    return InstantPort(sim, positioner, tmp_path), sim, positioner
+    port = _port(tmp_path, replace(sim_settings, truth=truth))
+    port.set_mode('none')
+    return port
 
 
 SMALL = AxisTest((AxisPlan('leg2_length', (-0.001, -0.0003, 0.0004, 0.001), 0.0003),
@@ -353,13 +346,15 @@ SMALL = AxisTest((AxisPlan('leg2_length', (-0.001, -0.0003, 0.0004, 0.001), 0.00
 
 
 def test_the_procedure_on_a_simulated_machine_shows_its_zero_offsets(
-        simulated: tuple[InstantPort, PoseMeasurementSimulator, PositionerSettings]) -> None:
-    port, sim, settings = simulated
+        simulated: FaultyPort) -> None:
+    port = simulated
+    settings = port.mover.settings
+    truth = port.sim.truth
     lines: list[str] = []
-    markers = run_procedure(port, SMALL, Reference(sim.truth, 'calibrated'),
+    markers = run_procedure(port, SMALL, Reference(truth, 'calibrated'),
                             (settings.operator.jog_largest_length_step,
                              settings.operator.jog_largest_theta_step), lines.append,
-                            truth=sim.truth, run='test-run')
+                            truth=truth, run='test-run')
     assert markers == port.published and len(markers) == SMALL.measured_stops == 42
     assert len(lines) == 42
     assert lines[0].startswith('[ 1/42] leg2_length cycle 1 ↑ P1 -1.0000 mm:')
@@ -386,12 +381,12 @@ def test_the_procedure_on_a_simulated_machine_shows_its_zero_offsets(
     offsets = np.r_[LENGTH_OFFSETS, THETA_OFFSETS]
     for axis in ('leg2_length', 'leg3_theta'):
         k = JOINT_NAMES.index(axis)
-        truth = got[axis, TRUTH]
+        by_truth = got[axis, TRUTH]
         # the truth: every mean deviation is the axis's zero offset, nothing else (the drives
         # stand exactly where commanded)
-        np.testing.assert_allclose(truth.x_mean_up, offsets[k], atol=1e-12)
-        np.testing.assert_allclose(truth.x_mean_down, offsets[k], atol=1e-12)
-        assert truth.R < 1e-12 and truth.E < 1e-12
+        np.testing.assert_allclose(by_truth.x_mean_up, offsets[k], atol=1e-12)
+        np.testing.assert_allclose(by_truth.x_mean_down, offsets[k], atol=1e-12)
+        assert by_truth.R < 1e-12 and by_truth.E < 1e-12
         # the tracker through the true machine (a perfect calibration): the offset within the
         # tracker's noise (registration common to all stops included)
         tracker = got[axis, TRACKER]
@@ -399,41 +394,130 @@ def test_the_procedure_on_a_simulated_machine_shows_its_zero_offsets(
         assert abs(float(np.mean(tracker.x_mean)) - offsets[k]) < noise
         assert tracker.R > 0.0
     # the tracker through the nominal machine sees the geometry too: not the offset
-    port.published.clear()
+    port.marks.clear()
     nominal = run_procedure(port, SMALL, Reference(MachineModel(settings.mechanism), 'nominal'),
-                            (0.005, 0.05), lines.append, truth=sim.truth)
+                            (0.005, 0.05), lines.append, truth=truth)
     tracker = axis_test_figures(nominal).by_axis()['leg2_length'][TRACKER].figures
     assert abs(float(np.mean(tracker.x_mean)) - offsets[1]) > 2e-5
 
 
 def test_a_transient_abort_is_tried_again_and_any_other_ends_the_test(
-        simulated: tuple[InstantPort, PoseMeasurementSimulator, PositionerSettings]) -> None:
-    port, sim, _ = simulated
+        simulated: FaultyPort) -> None:
+    port = simulated
+    truth = port.sim.truth
     test = AxisTest((AxisPlan('leg1_length', (-0.001, 0.0005, 0.001), 0.0003),), cycles=2,
                      samples=3, dwell=0.0)
     lines: list[str] = []
     port.fail = {3: 'aborted_driver_lost'}  # the approach up to P_2 of cycle 1, half-way
-    markers = run_procedure(port, test, Reference(sim.truth, 'calibrated'), (0.005, 0.05),
-                            lines.append, truth=sim.truth)
-    assert any('aborted_driver_lost; trying again (1/3)' in line for line in lines)
+    markers = run_procedure(port, test, Reference(truth, 'calibrated'), (0.005, 0.05),
+                            lines.append, truth=truth)
+    assert [line for line in lines if 'trying again' in line] == [
+        'leg1_length: jog leg1_length by +0.0015: aborted_driver_lost: stopped half-way '
+        '(injected); trying again (1/3)']
     assert len(markers) == 12
-    truth = axis_test_figures(markers).by_axis()['leg1_length'][TRUTH].figures
-    np.testing.assert_allclose(truth.x_mean, LENGTH_OFFSETS[0], atol=1e-12)
+    figures = axis_test_figures(markers).by_axis()['leg1_length'][TRUTH].figures
+    np.testing.assert_allclose(figures.x_mean, LENGTH_OFFSETS[0], atol=1e-12)
     port.fail = {len(port.jogs) + 4: 'aborted_fault'}
     homed = port.homed
-    with pytest.raises(AxisTestError, match='aborted_fault'):
-        run_procedure(port, test, Reference(sim.truth, 'calibrated'), (0.005, 0.05),
-                      lines.append)
+    with pytest.raises(ProcedureError, match='aborted_fault') as failed:
+        run_procedure(port, test, Reference(truth, 'calibrated'), (0.005, 0.05), lines.append)
+    assert failed.value.code == 'aborted_fault'
     assert port.homed == homed + 2  # at the start, and after the failure
 
 
-def test_a_long_move_is_split_into_jogs_within_the_largest_step(
-        simulated: tuple[InstantPort, PoseMeasurementSimulator, PositionerSettings]) -> None:
-    port, sim, _ = simulated
+def test_a_long_move_is_split_into_jogs_within_the_largest_step(simulated: FaultyPort) -> None:
+    port = simulated
     test = AxisTest((AxisPlan('leg1_theta', (-0.02, 0.0, 0.02), 0.005),), cycles=2, samples=2,
                      dwell=0.0)
-    run_procedure(port, test, Reference(sim.truth, 'calibrated'), (0.005, 0.006),
+    run_procedure(port, test, Reference(port.sim.truth, 'calibrated'), (0.005, 0.006),
                   lambda s: None)
     steps = [abs(d) for _, d in port.jogs]
     assert max(steps) <= 0.006 + 1e-12
     assert len(steps) > len(test.stops())  # 25 mrad moves in 5 jogs of 5 mrad
+
+
+TINY = AxisTest((AxisPlan('leg3_length', (-0.0005, 0.0005), 0.0002),), cycles=2, samples=4,
+                dwell=0.1)
+
+
+def test_the_run_sets_mode_none_puts_it_back_and_judges_by_the_configs_truth(
+        tmp_path: Path) -> None:
+    """run_axis_test on the shipped cell: mode none while it runs, the positioner's machine
+    (nominal, no calibration loaded), the truth read from the parameter file only, the tables
+    written."""
+    port = _port(tmp_path)
+    assert port.mode() == 'measured'
+    lines: list[str] = []
+    run = run_axis_test(port, TINY, config_path(), lines.append)
+    assert port.mode() == 'measured' and set(port.jog_modes) == {'none'}
+    assert lines[0] == ('axis test (ISO 230-2): 1 axis, 8 measured stops (2 cycles), 4 tracker '
+                        'readings each; actual positions from the tracker through the nominal '
+                        'machine and from the simulation truth; about '
+                        f'{lines[0].split("about ")[1]}')
+    assert lines[-1] == 'no recorder took the markers (/cell/axis_test): not in a bag'
+    assert run.markers == port.published and len(run.markers) == 8
+    assert {m.reference for m in run.markers} == {'nominal'}
+    # the truth of config/cell.yaml (the same machine the port simulates): the zero offset
+    truth = simulation_truth(config_path())
+    assert truth is not None
+    figures = run.results.by_axis()['leg3_length'][TRUTH].figures
+    np.testing.assert_allclose(figures.x_mean, truth.length_offsets[2], atol=1e-12)
+    # without judging: no truth in the markers
+    port.marks.clear()
+    unjudged = run_axis_test(port, TINY, config_path(), lines.append, judge=False)
+    assert all(m.true is None for m in unjudged.markers)
+    assert [r.source for r in unjudged.results] == [TRACKER]
+    md, js = write(run.results, tmp_path / 'out')
+    assert json.loads(js.read_text()) == json.loads(json.dumps(run.results.to_dict()))
+    assert md.read_text().startswith('# Axis test (ISO 230-2:2014)\n\n### leg3_length')
+
+
+def test_the_run_measures_through_the_loaded_calibration(tmp_path: Path) -> None:
+    """With a calibration file loaded, the measured values go through the calibrated
+    machine; here the truth itself written as a calibration file, so the tracker sees the
+    zero offset."""
+    port = _port(tmp_path)
+    settings = machine_settings(config_path())
+    truth = simulation_truth(config_path())
+    assert truth is not None
+    path = exact_calibration(truth, settings.mechanism, tmp_path / 'calibration.yaml')
+
+    def tracker_offset() -> tuple[str, float]:
+        """The reference machine named in the markers; the tracker's mean deviation from
+        the truth's zero offset."""
+        run = run_axis_test(port, TINY, config_path(), lambda s: None)
+        port.marks.clear()
+        (reference,) = {m.reference for m in run.markers}
+        figures = run.results.by_axis()['leg3_length'][TRACKER].figures
+        return reference, float(np.mean(figures.x_mean)) - truth.length_offsets[2]
+
+    reference, off = tracker_offset()
+    assert reference == 'nominal' and abs(off) > 2e-5  # the nominal machine: its geometry too
+    taken, reason = port.load_calibration(str(path))
+    assert taken, reason
+    assert port.calibration_file() == str(path)
+    reference, off = tracker_offset()
+    assert reference == 'calibrated' and abs(off) < 5e-6
+
+
+def test_a_refused_mode_starts_nothing_and_an_interrupt_stops_the_drives(
+        tmp_path: Path) -> None:
+    port = _port(tmp_path)
+
+    def refuse(mode: str) -> None:
+        raise ProcedureError(f'the positioner refused compensation.mode = {mode}: busy')
+
+    port.set_mode = refuse  # type: ignore[method-assign]
+    with pytest.raises(ModeRefusedError, match=r'refused compensation\.mode = none: busy'):
+        run_axis_test(port, TINY, config_path(), lambda s: None)
+    assert port.commands == [] and port.marks == []
+
+    port = _port(tmp_path)
+
+    def interrupted(axis: str, delta: float) -> Moved:
+        raise Interrupted('SIGINT')
+
+    port.jog = interrupted  # type: ignore[method-assign]
+    with pytest.raises(Interrupted):
+        run_axis_test(port, TINY, config_path(), lambda s: None)
+    assert port.stops == 1 and port.mode() == 'measured'

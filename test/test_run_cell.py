@@ -27,6 +27,8 @@ from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.parameters import parse
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 
+pytestmark = [pytest.mark.nodes, pytest.mark.slow]
+
 MECH = Mechanism.default()
 
 SHORT_PROGRAM = {'program': {'cycles': 1, 'modes': ['none', 'model'],
