@@ -20,6 +20,7 @@ from positioning_cell.analysis.program import Program, ProgramStep
 from positioning_cell.calibration.program import ProgramSettings
 from positioning_cell.errors import PositioningError
 from positioning_cell.motion.settings import CompensationMode, PositionerSettings, machine_settings
+from positioning_cell.procedures import calibration
 from positioning_cell.procedures.axis_test import run_axis_test, write
 from positioning_cell.procedures.judging import judge_calibration
 from positioning_cell.procedures.port import CellPort, ProcedureError, Say, moved_or_raise
@@ -41,6 +42,15 @@ class Calibrator(Protocol):
     def __call__(self, port: CellPort, machine: PositionerSettings,
                  settings: ProgramSettings, samples: int, out: Path, say: Say) -> Path | None:
         ...
+
+
+def calibrate_and_load(port: CellPort, machine: PositionerSettings, settings: ProgramSettings,
+                       samples: int, out: Path, say: Say) -> Path | None:
+    """The run's :class:`Calibrator`: the calibration procedure
+    (:func:`positioning_cell.procedures.calibration.calibrate`), its file loaded by the
+    positioner; None when it was not written and loaded."""
+    outcome = calibration.calibrate(port, machine, settings, samples, out, say, load=True)
+    return outcome.path if outcome.succeeded else None
 
 
 class Driven(NamedTuple):

@@ -27,10 +27,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import NamedTuple
 
 from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration import program as prog
@@ -66,29 +65,6 @@ def exit_code(outcome: Outcome) -> Exit:
 def say(text: str) -> None:
     """A progress line, at once."""
     print(text, flush=True)
-
-
-class Machine(NamedTuple):
-    """The nominal machine of a parameter file (kept for ``run_cell`` until it calls the
-    procedure itself: issue 22)."""
-
-    settings: PositionerSettings
-
-    @classmethod
-    def from_config(cls, config: Path) -> Machine:
-        """The machine of the positioner's section of a parameter file."""
-        return cls(machine_settings(config))
-
-
-def run_live(client: CellClient, machine: Machine, settings: prog.ProgramSettings,
-             samples: int, out: Path, say: Callable[[str], None], *,
-             load: bool = False) -> tuple[int, Path | None]:
-    """The live calibration through ``client``: (exit code, the file or None) (kept for
-    ``run_cell`` until it calls :func:`~positioning_cell.procedures.calibration.calibrate`
-    itself: issue 22)."""
-    outcome = calibrate(RosCellPort(client), machine.settings, settings, samples, out, say,
-                        load=load)
-    return int(exit_code(outcome)), outcome.path
 
 
 def _from_bag(args: argparse.Namespace, machine: PositionerSettings) -> Exit:

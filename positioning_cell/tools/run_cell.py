@@ -43,44 +43,22 @@ import numpy as np
 from positioning_cell import names
 from positioning_cell.analysis.axis_test import load_axis_test
 from positioning_cell.analysis.program import load_program
-from positioning_cell.calibration.program import ProgramSettings
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
-from positioning_cell.motion.settings import PositionerSettings
-from positioning_cell.procedures.port import CellPort, ProcedureError, Say
-from positioning_cell.procedures.program_run import RunOutcome, run_program
+from positioning_cell.procedures.port import ProcedureError
+from positioning_cell.procedures.program_run import RunOutcome, calibrate_and_load, run_program
 from positioning_cell.ros.cell_start import StartError, run_overrides, start_cell
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import DomainError, free_domain
 from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.processes import Processes, cell_environment
 from positioning_cell.tools.analyze_bag import analyze, describe
-from positioning_cell.tools.calibrate_cell import EXIT_OK as CALIBRATED
-from positioning_cell.tools.calibrate_cell import Machine, run_live
 from positioning_cell.tools.exits import Exit, exit_table
 from positioning_cell.tools.interruption import Interrupted, interruptible
 
 #: ``--axis-test`` without a file: the shipped config/axis_test.yaml.
 SHIPPED_AXIS_TEST = Path('<shipped axis_test.yaml>')
-
-
-def calibrate_on_the_cell(port: CellPort, machine: PositionerSettings,
-                          settings: ProgramSettings, samples: int, out: Path,
-                          say: Say) -> Path | None:
-    """The run's calibration (a :class:`~positioning_cell.procedures.program_run.Calibrator`):
-    ``calibrate_cell``'s live calibration on the client of the ROS port, the result loaded by
-    the positioner. The one place the run reaches the calibration: it gives way to the
-    calibration procedure (``positioning_cell.procedures.calibration.calibrate``) once that is
-    on CellPort."""
-    if not isinstance(port, RosCellPort):
-        raise ProcedureError('the calibration runs on the live cell only (calibrate_cell)')
-    try:
-        status, path = run_live(port.client, Machine(machine), settings, samples, out, say,
-                                load=True)
-    except TimeoutError as err:
-        raise ProcedureError(str(err)) from err
-    return path if status == CALIBRATED else None
 
 
 def _same_figures(live: dict[str, Any], offline: dict[str, Any]) -> bool:
@@ -133,7 +111,7 @@ def run(program_path: Path | None = None, config: Path | None = None,
                                (program.position[0], program.quaternion[0]),
                                program.settle_timeout, say)
                     outcome = run_program(RosCellPort(client), program, config, run_dir, say,
-                                          calibrator=calibrate_on_the_cell,
+                                          calibrator=calibrate_and_load,
                                           axis_test_plan=axes)
                     live = client.monitor_report()
                 except (StartError, ProcedureError, TimeoutError) as err:
