@@ -15,8 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from positioning_cell.motion.settings import PositionerSettings
-from positioning_cell.procedures.port import CellPort, FloatArray, Moved
-from positioning_cell.procedures.port import ProcedureError
+from positioning_cell.procedures.port import CellPort, FloatArray, Moved, ProcedureError
 
 #: A parameter value a trial sets (the ROS parameter types it uses).
 ParameterValue = bool | int | float | str | list[float]
