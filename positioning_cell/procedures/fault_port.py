@@ -90,11 +90,12 @@ class FaultPort(CellPort, Protocol):
     def running(self, node: str) -> bool:
         """Is ``node`` running (not killed)?"""
 
-    def foreign_trajectory(self, joints: FloatArray, ahead: float, timeout: float) -> Report:
+    def foreign_trajectory(self, joints: FloatArray, ahead: float,
+                           timeout: float) -> tuple[float, Report]:
         """From another node than the positioner (:data:`~.fault_trials.CLIENT_NODE`), once
         the driver has reported it as a foreign publisher: a trajectory from where the axes
-        are to ``joints`` (6,) over 20 s, stamped ``ahead`` s ahead. The driver's answer to it
-        (its refusal code, or 'accepted'); its time is from the send."""
+        are to ``joints`` (6,) over 20 s, stamped ``ahead`` s ahead. The time it was sent and
+        the driver's answer to it (its refusal code, or 'accepted')."""
 
     def spoof(self, topic: str, offset: float, messages: int, period: float) -> float:
         """A second publisher on ``topic`` (the encoders' or the tracker's) sends ``messages``

@@ -412,10 +412,9 @@ def _trajectory_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
                         port.true_states(port.monotonic() - 0.5), 10.0, 'true joint states')
     beyond = recent.positions[-1].copy()
     beyond[list(BEYOND)] = list(BEYOND.values())
-    injected = port.monotonic()
     inject(port, fault.inject)
-    answer = port.foreign_trajectory(beyond, AHEAD_S, 10.0)
-    received = _take(trial, answer, injected)
+    sent, answer = port.foreign_trajectory(beyond, AHEAD_S, 10.0)
+    received = _take(trial, answer, sent)
     judge(trial, fault)
     wait_until(lambda: len(port.true_states(received + AHEAD_S + 0.5).times), AHEAD_S + 10.0,
                'true joint states after the stamp')

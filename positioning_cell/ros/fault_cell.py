@@ -244,7 +244,8 @@ class FaultCell(RosCellPort):
         with self._guard:
             return next(((t, s) for t, s in self._answers if t > since), None)
 
-    def foreign_trajectory(self, joints: FloatArray, ahead: float, timeout: float) -> Report:
+    def foreign_trajectory(self, joints: FloatArray, ahead: float,
+                           timeout: float) -> tuple[float, Report]:
         here = self.true_states(-math.inf).positions[-1]
         node = self.client.node
         msg = JointTrajectory(joint_names=list(JOINT_NAMES))
@@ -270,7 +271,7 @@ class FaultCell(RosCellPort):
             node.destroy_publisher(publisher)
         values = status_values(answer)
         code = values.get('code', '') if values.get('accepted') == 'false' else 'accepted'
-        return Report(received, code, answer.message)
+        return sent, Report(received, code, answer.message)
 
     def spoof(self, topic: str, offset: float, messages: int, period: float) -> float:
         node = self.client.node

@@ -329,7 +329,8 @@ class InstantFaultPort(InstantPort):
     def running(self, node: str) -> bool:
         return self._alive.get(node, False)
 
-    def foreign_trajectory(self, joints: FloatArray, ahead: float, timeout: float) -> Report:
+    def foreign_trajectory(self, joints: FloatArray, ahead: float,
+                           timeout: float) -> tuple[float, Report]:
         now = time.monotonic()
         with self._lock:
             here = self.drives.servos.state.position.copy()
@@ -337,8 +338,8 @@ class InstantFaultPort(InstantPort):
             out = self.drives.follow(JOINT_NAMES, np.array([0.0, 20.0]), positions,
                                      np.zeros((2, 6)), now + ahead, now, '/' + CLIENT_NODE)
             self._report(now, out.message)
-        return Report(time.monotonic(), out.code.value if out.code else 'accepted',
-                      out.message)
+        return now, Report(time.monotonic(), out.code.value if out.code else 'accepted',
+                           out.message)
 
     def spoof(self, topic: str, offset: float, messages: int, period: float) -> float:
         raise Unsupported('no second publisher in process: there is no topic')
