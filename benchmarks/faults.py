@@ -1,4 +1,4 @@
-"""Reaction times of the fault matrix (positioning_cell.tools.fault_matrix, the README's
+"""Reaction times of the fault matrix (positioning_cell.procedures.fault_trials, the README's
 "Fault matrix"): --trials trials of each fault on one cell (the four nodes and the recorder
 as processes on a free ROS domain, homed).
 
@@ -12,7 +12,7 @@ liveness rules as lax as their parameters allow (joint silence, answer timeout a
 measurement timeouts), its median reaction time and how many trials still gave the expected
 reaction.
 
-Then the probes only the driver's commander can send (positioning_cell.tools.driver_probes:
+Then the probes only the driver's commander can send (positioning_cell.ros.driver_probes:
 stamps 0.6 s in the past and 4 s ahead, 100 000 and 50 000 points), --driver-trials times each
 on a driver bound to this benchmark: the time to the driver's answer and the largest interval
 between two of its encoder publications around it, median and max; the baseline: the largest
@@ -34,8 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from positioning_cell.tools.driver_probes import PROBES, CommandedDriver, ProbeResult
-from positioning_cell.tools.fault_matrix import FAULTS, FaultCell, Trial, fault, run_trial
+from positioning_cell.procedures.fault_trials import (
+    FAULTS,
+    Trial,
+    fault,
+    run_trial,
+    set_liveness,
+)
+from positioning_cell.ros.driver_probes import PROBES, CommandedDriver, ProbeResult
+from positioning_cell.ros.fault_cell import FaultCell
 
 #: Largest interval between two encoder publications of the driver while it takes a command.
 LARGEST_GAP_S = 0.1
@@ -61,12 +68,12 @@ def main() -> int:
             for f in chosen:
                 results[f.name].append(run_trial(cell, f))
             print(f'round {k + 1}/{args.trials} done', flush=True)
-        cell.liveness(False)
+        set_liveness(cell, False)
         for k in range(args.baseline_trials):
             for f in chosen:
                 baseline[f.name].append(run_trial(cell, f))
             print(f'baseline round {k + 1}/{args.baseline_trials} done', flush=True)
-        cell.liveness(True)
+        set_liveness(cell, True)
     print(f'\n{"fault":26s} {"bound s":>7s} {"reaction s med / max":>22s} '
           f'{"at rest s med / max":>21s} {"expected":>9s} {"limits":>7s} '
           f'{"baseline: reaction med, expected":>33s}')

@@ -22,8 +22,7 @@ ROS_LAYER = ('nodes/', 'ros/')
 #: never rclpy itself.
 ADAPTER_USERS = ('tools/', 'testing/')
 #: Tools still being moved onto the adapter (issue 22): to be emptied.
-ROS_TOOLS_LEFT = ('tools/fault_matrix.py', 'tools/driver_probes.py', 'tools/cell.py',
-                  'tools/cell_watch.py')
+ROS_TOOLS_LEFT = ('tools/cell.py', 'tools/cell_watch.py')
 
 
 def _rel(path: Path) -> str:

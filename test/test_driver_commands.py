@@ -1,5 +1,5 @@
 """The leg driver as a process, commanded by this test (its ``command.commander``), probed as
-issue 21 probed it (positioning_cell.tools.driver_probes): a trajectory stamped 0.6 s in the
+issue 21 probed it (positioning_cell.ros.driver_probes): a trajectory stamped 0.6 s in the
 past is refused as too old (it used to be accepted, then fault the drive), one stamped 4 s
 ahead as too far in the future; a 100 000-point trajectory is refused before its points are
 read and a 50 000-point one is taken, and neither holds up the encoder publication (it used to
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from positioning_cell.tools.driver_probes import DRIVER, PROBES, CommandedDriver
+from positioning_cell.ros.driver_probes import DRIVER, PROBES, CommandedDriver
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 

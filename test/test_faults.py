@@ -1,6 +1,9 @@
-"""The fault matrix (positioning_cell.tools.fault_matrix, the README's "Fault matrix"): each
-injected fault gives its expected reaction (result code, reason words) within its time bound,
-the drives stop (checked on /sim/legs/true_joint_states), and no axis goes beyond a limit.
+"""The fault matrix on the live cell (positioning_cell.procedures.fault_trials over
+positioning_cell.ros.fault_cell, the README's "Fault matrix"): each injected fault gives the
+reaction written HERE (result code, words of the reason) within its time bound, the drives
+stop (checked on /sim/legs/true_joint_states), and no axis goes beyond a limit. The
+expectations are this test's own, compared with what the trial received, so a wrong
+expectation in the procedure's table is caught too.
 
 Multi-process tier: one cell (the four nodes and the recorder) on a private domain for the
 module, homed; each fault is one trial on it, the cell made ready before and restored after.
@@ -14,10 +17,35 @@ from pathlib import Path
 
 import pytest
 
-from positioning_cell.tools.fault_matrix import FAULTS, FaultCell, fault, markdown_table, run_trial
+from positioning_cell.procedures.fault_trials import FAULTS, fault, markdown_table, run_trial
+from positioning_cell.ros.fault_cell import FaultCell
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 README = Path(__file__).resolve().parent.parent / 'README.md'
+
+#: Fault → (result codes accepted, words the reason must contain), as the issues and the
+#: README state them; None: the trial reports no code (a flood: every call answered).
+EXPECTED: dict[str, tuple[set[str], str] | None] = {
+    'foreign trajectory': ({'foreign_sender'}, 'sent by /fault_matrix'),
+    'encoder NaN': ({'aborted_fault', 'aborted_encoder'}, 'leg2_length'),
+    'encoder frozen': ({'aborted_encoder'}, 'encoder of leg2_length frozen'),
+    'axis stuck': ({'aborted_fault'}, 'leg2_length'),
+    'drives off': ({'aborted_drives_off'}, 'drives disabled during the move'),
+    'driver killed': ({'aborted_driver_lost'}, 'leg driver not responding'),
+    'tracker killed': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
+    'tracker occluded': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
+    'tracker outliers': ({'success', 'aborted_tracker_inconsistent', 'aborted_tracker_lost',
+                          'out_of_tolerance'}, ''),
+    'encoder noise burst': ({'success'}, 'settled within tolerance'),
+    'uncommanded motion': ({'uncommanded_motion'},
+                           'uncommanded motion at standstill: leg1_length'),
+    'spoofed encoders': ({'second_publisher'},
+                         'second publisher on /legs/joint_states: /fault_matrix'),
+    'spoofed tracker': ({'second_publisher'},
+                        'second publisher on /metrology/pose: /fault_matrix'),
+    'positioner killed': ({'commander_silent'}, 'commander /positioner silent'),
+    'flood of calls': None,
+}
 
 
 @pytest.fixture(scope='module')
@@ -30,11 +58,25 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultCell]:
                                                      for k in codes}
 
 
+def test_every_fault_has_its_expectation_here() -> None:
+    assert sorted(EXPECTED) == sorted(f.name for f in FAULTS)
+
+
 @pytest.mark.parametrize('name', [f.name for f in FAULTS])
 def test_fault_gets_its_reaction_in_time(cell: FaultCell, name: str) -> None:
     trial = run_trial(cell, fault(name))
     print(f'{name}: {trial.code} in {trial.reaction_s:.3f} s; {trial.reason}')
-    assert trial.ok, (trial, {k: cell.procs.log(k)[-1500:] for k in cell.procs.procs})
+    logs = {k: cell.procs.log(k)[-1500:] for k in cell.procs.procs}
+    expected = EXPECTED[name]
+    if expected is None:
+        answered, calls = trial.code.split(' answered')[0].split('/')
+        assert answered == calls, (trial, logs)
+    else:
+        codes, words = expected
+        assert trial.code in codes, (trial, logs)
+        assert words in trial.reason, (trial, logs)
+    assert trial.reaction_s <= fault(name).bound_s, trial
+    assert trial.ok, (trial, logs)
     assert trial.within_limits
 
 

@@ -24,6 +24,7 @@ from positioning_cell.motion.controller import Controller, MoveCommand
 from positioning_cell.motion.mover import Mover
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.moves.correction import mean_pose
+from positioning_cell.moves.machine import Machine
 from positioning_cell.moves.outcomes import MoveAbortedError
 from positioning_cell.parameters import parse
 from positioning_cell.procedures.port import FloatArray, Moved, ProcedureError, Readings, Seen
@@ -53,12 +54,11 @@ class InstantPort:
         self.sim = sim
         self.cell = InstantCell(sim.truth, sim.instrument, sim.location.tracker,
                                 sim.settings.targets, np.random.default_rng(seed))
-        self.mover = Mover(settings, self.cell.machine())
+        self._systems = folder / 'systems.yaml'
+        self._start_positioner(settings, self.cell.machine())
         self.mover.driver_status(DRIVES_READY)
         if self.mover.estimate_pose() is None:  # takes the first encoder reading
             raise ProcedureError('the simulated cell gives no pose estimate')
-        self.controller = Controller(self.mover, replace(
-            settings.operator, coordinate_systems_file=str(folder / 'systems.yaml')))
         self.rng = np.random.default_rng(seed + 1)
         self.clock = 0.0
         self.tolerances = Tolerances()
@@ -82,6 +82,13 @@ class InstantPort:
         positioner = parse(PositionerSettings, node_parameters(params, names.NODE_POSITIONER))
         return cls(PoseMeasurementSimulator(sim_settings), replace(positioner, settle_time=0.0),
                    folder, seed)
+
+    def _start_positioner(self, settings: PositionerSettings, machine: Machine) -> None:
+        """A positioner (:attr:`mover` and its :attr:`controller`) with ``settings`` on
+        ``machine``: at start, and again when a port starts it anew."""
+        self.mover = Mover(settings, machine)
+        self.controller = Controller(self.mover, replace(
+            settings.operator, coordinate_systems_file=str(self._systems)))
 
     def now(self) -> float:
         return self.clock

@@ -1,0 +1,64 @@
+"""The fault matrix's trials (positioning_cell.procedures.fault_trials) in process, without
+DDS: the same procedure and judging as the live matrix (test/test_faults.py), on
+positioning_cell.sim.instant_faults (the positioner's Mover driving the leg driver's own logic
+and the simulated tracker, on the monotonic clock). Each fault that can be made without DDS
+gives the result code and reason words written here; the trials that need DDS (a second
+publisher, a flood of service calls) are refused by the port as Unsupported."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from positioning_cell.procedures.fault_port import Unsupported
+from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
+from positioning_cell.sim.instant_faults import InstantFaultPort
+
+#: Fault → (result codes accepted, words the reason must contain): what the issues and the
+#: README state, written here, not read from the procedure's table.
+IN_PROCESS: dict[str, tuple[set[str], str]] = {
+    'foreign trajectory': ({'foreign_sender'}, 'sent by /fault_matrix'),
+    'encoder NaN': ({'aborted_fault', 'aborted_encoder'}, 'leg2_length'),
+    'encoder frozen': ({'aborted_encoder'}, 'encoder of leg2_length frozen'),
+    'axis stuck': ({'aborted_fault'}, 'leg2_length'),
+    'drives off': ({'aborted_drives_off'}, 'drives disabled during the move'),
+    'driver killed': ({'aborted_driver_lost'}, 'leg driver not responding'),
+    'tracker killed': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
+    'tracker occluded': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
+    'tracker outliers': ({'success', 'aborted_tracker_inconsistent', 'aborted_tracker_lost',
+                          'out_of_tolerance'}, ''),
+    'encoder noise burst': ({'success'}, 'settled within tolerance'),
+    'uncommanded motion': ({'uncommanded_motion'},
+                           'uncommanded motion at standstill: leg1_length'),
+    'positioner killed': ({'commander_silent'}, 'commander /positioner silent'),
+}
+#: The faults only a live cell can be given (DDS messages and services).
+LIVE_ONLY = ('spoofed encoders', 'spoofed tracker', 'flood of calls')
+
+
+@pytest.fixture(scope='module')
+def port(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InstantFaultPort]:
+    with InstantFaultPort.configured(tmp_path_factory.mktemp('instant_faults')) as port:
+        yield port
+
+
+def test_every_fault_is_run_here_or_live_only() -> None:
+    assert sorted([*IN_PROCESS, *LIVE_ONLY]) == sorted(f.name for f in FAULTS)
+
+
+@pytest.mark.parametrize('name', list(IN_PROCESS))
+def test_fault_gets_its_reaction_in_process(port: InstantFaultPort, name: str) -> None:
+    trial = run_trial(port, fault(name))
+    print(f'{name}: {trial.code} in {trial.reaction_s:.3f} s; {trial.reason}')
+    codes, words = IN_PROCESS[name]
+    assert trial.code in codes, trial
+    assert words in trial.reason, trial
+    assert trial.ok, trial
+    assert trial.within_limits
+
+
+@pytest.mark.parametrize('name', LIVE_ONLY)
+def test_the_dds_faults_are_refused_in_process(port: InstantFaultPort, name: str) -> None:
+    with pytest.raises(Unsupported):
+        run_trial(port, fault(name))
