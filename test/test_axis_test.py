@@ -1,7 +1,7 @@
 """The axis test (ISO 230-2 per actuator): the program file (parsing, refusals, limits), the
 stops in the standard's linear cycle order, the markers' JSON, the figures from markers, and
 the whole procedure (positioning_cell.procedures.axis_test) on a simulated machine without
-ROS: the in-process port (positioning_cell.sim.instant_port: the positioner's own mover and
+ROS: the in-process port (positioning_cell.testing.instant_port: the positioner's own mover and
 jog on drives that arrive at once, the simulated tracker), a machine with known zero offsets."""
 
 from __future__ import annotations
@@ -47,9 +47,9 @@ from positioning_cell.procedures.axis_test import (
 )
 from positioning_cell.procedures.judging import simulation_truth
 from positioning_cell.procedures.port import Moved, ProcedureError
-from positioning_cell.sim.instant_port import InstantPort
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.sim.truth import TruthParameters
+from positioning_cell.testing.instant_port import InstantPort
 from positioning_cell.tools.interruption import Interrupted
 
 MECH = Mechanism.default()

@@ -28,8 +28,8 @@ from positioning_cell.procedures import port as port_module
 from positioning_cell.procedures.calibration import Outcome, Status, calibrate
 from positioning_cell.procedures.port import Moved, ProcedureError, Readings
 from positioning_cell.procedures.stopping import Stopped
-from positioning_cell.sim.instant_port import InstantPort
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
+from positioning_cell.testing.instant_port import InstantPort
 
 MACHINE = machine_settings(config_path('cell.yaml'))
 #: A small program: 10 fit poses, 3 hold-out, few candidates (seconds, not minutes).

@@ -1,6 +1,6 @@
 """The fault matrix's trials (positioning_cell.procedures.fault_trials) in process, without
 DDS: the same procedure and judging as the live matrix (test/test_faults.py), on
-positioning_cell.sim.instant_faults (the positioner's Mover driving the leg driver's own logic
+positioning_cell.testing.instant_faults (the positioner's Mover driving the leg driver's own logic
 and the simulated tracker, on the monotonic clock). Each fault that can be made without DDS
 gives the result code and reason words written here; the trials that need DDS (a second
 publisher, a flood of service calls) are refused by the port as Unsupported."""
@@ -13,7 +13,7 @@ import pytest
 
 from positioning_cell.procedures.fault_port import Unsupported
 from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
-from positioning_cell.sim.instant_faults import InstantFaultPort
+from positioning_cell.testing.instant_faults import InstantFaultPort
 
 #: Fault → (result codes accepted, words the reason must contain): what the issues and the
 #: README state, written here, not read from the procedure's table.

@@ -1,5 +1,5 @@
 """The run's program (positioning_cell.procedures.program_run, what ``make run`` drives) in
-process, without DDS: the in-process port (positioning_cell.sim.instant_port: the positioner's
+process, without DDS: the in-process port (positioning_cell.testing.instant_port: the positioner's
 own mover on drives that arrive at once, the simulated tracker, the monitor's verdict rule) on
 the shipped cell. The steps marked on /cell/program, a line with the verdict per move, failed
 moves counted, a refused mode reported and its moves left out, the calibration's note and
@@ -29,7 +29,7 @@ from positioning_cell.procedures.program_run import (
     drive,
     run_program,
 )
-from positioning_cell.sim.instant_port import InstantPort
+from positioning_cell.testing.instant_port import InstantPort
 
 #: Three poses of the shipped program's ISO 9283 cube (base frame, m; home orientation).
 POSES = {'P1': (0.0, 0.0, 0.196), 'P2': (0.004, 0.004, 0.2), 'P3': (-0.004, -0.004, 0.192)}

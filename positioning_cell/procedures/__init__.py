@@ -3,4 +3,5 @@ the fault trials, each written against one small :class:`~.port.CellPort` (home,
 compensation mode, tracker readings, the latest joints, markers, stop), with ``say`` (a line
 of progress) and a stop signal injected, returning typed outcomes. The ROS port
 (:mod:`positioning_cell.ros.port`) drives the live cell; the in-process port over the instant
-cell (:mod:`positioning_cell.sim.instant_port`) runs each procedure in a unit test in seconds."""
+cell (:mod:`positioning_cell.testing.instant_port`) runs each procedure in a unit test in
+seconds."""

@@ -4,7 +4,7 @@ happened, checking from the simulator's true joint states that the drives stoppe
 axis went beyond its limits. Written against a
 :class:`~positioning_cell.procedures.fault_port.FaultPort`: the live cell
 (:mod:`positioning_cell.ros.fault_cell`) and the in-process one
-(:mod:`positioning_cell.sim.instant_faults`) run the same trials and are judged by the same
+(:mod:`positioning_cell.testing.instant_faults`) run the same trials and are judged by the same
 rules here.
 
 The README's "Fault matrix" table is :data:`FAULTS` (:func:`markdown_table`).

@@ -44,9 +44,9 @@ from positioning_cell.procedures.fault_trials import CLIENT_NODE
 from positioning_cell.procedures.port import FloatArray, Moved
 from positioning_cell.sim.drives import DriverSettings, LegDriver
 from positioning_cell.sim.guard import TrajectoryRefusedError
-from positioning_cell.sim.instant_port import InstantPort
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
 from positioning_cell.sim.tracker import observe
+from positioning_cell.testing.instant_port import InstantPort
 
 #: What is kept of each stream.
 KEPT = 20_000

@@ -32,6 +32,8 @@ from positioning_cell.sim.instant_cell import DRIVES_READY, InstantCell
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
 from positioning_cell.sim.tracker import observe
 
+#: The longest encoder freeze window the positioner accepts (s): ``liveness.freeze_window``.
+FREEZE_WINDOW_MAX = 10.0
 #: The simulated tracker's reading rate (Hz): the virtual time a window of readings takes.
 TRACKER_RATE_HZ = 20.0
 
@@ -74,14 +76,18 @@ class InstantPort:
     def from_config(cls, folder: Path, config: Path | None = None, *, seed: int = 2,
                     sim_settings: PoseMeasurementSettings | None = None) -> InstantPort:
         """The cell of a parameter file (default: the shipped ``config/cell.yaml``): its
-        simulator (or ``sim_settings``) and its positioner, settle time 0."""
+        simulator (or ``sim_settings``) and its positioner, settle time 0 and the encoder
+        freeze rule at its longest window: the rule runs on the wall clock, and on a loaded
+        machine a pause of the procedure's thread between an instant move's steps would look
+        like a frozen encoder (the fault trials keep the rule: :mod:`.instant_faults`)."""
         params = load_parameter_file(config or config_path())
         if sim_settings is None:
             sim_settings = parse(PoseMeasurementSettings,
                                  node_parameters(params, names.NODE_MEASUREMENT))
         positioner = parse(PositionerSettings, node_parameters(params, names.NODE_POSITIONER))
-        return cls(PoseMeasurementSimulator(sim_settings), replace(positioner, settle_time=0.0),
-                   folder, seed)
+        positioner = replace(positioner, settle_time=0.0, liveness=replace(
+            positioner.liveness, freeze_window=FREEZE_WINDOW_MAX))
+        return cls(PoseMeasurementSimulator(sim_settings), positioner, folder, seed)
 
     def _start_positioner(self, settings: PositionerSettings, machine: Machine) -> None:
         """A positioner (:attr:`mover` and its :attr:`controller`) with ``settings`` on
