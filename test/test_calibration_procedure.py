@@ -9,7 +9,6 @@ simulator: it judges the result here)."""
 from __future__ import annotations
 
 import threading
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,14 +20,12 @@ from positioning_cell import names
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration.collect import Marker
 from positioning_cell.calibration.program import ProgramSettings
-from positioning_cell.config import config_path, load_parameter_file, node_parameters
-from positioning_cell.motion.settings import PositionerSettings, machine_settings
-from positioning_cell.parameters import parse
+from positioning_cell.config import config_path
+from positioning_cell.motion.settings import machine_settings
 from positioning_cell.procedures import port as port_module
 from positioning_cell.procedures.calibration import Outcome, Status, calibrate
 from positioning_cell.procedures.port import Moved, ProcedureError, Readings
 from positioning_cell.procedures.stopping import Stopped
-from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
 from positioning_cell.testing.instant_port import InstantPort
 
 MACHINE = machine_settings(config_path('cell.yaml'))
@@ -61,15 +58,8 @@ def run(port: Any, out: Path, lines: list[str], **kwargs: Any) -> Outcome:
 
 
 def instant(folder: Path, cls: type[InstantPort] = InstantPort) -> InstantPort:
-    """The shipped cell in process. The mover's freeze rule runs on the wall clock: on two
-    loaded cores a pause of the test thread between an instant move's steps looks like a
-    frozen encoder; its longest window keeps the rule out of a test of the procedure."""
-    params = load_parameter_file(config_path())
-    sim = parse(PoseMeasurementSettings, node_parameters(params, names.NODE_MEASUREMENT))
-    positioner = parse(PositionerSettings, node_parameters(params, names.NODE_POSITIONER))
-    positioner = replace(positioner, settle_time=0.0,
-                         liveness=replace(positioner.liveness, freeze_window=10.0))
-    return cls(PoseMeasurementSimulator(sim), positioner, folder)
+    """The shipped cell in process (:meth:`InstantPort.from_config`)."""
+    return cls.from_config(folder)
 
 
 @pytest.fixture
