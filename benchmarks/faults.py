@@ -1,4 +1,5 @@
-"""Reaction times of the fault matrix (positioning_cell.tools.fault_matrix, the README's
+"""Reaction times of the fault matrix (positioning_cell.tools.fault_matrix, the docs'
+(docs/reference/fault-matrix.md)
 "Fault matrix"): --trials trials of each fault on one cell (the four nodes and the recorder
 as processes on a free ROS domain, homed).
 
