@@ -1,4 +1,5 @@
-"""The fault matrix (positioning_cell.tools.fault_matrix, the README's "Fault matrix"): each
+"""The fault matrix (positioning_cell.tools.fault_matrix, the docs' reference page
+docs/reference/fault-matrix.md, generated from it): each
 injected fault gives its expected reaction (result code, reason words) within its time bound,
 the drives stop (checked on /sim/legs/true_joint_states), and no axis goes beyond a limit.
 
@@ -10,14 +11,12 @@ benchmarks/faults.py runs 20 trials of each and prints the reaction times.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
-from positioning_cell.tools.fault_matrix import FAULTS, FaultCell, fault, markdown_table, run_trial
+from positioning_cell.tools.fault_matrix import FAULTS, FaultCell, fault, run_trial
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
-README = Path(__file__).resolve().parent.parent / 'README.md'
 
 
 @pytest.fixture(scope='module')
@@ -36,7 +35,3 @@ def test_fault_gets_its_reaction_in_time(cell: FaultCell, name: str) -> None:
     print(f'{name}: {trial.code} in {trial.reaction_s:.3f} s; {trial.reason}')
     assert trial.ok, (trial, {k: cell.procs.log(k)[-1500:] for k in cell.procs.procs})
     assert trial.within_limits
-
-
-def test_the_readme_shows_the_matrix() -> None:
-    assert markdown_table() in README.read_text()
