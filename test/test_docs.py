@@ -22,9 +22,10 @@ import generated  # noqa: E402  (docs/_ext: the registry of generated pages)
 def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     """Every page, the generated reference and the API from the docstrings; any warning fails.
     The dummy builder reads and resolves everything (where the warnings come from) but writes
-    no HTML: `make docs` writes it."""
+    no HTML: `make docs` writes it. -j auto: 29 s instead of 44 s on two busy cores."""
     result = subprocess.run(
-        [sys.executable, '-m', 'sphinx', '-W', '--keep-going', '-q', '-E', '-b', 'dummy',
+        [sys.executable, '-m', 'sphinx', '-W', '--keep-going', '-q', '-E', '-j', 'auto',
+         '-b', 'dummy',
          '-d', str(tmp_path / 'doctrees'), str(DOCS), str(tmp_path / 'out')],
         capture_output=True, text=True, check=False, timeout=600)
     assert result.returncode == 0, result.stdout[-5000:] + result.stderr[-5000:]
