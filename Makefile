@@ -8,20 +8,20 @@ TMP := $(CURDIR)/.test-tmp
 
 # Nothing depends on the caller's ROS environment: logs and ROS home inside the checkout,
 # Fast DDS on loopback only (config/fastdds_loopback.xml; discovery left to that profile, as
-# LOCALHOST would make rmw_fastrtps add a transport on every interface; README "Network"),
+# LOCALHOST would make rmw_fastrtps add a transport on every interface; docs/howto/network.md),
 # the venv as the ament prefix.
 RUN_ENV := ROS_LOG_DIR=$(TMP)/ros_log ROS_HOME=$(TMP)/ros_home \
 	FASTRTPS_DEFAULT_PROFILES_FILE=$(CURDIR)/config/fastdds_loopback.xml \
 	ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT ROS_LOCALHOST_ONLY= \
 	AMENT_PREFIX_PATH=$(CURDIR)/$(VENV) MPLBACKEND=Agg PYTHONDONTWRITEBYTECODE=1
 
-.PHONY: test setup clean bench run
+.PHONY: test setup clean bench run docs
 
 setup: $(STAMP)
 
 # The typed interfaces (actions, services): a second ROS package, built from its own folder by
 # scikit-build-core against the ROS 2 wheels into the venv prefix (nothing to source; about a
-# minute the first time, then reused), and by colcon on a ROS install (README, "Building").
+# minute the first time, then reused), and by colcon on a ROS install (docs/howto/building.md).
 INTERFACES := interfaces/positioning_cell_interfaces
 INTERFACE_FILES := $(wildcard $(INTERFACES)/*.txt $(INTERFACES)/*.xml $(INTERFACES)/*.toml \
 	$(INTERFACES)/msg/*.msg $(INTERFACES)/srv/*.srv $(INTERFACES)/action/*.action)
@@ -52,5 +52,12 @@ bench: $(STAMP)
 	mkdir -p $(TMP)
 	for b in benchmarks/*.py; do env $(RUN_ENV) $(PY) $$b || exit 1; done
 
+# The documentation (docs/, Sphinx with MyST Markdown; the reference pages are generated from
+# the code): HTML in build/docs. test/test_docs.py builds the same sources with warnings as errors.
+docs: $(STAMP)
+	mkdir -p $(TMP)
+	env $(RUN_ENV) $(VENV)/bin/sphinx-build -W --keep-going -j auto -b html docs build/docs
+
 clean:
-	rm -rf $(VENV) $(TMP) build install log $(INTERFACES)/build
+	rm -rf $(VENV) $(TMP) build install log $(INTERFACES)/build docs/api/generated \
+		docs/reference/generated

@@ -62,12 +62,19 @@ TEST = [
     # command of a setuptools older than 70.1 (Python 3.11's venv has 65) is wheel's; 0.45.1 is
     # the last wheel that still carries it and defers to a newer setuptools' own
     'wheel==0.45.1',
+    # The docs (docs/, built warning-free by test/test_docs.py and `make docs`): Sphinx with
+    # MyST Markdown, the toolchain of rosdoc2. Sphinx 8.1 is the last line that runs on
+    # Python 3.10, which the package still supports.
+    'sphinx==8.1.3',
+    'myst-parser==4.0.1',
 ]
 
 setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    # PEP 561: the package's type hints are part of its interface.
+    package_data={PACKAGE: ['py.typed']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),

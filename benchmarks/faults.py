@@ -1,5 +1,5 @@
-"""Reaction times of the fault matrix (positioning_cell.procedures.fault_trials, the README's
-"Fault matrix"): --trials trials of each fault on one cell (the four nodes and the recorder
+"""Reaction times of the fault matrix (positioning_cell.procedures.fault_trials;
+docs/reference/fault-matrix.md): --trials trials of each fault on one cell (the four nodes and the recorder
 as processes on a free ROS domain, homed).
 
 Per fault: the reaction time (injection → the positioner's status with the result code; the

@@ -55,7 +55,7 @@ FAILED_STOP_TARGET_S = 2.0  # a recorder whose disk failed exits within this, is
 FILE_LIMIT = 4 * 2**20  # bytes, the failing-disk run's file size limit
 BIN = Path(sys.executable).parent
 
-# (topic, type) of the cell's streams (design/interfaces.md) used in every benchmark.
+# (topic, type) of the cell's streams (docs/conventions/interfaces.md) used in every benchmark.
 STREAMS = [
     (names.JOINT_STATES, 'sensor_msgs/msg/JointState'),
     (names.TRUE_JOINT_STATES, 'sensor_msgs/msg/JointState'),

@@ -1,6 +1,7 @@
 """Start the positioning cell on a ROS 2 Jazzy install: `ros2 launch positioning_cell
 cell.launch.py [params_file:=...] [record:=true] [live_view:=false] [calibrator:=false]`, on
-loopback only unless your environment names its own Fast DDS profile (README "Network"). (Here,
+loopback only unless your environment names its own Fast DDS profile (docs/howto/network.md).
+(Here,
 without ros2launch, `make run` starts the same processes.)"""
 
 import os

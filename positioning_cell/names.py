@@ -1,5 +1,6 @@
 """Every name the cell uses on the wire, declared once: nodes and their executables, topics,
-services, frames and diagnostic status names (the tables of the README). Topic and service
+services, frames and diagnostic status names (the tables of docs/conventions/interfaces.md;
+generated: docs/reference/interfaces.md). Topic and service
 names are absolute, so the cell stays whole under a namespace remap of single nodes."""
 
 from __future__ import annotations
@@ -76,8 +77,8 @@ AXIS_TEST = '/cell/axis_test'
 #: axis-test stops): JSON text, kept for a recorder that joins late.
 MARKER_TOPICS = (PROGRAM, CALIBRATION, AXIS_TEST)
 
-#: Every topic of the cell, in the README's table order: what the recorder takes by default
-#: (not COORDINATE_SYSTEMS: its type, of positioning_cell_interfaces, is not in the bags'
+#: Every topic of the cell, in the order of the docs' topic table: what the recorder takes by
+#: default (not COORDINATE_SYSTEMS: its type, of positioning_cell_interfaces, is not in the bags'
 #: Jazzy typestore).
 CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,

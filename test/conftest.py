@@ -18,7 +18,7 @@ _TMP = Path(os.environ.get('POSITIONING_CELL_TEST_TMP', tempfile.gettempdir())) 
     f'positioning_cell_test_{os.getuid()}')
 os.environ.setdefault('ROS_LOG_DIR', str(_TMP / 'ros_log'))
 os.environ.setdefault('ROS_HOME', str(_TMP / 'ros_home'))
-# Loopback only (README "Network"), as positioning_cell.ros.client.cell_environment gives the
+# Loopback only (docs/howto/network.md), as positioning_cell.ros.client.cell_environment gives the
 # cell's processes: the shipped Fast DDS profile with discovery left to it (with LOCALHOST,
 # rmw_fastrtps adds a transport on every interface); a caller's own profile with LOCALHOST.
 _PROFILE = config_path('fastdds_loopback.xml').resolve()

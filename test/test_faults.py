@@ -1,9 +1,10 @@
 """The fault matrix on the live cell (positioning_cell.procedures.fault_trials over
-positioning_cell.ros.fault_cell, the README's "Fault matrix"): each injected fault gives the
-reaction written HERE (result code, words of the reason) within its time bound, the drives
-stop (checked on /sim/legs/true_joint_states), and no axis goes beyond a limit. The
-expectations are this test's own, compared with what the trial received, so a wrong
-expectation in the procedure's table is caught too.
+positioning_cell.ros.fault_cell; docs/reference/fault-matrix.md is generated from the
+procedure's table): each injected fault gives the reaction written HERE (result code, words
+of the reason) within its time bound, the drives stop (checked on
+/sim/legs/true_joint_states), and no axis goes beyond a limit. The expectations are this
+test's own, compared with what the trial received, so a wrong expectation in the procedure's
+table is caught too.
 
 Multi-process tier: one cell (the four nodes and the recorder) on a private domain for the
 module, homed; each fault is one trial on it, the cell made ready before and restored after.
@@ -13,18 +14,16 @@ benchmarks/faults.py runs 20 trials of each and prints the reaction times.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
-from positioning_cell.procedures.fault_trials import FAULTS, fault, markdown_table, run_trial
+from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
 from positioning_cell.ros.fault_cell import FaultCell
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
-README = Path(__file__).resolve().parent.parent / 'README.md'
 
 #: Fault → (result codes accepted, words the reason must contain), as the issues and the
-#: README state them; None: the trial reports no code (a flood: every call answered).
+#: docs state them; None: the trial reports no code (a flood: every call answered).
 EXPECTED: dict[str, tuple[set[str], str] | None] = {
     'foreign trajectory': ({'foreign_sender'}, 'sent by /fault_matrix'),
     'encoder NaN': ({'aborted_fault', 'aborted_encoder'}, 'leg2_length'),
@@ -78,7 +77,3 @@ def test_fault_gets_its_reaction_in_time(cell: FaultCell, name: str) -> None:
     assert trial.reaction_s <= fault(name).bound_s, trial
     assert trial.ok, (trial, logs)
     assert trial.within_limits
-
-
-def test_the_readme_shows_the_matrix() -> None:
-    assert markdown_table() in README.read_text()

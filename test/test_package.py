@@ -165,7 +165,7 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
 
 
 def test_colcon_finds_both_packages_from_the_documented_base_paths() -> None:
-    """README "Building": `colcon build --base-paths . interfaces` (colcon does not look for a
+    """docs/howto/building.md: `colcon build --base-paths . interfaces` (colcon does not look for a
     package inside another package's folder)."""
     colcon = Path(sys.executable).parent / 'colcon'
     result = subprocess.run([str(colcon), '--log-base', os.devnull, 'list', '--base-paths', '.',

@@ -20,7 +20,7 @@ from positioning_cell.mechanics import planar_parallel as pp
 GEOMETRY = pp.PlanarParallel()
 PARTS = pp.PlanarParts()
 L = GEOMETRY.link_length
-# The documented case (README "Over-constrained statics (seed 002)").
+# The documented case (docs/howto/statics.md).
 POSITION = np.array([0.05, 0.0])
 FORCE = np.array([800.0, -1500.0])
 MOMENT = 60.0
@@ -259,7 +259,8 @@ def test_statics_balances_every_body_and_closes_compatibility(moving: bool) -> N
 
 
 def test_documented_case() -> None:
-    """The README's numbers (static): the sliders at 0.3969 and 0.4873 m, tensions
+    """The docs' numbers (docs/howto/statics.md, static): the sliders at 0.3969 and 0.4873 m,
+    tensions
     857 / 1561 / 1144 / 596 N, the platform 1.7 µm left, 4.6 µm down and turned 26.8 µrad; link 4
     at half section, and link 1 20 µm too long."""
     r = pp.solve_statics(GEOMETRY, PARTS, POSITION, FORCE, MOMENT)

@@ -68,7 +68,8 @@ def test_sensitivity_matches_finite_differences_of_forward_kinematics(pose: str,
 
 def test_gap_connectors_along_the_leg_act_as_length_changes() -> None:
     # A U centre displaced by x along the leg lengthens it by x; a ball displaced by x along the
-    # leg shortens it by x (design/kinematics.md, seed 000 eq. 9 with the gap along the leg).
+    # leg shortens it by x (docs/conventions/kinematics.md, seed 000 eq. 9 with the gap along the
+    # leg).
     spec = make_spec('leg')
     matrix = linearise(MECH, spec, *POSES['off-centre tilted']).matrix[0]
     col = {n: matrix[:, j] for j, n in enumerate(spec.names)}

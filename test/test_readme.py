@@ -1,11 +1,13 @@
-"""The README's library example runs as printed (the public API it shows is kept)."""
+"""The README is the front page: short, its library example runs as printed (the public API it
+shows is kept), and every link into the docs leads to a page that exists."""
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-README = Path(__file__).resolve().parent.parent / 'README.md'
+REPO = Path(__file__).resolve().parent.parent
+README = REPO / 'README.md'
 
 
 def test_the_library_example_of_the_readme_runs() -> None:
@@ -16,3 +18,17 @@ def test_the_library_example_of_the_readme_runs() -> None:
     pose, commands = namespace['pose'], namespace['commands']
     assert pose.converged.all()  # type: ignore[attr-defined]
     assert commands.lengths.shape == (1, 3)  # type: ignore[attr-defined]
+
+
+def test_the_readme_is_a_front_page() -> None:
+    """At most ~150 lines, with the two commands; the rest lives in docs/."""
+    text = README.read_text()
+    assert len(text.splitlines()) <= 150
+    assert '`make run`' in text and '`make test`' in text
+
+
+def test_every_link_of_the_readme_exists() -> None:
+    links = re.findall(r'\]\(([^)#]+)(?:#[^)]*)?\)', README.read_text())
+    assert any(link.startswith('docs/') for link in links)
+    missing = [link for link in links if not (REPO / link).exists()]
+    assert not missing, missing

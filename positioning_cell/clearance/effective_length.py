@@ -89,7 +89,8 @@ class EffectiveLengthClearance:
 
     def compensate(self, mech: Mechanism, position: ArrayLike,
                    quaternion: ArrayLike) -> InverseResult:
-        """l_cmd = l_ideal − Δl(φ_ideal, θ_ideal) (design/kinematics.md): exact, because the
+        """l_cmd = l_ideal − Δl(φ_ideal, θ_ideal) (docs/conventions/kinematics.md): exact, because
+        the
         platform then sits where φ = φ_ideal."""
         ideal = inverse(mech, position, quaternion)
         delta = self.length_delta(ideal.phis, ideal.thetas)

@@ -2,7 +2,7 @@
 carries (seed 004 §2, the gap connector oriented by the load), so with a payload the clearance
 error is deterministic and can be compensated.
 
-Model (the exact vector model of design/kinematics.md with load-driven directions): with
+Model (the exact vector model of docs/conventions/kinematics.md with load-driven directions): with
 F_A,i the force leg i exerts on the base at its U joint and F_B,i the force it exerts on the
 platform at its ball (:func:`positioning_cell.mechanics.statics.joint_forces`),
 

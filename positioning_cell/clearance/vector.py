@@ -1,6 +1,6 @@
 """The exact clearance model: 3-D offset vectors of each U centre (base frame, |e_a| ≤ r_a) and
 ball centre (platform frame, |e_b| ≤ r_b), solved by the same kinematics on the displaced joint
-centres (design/kinematics.md). All lengths in m."""
+centres (docs/conventions/kinematics.md). All lengths in m."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Inverse and forward kinematics and the velocity Jacobian of the 3-UPS positioner.
 
-Conventions (design/kinematics.md): leg i leaves its U-joint centre A_i along
+Conventions (docs/conventions/kinematics.md): leg i leaves its U-joint centre A_i along
 u_i(φ_i, θ_i) = cos θ_i (sin φ_i e_r,i + cos φ_i e_z) + sin θ_i e_t,i, so the S-joint centre is
 B_i = A_i + l_i u_i. Actuated: l_i (m) and θ_i (rad); passive: φ_i (rad). Poses are the platform
 frame in the base frame: position (N, 3) in m, unit quaternion (N, 4) x, y, z, w.
@@ -218,7 +218,8 @@ def _forward_kernel(lengths: FloatArray, thetas: FloatArray, start: FloatArray,
                 tau_start[i] = np.tan(0.5 * start[s, i])
         # The unknown is the half-angle tangent τ = tan(φ/2): cos φ and sin φ are rational in τ,
         # no trigonometry inside the iteration. B_i = A_i + l sinθ e_t + l cosθ (sinφ e_r +
-        # cosφ e_z) (design/kinematics.md); the first two terms do not change while iterating.
+        # cosφ e_z) (docs/conventions/kinematics.md); the first two terms do not change while
+        # iterating.
         for i in range(3):
             tau[i] = tau_start[i]
             lc[i] = lengths[s, i] * np.cos(thetas[s, i])

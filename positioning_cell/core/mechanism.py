@@ -1,4 +1,5 @@
-"""Geometry and joint limits of the 3-UPS positioner (seed 000, Table 1; design/kinematics.md).
+"""Geometry and joint limits of the 3-UPS positioner (seed 000, Table 1;
+docs/conventions/kinematics.md).
 
 Frames: ``base`` (origin at the centre of the base U-joint circle, z toward the platform) and
 ``platform`` (origin at the centre of the spherical-joint circle, z along the platform normal).

@@ -91,8 +91,8 @@ def set_speeds(current: Speeds, maxima: Speeds, request: Speeds) -> Speeds:
 
 def scaled(speeds: Speeds, scale: float) -> Speeds:
     """The speeds of a move at ``scale`` in (0, 1] of ``speeds``: speeds times ``scale``,
-    accelerations times ``scale``² (the same move, played 1/scale times slower); InputError
-    outside (0, 1] or not finite."""
+    accelerations times the square of ``scale`` (the same move, played 1/scale times slower);
+    InputError outside (0, 1] or not finite."""
     scale = as_number(scale, 'speed scale')
     if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
         raise InputError(f'speed scale = {scale!r}: must be in (0, 1]')

@@ -44,7 +44,7 @@ def _pose(header: Any, pose: Any) -> tuple[float, str, Any, Any]:
 
 
 class AccuracyMonitorNode(Node):
-    """The ``accuracy_monitor`` node (README: nodes, topics, services)."""
+    """The ``accuracy_monitor`` node (docs/conventions/interfaces.md)."""
 
     NAME = names.NODE_MONITOR
     SETTINGS = MonitorSettings

@@ -41,7 +41,7 @@ _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
 
 
 class PositionerNode(Node):
-    """The ``positioner`` node (README: nodes, topics, services)."""
+    """The ``positioner`` node (docs/conventions/interfaces.md)."""
 
     NAME = names.NODE_POSITIONER
     SETTINGS = PositionerSettings

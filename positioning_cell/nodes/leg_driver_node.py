@@ -50,7 +50,7 @@ GRAPH_PERIOD_S = 0.25
 
 
 class LegDriverNode(Node):
-    """The ``leg_driver`` node (README: nodes, topics, services)."""
+    """The ``leg_driver`` node (docs/conventions/interfaces.md)."""
 
     NAME = names.NODE_DRIVER
     SETTINGS = DriverSettings

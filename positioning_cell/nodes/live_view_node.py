@@ -4,7 +4,7 @@ the 3-D scene, the frame transforms, the 6-D deviation and the status
 (:class:`~positioning_cell.nodes.live_view_messages.LiveChannels`), sent after each tracker
 measurement up to ``rate_hz`` and at least once a second. Read-only: it subscribes to the
 cell (:class:`~positioning_cell.ros.watch_inputs.WatchInputs`) and never commands it. Open
-config/foxglove_layout.json in Foxglove (README: "Watching the cell live")."""
+config/foxglove_layout.json in Foxglove (docs/howto/watch.md)."""
 
 from __future__ import annotations
 

@@ -35,7 +35,7 @@ from positioning_cell.sim.pose_measurement import (
 
 
 class PoseMeasurementNode(Node):
-    """The ``pose_measurement`` node (README: nodes, topics)."""
+    """The ``pose_measurement`` node (docs/conventions/interfaces.md)."""
 
     NAME = names.NODE_MEASUREMENT
     SETTINGS = PoseMeasurementSettings

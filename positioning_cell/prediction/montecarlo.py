@@ -179,7 +179,8 @@ def _closure_kernel(samples: FloatArray, indptr: NDArray[np.int64], indices: NDA
                 z[k] += first_order[m, k] * pm
         for k in range(6):
             linear[s, k] = z[k]
-        # The leg, l·u = l cosθ (sinφ e_r + cosφ e_z) + l sinθ e_t (design/kinematics.md): what
+        # The leg, l·u = l cosθ (sinφ e_r + cosφ e_z) + l sinθ e_t
+        # (docs/conventions/kinematics.md): what
         # does not change while iterating is computed once, h_i = centre_i + δp + R·b_i − l cosθ
         # (sinφ e_r + cosφ e_z) with centre_i = p − A_i − δA_i − l sinθ e_t and R·b_i =
         # exp([R_nom·δρ]×)·R_nom·(b_i + δb_i).

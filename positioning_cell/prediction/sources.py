@@ -6,7 +6,7 @@ Every source is one scalar x_i with a symmetric bound |x_i| ≤ bound_i, SI unit
 kind                  unit  what                                                      per leg
 ====================  ====  ========================================================  =========
 ``leg_length``        m     zero offset of the leg length: l_true = l_cmd + x         1
-``u_centre``          m     U-joint centre A_i error, base frame (``_x``/``_y``/``_z``)  3
+``u_centre``          m     U-joint centre A_i error, base frame (_x, _y, _z)         3
 ``s_centre``          m     S-joint centre b_i error, platform frame                  3
 ``u_clearance``       m     U-joint clearance r_a: A_i moves by e_a, |e_a| ≤ r_a      1 or 3
 ``s_clearance``       m     S-joint clearance r_b: B_i moves by e_b, |e_b| ≤ r_b      1 or 3
@@ -133,7 +133,8 @@ class GapModel:
     """Direction of the gap connectors (seed 004 §2).
 
     ``'any'`` (default): every direction; each joint's offset is a vector in the ball of radius
-    r (exact vector model, design/kinematics.md), so the worst case bounds all gap directions
+    r (exact vector model, docs/conventions/kinematics.md), so the worst case bounds all gap
+    directions
     (:func:`.sensitivity.worst_case`, :func:`.extremes.worst_norm`).
     ``'leg'``: the joint is loaded along the leg (a UPS leg carries mainly axial force), so the
     clearance is taken up along the leg axis u_i. The worst direction only under seed 000

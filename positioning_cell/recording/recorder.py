@@ -108,8 +108,8 @@ class Recorder:
         return self.disk
 
     def status(self) -> tuple[RecorderStatus, dict[str, Any]]:
-        """The status to publish (level, message, state) and its key-values (README:
-        "The recorder")."""
+        """The status to publish (level, message, state) and its key-values
+        (docs/howto/record-analyse.md, "The recorder")."""
         writer, failure = self.writer, self.failure
         status = recorder_status(paused=self.paused, failure=failure.line() if failure else '',
                                  stopped=self.stopped, disk=self.disk)

@@ -1,4 +1,5 @@
-"""The six drive axes of the legs, in ``JOINT_NAMES`` order (design/kinematics.md): three linear
+"""The six drive axes of the legs, in ``JOINT_NAMES`` order (docs/conventions/kinematics.md):
+three linear
 leg drives l_1..l_3 (m) and three rotary drives θ_1..θ_3 on the second U axes (rad)."""
 
 from __future__ import annotations

@@ -21,7 +21,8 @@ cos e·cos a = ½[cos(a − e) + cos(a + e)] in space), so
     θ_g = c_g·s,
 
 one angle θ_g per distinct direction of variation: what the Monte Carlo kernel
-(:mod:`.montecarlo`) interprets per sample, for any mechanism, with no code generated.
+(:mod:`positioning_cell.tolerance.montecarlo`) interprets per sample, for any mechanism, with
+no code generated.
 """
 
 from __future__ import annotations
