@@ -1,6 +1,6 @@
 """Reaction times of the fault matrix (positioning_cell.procedures.fault_trials;
-docs/reference/fault-matrix.md): --trials trials of each fault on one cell (the four nodes and the recorder
-as processes on a free ROS domain, homed).
+docs/reference/fault-matrix.md): --trials trials of each fault on one cell (the four nodes
+and the recorder as processes on a free ROS domain, homed).
 
 Per fault: the reaction time (injection → the positioner's status with the result code; the
 driver's answer for a trajectory sent to it; the last reply of a flood), median and max, against
