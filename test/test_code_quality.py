@@ -23,7 +23,7 @@ ROS_LAYER = ('nodes/', 'ros/')
 ADAPTER_USERS = ('tools/', 'testing/')
 #: Tools still being moved onto the adapter (issue 22): to be emptied.
 ROS_TOOLS_LEFT = ('tools/fault_matrix.py', 'tools/driver_probes.py', 'tools/calibrate_cell.py',
-                  'tools/cell.py', 'tools/cell_watch.py', 'tools/axis_test.py')
+                  'tools/axis_test.py')
 
 
 def _rel(path: Path) -> str:
