@@ -53,6 +53,7 @@ from positioning_cell.testing.layouts import LAYOUTS, Layout, rewrite_bag
 from positioning_cell.tools import analyze_bag
 from positioning_cell.tools.calibrate_cell import main as calibrate_main
 from positioning_cell.tools.calibrate_cell import read_bag
+from positioning_cell.tools.exits import Exit
 
 MAKE_RUN = Path(__file__).resolve().parent / 'data' / 'makerun' / 'bag'
 SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
@@ -84,7 +85,7 @@ class Reference(NamedTuple):
 
 def _summary(bag: Path, out: Path) -> dict[str, Any]:
     """analyze_bag's summary.json for ``bag`` (exit status 0), without the bag's path."""
-    assert analyze_bag.main([str(bag), '--out', str(out), '--no-plots']) == analyze_bag.EXIT_OK
+    assert analyze_bag.main([str(bag), '--out', str(out), '--no-plots']) == Exit.OK
     doc: dict[str, Any] = json.loads((out / 'summary.json').read_text())
     doc.pop('bag')
     doc.pop('plots', None)
@@ -243,7 +244,7 @@ def _flip(mcap: Path, at: int, n: int = 1) -> None:
 def _analyze(bag: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> str:
     """analyze_bag on a damaged bag: it exits 3 (analysed in part); what it printed."""
     assert analyze_bag.main([str(bag), '--out', str(out), '--no-plots']) == \
-        analyze_bag.EXIT_PARTIAL
+        Exit.NOT_ACHIEVED
     return capsys.readouterr().err
 
 

@@ -18,6 +18,7 @@ from positioning_cell.prediction.maps import workspace_maps
 from positioning_cell.prediction.montecarlo import estimate_yield, inside_requirement
 from positioning_cell.prediction.sensitivity import linearise, split_norms, worst_case
 from positioning_cell.prediction.sources import load_tolerance_spec
+from positioning_cell.tools.exits import Exit
 from positioning_cell.tools.predict_accuracy import main, predict, shipped_config
 
 MECH = Mechanism.default()
@@ -78,7 +79,7 @@ def test_main_refuses_bad_specs_with_a_clear_message(tmp_path: Path, tolerances:
         'position': 1e-4, 'orientation': 1e-3}}))
     code = main(['--spec', str(spec), '--out', str(tmp_path / 'out'), '--samples', '100'])
     err = capsys.readouterr().err
-    assert code == 2
+    assert code == Exit.USAGE
     assert words in err and str(spec) in err
 
 
@@ -86,14 +87,15 @@ def test_main_runs_and_the_yield_can_be_recounted(tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     code = main(['--out', str(tmp_path), '--samples', '2000', '--grid', '0',
                  '--stacked-runs', '0', '--position', '0.005', '0.0', str(MECH.home_height)])
-    assert code == 0
+    assert code == Exit.OK
     out = capsys.readouterr().out
     assert 'yield (nonlinear model)' in out and 'summary.txt' in out
     report = predict(tmp_path, samples=2000, grid=0, stacked_runs=0,
                      position=(0.005, 0.0, MECH.home_height))
     assert f'{report.yield_nonlinear.probability * 100:.3f} %' in out  # same seed, same result
     # pose outside the limits: refused, not a traceback
-    assert main(['--out', str(tmp_path), '--samples', '100', '--position', '0', '0', '0.3']) == 2
+    assert main(['--out', str(tmp_path), '--samples', '100', '--position', '0', '0',
+                 '0.3']) == Exit.USAGE
 
 
 def test_yield_recount_from_deviations_is_consistent() -> None:
