@@ -16,12 +16,13 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
 from rcl_interfaces.msg import ParameterEvent, ParameterValue
-from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
 from positioning_cell import names
+from positioning_cell.accuracy.monitor import TOLERANCES_PREFIX
 from positioning_cell.accuracy.verdicts import Tolerances
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
@@ -31,6 +32,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.ros.parameters import parse_answer, requested_names
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
+from positioning_cell.sim.pose_measurement import TARGETS_PREFIX
 from positioning_cell.watch.state import Snapshot, Status, WatchState
 
 #: A viewer takes the newest samples and never holds a writer back: best effort, shallow.
@@ -57,13 +59,12 @@ class RemoteParameters:
             node, remote, cls, prefix, apply
         self.names = requested_names(cls, prefix)
         self.values: dict[str, ParameterValue] | None = None
-        self._client = node.create_client(GetParameters, f'/{remote}/get_parameters',
-                                          qos_profile=SERVICE_QOS)
+        self._client = AsyncParameterClient(node, remote, qos_profile=SERVICE_QOS)
         self._pending: Any = None
         self._asked = 0.0
         self._period = ASK_PERIOD
         self._timer = node.create_timer(ASK_PERIOD, self._ask)
-        node.create_subscription(ParameterEvent, names.PARAMETER_EVENTS, self._on_event, 100)
+        self._client.on_parameter_event(self._on_event)
         self._ask()
 
     def _ask(self) -> None:
@@ -72,11 +73,11 @@ class RemoteParameters:
             return
         now = time.monotonic()
         if self._pending is not None and now - self._asked > ANSWER_WAIT:
-            self._client.remove_pending_request(self._pending)
+            self._pending.cancel()  # an answer lost: asked again
             self._pending = None
-        if self._pending is None and self._client.service_is_ready():
+        if self._pending is None and self._client.services_are_ready():
             self._asked = now
-            self._pending = self._client.call_async(GetParameters.Request(names=self.names))
+            self._pending = self._client.get_parameters(self.names)
             self._pending.add_done_callback(self._on_answer)
         if self._period < ASK_PERIOD_MAX:
             self._period = min(ASK_PERIOD_MAX, 1.5 * self._period)
@@ -86,7 +87,7 @@ class RemoteParameters:
         """Stop asking (before the node is destroyed)."""
         self._timer.cancel()
         if self._pending is not None:
-            self._client.remove_pending_request(self._pending)
+            self._pending.cancel()
             self._pending = None
 
     def _on_answer(self, future: Any) -> None:
@@ -139,9 +140,9 @@ class WatchInputs:
         node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._diagnostics,
                                  DIAGNOSTICS_QOS)
         self.parameters = [
-            RemoteParameters(node, names.NODE_MONITOR, Tolerances, 'tolerance.',
+            RemoteParameters(node, names.NODE_MONITOR, Tolerances, TOLERANCES_PREFIX,
                              state.tolerances),
-            RemoteParameters(node, names.NODE_MEASUREMENT, TargetLayout, 'targets.',
+            RemoteParameters(node, names.NODE_MEASUREMENT, TargetLayout, TARGETS_PREFIX,
                              lambda layout: state.targets(layout.array))]
 
     def close(self) -> None:
