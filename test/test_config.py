@@ -73,11 +73,16 @@ def test_each_section_parses_into_the_node_settings(node: str) -> None:
     got = flatten(to_params(settings))
     for key, value in mine.items():
         assert key in got, f'{node}: {key} is not in the parsed settings'
-        if isinstance(value, float) or (isinstance(value, list) and value
-                                        and isinstance(value[0], float)):
-            np.testing.assert_allclose(got[key], value, rtol=1e-12, atol=0, err_msg=key)
-        else:
+        if isinstance(value, str | bool) or value is None or (
+                isinstance(value, list) and all(isinstance(v, str) for v in value)):
             assert got[key] == value, f'{node}: {key}: file {value!r}, settings {got[key]!r}'
+            continue
+        want = np.asarray(value, dtype=float)
+        if want.shape != np.shape(got[key]):  # a short form the settings expand (a diagonal)
+            want = np.asarray(flatten(to_params(parse(NODES[node], {key: value})))[key],
+                              dtype=float)
+        np.testing.assert_allclose(np.asarray(got[key], dtype=float), want, rtol=1e-12,
+                                   atol=0, err_msg=f'{node}: {key}')
 
 
 def test_a_misspelt_key_would_be_found() -> None:

@@ -30,7 +30,7 @@ from positioning_cell.errors import PositioningError
 from positioning_cell.tools.exits import Exit, exit_table
 
 #: Transitional: tools/run_cell.py imports this name (it moves onto Exit itself, issue 22).
-EXIT_OK = Exit.OK
+EXIT_OK: int = Exit.OK
 
 
 @dataclass(frozen=True)
