@@ -16,8 +16,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
 from rcl_interfaces.msg import ParameterEvent, ParameterValue
+from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
-from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 
@@ -59,12 +59,16 @@ class RemoteParameters:
             node, remote, cls, prefix, apply
         self.names = requested_names(cls, prefix)
         self.values: dict[str, ParameterValue] | None = None
-        self._client = AsyncParameterClient(node, remote, qos_profile=SERVICE_QOS)
+        # One GetParameters client, not rclpy's AsyncParameterClient: that one also makes
+        # set_parameters clients, and a viewer must have no means to change another node
+        # (test_live_view_node.test_the_live_view_commands_nothing).
+        self._client = node.create_client(GetParameters, f'/{remote}/get_parameters',
+                                          qos_profile=SERVICE_QOS)
         self._pending: Any = None
         self._asked = 0.0
         self._period = ASK_PERIOD
         self._timer = node.create_timer(ASK_PERIOD, self._ask)
-        self._client.on_parameter_event(self._on_event)
+        node.create_subscription(ParameterEvent, names.PARAMETER_EVENTS, self._on_event, 100)
         self._ask()
 
     def _ask(self) -> None:
@@ -73,11 +77,11 @@ class RemoteParameters:
             return
         now = time.monotonic()
         if self._pending is not None and now - self._asked > ANSWER_WAIT:
-            self._pending.cancel()  # an answer lost: asked again
+            self._client.remove_pending_request(self._pending)
             self._pending = None
-        if self._pending is None and self._client.services_are_ready():
+        if self._pending is None and self._client.service_is_ready():
             self._asked = now
-            self._pending = self._client.get_parameters(self.names)
+            self._pending = self._client.call_async(GetParameters.Request(names=self.names))
             self._pending.add_done_callback(self._on_answer)
         if self._period < ASK_PERIOD_MAX:
             self._period = min(ASK_PERIOD_MAX, 1.5 * self._period)
@@ -87,7 +91,7 @@ class RemoteParameters:
         """Stop asking (before the node is destroyed)."""
         self._timer.cancel()
         if self._pending is not None:
-            self._pending.cancel()
+            self._client.remove_pending_request(self._pending)
             self._pending = None
 
     def _on_answer(self, future: Any) -> None:
