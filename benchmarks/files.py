@@ -32,7 +32,7 @@ from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.calibrated import LOAD_TIMEOUT_S, calibrated_machine
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.motion.settings import PositionerSettings
+from positioning_cell.motion.settings import CALIBRATION_FILE, PositionerSettings
 from positioning_cell.parameters import parse
 
 
@@ -103,7 +103,7 @@ def main() -> int:
         worst = 0.0
         for what, path in (('calibration file, real size, as the positioner', real),
                            ('calibration file, largest accepted, as above', largest)):
-            settings = parse(PositionerSettings, {'compensation.calibration_file': str(path)})
+            settings = parse(PositionerSettings, {CALIBRATION_FILE: str(path)})
             times = _times(lambda s=settings: calibrated_machine(s), args.repeat)
             print(_line(what, path.stat().st_size, times))
             worst = max(worst, *times)

@@ -38,6 +38,7 @@ from sensor_msgs.msg import JointState
 import positioning_cell
 from positioning_cell import names
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.motion.settings import COMPENSATION_MODE
 from positioning_cell.parameters import parse
 from positioning_cell.polling import wait_until
 from positioning_cell.ros.client import CellClient
@@ -266,7 +267,7 @@ def run(seconds: float, log_dir: Path) -> int:
         if not homed:
             raise RuntimeError(f'homing failed: {message}')
         rest = measure(procs, stamps, seconds)
-        set_parameter(client, 'positioner', 'compensation.mode', 'none')
+        set_parameter(client, 'positioner', COMPENSATION_MODE, 'none')
         mover = Mover(client)
         mover.start()
         try:

@@ -1,7 +1,11 @@
-"""Test-wide settings: nothing depends on the caller's ROS environment."""
+"""Test-wide settings: nothing depends on the caller's ROS environment; and the tiers: a test
+module marked ``nodes`` or ``slow`` at its top (``pytestmark``) is not even imported when the
+``-m`` expression leaves its marks out, so ``-m "not nodes and not slow"`` (``make
+test-library``) runs the library's tests without loading rclpy. Nothing here imports rclpy."""
 
 from __future__ import annotations
 
+import ast
 import os
 import sys
 import tempfile
@@ -35,6 +39,34 @@ os.environ.pop('RMW_IMPLEMENTATION', None)
 settings.register_profile('ci', derandomize=True, deadline=None, max_examples=150,
                           suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile('ci')
+
+
+def module_marks(path: Path) -> set[str]:
+    """The marks a test module gives all its tests (``pytestmark = pytest.mark.X`` or a list
+    of them), read from its source without importing it."""
+    for node in ast.parse(path.read_text(encoding='utf-8'), str(path)).body:
+        if isinstance(node, ast.Assign) and any(
+                isinstance(t, ast.Name) and t.id == 'pytestmark' for t in node.targets):
+            return {n.attr for n in ast.walk(node.value) if isinstance(n, ast.Attribute)
+                    and isinstance(n.value, ast.Attribute) and n.value.attr == 'mark'}
+    return set()
+
+
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """Leave out a module whose own marks the ``-m`` expression rejects (its imports, rclpy
+    among them, are never run); anything else is collected as usual."""
+    expression = config.getoption('markexpr')
+    if not expression or collection_path.suffix != '.py' \
+            or not collection_path.name.startswith('test_'):
+        return None
+    marks = module_marks(collection_path)
+    if not marks:
+        return None
+    from _pytest.mark.expression import Expression
+
+    if Expression.compile(expression).evaluate(lambda name, **_: name in marks):
+        return None
+    return True
 
 
 @pytest.fixture

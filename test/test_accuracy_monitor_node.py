@@ -6,12 +6,13 @@ silent)."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
-from cell_harness import CELL_YAML, Client, InProcess, wait_until
+from cell_harness import CELL_YAML, Client, InProcess, in_process, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, Vector3Stamped
 from rcl_interfaces.srv import GetParameters
@@ -143,29 +144,35 @@ def jsonable(value: Any) -> Any:
     return json.loads(json.dumps(value))
 
 
-def test_accuracy_monitor_node(ros: InProcess) -> None:
-    client = ros.client
-    ros.start(AccuracyMonitorNode)
-    cell = Cell(client)
-    node = client.node
-    wait_until(lambda: (cell.pub_meas.get_subscription_count() > 0
-                        and cell.pub_target.get_subscription_count() > 0
-                        and cell.pub_truth.get_subscription_count() > 0
-                        and node.count_publishers('/accuracy/position_error') > 0
-                        and node.count_publishers('/diagnostics') > 0), 20.0,
-               'discovery of accuracy_monitor')
-    assert cell.report()['target'] is None
-    # The monitor's own view: every input has matched this client's publisher.
-    inputs = ('/positioner/target', '/metrology/pose', '/sim/platform/true_pose')
-    wait_until(lambda: all(cell.report()['publishers'][t] == 1 for t in inputs), 20.0,
-               'the monitor to match the three input publishers')
+@pytest.fixture(scope='module')
+def visited() -> Iterator[Cell]:
+    """One monitor fed four visits (A, B, A, B) with the tracker's and the truth's samples,
+    shared by the cases below (read-only but the last, which resets it)."""
+    with in_process() as ros:
+        client = ros.client
+        ros.start(AccuracyMonitorNode)
+        cell = Cell(client)
+        node = client.node
+        wait_until(lambda: (cell.pub_meas.get_subscription_count() > 0
+                            and cell.pub_target.get_subscription_count() > 0
+                            and cell.pub_truth.get_subscription_count() > 0
+                            and node.count_publishers('/accuracy/position_error') > 0
+                            and node.count_publishers('/diagnostics') > 0), 20.0,
+                   'discovery of accuracy_monitor')
+        assert cell.report()['target'] is None
+        # The monitor's own view: every input has matched this client's publisher.
+        inputs = ('/positioner/target', '/metrology/pose', '/sim/platform/true_pose')
+        wait_until(lambda: all(cell.report()['publishers'][t] == 1 for t in inputs), 20.0,
+                   'the monitor to match the three input publishers')
+        for name in ('A', 'B', 'A', 'B'):
+            cell.visit(name)
+        wait_until(lambda: len(cell.orientation_errors) >= len(cell.meas), 10.0,
+                   'the orientation errors')
+        yield cell
 
-    for name in ('A', 'B', 'A', 'B'):
-        cell.visit(name)
 
-    # Error topics: one per measurement, equal to the library's error against the target.
-    wait_until(lambda: len(cell.orientation_errors) >= len(cell.meas), 10.0,
-               'the orientation errors')
+def test_one_error_per_measurement_as_the_library_computes_it(visited: Cell) -> None:
+    cell = visited
     assert len(cell.position_errors) == len(cell.meas)
     t, p, q = (np.array(x) for x in zip(*cell.meas, strict=True))
     tt, tp, tq = (np.array(x) for x in zip(*cell.targets, strict=True))
@@ -179,8 +186,10 @@ def test_accuracy_monitor_node(ros: InProcess) -> None:
     # At rest the position error is the offset (noise 3 µm per axis).
     np.testing.assert_allclose(got_dp[-1], OFFSETS['B'], atol=15e-6)
 
-    # One verdict per settled pose: A within tolerance, B (80 µm) outside.
-    verdicts = wait_until(lambda: (v := statuses(cell, 'accuracy_monitor: settled pose'))
+
+def test_one_verdict_per_settled_pose(visited: Cell) -> None:
+    """A within tolerance, B (80 µm) outside."""
+    verdicts = wait_until(lambda: (v := statuses(visited, 'accuracy_monitor: settled pose'))
                           and len(v) >= 4 and v, 10.0, 'four verdicts')
     assert [s.level for s in verdicts] == [DiagnosticStatus.OK, DiagnosticStatus.ERROR] * 2
     assert 'pose 1 cycle 2' in verdicts[3].message and 'µm' in verdicts[3].message
@@ -188,7 +197,11 @@ def test_accuracy_monitor_node(ros: InProcess) -> None:
     assert float(values['position_error_um']) == pytest.approx(80.0, abs=10.0)
     assert values['n'] == '2' and values['RP_l_um'] != 'n/a'
 
-    # The report: exactly the library's batch computation on the same samples.
+
+def test_the_report_is_the_librarys_batch_computation(visited: Cell) -> None:
+    cell = visited
+    wait_until(lambda: len(statuses(cell, 'accuracy_monitor: settled pose')) >= 4, 10.0,
+               'four verdicts')
     report = cell.report()
     batch = cell.batch(cell.meas)
     assert [(v.key, v.cycle) for v in batch.visits] == [(0, 1), (1, 1), (0, 2), (1, 2)]
@@ -212,16 +225,25 @@ def test_accuracy_monitor_node(ros: InProcess) -> None:
     assert truth_b['ap_p'] == pytest.approx(
         float(np.linalg.norm(OFFSETS['B'] - TRACKER_BIAS)), rel=1e-6)
 
-    # A bad message is refused with a reason on /diagnostics; the node keeps running.
+
+def test_a_bad_message_is_refused_with_a_reason_and_the_node_runs_on(visited: Cell) -> None:
     bad = PoseWithCovarianceStamped()
     bad.header.frame_id = 'tracker'
     bad.pose.pose.orientation.w = 1.0
-    cell.pub_meas.publish(bad)
-    warning = wait_until(lambda: statuses(cell, 'accuracy_monitor: input'), 10.0,
+    visited.pub_meas.publish(bad)
+    warning = wait_until(lambda: statuses(visited, 'accuracy_monitor: input'), 10.0,
                          'the bad-input warning')
     assert warning[0].level == DiagnosticStatus.WARN and "'tracker'" in warning[0].message
+    assert visited.report()['verdicts'] == {'ok': 2, 'error': 2}  # nothing counted
 
-    # Reset clears the figures but keeps the current target.
+
+def test_reset_and_tolerances_then_the_figures_again(visited: Cell) -> None:
+    """Last (it resets the shared monitor): the reset clears the figures but keeps the
+    current target; tolerances are validated dynamic parameters; then B's 80 µm offset passes
+    the wider tolerance and the figures again equal the batch."""
+    cell, client = visited, visited.client
+    wait_until(lambda: len(statuses(cell, 'accuracy_monitor: settled pose')) >= 4, 10.0,
+               'four verdicts')
     response = client.call(Trigger, '/accuracy_monitor/reset', Trigger.Request())
     assert response.success
     report = cell.report()
@@ -230,7 +252,6 @@ def test_accuracy_monitor_node(ros: InProcess) -> None:
     assert report['truth'] is None and report['tracker'] is None
     assert report['target']['time'] == cell.targets[-1][0]
 
-    # Tolerances are validated dynamic parameters.
     refused = set_parameter(client, 'tolerance.position', -1e-5)
     assert not refused.successful and refused.reason
     refused = set_parameter(client, 'settle.window', 2.0)
@@ -239,8 +260,7 @@ def test_accuracy_monitor_node(ros: InProcess) -> None:
     assert set_parameter(client, 'tolerance.position', 1e-4).successful
     assert cell.report()['tolerances']['position'] == 1e-4
 
-    # After the reset: B is key 0 (kept target), the new visit to A is key 1; with the
-    # wider tolerance B's 80 µm offset passes, and the figures again equal the batch.
+    # After the reset: B is key 0 (kept target), the new visit to A is key 1.
     cell.targets, cell.meas, cell.truth = cell.targets[-1:], [], []
     cell.visit('A', offset=OFFSETS['B'])
     verdicts = wait_until(lambda: (v := statuses(cell, 'accuracy_monitor: settled pose'))
@@ -248,7 +268,6 @@ def test_accuracy_monitor_node(ros: InProcess) -> None:
     assert verdicts[4].level == DiagnosticStatus.OK
     assert 'pose 1 cycle 1' in verdicts[4].message
     assert cell.report()['measured'] == jsonable(cell.batch(cell.meas).to_dict())
-
 
 
 def test_the_monitor_tells_when_recording_stopped(ros: InProcess) -> None:

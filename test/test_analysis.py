@@ -30,7 +30,8 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
 from positioning_cell.names import MEASURED_POSE, TARGET
 from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
-from positioning_cell.tools.analyze_bag import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL, analyze, main
+from positioning_cell.tools.analyze_bag import analyze, main
+from positioning_cell.tools.exits import Exit
 
 SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
 POSITIONS = np.array([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2], [-0.004, -0.004, 0.2],
@@ -136,7 +137,7 @@ def test_figures_equal_the_batch_analysis_of_the_same_samples(run: SyntheticRun,
 def test_analyze_writes_report_summary_and_plots(bag: Path, tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / 'out'
-    assert main([str(bag), '--out', str(out)]) == EXIT_OK
+    assert main([str(bag), '--out', str(out)]) == Exit.OK
     printed = capsys.readouterr().out
     assert 'worst AP_p µm' in printed and 'measured' in printed and str(out) in printed
     text = (out / 'report.md').read_text()
@@ -172,7 +173,7 @@ def test_a_truncated_bag_is_analysed_as_far_as_it_is_readable(
     write_run_bag(path, run, joint_state_rate=400.0, truncate_to=0.5)
     original = sorted(p.name for p in path.iterdir())
     out = tmp_path / 'out'
-    assert main([str(path), '--out', str(out)]) == EXIT_PARTIAL
+    assert main([str(path), '--out', str(out)]) == Exit.NOT_ACHIEVED
     err = capsys.readouterr().err
     assert 'not complete' in err and 'truncated' in err
     assert sorted(p.name for p in path.iterdir()) == original  # the bag is left as it was
@@ -250,7 +251,7 @@ def test_not_a_bag_and_missing_topics_fail_with_a_clear_message(
     empty = tmp_path / 'empty'
     empty.mkdir()
     for path in (text, fake, empty, tmp_path / 'missing'):
-        assert main([str(path), '--out', str(tmp_path / 'o')]) == EXIT_FAILED
+        assert main([str(path), '--out', str(tmp_path / 'o')]) == Exit.USAGE
         err = capsys.readouterr().err
         assert err.startswith('analyze_bag: error: ') and str(path) in err
     assert not (tmp_path / 'o').exists()
@@ -262,7 +263,7 @@ def test_not_a_bag_and_missing_topics_fail_with_a_clear_message(
                                      only.position[:0], only.quaternion[:0],
                                      only.true_position[:0], only.true_quaternion[:0]),
                   truth=False)
-    assert main([str(lean)]) == EXIT_FAILED
+    assert main([str(lean)]) == Exit.USAGE
     err = capsys.readouterr().err
     assert 'lacks /metrology/pose' in err and '/positioner/target' in err
 

@@ -26,7 +26,8 @@ from positioning_cell.config import config_path
 from positioning_cell.names import MEASURED_POSE, TARGET
 from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
 from positioning_cell.tools import recover_bag as recover_tool
-from positioning_cell.tools.analyze_bag import EXIT_FAILED, EXIT_PARTIAL, main
+from positioning_cell.tools.analyze_bag import main
+from positioning_cell.tools.exits import Exit
 
 SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
 POSITIONS = np.array([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2], [-0.004, -0.004, 0.2],
@@ -147,7 +148,7 @@ def test_a_flipped_chunk_is_named_and_the_rest_is_analysed(
 
     # analyze_bag: exit 3, the chunk and the time range lost are printed and in the report
     out = tmp_path / 'out'
-    assert main([str(bag), '--out', str(out)]) == EXIT_PARTIAL
+    assert main([str(bag), '--out', str(out)]) == Exit.NOT_ACHIEVED
     err = capsys.readouterr().err
     start_s = (ci.message_start_time - _log_ns(run.time[0])) * 1e-9
     end_s = (ci.message_end_time - _log_ns(run.time[0])) * 1e-9
@@ -187,7 +188,7 @@ def test_damage_outside_the_chunks_is_found_and_nothing_is_lost(
     check = verify_file(mcap)
     assert check.damaged == () and check.data_crc == 'mismatch'
     assert check.problems and 'no message is lost' in check.problems[0]
-    assert main([str(bag), '--out', str(tmp_path / 'out')]) == EXIT_PARTIAL
+    assert main([str(bag), '--out', str(tmp_path / 'out')]) == Exit.NOT_ACHIEVED
     assert 'data section CRC mismatch' in capsys.readouterr().err
     assert len(analyse_bag(bag, SETTINGS).replay.visits) == 30
 
@@ -204,7 +205,7 @@ def test_empty_and_tiny_files_say_so(run: SyntheticRun, tmp_path: Path,
     for path, words in ((empty, 'empty (0 bytes)'),
                         (tiny, '10 bytes: too short to be an MCAP file'),
                         (folder, 'cut_0.mcap: empty (0 bytes)')):
-        assert main([str(path), '--out', str(tmp_path / 'o')]) == EXIT_FAILED
+        assert main([str(path), '--out', str(tmp_path / 'o')]) == Exit.USAGE
         err = capsys.readouterr().err
         assert err.startswith(f'analyze_bag: error: {path}: ') and words in err, err
         assert 'lacks' not in err and 'nothing to analyse' in err
@@ -215,7 +216,7 @@ def test_empty_and_tiny_files_say_so(run: SyntheticRun, tmp_path: Path,
     bag = tmp_path / 'bag'
     _bag(run, bag)
     (bag / 'bag_1.mcap').write_bytes(b'')
-    assert main([str(bag), '--out', str(tmp_path / 'o2')]) == EXIT_PARTIAL
+    assert main([str(bag), '--out', str(tmp_path / 'o2')]) == Exit.NOT_ACHIEVED
     assert 'bag_1.mcap: empty (0 bytes)' in capsys.readouterr().err
     assert len(analyse_bag(bag, SETTINGS).replay.visits) == 30
 

@@ -42,6 +42,7 @@ from positioning_cell.errors import InputError
 from positioning_cell.names import CELL_TOPICS
 from positioning_cell.testing.disks import FaultyDisk, MountError, small_filesystem
 from positioning_cell.tools import recover_bag as recover_tool
+from positioning_cell.tools.exits import Exit
 
 TS = jazzy_typestore()
 T0 = 1_790_000_000_000_000_000
@@ -375,10 +376,10 @@ def test_recover_refuses_what_is_not_a_bag(tmp_path: Path, capsys: pytest.Captur
     with pytest.raises(BagError, match='not an MCAP file'):
         recover_bag(bad)
     assert {p.name: p.read_bytes() for p in bad.iterdir()} == before  # nothing changed
-    assert recover_tool.main([str(bad)]) == 1
+    assert recover_tool.main([str(bad)]) == Exit.USAGE
     assert 'not an MCAP file' in capsys.readouterr().err
     (bad / 'zz_9.mcap').unlink()
-    assert recover_tool.main([str(bad)]) == 0
+    assert recover_tool.main([str(bad)]) == Exit.OK
     assert 'wrote' in capsys.readouterr().out
     assert len(_read_rosbags(bad)) == 20
 

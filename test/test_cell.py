@@ -31,6 +31,7 @@ from workspace import MECH
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.poses import pose_error
 from positioning_cell.metrology.fit import pose_covariance
+from positioning_cell.motion.settings import COMPENSATION_MODE
 from positioning_cell.parameters import parse
 from positioning_cell.ros.messages import pose_arrays, pose_stamped
 from positioning_cell.ros.qos import STREAM_QOS
@@ -103,7 +104,7 @@ def errors_by_mode(cell: Any) -> dict[str, list[dict[str, np.ndarray]]]:
     client, streams, diagnostics, _ = cell
     results: dict[str, list[dict[str, np.ndarray]]] = {}
     for mode in ('none', 'measured'):
-        assert set_param(client, 'positioner', 'compensation.mode', mode).successful
+        assert set_param(client, 'positioner', COMPENSATION_MODE, mode).successful
         results[mode] = []
         for p, rv in GOALS:
             response, seconds = move(client, p, rv)

@@ -11,7 +11,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -33,9 +33,12 @@ from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.speed import Speeds as LibrarySpeeds
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.names import BASE_FRAME
+from positioning_cell.ros import cell_messages as cm
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.tools import cell
 from positioning_cell.tools import cell_format as cf
+from positioning_cell.tools.exits import Exit, exit_table
+from positioning_cell.tools.interruption import Interrupted, Signals
 
 MECH = Mechanism.default()
 
@@ -47,11 +50,11 @@ def parse(*argv: str) -> Any:
 def usage_error(*argv: str) -> None:
     with pytest.raises(SystemExit) as err:
         parse(*argv)
-    assert err.value.code == cf.EXIT_USAGE
+    assert err.value.code == Exit.USAGE
 
 
 def command_of(*argv: str) -> MoveCommand:
-    return cell.move_command(cf.move_request(parse(*argv)), Time(sec=3))
+    return cm.move_command(cf.move_request(parse(*argv)), Time(sec=3))
 
 
 def quaternion_deg(rx: float, ry: float, rz: float) -> np.ndarray:
@@ -162,7 +165,7 @@ def test_watch_options_are_checked() -> None:
     for bad in (['--frame', 'tracker'], ['--rate', '0'], ['--rate', '31'], ['--rate', 'nan']):
         with pytest.raises(SystemExit) as exc:
             parse('watch', *bad)
-        assert exc.value.code == cf.EXIT_USAGE, bad
+        assert exc.value.code == Exit.USAGE, bad
 
 
 def test_jog_lengths_in_mm_and_angles_in_degrees() -> None:
@@ -177,11 +180,11 @@ def test_jog_lengths_in_mm_and_angles_in_degrees() -> None:
 
 
 def test_jog_exit_codes() -> None:
-    assert cf.jog_exit_code(True, 'success') == cf.EXIT_OK
-    assert cf.jog_exit_code(False, 'refused_busy') == cf.EXIT_REFUSED
-    assert cf.jog_exit_code(False, 'aborted_fault') == cf.EXIT_ABORTED
-    assert cf.jog_exit_code(False, '') == cf.EXIT_REFUSED
-    assert cf.jog_exit_code(False, 'success') == cf.EXIT_REFUSED  # not a success after all
+    assert cf.jog_exit_code(True, 'success') == Exit.OK
+    assert cf.jog_exit_code(False, 'refused_busy') == Exit.REFUSED
+    assert cf.jog_exit_code(False, 'aborted_fault') == Exit.ABORTED
+    assert cf.jog_exit_code(False, '') == Exit.REFUSED
+    assert cf.jog_exit_code(False, 'success') == Exit.REFUSED  # not a success after all
 
 
 def test_speed_request_in_si_and_zero_keeps() -> None:
@@ -204,7 +207,7 @@ def test_frames_request() -> None:
     assert obj is None and user is not None
     np.testing.assert_allclose(user.to_human(), [10, 0, 0, 0, 0, 90], atol=1e-9)
     systems = CoordinateSystems(user=user, object=Transform.from_human([0, 0, 5, 1, 0, 0]))
-    back = cell.systems_of(cell.systems_msg(systems))
+    back = cm.systems_of(om.systems_msg(systems.user, systems.object))
     np.testing.assert_allclose(back.user.to_pose6(), systems.user.to_pose6(), atol=1e-12)
     np.testing.assert_allclose(back.object.to_pose6(), systems.object.to_pose6(), atol=1e-12)
 
@@ -222,9 +225,9 @@ def test_limits_keep_what_is_left_out_and_none_is_no_limit() -> None:
     np.testing.assert_allclose(u_high[:5], [0.001, 0.002, 0.003, *np.radians([4, 5])])
     assert u_high[5] == math.inf and u_low[0] == u_low[1] == -math.inf
     np.testing.assert_allclose(u_low[2:], [-0.001, *np.radians([-1, -1, -1])])
-    msg = cell.box_msg((u_low, u_high))
+    msg = cm.box_msg((u_low, u_high))
     assert isinstance(msg, BoxLimits)
-    back = cell.box_of(msg)
+    back = cm.box_of(msg)
     np.testing.assert_array_equal(back[0], u_low)
     np.testing.assert_array_equal(back[1], u_high)
 
@@ -235,16 +238,16 @@ def outcome_constants() -> dict[str, int]:
             if name.isupper() and isinstance(value, int) and not name.startswith('_')}
 
 
-def expected_exit(name: str) -> int:
+def expected_exit(name: str) -> Exit:
     if name == 'SUCCESS':
-        return cf.EXIT_OK
+        return Exit.OK
     if name == 'OUT_OF_TOLERANCE':
-        return cf.EXIT_OUT_OF_TOLERANCE
+        return Exit.NOT_ACHIEVED
     if name.startswith('REFUSED_'):
-        return cf.EXIT_REFUSED
+        return Exit.REFUSED
     # Uncommanded motion ends no command, but the drives were stopped: as an abort.
     assert name.startswith('ABORTED_') or name == 'UNCOMMANDED_MOTION', name
-    return cf.EXIT_ABORTED
+    return Exit.ABORTED
 
 
 def test_every_move_outcome_constant_maps_to_an_exit_code() -> None:
@@ -260,23 +263,24 @@ def test_every_move_outcome_constant_maps_to_an_exit_code() -> None:
 
 
 def test_an_unknown_outcome_counts_as_aborted() -> None:
-    assert cf.exit_code('aborted_by_a_newer_positioner') == cf.EXIT_ABORTED
-    assert cf.exit_code('') == cf.EXIT_ABORTED
-    assert cf.exit_code('', 99) == cf.EXIT_ABORTED
-    assert cf.exit_code('', 19) == cf.EXIT_REFUSED
+    assert cf.exit_code('aborted_by_a_newer_positioner') == Exit.ABORTED
+    assert cf.exit_code('') == Exit.ABORTED
+    assert cf.exit_code('', 99) == Exit.ABORTED
+    assert cf.exit_code('', 19) == Exit.REFUSED
 
 
 def test_one_exit_code_table_documented_everywhere() -> None:
-    codes = [row.code for row in cf.EXIT_CODES]
-    assert codes == sorted(set(codes))
-    assert codes[:6] == [0, 1, 2, 3, 4, 5]
+    """cell's docstring names the codes of the one table (tools/exits.py) with their JSON
+    labels, and --help prints that table."""
     assert cell.__doc__ is not None
     table = cell.__doc__[cell.__doc__.index('Exit codes'):]
     doc_rows = [line.split()[:2] for line in table.splitlines() if line[:1].isdigit()]
-    assert doc_rows == [[str(row.code), row.name] for row in cf.EXIT_CODES]
+    assert doc_rows == [[str(code.value), code.label] for code in Exit]
+    assert [code.label for code in Exit] == ['success', 'out_of_tolerance', 'usage', 'refused',
+                                             'aborted', 'not_there', 'interrupted']
     epilog = cf.build_parser().epilog or ''
-    assert all(f'{row.code:>3}  {row.name}' in epilog for row in cf.EXIT_CODES)
-    assert cf.exit_name(cf.EXIT_NOT_THERE) == 'not_there'
+    assert exit_table() in epilog
+    assert all(f'{code.value:>3}  {code.label}' in epilog for code in Exit)
 
 
 # -- outcomes in JSON and text -------------------------------------------------------------------
@@ -296,7 +300,7 @@ def outcome_msg(code: int = MoveOutcome.SUCCESS, name: str = 'success',
 
 
 def test_outcome_json_is_complete_si_and_human_with_nan_as_null() -> None:
-    outcome = cell.outcome_of(outcome_msg())
+    outcome = cm.outcome_of(outcome_msg())
     text = cf.json_text(cf.command_document('move', outcome.exit_code, None,
                                             {'outcome': outcome.document()}))
     assert '\n' not in text and 'NaN' not in text
@@ -322,7 +326,7 @@ def test_outcome_json_is_complete_si_and_human_with_nan_as_null() -> None:
 
 def test_a_finite_uncertainty_is_kept_and_a_partial_one_nulled() -> None:
     u = [1e-6, 2e-6, 3e-6, math.nan, 1e-5, math.inf]
-    doc = json.loads(cf.json_text(cell.outcome_of(outcome_msg(uncertainty=u)).document()))
+    doc = json.loads(cf.json_text(cm.outcome_of(outcome_msg(uncertainty=u)).document()))
     assert doc['uncertainty'] == [1e-6, 2e-6, 3e-6, None, 1e-5, None]
 
 
@@ -339,21 +343,21 @@ def test_a_command_document_keeps_its_own_four_keys() -> None:
 
 
 def test_outcome_text() -> None:
-    text = cell.outcome_of(outcome_msg(uncertainty=[1e-6] * 3 + [1e-5] * 3)).text()
+    text = cm.outcome_of(outcome_msg(uncertainty=[1e-6] * 3 + [1e-5] * 3)).text()
     lines = text.splitlines()
     assert lines[0] == 'success (0): settled within 10 µm'
     assert 'user position' in lines[1] and '10.0000' in lines[1] and '-2.5000' in lines[1]
     assert lines[1].rstrip().endswith('deg') and ' mm ' in lines[1]
     assert 'error' in lines[2] and '5.0 µm' in lines[2] and '0.00100 deg' in lines[2]
     assert 'uncertainty' in lines[3] and '1.0 1.0 1.0 µm' in lines[3]
-    assert 'uncertainty' not in cell.outcome_of(outcome_msg()).text()  # NaN: not measured
+    assert 'uncertainty' not in cm.outcome_of(outcome_msg()).text()  # NaN: not measured
 
 
 def test_a_refusal_says_only_why() -> None:
-    outcome = cell.outcome_of(outcome_msg(MoveOutcome.REFUSED_LIMITS, 'refused_limits'))
-    assert not outcome.moved and outcome.exit_code == cf.EXIT_REFUSED
+    outcome = cm.outcome_of(outcome_msg(MoveOutcome.REFUSED_LIMITS, 'refused_limits'))
+    assert not outcome.moved and outcome.exit_code == Exit.REFUSED
     assert outcome.text() == 'refused_limits (11): settled within 10 µm'
-    assert list(cell.outcome_of(MoveOutcome()).document()['attained']['human']) == [0.0] * 6
+    assert list(cm.outcome_of(MoveOutcome()).document()['attained']['human']) == [0.0] * 6
 
 
 def test_a_pose_that_is_not_a_rotation_has_no_human_numbers() -> None:
@@ -385,11 +389,11 @@ def check_response(valid: bool) -> Any:
 
 
 def test_check_valid_and_invalid() -> None:
-    valid = cell.check_of(check_response(True))
-    assert valid.exit_code == cf.EXIT_OK
+    valid = cm.check_of(check_response(True))
+    assert valid.exit_code == Exit.OK
     assert valid.text().splitlines()[0] == 'valid: the move takes 2.50 s'
-    invalid = cell.check_of(check_response(False))
-    assert invalid.exit_code == cf.EXIT_REFUSED
+    invalid = cm.check_of(check_response(False))
+    assert invalid.exit_code == Exit.REFUSED
     text = invalid.text()
     assert text.startswith('not valid (bits 130): stroke, machine_limits')
     assert '  - machine limits: Tx 15 mm above 10 mm' in text
@@ -529,79 +533,84 @@ class Action:
         return Pending() if self.handle is None else Done(self.handle)
 
 
-def session(timeout: float = 5.0) -> tuple[cell.Session, io.StringIO]:
-    err = io.StringIO()
-    return cell.Session(None, cell.Signals(), cell.Output(False, io.StringIO(), err),  # type: ignore[arg-type]
-                        timeout), err
+@dataclass
+class Loop:
+    """What the goal loop is given: the signals it counts, the timeout, and the note and
+    progress lines it writes (on ``err``)."""
 
+    timeout: float = 5.0
+    signals: Signals = field(default_factory=Signals)
+    err: io.StringIO = field(default_factory=io.StringIO)
 
-def drive(s: cell.Session, action: Action) -> cell.GoalRun:
-    with s.signals.deferred():
-        return cell._drive(s, action, None, lambda f: f'{f.phase_name} {f.progress}')  # type: ignore[arg-type]
+    def drive(self, action: Action) -> cf.GoalRun:
+        out = cell.Output(False, io.StringIO(), self.err)
+        with self.signals.deferred():
+            return cm.drive(action, None, self.timeout, lambda: self.signals.count, out.note,
+                            lambda f: out.progress(f'{f.phase_name} {f.progress}'))
 
 
 def test_a_goal_that_ends_by_itself() -> None:
-    s, err = session()
-    run = drive(s, Action(Handle(outcome=outcome_msg(), at_once=True)))
-    assert run.accepted and not run.cancelled and run.exit_code == cf.EXIT_OK
+    s = Loop()
+    run = s.drive(Action(Handle(outcome=outcome_msg(), at_once=True)))
+    assert run.accepted and not run.cancelled and run.exit_code == Exit.OK
     assert run.goal_status == 5 and run.outcome is not None
-    assert err.getvalue() == ''  # not a terminal: no progress bar
+    assert s.err.getvalue() == ''  # not a terminal: no progress bar
     assert set(run.fields()) == {'accepted', 'cancelled', 'cancel_cause', 'goal_status',
                                  'outcome'}
 
 
 def test_ctrl_c_cancels_and_the_result_is_awaited() -> None:
-    s, err = session()
+    s = Loop()
     handle = Handle()
-    run = drive(s, Action(handle, on_send=lambda: s.signals(2, None)))  # SIGINT, deferred
+    run = s.drive(Action(handle, on_send=lambda: s.signals(2, None)))  # SIGINT, deferred
     assert handle.cancels == 1 and run.cancelled and run.cancel_cause == 'interrupt'
     assert run.outcome is not None and run.outcome.code_name == 'aborted_stop'
-    assert run.exit_code == cf.EXIT_ABORTED and 'cancelling' in err.getvalue()
+    assert run.exit_code == Exit.ABORTED and 'cancelling' in s.err.getvalue()
     assert run.text().splitlines()[0] == 'cancelled (Ctrl-C)'
 
 
 def test_the_timeout_cancels() -> None:
-    s, _ = session(timeout=0.05)
+    s = Loop(timeout=0.05)
     handle = Handle()
-    run = drive(s, Action(handle))
+    run = s.drive(Action(handle))
     assert handle.cancels == 1 and run.cancel_cause == 'timeout'
-    assert run.exit_code == cf.EXIT_ABORTED
+    assert run.exit_code == Exit.ABORTED
 
 
 def test_a_second_ctrl_c_stops_waiting() -> None:
-    s, _ = session()
+    s = Loop()
 
     def twice() -> None:
         s.signals(2, None)
         s.signals(2, None)
 
-    run = drive(s, Action(Handle(), on_send=twice))
-    assert run.outcome is None and run.exit_code == cf.EXIT_INTERRUPTED and run.error
+    run = s.drive(Action(Handle(), on_send=twice))
+    assert run.outcome is None and run.exit_code == Exit.INTERRUPTED and run.error
 
 
 def test_a_rejected_goal_is_refused() -> None:
-    s, _ = session()
-    run = drive(s, Action(Handle(accepted=False)))
-    assert run.accepted is False and run.exit_code == cf.EXIT_REFUSED
+    s = Loop()
+    run = s.drive(Action(Handle(accepted=False)))
+    assert run.accepted is False and run.exit_code == Exit.REFUSED
 
 
 def test_no_outcome_counts_as_aborted() -> None:
-    s, _ = session()
-    run = drive(s, Action(Handle(outcome=MoveOutcome(), at_once=True)))
-    assert run.outcome is None and run.exit_code == cf.EXIT_ABORTED
+    s = Loop()
+    run = s.drive(Action(Handle(outcome=MoveOutcome(), at_once=True)))
+    assert run.outcome is None and run.exit_code == Exit.ABORTED
     assert run.error is not None and 'no outcome' in run.error
 
 
 def test_no_answer_after_the_cancel_is_not_there(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(cell, 'CANCEL_WAIT', 0.05)
-    s, _ = session(timeout=0.05)
-    run = drive(s, Action(None))  # the goal's acceptance never comes
-    assert run.accepted is None and run.exit_code == cf.EXIT_NOT_THERE
+    monkeypatch.setattr(cm, 'CANCEL_WAIT', 0.05)
+    s = Loop(timeout=0.05)
+    run = s.drive(Action(None))  # the goal's acceptance never comes
+    assert run.accepted is None and run.exit_code == Exit.NOT_THERE
 
 
 def test_signals_raise_outside_a_goal() -> None:
-    signals = cell.Signals()
-    with pytest.raises(cell.InterruptedCommandError):
+    signals = Signals()
+    with pytest.raises(Interrupted):
         signals(2, None)
     with signals.deferred():
         signals(15, None)
@@ -610,14 +619,14 @@ def test_signals_raise_outside_a_goal() -> None:
 
 def test_output_one_json_line_or_text() -> None:
     out, err = io.StringIO(), io.StringIO()
-    cell.Output(True, out, err).emit('stop', cell.Report(cf.EXIT_REFUSED, {'success': False},
+    cell.Output(True, out, err).emit('stop', cell.Report(Exit.REFUSED, {'success': False},
                                                          'text', 'refused: busy'))
     assert json.loads(out.getvalue()) == {'command': 'stop', 'exit_code': 3,
                                           'exit_name': 'refused', 'error': 'refused: busy',
                                           'success': False}
     assert out.getvalue().count('\n') == 1 and 'refused: busy' in err.getvalue()
     out = io.StringIO()
-    cell.Output(False, out, io.StringIO()).emit('stop', cell.Report(0, {}, 'stopped'))
+    cell.Output(False, out, io.StringIO()).emit('stop', cell.Report(Exit.OK, {}, 'stopped'))
     assert out.getvalue() == 'stopped\n'
 
 

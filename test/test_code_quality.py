@@ -22,8 +22,6 @@ ROS_LAYER = ('nodes/', 'ros/')
 #: The command lines (argparse shells) and the test harness: they may use the ROS adapter,
 #: never rclpy itself.
 ADAPTER_USERS = ('tools/', 'testing/')
-#: Tools still being moved onto the adapter (issue 22): to be emptied.
-ROS_TOOLS_LEFT = ('tools/cell.py', 'tools/cell_watch.py')
 
 
 def _rel(path: Path) -> str:
@@ -32,7 +30,7 @@ def _rel(path: Path) -> str:
 
 def in_ros_layer(path: Path) -> bool:
     rel = _rel(path)
-    return any(rel.startswith(r) for r in ROS_LAYER) or rel in ROS_TOOLS_LEFT
+    return any(rel.startswith(r) for r in ROS_LAYER)
 
 
 def in_library(path: Path) -> bool:

@@ -5,6 +5,7 @@ once, a stop at once superseding what waits, stamps on the drives' clock."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from builtin_interfaces.msg import Duration
 from rclpy.serialization import serialize_message
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -14,6 +15,9 @@ from positioning_cell.parameters import parse
 from positioning_cell.polling import wait_until
 from positioning_cell.sim.commands import CommandQueue
 from positioning_cell.sim.drives import DriverSettings, LegDriver, Outcome
+
+#: rclpy serialises the reference messages in this process.
+pytestmark = pytest.mark.nodes
 
 SETTINGS = parse(DriverSettings, {'referenced_at_start': True})
 HOME = SETTINGS.home_positions()

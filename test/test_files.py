@@ -30,7 +30,7 @@ from positioning_cell.config import config_path, load_parameter_file
 from positioning_cell.errors import ConfigError
 from positioning_cell.frames import file as frames_file
 from positioning_cell.frames.systems import CoordinateSystems
-from positioning_cell.motion.settings import PositionerSettings, machine_settings
+from positioning_cell.motion.settings import CALIBRATION_FILE, PositionerSettings, machine_settings
 from positioning_cell.parameters import parse
 from positioning_cell.prediction.sources import load_tolerance_spec
 from positioning_cell.tolerance.model import load_mechanism
@@ -84,7 +84,7 @@ PROBES: dict[str, tuple[Callable[[Path], Path], str]] = {
 
 
 def _positioner_settings(path: Path) -> PositionerSettings:
-    return parse(PositionerSettings, {'compensation.calibration_file': str(path)})
+    return parse(PositionerSettings, {CALIBRATION_FILE: str(path)})
 
 
 #: Every reader of a file named by a parameter or option: (read it, its error type, the

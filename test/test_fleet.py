@@ -33,6 +33,7 @@ from positioning_cell.analysis.fleet_report import markdown, write_report
 from positioning_cell.errors import InputError
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 from positioning_cell.tools import analyze_bags
+from positioning_cell.tools.exits import Exit
 
 UM = 1e-6
 P1, P2, P3 = (0.0, 0.0, 0.196), (0.004, 0.004, 0.2), (-0.004, -0.004, 0.2)
@@ -290,7 +291,7 @@ def test_the_command_line_on_a_local_cluster(tmp_path: Path,
     out = tmp_path / 'trends'
     code = analyze_bags.main([str(tmp_path / 'plant'), '--out', str(out), '--workers', '2'])
     printed = capsys.readouterr()
-    assert code == analyze_bags.EXIT_PARTIAL, printed
+    assert code == Exit.NOT_ACHIEVED, printed
     assert '5 bag(s) on 2 local worker process(es)' in printed.out and '[5/5]' in printed.out
     assert 'garbage.mcap: FAILED' in printed.out
     assert 'failed: ' in printed.err and 'garbage.mcap' in printed.err
@@ -341,7 +342,7 @@ def test_the_command_line_on_a_scheduler(tmp_path: Path, scheduler: str,
     code = analyze_bags.main([str(tmp_path / 'bag'), '--out', str(out), '--scheduler',
                               scheduler])
     printed = capsys.readouterr().out
-    assert code == analyze_bags.EXIT_OK, printed
+    assert code == Exit.OK, printed
     assert f'1 bag(s) on the scheduler at {scheduler}' in printed and '[1/1]' in printed
     ap_p = json.loads((out / 'trends.json').read_text())['series'][0]['ap_p']
     assert ap_p == [analyse_bag(tmp_path / 'bag').modes[0].poses[0].figures.ap_p]
@@ -364,10 +365,10 @@ def test_a_task_lost_outside_the_analysis_is_a_failure() -> None:
 
 def test_nothing_to_analyse(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                             monkeypatch: pytest.MonkeyPatch) -> None:
-    assert analyze_bags.main([str(tmp_path / 'missing')]) == analyze_bags.EXIT_FAILED
+    assert analyze_bags.main([str(tmp_path / 'missing')]) == Exit.USAGE
     assert 'missing: no such file or folder' in capsys.readouterr().err
     (tmp_path / 'a.mcap').write_bytes(b'')
     monkeypatch.setattr(analyze_bags, 'CONNECT_TIMEOUT', 0.5)
     code = analyze_bags.main([str(tmp_path / 'a.mcap'), '--scheduler', 'tcp://127.0.0.1:9'])
-    assert code == analyze_bags.EXIT_FAILED
+    assert code == Exit.NOT_THERE
     assert 'cannot reach the Dask scheduler at tcp://127.0.0.1:9' in capsys.readouterr().err

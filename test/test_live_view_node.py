@@ -19,9 +19,11 @@ from rclpy.node import Node
 from scipy.spatial.transform import Rotation
 
 from positioning_cell import names
+from positioning_cell.accuracy.monitor import TOLERANCES_PREFIX
 from positioning_cell.errors import ConfigError
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
 from positioning_cell.nodes.live_view_node import LiveViewNode
+from positioning_cell.sim.pose_measurement import TARGETS_PREFIX
 
 pytestmark = pytest.mark.nodes
 
@@ -125,7 +127,7 @@ def test_deviation_scene_and_transforms_match_the_published_poses(ros: InProcess
 def test_it_follows_the_monitor_tolerance_and_the_user_frame(ros: InProcess) -> None:
     ros.start(AccuracyMonitorNode)
     layout = Node(names.NODE_MEASUREMENT, context=ros.context)  # the tracker's target layout
-    layout.declare_parameter('targets.platform', TARGETS)
+    layout.declare_parameter(f'{TARGETS_PREFIX}platform', TARGETS)
     ros.executor.add_node(layout)
     ros.nodes.append(layout)
     live = ros.start(LiveViewNode, port=0, frame='user')
@@ -140,7 +142,8 @@ def test_it_follows_the_monitor_tolerance_and_the_user_frame(ros: InProcess) -> 
             e['id'] == 'targets' for e in s['entities'])).message
         assert len(next(e for e in scene['entities'] if e['id'] == 'targets')['spheres']) == 4
         # 30 µm tolerance: |Δp| 37.4 µm is out, and so is x (30 µm equals it: in)
-        result = ros.client.set_parameter(names.NODE_MONITOR, 'tolerance.position', 30e-6)
+        result = ros.client.set_parameter(names.NODE_MONITOR, f'{TOLERANCES_PREFIX}position',
+                                           30e-6)
         assert result.successful, result.reason
         dev = _until(ws, cell, names.LIVE_DEVIATION,
                      lambda d: d['position_tolerance_um'] == pytest.approx(30.0)).message

@@ -31,7 +31,7 @@ from positioning_cell.motion.mover import (
     joints_arrived,
     validate_goal,
 )
-from positioning_cell.motion.settings import GoalTolerance
+from positioning_cell.motion.settings import COMPENSATION_MODE, GoalTolerance
 from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
 from positioning_cell.moves.trajectory import Trajectory, fingerprint
 from positioning_cell.parameters import parse
@@ -196,7 +196,7 @@ DRIVES_READY = {'enabled': 'true', 'state': 'holding', 'referenced': 'true'}
 
 def settings(mode: str = 'none', **changes: object) -> PositionerSettings:
     """Positioner settings for fast tests: no dwell, short timeouts."""
-    values = {'compensation.mode': mode, 'compensation.clearance.model': 'none',
+    values = {COMPENSATION_MODE: mode, 'compensation.clearance.model': 'none',
               'settle_time': 0.0, 'arrival.timeout': 0.3, 'measurement_timeout': 0.5,
               'liveness.discovery_timeout': 0.2,
               **changes}

@@ -19,6 +19,9 @@ from installed import check_installed_copy
 
 from positioning_cell import names
 
+#: The installed executables start nodes.
+pytestmark = pytest.mark.nodes
+
 PACKAGE = 'positioning_cell'
 # Node names of the executables (the one table: positioning_cell.names).
 NODE_NAMES = {node.executable: node.name for node in names.NODE_EXECUTABLES}

@@ -1,6 +1,6 @@
 """Parameters declared once (positioning_cell.parameters): declarations, parsing of nested and
 dotted blocks, groups keeping the defaults their parent gives them, validation on direct
-construction, and the ROS descriptors made from the same declaration."""
+construction (the ROS descriptors made from the same declaration: test_ros_parameters)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ import math
 from dataclasses import dataclass
 
 import pytest
-from rcl_interfaces.msg import ParameterDescriptor
 
 from positioning_cell.errors import ConfigError
 from positioning_cell.parameters import (
@@ -21,7 +20,6 @@ from positioning_cell.parameters import (
     setting,
     to_params,
 )
-from positioning_cell.ros.parameters import descriptor
 
 
 @dataclass(frozen=True)
@@ -93,20 +91,3 @@ def test_direct_construction_is_held_to_the_same_rules() -> None:
     with pytest.raises(ConfigError, match=r'speed = -1.0: must be in \(0, 5\] m/s'):
         Inner(speed=-1.0)
     assert Inner(speed=2).speed == 2.0 and isinstance(Inner(speed=2).speed, float)
-
-
-def test_descriptors_carry_ranges_read_only_and_constraints() -> None:
-    decl = {d.name: d for d in declarations(Outer)}
-    speed = descriptor(decl['first.speed'])
-    assert isinstance(speed, ParameterDescriptor) and not speed.read_only
-    (fp,) = speed.floating_point_range
-    assert (fp.from_value, fp.to_value) == (0.0, 5.0)
-    assert speed.description == 'a speed, m/s'
-    assert speed.additional_constraints == 'unit: m/s; in (0, 5]'
-    count = descriptor(decl['first.count'])
-    (ir,) = count.integer_range
-    assert (ir.from_value, ir.to_value) == (1, 10) and count.read_only
-    assert descriptor(decl['name']).additional_constraints == 'one of: a, b'
-    one_sided = descriptor(decl['optional'])
-    assert one_sided.floating_point_range[0].from_value == 0.0
-    assert one_sided.floating_point_range[0].to_value > 1e300

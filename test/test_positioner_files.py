@@ -35,7 +35,7 @@ from positioning_cell import files, names
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration.calibrated import LOAD_TIMEOUT_S
 from positioning_cell.calibration.parameters import PARAMETER_NAMES
-from positioning_cell.motion.settings import CALIBRATION_FILE
+from positioning_cell.motion.settings import CALIBRATION_FILE, COMPENSATION_MODE
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.testing.stops import CRASH_SIGNS
@@ -105,7 +105,7 @@ class Reader(threading.Thread):
 @pytest.fixture
 def positioner(ros: InProcess, tmp_path: Path) -> Iterator[PositionerNode]:
     node = ros.start(PositionerNode, **{
-        'compensation.mode': 'none',
+        COMPENSATION_MODE: 'none',
         'operator.coordinate_systems_file': str(tmp_path / 'coordinate_systems.yaml')})
     wait_until(lambda: ros.client.spinning(names.NODE_POSITIONER), 30.0, 'the positioner')
     yield node
@@ -161,9 +161,9 @@ def test_a_load_that_stalls_is_given_up_after_its_bound(
     stalled_path = tmp_path / 'stalled.yaml'
     stalled_path.write_text(good.read_text())
     try:
-        future = client.call_many(SetParameters,
-                                  names.set_parameters_service(names.NODE_POSITIONER),
-                                  [_set_request(stalled_path)])[0]
+        service = names.set_parameters_service(names.NODE_POSITIONER)
+        client.service(SetParameters, service)  # matched before the request goes out
+        future = client.call_many(SetParameters, service, [_set_request(stalled_path)])[0]
         start = time.monotonic()
         wait_until(entered.is_set, 10.0, 'the stalled read')
         value = client.get_parameter(names.NODE_POSITIONER, CALIBRATION_FILE)
@@ -235,8 +235,9 @@ def test_the_positioner_refuses_the_probes_and_stops_within_2_s(tmp_path: Path,
                 assert client.get_parameter(names.NODE_POSITIONER,
                                             CALIBRATION_FILE) == str(good)
             # the signal lands while the set of a probe is asked for
-            client.call_many(SetParameters, names.set_parameters_service(names.NODE_POSITIONER),
-                             [_set_request(probes['fifo'][0])])
+            service = names.set_parameters_service(names.NODE_POSITIONER)
+            client.service(SetParameters, service)  # matched before the request goes out
+            client.call_many(SetParameters, service, [_set_request(probes['fifo'][0])])
             seconds = _stop(proc, sig, log)
         finally:
             _killed(proc)

@@ -26,6 +26,7 @@ from workspace import MECH
 
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.motion.settings import CALIBRATION_FILE, COMPENSATION_MODE
 from positioning_cell.moves.trajectory import fingerprint
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.ros.messages import pose_arrays, pose_stamped
@@ -114,7 +115,7 @@ class Positioner:
         self.targets = ros.client.collect(PoseStamped, '/positioner/target', STREAM_QOS)
         # The fake driver shares this process (and its GIL) with the test: a stall here is
         # not a lost driver. Liveness itself is proven on real processes (test_faults).
-        self.node = ros.start(PositionerNode, **{'compensation.mode': 'none',
+        self.node = ros.start(PositionerNode, **{COMPENSATION_MODE: 'none',
                                                  'settle_time': 0.0,
                                                  # the test client plays the driver
                                                  'sources.leg_driver': '/test_client',
@@ -187,7 +188,7 @@ def test_check_pose_sets_one_bit_per_violated_constraint(positioner: Positioner)
     wait_until(lambda: positioner.plan('/positioner/check_pose', command(HOME_P, HOME_Q)).valid,
                20.0, 'the drives back on')
     # the measured mode needs the tracker, and there is none here
-    assert positioner.client.set_parameter('positioner', 'compensation.mode',
+    assert positioner.client.set_parameter('positioner', COMPENSATION_MODE,
                                            'measured').successful
     silent = positioner.plan('/positioner/check_pose', command(HOME_P, HOME_Q))
     assert silent.validity.bits == Validity.TRACKER_SILENT, silent.validity.violations
@@ -266,7 +267,7 @@ def test_home_service_and_parameters(positioner: Positioner) -> None:
     np.testing.assert_allclose(positioner.driver.trajectories[-1].points[-1].positions,
                                positioner.driver.trajectories[0].points[0].positions,
                                atol=1e-12)
-    refused = client.set_parameter('positioner', 'compensation.mode', 'magic')
+    refused = client.set_parameter('positioner', COMPENSATION_MODE, 'magic')
     assert not refused.successful
     assert "compensation.mode = 'magic': expected one of none, model, measured" in \
         refused.reason
@@ -276,7 +277,7 @@ def test_home_service_and_parameters(positioner: Positioner) -> None:
     assert not refused.successful and 'out of range' in refused.reason.lower()
     refused = client.set_parameter('positioner', 'pose_rate_hz', 10.0)
     assert not refused.successful and 'read-only' in refused.reason.lower()
-    assert client.set_parameter('positioner', 'compensation.mode', 'model').successful
+    assert client.set_parameter('positioner', COMPENSATION_MODE, 'model').successful
     assert positioner.node.mover.mode.value == 'model'
 
 
@@ -296,10 +297,10 @@ def test_a_calibration_file_is_loaded_checked_and_refused_with_the_old_kept(
     client, mover = positioner.client, positioner.node.mover
     good = tmp_path / 'calibration.yaml'
     good.write_text(yaml.safe_dump(_calibration_doc(fingerprint(MECH), 1e-4)))
-    assert client.set_parameter('positioner', 'compensation.calibration_file',
+    assert client.set_parameter('positioner', CALIBRATION_FILE,
                                 str(good)).successful
     assert mover.calibration is not None
-    assert client.set_parameter('positioner', 'compensation.mode', 'model').successful
+    assert client.set_parameter('positioner', COMPENSATION_MODE, 'model').successful
     # the calibrated machine's leg 1 reads 0.1 mm short: the command for home says so
     planned = mover.check('base', HOME_P, HOME_Q).lengths[-1]
     nominal = kinematics.inverse(MECH, HOME_P, HOME_Q).lengths[0]
@@ -310,7 +311,7 @@ def test_a_calibration_file_is_loaded_checked_and_refused_with_the_old_kept(
     other.write_text(yaml.safe_dump(_calibration_doc('0' * 16, 0.0)))
     for path, words in ((other, 'belongs to mechanism'), (tmp_path / 'missing.yaml',
                                                           'cannot be read')):
-        refused = client.set_parameter('positioner', 'compensation.calibration_file', str(path))
+        refused = client.set_parameter('positioner', CALIBRATION_FILE, str(path))
         assert not refused.successful and words in refused.reason, refused.reason
         assert mover.calibration is loaded  # the old one stays
-        assert client.get_parameter('positioner', 'compensation.calibration_file') == str(good)
+        assert client.get_parameter('positioner', CALIBRATION_FILE) == str(good)

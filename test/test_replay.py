@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from cell_harness import Client, ProcessGroup, isolated_domain, wait_until
 from std_srvs.srv import Trigger
 
@@ -17,6 +18,9 @@ from positioning_cell.analysis import analyse_bag
 from positioning_cell.config import config_path
 from positioning_cell.names import MEASURED_POSE, TARGET, TRUE_POSE
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
+
+#: The player, the monitor and a client on a private domain.
+pytestmark = pytest.mark.nodes
 
 
 def _numbers(poses: list[dict[str, object]]) -> np.ndarray:

@@ -23,6 +23,9 @@ from positioning_cell import names
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.testing.stops import Stop, stop_after, stop_commands
 
+#: Every node started and signalled.
+pytestmark = pytest.mark.nodes
+
 #: A clean stop takes well under this on a loaded 2-core machine (the recorder drains its
 #: queue, the player closes its bag).
 STOP_BOUND_S = 15.0

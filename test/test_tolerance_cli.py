@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from positioning_cell.tools.exits import Exit
 from positioning_cell.tools.tolerance_analysis import main
 
 EXAMPLES = Path(__file__).resolve().parent.parent / 'examples'
@@ -18,7 +19,7 @@ def test_an_analysis_writes_the_report_and_figures(tmp_path: Path,
     out = tmp_path / 'flap'
     code = main([str(EXAMPLES / 'seed004_flap_variant.yaml'), '--out', str(out), '--samples',
                  '20000', '--seed', '3', '--check-derivatives'])
-    assert code == 0
+    assert code == Exit.OK
     printed = capsys.readouterr().out
     assert 'Gap: nominal 285 mm, worst case ± 6.318 mm' in printed and 'wrote:' in printed
     assert sorted(p.name for p in out.iterdir()) == [
@@ -47,24 +48,25 @@ def test_bad_input_exits_2_naming_file_key_and_value_and_writes_nothing(
     bad.write_text((EXAMPLES / 'four_bar.yaml').read_text().replace(
         'angle: theta3, label: coupler', 'angle: theta33, label: coupler'))
     out = tmp_path / 'out'
-    assert main([str(bad), '--out', str(out)]) == 2
+    assert main([str(bad), '--out', str(out)]) == Exit.USAGE
     err = capsys.readouterr().err
     assert f"{bad}: closed_loops.four_bar.vectors[1].angle = 'theta33'" in err
     assert "unknown symbol 'theta33'" in err
     assert not out.exists()
-    assert main([str(tmp_path / 'missing.yaml'), '--out', str(out)]) == 2
+    assert main([str(tmp_path / 'missing.yaml'), '--out', str(out)]) == Exit.USAGE
     assert 'missing.yaml' in capsys.readouterr().err and not out.exists()
-    assert main([str(EXAMPLES / 'four_bar.yaml'), '--out', str(out), '--samples', '-1']) == 2
+    assert main([str(EXAMPLES / 'four_bar.yaml'), '--out', str(out), '--samples',
+                 '-1']) == Exit.USAGE
     assert not out.exists()
     with pytest.raises(SystemExit) as usage:
         main([str(EXAMPLES / 'four_bar.yaml')])   # --out is required
-    assert usage.value.code == 2
+    assert usage.value.code == Exit.USAGE
 
 
 def test_a_refused_analysis_exits_3_with_the_reason_in_the_report(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / 'printed'
-    assert main([str(EXAMPLES / 'seed004_flap.yaml'), '--out', str(out)]) == 3
+    assert main([str(EXAMPLES / 'seed004_flap.yaml'), '--out', str(out)]) == Exit.REFUSED
     err = capsys.readouterr().err
     assert 'refused: U = dh/du is singular' in err and 'u2, u3' in err
     report = (out / 'report.md').read_text()
@@ -80,7 +82,7 @@ def test_a_refused_analysis_exits_3_with_the_reason_in_the_report(
 def test_no_samples_and_no_plots(tmp_path: Path) -> None:
     out = tmp_path / 'lin'
     assert main([str(EXAMPLES / 'four_bar.yaml'), '--out', str(out), '--samples', '0',
-                 '--no-plots']) == 0
+                 '--no-plots']) == Exit.OK
     assert sorted(p.name for p in out.iterdir()) == ['analysis.json', 'report.md']
     report = (out / 'report.md').read_text()
     assert 'Monte Carlo (nonlinear' not in report and '± 0.17086 deg' in report

@@ -14,6 +14,9 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from positioning_cell.sim.trajectory_wire import TrajectoryWireError, decode_joint_trajectory
 
+#: rclpy serialises the reference messages in this process.
+pytestmark = pytest.mark.nodes
+
 FLOATS = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 

@@ -77,6 +77,11 @@ class MonitorSettings:
         return parse(cls, {k: v for k, v in params.items()
                            if k in ('tolerance', 'settle', 'tracker_error')})
 
+#: The monitor's tolerances as parameters (``tolerance.position``, ...): the prefix the watch
+#: windows read and follow them by (:mod:`positioning_cell.ros.watch_inputs`).
+TOLERANCES_PREFIX = 'tolerance.'
+
+
 
 @dataclass(frozen=True)
 class Ignored:

@@ -40,6 +40,10 @@ PASSIVE_JOINT_NAMES = ('leg1_phi', 'leg2_phi', 'leg3_phi')
 
 _ZERO_OFFSETS = ((0.0, 0.0, 0.0),) * 3
 
+#: The parameters of the machine's geometry on every node that models it
+#: (``mechanism.base_radius``, ...): the prefix another program reads them by.
+MECHANISM_PREFIX = 'mechanism.'
+
 
 @dataclass(frozen=True)
 class Mechanism:
@@ -102,9 +106,9 @@ class Mechanism:
         the block (``base_radius``), or the whole block under ``mechanism``. Unknown keys and
         bad values raise ConfigError naming the key; missing keys keep the seed 000 values."""
         flat = flatten(params)
-        if any(k.startswith('mechanism.') for k in flat):
-            flat = block(flat, 'mechanism')
-        return parse(cls, flat, 'mechanism.')
+        if any(k.startswith(MECHANISM_PREFIX) for k in flat):
+            flat = block(flat, MECHANISM_PREFIX.rstrip('.'))
+        return parse(cls, flat, MECHANISM_PREFIX)
 
     def to_params(self) -> dict[str, Any]:
         """The ``mechanism:`` block as a nested dict (inverse of :meth:`from_params`)."""

@@ -17,13 +17,14 @@ from numpy.typing import ArrayLike
 from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
 from positioning_cell_interfaces.srv import CheckPose, MoveToPose
 from rcl_interfaces.msg import SetParametersResult
-from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
+from rcl_interfaces.srv import ListParameters
 from rclpy.action.client import ActionClient
 from rclpy.action.graph import get_action_server_names_and_types_by_node
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
@@ -37,6 +38,9 @@ from positioning_cell.ros.messages import pose_stamped, status_values
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
 
 T = TypeVar('T')
+
+#: How long a parameter's get or set may take, its services' appearance included (s).
+PARAMETER_TIMEOUT = 30.0
 
 
 class CellClient:
@@ -57,6 +61,7 @@ class CellClient:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients: dict[str, Any] = {}
+        self._parameter_clients: dict[str, AsyncParameterClient] = {}
         self._known: set[str] = set()
         self._in_flight: list[Future] = []
         self._statuses: dict[str, list[DiagnosticStatus]] | None = None
@@ -124,10 +129,30 @@ class CellClient:
         """Call a service (waiting up to ``min(timeout, 30)`` s for it to appear) and return
         the response; TimeoutError names what did not come."""
         future = self.service(srv_type, name, min(timeout, 30.0)).call_async(request)
+        return self._answer(future, timeout, f'the response of {name}')
+
+    def _answer(self, future: Future, timeout: float, what: str) -> Any:
+        """The result of a request's ``future`` within ``timeout`` s (TimeoutError naming
+        ``what``); counted in flight meanwhile (:meth:`answered`)."""
         self._in_flight.append(future)
-        wait_until(future.done, timeout, f'the response of {name}')
+        wait_until(future.done, timeout, what)
         self._in_flight.remove(future)
         return future.result()
+
+    def parameters(self, node: str, wait: float = 30.0) -> AsyncParameterClient:
+        """rclpy's parameter client of node ``node`` (one per node, queue sized as
+        SERVICE_QOS), once the node's parameter services are there and it knows this client
+        (:meth:`handshake`; TimeoutError after ``wait`` s)."""
+        client = self._parameter_clients.get(node)
+        if client is None:
+            client = self._parameter_clients[node] = AsyncParameterClient(
+                self.node, node, qos_profile=SERVICE_QOS)
+        wait_until(client.services_are_ready, wait, f'the parameter services of /{node}')
+        key = f'/{node}/parameters'  # forgotten with the node (:meth:`forget`)
+        if key not in self._known:
+            self.handshake(node, wait)
+            self._known.add(key)
+        return client
 
     def answered(self) -> bool:
         """Every call this client made has its response (a call left by an exception, e.g. an
@@ -170,16 +195,22 @@ class CellClient:
         return any(i.node_name == node for i in self.node.get_subscriptions_info_by_topic(topic))
 
     def get_parameter(self, node: str, name: str) -> Any:
-        """The value of one parameter of ``node``."""
-        response = self.call(GetParameters, f'/{node}/get_parameters',
-                             GetParameters.Request(names=[name]))
+        """The value of one parameter of ``node`` (:meth:`parameters`; TimeoutError after
+        :data:`PARAMETER_TIMEOUT` s)."""
+        timeout = PARAMETER_TIMEOUT
+        future = self.parameters(node, timeout).get_parameters([name])
+        response = self._answer(future, timeout, f'the parameter {name} of /{node}')
         return parameter_value_to_python(response.values[0])
 
     def set_parameter(self, node: str, name: str, value: Any) -> SetParametersResult:
-        """Set one parameter of ``node``; the node's result (``successful``, ``reason``)."""
-        request = SetParameters.Request(parameters=[Parameter(name, value=value)
-                                                    .to_parameter_msg()])
-        return self.call(SetParameters, names.set_parameters_service(node), request).results[0]
+        """Set one parameter of ``node``; the node's result (``successful``, ``reason``;
+        TimeoutError after :data:`PARAMETER_TIMEOUT` s)."""
+        timeout = PARAMETER_TIMEOUT
+        future = self.parameters(node, timeout).set_parameters(
+            [Parameter(name, value=value)])
+        response = self._answer(future, timeout, f'the answer of /{node} to setting {name}')
+        result: SetParametersResult = response.results[0]
+        return result
 
     # -- the cell -------------------------------------------------------------------------------
     def statuses(self, name: str) -> list[DiagnosticStatus]:

@@ -22,6 +22,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import deserialize_message
 
 from positioning_cell import names
+from positioning_cell.accuracy.monitor import TOLERANCES_PREFIX
 from positioning_cell.accuracy.verdicts import Tolerances
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
@@ -31,6 +32,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.ros.parameters import parse_answer, requested_names
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
+from positioning_cell.sim.pose_measurement import TARGETS_PREFIX
 from positioning_cell.watch.state import Snapshot, Status, WatchState
 
 #: A viewer takes the newest samples and never holds a writer back: best effort, shallow.
@@ -57,6 +59,9 @@ class RemoteParameters:
             node, remote, cls, prefix, apply
         self.names = requested_names(cls, prefix)
         self.values: dict[str, ParameterValue] | None = None
+        # One GetParameters client, not rclpy's AsyncParameterClient: that one also makes
+        # set_parameters clients, and a viewer must have no means to change another node
+        # (test_live_view_node.test_the_live_view_commands_nothing).
         self._client = node.create_client(GetParameters, f'/{remote}/get_parameters',
                                           qos_profile=SERVICE_QOS)
         self._pending: Any = None
@@ -139,9 +144,9 @@ class WatchInputs:
         node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._diagnostics,
                                  DIAGNOSTICS_QOS)
         self.parameters = [
-            RemoteParameters(node, names.NODE_MONITOR, Tolerances, 'tolerance.',
+            RemoteParameters(node, names.NODE_MONITOR, Tolerances, TOLERANCES_PREFIX,
                              state.tolerances),
-            RemoteParameters(node, names.NODE_MEASUREMENT, TargetLayout, 'targets.',
+            RemoteParameters(node, names.NODE_MEASUREMENT, TargetLayout, TARGETS_PREFIX,
                              lambda layout: state.targets(layout.array))]
 
     def close(self) -> None:

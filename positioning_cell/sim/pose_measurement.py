@@ -70,6 +70,11 @@ class PoseMeasurementSettings:
         return Truth.from_parameters(self.truth, self.mechanism, self.payload, self.structure)
 
 
+#: The tracker's target layout as parameters (``targets.platform``, ...): the prefix the watch
+#: windows read and follow it by (:mod:`positioning_cell.ros.watch_inputs`).
+TARGETS_PREFIX = 'targets.'
+
+
 class TruePose(NamedTuple):
     """The true platform pose: position (3,) m, quaternion (4,) x, y, z, w, the stamp of the
     joint state it was computed from."""

@@ -6,11 +6,11 @@ recorders write them, from a scan of its records), verifying what it reads
 (:mod:`positioning_cell.analysis.reading`), replays them through the accuracy monitor's rules
 with the monitor's settings from ``config/cell.yaml`` (or ``--config``), and writes
 ``report.md``, ``summary.json`` and (unless ``--no-plots``) PNG plots into ``--out`` (default:
-``<bag>_analysis`` beside the bag). Exit status: 0 analysed; 2 nothing analysed (not a bag, an
-empty or too short ``.mcap``, a bag without the needed topics, a bad config); 3 analysed only
-in part (a truncated bag, or corrupt chunks: each one with the time range and messages lost is
-printed and in the report, the figures cover the rest). :func:`analyze` does the work;
-:func:`main` parses the command line.
+``<bag>_analysis`` beside the bag). Exit status (:mod:`positioning_cell.tools.exits`): 0
+analysed; 1 analysed only in part (a truncated bag, or corrupt chunks: each one with the time
+range and messages lost is printed and in the report, the figures cover the rest); 2 nothing
+analysed (not a bag, an empty or too short ``.mcap``, a bag without the needed topics, a bad
+config). :func:`analyze` does the work; :func:`main` parses the command line.
 """
 
 from __future__ import annotations
@@ -27,8 +27,10 @@ from positioning_cell.analysis.report import comparison_table, write_report
 from positioning_cell.analysis.summary import RunAnalysis, analyse_bag
 from positioning_cell.config import config_path
 from positioning_cell.errors import PositioningError
+from positioning_cell.tools.exits import Exit, exit_table
 
-EXIT_OK, EXIT_FAILED, EXIT_PARTIAL = 0, 2, 3
+#: Transitional: tools/run_cell.py imports this name (it moves onto Exit itself, issue 22).
+EXIT_OK: int = Exit.OK
 
 
 @dataclass(frozen=True)
@@ -79,7 +81,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line; see the module docstring for the exit status."""
     parser = argparse.ArgumentParser(
         prog='analyze_bag', description='Offline analysis of a recorded positioning cell run: '
-        'ISO 9283 figures per pose and compensation mode, tracker error, report and plots.')
+        'ISO 9283 figures per pose and compensation mode, tracker error, report and plots.',
+        epilog='exit codes:\n' + exit_table(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('bag', type=Path, help='the bag: a rosbag2 folder or an .mcap file')
     parser.add_argument('--out', type=Path, help='output folder (default: <bag>_analysis)')
     parser.add_argument('--config', type=Path, help='ROS 2 parameter file with the monitor\'s '
@@ -92,13 +96,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         output = analyze(args.bag, args.out, args.config, plots=not args.no_plots)
     except PositioningError as err:
         print(f'analyze_bag: error: {err}', file=sys.stderr)
-        return EXIT_FAILED
+        return Exit.USAGE
     text = describe(output)
     if output.analysis.problems:
         sys.stderr.write(text)
-        return EXIT_PARTIAL
+        return Exit.NOT_ACHIEVED
     sys.stdout.write(text)
-    return EXIT_OK
+    return Exit.OK
 
 
 if __name__ == '__main__':

@@ -17,10 +17,11 @@ error and on Ctrl-C. With ``--scheduler tcp://host:port``, the workers of that r
 scheduler: each must have this package installed (the same version) and see the bags at the
 same absolute paths as this machine.
 
-Exit status: 0 every bag analysed; 2 nothing analysed (no bag found, a path that is neither a
-bag nor holds one, a bad config, the scheduler not reachable, every bag failed); 3 analysed in
-part (a bag failed: its reason is printed and in the report; or a bag was damaged and analysed
-as far as it was readable); 130 interrupted (Ctrl-C; the cluster is stopped).
+Exit status (:mod:`positioning_cell.tools.exits`): 0 every bag analysed; 1 analysed in part (a
+bag failed: its reason is printed and in the report; or a bag was damaged and analysed as far
+as it was readable); 2 nothing analysed (no bag found, a path that is neither a bag nor holds
+one, a bad config, every bag failed); 5 the scheduler given with ``--scheduler`` not
+reachable; 130 interrupted (SIGINT or SIGTERM; the cluster is stopped).
 :func:`analyze_fleet` does the work; :func:`main` parses the command line.
 """
 
@@ -51,12 +52,16 @@ from positioning_cell.analysis.fleet import (
 from positioning_cell.analysis.fleet_report import write_plots, write_report
 from positioning_cell.config import config_path
 from positioning_cell.errors import InputError, PositioningError
-from positioning_cell.tools.analyze_bag import EXIT_FAILED, EXIT_OK, EXIT_PARTIAL
+from positioning_cell.tools.exits import Exit, exit_table
+from positioning_cell.tools.interruption import Interrupted, interruptible
 
-EXIT_INTERRUPTED = 130
 DEFAULT_OUT = Path('fleet_trends')
 #: Seconds to wait for a scheduler given with --scheduler before giving up.
 CONNECT_TIMEOUT = 30.0
+
+
+class SchedulerUnreachableError(InputError):
+    """The scheduler given with ``--scheduler`` did not answer."""
 
 
 @dataclass(frozen=True)
@@ -113,7 +118,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         try:
             client = dd.Client(scheduler, timeout=CONNECT_TIMEOUT)
         except (OSError, ValueError) as err:
-            raise InputError(f'cannot reach the Dask scheduler at {scheduler}: {err}') from None
+            raise SchedulerUnreachableError(f'cannot reach the Dask scheduler at {scheduler}: '
+                                            f'{err}') from None
         with client:
             yield client
         return
@@ -221,7 +227,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='analyze_bags', description='Trends over many recorded positioning cell runs: '
         'ISO 9283 AP/RP per pose and mode over time, drift since each calibration, the '
-        'tracker\'s registration residuals; on Dask distributed.')
+        'tracker\'s registration residuals; on Dask distributed.',
+        epilog='exit codes:\n' + exit_table(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('paths', nargs='+', type=Path, metavar='PATH',
                         help='a bag (rosbag2 folder or .mcap file) or a folder of bags')
     parser.add_argument('--out', type=Path, default=DEFAULT_OUT,
@@ -240,23 +248,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(line, flush=True)
 
     try:
-        output = analyze_fleet(args.paths, args.out, args.config, args.scheduler,
-                               args.workers, say)
+        with interruptible():
+            output = analyze_fleet(args.paths, args.out, args.config, args.scheduler,
+                                   args.workers, say)
+    except SchedulerUnreachableError as err:
+        print(f'analyze_bags: error: {err}', file=sys.stderr)
+        return Exit.NOT_THERE
     except PositioningError as err:
         print(f'analyze_bags: error: {err}', file=sys.stderr)
-        return EXIT_FAILED
-    except KeyboardInterrupt:
-        print('analyze_bags: interrupted; the workers are stopped', file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return Exit.USAGE
+    except Interrupted as signal_name:
+        print(f'analyze_bags: interrupted ({signal_name}); the workers are stopped',
+              file=sys.stderr)
+        return Exit.INTERRUPTED
     sys.stdout.write(describe(output))
     for failure in output.failures:
         print(f'analyze_bags: failed: {failure.bag}: {failure.reason}', file=sys.stderr)
     if not output.trends.runs:
         print('analyze_bags: no bag could be analysed', file=sys.stderr)
-        return EXIT_FAILED
+        return Exit.USAGE
     if output.failures or any(r.problems for r in output.trends.runs):
-        return EXIT_PARTIAL
-    return EXIT_OK
+        return Exit.NOT_ACHIEVED
+    return Exit.OK
 
 
 if __name__ == '__main__':

@@ -34,7 +34,8 @@ progress bar is one line on stderr, drawn only when stderr is a terminal.
 (the estimate) with the coordinate systems (GetCoordinateSystems) and the positioner's
 ``mechanism.*`` parameters (the machine CS: zero at the home pose).
 
-Exit codes (``cell_format.EXIT_CODES``, the one table; ``cell --help`` prints it):
+Exit codes: the one table of every command line (:mod:`positioning_cell.tools.exits`;
+``cell --help`` prints it). What each means for ``cell``:
 
 ====  =================  ======================================================================
 code  name               when
@@ -52,92 +53,38 @@ code  name               when
 130   interrupted        Ctrl-C outside a goal, or a second Ctrl-C while a cancelled goal
                          winds down (its result not awaited)
 ====  =================  ======================================================================
+
+The ROS half (services, actions, messages) is :mod:`positioning_cell.ros.operator_client`,
+imported when a command runs: this module and :mod:`~positioning_cell.tools.cell_format`
+load without ROS.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import IO, Any
-
-import numpy as np
-from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseStamped
-from positioning_cell_interfaces.action import Home, MoveToPose
-from positioning_cell_interfaces.msg import BoxLimits, MoveCommand, MoveOutcome
-from positioning_cell_interfaces.msg import CoordinateSystems as SystemsMsg
-from positioning_cell_interfaces.srv import (
-    CheckPose,
-    GetCoordinateSystems,
-    GetLimits,
-    Jog,
-    SetCoordinateSystems,
-    SetLimits,
-    SetSpeed,
-)
-from rcl_interfaces.srv import GetParameters
+from typing import IO, TYPE_CHECKING, Any
 
 from positioning_cell import names
-from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.limits.speed import Speeds as LibrarySpeeds
 from positioning_cell.polling import wait_until
-from positioning_cell.ros import operator_messages as om
-from positioning_cell.ros.client import CellClient, GoalClient
-from positioning_cell.ros.messages import (
-    pose_arrays,
-    pose_stamped,
-    status_level,
-    status_values,
-)
-from positioning_cell.ros.parameters import parse_answer, requested_names
-from positioning_cell.ros.processes import loopback_only
-from positioning_cell.ros.qos import LATCHED_QOS, LATEST_QOS
 from positioning_cell.tools import cell_format as cf
 from positioning_cell.tools.cell_watch import watch
+from positioning_cell.tools.exits import Exit
+from positioning_cell.tools.interruption import Interrupted, Signals, interruptible
 
-#: Longest wait for a service or an action server to appear (s; at most --timeout).
-SERVER_WAIT = 30.0
-#: After a cancel: how long the result (or the goal's acceptance) may take (s).
-CANCEL_WAIT = 30.0
+if TYPE_CHECKING:
+    from positioning_cell.ros.operator_client import Limits, OperatorClient
+
 #: status: after the positioner's status, how long the driver's status, the target and the
 #: estimate may take to come (s).
 STATUS_EXTRA_WAIT = 2.0
-#: Polling period of a running goal, and of the progress bar (s).
-POLL = 0.05
-
-
-class InterruptedCommandError(Exception):
-    """SIGINT or SIGTERM outside a goal (or a second one during a cancel)."""
-
-
-class Signals:
-    """SIGINT and SIGTERM: counted; outside :meth:`deferred` they also raise
-    InterruptedCommandError (inside, the goal loop reads the count and cancels)."""
-
-    def __init__(self) -> None:
-        self.count = 0
-        self._deferring = False
-
-    def __call__(self, signum: int, frame: Any) -> None:
-        self.count += 1
-        if not self._deferring:
-            raise InterruptedCommandError(signal.Signals(signum).name)
-
-    @contextlib.contextmanager
-    def deferred(self) -> Iterator[None]:
-        """Count signals without raising while the block runs."""
-        before, self._deferring = self._deferring, True
-        try:
-            yield
-        finally:
-            self._deferring = before
 
 
 @dataclass
@@ -145,7 +92,7 @@ class Report:
     """What a command found: its exit code, the fields of its JSON document, its text for
     people, and an error (why it failed) for stderr and the document."""
 
-    code: int
+    code: Exit
     fields: dict[str, Any] = field(default_factory=dict)
     text: str = ''
     error: str | None = None
@@ -202,191 +149,20 @@ class Output:
 
 @dataclass
 class Session:
-    """One command's client, signals, output and timeout."""
+    """One command's client (:class:`~positioning_cell.ros.operator_client.OperatorClient`,
+    its calls bounded by the timeout), signals and output."""
 
-    client: CellClient
+    client: OperatorClient
     signals: Signals
     out: Output
-    timeout: float
-
-    def call(self, srv_type: Any, name: str, request: Any) -> Any:
-        """A service call within the timeout (TimeoutError: the cell is not there); the
-        client makes sure the server knows this new process first
-        (:meth:`CellClient.handshake`)."""
-        return self.client.call(srv_type, name, request, self.timeout)
-
-    def stamp(self) -> Time:
-        return self.client.node.get_clock().now().to_msg()
-
-
-# -- messages <-> the pure values -----------------------------------------------------------------
-def move_command(request: cf.MoveRequest, stamp: Time | None = None) -> MoveCommand:
-    """The MoveCommand of a request (SI, quaternion x, y, z, w; the pose's frame_id the
-    request's frame)."""
-    command = MoveCommand(mode=int(request.mode), tolerance=float(request.tolerance),
-                          speed_scale=float(request.speed_scale))
-    command.pose = pose_stamped(request.position, request.quaternion, stamp or Time(),
-                                request.frame)
-    return command
-
-
-def outcome_of(msg: MoveOutcome) -> cf.Outcome:
-    """A MoveOutcome as plain values."""
-    p, q = pose_arrays(msg.attained.pose)
-    up, uq = pose_arrays(msg.attained_user)
-    return cf.Outcome(int(msg.code), str(msg.code_name), str(msg.reason),
-                      str(msg.attained.header.frame_id), p, q, up, uq,
-                      np.asarray(msg.position_error, dtype=float).reshape(3),
-                      np.asarray(msg.orientation_error, dtype=float).reshape(3),
-                      np.asarray(msg.uncertainty, dtype=float).reshape(6))
-
-
-def check_of(response: Any) -> cf.CheckReport:
-    """A CheckPose response as plain values."""
-    v = response.validity
-    p, q = pose_arrays(response.goal.pose)
-    return cf.CheckReport(bool(response.valid), int(v.bits), [str(n) for n in v.bit_names],
-                          [str(t) for t in v.violations], [str(n) for n in v.margin_names],
-                          [float(m) for m in v.margins], str(response.goal.header.frame_id),
-                          p, q, float(response.duration))
-
-
-def systems_of(msg: SystemsMsg) -> CoordinateSystems:
-    """The library's coordinate systems of a CoordinateSystems message."""
-    return CoordinateSystems(user=om.transform(msg.user), object=om.transform(msg.object))
-
-
-def systems_msg(systems: CoordinateSystems) -> SystemsMsg:
-    """The CoordinateSystems message of the library's."""
-    return om.systems_msg(systems.user, systems.object)
-
-
-def box_of(msg: BoxLimits) -> cf.Box:
-    return cf.box_of(msg.lower, msg.upper)
-
-
-def box_msg(box: cf.Box) -> BoxLimits:
-    return BoxLimits(lower=[float(v) for v in box[0]], upper=[float(v) for v in box[1]])
-
-
-def positioner_mechanism(session: Session) -> Mechanism:
-    """The positioner's mechanism, from its ``mechanism.*`` parameters (TimeoutError if it
-    does not answer; PositioningError if they are not a mechanism)."""
-    response = session.call(GetParameters, f'/{names.NODE_POSITIONER}/get_parameters',
-                            GetParameters.Request(names=requested_names(Mechanism,
-                                                                        'mechanism.')))
-    return parse_answer(Mechanism, 'mechanism.', response.values)
-
-
-# -- goals (actions) ------------------------------------------------------------------------------
-@dataclass
-class GoalRun:
-    """How a goal went: accepted (None: no answer), the outcome (None: none came, ``error``
-    says why and ``code`` is the exit code), the goal status of the result, whether it was
-    cancelled and why ('interrupt' or 'timeout')."""
-
-    accepted: bool | None = None
-    outcome: cf.Outcome | None = None
-    goal_status: int | None = None
-    cancelled: bool = False
-    cancel_cause: str | None = None
-    error: str | None = None
-    code: int = cf.EXIT_ABORTED
 
     @property
-    def exit_code(self) -> int:
-        return self.code if self.outcome is None else self.outcome.exit_code
+    def timeout(self) -> float:
+        return self.client.timeout
 
-    def fields(self) -> dict[str, Any]:
-        return {'accepted': self.accepted, 'cancelled': self.cancelled,
-                'cancel_cause': self.cancel_cause, 'goal_status': self.goal_status,
-                'outcome': None if self.outcome is None else self.outcome.document()}
-
-    def text(self) -> str:
-        lines = []
-        if self.cancelled:
-            cause = 'Ctrl-C' if self.cancel_cause == 'interrupt' else '--timeout'
-            lines.append(f'cancelled ({cause})')
-        if self.outcome is not None:
-            lines.append(self.outcome.text())
-        return '\n'.join(lines)
-
-
-def run_goal(session: Session, action_type: Any, name: str, goal: Any,
-             progress: Callable[[Any], str]) -> GoalRun:
-    """Send ``goal`` to action server ``name`` and wait for its result, drawing
-    ``progress(feedback)``; Ctrl-C or the timeout cancels it (then the result is awaited
-    CANCEL_WAIT s more; a second Ctrl-C gives up). TimeoutError if the server is not there."""
-    with GoalClient(session.client, action_type, name) as goals:
-        goals.ready(min(session.timeout, SERVER_WAIT))
-        with session.signals.deferred():
-            return _drive(session, goals, goal, progress)
-
-
-def _drive(session: Session, goals: GoalClient, goal: Any,
-           progress: Callable[[Any], str]) -> GoalRun:
-    run = GoalRun()
-    latest: list[Any] = [None]
-    start = session.signals.count
-    send = goals.action.send_goal_async(goal, feedback_callback=lambda m: latest.__setitem__(
-        0, m.feedback))
-    deadline = time.monotonic() + session.timeout
-    handle: Any = None
-    result: Any = None
-    cancel_at: float | None = None
-    while True:
-        now = time.monotonic()
-        if handle is None and send.done():
-            handle = send.result()
-            run.accepted = bool(handle.accepted)
-            if not handle.accepted:
-                run.error, run.code = 'the positioner rejected the goal', cf.EXIT_REFUSED
-                return run
-            result = handle.get_result_async()
-        if result is not None and result.done():
-            _take_result(run, result.result())
-            return run
-        interrupts = session.signals.count - start
-        if interrupts >= 2:
-            run.error, run.code = ('interrupted again: the result of the cancelled goal was '
-                                   'not awaited'), cf.EXIT_INTERRUPTED
-            return run
-        if run.cancel_cause is None and (interrupts or now > deadline):
-            run.cancel_cause = 'interrupt' if interrupts else 'timeout'
-            cancel_at = now
-            session.out.note('cancelling the goal (a controlled stop); Ctrl-C again: do not '
-                             'wait' if interrupts else f'no result within {session.timeout:g} '
-                             's: cancelling the goal (a controlled stop)')
-        if run.cancel_cause is not None and handle is not None and not run.cancelled:
-            handle.cancel_goal_async()
-            run.cancelled = True
-        if cancel_at is not None and now > cancel_at + CANCEL_WAIT:
-            what = 'the goal\'s acceptance' if handle is None else 'the result'
-            run.error = f'{what} did not come within {CANCEL_WAIT:g} s of the cancel'
-            run.code = cf.EXIT_NOT_THERE
-            return run
-        if latest[0] is not None:
-            session.out.progress(progress(latest[0]))
-        goals.spin_once(POLL)  # the answers and feedback, taken by this thread only
-
-
-def _take_result(run: GoalRun, response: Any) -> None:
-    run.goal_status = int(response.status)
-    outcome = response.result.outcome
-    if not outcome.code_name:
-        run.error = f'the positioner gave no outcome (goal status {run.goal_status})'
-        run.code = cf.EXIT_ABORTED
-        return
-    run.outcome = outcome_of(outcome)
-
-
-def _move_progress(feedback: Any) -> str:
-    return cf.progress_line(str(feedback.phase_name), float(feedback.progress),
-                            np.asarray(feedback.position_error, dtype=float))
-
-
-def _home_progress(feedback: Any) -> str:
-    return cf.progress_line(str(feedback.phase_name), float(feedback.progress))
+    def interrupts(self) -> int:
+        """SIGINT and SIGTERM counted so far."""
+        return self.signals.count
 
 
 def _not_there(err: TimeoutError) -> str:
@@ -398,81 +174,70 @@ def cmd_move(session: Session, args: Any) -> Report:
     request = cf.move_request(args)
     fields: dict[str, Any] = {'request': request.document()}
     try:
-        goal = MoveToPose.Goal(command=move_command(request, session.stamp()))
-        run = run_goal(session, MoveToPose, names.MOVE_ACTION, goal, _move_progress)
+        with session.signals.deferred():
+            run = session.client.move(request, session.interrupts, session.out.note,
+                                      session.out.progress)
     except TimeoutError as err:
-        return Report(cf.EXIT_NOT_THERE, fields | GoalRun().fields(), '', _not_there(err))
+        return Report(Exit.NOT_THERE, fields | cf.GoalRun().fields(), '', _not_there(err))
     return Report(run.exit_code, fields | run.fields(), run.text(), run.error)
 
 
 def cmd_home(session: Session, args: Any) -> Report:
     try:
-        run = run_goal(session, Home, names.HOME_ACTION, Home.Goal(), _home_progress)
+        with session.signals.deferred():
+            run = session.client.home(session.interrupts, session.out.note,
+                                      session.out.progress)
     except TimeoutError as err:
-        return Report(cf.EXIT_NOT_THERE, GoalRun().fields(), '', _not_there(err))
+        return Report(Exit.NOT_THERE, cf.GoalRun().fields(), '', _not_there(err))
     return Report(run.exit_code, run.fields(), run.text(), run.error)
 
 
 def cmd_check(session: Session, args: Any) -> Report:
     request = cf.move_request(args)
-    response = session.call(CheckPose, names.CHECK_POSE,
-                            CheckPose.Request(command=move_command(request, session.stamp())))
-    report = check_of(response)
+    report = session.client.check(request)
     return Report(report.exit_code, {'request': request.document(), **report.document()},
                   report.text())
 
 
 def cmd_status(session: Session, args: Any) -> Report:
     client = session.client
-    positioner = client.statuses(names.STATUS_POSITIONER)
-    driver = client.statuses(names.STATUS_DRIVER)
-    targets = client.collect(PoseStamped, names.TARGET, LATCHED_QOS)
-    estimates = client.collect(PoseStamped, names.ESTIMATED_POSE, LATEST_QOS)
+    feed = client.status_feed()
     deadline = time.monotonic() + session.timeout
     notes = []
     systems = None
     file = ''
     try:
-        response = session.call(GetCoordinateSystems, names.GET_COORDINATE_SYSTEMS,
-                                GetCoordinateSystems.Request())
-        systems, file = systems_of(response.systems), str(response.file)
+        systems, file = client.coordinate_systems()
     except PositioningError as err:
         notes.append(f'user positions unknown: {err}')
     mechanism = None
     try:
-        mechanism = positioner_mechanism(session)
+        mechanism = client.mechanism()
     except (TimeoutError, PositioningError) as err:
         notes.append(f'machine positions unknown (the positioner\'s mechanism): {err}')
-    wait_until(lambda: positioner, max(deadline - time.monotonic(), 0.0),
-               f'the status "{names.STATUS_POSITIONER}" on {names.DIAGNOSTICS}')
+    status = wait_until(feed.positioner, max(deadline - time.monotonic(), 0.0),
+                        f'the status "{names.STATUS_POSITIONER}" on {names.DIAGNOSTICS}')
     with contextlib.suppress(TimeoutError):
-        wait_until(lambda: driver and targets and estimates, STATUS_EXTRA_WAIT, 'the rest')
-    if not driver:
+        wait_until(lambda: feed.driver() and feed.target() and feed.estimate(),
+                   STATUS_EXTRA_WAIT, 'the rest')
+    driver, target, estimate = feed.driver(), feed.target(), feed.estimate()
+    if driver is None:
         notes.append(f'no status "{names.STATUS_DRIVER}" on {names.DIAGNOSTICS}')
-    if not targets:
+    if target is None:
         notes.append(f'no target on {names.TARGET} (nothing commanded yet)')
-    if not estimates:
+    if estimate is None:
         notes.append(f'no estimate on {names.ESTIMATED_POSE}')
-    status = positioner[-1]
     report = cf.StatusReport(
-        positioner=status_values(status), positioner_message=str(status.message),
-        positioner_level=status_level(status),
-        driver=status_values(driver[-1]) if driver else None,
-        target=pose_arrays(targets[-1].pose) if targets else None,
-        estimate=pose_arrays(estimates[-1].pose) if estimates else None,
-        systems=systems, systems_file=file, mechanism=mechanism, notes=notes)
-    return Report(cf.EXIT_OK, report.document(), report.text())
-
-
-def _get_systems(session: Session) -> tuple[CoordinateSystems, str]:
-    response = session.call(GetCoordinateSystems, names.GET_COORDINATE_SYSTEMS,
-                            GetCoordinateSystems.Request())
-    return systems_of(response.systems), str(response.file)
+        positioner=status.values, positioner_message=status.message,
+        positioner_level=status.level, driver=None if driver is None else driver.values,
+        target=target, estimate=estimate, systems=systems, systems_file=file,
+        mechanism=mechanism, notes=notes)
+    return Report(Exit.OK, report.document(), report.text())
 
 
 def cmd_frames_get(session: Session, args: Any) -> Report:
-    systems, file = _get_systems(session)
-    return Report(cf.EXIT_OK, {'coordinate_systems': cf.systems_document(systems, file)},
+    systems, file = session.client.coordinate_systems()
+    return Report(Exit.OK, {'coordinate_systems': cf.systems_document(systems, file)},
                   cf.systems_text(systems, file))
 
 
@@ -480,73 +245,61 @@ def cmd_frames_set(session: Session, args: Any) -> Report:
     user, obj = cf.frames_request(args)
     previous = None
     if user is None or obj is None:
-        previous, _ = _get_systems(session)
+        previous, _ = session.client.coordinate_systems()
         user = previous.user if user is None else user
         obj = previous.object if obj is None else obj
     systems = CoordinateSystems(user=user, object=obj)
-    response = session.call(SetCoordinateSystems, names.SET_COORDINATE_SYSTEMS,
-                            SetCoordinateSystems.Request(systems=systems_msg(systems)))
-    success, reason = bool(response.success), str(response.reason)
+    success, reason = session.client.set_coordinate_systems(systems)
     fields = {'success': success, 'reason': reason,
               'coordinate_systems': cf.systems_document(systems),
               'previous': None if previous is None else cf.systems_document(previous)}
     if not success:
-        return Report(cf.EXIT_REFUSED, fields, '', f'refused: {reason}')
-    return Report(cf.EXIT_OK, fields, cf.systems_text(systems) + (f'\n{reason}' if reason
-                                                                   else ''))
+        return Report(Exit.REFUSED, fields, '', f'refused: {reason}')
+    return Report(Exit.OK, fields, cf.systems_text(systems) + (f'\n{reason}' if reason
+                                                                else ''))
 
 
-def _get_limits(session: Session) -> Any:
-    return session.call(GetLimits, names.GET_LIMITS, GetLimits.Request())
-
-
-def _limits_fields(response: Any) -> tuple[dict[str, Any], str]:
-    boxes = (box_of(response.factory), box_of(response.machine), box_of(response.user),
-             [str(c) for c in response.factory_constraints])
+def _limits_fields(limits: Limits) -> tuple[dict[str, Any], str]:
+    boxes = (limits.factory, limits.machine, limits.user, limits.constraints)
     return cf.limits_document(*boxes), cf.limits_text(*boxes)
 
 
 def cmd_limits_get(session: Session, args: Any) -> Report:
-    doc, text = _limits_fields(_get_limits(session))
-    return Report(cf.EXIT_OK, {'limits': doc}, text)
+    doc, text = _limits_fields(session.client.limits())
+    return Report(Exit.OK, {'limits': doc}, text)
 
 
 def cmd_limits_set(session: Session, args: Any) -> Report:
-    current = _get_limits(session)
-    machine, user = cf.limits_request(args).merged(box_of(current.machine), box_of(current.user))
-    response = session.call(SetLimits, names.SET_LIMITS,
-                            SetLimits.Request(machine=box_msg(machine), user=box_msg(user)))
-    success, reason = bool(response.success), str(response.reason)
+    current = session.client.limits()
+    machine, user = cf.limits_request(args).merged(current.machine, current.user)
+    success, reason = session.client.set_limits(machine, user)
     fields: dict[str, Any] = {'success': success, 'reason': reason,
                               'requested': {'machine': cf.box_document(machine),
                                             'user': cf.box_document(user)}}
     if not success:
-        return Report(cf.EXIT_REFUSED, fields | {'limits': _limits_fields(current)[0]}, '',
+        return Report(Exit.REFUSED, fields | {'limits': _limits_fields(current)[0]}, '',
                       f'refused: {reason}')
-    doc, text = _limits_fields(_get_limits(session))
-    return Report(cf.EXIT_OK, fields | {'limits': doc}, text)
+    doc, text = _limits_fields(session.client.limits())
+    return Report(Exit.OK, fields | {'limits': doc}, text)
 
 
 def cmd_speed(session: Session, args: Any) -> Report:
     request = cf.speed_request(args)
-    response = session.call(SetSpeed, names.SET_SPEED,
-                            SetSpeed.Request(request=om.speeds_msg(request)))
-    success, reason = bool(response.success), str(response.reason)
-    current, maximum = om.speeds(response.current), om.speeds(response.maximum)
-    fields = {'query': request == LibrarySpeeds.keep(), 'success': success, 'reason': reason,
-              'requested': cf.speeds_document(request), 'current': cf.speeds_document(current),
-              'maximum': cf.speeds_document(maximum)}
-    text = cf.speeds_text(current, maximum)
-    if not success:
-        return Report(cf.EXIT_REFUSED, fields, text, f'refused: {reason}')
-    return Report(cf.EXIT_OK, fields, text)
+    answer = session.client.set_speed(request)
+    fields = {'query': request == LibrarySpeeds.keep(), 'success': answer.success,
+              'reason': answer.reason, 'requested': cf.speeds_document(request),
+              'current': cf.speeds_document(answer.current),
+              'maximum': cf.speeds_document(answer.maximum)}
+    text = cf.speeds_text(answer.current, answer.maximum)
+    if not answer.success:
+        return Report(Exit.REFUSED, fields, text, f'refused: {answer.reason}')
+    return Report(Exit.OK, fields, text)
 
 
 def cmd_jog(session: Session, args: Any) -> Report:
     axis, delta = cf.jog_request(args)
-    response = session.call(Jog, names.JOG, Jog.Request(axis=axis, delta=delta))
-    success, code_name = bool(response.success), str(response.code_name)
-    reason, position = str(response.reason), float(response.position)
+    answer = session.client.jog(axis, delta)
+    success, code_name, reason, position = answer
     unit = cf.jog_unit(axis)
     fields = {'axis': axis, 'delta': delta, 'delta_human': args.delta, 'unit': unit,
               'success': success, 'code_name': code_name, 'reason': reason,
@@ -559,18 +312,19 @@ def cmd_jog(session: Session, args: Any) -> Report:
 
 
 def cmd_stop(session: Session, args: Any) -> Report:
-    success, message = session.client.trigger(names.STOP, session.timeout)
+    success, message = session.client.stop()
     fields = {'success': success, 'message': message}
     if not success:
-        return Report(cf.EXIT_REFUSED, fields, '', f'refused: {message}')
-    return Report(cf.EXIT_OK, fields, message or 'stopped')
+        return Report(Exit.REFUSED, fields, '', f'refused: {message}')
+    return Report(Exit.OK, fields, message or 'stopped')
 
 
 def cmd_watch(session: Session, args: Any) -> Report:
     """The live watch window (:mod:`positioning_cell.tools.cell_watch`) until q or Ctrl-C."""
     with session.signals.deferred():
-        watch(session.client, args.frame, args.rate, lambda: session.signals.count > 0)
-    return Report(cf.EXIT_OK)
+        watch(session.client.watch_inputs().snapshot, args.frame, args.rate,
+              lambda: session.signals.count > 0)
+    return Report(Exit.OK)
 
 
 COMMANDS: dict[str, Callable[[Session, Any], Report]] = {
@@ -584,6 +338,8 @@ COMMANDS: dict[str, Callable[[Session, Any], Report]] = {
 # -- main -----------------------------------------------------------------------------------------
 def use_loopback() -> None:
     """This process's environment as the cell's processes get it (``loopback_only``)."""
+    from positioning_cell.ros.processes import loopback_only
+
     env = dict(os.environ)
     loopback_only(env)
     for key in set(os.environ) - set(env):
@@ -597,24 +353,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     out = Output(args.json)
     timeout = args.timeout or cf.default_timeout(args.command)
-    signals = Signals()
-    previous = {sig: signal.signal(sig, signals) for sig in (signal.SIGINT, signal.SIGTERM)}
-    client: CellClient | None = None
-    try:
-        use_loopback()
-        client = CellClient(args.domain, f'cell_{os.getpid()}', signals=False)
-        report = COMMANDS[args.command](Session(client, signals, out, timeout), args)
-    except InterruptedCommandError:
-        report = Report(cf.EXIT_INTERRUPTED, error='interrupted')
-    except TimeoutError as err:
-        report = Report(cf.EXIT_NOT_THERE, error=_not_there(err))
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        if client is not None:
-            client.close()
+    client: OperatorClient | None = None
+    with interruptible() as signals:
+        try:
+            use_loopback()
+            from positioning_cell.ros.operator_client import OperatorClient
+
+            client = OperatorClient(args.domain, f'cell_{os.getpid()}', timeout)
+            report = COMMANDS[args.command](Session(client, signals, out), args)
+        except Interrupted:
+            report = Report(Exit.INTERRUPTED, error='interrupted')
+        except TimeoutError as err:
+            report = Report(Exit.NOT_THERE, error=_not_there(err))
+        finally:
+            if client is not None:
+                with signals.ignored():
+                    client.close()
     out.emit(args.command, report)
-    return report.code
+    return int(report.code)
 
 
 if __name__ == '__main__':

@@ -7,7 +7,8 @@ Six human numbers for a pose are Tx, Ty, Tz mm and Rx, Ry, Rz deg with R = Rz·R
 (:mod:`positioning_cell.frames.transforms`); every SI value in a JSON document is m, rad, s.
 
 JSON documents (:func:`json_text`): one object per command, always with ``command``,
-``exit_code``, ``exit_name`` and ``error`` (null, or why the command failed), and the fields of
+``exit_code``, ``exit_name`` (its label in :mod:`positioning_cell.tools.exits`) and ``error``
+(null, or why the command failed), and the fields of
 that command; a NaN or an infinite number is written as null (an unknown uncertainty, an
 unlimited bound). A pose is an object with ``position_m`` (3), ``quaternion_xyzw`` (4),
 ``pose6`` (Tx, Ty, Tz m, Rx, Ry, Rz rad) and ``human`` (mm, deg); the last two are null for a
@@ -21,7 +22,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,64 +43,19 @@ from positioning_cell.frames.transforms import (
 )
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.tools.exits import Exit, exit_table
 from positioning_cell.watch.deviation import WATCH_FRAMES
 
 FloatArray = NDArray[np.float64]
 
-# -- exit codes ----------------------------------------------------------------------------------
-class ExitCode(NamedTuple):
-    """One row of the exit-code table: the number, its name in JSON, and when it is given."""
-
-    code: int
-    name: str
-    meaning: str
-
-
-EXIT_OK = 0
-EXIT_OUT_OF_TOLERANCE = 1
-EXIT_USAGE = 2
-EXIT_REFUSED = 3
-EXIT_ABORTED = 4
-EXIT_NOT_THERE = 5
-EXIT_INTERRUPTED = 130
-
-#: The exit codes of ``cell``, the one table (the module docstring of
-#: :mod:`positioning_cell.tools.cell` and ``cell --help`` print it).
-EXIT_CODES = (
-    ExitCode(EXIT_OK, 'success', 'done: settled within the tolerance, a valid check, a '
-             'query answered, a setting taken'),
-    ExitCode(EXIT_OUT_OF_TOLERANCE, 'out_of_tolerance', 'settled, but not within the '
-             'tolerance'),
-    ExitCode(EXIT_USAGE, 'usage', 'bad command line (argparse), nothing sent'),
-    ExitCode(EXIT_REFUSED, 'refused', 'refused, nothing moved (any refused_* code, a goal '
-             'rejected, an invalid check, a setting or jog refused)'),
-    ExitCode(EXIT_ABORTED, 'aborted', 'aborted, the drives were stopped (any aborted_* code, '
-             'a cancel by Ctrl-C or by --timeout: aborted_stop), or no outcome given'),
-    ExitCode(EXIT_NOT_THERE, 'not_there', 'the cell is not there: a service, action server, '
-             'status or answer did not come within --timeout'),
-    ExitCode(EXIT_INTERRUPTED, 'interrupted', 'Ctrl-C outside a goal, or a second Ctrl-C '
-             'while a cancelled goal winds down (its result not awaited)'),
-)
-_EXIT_NAMES = {row.code: row.name for row in EXIT_CODES}
-
-
-def exit_table() -> str:
-    """The exit-code table as text (``--help``)."""
-    return '\n'.join(f'  {row.code:>3}  {row.name:<17} {row.meaning}' for row in EXIT_CODES)
-
-
-def exit_name(code: int) -> str:
-    """The name of exit code ``code`` in the table."""
-    return _EXIT_NAMES.get(code, 'unknown')
-
-
+# -- exit codes (the one table: :mod:`positioning_cell.tools.exits`) -----------------------------
 #: MoveOutcome's numbering (its .msg): the ranges of refusals and aborts.
 _REFUSED_CODES = range(10, 30)
 _ABORTED_CODES = range(30, 50)
 _OUT_OF_TOLERANCE_CODE = 50
 
 
-def exit_code(code_name: str, code: int | None = None) -> int:
+def exit_code(code_name: str, code: int | None = None) -> Exit:
     """The exit code of a move's or a homing's outcome: by ``code_name`` (a
     :class:`~positioning_cell.moves.outcomes.ResultCode` value, MoveOutcome's lower-case
     constant name), else by the number ``code`` in MoveOutcome's ranges; an outcome that is
@@ -109,18 +65,18 @@ def exit_code(code_name: str, code: int | None = None) -> int:
     except ValueError:
         result = None
     if result is ResultCode.SUCCESS:
-        return EXIT_OK
+        return Exit.OK
     if result is ResultCode.OUT_OF_TOLERANCE:
-        return EXIT_OUT_OF_TOLERANCE
+        return Exit.NOT_ACHIEVED
     if result is not None:
-        return EXIT_REFUSED if result.refused else EXIT_ABORTED
+        return Exit.REFUSED if result.refused else Exit.ABORTED
     if code is None:
-        return EXIT_ABORTED
+        return Exit.ABORTED
     if code == 0:
-        return EXIT_OK
+        return Exit.OK
     if code == _OUT_OF_TOLERANCE_CODE:
-        return EXIT_OUT_OF_TOLERANCE
-    return EXIT_REFUSED if code in _REFUSED_CODES else EXIT_ABORTED
+        return Exit.NOT_ACHIEVED
+    return Exit.REFUSED if code in _REFUSED_CODES else Exit.ABORTED
 
 
 # -- numbers and poses ---------------------------------------------------------------------------
@@ -582,14 +538,14 @@ class Outcome:
     uncertainty: FloatArray = field(default_factory=lambda: np.full(6, np.nan))
 
     @property
-    def exit_code(self) -> int:
+    def exit_code(self) -> Exit:
         """Its exit code (:func:`exit_code`)."""
         return exit_code(self.code_name, self.code)
 
     @property
     def moved(self) -> bool:
         """Not refused: the attained poses mean something."""
-        return self.exit_code != EXIT_REFUSED
+        return self.exit_code != Exit.REFUSED
 
     @property
     def position_error_um(self) -> float:
@@ -638,13 +594,49 @@ def _uncertainty_text(u: FloatArray) -> str:
     return f'x y z {t} µm, rx ry rz {r} deg'
 
 
-def jog_exit_code(success: bool, code_name: str) -> int:
+@dataclass
+class GoalRun:
+    """How a goal (a move, a homing) went: accepted (None: no answer), the outcome (None: none
+    came, ``error`` says why and ``code`` is the exit code), the goal status of the result,
+    whether it was cancelled and why ('interrupt' or 'timeout')."""
+
+    accepted: bool | None = None
+    outcome: Outcome | None = None
+    goal_status: int | None = None
+    cancelled: bool = False
+    cancel_cause: str | None = None
+    error: str | None = None
+    code: Exit = Exit.ABORTED
+
+    @property
+    def exit_code(self) -> Exit:
+        """The outcome's exit code, else :attr:`code`."""
+        return self.code if self.outcome is None else self.outcome.exit_code
+
+    def fields(self) -> dict[str, Any]:
+        """Its fields in the command's JSON document."""
+        return {'accepted': self.accepted, 'cancelled': self.cancelled,
+                'cancel_cause': self.cancel_cause, 'goal_status': self.goal_status,
+                'outcome': None if self.outcome is None else self.outcome.document()}
+
+    def text(self) -> str:
+        """Its text for people."""
+        lines = []
+        if self.cancelled:
+            cause = 'Ctrl-C' if self.cancel_cause == 'interrupt' else '--timeout'
+            lines.append(f'cancelled ({cause})')
+        if self.outcome is not None:
+            lines.append(self.outcome.text())
+        return '\n'.join(lines)
+
+
+def jog_exit_code(success: bool, code_name: str) -> Exit:
     """The exit code of a jog: 0 on success, else that of its code name if it is a refusal or
     an abort, else refused."""
     if success:
-        return EXIT_OK
+        return Exit.OK
     code = exit_code(code_name)
-    return code if code_name in _RESULT_NAMES and code != EXIT_OK else EXIT_REFUSED
+    return code if code_name in _RESULT_NAMES and code != Exit.OK else Exit.REFUSED
 
 
 _RESULT_NAMES = frozenset(r.value for r in ResultCode)
@@ -683,9 +675,9 @@ class CheckReport:
     duration: float
 
     @property
-    def exit_code(self) -> int:
+    def exit_code(self) -> Exit:
         """0 if valid, else refused."""
-        return EXIT_OK if self.valid else EXIT_REFUSED
+        return Exit.OK if self.valid else Exit.REFUSED
 
     def document(self) -> dict[str, Any]:
         """Every field for JSON."""
@@ -886,11 +878,11 @@ class StatusReport:
 
 
 # -- documents of every command ------------------------------------------------------------------
-def command_document(command: str, code: int, error: str | None = None,
+def command_document(command: str, code: Exit, error: str | None = None,
                      fields: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The JSON document of ``command``: command, exit_code, exit_name, error, then
     ``fields`` (which cannot replace those four)."""
     doc: dict[str, Any] = dict(fields or {})
-    doc.update(command=command, exit_code=code, exit_name=exit_name(code), error=error)
+    doc.update(command=command, exit_code=int(code), exit_name=Exit(code).label, error=error)
     return {k: doc[k] for k in ('command', 'exit_code', 'exit_name', 'error')} | {
         k: v for k, v in doc.items() if k not in ('command', 'exit_code', 'exit_name', 'error')}

@@ -26,10 +26,7 @@ from rich.table import Table
 from rich.text import Text
 
 from positioning_cell import names
-from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.ros.client import CellClient
-from positioning_cell.ros.watch_inputs import RemoteParameters, WatchInputs
-from positioning_cell.watch.state import Snapshot, Status, WatchState
+from positioning_cell.watch.state import Snapshot, Status
 from positioning_cell.watch.table import HEADERS, rows
 
 #: Keys that quit.
@@ -118,37 +115,25 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
     return Group(*parts)
 
 
-class WatchWindow:
-    """The watch's inputs on ``client``'s node: the cell's topics and the positioner's,
-    monitor's and tracker's parameters (:class:`~positioning_cell.ros.watch_inputs.
-    WatchInputs`), the machine from the positioner's ``mechanism.*``."""
-
-    def __init__(self, client: CellClient) -> None:
-        self.state = WatchState(None)
-        self.inputs = WatchInputs(client.node, self.state)
-        self.machine = RemoteParameters(client.node, names.NODE_POSITIONER, Mechanism,
-                                        'mechanism.', self.state.mechanism)
-
-
-def watch(client: CellClient, frame: str, rate: float, stop: Callable[[], bool],
+def watch(snapshot: Callable[[], Snapshot], frame: str, rate: float, stop: Callable[[], bool],
           console: Console | None = None, keys: Keys | None = None) -> None:
-    """Draw the watch window ``rate`` times a second until ``q`` is pressed or ``stop()``
-    (Ctrl-C / SIGTERM counted by the caller) is true; every :data:`FIRST_PERIOD` s until
-    the deviation can first be drawn."""
-    window = WatchWindow(client)
+    """Draw the watch window of ``snapshot()`` (the cell's state now: in ``cell``,
+    :class:`positioning_cell.ros.operator_client.WatchSource`) ``rate`` times a second until
+    ``q`` is pressed or ``stop()`` (Ctrl-C / SIGTERM counted by the caller) is true; every
+    :data:`FIRST_PERIOD` s until the deviation can first be drawn."""
     console = console or Console()
     period, shown = 1.0 / rate, False
     with contextlib.ExitStack() as stack:
         pressed = stack.enter_context(keys or Keys())
-        live = stack.enter_context(Live(render(window.inputs.snapshot(), frame, time.time()),
+        live = stack.enter_context(Live(render(snapshot(), frame, time.time()),
                                         console=console, auto_refresh=False,
                                         screen=console.is_terminal))
         while not stop():
-            snapshot = window.inputs.snapshot()
-            live.update(render(snapshot, frame, time.time()), refresh=True)
-            shown = shown or snapshot.deviation(frame) is not None
+            now = snapshot()
+            live.update(render(now, frame, time.time()), refresh=True)
+            shown = shown or now.deviation(frame) is not None
             if pressed.wait(period if shown else min(period, FIRST_PERIOD)) in QUIT_KEYS:
                 return
 
 
-__all__ = ['Keys', 'WatchWindow', 'render', 'watch']
+__all__ = ['Keys', 'render', 'watch']

@@ -16,6 +16,7 @@ import foxglove.layouts as fl
 
 from positioning_cell import names
 from positioning_cell.config import share_directory
+from positioning_cell.tools.exits import Exit
 from positioning_cell.watch.deviation import AXES
 
 #: The shipped layout.
@@ -64,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.path.write_text(layout_text(), encoding='utf-8')
     print(args.path)
-    return 0
+    return Exit.OK
 
 
 if __name__ == '__main__':

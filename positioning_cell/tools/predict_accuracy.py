@@ -61,6 +61,7 @@ from positioning_cell.prediction.sensitivity import (
     worst_case,
 )
 from positioning_cell.prediction.sources import ToleranceSpec, load_tolerance_spec
+from positioning_cell.tools.exits import Exit, exit_table
 
 FloatArray = NDArray[np.float64]
 NODE_NAME = 'predict_accuracy'
@@ -304,11 +305,14 @@ def calibrated_prediction(calibration: Path, config: Path | None = None,
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``predict_accuracy [--config F] [--spec F] [--out D] ...``; 0 on success,
-    2 with a message on stderr for a bad config, spec or pose."""
+    """Command line: ``predict_accuracy [--config F] [--spec F] [--out D] ...``; exit
+    ``Exit.OK`` on success, ``Exit.USAGE`` with a message on stderr for a bad config, spec or
+    pose (:mod:`positioning_cell.tools.exits`)."""
     parser = argparse.ArgumentParser(
         prog='predict_accuracy', description='Predicted accuracy of the 3-UPS positioner '
-        '(sensitivity, worst case, RSS, Monte Carlo yield, maps; seeds 003 and 004).')
+        '(sensitivity, worst case, RSS, Monte Carlo yield, maps; seeds 003 and 004).',
+        epilog='exit codes:\n' + exit_table(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--config', type=Path, help='ROS 2 parameter file with the mechanism '
                         '(default: the shipped config/cell.yaml)')
     parser.add_argument('--spec', type=Path, help='tolerance spec YAML (default: the shipped '
@@ -342,10 +346,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                          stacked_runs=args.stacked_runs, global_runs=args.global_runs)
     except PositioningError as err:
         print(f'predict_accuracy: error: {err}', file=sys.stderr)
-        return 2
+        return Exit.USAGE
     sys.stdout.write(report.text)
     print('wrote: ' + ', '.join(str(f) for f in report.files))
-    return 0
+    return Exit.OK
 
 
 if __name__ == '__main__':

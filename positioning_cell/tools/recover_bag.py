@@ -6,7 +6,8 @@ one is rewritten from its readable records (every complete chunk), each damaged 
 sound chunks (the corrupt ones are left out and listed with the log times they covered), into
 a valid, indexed file; the original is kept as ``<name>.mcap.truncated`` or
 ``<name>.mcap.damaged``, and ``metadata.yaml`` is rebuilt. A sound bag is left untouched.
-Exit status: 0 recovered or already complete, 1 not a bag / unrecoverable (nothing changed).
+Exit status (:mod:`positioning_cell.tools.exits`): 0 recovered or already complete; 2 not a
+bag, unreadable or unrecoverable (nothing changed).
 :func:`recover` does the work (tests call it); :func:`main` parses the command line.
 """
 
@@ -18,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from positioning_cell.bag import BagError, RecoveryReport, recover_bag
+from positioning_cell.tools.exits import Exit, exit_table
 
 
 def recover(bag: Path, compression: str = 'zstd') -> RecoveryReport:
@@ -48,7 +50,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line: ``recover_bag BAG [--compression zstd|none]``."""
     parser = argparse.ArgumentParser(
         prog='recover_bag', description='Rewrite the readable prefix of a truncated rosbag2 '
-                                        'MCAP bag into a valid, indexed bag with metadata.yaml.')
+                                        'MCAP bag into a valid, indexed bag with metadata.yaml.',
+        epilog='exit codes:\n' + exit_table(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('bag', type=Path, help='bag directory (or one of its .mcap files)')
     parser.add_argument('--compression', choices=('zstd', 'none'), default='zstd',
                         help='chunk compression of rewritten files (default zstd)')
@@ -57,12 +61,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         report = recover(args.bag, args.compression)
     except BagError as err:
         print(f'recover_bag: {err}', file=sys.stderr)
-        return 1
+        return Exit.USAGE
     except OSError as err:
         print(f'recover_bag: {args.bag}: {err}', file=sys.stderr)
-        return 1
+        return Exit.USAGE
     print(describe(report))
-    return 0
+    return Exit.OK
 
 
 if __name__ == '__main__':

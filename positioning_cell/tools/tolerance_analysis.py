@@ -2,9 +2,10 @@
 vector loops (seed 004; the format: :mod:`positioning_cell.tolerance.model`).
 
 Prints a summary and writes ``report.md``, ``analysis.json`` and the figures into ``DIR``.
-Exit codes: 0 done; 2 bad input (the file, key and value named; nothing written); 3 the
-analysis is refused (a singular or ill-conditioned U, loops that do not close near the given
-nominal: the reason is printed and in the report, which is written).
+Exit codes (:mod:`positioning_cell.tools.exits`): 0 done; 2 bad input (the file, key and value
+named; nothing written); 3 the analysis is refused (a singular or ill-conditioned U, loops
+that do not close near the given nominal: the reason is printed and in the report, which is
+written).
 """
 
 from __future__ import annotations
@@ -15,8 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from positioning_cell.errors import PositioningError
-
-EXIT_OK, EXIT_BAD_INPUT, EXIT_REFUSED = 0, 2, 3
+from positioning_cell.tools.exits import Exit, exit_table
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -25,8 +25,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog='tolerance_analysis',
         description='Tolerance analysis of a mechanism given as vector loops (seed 004): '
         'first-order sensitivities T = C − D·U⁻¹·A, worst case, RSS, contributions, Monte '
-        'Carlo with the nonlinear loop closure and the yield. Exit 0 done, 2 bad input, '
-        '3 analysis refused.')
+        'Carlo with the nonlinear loop closure and the yield.',
+        epilog='exit codes:\n' + exit_table(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('mechanism', type=Path, help='mechanism file (YAML)')
     parser.add_argument('--out', type=Path, required=True, help='output folder')
     parser.add_argument('--samples', type=int, default=1_000_000,
@@ -51,14 +52,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                            check=args.check_derivatives, confidence=args.confidence)
     except PositioningError as err:
         print(f'tolerance_analysis: error: {err}', file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return Exit.USAGE
     files = write_report(analysis, args.out, plots=not args.no_plots)
     sys.stdout.write(summary(analysis))
     print('wrote: ' + ', '.join(str(f) for f in files))
     if analysis.refusal is not None:
         print(f'tolerance_analysis: refused: {analysis.refusal}', file=sys.stderr)
-        return EXIT_REFUSED
-    return EXIT_OK
+        return Exit.REFUSED
+    return Exit.OK
 
 
 if __name__ == '__main__':

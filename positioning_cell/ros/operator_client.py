@@ -1,0 +1,244 @@
+"""The ROS half of the operator's client ``cell`` (:mod:`positioning_cell.tools.cell`): the
+positioner's operator services and actions as calls that take and give the plain values of
+:mod:`positioning_cell.tools.cell_format` (SI), the messages built and read here only; the
+goal loop (progress, a cancel on an interrupt or the timeout); and the watch window's inputs.
+The command line itself never sees rclpy or a message type."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseStamped
+from positioning_cell_interfaces.action import Home, MoveToPose
+from positioning_cell_interfaces.srv import (
+    CheckPose,
+    GetCoordinateSystems,
+    GetLimits,
+    Jog,
+    SetCoordinateSystems,
+    SetLimits,
+    SetSpeed,
+)
+from rcl_interfaces.srv import GetParameters
+
+from positioning_cell import names
+from positioning_cell.core.mechanism import MECHANISM_PREFIX, Mechanism
+from positioning_cell.frames.systems import CoordinateSystems
+from positioning_cell.limits.speed import Speeds
+from positioning_cell.ros import cell_messages as cm
+from positioning_cell.ros import operator_messages as om
+from positioning_cell.ros.client import CellClient, GoalClient
+from positioning_cell.ros.messages import pose_arrays, status_level, status_values
+from positioning_cell.ros.parameters import parse_answer, requested_names
+from positioning_cell.ros.qos import LATCHED_QOS, LATEST_QOS
+from positioning_cell.ros.watch_inputs import RemoteParameters, WatchInputs
+from positioning_cell.tools import cell_format as cf
+from positioning_cell.watch.state import Snapshot, WatchState
+
+#: Longest wait for a service or an action server to appear (s; at most the timeout).
+SERVER_WAIT = 30.0
+
+
+# -- the answers of the services ------------------------------------------------------------------
+class Limits(NamedTuple):
+    """GetLimits: the factory, machine and user boxes, and the factory's constraints."""
+
+    factory: cf.Box
+    machine: cf.Box
+    user: cf.Box
+    constraints: list[str]
+
+
+class SpeedAnswer(NamedTuple):
+    """SetSpeed: taken or not, why, the speeds now and their maxima."""
+
+    success: bool
+    reason: str
+    current: Speeds
+    maximum: Speeds
+
+
+class JogAnswer(NamedTuple):
+    """Jog: taken or not, the outcome's code name, why, the axis position after (m or rad)."""
+
+    success: bool
+    code_name: str
+    reason: str
+    position: float
+
+
+@dataclass(frozen=True)
+class StatusValues:
+    """The newest status of one node on /diagnostics: its values, message and level."""
+
+    values: dict[str, str]
+    message: str
+    level: int
+
+
+class StatusFeed:
+    """What ``cell status`` reads off the topics, subscribed at construction: the positioner's
+    and the driver's statuses, the target and the estimate; each method gives the newest
+    (None while none came)."""
+
+    def __init__(self, cell: CellClient) -> None:
+        self._positioner = cell.statuses(names.STATUS_POSITIONER)
+        self._driver = cell.statuses(names.STATUS_DRIVER)
+        self._targets = cell.collect(PoseStamped, names.TARGET, LATCHED_QOS)
+        self._estimates = cell.collect(PoseStamped, names.ESTIMATED_POSE, LATEST_QOS)
+
+    @staticmethod
+    def _status(statuses: list[Any]) -> StatusValues | None:
+        if not statuses:
+            return None
+        status = statuses[-1]
+        return StatusValues(status_values(status), str(status.message), status_level(status))
+
+    @staticmethod
+    def _pose(poses: list[Any]) -> tuple[np.ndarray, np.ndarray] | None:
+        return pose_arrays(poses[-1].pose) if poses else None
+
+    def positioner(self) -> StatusValues | None:
+        """The positioner's newest status."""
+        return self._status(self._positioner)
+
+    def driver(self) -> StatusValues | None:
+        """The leg driver's newest status."""
+        return self._status(self._driver)
+
+    def target(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The newest commanded platform pose (position m, quaternion x, y, z, w)."""
+        return self._pose(self._targets)
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The newest estimated platform pose."""
+        return self._pose(self._estimates)
+
+
+# -- the client -----------------------------------------------------------------------------------
+class OperatorClient:
+    """The operator's calls on a :class:`CellClient` of its own (its own context on
+    ``domain``, rclpy's signal handlers left out: the command line handles SIGINT and
+    SIGTERM, :mod:`positioning_cell.tools.interruption`). Each call waits at most
+    ``timeout`` s (TimeoutError: the cell is not there)."""
+
+    def __init__(self, domain: int | None, name: str, timeout: float) -> None:
+        self.cell = CellClient(domain, name, signals=False)
+        self.timeout = timeout
+
+    def close(self) -> None:
+        """Shut the client down."""
+        self.cell.close()
+
+    def _call(self, srv_type: Any, name: str, request: Any) -> Any:
+        return self.cell.call(srv_type, name, request, self.timeout)
+
+    def _stamp(self) -> Time:
+        return self.cell.node.get_clock().now().to_msg()
+
+    def check(self, request: cf.MoveRequest) -> cf.CheckReport:
+        """CheckPose: the checks of that move; nothing moves."""
+        return cm.check_of(self._call(CheckPose, names.CHECK_POSE, CheckPose.Request(
+            command=cm.move_command(request, self._stamp()))))
+
+    def coordinate_systems(self) -> tuple[CoordinateSystems, str]:
+        """GetCoordinateSystems: the systems and the file they are kept in."""
+        response = self._call(GetCoordinateSystems, names.GET_COORDINATE_SYSTEMS,
+                              GetCoordinateSystems.Request())
+        return cm.systems_of(response.systems), str(response.file)
+
+    def set_coordinate_systems(self, systems: CoordinateSystems) -> tuple[bool, str]:
+        """SetCoordinateSystems: (taken, why)."""
+        response = self._call(SetCoordinateSystems, names.SET_COORDINATE_SYSTEMS,
+                              SetCoordinateSystems.Request(
+                                  systems=om.systems_msg(systems.user, systems.object)))
+        return bool(response.success), str(response.reason)
+
+    def limits(self) -> Limits:
+        """GetLimits."""
+        response = self._call(GetLimits, names.GET_LIMITS, GetLimits.Request())
+        return Limits(cm.box_of(response.factory), cm.box_of(response.machine),
+                      cm.box_of(response.user),
+                      [str(c) for c in response.factory_constraints])
+
+    def set_limits(self, machine: cf.Box, user: cf.Box) -> tuple[bool, str]:
+        """SetLimits: (taken, why)."""
+        response = self._call(SetLimits, names.SET_LIMITS,
+                              SetLimits.Request(machine=cm.box_msg(machine),
+                                                user=cm.box_msg(user)))
+        return bool(response.success), str(response.reason)
+
+    def set_speed(self, request: Speeds) -> SpeedAnswer:
+        """SetSpeed (a request that keeps everything is a query)."""
+        response = self._call(SetSpeed, names.SET_SPEED,
+                              SetSpeed.Request(request=om.speeds_msg(request)))
+        return SpeedAnswer(bool(response.success), str(response.reason),
+                           om.speeds(response.current), om.speeds(response.maximum))
+
+    def jog(self, axis: str, delta: float) -> JogAnswer:
+        """Jog one axis by ``delta`` (m or rad)."""
+        response = self._call(Jog, names.JOG, Jog.Request(axis=axis, delta=delta))
+        return JogAnswer(bool(response.success), str(response.code_name), str(response.reason),
+                         float(response.position))
+
+    def stop(self) -> tuple[bool, str]:
+        """The controlled stop: (success, message)."""
+        return self.cell.trigger(names.STOP, self.timeout)
+
+    def mechanism(self) -> Mechanism:
+        """The positioner's mechanism, from its ``mechanism.*`` parameters (TimeoutError if it
+        does not answer; PositioningError if they are not a mechanism)."""
+        request = GetParameters.Request(names=requested_names(Mechanism, MECHANISM_PREFIX))
+        response = self._call(GetParameters, f'/{names.NODE_POSITIONER}/get_parameters',
+                              request)
+        return parse_answer(Mechanism, MECHANISM_PREFIX, response.values)
+
+    def status_feed(self) -> StatusFeed:
+        """Subscribe to what ``cell status`` shows (:class:`StatusFeed`)."""
+        return StatusFeed(self.cell)
+
+    def move(self, request: cf.MoveRequest, interrupts: Callable[[], int],
+             note: Callable[[str], None], progress: Callable[[str], None]) -> cf.GoalRun:
+        """The move action: the goal sent, its progress drawn, cancelled on an interrupt or
+        the timeout (:func:`drive`). TimeoutError if the server is not there."""
+        goal = MoveToPose.Goal(command=cm.move_command(request, self._stamp()))
+        return self._goal(MoveToPose, names.MOVE_ACTION, goal, cm.move_progress, interrupts,
+                          note, progress)
+
+    def home(self, interrupts: Callable[[], int], note: Callable[[str], None],
+             progress: Callable[[str], None]) -> cf.GoalRun:
+        """The home action (reference if needed, then home), as :meth:`move`."""
+        return self._goal(Home, names.HOME_ACTION, Home.Goal(), cm.home_progress, interrupts,
+                          note, progress)
+
+    def _goal(self, action_type: Any, name: str, goal: Any, line: Callable[[Any], str],
+              interrupts: Callable[[], int], note: Callable[[str], None],
+              progress: Callable[[str], None]) -> cf.GoalRun:
+        with GoalClient(self.cell, action_type, name) as goals:
+            goals.ready(min(self.timeout, SERVER_WAIT))
+            return cm.drive(goals, goal, self.timeout, interrupts, note,
+                         lambda feedback: progress(line(feedback)))
+
+    def watch_inputs(self) -> WatchSource:
+        """The watch window's inputs on this client's node (:class:`WatchSource`)."""
+        return WatchSource(self.cell)
+
+
+class WatchSource:
+    """The watch's inputs on ``client``'s node: the cell's topics and the monitor's and
+    tracker's parameters (:class:`~positioning_cell.ros.watch_inputs.WatchInputs`), the
+    machine from the positioner's ``mechanism.*``."""
+
+    def __init__(self, client: CellClient) -> None:
+        self.state = WatchState(None)
+        self.inputs = WatchInputs(client.node, self.state)
+        self.machine = RemoteParameters(client.node, names.NODE_POSITIONER, Mechanism,
+                                        MECHANISM_PREFIX, self.state.mechanism)
+
+    def snapshot(self) -> Snapshot:
+        """The state now."""
+        return self.inputs.snapshot()
