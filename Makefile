@@ -47,19 +47,11 @@ test: $(STAMP)
 # module of the library that loads rclpy fails here (test/conftest.py leaves out the modules
 # marked nodes or slow without importing them).
 NO_ROS := $(TMP)/no_ros
-# Transitional (issue 22): modules that load rclpy without their nodes mark yet, being
-# rewritten elsewhere; each leaves this list when it is marked or no longer loads rclpy.
-LIBRARY_TIER_LEFT := test/test_axis_test.py test/test_calibrate_cell.py test/test_run_cell.py
-# ... and a test that imports the nodes inside, unmarked (test_calibration.py, owned elsewhere).
-LIBRARY_TIER_DESELECT := \
-	test/test_calibration.py::test_no_node_but_the_simulators_declares_a_truth_parameter
 test-library: $(STAMP)
 	mkdir -p $(NO_ROS)/rclpy
 	printf 'raise ImportError("rclpy is not importable in the library tier (make test-library)")\n' \
 		> $(NO_ROS)/rclpy/__init__.py
-	env $(RUN_ENV) PYTHONPATH=$(NO_ROS) $(PY) -m pytest -m 'not nodes and not slow' \
-		$(addprefix --ignore=,$(LIBRARY_TIER_LEFT)) \
-		$(addprefix --deselect=,$(LIBRARY_TIER_DESELECT))
+	env $(RUN_ENV) PYTHONPATH=$(NO_ROS) $(PY) -m pytest -m 'not nodes and not slow'
 
 # The cell's main job: start the nodes, record, drive config/program.yaml once per compensation
 # mode, stop, analyse; results in runs/<timestamp>/.

@@ -126,11 +126,6 @@ def _played(bag: Path, start_offset_s: float = 0.0,
     return topics, published
 
 
-#: calibrate_cell still loads rclpy when imported (test_code_quality.ROS_TOOLS_LEFT): its tests
-#: run in the nodes tier, importing it inside, until it no longer does (issue 22).
-CALIBRATE_NEEDS_ROS = pytest.mark.nodes
-
-
 def _calibration(bag: Path) -> Collected:
     """What calibrate_cell --from-bag identifies from: the data of the bag's last run."""
     return read_bag(bag, say=lambda _: None)
@@ -196,7 +191,6 @@ def test_the_fleet_digest_is_the_same(variant: Path, original: Reference) -> Non
     assert differences(original.digest, _digest(variant)) == []
 
 
-@CALIBRATE_NEEDS_ROS
 def test_calibrate_from_bag_gets_the_same_data(variant: Path,
                                                original_calibration: Collected) -> None:
     got, want = _calibration(variant), original_calibration
@@ -222,13 +216,10 @@ def _calibration_file(out: Path) -> dict[str, Any]:
     return doc['calibration']['parameters']  # type: ignore[no-any-return]
 
 
-@CALIBRATE_NEEDS_ROS
 def test_calibrate_cell_identifies_the_same_calibration_from_a_split_fastwrite_bag(
         tmp_path: Path) -> None:
     """The whole command on a bag of two unchunked files without index or CRC: the same
     parameters and uncertainties as from the original."""
-    from positioning_cell.tools.calibrate_cell import main as calibrate_main
-
     bag = rewrite_bag(MAKE_RUN, tmp_path / 'fastwrite', LAYOUTS['fastwrite-split-in-2'])
     assert calibrate_main(['--from-bag', str(MAKE_RUN), '--out', str(tmp_path / 'a')]) == 0
     assert calibrate_main(['--from-bag', str(bag), '--out', str(tmp_path / 'b')]) == 0

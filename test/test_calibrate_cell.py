@@ -6,7 +6,11 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+import pytest
 from cell_harness import executable
+
+#: Runs the calibrate_cell executable in a process of its own.
+pytestmark = pytest.mark.nodes
 
 
 def test_from_bag_refuses_what_is_not_a_bag(tmp_path: Path) -> None:

@@ -263,6 +263,7 @@ def test_truth_geometry_seed_draws_one_machine_per_seed() -> None:
     assert all(not np.any(x) for x in TruthParameters().geometric_errors())
 
 
+@pytest.mark.nodes  # imports the nodes (rclpy) to read their declarations
 def test_no_node_but_the_simulators_declares_a_truth_parameter() -> None:
     """The oracle rule, checked on the declarations: the positioner, the monitor, the recorder
     and the player declare no truth.* parameter (the simulators do: the tracker simulator

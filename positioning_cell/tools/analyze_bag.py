@@ -29,9 +29,6 @@ from positioning_cell.config import config_path
 from positioning_cell.errors import PositioningError
 from positioning_cell.tools.exits import Exit, exit_table
 
-#: Transitional: tools/run_cell.py imports this name (it moves onto Exit itself, issue 22).
-EXIT_OK: int = Exit.OK
-
 
 @dataclass(frozen=True)
 class AnalysisOutput:

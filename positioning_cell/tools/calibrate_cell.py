@@ -41,8 +41,6 @@ from positioning_cell.motion.settings import PositionerSettings, machine_setting
 from positioning_cell.polling import wait_until
 from positioning_cell.procedures.calibration import Outcome, Status, calibrate
 from positioning_cell.procedures.port import ProcedureError
-from positioning_cell.ros.client import CellClient
-from positioning_cell.ros.port import RosCellPort
 from positioning_cell.tools.exits import Exit, exit_table
 from positioning_cell.tools.interruption import Interrupted, interruptible
 
@@ -83,6 +81,10 @@ def _from_bag(args: argparse.Namespace, machine: PositionerSettings) -> Exit:
 
 def _live(args: argparse.Namespace, machine: PositionerSettings,
           settings: prog.ProgramSettings) -> Exit:
+    # The ROS adapter only here: --from-bag and --help run without rclpy.
+    from positioning_cell.ros.client import CellClient
+    from positioning_cell.ros.port import RosCellPort
+
     with interruptible() as signals:
         client: CellClient | None = None
         port: RosCellPort | None = None
