@@ -11,9 +11,6 @@ import numpy as np
 import pytest
 
 from positioning_cell import names
-from positioning_cell.accuracy.monitor import MonitorSettings
-from positioning_cell.bag.settings import PlayerSettings, RecorderSettings
-from positioning_cell.calibration.settings import CalibratorSettings
 from positioning_cell.config import (
     config_path,
     flatten,
@@ -22,18 +19,11 @@ from positioning_cell.config import (
     share_directory,
 )
 from positioning_cell.motion.settings import COMPENSATION_MODE, PositionerSettings
+from positioning_cell.node_settings import NODE_SETTINGS
 from positioning_cell.parameters import declarations, parse, to_params
-from positioning_cell.sim.drives import DriverSettings
-from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
-from positioning_cell.watch.settings import LiveViewSettings
 
-#: Each node's settings type, from the library (no rclpy: test_ros_parameters checks that the
-#: nodes declare these).
-NODES: dict[str, type] = {
-    names.NODE_POSITIONER: PositionerSettings, names.NODE_DRIVER: DriverSettings,
-    names.NODE_MEASUREMENT: PoseMeasurementSettings, names.NODE_MONITOR: MonitorSettings,
-    names.NODE_RECORDER: RecorderSettings, names.NODE_PLAYER: PlayerSettings,
-    names.NODE_CALIBRATOR: CalibratorSettings, names.NODE_LIVE_VIEW: LiveViewSettings}
+#: Each node's settings type (the library's table; test_ros_parameters checks the nodes).
+NODES = NODE_SETTINGS
 CELL = load_parameter_file(config_path('cell.yaml'))
 
 

@@ -47,9 +47,10 @@ def test_the_generated_pages_hold_the_code_tables() -> None:
     print them, every wire name and every node's parameters."""
     from positioning_cell import names
     from positioning_cell.parameters import declarations
-    from positioning_cell.tools import exits, fault_matrix
+    from positioning_cell.procedures import fault_trials
+    from positioning_cell.tools import exits
 
-    assert fault_matrix.markdown_table().strip() in generated.render(
+    assert fault_trials.markdown_table().strip() in generated.render(
         'reference/generated/fault_matrix.md')
     assert exits.markdown_table() in generated.render('reference/generated/exit_codes.md')
     wire = generated.render('reference/generated/names.md')

@@ -6,10 +6,8 @@ from __future__ import annotations
 
 import ast
 import dataclasses
-import importlib
 import json
 import math
-import pkgutil
 import typing
 from collections import defaultdict
 from pathlib import Path
@@ -57,23 +55,11 @@ def _table(decls: list[Declaration]) -> list[str]:
 
 
 def node_settings() -> dict[str, type]:
-    """Node name -> its settings type, from the node classes (``NAME``, ``SETTINGS``) of
-    positioning_cell.nodes, in the order of ``names.NODE_EXECUTABLES``."""
-    import positioning_cell.nodes as nodes_package
+    """Node name -> its settings type (:data:`positioning_cell.node_settings.NODE_SETTINGS`,
+    which the nodes declare), in the order of ``names.NODE_EXECUTABLES``."""
+    from positioning_cell.node_settings import NODE_SETTINGS
 
-    found: dict[str, type] = {}
-    for info in pkgutil.iter_modules(nodes_package.__path__):
-        module = importlib.import_module(f'{nodes_package.__name__}.{info.name}')
-        for value in vars(module).values():
-            if (isinstance(value, type) and value.__module__ == module.__name__
-                    and isinstance(getattr(value, 'NAME', None), str)
-                    and dataclasses.is_dataclass(getattr(value, 'SETTINGS', None))):
-                found[value.NAME] = value.SETTINGS
-    order = [n.name for n in names.NODE_EXECUTABLES]
-    missing = sorted(set(order) - set(found))
-    if missing:
-        raise RuntimeError(f'no settings type found for the nodes {missing}')
-    return {name: found[name] for name in order}
+    return dict(NODE_SETTINGS)
 
 
 def _groups(cls: type) -> dict[str, type]:
