@@ -10,31 +10,11 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
+from fault_expectations import IN_PROCESS, LIVE_ONLY
 
 from positioning_cell.procedures.fault_port import Unsupported
 from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
 from positioning_cell.testing.instant_faults import InstantFaultPort
-
-#: Fault → (result codes accepted, words the reason must contain): what the issues and the
-#: README state, written here, not read from the procedure's table.
-IN_PROCESS: dict[str, tuple[set[str], str]] = {
-    'foreign trajectory': ({'foreign_sender'}, 'sent by /fault_matrix'),
-    'encoder NaN': ({'aborted_fault', 'aborted_encoder'}, 'leg2_length'),
-    'encoder frozen': ({'aborted_encoder'}, 'encoder of leg2_length frozen'),
-    'axis stuck': ({'aborted_fault'}, 'leg2_length'),
-    'drives off': ({'aborted_drives_off'}, 'drives disabled during the move'),
-    'driver killed': ({'aborted_driver_lost'}, 'leg driver not responding'),
-    'tracker killed': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
-    'tracker occluded': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
-    'tracker outliers': ({'success', 'aborted_tracker_inconsistent', 'aborted_tracker_lost',
-                          'out_of_tolerance'}, ''),
-    'encoder noise burst': ({'success'}, 'settled within tolerance'),
-    'uncommanded motion': ({'uncommanded_motion'},
-                           'uncommanded motion at standstill: leg1_length'),
-    'positioner killed': ({'commander_silent'}, 'commander /positioner silent'),
-}
-#: The faults only a live cell can be given (DDS messages and services).
-LIVE_ONLY = ('spoofed encoders', 'spoofed tracker', 'flood of calls')
 
 
 @pytest.fixture(scope='module')

@@ -16,36 +16,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
+from fault_expectations import EXPECTED
 
 from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
 from positioning_cell.ros.fault_cell import FaultCell
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
-
-#: Fault → (result codes accepted, words the reason must contain), as the issues and the
-#: docs state them; None: the trial reports no code (a flood: every call answered).
-EXPECTED: dict[str, tuple[set[str], str] | None] = {
-    'foreign trajectory': ({'foreign_sender'}, 'sent by /fault_matrix'),
-    'encoder NaN': ({'aborted_fault', 'aborted_encoder'}, 'leg2_length'),
-    'encoder frozen': ({'aborted_encoder'}, 'encoder of leg2_length frozen'),
-    'axis stuck': ({'aborted_fault'}, 'leg2_length'),
-    'drives off': ({'aborted_drives_off'}, 'drives disabled during the move'),
-    'driver killed': ({'aborted_driver_lost'}, 'leg driver not responding'),
-    'tracker killed': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
-    'tracker occluded': ({'aborted_tracker_lost'}, 'laser tracker not responding'),
-    'tracker outliers': ({'success', 'aborted_tracker_inconsistent', 'aborted_tracker_lost',
-                          'out_of_tolerance'}, ''),
-    'encoder noise burst': ({'success'}, 'settled within tolerance'),
-    'uncommanded motion': ({'uncommanded_motion'},
-                           'uncommanded motion at standstill: leg1_length'),
-    'spoofed encoders': ({'second_publisher'},
-                         'second publisher on /legs/joint_states: /fault_matrix'),
-    'spoofed tracker': ({'second_publisher'},
-                        'second publisher on /metrology/pose: /fault_matrix'),
-    'positioner killed': ({'commander_silent'}, 'commander /positioner silent'),
-    'flood of calls': None,
-}
-
 
 @pytest.fixture(scope='module')
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultCell]:

@@ -30,6 +30,7 @@ from positioning_cell.nodes.recorder_node import EXIT_WRITE_FAILED
 from positioning_cell.ros.messages import status_level
 from positioning_cell.ros.qos import LATCHED_QOS, STREAM_QOS
 from positioning_cell.testing.disks import MountError, file_size_limited, small_filesystem
+from positioning_cell.tools.exits import Exit
 
 pytestmark = pytest.mark.nodes
 
@@ -235,7 +236,7 @@ def test_sigkill_then_recover_bag(tmp_path: Path) -> None:
     assert again.returncode == 0 and 'nothing changed' in again.stdout
     bad = subprocess.run([executable('recover_bag'), str(tmp_path / 'no_such_bag')],
                          capture_output=True, text=True, timeout=60, check=False)
-    assert bad.returncode == 1 and 'not a bag directory' in bad.stderr
+    assert bad.returncode == Exit.USAGE and 'not a bag directory' in bad.stderr
 
 
 def test_refuses_to_overwrite_a_bag(tmp_path: Path) -> None:

@@ -18,18 +18,8 @@ from positioning_cell.mechanics.statics import Payload, Structure
 LOAD_TIMEOUT_S = 1.0
 
 
-class _Compensation(Protocol):
-    @property
-    def calibration_file(self) -> str: ...
-
-
-class CalibratedSettings(Protocol):
-    """What a calibrated machine is built from: the calibration file of the compensation
-    settings, the nominal mechanism, the payload and the structure (the positioner's settings,
-    :class:`positioning_cell.motion.settings.PositionerSettings`, are one)."""
-
-    @property
-    def compensation(self) -> _Compensation: ...
+class Nominal(Protocol):
+    """The nominal machine a calibration starts from (the positioner's settings have it)."""
 
     @property
     def mechanism(self) -> Mechanism: ...
@@ -39,6 +29,21 @@ class CalibratedSettings(Protocol):
 
     @property
     def structure(self) -> Structure: ...
+
+
+class _Compensation(Protocol):
+    @property
+    def calibration_file(self) -> str: ...
+
+
+class CalibratedSettings(Nominal, Protocol):
+    """What a calibrated machine is built from: the calibration file of the compensation
+    settings and the nominal machine (:class:`Nominal`;
+    the positioner's settings, :class:`positioning_cell.motion.settings.PositionerSettings`,
+    are one)."""
+
+    @property
+    def compensation(self) -> _Compensation: ...
 
 
 def calibrated_machine(settings: CalibratedSettings,

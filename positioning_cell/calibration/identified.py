@@ -7,29 +7,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
+from positioning_cell.calibration.calibrated import Nominal
 from positioning_cell.calibration.collect import Collected
 from positioning_cell.calibration.report import predict, write_report
-from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.mechanics.statics import Payload, Structure
-
-
-class Nominal(Protocol):
-    """The nominal machine a calibration starts from (the positioner's settings have it)."""
-
-    @property
-    def mechanism(self) -> Mechanism: ...
-
-    @property
-    def payload(self) -> Payload: ...
-
-    @property
-    def structure(self) -> Structure: ...
 
 
 class Figures(NamedTuple):

@@ -1,8 +1,10 @@
-"""calibrator_node (node ``calibrator``): the Calibrate action on /calibrator/calibrate runs the
-live calibration (:func:`positioning_cell.procedures.calibration.calibrate`) on the running
-cell through a :class:`~positioning_cell.ros.port.RosCellPort` (a client node of its own in
-this node's context, for the goal), in a worker thread (:func:`positioning_cell.ros.goals.
-run_goal`): feedback per measured pose, the identification's figures in the result, the
+"""calibrator_node (node ``calibrator``): the Calibrate action runs the live calibration.
+
+The action on /calibrator/calibrate runs
+:func:`positioning_cell.procedures.calibration.calibrate` on the running cell through a
+:class:`~positioning_cell.ros.port.RosCellPort` (a client node of its own in this node's
+context, for the goal), in a worker thread (:func:`positioning_cell.ros.goals.run_goal`):
+feedback per measured pose, the identification's figures in the result, the
 positioner told to load the file (``load``). One goal at a time (another one meanwhile is
 rejected); a cancel, or the node's shutdown, stops the move at once (/positioner/stop), puts
 the positioner's mode back and writes nothing."""

@@ -2,11 +2,12 @@
 :class:`~positioning_cell.procedures.port.CellPort`: the calibration the program asks for (the
 cell identifies itself and the positioner loads the result; judged against the simulator's
 truth of the parameter file, :mod:`.judging`), the axis test if asked
-(:mod:`.axis_test`), then the program of ``config/program.yaml``: per compensation mode, the
-mode set on the positioner; per move, the step published on ``/cell/program`` (JSON of
-:class:`~positioning_cell.analysis.program.ProgramStep`, kept for a recorder, so the analysis
-knows the mode and pose of every move), the move, the accuracy monitor's verdict on it, and a
-line to the caller. Starting the cell and analysing the recording are the caller's."""
+(:mod:`positioning_cell.procedures.axis_test`), then the program of ``config/program.yaml``:
+per compensation mode, the mode set on the positioner; per move, the step published on
+``/cell/program`` (JSON of :class:`~positioning_cell.analysis.program.ProgramStep`, kept for a
+recorder, so the analysis knows the mode and pose of every move), the move, the accuracy
+monitor's verdict on it, and a line to the caller. Starting the cell and analysing the
+recording are the caller's."""
 
 from __future__ import annotations
 
@@ -114,10 +115,10 @@ def calibrate(port: CellPort, program: Program, config: Path, run_dir: Path, say
 
 def axis_test(port: CellPort, test: AxisTest, config: Path, run_dir: Path,
               say: Say) -> AxisTestResults | None:
-    """The run's axis test (:mod:`.axis_test`): a line per measured stop, then the ISO 230-2
-    table of each axis, written to ``axis_test.md`` and ``axis_test.json`` in ``run_dir``.
-    None when it could not be completed (the positioner is asked to home so that the run
-    continues)."""
+    """The run's axis test (:mod:`positioning_cell.procedures.axis_test`): a line per measured
+    stop, then the ISO 230-2 table of each axis, written to ``axis_test.md`` and
+    ``axis_test.json`` in ``run_dir``. None when it could not be completed (the positioner is
+    asked to home so that the run continues)."""
     try:
         results = run_axis_test(port, test, config, say).results
     except PositioningError as err:  # ProcedureError included

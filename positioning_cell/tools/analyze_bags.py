@@ -1,5 +1,7 @@
-"""``analyze_bags PATH... [--out DIR] [--config F] [--scheduler tcp://host:port] [--workers N]``:
-trends over many recorded cell runs (a folder tree of bags) on Dask distributed.
+"""``analyze_bags``: trends over many recorded cell runs (a folder tree of bags) on Dask
+distributed.
+
+    analyze_bags PATH... [--out DIR] [--config F] [--scheduler tcp://host:port] [--workers N]
 
 Each PATH is a bag (a rosbag2 folder or an ``.mcap`` file) or a folder searched for bags
 (:func:`positioning_cell.analysis.fleet.find_bags`). Every bag is one task
