@@ -130,19 +130,26 @@ def test_a_goal_calibrates_the_cell_with_feedback_per_pose(cell: Cell) -> None:
           f'{result.identified} parameters; {result.reason}')
 
 
-def test_cancel_stops_the_move_and_writes_nothing(cell: Cell) -> None:
-    client = cell.client
-    statuses = client.statuses(names.STATUS_POSITIONER)
+def _moving_to_the_second_pose(cell: Cell) -> tuple[list[Any], list[Any], Any, Any]:
+    """A goal sent, its first pose measured, the positioner moving to the next one: the
+    positioner's statuses, the feedback so far, the goal handle and its result future."""
+    statuses = cell.client.statuses(names.STATUS_POSITIONER)
     feedback: list[Any] = []
     handle = cell.send(feedback)
     assert handle.accepted
     result = handle.get_result_async()
     cell.until(lambda: feedback or result.done(), 90.0, 'the feedback of the first pose')
     assert feedback, f'the goal ended first: {result.result().result.reason}'
-    assert not cell.send([]).accepted  # one calibration at a time
-    # Cancel while the positioner moves to the next pose: the move ends aborted_stop.
     cell.until(lambda: statuses and state(statuses[-1]) == 'moving', 10.0,
                'the move to the next pose')
+    return statuses, feedback, handle, result
+
+
+def test_cancel_stops_the_move_and_writes_nothing(cell: Cell) -> None:
+    client = cell.client
+    statuses, feedback, handle, result = _moving_to_the_second_pose(cell)
+    assert not cell.send([]).accepted  # one calibration at a time
+    # Cancel while the positioner moves to the next pose: the move ends aborted_stop.
     seen = len(statuses)
     t0 = time.monotonic()
     cancel = handle.cancel_goal_async()
@@ -179,15 +186,7 @@ def test_a_shutdown_mid_calibration_stops_the_move_and_puts_the_mode_back_at_onc
     well before its longest wait (CLOSE_WAIT_S) would have run out."""
     from positioning_cell.nodes.calibrator_node import CLOSE_WAIT_S
     client = cell.client
-    statuses = client.statuses(names.STATUS_POSITIONER)
-    feedback: list[Any] = []
-    handle = cell.send(feedback)
-    assert handle.accepted
-    result = handle.get_result_async()
-    cell.until(lambda: feedback or result.done(), 90.0, 'the feedback of the first pose')
-    assert feedback, f'the goal ended first: {result.result().result.reason}'
-    cell.until(lambda: statuses and state(statuses[-1]) == 'moving', 10.0,
-               'the move to the next pose')
+    statuses, _, _, _ = _moving_to_the_second_pose(cell)
     seen = len(statuses)
     t0 = time.monotonic()
     exe = names.CALIBRATOR.executable

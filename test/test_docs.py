@@ -4,7 +4,6 @@ come from the code through the one registry, and the library example they show r
 from __future__ import annotations
 
 import importlib
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -62,14 +61,3 @@ def test_the_generated_pages_hold_the_code_tables() -> None:
         assert f'## `{node}`' in parameters
         for d in declarations(cls):
             assert f'`{d.name}`' in parameters, f'{node}: {d.name} missing'
-
-
-def test_the_library_example_of_the_docs_runs() -> None:
-    page = DOCS / 'howto' / 'library.md'
-    blocks = re.findall(r'```python\n(.*?)```', page.read_text(), flags=re.S)
-    assert blocks, 'no python example on the library page'
-    namespace: dict[str, object] = {}
-    exec(compile(blocks[0], str(page), 'exec'), namespace)
-    pose, commands = namespace['pose'], namespace['commands']
-    assert pose.converged.all()  # type: ignore[attr-defined]
-    assert commands.lengths.shape == (1, 3)  # type: ignore[attr-defined]

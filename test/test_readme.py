@@ -6,15 +6,20 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 README = REPO / 'README.md'
 
 
-def test_the_library_example_of_the_readme_runs() -> None:
-    blocks = re.findall(r'```python\n(.*?)```', README.read_text(), flags=re.S)
-    assert blocks, 'no python example in the README'
+@pytest.mark.parametrize('page', [README, REPO / 'docs' / 'howto' / 'library.md'],
+                         ids=['README', 'docs/howto/library.md'])
+def test_the_library_example_runs(page: Path) -> None:
+    """The first Python block of the README and of the docs' library page runs as shown."""
+    blocks = re.findall(r'```python\n(.*?)```', page.read_text(), flags=re.S)
+    assert blocks, f'no python example in {page.name}'
     namespace: dict[str, object] = {}
-    exec(compile(blocks[0], str(README), 'exec'), namespace)
+    exec(compile(blocks[0], str(page), 'exec'), namespace)
     pose, commands = namespace['pose'], namespace['commands']
     assert pose.converged.all()  # type: ignore[attr-defined]
     assert commands.lengths.shape == (1, 3)  # type: ignore[attr-defined]
