@@ -8,12 +8,19 @@ publisher, a flood of service calls) are refused by the port as Unsupported."""
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import replace
 
 import pytest
 from fault_expectations import IN_PROCESS, LIVE_ONLY
 
 from positioning_cell.procedures.fault_port import Unsupported
-from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
+from positioning_cell.procedures.fault_trials import (
+    ATTEMPTS,
+    FAULTS,
+    DrivesOff,
+    fault,
+    run_trial,
+)
 from positioning_cell.testing.instant_faults import InstantFaultPort
 
 
@@ -42,3 +49,15 @@ def test_fault_gets_its_reaction_in_process(port: InstantFaultPort, name: str) -
 def test_the_dds_faults_are_refused_in_process(port: InstantFaultPort, name: str) -> None:
     with pytest.raises(Unsupported):
         run_trial(port, fault(name))
+
+
+
+def test_a_move_that_never_starts_is_named_not_waited_for(port: InstantFaultPort) -> None:
+    """A trial whose move is refused before anything moves (here the drives are switched off
+    just before it) ends at once with the refusal, after its attempts, not on the 30 s wait
+    for motion."""
+    trial = run_trial(port, replace(fault('encoder frozen'), prepare=(DrivesOff(),)))
+    assert len(trial.problems) == 1, trial
+    assert trial.problems[0].startswith('the move ended before any axis moved: '), trial
+    assert 'drives disabled' in trial.problems[0], trial
+    assert trial.problems[0].endswith(f'in all {ATTEMPTS} attempts'), trial

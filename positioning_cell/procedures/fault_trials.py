@@ -282,6 +282,25 @@ class _LandedLateError(Exception):
     take longer than the rest of the move)."""
 
 
+class _NeverMovedError(_LandedLateError):
+    """The trial's move ended before any axis moved (refused: a liveness rule on the wall
+    clock, such as the tracker's silence in ``measured`` mode, can trip on a loaded machine
+    between the trial's readiness check and the move): no fault was tested."""
+
+
+def wait_for_motion(port: FaultPort, move: _Move) -> None:
+    """Wait until an axis moves under ``move``; _NeverMovedError naming the move's outcome
+    when it ended first (TimeoutError after 30 s of neither)."""
+    wait_until(lambda: moving(port, move.started) or not move.thread.is_alive(), 30.0,
+               'the axes to move')
+    if not moving(port, move.started):
+        move.thread.join(timeout=1.0)
+        outcome = move.outcome[0] if move.outcome else None
+        raise _NeverMovedError('the move ended before any axis moved: '
+                               + (f'{outcome.code}: {outcome.reason}' if outcome else
+                                  'no outcome'))
+
+
 def run_trial(port: FaultPort, fault: Fault) -> Trial:
     """One trial of ``fault`` on ``port`` (ready first, restored after); a trial whose fault
     landed after the motion is run again, up to ATTEMPTS times."""
@@ -353,7 +372,7 @@ def _move_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
         inject(port, fault.inject)
     move = start_move(port)
     if fault.mid_move:
-        wait_until(lambda: moving(port, move.started), 30.0, 'the axes to move')
+        wait_for_motion(port, move)
         injected = port.monotonic()
         inject(port, fault.inject)
     trial.inject_s = port.monotonic() - injected
@@ -497,7 +516,7 @@ def _commander_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
     """The positioner killed mid-move: the drives stop under control when its heartbeat falls
     silent (the driver's status says so) instead of finishing the trajectory unsupervised."""
     move = start_move(port)
-    wait_until(lambda: moving(port, move.started), 30.0, 'the axes to move')
+    wait_for_motion(port, move)
     injected = port.monotonic()
     inject(port, fault.inject)
     report = wait_until(lambda: port.status_after(names.STATUS_DRIVER, injected, 'silent'),
