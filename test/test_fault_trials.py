@@ -51,7 +51,6 @@ def test_the_dds_faults_are_refused_in_process(port: InstantFaultPort, name: str
         run_trial(port, fault(name))
 
 
-
 def test_a_move_that_never_starts_is_named_not_waited_for(port: InstantFaultPort) -> None:
     """A trial whose move is refused before anything moves (here the drives are switched off
     just before it) ends at once with the refusal, after its attempts, not on the 30 s wait

@@ -288,7 +288,7 @@ class _NeverMovedError(_LandedLateError):
     between the trial's readiness check and the move): no fault was tested."""
 
 
-def wait_for_motion(port: FaultPort, move: _Move) -> None:
+def _wait_for_motion(port: FaultPort, move: _Move) -> None:
     """Wait until an axis moves under ``move``; _NeverMovedError naming the move's outcome
     when it ended first (TimeoutError after 30 s of neither)."""
     wait_until(lambda: moving(port, move.started) or not move.thread.is_alive(), 30.0,
@@ -372,7 +372,7 @@ def _move_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
         inject(port, fault.inject)
     move = start_move(port)
     if fault.mid_move:
-        wait_for_motion(port, move)
+        _wait_for_motion(port, move)
         injected = port.monotonic()
         inject(port, fault.inject)
     trial.inject_s = port.monotonic() - injected
@@ -516,7 +516,7 @@ def _commander_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
     """The positioner killed mid-move: the drives stop under control when its heartbeat falls
     silent (the driver's status says so) instead of finishing the trajectory unsupervised."""
     move = start_move(port)
-    wait_for_motion(port, move)
+    _wait_for_motion(port, move)
     injected = port.monotonic()
     inject(port, fault.inject)
     report = wait_until(lambda: port.status_after(names.STATUS_DRIVER, injected, 'silent'),
