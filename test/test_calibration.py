@@ -203,6 +203,27 @@ def test_bad_data_is_refused() -> None:
         idf.check_data(good._replace(covariance=np.full((n, 6, 6), np.nan)))
     with pytest.raises(idf.InputError, match='joint_sigma must be > 0'):
         idf.check_data(good._replace(joint_sigma=np.zeros((n, 6))))
+    with pytest.raises(idf.InputError, match='temperature has shape'):
+        idf.check_data(good._replace(temperature=np.zeros(n - 1)))
+    for bad in (np.nan, 80.0):
+        with pytest.raises(idf.InputError, match='temperature must be finite and within'):
+            idf.check_data(good._replace(temperature=np.full(n, bad)))
+    with pytest.raises(idf.InputError, match='approach holds values other than'):
+        idf.check_data(good._replace(approach=np.full((n, 6), 0.5)))
+
+
+def test_the_conditions_of_each_pose_follow_a_subset() -> None:
+    n = 4
+    data = idf.check_data(idf.CalibrationData(
+        np.zeros((n, 6)), np.ones((n, 6)), np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
+        np.tile(np.eye(6), (n, 1, 1)), np.array([20.0, 21.0, 22.0, 23.0]),
+        np.tile([1.0, -1.0, 0.0, 1.0, 1.0, -1.0], (n, 1))))
+    part = data.subset([1, 3])
+    assert part.temperature is not None and part.approach is not None
+    np.testing.assert_allclose(part.temperature, [21.0, 23.0])
+    assert part.approach.shape == (2, 6)
+    assert idf.check_data(data._replace(temperature=None, approach=None)).subset([0]).temperature \
+        is None
 
 
 # -- the calibration file ----------------------------------------------------------------------

@@ -79,18 +79,36 @@ class CalibrationData(NamedTuple):
     """A calibration run, N stationary poses: the encoder means ``joints`` (N, 6) (lengths m,
     then θ rad, JOINT_NAMES order) and their standard uncertainties ``joint_sigma`` (N, 6);
     the measured pose ``position`` (N, 3) m, ``quaternion`` (N, 4) x, y, z, w in ``base`` and
-    its ``covariance`` (N, 6, 6) (x, y, z, rot-x, rot-y, rot-z; m², rad²)."""
+    its ``covariance`` (N, 6, 6) (x, y, z, rot-x, rot-y, rot-z; m², rad²).
+
+    Conditions of each pose, as the cell knows them (None: not recorded): ``temperature``
+    (N,) the measured cell air temperature, °C (the temperature sensor's reading, not the
+    machine's own), and ``approach`` (N, 6) the direction each axis last moved in before
+    the pose was reached, in JOINT_NAMES order: +1 increasing, −1 decreasing, 0 not known
+    (what a reversal error depends on)."""
 
     joints: FloatArray
     joint_sigma: FloatArray
     position: FloatArray
     quaternion: FloatArray
     covariance: FloatArray
+    temperature: FloatArray | None = None
+    approach: FloatArray | None = None
 
     def subset(self, rows: ArrayLike) -> CalibrationData:
         """The poses ``rows`` (indices or a mask)."""
         idx = np.asarray(rows)
-        return CalibrationData(*(np.asarray(a)[idx] for a in self))
+
+        def pick(a: FloatArray | None) -> FloatArray | None:
+            return None if a is None else take(a)
+
+        def take(a: ArrayLike) -> FloatArray:
+            out: FloatArray = np.asarray(a, dtype=float)[idx]
+            return out
+
+        return CalibrationData(take(self.joints), take(self.joint_sigma), take(self.position),
+                               take(self.quaternion), take(self.covariance),
+                               pick(self.temperature), pick(self.approach))
 
 
 def check_data(data: CalibrationData) -> CalibrationData:
@@ -109,7 +127,37 @@ def check_data(data: CalibrationData) -> CalibrationData:
         arrays[name] = arr
     if np.any(arrays['joint_sigma'] <= 0.0):
         raise InputError('calibration data joint_sigma must be > 0')
-    return CalibrationData(arrays['joints'], arrays['joint_sigma'], p, q, arrays['covariance'])
+    return CalibrationData(arrays['joints'], arrays['joint_sigma'], p, q, arrays['covariance'],
+                           _checked_temperature(data.temperature, n),
+                           _checked_approach(data.approach, n))
+
+
+#: Air temperatures a calibration accepts, °C (a cell outside them is not a workshop).
+TEMPERATURE_RANGE = (-20.0, 60.0)
+
+
+def _checked_temperature(value: ArrayLike | None, n: int) -> FloatArray | None:
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (n,):
+        raise InputError(f'calibration data temperature has shape {arr.shape}, expected ({n},)')
+    low, high = TEMPERATURE_RANGE
+    if not np.all(np.isfinite(arr)) or np.any((arr < low) | (arr > high)):
+        raise InputError(f'calibration data temperature must be finite and within {low:g} to '
+                         f'{high:g} degC')
+    return arr
+
+
+def _checked_approach(value: ArrayLike | None, n: int) -> FloatArray | None:
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (n, 6):
+        raise InputError(f'calibration data approach has shape {arr.shape}, expected ({n}, 6)')
+    if not np.all(np.isin(arr, (-1.0, 0.0, 1.0))):
+        raise InputError('calibration data approach holds values other than -1, 0, +1')
+    return arr
 
 
 def predicted_joints(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
