@@ -86,15 +86,18 @@ class Indices(NamedTuple):
             ('O4 (noise amplification)', self.o4))]
 
 
-def indices_of_singular_values(singular_values: ArrayLike, rows: int) -> Indices:
-    """The :class:`Indices` of a Jacobian of ``rows`` rows with ``singular_values`` (n,) (any
-    order; n the number of columns, n ≤ rows). ValueError for no or negative singular values
-    or rows < n."""
+def indices_of_singular_values(singular_values: ArrayLike, rows: int,
+                               columns: int | None = None) -> Indices:
+    """The :class:`Indices` of a Jacobian of ``rows`` rows and ``columns`` columns (None: as
+    many as singular values) with ``singular_values`` (any order; fewer than ``columns``,
+    as for a Jacobian of fewer rows than columns: the others are 0). ValueError for no,
+    negative or non-finite singular values, or more of them than columns."""
     sv = np.sort(np.asarray(singular_values, dtype=float).ravel())[::-1]
-    n = sv.size
-    if n == 0 or rows < n or np.any(sv < 0.0) or not np.all(np.isfinite(sv)):
-        raise ValueError(f'singular values: {n} finite values >= 0 are needed for a Jacobian of '
-                         f'{rows} rows (rows >= columns)')
+    n = sv.size if columns is None else columns
+    if sv.size == 0 or sv.size > n or np.any(sv < 0.0) or not np.all(np.isfinite(sv)):
+        raise ValueError(f'singular values: 1 to {n} finite values >= 0 are needed, got '
+                         f'{sv.size}')
+    sv = np.concatenate([sv, np.zeros(n - sv.size)])
     top, low = float(sv[0]), float(sv[-1])
     with np.errstate(divide='ignore'):
         o1 = float(np.exp(np.mean(np.log(sv))) / np.sqrt(rows)) if low > 0.0 else 0.0
@@ -109,9 +112,10 @@ def observability(jacobian_rows: ArrayLike) -> Indices:
     j = np.asarray(jacobian_rows, dtype=float)
     if j.ndim == 3:
         j = j.reshape(-1, j.shape[2])
-    if j.ndim != 2:
+    if j.ndim != 2 or j.size == 0:
         raise ValueError(f'a Jacobian (m, n) or (N, k, n) is needed, got shape {j.shape}')
-    return indices_of_singular_values(np.linalg.svd(j, compute_uv=False), j.shape[0])
+    return indices_of_singular_values(np.linalg.svd(j, compute_uv=False), j.shape[0],
+                                      j.shape[1])
 
 
 def pose_weights(mech: Mechanism) -> FloatArray:
