@@ -1,0 +1,111 @@
+"""The calibration program's design criterion (issue 23): D vs I vs G, all measured in one run.
+
+For each seed of the candidate draw and each criterion (positioning_cell.calibration.program:
+greedy, then exchange), the program of the shipped settings (60 poses from 3000 candidates)
+is chosen for the planning noise of benchmarks/calibration.py, then judged by what the
+identification of its poses would promise (first order, the parameters' covariance M⁻¹ mapped
+to the pose: positioning_cell.calibration.observability): the predicted pose σ of the
+calibrated machine, RMS and largest, position (um) and angle (urad), at the production poses
+of config/program.yaml (the ISO 9283 cube) and over the workspace (2000 poses drawn in the
+candidate box with another seed, within limits); the observability indices of its stacked
+Jacobian (smallest singular value, condition number, O1, O4); and the selection time (the
+candidates' Jacobian included). A row ``random`` is 60 candidates drawn at random.
+
+Run: .venv/bin/python benchmarks/calibration_program.py [--seeds 3]
+Target: the shipped default criterion has the smallest mean predicted equivalent-position
+variance at the production poses of the three (what the default is chosen by). Exit 1 if
+not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from positioning_cell.calibration import identify as idf
+from positioning_cell.calibration import observability as obs
+from positioning_cell.calibration import program as prog
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.parameters import parse
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
+
+SIM = parse(PoseMeasurementSettings,
+            node_parameters(load_parameter_file(config_path()), 'pose_measurement'))
+MECH, PAYLOAD, STRUCTURE = SIM.mechanism, SIM.payload, SIM.structure
+PLANNING_COV = np.diag([3e-6**2] * 3 + [2e-5**2] * 3)  # as benchmarks/calibration.py
+PLANNING_JOINT_SIGMA = np.r_[[4e-7] * 3, [3e-6] * 3]
+WORKSPACE_POSES = 2000
+
+
+def sigmas(info: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[float, float, float, float,
+                                                                      float]:
+    """Predicted σ at poses for the information ``info``: position RMS and max (m), angle RMS
+    (rad), and the mean and max equivalent-position variance (m²)."""
+    sens = obs.pose_sensitivity(MECH, PAYLOAD, STRUCTURE, p, q)
+    cov_scaled = np.linalg.inv(info)
+    cov = np.einsum('qai,ij,qbj->qab', sens, cov_scaled, sens)
+    weight = obs.pose_weights(MECH)
+    cov = cov / np.outer(weight, weight)  # back to m and rad
+    var_p = np.trace(cov[:, :3, :3], axis1=1, axis2=2)
+    var_r = np.trace(cov[:, 3:, 3:], axis1=1, axis2=2)
+    equivalent = obs.predicted_variance(info, sens)
+    return (float(np.sqrt(var_p.mean())), float(np.sqrt(var_p.max())),
+            float(np.sqrt(var_r.mean())), float(equivalent.mean()), float(equivalent.max()))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--seeds', type=int, default=3)
+    args = parser.parse_args()
+    shipped = prog.ProgramSettings()
+    production = prog.production_poses(MECH, shipped)
+    workspace = prog.candidates(MECH, replace(shipped, seed=12345,
+                                              candidates=WORKSPACE_POSES))
+    print(f'{shipped.poses} poses from {shipped.candidates} candidates; '
+          f'{len(production[0])} production poses, {len(workspace[0])} workspace poses; '
+          f'shipped default criterion {shipped.criterion}')
+    print('seed crit |  production: RMS sp  max sp um  RMS sr urad | workspace: RMS sp  max sp'
+          ' um  RMS sr urad | smin   cond    O1     O4     | select s')
+    mean_var: dict[str, list[float]] = {c: [] for c in obs.CRITERIA}
+    for seed in range(args.seeds):
+        settings = replace(shipped, seed=seed)
+        p_all, q_all = prog.candidates(MECH, settings)
+        rows_all = idf.information_rows(MECH, PAYLOAD, STRUCTURE, p_all, q_all, PLANNING_COV,
+                                        PLANNING_JOINT_SIGMA)
+        pick = np.random.default_rng(seed).choice(len(p_all), settings.poses, replace=False)
+        programs: list[tuple[str, np.ndarray, float]] = [('random', rows_all[pick], 0.0)]
+        for criterion in obs.CRITERIA:
+            t0 = time.perf_counter()
+            chosen = prog.choose(MECH, PAYLOAD, STRUCTURE, replace(settings, criterion=criterion),
+                                 PLANNING_COV, PLANNING_JOINT_SIGMA, production)
+            elapsed = time.perf_counter() - t0
+            rows = idf.information_rows(MECH, PAYLOAD, STRUCTURE, chosen.position,
+                                        chosen.quaternion, PLANNING_COV, PLANNING_JOINT_SIGMA)
+            programs.append((criterion, rows, elapsed))
+        for name, rows, elapsed in programs:
+            info = obs.information(rows)
+            at_prod = sigmas(info, *production)
+            at_ws = sigmas(info, *workspace)
+            ind = obs.observability(rows)
+            if name in mean_var:
+                mean_var[name].append(at_prod[3])
+            print(f'{seed:4d} {name:>6} | {at_prod[0] * 1e6:15.3f} {at_prod[1] * 1e6:10.3f} '
+                  f'{at_prod[2] * 1e6:12.2f} | {at_ws[0] * 1e6:14.3f} {at_ws[1] * 1e6:9.3f} '
+                  f'{at_ws[2] * 1e6:12.2f} | {ind.sigma_min:5.2f} {ind.condition:6.0f} '
+                  f'{ind.o1:6.3f} {ind.o4:.2e} | {elapsed:7.2f}')
+    means = {c: float(np.mean(v)) for c, v in mean_var.items()}
+    best = min(means, key=lambda c: means[c])
+    print('mean equivalent-position variance at production, um^2: '
+          + ', '.join(f'{c} {v * 1e12:.4f}' for c, v in means.items()) + f'; best {best}')
+    ok = best == shipped.criterion
+    print(f'target: the default criterion ({shipped.criterion}) is the best at production: '
+          f'{"met" if ok else "NOT met"}')
+    return 0 if ok else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
