@@ -11,7 +11,14 @@ candidate box with another seed, within limits); the observability indices of it
 Jacobian (smallest singular value, condition number, O1, O4); and the selection time (the
 candidates' Jacobian included). A row ``random`` is 60 candidates drawn at random.
 
-Run: .venv/bin/python benchmarks/calibration_program.py [--seeds 3]
+Then, judged against the simulated truth (as benchmarks/calibration.py: the seeded machines
+truth.geometry_seed 0..3, the data a cell would record, 10 readings averaged per pose), the
+program of each criterion (seed 0) calibrates each machine (``--draws`` measurement runs,
+independent noise), and the true pose error of the
+calibrated model's commands is measured at the production poses and at 300 workspace poses:
+RMS and max |dp| (um), RMS angle (urad).
+
+Run: .venv/bin/python benchmarks/calibration_program.py [--seeds 3] [--machines 4]
 Target: the shipped default criterion has the smallest mean predicted equivalent-position
 variance at the production poses of the three (what the default is chosen by). Exit 1 if
 not.
@@ -30,8 +37,11 @@ from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration import program as prog
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.kinematics import inverse
 from positioning_cell.parameters import parse
-from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
+from positioning_cell.sim.campaign import measure_program, true_errors
+from positioning_cell.sim.encoders import EncoderSettings
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
 
 SIM = parse(PoseMeasurementSettings,
             node_parameters(load_parameter_file(config_path()), 'pose_measurement'))
@@ -39,6 +49,10 @@ MECH, PAYLOAD, STRUCTURE = SIM.mechanism, SIM.payload, SIM.structure
 PLANNING_COV = np.diag([3e-6**2] * 3 + [2e-5**2] * 3)  # as benchmarks/calibration.py
 PLANNING_JOINT_SIGMA = np.r_[[4e-7] * 3, [3e-6] * 3]
 WORKSPACE_POSES = 2000
+JUDGED_WORKSPACE_POSES = 300
+ENCODERS = parse(EncoderSettings, node_parameters(load_parameter_file(config_path()),
+                                                  'leg_driver').get('encoder', {}))
+SAMPLES = 10
 
 
 def sigmas(info: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[float, float, float, float,
@@ -57,9 +71,49 @@ def sigmas(info: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple[float, float
             float(np.sqrt(var_r.mean())), float(equivalent.mean()), float(equivalent.max()))
 
 
+def judged(programs: dict[str, prog.Program], machines: int, draws: int,
+           places: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[tuple[str, str], float]:
+    """Judging only (the simulator's truth): each program calibrates each seeded machine from
+    ``draws`` measurement runs (noise draws); the true error of the calibrated model's
+    commands at each set of poses in ``places``. Returns the RMS true |dp| (m) per
+    (criterion, place) over machines and draws."""
+    print('\ntrue error of the calibrated machine (truth-judged), um / urad: '
+          'RMS |dp|, max |dp|, RMS angle')
+    print('machine draw crit | ' + ' | '.join(f'{name:^26s}' for name in places))
+    totals: dict[tuple[str, str], list[float]] = {}
+    for seed in range(machines):
+        sim = PoseMeasurementSimulator(replace(SIM, truth=replace(SIM.truth,
+                                                                  geometry_seed=seed)))
+        assert sim.location is not None
+        for draw, criterion, program in ((d, c, p) for d in range(draws)
+                                         for c, p in programs.items()):
+            cmd = inverse(MECH, program.position, program.quaternion)
+            # the same noise seed for each criterion's run of a draw (common random numbers)
+            data = measure_program(sim.truth, sim.instrument, sim.location.tracker, SIM.targets,
+                                   ENCODERS, np.c_[cmd.lengths, cmd.thetas],
+                                   np.random.default_rng([100 + seed, draw]), SAMPLES)
+            model = idf.identify(MECH, PAYLOAD, STRUCTURE, data).model(MECH, PAYLOAD, STRUCTURE)
+            cells = []
+            for name, (p, q) in places.items():
+                commands = model.commands(p, q)
+                e_p, e_r = true_errors(sim.truth, commands.lengths, commands.thetas, p, q)
+                norm = np.linalg.norm(e_p, axis=1)
+                rms_p = float(np.sqrt(np.mean(norm**2)))
+                totals.setdefault((criterion, name), []).append(rms_p**2)
+                cells.append(f'{rms_p * 1e6:8.3f} {norm.max() * 1e6:8.3f} '
+                             f'{np.sqrt(np.mean(np.sum(e_r**2, axis=1))) * 1e6:8.2f}')
+            print(f'{seed:7d} {draw:4d} {criterion:>4} | ' + ' | '.join(cells))
+    out = {key: float(np.sqrt(np.mean(v))) for key, v in totals.items()}
+    print('RMS over the machines and draws of the true |dp|, um: ' + '; '.join(
+        f'{c} at {n} {v * 1e6:.3f}' for (c, n), v in out.items()))
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, default=3)
+    parser.add_argument('--machines', type=int, default=4)
+    parser.add_argument('--draws', type=int, default=3, help='measurement runs per machine')
     args = parser.parse_args()
     shipped = prog.ProgramSettings()
     production = prog.production_poses(MECH, shipped)
@@ -71,6 +125,7 @@ def main() -> int:
     print('seed crit |  production: RMS sp  max sp um  RMS sr urad | workspace: RMS sp  max sp'
           ' um  RMS sr urad | smin   cond    O1     O4     | select s')
     mean_var: dict[str, list[float]] = {c: [] for c in obs.CRITERIA}
+    first: dict[str, prog.Program] = {}
     for seed in range(args.seeds):
         settings = replace(shipped, seed=seed)
         p_all, q_all = prog.candidates(MECH, settings)
@@ -83,6 +138,7 @@ def main() -> int:
             chosen = prog.choose(MECH, PAYLOAD, STRUCTURE, replace(settings, criterion=criterion),
                                  PLANNING_COV, PLANNING_JOINT_SIGMA, production)
             elapsed = time.perf_counter() - t0
+            first.setdefault(criterion, chosen)
             rows = idf.information_rows(MECH, PAYLOAD, STRUCTURE, chosen.position,
                                         chosen.quaternion, PLANNING_COV, PLANNING_JOINT_SIGMA)
             programs.append((criterion, rows, elapsed))
@@ -101,6 +157,10 @@ def main() -> int:
     best = min(means, key=lambda c: means[c])
     print('mean equivalent-position variance at production, um^2: '
           + ', '.join(f'{c} {v * 1e12:.4f}' for c, v in means.items()) + f'; best {best}')
+    judged(first, args.machines, args.draws, {
+        'production': production,
+        'workspace': (workspace[0][:JUDGED_WORKSPACE_POSES],
+                      workspace[1][:JUDGED_WORKSPACE_POSES])})
     ok = best == shipped.criterion
     print(f'target: the default criterion ({shipped.criterion}) is the best at production: '
           f'{"met" if ok else "NOT met"}')

@@ -76,15 +76,6 @@ class Indices(NamedTuple):
     o3: float
     o4: float
 
-    def lines(self) -> list[str]:
-        """Markdown table rows (``| index | value |``) of every index."""
-        return [f'| {name} | {value:.4g} |' for name, value in (
-            ('smallest singular value (O3)', self.sigma_min),
-            ('largest singular value', self.sigma_max),
-            ('condition number', self.condition),
-            ('O1 (Borm & Menq)', self.o1), ('O2 = 1/condition', self.o2),
-            ('O4 (noise amplification)', self.o4))]
-
 
 def indices_of_singular_values(singular_values: ArrayLike, rows: int,
                                columns: int | None = None) -> Indices:
