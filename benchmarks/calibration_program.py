@@ -18,10 +18,11 @@ independent noise), and the true pose error of the
 calibrated model's commands is measured at the production poses and at 300 workspace poses:
 RMS and max |dp| (um), RMS angle (urad).
 
-Run: .venv/bin/python benchmarks/calibration_program.py [--seeds 3] [--machines 4]
-Target: the shipped default criterion has the smallest mean predicted equivalent-position
-variance at the production poses of the three (what the default is chosen by). Exit 1 if
-not.
+Run: .venv/bin/python benchmarks/calibration_program.py [--seeds 3] [--machines 4] [--draws 10]
+Target (the rule the shipped default criterion is chosen by): the default's truth-judged RMS
+|dp| at the production poses is within 2 % of the best criterion's there (closer than that the
+runs cannot tell them apart), and of the criteria within that band it has the smallest
+truth-judged RMS |dp| over the workspace. Exit 1 if not.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--seeds', type=int, default=3)
     parser.add_argument('--machines', type=int, default=4)
-    parser.add_argument('--draws', type=int, default=3, help='measurement runs per machine')
+    parser.add_argument('--draws', type=int, default=10, help='measurement runs per machine')
     args = parser.parse_args()
     shipped = prog.ProgramSettings()
     production = prog.production_poses(MECH, shipped)
@@ -154,16 +155,19 @@ def main() -> int:
                   f'{at_ws[2] * 1e6:12.2f} | {ind.sigma_min:5.2f} {ind.condition:6.0f} '
                   f'{ind.o1:6.3f} {ind.o4:.2e} | {elapsed:7.2f}')
     means = {c: float(np.mean(v)) for c, v in mean_var.items()}
-    best = min(means, key=lambda c: means[c])
-    print('mean equivalent-position variance at production, um^2: '
-          + ', '.join(f'{c} {v * 1e12:.4f}' for c, v in means.items()) + f'; best {best}')
-    judged(first, args.machines, args.draws, {
+    print('mean predicted equivalent-position variance at production, um^2: '
+          + ', '.join(f'{c} {v * 1e12:.4f}' for c, v in means.items()))
+    true = judged(first, args.machines, args.draws, {
         'production': production,
         'workspace': (workspace[0][:JUDGED_WORKSPACE_POSES],
                       workspace[1][:JUDGED_WORKSPACE_POSES])})
-    ok = best == shipped.criterion
-    print(f'target: the default criterion ({shipped.criterion}) is the best at production: '
-          f'{"met" if ok else "NOT met"}')
+    best_production = min(true[(c, 'production')] for c in obs.CRITERIA)
+    band = [c for c in obs.CRITERIA if true[(c, 'production')] <= 1.02 * best_production]
+    chosen = min(band, key=lambda c: true[(c, 'workspace')])
+    ok = chosen == shipped.criterion
+    print(f'within 2 % of the best at production (truth-judged): {", ".join(band)}; of those '
+          f'the best over the workspace: {chosen}; the shipped default is '
+          f'{shipped.criterion}: target {"met" if ok else "NOT met"}')
     return 0 if ok else 1
 
 

@@ -112,11 +112,8 @@ def test_program_is_within_limits_and_better_conditioned_than_random(
     from positioning_cell.core.limits import within_limits
     assert within_limits(MECH, program.position, program.quaternion).all()
     assert within_limits(MECH, program.hold_out_position, program.hold_out_quaternion).all()
-    # the volume is the D criterion's (the shipped default, I, is held to test_observability)
-    d_program = prog.choose(MECH, PAYLOAD, STRUCTURE, replace(PROGRAM, criterion='D'),
-                            POSE_COV, JOINT_SIGMA)
-    rows = idf.information_rows(MECH, PAYLOAD, STRUCTURE, d_program.position,
-                                d_program.quaternion, POSE_COV, JOINT_SIGMA)
+    rows = idf.information_rows(MECH, PAYLOAD, STRUCTURE, program.position, program.quaternion,
+                                POSE_COV, JOINT_SIGMA)
     p, q = prog.candidates(MECH, PROGRAM)
     rnd = idf.information_rows(MECH, PAYLOAD, STRUCTURE, p[:60], q[:60], POSE_COV, JOINT_SIGMA)
 

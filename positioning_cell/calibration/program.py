@@ -62,7 +62,7 @@ class ProgramSettings:
     approach: float = setting(0.0005, 'each pose is approached from this far below it along '
                               'base z, the same way every time (0: directly)', 'm', low=0.0,
                               high=0.005)
-    criterion: str = setting('I', 'design criterion of the program: D (log det of the '
+    criterion: str = setting('D', 'design criterion of the program: D (log det of the '
                              'information), I (mean predicted pose variance at the production '
                              'poses), G (worst predicted pose variance there)',
                              choices=obs.CRITERIA)
