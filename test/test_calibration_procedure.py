@@ -77,7 +77,12 @@ def test_a_small_program_identifies_the_machine_and_writes_the_file(
                   progress=lambda *a: progress.append(a))
     assert outcome.status is Status.WRITTEN and outcome.succeeded, outcome.reason
     assert outcome.loaded is True and outcome.path == out / 'calibration.yaml'
-    assert (out / 'calibration_report.md').is_file()
+    # the report and the lines give the program's observability and its promise at production
+    report = (out / 'calibration_report.md').read_text()
+    assert '## Observability of the program measured' in report, report
+    assert 'O1 (Borm & Menq)' in report and '## At the production poses' in report
+    assert any(f'chosen by criterion {PROGRAM.criterion}' in line for line in lines), lines
+    assert any('observability of the identified parameters' in line for line in lines), lines
     poses = PROGRAM.poses + PROGRAM.hold_out
     assert [(k, n) for k, n, _, _ in progress] == [(k, poses) for k in range(1, poses + 1)]
     assert [s for _, _, s, _ in progress] == ['fit'] * PROGRAM.poses + ['hold_out'] * 3

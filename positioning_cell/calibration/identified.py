@@ -13,6 +13,8 @@ import numpy as np
 
 from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
+from positioning_cell.calibration import observability as obs
+from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.calibrated import Nominal
 from positioning_cell.calibration.collect import Collected
 from positioning_cell.calibration.report import predict, write_report
@@ -68,12 +70,14 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
                     'calibrated_rms_um': round(rms(hold.calibrated[0]) * 1e6, 3),
                     'calibrated_max_um': round(float(np.linalg.norm(hold.calibrated[0], axis=1)
                                                      .max()) * 1e6, 3)}
+    ident = result.identifiability
+    indices = measured_indices(settings, collected.fit, ident.identified)
+    production = production_sigma(settings, result, str(program.get('production', '')))
     out.mkdir(parents=True, exist_ok=True)
     doc = calfile.document(result, s.mechanism, idf.IdentificationSettings().seating_force,
                            program, hold_doc)
     path = calfile.write(out / 'calibration.yaml', doc)
-    report = write_report(out, result, fit, hold)
-    ident = result.identifiability
+    report = write_report(out, result, fit, hold, indices=indices, production=[production])
     say(f'identified {ident.rank}/{len(ident.identified)} parameters from '
         f'{len(collected.fit.joints)} poses (chi2/dof {result.chi2 / result.dof:.2f}); fit '
         f'residual RMS {rms(fit.calibrated[0]) * 1e6:.2f} um (nominal model '
@@ -85,6 +89,10 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
             f'uncertainty there: {hold_doc["promised_sigma_um"]} um (1 sigma, |dp|)')
     if ident.merged:
         say('fixed (not separable): ' + ', '.join(ident.merged))
+    known = indices['identified']
+    say(f'observability of the identified parameters: smallest singular value '
+        f'{known.sigma_min:.3g}, condition {known.condition:.3g}, O1 {known.o1:.3g}; '
+        f'{production}')
     say(f'calibration: {path}\nreport:      {report}')
     figures = Figures(rms(fit.calibrated[0]),
                       rms(hold.calibrated[0]) if hold is not None else float('nan'),
@@ -92,6 +100,32 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
     return Written(path, report, figures,
                    f'identified {ident.rank}/{len(ident.identified)} parameters from '
                    f'{len(collected.fit.joints)} poses, written to {path}')
+
+
+def measured_indices(settings: Nominal, data: idf.CalibrationData,
+                     identified: np.ndarray) -> dict[str, obs.Indices]:
+    """The observability indices of the measured fit poses' scaled whitened Jacobian: of all
+    the parameters and of the ``identified`` (mask) ones."""
+    s = settings
+    rows = idf.information_rows(s.mechanism, s.payload, s.structure, data.position,
+                                data.quaternion, data.covariance, data.joint_sigma)
+    return {'all parameters': obs.observability(rows),
+            'identified': obs.observability(rows[:, :, identified])}
+
+
+def production_sigma(settings: Nominal, result: idf.Identification, production: str) -> str:
+    """A sentence: the calibrated model's own predicted pose σ (RMS and largest, position and
+    angle) at the production poses of the program file ``production`` (empty: the shipped
+    one; :func:`positioning_cell.calibration.program.production_poses`)."""
+    s = settings
+    p, q = prog.production_poses(s.mechanism, prog.ProgramSettings(production=production))
+    cov = idf.pose_uncertainty(result.x, result.covariance, s.mechanism, s.payload,
+                               s.structure, p, q)
+    sigma_p = np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2))
+    sigma_r = np.sqrt(np.trace(cov[:, 3:, 3:], axis1=1, axis2=2))
+    return (f'predicted at the {len(p)} production poses: position sigma RMS '
+            f'{np.sqrt(np.mean(sigma_p**2)) * 1e6:.2f} um (max {sigma_p.max() * 1e6:.2f} um), '
+            f'angle sigma RMS {np.sqrt(np.mean(sigma_r**2)) * 1e6:.1f} urad')
 
 
 def fit_so_far(settings: Nominal, collected: Collected) -> str:

@@ -3,29 +3,45 @@ that the identification is well conditioned, and hold-out poses for validation.
 
 Candidates are drawn uniformly in a box around home (position half-widths m, rotation-vector
 half-width rad) and kept only within every limit of the mechanism, with a margin. The program
-is chosen greedily for D-optimality: each step adds the candidate that most increases
-log det(M), M = λI + Σ_k J_kᵀ J_k the information matrix of the scaled whitened
-identification Jacobian (:func:`positioning_cell.calibration.identify.information_rows`;
-λ a weak prior of one expected size per parameter). One step is vectorised over every
-candidate: log det(M + J_cᵀ J_c) − log det(M) = log det(I₆ + J_c M⁻¹ J_cᵀ).
+is chosen greedily: each step adds the candidate that most improves the design criterion of
+M = λI + Σ_k J_kᵀ J_k, the information matrix of the scaled whitened identification Jacobian
+(:func:`positioning_cell.calibration.identify.information_rows`; λ = 1, a weak prior of one
+expected size per parameter). The criteria (:mod:`positioning_cell.calibration.observability`):
+
+- ``D``: the largest log det(M); one step is vectorised over every candidate c:
+  log det(M + J_cᵀ J_c) − log det(M) = log det(I₆ + U_c), U_c = J_c M⁻¹ J_cᵀ;
+- ``I``: the smallest mean predicted pose variance at the production poses
+  (:func:`production_poses`), tr(M⁻¹ A)/Q; adding c lowers the variance v_P at production
+  pose P by ‖L_c⁻¹ J_c M⁻¹ S_Pᵀ‖²_F (Sherman–Morrison–Woodbury,
+  (M + J_cᵀJ_c)⁻¹ = M⁻¹ − M⁻¹J_cᵀ(I₆ + U_c)⁻¹J_c M⁻¹, L_c L_cᵀ = I₆ + U_c), for every
+  candidate and production pose at once;
+- ``G``: the smallest worst predicted pose variance at the production poses, max_P v_P, from
+  the same per-pose reductions.
+
+The production poses are where the cell is used: the ``production:`` block of a program file
+(config/program.yaml), a grid over a box (default: the ISO 9283 cube of the run program).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration.identify import information_rows
+from positioning_cell.config import config_path, load_parameter_file
 from positioning_cell.core.limits import within_limits
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import Triple
+from positioning_cell.errors import ConfigError
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.moves.trajectory import MotionLimits, plan_profile
-from positioning_cell.parameters import check_fields, setting
+from positioning_cell.parameters import ParameterError, check_fields, parse, setting
 
 FloatArray = NDArray[np.float64]
 
@@ -46,20 +62,90 @@ class ProgramSettings:
     approach: float = setting(0.0005, 'each pose is approached from this far below it along '
                               'base z, the same way every time (0: directly)', 'm', low=0.0,
                               high=0.005)
+    criterion: str = setting('D', 'design criterion of the program: D (log det of the '
+                             'information), I (mean predicted pose variance at the production '
+                             'poses), G (worst predicted pose variance there)',
+                             choices=obs.CRITERIA)
+    production: str = setting('', 'program file whose production: block says where the cell '
+                              'is used (empty: the shipped config/program.yaml)')
 
     def __post_init__(self) -> None:
         check_fields(self)
 
 
+@dataclass(frozen=True)
+class ProductionSettings:
+    """The ``production:`` block of a program file: the poses the cell is used at, a grid of
+    ``points`` per axis over a box (base frame), each at the home orientation and, with
+    ``tilt`` > 0, also tilted by ±``tilt`` about base x and about base y."""
+
+    centre: Triple = setting((0.0, 0.0, 0.196), 'centre of the production box', 'm')
+    half_widths: Triple = setting((0.005, 0.005, 0.005), 'half-widths of the production box',
+                                  'm')
+    points: int = setting(3, 'grid points per axis (1: the centre only)', low=1, high=9)
+    tilt: float = setting(0.0, 'also these tilts about base x and y at every point (0: home '
+                          'orientation only)', 'rad', low=0.0, high=0.5)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if min(self.half_widths) < 0.0:
+            raise ParameterError('half_widths', self.half_widths, 'must be >= 0')
+
+
 class Program(NamedTuple):
     """Chosen poses: calibration (N, 3) m / (N, 4) and hold-out (H, 3) / (H, 4), base frame;
-    ``log_det`` of the information matrix after each pick (N,)."""
+    ``log_det`` of the information matrix after each pick (N,); the ``criterion`` it was
+    chosen by and that criterion's value after each pick (N,) (``values``: −log det, or m²);
+    the observability ``indices`` of its stacked Jacobian; the predicted pose σ (m,
+    equivalent position: :mod:`~positioning_cell.calibration.observability`) at each
+    production pose (Q,)."""
 
     position: FloatArray
     quaternion: FloatArray
     hold_out_position: FloatArray
     hold_out_quaternion: FloatArray
     log_det: FloatArray
+    criterion: str = 'D'
+    values: FloatArray | None = None
+    indices: obs.Indices | None = None
+    production_sigma: FloatArray | None = None
+
+
+def production_poses(mech: Mechanism, settings: ProgramSettings
+                     ) -> tuple[FloatArray, FloatArray]:
+    """The production poses (Q, 3) m, (Q, 4) of the ``production:`` block of the program file
+    ``settings.production`` (default: the shipped config/program.yaml; a file without the
+    block: :class:`ProductionSettings` defaults), kept within every limit of the mechanism.
+    ConfigError naming the key for a bad block, or when no pose is within limits."""
+    path = Path(settings.production) if settings.production else config_path('program.yaml')
+    block = load_parameter_file(path).get('production') or {}
+    if not isinstance(block, dict):
+        raise ConfigError(f'{path}: production: expected a mapping')
+    try:
+        production = parse(ProductionSettings, block, 'production.')
+    except ValueError as err:  # ParameterError is one
+        raise ConfigError(f'{path}: {err}') from err
+    return production_grid(mech, production)
+
+
+def production_grid(mech: Mechanism, production: ProductionSettings
+                    ) -> tuple[FloatArray, FloatArray]:
+    """The poses (Q, 3) m, (Q, 4) of ``production`` (:class:`ProductionSettings`) within every
+    limit of the mechanism (ConfigError when none is)."""
+    axes = [c + np.linspace(-h, h, production.points)
+            for c, h in zip(production.centre, production.half_widths, strict=True)]
+    grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, 3)
+    rotvecs = [np.zeros(3)]
+    if production.tilt > 0.0:
+        rotvecs += [sign * production.tilt * axis for axis in np.eye(3)[:2] for sign in (1, -1)]
+    quats = Rotation.from_rotvec(np.asarray(rotvecs)).as_quat()
+    p = np.repeat(grid, len(quats), axis=0)
+    q = np.tile(quats, (grid.shape[0], 1))
+    ok = within_limits(mech, p, q)
+    if not ok.any():
+        raise ConfigError('production: no production pose is within the limits of the '
+                          'mechanism')
+    return p[ok], q[ok]
 
 
 def candidates(mech: Mechanism, settings: ProgramSettings) -> tuple[FloatArray, FloatArray]:
@@ -74,36 +160,94 @@ def candidates(mech: Mechanism, settings: ProgramSettings) -> tuple[FloatArray, 
 
 
 def choose(mech: Mechanism, payload: Payload, structure: Structure, settings: ProgramSettings,
-           pose_covariance: FloatArray, joint_sigma: FloatArray) -> Program:
-    """The measurement program (module docstring): ``settings.poses`` D-optimal poses and
-    ``settings.hold_out`` other candidates drawn at random for validation. ``pose_covariance``
-    (6, 6) is the expected covariance of one averaged pose measurement, ``joint_sigma`` (6,)
-    of the averaged encoder readings."""
+           pose_covariance: FloatArray, joint_sigma: FloatArray,
+           production: tuple[FloatArray, FloatArray] | None = None) -> Program:
+    """The measurement program (module docstring): ``settings.poses`` poses chosen by
+    ``settings.criterion`` and ``settings.hold_out`` other candidates drawn at random for
+    validation. ``pose_covariance`` (6, 6) is the expected covariance of one averaged pose
+    measurement, ``joint_sigma`` (6,) of the averaged encoder readings; ``production`` the
+    production poses (Q, 3), (Q, 4) (None: :func:`production_poses` of ``settings``)."""
     p, q = candidates(mech, settings)
     need = settings.poses + settings.hold_out
     if p.shape[0] < need:
         raise ValueError(f'only {p.shape[0]} of {settings.candidates} candidates are within '
                          f'limits; {need} needed: draw more candidates or a smaller box')
     rows = information_rows(mech, payload, structure, p, q, pose_covariance, joint_sigma)
-    count = rows.shape[2]
-    info = np.eye(count)
+    sens = obs.pose_sensitivity(mech, payload, structure,
+                                *(production or production_poses(mech, settings)))
+    idx, values, log_det = select(rows, sens, settings.poses, settings.criterion)
     free = np.ones(p.shape[0], dtype=bool)
+    free[idx] = False
+    rng = np.random.default_rng(settings.seed + 1)
+    hold = rng.choice(np.flatnonzero(free), settings.hold_out, replace=False)
+    order = visiting_order(mech, p[idx], q[idx])
+    sigma = np.sqrt(obs.predicted_variance(obs.information(rows[idx]), sens))
+    return Program(p[idx][order], q[idx][order], p[hold], q[hold], log_det,
+                   settings.criterion, values, obs.observability(rows[idx]), sigma)
+
+
+def select(rows: FloatArray, sensitivity: FloatArray, count: int, criterion: str,
+           exchange_passes: int = 2) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+    """Choice of ``count`` of the candidates' rows (C, 6, n) by ``criterion`` (module
+    docstring; ``sensitivity`` (Q, 6, n) the production poses' S_P): greedy, then up to
+    ``exchange_passes`` passes of exchange (Fedorov's: each pose in turn taken out and the
+    best candidate put in its place, when that improves the criterion). Returns the picked
+    indices (count,) in the order greedy picked them (exchanged ones in their place), the
+    criterion's value after each greedy pick (count,; the last: of the final program) and log
+    det M likewise (count,)."""
+    if criterion not in obs.CRITERIA:
+        raise ValueError(f'criterion {criterion!r}: one of {", ".join(obs.CRITERIA)}')
+    info = np.eye(rows.shape[2])
+    free = np.ones(rows.shape[0], dtype=bool)
     picked: list[int] = []
+    values: list[float] = []
     log_det: list[float] = []
-    for _ in range(settings.poses):
-        inv = np.linalg.inv(info)
-        gain = np.linalg.slogdet(np.eye(6) + rows @ inv @ np.swapaxes(rows, 1, 2))[1]
+    for _ in range(count):
+        gain = _gains(criterion, info, rows, sensitivity)
         gain[~free] = -np.inf
         k = int(np.argmax(gain))
         picked.append(k)
         free[k] = False
         info = info + rows[k].T @ rows[k]
+        values.append(obs.criterion_value(criterion, info, sensitivity))
         log_det.append(float(np.linalg.slogdet(info)[1]))
-    rng = np.random.default_rng(settings.seed + 1)
-    hold = rng.choice(np.flatnonzero(free), settings.hold_out, replace=False)
-    idx = np.asarray(picked)
-    order = visiting_order(mech, p[idx], q[idx])
-    return Program(p[idx][order], q[idx][order], p[hold], q[hold], np.asarray(log_det))
+    for _ in range(exchange_passes):
+        swapped = False
+        for slot, old in enumerate(picked):
+            without = info - rows[old].T @ rows[old]
+            gain = _gains(criterion, without, rows, sensitivity)
+            gain[~free] = -np.inf
+            gain[old] = _gains(criterion, without, rows[old:old + 1], sensitivity)[0]
+            k = int(np.argmax(gain))
+            if gain[k] > gain[old] + 1e-9 * abs(gain[old]):
+                picked[slot], free[old], free[k] = k, True, False
+                info = without + rows[k].T @ rows[k]
+                swapped = True
+        if not swapped:
+            break
+    values[-1] = obs.criterion_value(criterion, info, sensitivity)
+    log_det[-1] = float(np.linalg.slogdet(info)[1])
+    return np.asarray(picked, dtype=np.int64), np.asarray(values), np.asarray(log_det)
+
+
+def _gains(criterion: str, info: FloatArray, rows: FloatArray,
+           sensitivity: FloatArray) -> FloatArray:
+    """How much adding each candidate (C, 6, n) improves ``criterion`` at ``info`` (C,), larger
+    better (module docstring)."""
+    k = rows @ np.linalg.inv(info)                          # J_c M⁻¹, (C, 6, n)
+    u = np.eye(6) + k @ np.swapaxes(rows, 1, 2)             # I₆ + U_c
+    if criterion == 'D':
+        out: FloatArray = np.linalg.slogdet(u)[1]
+        return out
+    q_count = sensitivity.shape[0]
+    x = np.linalg.solve(np.linalg.cholesky(u), k @ sensitivity.reshape(-1, rows.shape[2]).T)
+    drop = np.einsum('cap,cap->cp', x, x).reshape(-1, q_count, 6).sum(axis=2)  # (C, Q)
+    if criterion == 'I':
+        out = drop.mean(axis=1)
+        return out
+    variance = obs.predicted_variance(info, sensitivity)
+    out = variance.max() - (variance - drop).max(axis=1)
+    return out
 
 
 def _separation(mech: Mechanism, p: FloatArray, q: FloatArray, p0: FloatArray,

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.identify import CalibrationData, Identification
 from positioning_cell.calibration.machine import MachineModel
+from positioning_cell.calibration.observability import Indices
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import pose_error
 from positioning_cell.plotting import figure, save
@@ -58,10 +59,30 @@ def summary_lines(label: str, prediction: Prediction) -> list[str]:
     return rows
 
 
+def observability_lines(indices: dict[str, Indices]) -> list[str]:
+    """A Markdown table of observability indices, a column per set of parameters (each
+    :class:`Indices`: :mod:`positioning_cell.calibration.observability`)."""
+    if not indices:
+        return []
+    names = ('rows', 'columns', 'sigma_min', 'sigma_max', 'condition', 'o1', 'o2', 'o4')
+    words = ('rows (measurements)', 'columns (parameters)', 'smallest singular value (O3)',
+             'largest singular value', 'condition number', 'O1 (Borm & Menq)',
+             'O2 (1 / condition)', 'O4 (noise amplification)')
+    lines = ['| index | ' + ' | '.join(indices) + ' |', '|---|' + '---|' * len(indices)]
+    for name, word in zip(names, words, strict=True):
+        lines.append(f'| {word} | ' + ' | '.join(f'{getattr(ind, name):.4g}'
+                                                 for ind in indices.values()) + ' |')
+    return lines
+
+
 def write_report(folder: Path, result: Identification, fit: Prediction,
-                 hold_out: Prediction | None, title: str = 'Calibration') -> Path:
+                 hold_out: Prediction | None, title: str = 'Calibration',
+                 indices: dict[str, Indices] | None = None,
+                 production: list[str] | None = None) -> Path:
     """``folder/calibration_report.md`` with ``calibration_errors.png`` and
-    ``calibration_singular_values.png``; returns the Markdown path."""
+    ``calibration_singular_values.png``; returns the Markdown path. ``indices``: the
+    observability indices of the program measured (a column per set of parameters);
+    ``production``: lines on what the calibration predicts at the production poses."""
     folder.mkdir(parents=True, exist_ok=True)
     sets = [('fit', fit)] + ([('hold-out', hold_out)] if hold_out is not None else [])
     fig, axes = figure(6 * len(sets), 3.5, 1, len(sets), constrained=True)
@@ -108,6 +129,13 @@ def write_report(folder: Path, result: Identification, fit: Prediction,
               'Singular values of the whitened Jacobian in units of each parameter\'s expected '
               'size: ' + ', '.join(f'{v:.3g}' for v in ident.singular_values) + '.', '',
               '![singular values](calibration_singular_values.png)', '']
+    if indices:
+        lines += ['## Observability of the program measured', '',
+                  'Indices of the scaled whitened identification Jacobian of the fit poses '
+                  '(positioning_cell.calibration.observability; larger is better except the '
+                  'condition number).', '', *observability_lines(indices), '']
+    if production:
+        lines += ['## At the production poses', '', *production, '']
     path = folder / 'calibration_report.md'
     path.write_text('\n'.join(lines))
     return path

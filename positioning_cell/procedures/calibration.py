@@ -5,7 +5,9 @@
 :func:`calibrate`: the positioner is homed and set to compensation mode ``none`` (its mode is
 put back afterwards, whatever happens); the covariance of an averaged tracker pose is taken
 from the tracker's own reading at rest; the measurement program
-(:func:`positioning_cell.calibration.program.choose`: D-optimal poses and hold-out poses) is
+(:func:`positioning_cell.calibration.program.choose`: poses chosen by the D, I or G criterion,
+and hold-out poses; its criterion, predicted pose σ at the production poses and observability
+indices said) is
 driven pose by pose, each approached the same way (``approach`` m below it along base z, then
 the pose); at each pose ``samples`` tracker readings are taken with the encoder values over
 the same window, and a marker (:class:`~positioning_cell.calibration.collect.Marker`, with the
@@ -137,7 +139,8 @@ def _calibrate(port: CellPort, machine: PositionerSettings, program: prog.Progra
         if port.recorded(names.CALIBRATION)
         else 'no recorder took the markers: this run cannot be repeated from a bag')
     doc = {'poses': program.poses, 'hold_out': program.hold_out, 'samples': samples,
-           'seed': program.seed, 'candidates': program.candidates}
+           'seed': program.seed, 'candidates': program.candidates,
+           'criterion': program.criterion, 'production': program.production}
     try:
         written = identify_and_write(machine, col.assemble(measured), out, doc, say)
     except idf.IdentificationError as err:
@@ -187,7 +190,8 @@ def _measure(port: CellPort, machine: PositionerSettings, program: prog.ProgramS
                              s.settle_time + samples / TRACKER_RATE_HZ, program.approach,
                              s.settle_time)
     say(f'calibration program: {len(chosen.position)} poses + '
-        f'{len(chosen.hold_out_position)} hold-out, about {estimate:.0f} s of cell time')
+        f'{len(chosen.hold_out_position)} hold-out, about {estimate:.0f} s of cell time; '
+        + program_words(chosen))
     run = datetime.datetime.now(datetime.UTC).isoformat(timespec='milliseconds')
     measured: list[col.PoseData] = []
     for k, (which, p, q) in enumerate(plan, start=1):
@@ -207,6 +211,21 @@ def _measure(port: CellPort, machine: PositionerSettings, program: prog.ProgramS
         if progress is not None:
             progress(k, len(plan), which, deviation)
     return measured
+
+
+def program_words(chosen: prog.Program) -> str:
+    """What the program promises, in a few words: its criterion, the predicted pose σ at the
+    production poses (equivalent position, RMS) and its observability indices."""
+    words = f'chosen by criterion {chosen.criterion}'
+    if chosen.production_sigma is not None:
+        sigma = chosen.production_sigma
+        words += (f', predicted sigma at the {len(sigma)} production poses '
+                  f'{np.sqrt(np.mean(sigma**2)) * 1e6:.2f} um RMS')
+    if chosen.indices is not None:
+        ind = chosen.indices
+        words += (f'; smallest singular value {ind.sigma_min:.3g}, condition '
+                  f'{ind.condition:.3g}, O1 {ind.o1:.3g}')
+    return words
 
 
 def _measure_pose(port: CellPort, program: prog.ProgramSettings, samples: int,

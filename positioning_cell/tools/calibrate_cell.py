@@ -2,12 +2,16 @@
 
 Live (default): the calibration procedure (:func:`positioning_cell.procedures.calibration.
 calibrate`) on the cell of ``ROS_DOMAIN_ID``: the positioner is homed and set to mode
-``none``; the measurement program (D-optimal poses and hold-out poses) is driven through
-``/positioner/move_to_pose``; at each pose ``--samples`` tracker readings are taken and a
-marker goes out on ``/cell/calibration``; a line per pose says how far the measured pose is
-from the commanded one and, every ten poses, the residual of a fit so far. Then the machine is
-identified, validated on the hold-out poses, and ``OUT/calibration.yaml`` and
-``OUT/calibration_report.md`` (with plots) are written; the positioner's mode is put back.
+``none``; the measurement program (poses chosen by ``--criterion`` D, I or G, the latter two
+for the production poses of ``--production``'s ``production:`` block, and hold-out poses;
+the program's criterion, predicted pose sigma there and observability indices are said) is
+driven through ``/positioner/move_to_pose``; at each pose ``--samples`` tracker readings are
+taken and a marker goes out on ``/cell/calibration``; a line per pose says how far the
+measured pose is from the commanded one and, every ten poses, the residual of a fit so far.
+Then the machine is identified, validated on the hold-out poses, and ``OUT/calibration.yaml``
+and ``OUT/calibration_report.md`` (with plots, the observability indices of the poses
+measured and the predicted pose sigma at the production poses) are written; the
+positioner's mode is put back.
 ``--load`` also sets the positioner's ``compensation.calibration_file`` to the new file.
 Ctrl-C / SIGTERM stops the move (``/positioner/stop``), puts the mode back and writes nothing.
 
@@ -32,6 +36,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from positioning_cell.calibration import identify as idf
+from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.bag import read_bag
 from positioning_cell.calibration.identified import identify_and_write
@@ -128,6 +133,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--samples', type=int, default=10,
                         help='tracker readings averaged per pose')
     parser.add_argument('--seed', type=int, default=defaults.seed, help='candidate draw')
+    parser.add_argument('--criterion', choices=obs.CRITERIA, default=defaults.criterion,
+                        help='design criterion of the program: D (log det of the information), '
+                        'I (mean predicted pose variance at the production poses), G (worst '
+                        f'there); default {defaults.criterion}')
+    parser.add_argument('--production', type=Path, help='program file whose production: block '
+                        'says where the cell is used (default: the shipped config/program.yaml)')
     parser.add_argument('--approach', type=float, default=defaults.approach,
                         help='approach each pose from this far below it, m (0: directly)')
     parser.add_argument('--load', action='store_true',
@@ -136,7 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         machine = machine_settings(args.config or config_path('cell.yaml'))
         settings = replace(defaults, poses=args.poses, hold_out=args.hold_out, seed=args.seed,
-                           approach=args.approach)
+                           approach=args.approach, criterion=args.criterion,
+                           production=str(args.production or ''))
     except PositioningError as err:
         say(f'calibrate_cell: error: {err}')
         return Exit.USAGE
