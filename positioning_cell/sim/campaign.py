@@ -14,9 +14,9 @@ sensor's reading (with its error) and that approach direction with each pose.
 
 from __future__ import annotations
 
-import numpy as np
 from dataclasses import dataclass
 
+import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.calibration import parameters as cp

@@ -199,7 +199,7 @@ class Truth(MachineModel):
         mech, fx = self.mechanism, self.effects
         rigid = inverse(mech, position, quaternion)
         held = compensate(mech, self.clearance, position, quaternion)
-        shift = np.c_[held.lengths - rigid.lengths, held.thetas - rigid.thetas]
+        shift: FloatArray = np.c_[held.lengths - rigid.lengths, held.thetas - rigid.thetas]
         n = len(position)
         u_off, s_off = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
         if fx.thermal is not None:
