@@ -46,7 +46,7 @@ FloatArray = NDArray[np.float64]
 
 _ZERO = ((0.0, 0.0, 0.0),) * 3
 #: Fixed point of the effects: largest change of the joint shift at convergence (m, rad).
-_TOLERANCE = 1e-13
+_TOLERANCE = 1e-12
 _MAX_ITERATIONS = 30
 
 
