@@ -148,7 +148,9 @@ class Effects:
 class Truth(MachineModel):
     """The simulated machine (a :class:`~positioning_cell.calibration.machine.MachineModel`):
     ``mechanism`` with its joint-centre geometric errors, its ``clearance`` (None: none), its
-    encoders' zero offsets, and its ``effects`` outside that model (module docstring)."""
+    encoders' zero offsets, and its ``effects`` outside that model (module docstring).
+    :meth:`commands` stays the identified model's inverse (the effects are not inverted:
+    nothing but judging uses the truth, and it judges with :meth:`poses`)."""
 
     effects: Effects = field(default_factory=Effects)
 
