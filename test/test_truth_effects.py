@@ -318,3 +318,24 @@ def test_the_simulators_true_pose_follows_the_approach() -> None:
     assert d is not None
     moved = np.linalg.norm(poses[1] - poses[3])
     assert moved > 0.5 * d.length_band.min()
+
+
+def test_the_fixed_point_solves_the_machine_and_a_too_soft_one_has_no_pose() -> None:
+    """The pose of the full machine (every effect on) satisfies IK(x) + shift(x) = the real
+    joints it was commanded to; a θ drive too soft to hold the payload gives no pose."""
+    truth = SETTINGS.true_machine()
+    cond = Conditions(np.full(N, 22.0), np.full((N, 3), 23.0),
+                      np.array([[1.0, -1.0, 1.0, -1.0, 1.0, 1.0]] * N))
+    got = truth.poses(CMD.lengths, CMD.thetas, conditions=cond)
+    assert np.all(got.converged)
+    fx = truth.effects
+    assert fx.drives is not None and fx.thermal is not None
+    real_l, real_t = fx.drives.actual(CMD.lengths + truth.length_offsets,
+                                      CMD.thetas + truth.theta_offsets, cond.approach)
+    real_l = fx.thermal.expanded_lengths(real_l, cond.legs)
+    needed = inverse(truth.mechanism, got.position, got.quaternion)
+    shift = truth.joint_shift(got.position, got.quaternion, cond.air)
+    np.testing.assert_allclose(needed.lengths + shift[:, :3], real_l, atol=1e-11, rtol=0.0)
+    np.testing.assert_allclose(needed.thetas + shift[:, 3:], real_t, atol=1e-10, rtol=0.0)
+    soft = machine(only(compliance={'theta_stiffness': 100.0}))
+    assert not np.any(soft.poses(CMD.lengths, CMD.thetas).converged)
