@@ -20,15 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from positioning_cell.parameters import ParameterError, check_fields, setting
+from positioning_cell.parameters import check_fields, setting
+from positioning_cell.sim.effects import check_ordered
 
 FloatArray = NDArray[np.float64]
 Pair = tuple[float, float]
-
-
-def _ordered(name: str, value: Pair) -> None:
-    if value[0] > value[1]:
-        raise ParameterError(name, value, 'must be [low, high] with low <= high')
 
 
 @dataclass(frozen=True)
@@ -53,8 +49,8 @@ class DriveErrorParameters:
 
     def __post_init__(self) -> None:
         check_fields(self)
-        _ordered('length_reversal', self.length_reversal)
-        _ordered('theta_reversal', self.theta_reversal)
+        check_ordered('length_reversal', self.length_reversal)
+        check_ordered('theta_reversal', self.theta_reversal)
 
     def draw(self, reference_length: float) -> DriveErrors:
         """The drive errors of one machine (seeded)."""

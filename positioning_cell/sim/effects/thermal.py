@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from positioning_cell.parameters import ParameterError, check_fields, setting
+from positioning_cell.parameters import check_fields, setting
+from positioning_cell.sim.effects import check_ordered
 
 FloatArray = NDArray[np.float64]
 
@@ -65,9 +66,7 @@ class ThermalParameters:
 
     def __post_init__(self) -> None:
         check_fields(self)
-        if self.noise_periods[0] > self.noise_periods[1]:
-            raise ParameterError('noise_periods', self.noise_periods,
-                                 'must be [low, high] with low <= high')
+        check_ordered('noise_periods', self.noise_periods)
 
     def draw(self) -> Thermal:
         """The thermal behaviour of one cell (seeded)."""
