@@ -62,8 +62,9 @@ MARKERS = '/positioner/markers'
 COORDINATE_SYSTEMS = '/positioner/coordinate_systems'
 MEASURED_POSE = '/metrology/pose'
 TRUE_POSE = '/sim/platform/true_pose'
-#: The cell's measured air temperature (sensor_msgs/Temperature, degC): what the compensation
-#: and the tracker's refraction correction use.
+#: The cell's air temperature (sensor_msgs/Temperature, °C, frame ``base``): the sensor's
+#: reading, with its own error (the pose_measurement simulator publishes it); what the
+#: compensation and the tracker's refraction correction use.
 AIR_TEMPERATURE = '/cell/air_temperature'
 POSITION_ERROR = '/accuracy/position_error'
 ORIENTATION_ERROR = '/accuracy/orientation_error'

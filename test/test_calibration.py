@@ -38,7 +38,9 @@ JOINT_SIGMA = np.r_[[4e-7] * 3, [3e-6] * 3]
 
 
 def simulator(geometry_seed: int, **payload: Any) -> PoseMeasurementSimulator:
-    truth = replace(SETTINGS.truth, geometry_seed=geometry_seed)
+    """The simulated machine of ``geometry_seed``, exactly of the identified model (its
+    effects outside the model off: these tests claim recovery of that model)."""
+    truth = replace(SETTINGS.truth.without_effects(), geometry_seed=geometry_seed)
     return PoseMeasurementSimulator(replace(SETTINGS, truth=truth,
                                             payload=replace(PAYLOAD, **payload)))
 

@@ -18,7 +18,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rcl_interfaces.srv import GetParameters
 from scipy import stats
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, Temperature
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
@@ -29,6 +29,7 @@ from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
 from positioning_cell.parameters import parse
 from positioning_cell.ros.messages import joint_state, pose_arrays
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.sim.effects.history import MachineHistory
 from positioning_cell.sim.pose_measurement import TARGETS_PREFIX, PoseMeasurementSettings
 
 pytestmark = pytest.mark.nodes
@@ -63,6 +64,7 @@ class Run:
     stamp: Time
     true_poses: list[PoseStamped]
     measured: list[PoseWithCovarianceStamped]
+    air: list[Temperature]
     diagnostics: list[DiagnosticArray]
     poses_before_home: int  # true poses after the malformed joint state
 
@@ -75,13 +77,18 @@ def run() -> Iterator[Run]:
     mech = Mechanism.from_params(params['mechanism'])
     home = inverse(mech, mech.home_position, mech.home_quaternion)
     truth_machine = parse(PoseMeasurementSettings, params).true_machine()
-    expected = truth_machine.poses(home.lengths, home.thetas)
+    # The machine's conditions at its first joint state: the start of its history.
+    history = MachineHistory(truth_machine.effects.thermal)
+    history.update(np.r_[home.lengths[0], home.thetas[0]], 0.0)
+    expected = truth_machine.poses(home.lengths, home.thetas,
+                                   conditions=history.conditions(0.0))
     stamp = Time(sec=1234, nanosec=5678)
     with in_process() as ros:
         client = ros.client
         ros.start(PoseMeasurementNode)
         true_poses = client.collect(PoseStamped, '/sim/platform/true_pose', STREAM_QOS)
         measured = client.collect(PoseWithCovarianceStamped, '/metrology/pose', STREAM_QOS)
+        air = client.collect(Temperature, '/cell/air_temperature', STREAM_QOS)
         diagnostics = client.collect(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
         joints = client.node.create_publisher(JointState, '/sim/legs/true_joint_states',
                                               STREAM_QOS)
@@ -94,7 +101,8 @@ def run() -> Iterator[Run]:
         before_home = len(true_poses)
         joints.publish(joint_state(JOINT_NAMES, stamp, [*home.lengths[0], *home.thetas[0]]))
         wait_until(lambda: true_poses and len(measured) >= 10, 30, 'true and measured poses')
-        yield Run(ros, params, mech, expected, stamp, true_poses, measured, diagnostics,
+        wait_until(lambda: len(air) >= 2, 30, 'air temperatures')
+        yield Run(ros, params, mech, expected, stamp, true_poses, measured, air, diagnostics,
                   before_home)
 
 
@@ -108,9 +116,23 @@ def test_the_true_pose_is_the_true_machines_with_its_clearance(run: Run) -> None
     truth = run.true_poses[0]
     assert truth.header.frame_id == 'base' and truth.header.stamp == run.stamp
     p_true, q_true = pose_arrays(truth.pose)
-    np.testing.assert_allclose(p_true, run.expected.position[0], atol=1e-12)
-    np.testing.assert_allclose(q_true, run.expected.quaternion[0], atol=1e-12)
+    # The node's clock starts with its first timer or joint state, a few seconds before the
+    # home joints: the air drifts by < 0.01 K meanwhile, moving the machine by < 1e-10 m.
+    np.testing.assert_allclose(p_true, run.expected.position[0], atol=1e-10)
+    np.testing.assert_allclose(q_true, run.expected.quaternion[0], atol=1e-9)
     assert np.linalg.norm(p_true - run.mech.home_position) > 10e-6  # the clearance shows
+
+
+def test_the_air_temperature_is_the_sensors_reading(run: Run) -> None:
+    thermal = run.params['truth']['thermal']
+    variance = thermal['sensor_offset_sigma']**2 + thermal['sensor_noise']**2
+    first, second = list(run.air)[:2]
+    for msg in (first, second):
+        assert msg.header.frame_id == 'base'
+        assert msg.variance == pytest.approx(variance, rel=1e-12)
+        # air_start plus a few seconds of drift and noise, plus the sensor's error
+        assert abs(msg.temperature - thermal['air_start']) < 5 * thermal['air_noise'] + 0.5
+    assert first.temperature != second.temperature  # fresh noise
 
 
 def test_measurements_are_fresh_noise_within_their_covariance(run: Run) -> None:

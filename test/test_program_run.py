@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from positioning_cell.analysis.program import Calibrating, Program, ProgramStep
 from positioning_cell.calibration.program import ProgramSettings
 from positioning_cell.config import config_path
 from positioning_cell.motion.settings import PositionerSettings, machine_settings
-from positioning_cell.procedures.judging import simulation_truth
+from positioning_cell.procedures.judging import simulator
 from positioning_cell.procedures.port import CellPort, Moved, ProcedureError
 from positioning_cell.procedures.program_run import (
     CALIBRATION_FAILED,
@@ -29,6 +30,7 @@ from positioning_cell.procedures.program_run import (
     drive,
     run_program,
 )
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.testing.instant_port import InstantPort
 
 #: Three poses of the shipped program's ISO 9283 cube (base frame, m; home orientation).
@@ -67,12 +69,16 @@ class Port(InstantPort):
         return super().move(position, quaternion, tolerance)  # type: ignore[arg-type]
 
 
-@pytest.fixture
-def port(tmp_path: Path) -> Port:
-    made = Port.from_config(tmp_path)
+def _port(folder: Path, sim_settings: PoseMeasurementSettings | None = None) -> Port:
+    made = Port.from_config(folder, sim_settings=sim_settings)
     assert isinstance(made, Port)
     made.refuse, made.silent, made.move_modes = set(), set(), []
     return made
+
+
+@pytest.fixture
+def port(tmp_path: Path) -> Port:
+    return _port(tmp_path)
 
 
 def _steps(port: InstantPort) -> list[ProgramStep]:
@@ -152,12 +158,17 @@ def test_a_move_without_an_answer_ends_the_run(port: Port) -> None:
     assert len([line for line in lines if line.startswith('[')]) == 1
 
 
-def test_the_calibration_is_loaded_judged_and_noted(port: Port, tmp_path: Path) -> None:
+def test_the_calibration_is_loaded_judged_and_noted(tmp_path: Path) -> None:
     """A calibrator that identifies the machine exactly: the compensated modes use it (the
     model mode comes close to the truth), the run's note says so, the truth table is written
-    from the config's simulator; a failed calibration leaves the a-priori model."""
-    truth = simulation_truth(config_path())
-    assert truth is not None
+    from the config's simulator; a failed calibration leaves the a-priori model. The machine
+    is exactly of the identified model (its effects outside it off), so that an exact
+    calibration exists."""
+    sim_settings = simulator(config_path())
+    assert sim_settings is not None
+    sim_settings = replace(sim_settings, truth=sim_settings.truth.without_effects())
+    port = _port(tmp_path, sim_settings)
+    truth = sim_settings.true_machine()
     asked: list[tuple[PositionerSettings, ProgramSettings, int, Path]] = []
 
     def calibrator(port: CellPort, machine: PositionerSettings, settings: ProgramSettings,

@@ -7,7 +7,8 @@ At start the tracker locates itself on the base reference targets (``locate.*``;
 /sim/platform/true_pose, stamped with the joint state's time → at ``rate_hz`` a tracker reading
 of the SMRs, converted to ``base`` with the located registration, the fitted pose and the
 cell's own covariance of it (datasheet noise and registration uncertainty) on /metrology/pose,
-stamped with the time of the truth it measured.
+stamped with the time of the truth it measured. At ``air_sensor.rate_hz`` the air-temperature
+sensor's reading on /cell/air_temperature (its variance the sensor's own error).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, Temperature
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
@@ -54,9 +55,11 @@ class PoseMeasurementNode(Node):
                                                STREAM_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
                                                DIAGNOSTICS_QOS)
+        self._air_pub = self.create_publisher(Temperature, names.AIR_TEMPERATURE, STREAM_QOS)
         self.create_timer(1.0 / settings.truth_rate_hz, self._update_truth)
         self.create_timer(1.0 / settings.rate_hz, self._measure)
         self.create_timer(1.0, self._diagnostics)
+        self.create_timer(1.0 / settings.air_sensor.rate_hz, self._air_temperature)
         self.create_service(Trigger, names.LOCATE_TRACKER, self._locate, qos_profile=SERVICE_QOS)
 
     def _log_location(self) -> None:
@@ -80,9 +83,10 @@ class PoseMeasurementNode(Node):
     def _update_truth(self) -> None:
         msg = self._joints.newest()
         if msg is not None:
-            stamp = msg.header.stamp
+            stamp, now = msg.header.stamp, self.get_clock().now().to_msg()
+            # The effects' clock is the node's (the stamp is the truth's, opaque).
             self.sim.joints(m.joint_values(msg, JOINT_NAMES),
-                            self.get_clock().now().to_msg() if m.stamp_is_zero(stamp) else stamp)
+                            now if m.stamp_is_zero(stamp) else stamp, m.seconds(now))
         true = self.sim.update_truth()
         if true is not None:
             self._true_pub.publish(m.pose_stamped(true.position, true.quaternion, true.stamp))
@@ -96,6 +100,14 @@ class PoseMeasurementNode(Node):
         msg.pose.pose = m.pose_msg(reading.fit.position[0], reading.fit.quaternion[0])
         msg.pose.covariance = reading.fit.covariance[0].ravel().tolist()
         self._pose_pub.publish(msg)
+
+    def _air_temperature(self) -> None:
+        now = self.get_clock().now().to_msg()
+        reading = self.sim.air_temperature(m.seconds(now))
+        msg = Temperature()
+        msg.header.stamp, msg.header.frame_id = now, names.BASE_FRAME
+        msg.temperature, msg.variance = reading.temperature, reading.variance
+        self._air_pub.publish(msg)
 
     def _diagnostics(self) -> None:
         level, message, values = self.sim.diagnostics()

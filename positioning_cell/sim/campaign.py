@@ -4,9 +4,17 @@ where its commanded encoder values put it; the encoders read those values with t
 and resolution, averaged over ``samples`` readings; the tracker measures the true pose
 ``samples`` times and the cell averages the fits. The result holds only what the cell would
 see (:class:`~positioning_cell.calibration.identify.CalibrationData`); the truth stays here.
+
+The machine's effects outside the identified model follow the run (:class:`Timing`): pose k
+is measured ``start + k·seconds_per_pose`` s after the start, so the air drifts over the run;
+the legs warm with the travel between poses; each axis's reversal error follows the
+direction the commanded sequence last moved it in. The cell records the air-temperature
+sensor's reading (with its error) and that approach direction with each pose.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -20,6 +28,8 @@ from positioning_cell.errors import ConvergenceError
 from positioning_cell.metrology.instrument import Tracker
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.moves.correction import mean_pose
+from positioning_cell.sim.effects.history import sequence_conditions
+from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.encoders import EncoderSettings, quantise
 from positioning_cell.sim.tracker import SimulatedTracker, observe
 from positioning_cell.sim.truth import Truth
@@ -27,15 +37,35 @@ from positioning_cell.sim.truth import Truth
 FloatArray = NDArray[np.float64]
 
 
+@dataclass(frozen=True)
+class Timing:
+    """When the poses of an offline run are measured: the first ``start`` s after the start
+    of the machine's day, then one every ``seconds_per_pose`` s (the move, settling and the
+    readings; a real calibration run takes 20-60 s per pose). ``feeds_tracker``: the
+    tracker's weather correction takes the cell's sensor reading (else 20 °C)."""
+
+    seconds_per_pose: float = 30.0
+    start: float = 0.0
+    feeds_tracker: bool = True
+
+    def times(self, n: int) -> FloatArray:
+        """The measurement times (n,) s."""
+        out: FloatArray = self.start + self.seconds_per_pose * np.arange(n, dtype=float)
+        return out
+
+
 def measure_program(truth: Truth, instrument: SimulatedTracker, located: Tracker,
                     targets: TargetLayout, encoders: EncoderSettings, commands: ArrayLike,
-                    rng: np.random.Generator, samples: int = 10) -> CalibrationData:
+                    rng: np.random.Generator, samples: int = 10,
+                    timing: Timing | None = None) -> CalibrationData:
     """The data of measuring the machine ``truth`` at encoder commands (N, 6) (lengths m, then
     θ rad): the drives hold the commanded counts (the axes dither by the encoder noise), the
     encoder means and their uncertainty, and the mean of ``samples`` fits of the real
     ``instrument``'s readings through the cell's ``located`` registration, with the fits' mean
     covariance divided by ``samples`` (the registration's own error is common to every pose:
-    it is not divided)."""
+    it is not divided); with each pose the sensor's air temperature and the approach
+    direction of each axis (module docstring, ``timing`` default :class:`Timing`)."""
+    timing = timing or Timing()
     cmd = np.atleast_2d(np.asarray(commands, dtype=float))
     n = cmd.shape[0]
     noise = encoders.noise
@@ -45,11 +75,21 @@ def measure_program(truth: Truth, instrument: SimulatedTracker, located: Tracker
     joints = readings.mean(axis=1)
     joint_sigma = np.sqrt(noise**2 / samples + encoders.resolution**2 / 12.0
                           + noise**2) * np.ones((n, 1))
-    true = truth.poses(axis[:, :3], axis[:, 3:])
+    times = timing.times(n)
+    thermal = truth.effects.thermal
+    conditions = sequence_conditions(thermal, cmd, times)
+    true = truth.poses(axis[:, :3], axis[:, 3:], conditions=conditions)
     if not np.all(true.converged):
         raise ConvergenceError('the simulated machine has no pose for a commanded pose')
+    if thermal is None:
+        temperature, refraction = np.full(n, REFERENCE_TEMPERATURE), np.zeros(n)
+    else:
+        temperature = thermal.sensor(times, rng)
+        used = temperature if timing.feeds_tracker else REFERENCE_TEMPERATURE
+        refraction = thermal.range_scale_ppm(conditions.air, used)
     reps = np.repeat(true.position, samples, axis=0), np.repeat(true.quaternion, samples, axis=0)
-    _, fit = observe(instrument, located, targets, reps[0], reps[1], rng)
+    _, fit = observe(instrument, located, targets, reps[0], reps[1], rng,
+                     refraction_ppm=np.repeat(refraction, samples))
     position = np.empty((n, 3))
     quaternion = np.empty((n, 4))
     for k in range(n):  # one mean per pose (rotation mean: scipy, per set)
@@ -58,7 +98,8 @@ def measure_program(truth: Truth, instrument: SimulatedTracker, located: Tracker
     common = located.registration_covariance(position)
     covariance = (fit.covariance.reshape(n, samples, 6, 6).mean(axis=1) - common) / samples \
         + common
-    return CalibrationData(joints, joint_sigma, position, quaternion, covariance)
+    return CalibrationData(joints, joint_sigma, position, quaternion, covariance,
+                           temperature=temperature, approach=conditions.approach)
 
 
 def true_errors(truth: Truth, lengths: ArrayLike, thetas: ArrayLike, position: ArrayLike,

@@ -3,7 +3,12 @@ take every trajectory and stand at its end at once, encoders that read the axes 
 the laser tracker (the simulator's: true pose of the machine, readings with the instrument's
 noise and systematic errors, fitted through the cell's located registration). For judging the
 positioner's own move logic (:class:`positioning_cell.motion.mover.Mover`, unchanged) on a
-simulated machine in a benchmark; the truth stays here (:meth:`InstantCell.true_pose`)."""
+simulated machine in a benchmark; the truth stays here (:meth:`InstantCell.true_pose`).
+
+The machine's effects follow its history
+(:class:`~positioning_cell.sim.effects.history.MachineHistory`): each trajectory's start and
+end, on a clock advanced by the trajectory's duration (no settling time: the air hardly drifts
+in an instant cell)."""
 
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ from positioning_cell.metrology.instrument import Tracker
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.trajectory import Trajectory, fingerprint
+from positioning_cell.sim.effects.history import MachineHistory
 from positioning_cell.sim.tracker import SimulatedTracker, observe
 from positioning_cell.sim.truth import Truth
 
@@ -38,6 +44,9 @@ class InstantCell:
         mech = truth.mechanism
         home = inverse(mech, mech.home_position, mech.home_quaternion)
         self.position: FloatArray = np.concatenate([home.lengths[0], home.thetas[0]])
+        self.history = MachineHistory(truth.effects.thermal)
+        self.time = 0.0  # s since the start
+        self.history.update(self.position, self.time)
         self._answers: list[Answer] = []
         self._lock = threading.Lock()
 
@@ -49,13 +58,17 @@ class InstantCell:
 
     def true_pose(self) -> tuple[FloatArray, FloatArray]:
         """Judging only: where the platform really is, position (3,) m, quaternion (4,)."""
-        pose = self.truth.poses(self.position[None, :3], self.position[None, 3:])
+        pose = self.truth.poses(self.position[None, :3], self.position[None, 3:],
+                                conditions=self.history.conditions(self.time))
         return pose.position[0], pose.quaternion[0]
 
     def _send(self, traj: Trajectory) -> None:
         joints = np.hstack([traj.lengths, traj.thetas])
         with self._lock:
             self.position = joints[-1].copy()
+            self.history.update(joints[0], self.time)
+            self.time += float(traj.times[-1] - traj.times[0])
+            self.history.update(joints[-1], self.time)
             self._answers.append(Answer(fingerprint(traj.times, joints), True, 'ok'))
 
     def _take(self) -> list[Answer]:

@@ -7,9 +7,18 @@ their known base coordinates is the registration through which every later readi
 base-frame point; the true tracker pose (``truth.tracker.*``) only produces the readings.
 
 The latest true joint state is kept (older ones are of no use); at most ``truth_rate_hz`` the
-true pose is computed from it (unchanged joints: the previous pose, newly stamped), and at
-``rate_hz`` the tracker reads the targets at the current true pose and fits the pose, stamped
-with the time of the truth it measured. Stamps are opaque here: whatever the caller gives.
+true pose is computed from it (unchanged joints: the previous pose, newly stamped, recomputed
+at least every :data:`RECOMPUTE_PERIOD` s while the temperature drifts), and at ``rate_hz``
+the tracker reads the targets at the current true pose and fits the pose, stamped with the
+time of the truth it measured. Stamps are opaque here: whatever the caller gives; times are
+seconds on any clock (the first one seen is the start).
+
+The machine's effects outside the identified model (:mod:`positioning_cell.sim.effects`)
+follow the joint stream: a :class:`~positioning_cell.sim.effects.history.MachineHistory`
+keeps each axis's approach direction and the legs' heating, the air drifts with time. The
+cell's air-temperature sensor (``air_sensor.*``) reads the air with its own error; the
+tracker's weather correction uses that reading (``air_sensor.feeds_tracker``) or 20 °C, and
+its ranges scale with the difference from the true air (refraction).
 """
 
 from __future__ import annotations
@@ -28,12 +37,16 @@ from positioning_cell.metrology.instrument import TrackerAccuracy
 from positioning_cell.metrology.locate import LocateSettings, Location, locate
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.parameters import check_fields, group, setting
+from positioning_cell.sim.effects.history import MachineHistory
+from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.tracker import SimulatedTracker, TrackerFaults, TrackerTruth, observe
 from positioning_cell.sim.truth import Truth, TruthParameters
 
 FloatArray = NDArray[np.float64]
 
 _LEVELS = ('ok', 'warn', 'error')
+#: Longest time, s, the true pose of unchanged joints is kept while temperature drifts.
+RECOMPUTE_PERIOD = 1.0
 
 
 @dataclass(frozen=True)
@@ -42,6 +55,20 @@ class SimulationTruth(TruthParameters):
     (:class:`TruthParameters`) and the tracker as it really is (``truth.tracker.*``)."""
 
     tracker: TrackerTruth = group(TrackerTruth, 'the tracker\'s true pose and systematic errors')
+
+
+@dataclass(frozen=True)
+class AirSensor:
+    """The cell's air-temperature sensor (``air_sensor.*``): its publication rate and whether
+    the tracker's weather correction is fed its reading (else the tracker assumes 20 °C).
+    Its error is the truth's (``truth.thermal.sensor_*``)."""
+
+    rate_hz: float = setting(1.0, 'air-temperature publication rate', 'Hz', low=0.01,
+                             high=100.0)
+    feeds_tracker: bool = setting(True, 'the tracker corrects its ranges with this reading')
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
 @dataclass(frozen=True)
@@ -57,6 +84,7 @@ class PoseMeasurementSettings:
     targets: TargetLayout = group(TargetLayout, 'the SMRs on the platform')
     fault: TrackerFaults = group(TrackerFaults, 'injected measurement faults')
     fit: FitSettings = group(FitSettings, 'the pose fit')
+    air_sensor: AirSensor = group(AirSensor, 'the cell\'s air-temperature sensor')
     rate_hz: float = setting(20.0, 'tracker measurement rate', 'Hz', low=0.1, high=200.0)
     truth_rate_hz: float = setting(50.0, 'largest true-pose update rate', 'Hz', low=1.0,
                                    high=500.0)
@@ -92,6 +120,13 @@ class Reading(NamedTuple):
     stamp: Any
 
 
+class AirReading(NamedTuple):
+    """One air-temperature reading: value °C, variance K² (the sensor's own error)."""
+
+    temperature: float
+    variance: float
+
+
 class PoseMeasurementSimulator:
     """Truth and tracker (module docstring). :attr:`status` is (level, message) for
     /diagnostics: 'ok', 'warn' or 'error'; :attr:`stats` the figures it reports."""
@@ -101,9 +136,16 @@ class PoseMeasurementSimulator:
         self.truth = settings.true_machine()
         self.instrument = SimulatedTracker(settings.truth.tracker, settings.tracker)
         self._rng = np.random.default_rng(settings.seed)
+        self._sensor_rng = np.random.default_rng([settings.seed, 1])
+        thermal = self.truth.effects.thermal
+        self.history = MachineHistory(thermal)
+        self._start: float | None = None
+        self._time = 0.0  # s since the start of the joint state of the true pose
+        self._computed_at = -np.inf
+        self._air_used = REFERENCE_TEMPERATURE  # what the tracker's correction assumes
         self.location: Location | None = None
         self.locate_status = ('error', 'tracker not located')
-        self._latest: tuple[FloatArray, Any] | None = None
+        self._latest: tuple[FloatArray, Any, float] | None = None
         self._joints = np.full(6, np.nan)  # joints of the current true pose (NaN: none)
         self._phis: FloatArray | None = None
         self.true_pose: TruePose | None = None
@@ -173,35 +215,46 @@ class PoseMeasurementSimulator:
             'locate_variance_factor': round(loc.variance_factor, 3),
         }
 
-    def joints(self, values: ArrayLike | None, stamp: Any) -> None:
+    def _since_start(self, time: float) -> float:
+        if self._start is None:
+            self._start = time
+        return time - self._start
+
+    def joints(self, values: ArrayLike | None, stamp: Any, time: float = 0.0) -> None:
         """The latest true joint state (6,) m / rad in JOINT_NAMES order (None: the message
-        lacked a joint), kept until the next truth update."""
+        lacked a joint) at ``time`` s, kept until the next truth update."""
         arr = None if values is None else np.asarray(values, dtype=float)
         if arr is None or arr.shape != (6,) or not np.all(np.isfinite(arr)):
             self.status = ('warn', 'ignored a true joint state without finite positions of '
                                    'all six joints')
             return
-        self._latest = (arr, stamp)
+        self._latest = (arr, stamp, self._since_start(time))
 
     def update_truth(self) -> TruePose | None:
         """The true pose of the latest joint state (None: no new joint state, or no pose for
         it, :attr:`status` says why)."""
         if self._latest is None:
             return None
-        joints, stamp = self._latest
+        joints, stamp, time = self._latest
         self._latest = None
-        if self.true_pose is not None and np.array_equal(joints, self._joints):
+        self.history.update(joints, time)
+        self._time = time
+        drifting = self.truth.effects.thermal is not None \
+            and time - self._computed_at >= RECOMPUTE_PERIOD
+        if self.true_pose is not None and np.array_equal(joints, self._joints) \
+                and not drifting:
             self.true_pose = self.true_pose._replace(stamp=stamp)  # the machine has not moved
         else:
             try:
-                result = self.truth.poses(joints[:3], joints[3:], self._phis)
+                result = self.truth.poses(joints[:3], joints[3:], self._phis,
+                                          conditions=self.history.conditions(time))
                 if not result.converged[0]:
                     raise ConvergenceError('forward kinematics did not converge')
             except (InputError, ConvergenceError) as err:
                 self.true_pose = None
                 self.status = ('error', f'no true pose for joints {joints.tolist()}: {err}')
                 return None
-            self._joints, self._phis = joints, result.phis[0]
+            self._joints, self._phis, self._computed_at = joints, result.phis[0], time
             self.true_pose = TruePose(result.position[0], result.quaternion[0], stamp)
         self.stats['truth_updates'] += 1
         return self.true_pose
@@ -215,10 +268,14 @@ class PoseMeasurementSimulator:
             self.status = ('error', 'no measurement: the tracker is not located')
             return None
         s = self.settings
+        thermal = self.truth.effects.thermal
+        refraction = 0.0 if thermal is None else \
+            float(thermal.range_scale_ppm(thermal.air(self._time), self._air_used))
         try:
             _, fit = observe(self.instrument, self.location.tracker, s.targets,
                              self.true_pose.position, self.true_pose.quaternion, self._rng,
-                             s.fault, reject_threshold=s.fit.reject_threshold)
+                             s.fault, reject_threshold=s.fit.reject_threshold,
+                             refraction_ppm=refraction)
         except TooFewTargetsError as err:
             self.stats['failed_measurements'] += 1
             self.status = ('warn', f'no measurement: {err}')
@@ -232,6 +289,19 @@ class PoseMeasurementSimulator:
                   measurements=st['measurements'] + 1)
         self.status = ('ok', 'measuring')
         return Reading(fit, self.true_pose.stamp)
+
+    def air_temperature(self, time: float) -> AirReading:
+        """The air-temperature sensor's reading at ``time`` s (the clock of :meth:`joints`);
+        the tracker's weather correction takes it when ``air_sensor.feeds_tracker``. Without
+        thermal effects the air is at 20 °C and the sensor exact."""
+        thermal = self.truth.effects.thermal
+        params = self.settings.truth.thermal
+        variance = params.sensor_offset_sigma**2 + params.sensor_noise**2
+        value = REFERENCE_TEMPERATURE if thermal is None else \
+            float(thermal.sensor(np.array([self._since_start(time)]), self._sensor_rng)[0])
+        if self.settings.air_sensor.feeds_tracker:
+            self._air_used = value
+        return AirReading(value, variance)
 
     def diagnostics(self) -> tuple[str, str, dict[str, Any]]:
         """(level, message, values) of the /diagnostics status."""

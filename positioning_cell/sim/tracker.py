@@ -99,9 +99,13 @@ class SimulatedTracker:
         return Tracker(self.accuracy, self.truth.position, self.truth.orientation)
 
     def read(self, points: ArrayLike, rng: np.random.Generator,
-             faults: TrackerFaults | None = None) -> Readings:
+             faults: TrackerFaults | None = None, *,
+             refraction_ppm: ArrayLike = 0.0) -> Readings:
         """Readings of base-frame points (..., 3) m: the true (r, az, el), scaled by
-        1 + scale_ppm·1e-6 and offset by angle_offsets, plus independent normal noise of
+        1 + (scale_ppm + refraction_ppm)·1e-6 (``refraction_ppm`` broadcast over the points'
+        leading axes: the air temperature's error in the tracker's weather correction,
+        :meth:`positioning_cell.sim.effects.thermal.Thermal.range_scale_ppm`) and offset by
+        angle_offsets, plus independent normal noise of
         :meth:`TrackerAccuracy.reading_sigma`; then occlusion and outliers per ``faults``
         (an outlier displaced by outlier_magnitude in a random direction). The same number
         of draws is taken whatever the fault settings, so a seeded stream stays aligned."""
@@ -110,8 +114,9 @@ class SimulatedTracker:
         if np.any(true[..., 0] <= 0.0):
             raise InputError('a target coincides with the tracker position: no reading')
         az_offset, el_offset = self.truth.angle_offsets
-        biased = true * [1.0 + self.truth.scale_ppm * 1e-6, 1.0, 1.0] + [0.0, az_offset,
-                                                                         el_offset]
+        scale = 1.0 + (self.truth.scale_ppm + np.asarray(refraction_ppm, dtype=float)) * 1e-6
+        biased = np.stack([true[..., 0] * scale, true[..., 1] + az_offset,
+                           true[..., 2] + el_offset], axis=-1)
         noisy = biased + rng.standard_normal(true.shape) * self.accuracy.reading_sigma(true)
         local = local_from_spherical(noisy)
         shape = true.shape[:-1]
@@ -137,12 +142,17 @@ class Measurement(NamedTuple):
 
 def measure(instrument: SimulatedTracker, located: Tracker, layout: TargetLayout,
             position: ArrayLike, quaternion: ArrayLike, rng: np.random.Generator,
-            faults: TrackerFaults | None = None) -> Measurement:
+            faults: TrackerFaults | None = None, *,
+            refraction_ppm: ArrayLike = 0.0) -> Measurement:
     """Simulated readings of the targets of N true platform poses (N, 3) m, (N, 4) x, y, z, w
-    (:meth:`SimulatedTracker.read`), converted to ``base`` with the ``located`` registration
-    (never the true pose: the cell knows only the one it located)."""
+    (:meth:`SimulatedTracker.read`, ``refraction_ppm`` a number or one per pose (N,)),
+    converted to ``base`` with the ``located`` registration (never the true pose: the cell
+    knows only the one it located)."""
     p, q = as_pose_batch(position, quaternion)
-    readings = instrument.read(layout.in_base(p, q), rng, faults)
+    refraction = np.asarray(refraction_ppm, dtype=float)
+    readings = instrument.read(layout.in_base(p, q), rng, faults,
+                               refraction_ppm=refraction[:, None] if refraction.ndim == 1
+                               else refraction)
     return Measurement(located.to_base(readings.local), readings.local, readings.visible,
                        readings.outlier)
 
@@ -150,9 +160,11 @@ def measure(instrument: SimulatedTracker, located: Tracker, layout: TargetLayout
 def observe(instrument: SimulatedTracker, located: Tracker, layout: TargetLayout,
             position: ArrayLike, quaternion: ArrayLike, rng: np.random.Generator,
             faults: TrackerFaults | None = None, *,
-            reject_threshold: float = DEFAULT_REJECT_THRESHOLD) -> tuple[Measurement, PoseFit]:
-    """One tracker cycle for N true poses: :func:`measure`, then :func:`fit_pose` with the
-    located registration."""
-    measurement = measure(instrument, located, layout, position, quaternion, rng, faults)
+            reject_threshold: float = DEFAULT_REJECT_THRESHOLD,
+            refraction_ppm: ArrayLike = 0.0) -> tuple[Measurement, PoseFit]:
+    """One tracker cycle for N true poses: :func:`measure` (``refraction_ppm`` passed on),
+    then :func:`fit_pose` with the located registration."""
+    measurement = measure(instrument, located, layout, position, quaternion, rng, faults,
+                          refraction_ppm=refraction_ppm)
     return measurement, fit_pose(located, layout, measurement.points,
                                  reject_threshold=reject_threshold)

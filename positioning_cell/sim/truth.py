@@ -1,21 +1,33 @@
 """The simulated machine as it really is: the nominal mechanism with geometric errors of its
-joint centres, zero offsets of its encoders and its joint clearance. Only the simulators read
-it; the cell judges itself against it in reports and tests, never works from it."""
+joint centres, zero offsets of its encoders and its joint clearance (what the cell's
+calibration identifies), and the effects outside that model (:mod:`positioning_cell.sim.effects`):
+drive errors, temperature and compliance. Only the simulators read it; the cell judges itself
+against it in reports and tests, never works from it.
+
+With effects, the machine whose encoders read (l, θ) stands where its real joints put it:
+the motors at (l + δl, θ + δθ), the drives' errors give the real axes, the legs expand with
+their temperature; the pose x then satisfies IK(x) + shift(x) = real joints, the shift being
+what the clearance, the expanded joint circles and the compliance at x add to the joints the
+rigid machine needs, solved as a fixed point x ← FK(real − shift(x)) (each pass one batched
+FK; the shift is a small, slowly varying function of x)."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.calibration.machine import MachineModel
-from positioning_cell.clearance import ClearanceParameters, build
+from positioning_cell.clearance import ClearanceParameters, build, compensate
+from positioning_cell.clearance.load import inverse_with_offsets
 from positioning_cell.config import flatten
+from positioning_cell.core.kinematics import ForwardResult, forward, inverse
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import Triple
+from positioning_cell.core.poses import Triple, as_vectors
+from positioning_cell.errors import ConvergenceError
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.parameters import (
     ParameterError,
@@ -25,10 +37,17 @@ from positioning_cell.parameters import (
     parse,
     setting,
 )
+from positioning_cell.sim.effects.compliance import ComplianceParameters, yielding
+from positioning_cell.sim.effects.drive_errors import DriveErrorParameters, DriveErrors
+from positioning_cell.sim.effects.history import Conditions
+from positioning_cell.sim.effects.thermal import Thermal, ThermalParameters
 
 FloatArray = NDArray[np.float64]
 
 _ZERO = ((0.0, 0.0, 0.0),) * 3
+#: Fixed point of the effects: largest change of the joint shift at convergence (m, rad).
+_TOLERANCE = 1e-12
+_MAX_ITERATIONS = 30
 
 
 @dataclass(frozen=True)
@@ -37,7 +56,9 @@ class TruthParameters:
     from ``clearance.seed``) and the geometric errors: the U and S joint-centre offsets (added
     to the nominal mechanism's own, 3 legs × (x, y, z) m) and the encoders' zero offsets. Each
     error is the given value plus, when ``geometry_seed`` >= 0, a normal draw of its ``*_sigma``
-    (one seeded machine per seed)."""
+    (one seeded machine per seed). The effects outside the identified model (``drives``,
+    ``thermal``, ``compliance``) each have an ``enabled`` switch (:meth:`without_effects`:
+    all off, the exactly-modelled machine)."""
 
     clearance: ClearanceParameters = group(
         ClearanceParameters, 'the machine\'s joint clearance',
@@ -63,8 +84,21 @@ class TruthParameters:
     theta_offset_sigma: float = setting(3e-4, 'sigma of a drawn theta zero offset', 'rad',
                                         low=0.0, high=0.1)
 
+    drives: DriveErrorParameters = group(DriveErrorParameters, 'errors of the drives (lead, '
+                                         'periodic, reversal)')
+    thermal: ThermalParameters = group(ThermalParameters, 'temperature: air, legs, expansion, '
+                                       'sensor, refraction')
+    compliance: ComplianceParameters = group(ComplianceParameters, 'the machine\'s own '
+                                             'stiffnesses under load')
+
     def __post_init__(self) -> None:
         check_fields(self)
+
+    def without_effects(self) -> TruthParameters:
+        """The same machine with every effect outside the identified model switched off."""
+        return replace(self, drives=replace(self.drives, enabled=False),
+                       thermal=replace(self.thermal, enabled=False),
+                       compliance=replace(self.compliance, enabled=False))
 
     def geometric_errors(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """(base offsets (3, 3) m, platform offsets (3, 3) m, length offsets (3,) m, theta
@@ -82,10 +116,106 @@ class TruthParameters:
         return base, platform, lengths, thetas
 
 
+@dataclass(frozen=True)
+class Effects:
+    """The effects of one machine outside the identified model (None: off): its ``drives``,
+    ``thermal`` behaviour and ``compliance`` (with the ``payload`` and ``structure`` whose
+    statics load it)."""
+
+    drives: DriveErrors | None = None
+    thermal: Thermal | None = None
+    compliance: ComplianceParameters | None = None
+    payload: Payload = field(default_factory=Payload)
+    structure: Structure = field(default_factory=Structure)
+
+    @property
+    def active(self) -> bool:
+        """Whether any effect is on."""
+        return any(e is not None for e in (self.drives, self.thermal, self.compliance))
+
+    @classmethod
+    def from_parameters(cls, params: TruthParameters, mech: Mechanism,
+                        payload: Payload | None = None,
+                        structure: Structure | None = None) -> Effects:
+        """The effects ``params`` switch on, drawn for the machine ``mech``."""
+        return cls(params.drives.draw(mech.home_length) if params.drives.enabled else None,
+                   params.thermal.draw() if params.thermal.enabled else None,
+                   params.compliance if params.compliance.enabled else None,
+                   payload or Payload(), structure or Structure())
+
+
+@dataclass(frozen=True)
 class Truth(MachineModel):
     """The simulated machine (a :class:`~positioning_cell.calibration.machine.MachineModel`):
-    ``mechanism`` with its joint-centre geometric errors, its ``clearance`` (None: none) and
-    its encoders' zero offsets."""
+    ``mechanism`` with its joint-centre geometric errors, its ``clearance`` (None: none), its
+    encoders' zero offsets, and its ``effects`` outside that model (module docstring).
+    :meth:`commands` stays the identified model's inverse (the effects are not inverted:
+    nothing but judging uses the truth, and it judges with :meth:`poses`)."""
+
+    effects: Effects = field(default_factory=Effects)
+
+    def poses(self, lengths: ArrayLike, thetas: ArrayLike, phi0: ArrayLike | None = None, *,
+              conditions: Conditions | None = None) -> ForwardResult:
+        """Where the machine puts the platform when its encoders read lengths (N, 3) m and
+        thetas (N, 3) rad under ``conditions`` (None: 20 °C, approach unknown); without
+        effects exactly :meth:`MachineModel.poses`. ConvergenceError when the fixed point does
+        not settle."""
+        if not self.effects.active:
+            return super().poses(lengths, thetas, phi0)
+        real_l = as_vectors(lengths, 3, 'lengths') + self.length_offsets
+        real_t = as_vectors(thetas, 3, 'thetas') + self.theta_offsets
+        cond = conditions if conditions is not None else Conditions.reference(len(real_l))
+        fx = self.effects
+        if fx.drives is not None:
+            real_l, real_t = fx.drives.actual(real_l, real_t, cond.approach)
+        if fx.thermal is not None:
+            real_l = fx.thermal.expanded_lengths(real_l, cond.legs)
+        return self._fixed_point(real_l, real_t, cond, phi0)
+
+    def _fixed_point(self, real_l: FloatArray, real_t: FloatArray, cond: Conditions,
+                     phi0: ArrayLike | None) -> ForwardResult:
+        mech = self.mechanism
+        result = forward(mech, real_l, real_t, phi0)
+        ok = result.converged.copy()
+        shift = np.zeros((len(real_l), 6))
+        for _ in range(_MAX_ITERATIONS):
+            rows = np.flatnonzero(ok)
+            new = self.joint_shift(result.position[rows], result.quaternion[rows],
+                                   cond.air[rows])
+            change = np.max(np.abs(new - shift[rows]), initial=0.0)
+            shift[rows] = new
+            phis = np.where(np.isfinite(result.phis), result.phis, 0.0)
+            result = forward(mech, real_l - shift[:, :3], real_t - shift[:, 3:], phis)
+            ok &= result.converged
+            if change <= _TOLERANCE:
+                return ForwardResult(np.where(ok[:, None], result.position, np.nan),
+                                     np.where(ok[:, None], result.quaternion, np.nan),
+                                     result.phis, ok)
+        raise ConvergenceError('the simulated machine\'s effects did not settle on a pose')
+
+    def joint_shift(self, position: FloatArray, quaternion: FloatArray,
+                    air: FloatArray) -> FloatArray:
+        """What the clearance, the joint circles expanded at air temperatures (N,) °C and the
+        compliance add (N, 6) m, rad to the real joints the rigid machine needs for poses
+        (N, 3), (N, 4) (module docstring; first order: the effects are µm against metres)."""
+        mech, fx = self.mechanism, self.effects
+        rigid = inverse(mech, position, quaternion)
+        held = compensate(mech, self.clearance, position, quaternion)
+        shift: FloatArray = np.c_[held.lengths - rigid.lengths, held.thetas - rigid.thetas]
+        n = len(position)
+        u_off, s_off = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
+        if fx.thermal is not None:
+            du, ds = fx.thermal.joint_offsets(mech.base_joints, mech.platform_joints, air)
+            u_off, s_off = u_off + du, s_off + ds
+        if fx.compliance is not None:
+            yielded = yielding(fx.compliance, mech, position, quaternion, fx.payload,
+                               fx.structure)
+            shift += yielded.joints
+            u_off, s_off = u_off + yielded.u_offsets, s_off + yielded.s_offsets
+        if fx.thermal is not None or fx.compliance is not None:
+            moved = inverse_with_offsets(mech, position, quaternion, u_off, s_off)
+            shift += np.c_[moved.lengths - rigid.lengths, moved.thetas - rigid.thetas]
+        return shift
 
     @classmethod
     def from_parameters(cls, params: TruthParameters, mech: Mechanism,
@@ -100,7 +230,8 @@ class Truth(MachineModel):
             model = build(params.clearance, real, payload, structure)
         except ParameterError as err:
             raise err.within('truth.') from None
-        return cls(real, model, lengths, thetas)
+        return cls(real, model, lengths, thetas,
+                   Effects.from_parameters(params, real, payload, structure))
 
 
 def truth_from_params(params: Mapping[str, Any], mech: Mechanism,
