@@ -136,13 +136,15 @@ def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> Mess
         elif name == DIAGNOSTICS:
             m = block.topics[name]
             store, msgtype = bag.typestore, m.msgtype
-            diagnostics = []
+            diagnostics, ranks = [], []
             for i in range(m.log_time_ns.shape[0]):  # few: the statuses that matter only
                 raw = block.payload(name, i)
                 if any(s in raw for s in DIAGNOSTIC_STATUSES):
                     diagnostics.append((int(m.log_time_ns[i]),
                                         store.deserialize_cdr(raw, msgtype)))
+                    ranks.append(int(rank[i]))
             fields['diagnostics'] = tuple(diagnostics)
+            fields['diagnostic_ranks'] = tuple(ranks)
     return MessageBatch(**fields)
 
 
@@ -151,6 +153,7 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
     poses: dict[str, list[tuple[int, Any]]] = {name: [] for name in POSE_TOPICS}
     texts: dict[str, list[tuple[int, str]]] = {name: [] for name in TEXT_TOPICS}
     diagnostics: list[tuple[int, Any]] = []
+    diagnostic_ranks: list[int] = []
     for rank, item in enumerate(messages, start=offset):
         if item.topic in POSE_TOPICS:
             poses[item.topic].append((rank, item.message))
@@ -158,6 +161,7 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
             texts[item.topic].append((item.log_time_ns, item.message.data))
         elif item.topic == DIAGNOSTICS:
             diagnostics.append((item.log_time_ns, item.message))
+            diagnostic_ranks.append(rank)
     rows: dict[str, PoseMessages] = {}
     for topic, found in poses.items():
         pose = [getattr(m.pose, 'pose', m.pose) for _, m in found]
@@ -173,7 +177,8 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
     return MessageBatch(targets=rows[TARGET], measured=rows[MEASURED_POSE],
                         truth=rows[TRUE_POSE], program=tuple(texts[PROGRAM]),
                         diagnostics=tuple(diagnostics), calibration=tuple(texts[CALIBRATION]),
-                        axis_test=tuple(texts[AXIS_TEST]))
+                        axis_test=tuple(texts[AXIS_TEST]),
+                        diagnostic_ranks=tuple(diagnostic_ranks))
 
 
 def message_batches(messages: Iterator[BagMessage], size: int = MESSAGES_PER_BATCH
