@@ -100,6 +100,10 @@ class MessageBatch:
     #: ``rank``): where the positioner's move ends go to the monitor. Empty: not known (the
     #: move ends are not used; the monitor falls back on the last stable window of a visit).
     diagnostic_ranks: tuple[int, ...] = ()
+    #: Read only when asked (the error budget's pass): /legs/joint_states and
+    #: /legs/joint_trajectory as (log time ns, decoded message) pairs.
+    joint_states: tuple[tuple[int, Any], ...] = ()
+    trajectories: tuple[tuple[int, Any], ...] = ()
 
 
 @dataclass(frozen=True)
