@@ -159,6 +159,7 @@ def predicted_joints(x: FloatArray, nominal: Mechanism, payload: Payload, struct
                      directions: tuple[FloatArray, FloatArray] | None = None,
                      conditions: Conditions | None = None,
                      reference_temperature: float = STANDARD_TEMPERATURE,
+                     efforts: FloatArray | None = None,
                      ) -> tuple[FloatArray, FloatArray | None]:
     """Encoder values (N, 6) the machine of vector ``x`` reads at validated poses (N, 3),
     (N, 4) under ``conditions`` (None: not known; the thermal terms about
@@ -179,14 +180,16 @@ def predicted_joints(x: FloatArray, nominal: Mechanism, payload: Payload, struct
     rot = matrix_from_quaternion(quaternion)
     s_b_base = np.einsum('nij,nkj->nki', rot, s_b)
     r_a, r_b = x[cp.R_A], x[cp.R_B]
-    grow = (1.0 + x[cp.STRUCTURE_EXPANSION] * change)[:, None, None]
+    eps = x[cp.STRUCTURE_EXPANSION] * change
     b_base = np.einsum('nij,kj->nki', rot, mech.platform_joints)
-    d = position[:, None, :] + grow * b_base + r_b * s_b_base - (grow * mech.base_joints
-                                                                 + r_a * s_a)
+    d = position[:, None, :] + b_base + r_b * s_b_base - (mech.base_joints + r_a * s_a)
+    # the structure's expansion scales the seated joint centres by 1 + ε (machine.py)
+    lever = d - position[:, None, :]
+    d = d + eps[:, None, None] * lever
     legs = leg_vectors(d, mech.tangential)
     theta = np.arcsin(np.clip(legs.ut, -1.0, 1.0))
-    efforts = actuator_efforts(nominal, position, quaternion, payload, structure) \
-        if with_jacobian or x[cp.COMPLIANCE].any() else None
+    if efforts is None and (with_jacobian or x[cp.COMPLIANCE].any()):
+        efforts = actuator_efforts(mech, position, quaternion, payload, structure)
     mid = mid_length(nominal)
     gain, offset = terms_offsets(cp.terms_of(x, reference_temperature), legs.length, efforts,
                                  change, approach, mid)
@@ -195,17 +198,19 @@ def predicted_joints(x: FloatArray, nominal: Mechanism, payload: Payload, struct
     if not with_jacobian:
         return pred, None
     assert efforts is not None
-    lever = b_base - mech.base_joints
+    grow = 1.0 + eps
     jac = np.zeros((n, 6, cp.COUNT))
     for i in range(3):  # three legs, each block vectorised over the poses
         base_cols = slice(cp.BASE.start + 3 * i, cp.BASE.start + 3 * i + 3)
         plat_cols = slice(cp.PLATFORM.start + 3 * i, cp.PLATFORM.start + 3 * i + 3)
-        for row, g in ((i, legs.u[:, i] * gain[:, i, None]), (3 + i, legs.w[:, i])):
-            jac[:, row, base_cols] = -g * grow[:, 0]
-            jac[:, row, plat_cols] = np.einsum('nj,njk->nk', g * grow[:, 0], rot)
+        for row, grad in ((i, legs.u[:, i] * gain[:, i, None]), (3 + i, legs.w[:, i])):
+            jac[:, row, cp.STRUCTURE_EXPANSION] = np.einsum('nj,nj->n', grad,
+                                                            lever[:, i]) * change
+            g = grad * grow[:, None]  # ∂d/∂(joint centres, clearances) scale with the structure
+            jac[:, row, base_cols] = -g
+            jac[:, row, plat_cols] = np.einsum('nj,njk->nk', g, rot)
             jac[:, row, cp.R_A] = -np.einsum('nj,nj->n', g, s_a[:, i])
             jac[:, row, cp.R_B] = np.einsum('nj,nj->n', g, s_b_base[:, i])
-            jac[:, row, cp.STRUCTURE_EXPANSION] = np.einsum('nj,nj->n', g, lever[:, i]) * change
             jac[:, row, cp.REVERSAL.start + row] = approach[:, row]
         jac[:, i, cp.LENGTH.start + i] = -1.0
         jac[:, 3 + i, cp.THETA.start + i] = -1.0

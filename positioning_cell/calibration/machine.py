@@ -10,8 +10,9 @@ second U angle are l = l_enc + δl and θ = θ_enc + δθ (``length_offsets`` δ
 
 Terms beyond geometry (:class:`MachineTerms`, all zero by default: the model is then the
 rigid, isothermal one), in joint space. With l, θ the joint values the pose needs on the
-machine expanded by ε = α_s ΔT (ΔT = temperature − ``reference_temperature``; joint centres
-A_i, b_i scaled by 1 + ε, to first order l + ε u·(R b_i − A_i), θ + ε w·(R b_i − A_i)), the
+machine expanded by ε = α_s ΔT (ΔT = temperature − ``reference_temperature``; the seated
+joint centres, base and platform frames, scaled by 1 + ε: the cold machine scaled, so at
+(p, R) its legs are (1 + ε) times the cold machine's at (p / (1 + ε), R), θ the same), the
 encoders read
 
     e_l = l (1 − α_l ΔT − s_i) + s_i l_mid + c_l,i F_i + h_l,i a_i − δl_i
@@ -45,7 +46,7 @@ from positioning_cell.calibration.conditions import STANDARD_TEMPERATURE, Condit
 from positioning_cell.clearance import ClearanceModel, attained_pose, compensate
 from positioning_cell.core.kinematics import ForwardResult, InverseResult
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import as_pose_batch, as_vectors, matrix_from_quaternion
+from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.mechanics.statics import Payload, Structure, actuator_efforts
 
 FloatArray = NDArray[np.float64]
@@ -175,8 +176,8 @@ class MachineModel:
               conditions: Conditions | None = None) -> ForwardResult:
         """Where this machine puts the platform when its encoders read lengths (N, 3) m and
         thetas (N, 3) rad (``phi0``: previous passive angles, branch continuity) under
-        ``conditions`` (None: not known). With terms, a fixed point: the efforts and the
-        expansion depend on the pose reached."""
+        ``conditions`` (None: not known). With compliance, a fixed point: the efforts depend
+        on the pose reached."""
         enc_l = as_vectors(lengths, 3, 'lengths')
         enc_t = as_vectors(thetas, 3, 'thetas')
         real_l = enc_l + self.length_offsets
@@ -185,23 +186,25 @@ class MachineModel:
             return attained_pose(self.mechanism, self.clearance, real_l, real_t, phi0)
         n = enc_l.shape[0]
         change, approach = self._conditions(conditions, n)
-        shift = np.zeros((n, 6))
+        grow = 1.0 + self.terms.structure_expansion * change[:, None]
         efforts: FloatArray | None = None
         joints = np.zeros((n, 6))
         pose: ForwardResult | None = None
         for _ in range(_FORWARD_PASSES):
             gain, offset = terms_offsets(self.terms, enc_l, efforts, change, approach,
                                          mid_length(self.mechanism))
-            new = np.concatenate([(real_l - offset[:, :3]) / gain, real_t - offset[:, 3:]],
-                                 axis=1) - shift
+            # the expanded machine is the cold one scaled by grow: its legs / grow, same θ
+            new = np.concatenate([(real_l - offset[:, :3]) / (gain * grow),
+                                  real_t - offset[:, 3:]], axis=1)
             if pose is not None and (n == 0 or np.abs(new - joints).max() <= _FORWARD_TOLERANCE):
                 break
             joints = new
-            pose = attained_pose(self.mechanism, self.clearance, joints[:, :3], joints[:, 3:],
+            cold = attained_pose(self.mechanism, self.clearance, joints[:, :3], joints[:, 3:],
                                  phi0)
-            if not self._pose_dependent:
+            pose = cold._replace(position=cold.position * grow)
+            if not self._compliant:
                 break
-            shift, efforts = self._pose_terms(pose.position, pose.quaternion, change)
+            efforts = self._efforts(pose.position, pose.quaternion)
         assert pose is not None
         return pose
 
@@ -210,18 +213,20 @@ class MachineModel:
         """Encoder values (lengths m, thetas rad) that put this machine on poses (N, 3) m,
         (N, 4) x, y, z, w in ``base`` under ``conditions`` (None: not known); phis are the
         passive angles the machine shows."""
-        real = compensate(self.mechanism, self.clearance, position, quaternion)
         if self.terms.is_zero:
+            real = compensate(self.mechanism, self.clearance, position, quaternion)
             return InverseResult(real.lengths - self.length_offsets,
                                  real.thetas - self.theta_offsets, real.phis)
         p, q = as_pose_batch(position, quaternion)
         n = p.shape[0]
         change, approach = self._conditions(conditions, n)
-        shift, efforts = self._pose_terms(p, q, change)
+        grow = 1.0 + self.terms.structure_expansion * change[:, None]
+        real = compensate(self.mechanism, self.clearance, p / grow, q)
+        efforts = self._efforts(p, q) if self._compliant else None
         gain, offset = terms_offsets(self.terms, real.lengths, efforts, change, approach,
                                      mid_length(self.mechanism))
-        lengths = (real.lengths + shift[:, :3]) * gain + offset[:, :3] - self.length_offsets
-        thetas = real.thetas + shift[:, 3:] + offset[:, 3:] - self.theta_offsets
+        lengths = real.lengths * grow * gain + offset[:, :3] - self.length_offsets
+        thetas = real.thetas + offset[:, 3:] - self.theta_offsets
         return InverseResult(lengths, thetas, real.phis)
 
     def _conditions(self, conditions: Conditions | None, n: int) -> tuple[FloatArray,
@@ -230,29 +235,14 @@ class MachineModel:
         return c.temperature_change(n, self.terms.reference_temperature), c.approach_signs(n)
 
     @property
-    def _pose_dependent(self) -> bool:
-        t = self.terms
-        return bool(t.structure_expansion or t.leg_compliance.any() or t.theta_compliance.any())
+    def _compliant(self) -> bool:
+        return bool(self.terms.leg_compliance.any() or self.terms.theta_compliance.any())
 
-    def _pose_terms(self, position: FloatArray, quaternion: FloatArray,
-                    change: FloatArray) -> tuple[FloatArray, FloatArray | None]:
-        """At poses: the structure expansion's joint shift (N, 6) (first order, module
-        docstring) and the joint efforts (N, 6) (None without compliance)."""
-        mech, t = self.mechanism, self.terms
-        shift = np.zeros((position.shape[0], 6))
-        if t.structure_expansion:
-            rb = np.einsum('nij,kj->nki', matrix_from_quaternion(quaternion),
-                           mech.platform_joints)
-            lever = rb - mech.base_joints
-            legs = leg_vectors(position[:, None, :] + lever, mech.tangential)
-            eps = (t.structure_expansion * change)[:, None]
-            shift[:, :3] = eps * np.einsum('nkj,nkj->nk', legs.u, lever)
-            shift[:, 3:] = eps * np.einsum('nkj,nkj->nk', legs.w, lever)
-        efforts = None
-        if t.leg_compliance.any() or t.theta_compliance.any():
-            efforts = actuator_efforts(mech, position, quaternion, self.payload or Payload(),
-                                       self.structure or Structure())
-        return shift, efforts
+    def _efforts(self, position: FloatArray, quaternion: FloatArray) -> FloatArray:
+        """The joint efforts (N, 6) at poses, N and N m (the statics of this machine's
+        payload and structure)."""
+        return actuator_efforts(self.mechanism, position, quaternion,
+                                self.payload or Payload(), self.structure or Structure())
 
     # -- ClearanceLike (the mover's compensation model) -------------------------------------
     def attained_pose(self, mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
