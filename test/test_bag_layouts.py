@@ -196,6 +196,9 @@ def test_calibrate_from_bag_gets_the_same_data(variant: Path,
     got, want = _calibration(variant), original_calibration
     for part in ('fit', 'hold_out'):
         for a, b in zip(getattr(got, part), getattr(want, part), strict=True):
+            if a is None or b is None:  # conditions not recorded: in neither
+                assert a is None and b is None
+                continue
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
     for part in ('fit_commanded', 'hold_out_commanded'):
         for a, b in zip(getattr(got, part), getattr(want, part), strict=True):
