@@ -21,6 +21,7 @@ from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.conditions import Conditions
 from positioning_cell.calibration.machine import MachineModel, MachineTerms
+from positioning_cell.calibration.synthetic import model_data
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.statics import actuator_efforts
@@ -63,22 +64,9 @@ def conditions_of(n: int, rng: np.random.Generator, spread: float = 8.0) -> Cond
 
 def synthetic(x: Any, p: Any, q: Any, conditions: Conditions, rng: np.random.Generator,
               pose_cov: Any = POSE_COV) -> idf.CalibrationData:
-    """Calibration data of the machine ``x`` as this model describes it: the encoder values
-    it predicts at the measured poses plus noise of the residual's own covariance (the
-    tracker's through the inverse Jacobian and the encoders'), about the data's mean
-    temperature (the reference identification takes)."""
-    n = p.shape[0]
-    cov = np.broadcast_to(pose_cov, (n, 6, 6))
-    sigma = np.broadcast_to(JOINT_SIGMA, (n, 6))
-    t = None if conditions.temperature is None else np.asarray(conditions.temperature)
-    a = None if conditions.approach is None else np.asarray(conditions.approach)
-    ref = 20.0 if t is None else float(np.mean(t))
-    pred, _ = idf.predicted_joints(x, MECH, PAYLOAD, STRUCTURE, p, q, conditions=conditions,
-                                   reference_temperature=ref)
-    data = idf.CalibrationData(pred, sigma, p, q, cov, t, a)
-    white = idf.whitening(MECH, data)
-    noise = np.linalg.solve(white, rng.normal(0.0, 1.0, (n, 6, 1)))[..., 0]
-    return data._replace(joints=pred + noise)
+    """Calibration data of the machine ``x`` as this model describes it."""
+    return model_data(x, MECH, PAYLOAD, STRUCTURE, p, q, pose_cov, JOINT_SIGMA, conditions,
+                      rng)
 
 
 def absorbed(x: Any, data: idf.CalibrationData, identified: Any) -> Any:
@@ -319,3 +307,88 @@ def test_a_new_file_without_its_reference_temperature_is_refused(
         path = calfile.write(tmp_path / 'bad.yaml', bad)
         with pytest.raises(calfile.CalibrationFileError, match=message):
             calfile.load(path, MECH)
+
+
+# -- adequacy ---------------------------------------------------------------------------------
+@pytest.mark.parametrize('left_out', [None, 'compliance', 'thermal', 'reversal'])
+def test_the_adequacy_test_fires_when_a_present_class_is_left_out(
+        program: prog.Program, left_out: str | None) -> None:
+    """Data with every class: fitting all passes; leaving out one that is present fails the
+    χ² test, widens the uncertainty and names the class (rates over 20 trials:
+    benchmarks/calibration_adequacy.py)."""
+    rng = np.random.default_rng(16)
+    p, q = program.position, program.quaternion
+    data = synthetic(machine_vector(16), p, q, conditions_of(len(p), rng), rng)
+    settings = idf.IdentificationSettings(**({f'fit_{left_out}': False} if left_out else {}))
+    result = idf.identify(MECH, PAYLOAD, STRUCTURE, data, settings)
+    verdict = result.adequacy
+    assert verdict is not None and verdict.dof == result.dof
+    if left_out is None:
+        assert verdict.adequate and 'model adequate' in verdict.verdict()
+        assert not result.model_error.any() and not verdict.suspects
+        return
+    assert not verdict.adequate and verdict.p_value < 0.01
+    assert verdict.suspects[0].effect == left_out, verdict.suspects
+    assert 'model inadequate (p < 0.01)' in verdict.verdict()
+    assert f'likely missing: {left_out}' in verdict.verdict()
+    # the widened uncertainty brings chi2/dof to 1 (per joint kind, on the diagonal) ...
+    allowance = np.diag([1e-6**2] * 3 + [5e-6**2] * 3)
+    cov = idf.joint_covariance(MECH, data) + allowance + np.diag(verdict.model_error**2)
+    var = np.diagonal(cov, axis1=1, axis2=2)
+    for cols in (slice(0, 3), slice(3, 6)):
+        ratio = np.sum(result.residuals[:, cols]**2 / var[:, cols]) / (result.dof / 2)
+        assert ratio == pytest.approx(1.0, rel=1e-6) or not verdict.model_error[cols].any()
+    # ... and is carried into the pose uncertainty
+    hp, hq = program.hold_out_position[:3], program.hold_out_quaternion[:3]
+    bare = idf.pose_uncertainty(result.x, result.covariance, MECH, PAYLOAD, STRUCTURE, hp, hq)
+    wide = idf.pose_uncertainty(result.x, result.covariance, MECH, PAYLOAD, STRUCTURE, hp, hq,
+                                model_error=result.model_error)
+    assert np.all(np.trace(wide[:, :3, :3], axis1=1, axis2=2)
+                  > np.trace(bare[:, :3, :3], axis1=1, axis2=2))
+
+
+def test_the_hold_out_test_judges_poses_the_fit_never_saw(program: prog.Program) -> None:
+    rng = np.random.default_rng(17)
+    x = machine_vector(17)
+    p, q = program.position, program.quaternion
+    n, m = len(p), len(program.hold_out_position)
+    both = synthetic(x, np.r_[p, program.hold_out_position],
+                     np.r_[q, program.hold_out_quaternion], conditions_of(n + m, rng), rng)
+    fit, held = both.subset(np.arange(n)), both.subset(np.arange(n, n + m))
+    result = idf.identify(MECH, PAYLOAD, STRUCTURE, fit)
+    good = idf.hold_out_adequacy(result, MECH, PAYLOAD, STRUCTURE, held)
+    assert good.adequate and good.dof == 6 * m and good.label == 'hold-out'
+    # the same poses 10 um further along every leg: the model does not hold there
+    shifted = held._replace(joints=held.joints + np.r_[[10e-6] * 3, [0.0] * 3])
+    bad = idf.hold_out_adequacy(result, MECH, PAYLOAD, STRUCTURE, shifted)
+    assert not bad.adequate and bad.model_error[0] > 1e-6
+
+
+# -- the envelope -----------------------------------------------------------------------------
+def test_the_envelope_names_why_a_pose_lies_outside(tmp_path: Path,
+                                                    program: prog.Program) -> None:
+    from positioning_cell.calibration.envelope import Envelope, envelope_of, rotation_from_home
+    p, q = program.position, program.quaternion
+    t = np.linspace(19.0, 23.0, len(p))
+    env = envelope_of(MECH, p, q, PAYLOAD.mass, t)
+    assert env.mass == (PAYLOAD.mass, PAYLOAD.mass) and env.temperature == (19.0, 23.0)
+    assert env.rotation == pytest.approx(rotation_from_home(MECH, q).max())
+    # every measured pose is inside, at its conditions
+    assert all(r == () for r in env.reasons(MECH, p, q, PAYLOAD.mass, t))
+    centre = p.mean(axis=0)
+    far = centre + np.array([0.0, 0.0, 0.05])
+    (why,) = env.reasons(MECH, far, MECH.home_quaternion, PAYLOAD.mass + 20.0, 30.0)
+    assert why[0] == f'payload {PAYLOAD.mass + 20.0:g} kg outside the calibrated ' \
+        f'{PAYLOAD.mass:g} to {PAYLOAD.mass:g} kg'
+    assert why[1] == 'temperature 30.0 degC outside the calibrated 19.0 to 23.0 degC'
+    assert why[2].startswith('position ') and why[2].endswith('mm outside the measured positions')
+    from scipy.spatial.transform import Rotation
+    tilted = Rotation.from_rotvec([env.rotation + 0.01, 0.0, 0.0]).as_quat()
+    (why,) = env.reasons(MECH, centre, tilted)
+    assert len(why) == 1 and why[0].startswith('rotation ') and 'beyond the calibrated' in why[0]
+    # stored in the file and read back
+    back = Envelope.from_document(yaml.safe_load(yaml.safe_dump(env.to_document())))
+    assert back.reasons(MECH, far, MECH.home_quaternion) == env.reasons(MECH, far,
+                                                                         MECH.home_quaternion)
+    with pytest.raises(InputError, match=r'envelope\.mass_kg must be'):
+        Envelope.from_document({**env.to_document(), 'mass_kg': [60.0, 50.0]})

@@ -36,10 +36,11 @@ from numpy.typing import NDArray
 from positioning_cell import files
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.conditions import STANDARD_TEMPERATURE, TEMPERATURE_RANGE
+from positioning_cell.calibration.envelope import Envelope
 from positioning_cell.calibration.identify import Identification
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.errors import ConfigError
+from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.mechanics.statics import Payload, Structure
 
 FloatArray = NDArray[np.float64]
@@ -74,9 +75,10 @@ class Calibration:
     """A loaded calibration: the vector ``x`` (COUNT,), its ``sigma`` (NaN: fixed), which
     parameters were ``identified``, the ``seating_force`` N, everything else of the file in
     ``meta``, the parameters' ``covariance`` (COUNT, COUNT), the ``reference_temperature`` °C
-    of the thermal terms, the ``model_error`` (6,) per joint (m, rad), the file's ``format``
-    and what it ``lacks`` (an older format's missing classes and entries; module
-    docstring). The parameters a file lacks are 0, as in the model it was identified with."""
+    of the thermal terms, the ``model_error`` (6,) per joint (m, rad), the file's ``format``,
+    what it ``lacks`` (an older format's missing classes and entries; module docstring) and
+    its validity ``envelope`` (None: not stored). The parameters a file lacks are 0, as in
+    the model it was identified with."""
 
     x: FloatArray
     sigma: FloatArray
@@ -88,6 +90,7 @@ class Calibration:
     model_error: FloatArray = field(default_factory=lambda: np.zeros(6))
     format: int = FORMAT
     lacks: tuple[str, ...] = ()
+    envelope: Envelope | None = None
 
     def model(self, nominal: Mechanism, payload: Payload, structure: Structure) -> MachineModel:
         """The calibrated machine carrying ``payload``."""
@@ -235,6 +238,12 @@ def _calibration(data: Any, nominal: Mechanism, where: str) -> Calibration:
         model_error = np.repeat([_number(error.get(key), where, f'model_error.{key}', 0.0)
                                  for key in ('length_m', 'theta_rad')], 3)
         lacks = tuple(key for key in OPTIONAL if key not in body)
+    envelope = None
+    if 'envelope' in body and version >= 2:
+        try:
+            envelope = Envelope.from_document(body['envelope'])
+        except InputError as err:
+            raise CalibrationFileError(f'{where}: {err}') from None
     meta = {k: v for k, v in body.items() if k not in ('parameters', 'covariance')}
     return Calibration(x, sigma, identified, float(seating), meta, covariance, reference,
-                       model_error, int(version), lacks)
+                       model_error, int(version), lacks, envelope)

@@ -15,6 +15,7 @@ from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration.calibrated import Nominal
 from positioning_cell.calibration.collect import Collected
+from positioning_cell.calibration.envelope import envelope_of
 from positioning_cell.calibration.report import predict, write_report
 
 
@@ -58,9 +59,13 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
     hold = predict(s.mechanism, model, collected.hold_out) if len(collected.hold_out.joints) \
         else None
     hold_doc = None
+    hold_verdict = None
     if hold is not None:
+        hold_verdict = idf.hold_out_adequacy(result, s.mechanism, s.payload, s.structure,
+                                             collected.hold_out)
         promised = idf.pose_uncertainty(result.x, result.covariance, s.mechanism, s.payload,
-                                        s.structure, *collected.hold_out_commanded)
+                                        s.structure, *collected.hold_out_commanded,
+                                        model_error=result.model_error)
         sigma_p = np.sqrt(np.trace(promised[:, :3, :3], axis1=1, axis2=2))
         hold_doc = {'poses': len(collected.hold_out.joints),
                     'promised_sigma_um': round(float(np.sqrt(np.mean(sigma_p**2))) * 1e6, 3),
@@ -69,10 +74,15 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
                     'calibrated_max_um': round(float(np.linalg.norm(hold.calibrated[0], axis=1)
                                                      .max()) * 1e6, 3)}
     out.mkdir(parents=True, exist_ok=True)
+    verdicts = [v for v in (result.adequacy, hold_verdict) if v is not None]
+    envelope = envelope_of(s.mechanism, collected.fit.position, collected.fit.quaternion,
+                           s.payload.mass, collected.fit.temperature)
+    extra = {'adequacy': {v.label: v.to_document() for v in verdicts},
+             'envelope': envelope.to_document()}
     doc = calfile.document(result, s.mechanism, idf.IdentificationSettings().seating_force,
-                           program, hold_doc)
+                           program, hold_doc, extra=extra)
     path = calfile.write(out / 'calibration.yaml', doc)
-    report = write_report(out, result, fit, hold)
+    report = write_report(out, result, fit, hold, verdicts=[v.verdict() for v in verdicts])
     ident = result.identifiability
     say(f'identified {ident.rank}/{len(ident.identified)} parameters from '
         f'{len(collected.fit.joints)} poses (chi2/dof {result.chi2 / result.dof:.2f}); fit '
@@ -83,8 +93,10 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
             f'{hold_doc["calibrated_rms_um"]} um, max {hold_doc["calibrated_max_um"]} um '
             f'(nominal model {hold_doc["nominal_rms_um"]} um); the calibrated model\'s own '
             f'uncertainty there: {hold_doc["promised_sigma_um"]} um (1 sigma, |dp|)')
+    for verdict in verdicts:
+        say(verdict.verdict())
     if ident.merged:
-        say('fixed (not separable): ' + ', '.join(ident.merged))
+        say('fixed (not separable or not excited): ' + ', '.join(ident.merged))
     say(f'calibration: {path}\nreport:      {report}')
     figures = Figures(rms(fit.calibrated[0]),
                       rms(hold.calibrated[0]) if hold is not None else float('nan'),

@@ -38,6 +38,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
+from positioning_cell.calibration import adequacy as adq
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.conditions import (
     STANDARD_TEMPERATURE,
@@ -88,6 +89,18 @@ class IdentificationSettings:
     fit_lead: bool = setting(True, "identify each leg's lead scale (false: none)")
     fit_reversal: bool = setting(True, "identify each axis' reversal half-band (false: "
                                  'none)')
+    allowance_length: float = setting(
+        1e-6, 'model allowance of the adequacy test: what the model may miss per leg', 'm',
+        low=0.0, high=1e-3)
+    allowance_theta: float = setting(
+        5e-6, 'model allowance of the adequacy test per theta axis', 'rad', low=0.0,
+        high=1e-2)
+    adequacy_p: float = setting(
+        0.01, 'the model is adequate when the p-value of its residuals\' chi2 is at least '
+        'this', low=0.0, low_open=True, high=0.5)
+    screw_pitch: float = setting(
+        0.005, "lead of the legs' screws (what a periodic error of the residuals is sought "
+        'at)', 'm', low=0.0, low_open=True, high=0.1)
     min_temperature_range: float = setting(
         1.0, 'thermal terms are fitted only over a wider range of measured temperatures', 'K',
         low=0.0, high=50.0)
@@ -237,13 +250,18 @@ def force_directions(x: FloatArray, nominal: Mechanism, payload: Payload,
     return unit.offsets(_geometry(x, nominal), position, quaternion)
 
 
-def whitening(nominal: Mechanism, data: CalibrationData) -> FloatArray:
-    """W_k (N, 6, 6) with W_k C_k W_kᵀ = I, C_k = J⁻¹ Σ_k J⁻ᵀ + diag(σ_joint²): the joint-space
-    covariance of pose k's residual."""
+def joint_covariance(nominal: Mechanism, data: CalibrationData) -> FloatArray:
+    """C_k (N, 6, 6) = J⁻¹ Σ_k J⁻ᵀ + diag(σ_joint²): the joint-space covariance of pose k's
+    residual (m², rad²)."""
     jinv = inverse_jacobian(nominal, data.position, data.quaternion)
     cov = jinv @ data.covariance @ np.swapaxes(jinv, 1, 2)
-    cov = cov + np.einsum('ni,ij->nij', data.joint_sigma**2, np.eye(6))
-    chol = np.linalg.cholesky(cov)
+    out: FloatArray = cov + np.einsum('ni,ij->nij', data.joint_sigma**2, np.eye(6))
+    return out
+
+
+def whitening(nominal: Mechanism, data: CalibrationData) -> FloatArray:
+    """W_k (N, 6, 6) with W_k C_k W_kᵀ = I, C_k of :func:`joint_covariance`."""
+    chol = np.linalg.cholesky(joint_covariance(nominal, data))
     eye = np.broadcast_to(np.eye(6), chol.shape)
     white: FloatArray = np.asarray(np.linalg.solve(chol, eye), dtype=float)
     return white
@@ -307,8 +325,8 @@ class Identification:
     the thermal terms (the data's mean temperature; 20 without one) and ``excluded``: the
     parameters left out before the fit (not to be fitted, or not excited by the data: no
     temperature, one approach direction), each with why, and the ``model_error`` (6,) per
-    joint (m, rad): what the model misses by the adequacy test (0: adequate;
-    :mod:`positioning_cell.calibration.adequacy`)."""
+    joint (m, rad): what the model misses by the ``adequacy`` test (0: adequate; else the
+    allowance and the widening together; :mod:`positioning_cell.calibration.adequacy`)."""
 
     x: FloatArray
     covariance: FloatArray
@@ -321,6 +339,7 @@ class Identification:
     reference_temperature: float = STANDARD_TEMPERATURE
     excluded: dict[str, str] = field(default_factory=dict)
     model_error: FloatArray = field(default_factory=lambda: np.zeros(6))
+    adequacy: adq.Adequacy | None = None
 
     @property
     def sigma(self) -> FloatArray:
@@ -450,8 +469,44 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
     residuals = pred - data.joints
     pose_res = np.einsum('nij,nj->ni', jacobian(nominal, data.position, data.quaternion).matrix,
                          residuals)
+    allowance = adq.allowance_covariance(s.allowance_length, s.allowance_theta)
+    verdict = adq.assess('fit', residuals, joint_covariance(nominal, data) + allowance, dof,
+                         s.adequacy_p, _signatures(x, nominal, payload, structure, data, s))
+    model_error = np.zeros(6) if verdict.adequate else \
+        np.sqrt(np.diag(allowance) + verdict.model_error**2)
     return Identification(x, cov, ident, residuals, np.linalg.norm(pose_res[:, :3], axis=1),
-                          chi2, dof, int(fit.nfev), reference, excluded)
+                          chi2, dof, int(fit.nfev), reference, excluded, model_error, verdict)
+
+
+def _signatures(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
+                data: CalibrationData, settings: IdentificationSettings
+                ) -> dict[str, FloatArray]:
+    """The effects' signatures at the poses of ``data`` (:func:`adequacy.signatures`)."""
+    efforts = actuator_efforts(_geometry(x, nominal), data.position, data.quaternion, payload,
+                               structure)
+    return adq.signatures(efforts, data.temperature, data.approach, data.joints[:, :3],
+                          settings.screw_pitch)
+
+
+def hold_out_adequacy(result: Identification, nominal: Mechanism, payload: Payload,
+                      structure: Structure, data: CalibrationData,
+                      settings: IdentificationSettings | None = None) -> adq.Adequacy:
+    """The χ² test of the identified model at hold-out poses ``data`` it was not fitted to
+    (6N degrees of freedom; their covariance: the measurement's, the allowance and the
+    identified parameters' own uncertainty; not the model error, which is what is tested)."""
+    s = settings or IdentificationSettings()
+    data = check_data(data)
+    pred, sens = predicted_joints(result.x, nominal, payload, structure, data.position,
+                                  data.quaternion, s.seating_force, with_jacobian=True,
+                                  conditions=Conditions(data.temperature, data.approach),
+                                  reference_temperature=result.reference_temperature)
+    assert sens is not None
+    cov = (joint_covariance(nominal, data)
+           + adq.allowance_covariance(s.allowance_length, s.allowance_theta)
+           + sens @ result.covariance @ np.swapaxes(sens, 1, 2))
+    residuals = pred - data.joints
+    return adq.assess('hold-out', residuals, cov, 6 * residuals.shape[0], s.adequacy_p,
+                      _signatures(result.x, nominal, payload, structure, data, s))
 
 
 def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
