@@ -293,7 +293,7 @@ def test_an_old_file_loads_names_what_it_lacks_and_gives_its_model(
         calfile.load(path, MECH)
 
 
-def test_a_new_file_without_its_reference_temperature_is_refused(
+def test_a_new_file_with_a_bad_reference_temperature_or_model_error_is_refused(
         tmp_path: Path, program: prog.Program) -> None:
     rng = np.random.default_rng(15)
     p, q = program.position, program.quaternion
@@ -307,6 +307,12 @@ def test_a_new_file_without_its_reference_temperature_is_refused(
         path = calfile.write(tmp_path / 'bad.yaml', bad)
         with pytest.raises(calfile.CalibrationFileError, match=message):
             calfile.load(path, MECH)
+    # without them: 20 degC and no model error, named
+    body = {k: v for k, v in doc['calibration'].items()
+            if k not in ('reference_temperature', 'model_error')}
+    loaded = calfile.load(calfile.write(tmp_path / 'bare.yaml', {'calibration': body}), MECH)
+    assert loaded.lacks == calfile.OPTIONAL and loaded.reference_temperature == 20.0
+    assert not loaded.model_error.any()
 
 
 # -- adequacy ---------------------------------------------------------------------------------

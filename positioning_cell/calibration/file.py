@@ -50,8 +50,9 @@ FORMAT_COUNTS = {1: cp.FORMAT1_COUNT, 2: cp.COUNT}
 #: What a format-1 file lacks.
 FORMAT1_LACKS = (*cp.TERM_CLASSES, 'reference_temperature', 'model_error', 'adequacy',
                  'envelope')
-#: Entries of a format-2 file that may be missing (then named in ``lacks``).
-OPTIONAL = ('adequacy', 'envelope')
+#: Entries of a format-2 file that may be missing (then named in ``lacks``; the reference
+#: temperature then 20 °C, the model error 0).
+OPTIONAL = ('reference_temperature', 'model_error', 'adequacy', 'envelope')
 _GEOMETRY_KEYS = ('base_radius', 'platform_radius', 'home_length', 'base_offsets',
                   'platform_offsets')
 
@@ -230,13 +231,15 @@ def _calibration(data: Any, nominal: Mechanism, where: str) -> Calibration:
     if version == 1:
         lacks: tuple[str, ...] = FORMAT1_LACKS
     else:
-        reference = _number(body.get('reference_temperature'), where, 'reference_temperature',
-                            *TEMPERATURE_RANGE)
-        error = body.get('model_error')
-        if not isinstance(error, dict):
-            raise CalibrationFileError(f'{where}: no "model_error:" mapping')
-        model_error = np.repeat([_number(error.get(key), where, f'model_error.{key}', 0.0)
-                                 for key in ('length_m', 'theta_rad')], 3)
+        if 'reference_temperature' in body:
+            reference = _number(body['reference_temperature'], where,
+                                'reference_temperature', *TEMPERATURE_RANGE)
+        if 'model_error' in body:
+            error = body['model_error']
+            if not isinstance(error, dict):
+                raise CalibrationFileError(f'{where}: model_error is not a mapping')
+            model_error = np.repeat([_number(error.get(key), where, f'model_error.{key}', 0.0)
+                                     for key in ('length_m', 'theta_rad')], 3)
         lacks = tuple(key for key in OPTIONAL if key not in body)
     envelope = None
     if 'envelope' in body and version >= 2:
