@@ -11,7 +11,10 @@ model predicts at the measured pose, minus the encoder values read,
 closed form per leg with the load model's joint-centre shifts
 d_i = p + R (b_i + r_b s_B,i) − (A_i + r_a s_A,i), l_i = |d_i|, θ_i = asin(u_i · e_t,i)
 (s_A, s_B the seated force directions of :class:`~positioning_cell.clearance.load
-.LoadAwareClearance` at the measured pose). Its Jacobian is analytic: ∂l/∂d = uᵀ,
+.LoadAwareClearance` at the measured pose), and the terms beyond geometry of
+:mod:`positioning_cell.calibration.machine` (compliance times the statics' joint efforts,
+thermal expansion about the reference temperature, lead, reversal times the approach sign)
+under each pose's recorded conditions. Its Jacobian is analytic: ∂l/∂d = uᵀ,
 ∂θ/∂d = wᵀ with w = (e_t − (u·e_t) u) / (l cos θ) (the rows of
 :func:`positioning_cell.core.kinematics.inverse_jacobian`); the force directions s_A, s_B are
 those of the current geometry, held constant in the Jacobian (turning them adds at most a few
@@ -26,6 +29,10 @@ decomposed by QR with column pivoting (the base-parameter method of Khalil & Dom
 parameter whose new information |R_jj| is below ``min_information`` (its standard uncertainty
 would exceed 1/min_information of its expected size) cannot be separated from those already
 chosen: it is fixed at its nominal value (0) and the parameters that absorb it are named.
+Before that, the classes the settings switch off and those the data cannot excite (no
+temperature recorded or too narrow a range, an axis approached from one side only) are left
+out, each with why (:func:`excluded_parameters`). After the fit, the residuals' χ² test
+(:mod:`positioning_cell.calibration.adequacy`) says whether the model is adequate.
 """
 
 from __future__ import annotations
