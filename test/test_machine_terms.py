@@ -398,3 +398,35 @@ def test_the_envelope_names_why_a_pose_lies_outside(tmp_path: Path,
                                                                          MECH.home_quaternion)
     with pytest.raises(InputError, match=r'envelope\.mass_kg must be'):
         Envelope.from_document({**env.to_document(), 'mass_kg': [60.0, 50.0]})
+
+
+def test_the_report_states_the_verdict_and_why_parameters_were_left_out(
+        tmp_path: Path, program: prog.Program) -> None:
+    from positioning_cell.calibration.report import predict, write_report
+    rng = np.random.default_rng(18)
+    p, q = program.position, program.quaternion
+    x = machine_vector(18)
+    data = synthetic(x, p, q, conditions_of(len(p), rng), rng)
+    result = idf.identify(MECH, PAYLOAD, STRUCTURE, data,
+                          idf.IdentificationSettings(fit_thermal=False))
+    model = result.model(MECH, PAYLOAD, STRUCTURE)
+    text = write_report(tmp_path, result, predict(MECH, model, data), None).read_text()
+    assert result.adequacy is not None
+    assert f'- {result.adequacy.verdict()}' in text and 'model inadequate' in text
+    assert '- thermal.leg_expansion: not fitted (identification.fit_thermal: false)' in text
+    assert '| leg1.theta_compliance | ' in text and 'urad/(N m)' in text
+
+
+def test_the_report_predicts_under_each_poses_conditions(program: prog.Program) -> None:
+    """The calibrated model's prediction of measured poses uses their temperature and approach:
+    on data of the model itself it is as good as the tracker (3 um)."""
+    from positioning_cell.calibration.report import predict
+    rng = np.random.default_rng(19)
+    p, q = program.position, program.quaternion
+    x = machine_vector(19)
+    data = synthetic(x, p, q, conditions_of(len(p), rng), rng)
+    ref = float(np.mean(data.temperature))
+    model = cp.machine_model(x, MECH, PAYLOAD, STRUCTURE, reference_temperature=ref)
+    error = np.linalg.norm(predict(MECH, model, data).calibrated[0], axis=1)
+    blind = model.poses(data.joints[:, :3], data.joints[:, 3:]).position - data.position
+    assert np.sqrt(np.mean(error**2)) < 6e-6 < np.sqrt(np.mean(np.sum(blind**2, axis=1)))

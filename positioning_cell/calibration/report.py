@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.calibration import parameters as cp
+from positioning_cell.calibration.conditions import Conditions
 from positioning_cell.calibration.identify import CalibrationData, Identification
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.core.mechanism import Mechanism
@@ -34,10 +35,11 @@ class Prediction(NamedTuple):
 
 def predict(nominal: Mechanism, model: MachineModel, data: CalibrationData) -> Prediction:
     """How well each machine predicts the measured poses of ``data`` from their encoder
-    readings (module docstring)."""
+    readings under their recorded conditions (module docstring)."""
     out = []
+    conditions = Conditions(data.temperature, data.approach)
     for machine in (MachineModel(nominal), model):
-        pose = machine.poses(data.joints[:, :3], data.joints[:, 3:])
+        pose = machine.poses(data.joints[:, :3], data.joints[:, 3:], conditions=conditions)
         out.append(pose_error(data.position, data.quaternion, pose.position, pose.quaternion))
     return Prediction(out[0], out[1])
 
