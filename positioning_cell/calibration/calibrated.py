@@ -13,7 +13,7 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.mechanics.statics import Payload, Structure
 
 #: Longest time the positioner waits for a calibration file to load (s): a real one loads in
-#: some 20 ms, the largest accepted (256 KiB) in some 0.2 s; the bound keeps the node's
+#: some 15 ms, the largest accepted (384 KiB) in some 0.25 s; the bound keeps the node's
 #: parameter services and its stop answering whatever the file system does.
 LOAD_TIMEOUT_S = 1.0
 
