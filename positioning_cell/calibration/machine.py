@@ -244,6 +244,11 @@ class MachineModel:
         return actuator_efforts(self.mechanism, position, quaternion,
                                 self.payload or Payload(), self.structure or Structure())
 
+    def at(self, conditions: Conditions) -> MachineModel | ConditionedMachine:
+        """This machine under fixed ``conditions`` as a compensation model (ClearanceLike):
+        itself when its terms do not depend on them."""
+        return self if self.terms.is_zero else ConditionedMachine(self, conditions)
+
     # -- ClearanceLike (the mover's compensation model) -------------------------------------
     def attained_pose(self, mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
                       phi0: ArrayLike | None = None) -> ForwardResult:
@@ -254,3 +259,22 @@ class MachineModel:
                    quaternion: ArrayLike) -> InverseResult:
         """:meth:`commands` (``mech``, the nominal machine, is not used)."""
         return self.commands(position, quaternion)
+
+
+@dataclass(frozen=True)
+class ConditionedMachine:
+    """A :class:`MachineModel` under fixed ``conditions`` (one temperature, one approach row
+    for every pose): the ClearanceLike the mover compensates with while those hold."""
+
+    machine: MachineModel
+    conditions: Conditions
+
+    def attained_pose(self, mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
+                      phi0: ArrayLike | None = None) -> ForwardResult:
+        """:meth:`MachineModel.poses` under the conditions (``mech`` not used)."""
+        return self.machine.poses(lengths, thetas, phi0, self.conditions)
+
+    def compensate(self, mech: Mechanism, position: ArrayLike,
+                   quaternion: ArrayLike) -> InverseResult:
+        """:meth:`MachineModel.commands` under the conditions (``mech`` not used)."""
+        return self.machine.commands(position, quaternion, self.conditions)
