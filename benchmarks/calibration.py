@@ -180,7 +180,8 @@ def within_3_sigma(result: idf.Identification, payload: object, p: np.ndarray, q
 
 def mover_mode(sim: PoseMeasurementSimulator, result: idf.Identification, p: np.ndarray,
                q: np.ndarray, seed: int, mode: str) -> tuple[np.ndarray, np.ndarray]:
-    """The positioner's own mover in ``mode``, the calibration loaded from its file, moving the
+    """The positioner's own mover in ``mode``, the calibration loaded from its file, told the
+    cell's air-temperature sensor reading before each move (Mover.air_temperature), moving the
     simulated machine (sim.instant_cell) to each pose: the truth |Δp| (N,) m and how far the
     truth is from where the move says it ended (its stated error) in its stated standard
     uncertainties, position and rotation (N, 2; inf without one)."""
@@ -196,8 +197,15 @@ def mover_mode(sim: PoseMeasurementSimulator, result: idf.Identification, p: np.
         mover = Mover(settings, cell.machine())
     mover.driver_status(DRIVES_READY)
     assert mover.estimate_pose() is not None  # the encoders have been read
+    thermal = sim.truth.effects.thermal
+    sensor_rng = np.random.default_rng(400 + seed)
     errors, ratios = [], []
     for pk, qk in zip(p, q, strict=True):
+        if thermal is not None:  # the cell's sensor reading now, with its stated uncertainty
+            reading = float(thermal.sensor(np.array([cell.time]), sensor_rng)[0])
+            tp = thermal.parameters
+            assert mover.air_temperature(reading, tp.sensor_offset_sigma**2
+                                         + tp.sensor_noise**2) == ''
         moved = mover.move('base', pk, qk)
         e_p, e_r = (e[0] for e in pose_error(*(a[None] for a in cell.true_pose()), pk[None],
                                              qk[None]))
