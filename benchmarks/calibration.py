@@ -25,7 +25,9 @@ identification time. Then the adequacy test over NOISE_SEEDS noise draws per mac
 often the χ² test fires when one effect class is left out of the identified model, and when
 none is (false alarms), and which effect it names.
 
-With ``--no-effects`` the machines are exactly of the identified model (the effects off).
+With ``--no-effects`` the machines are exactly of the identified model (the effects off;
+nothing is left out to detect, so the detection and the measured-against-model targets are
+not checked).
 
 Run: .venv/bin/python benchmarks/calibration.py [--machines 5] [--no-effects]
 Targets (exit 1 if one is not met): hold-out |Δp| RMS <= 10 µm and max <= 20 µm; after a
@@ -53,9 +55,11 @@ from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.conditions import Conditions
 from positioning_cell.calibration.identify import CalibrationData
+from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.kinematics import inverse
 from positioning_cell.core.poses import pose_error
+from positioning_cell.mechanics.statics import Payload
 from positioning_cell.motion.mover import Mover
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.parameters import parse
@@ -134,7 +138,7 @@ class Moves(NamedTuple):
     e_r: np.ndarray
 
 
-def hold_out_moves(truth: Truth, model: object | None, p: np.ndarray, q: np.ndarray,
+def hold_out_moves(truth: Truth, model: MachineModel | None, p: np.ndarray, q: np.ndarray,
                    rng: np.random.Generator, air_change: float = 0.0) -> Moves:
     """The hold-out poses visited through their intermediates from HOLD_OUT_START on, with
     the air ``air_change`` K from its course: commands from ``model`` (a MachineModel; None:
@@ -150,8 +154,7 @@ def hold_out_moves(truth: Truth, model: object | None, p: np.ndarray, q: np.ndar
     if model is None:
         cmd = nominal_commands(seq, q2)
     else:
-        out = model.commands(seq, q2, Conditions(temperature=sensor,  # type: ignore[attr-defined]
-                                                 approach=planned))
+        out = model.commands(seq, q2, Conditions(temperature=sensor, approach=planned))
         cmd = np.c_[out.lengths, out.thetas]
     cond = sequence_conditions(thermal, cmd, times)
     cond = cond._replace(air=cond.air + air_change, legs=cond.legs + air_change)
@@ -169,11 +172,11 @@ def worst(e: np.ndarray) -> float:
     return float(np.linalg.norm(e, axis=1).max())
 
 
-def within_3_sigma(result: idf.Identification, payload: object, p: np.ndarray, q: np.ndarray,
+def within_3_sigma(result: idf.Identification, payload: Payload, p: np.ndarray, q: np.ndarray,
                    e_p: np.ndarray) -> float:
     """The share of poses whose truth |Δp| is within 3 stated σ_p (with the model error)."""
-    cov = idf.pose_uncertainty(result.x, result.covariance, MECH, payload,  # type: ignore[arg-type]
-                               STRUCTURE, p, q, model_error=result.model_error)
+    cov = idf.pose_uncertainty(result.x, result.covariance, MECH, payload, STRUCTURE, p, q,
+                               model_error=result.model_error)
     sigma = np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2))
     return float(np.mean(np.linalg.norm(e_p, axis=1) <= 3.0 * sigma))
 
@@ -313,7 +316,7 @@ def main() -> int:
             f'adequate {result.adequacy.adequate if result.adequacy else "?"}; fixed: '
             + '; '.join(f'{k} (into {", ".join(n for n, _ in v) or "-"})'
                         for k, v in result.identifiability.merged.items()))
-        if rms(rigid_measured[:, None]) >= rms(rigid_model[:, None]):
+        if effects and rms(rigid_measured[:, None]) >= rms(rigid_model[:, None]):
             failures.append(f'machine {seed}: measured mode not below model mode with '
                             'compliance left out')
     print('\n' + '\n'.join(details))
@@ -334,11 +337,11 @@ def adequacy_trials(machines: int, effects: bool, pp: np.ndarray, pq: np.ndarray
         sim = simulator(seed, effects)
         for noise in range(NOISE_SEEDS):
             data = calibration_run(sim, pp, pq, np.random.default_rng(1000 * (noise + 1) + seed))
-            for case in fired:
+            for case, hits in fired.items():
                 s = FULL if case == 'none' else replace(FULL, **{f'fit_{case}': False})
                 verdict = idf.identify(MECH, PAYLOAD, STRUCTURE, data, s).adequacy
                 assert verdict is not None
-                fired[case].append(not verdict.adequate)
+                hits.append(not verdict.adequate)
                 if verdict.suspects:
                     name = verdict.suspects[0].effect
                     named[case][name] = named[case].get(name, 0) + 1
@@ -353,7 +356,7 @@ def adequacy_trials(machines: int, effects: bool, pp: np.ndarray, pq: np.ndarray
               f'{names}')
         if case == 'none' and rate > 0.05:
             failures.append(f'adequacy false alarms {rate * 100:.0f} % > 5 %')
-        elif case in ('compliance', 'thermal', 'reversal') and rate < 0.95:
+        elif effects and case in ('compliance', 'thermal', 'reversal') and rate < 0.95:
             failures.append(f'adequacy detects {case} left out in {rate * 100:.0f} % < 95 %')
 
 
