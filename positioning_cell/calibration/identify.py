@@ -28,7 +28,8 @@ Identifiability: the whitened Jacobian in units of each parameter's expected siz
 decomposed by QR with column pivoting (the base-parameter method of Khalil & Dombre). A
 parameter whose new information |R_jj| is below ``min_information`` (its standard uncertainty
 would exceed 1/min_information of its expected size) cannot be separated from those already
-chosen: it is fixed at its nominal value (0) and the parameters that absorb it are named.
+chosen: it is fixed at its nominal value (0; a compliance the nominal structure's 1/k, since
+a leg is not rigid) and the parameters that absorb it are named.
 Before that, the classes the settings switch off and those the data cannot excite (no
 temperature recorded or too narrow a range, an axis approached from one side only) are left
 out, each with why (:func:`excluded_parameters`). After the fit, the residuals' χ² test
@@ -70,6 +71,9 @@ from positioning_cell.parameters import check_fields, setting
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
+
+#: The compliance columns: fixed, they keep the nominal value (not 0).
+_COMPLIANCE_COLUMNS = np.arange(cp.COUNT)[cp.COMPLIANCE]
 
 class IdentificationError(InputError):
     """The data cannot identify the model (too few or degenerate poses); the message gives the
@@ -429,10 +433,13 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
 
     x0 = np.zeros(cp.COUNT)
     x0[cp.R_A], x0[cp.R_B] = scale[cp.R_A], scale[cp.R_B]
+    # A leg is not rigid: a compliance the data cannot separate keeps the nominal structure's
+    # (at another payload 0 would be a rigid leg, the whole deflection change unexplained).
+    x0[cp.COMPLIANCE] = cp.nominal_compliance(structure)
+    x0[out_cols] = 0.0
     _, j0 = evaluate(x0, True)
     assert j0 is not None
     j0[:, out_cols] = 0.0
-    x0[out_cols] = 0.0
     ident = identifiability(j0, s.min_information)
     if ident.rank < s.min_identified or 6 * n <= ident.rank:
         unknown = ', '.join(name for name, ok in zip(cp.PARAMETER_NAMES, ident.identified,
@@ -441,7 +448,8 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
             f'{n} poses identify {ident.rank} of {cp.COUNT} parameters (at least '
             f'{s.min_identified} needed); not identifiable: {unknown}')
     free = np.flatnonzero(ident.identified)
-    start = np.where(ident.identified, x0, 0.0)
+    start = np.where(ident.identified | np.isin(np.arange(cp.COUNT), _COMPLIANCE_COLUMNS),
+                     x0, 0.0)
 
     def full(z: FloatArray) -> FloatArray:
         x = start.copy()

@@ -107,6 +107,14 @@ def scales(mech: Mechanism, joint_centre: float = 1e-4, length: float = 1e-4,
     return out
 
 
+def nominal_compliance(structure: Structure) -> FloatArray:
+    """The compliances (6,) the nominal ``structure`` gives: 1/k of the legs (m/N) and of the
+    θ drives (rad/(N m)); 0 for a rigid (infinite) stiffness."""
+    k = np.r_[[structure.leg_stiffness] * 3, [structure.theta_stiffness] * 3]
+    out: FloatArray = np.where(np.isfinite(k), 1.0 / k, 0.0)
+    return out
+
+
 def terms_of(x: FloatArray, reference_temperature: float = STANDARD_TEMPERATURE
              ) -> MachineTerms:
     """The :class:`MachineTerms` of the vector ``x`` (COUNT,)."""
