@@ -127,6 +127,8 @@ def test_the_mover_refuses_a_bad_temperature_and_warns_outside_the_envelope(
     mover, _ = mover_and_cell
     assert 'not a number' in mover.air_temperature(float('nan'), 0.01)
     assert 'outside -20 to 60 degC' in mover.air_temperature(99.0, 0.01)
+    level, message, _ = mover.compensation_report()
+    assert level == 'warn' and 'outside -20 to 60 degC' in message
     assert mover.air_temperature(21.0, 0.01) == ''
     assert mover.compensation.temperature.refused == 2
     rng = np.random.default_rng(5)

@@ -110,11 +110,14 @@ class Compensation:
     def report(self, calibrated: Calibrated | None, now: float
                ) -> tuple[str, str, dict[str, str]]:
         """(level, message, values) for the diagnostics: WARN while the last move had
-        warnings or a thermal model in use has no fresh temperature; the values give the
+        warnings, the latest temperature reading was refused, or a thermal model in use has
+        no fresh temperature; the values give the
         temperature in use, its source and uncertainty, the readings refused (and the last
         reason), the axes' approach directions and the last move's warnings."""
         air = self.temperature.current(now)
         problems = list(self.warnings)
+        if self.temperature.refusing:
+            problems.append(self.temperature.last_refusal)
         if (calibrated is not None and _thermal(calibrated.model)
                 and air.state is not TemperatureState.MEASURED and air.reason not in problems):
             problems.append(air.reason)

@@ -589,6 +589,14 @@ class Mover:
         return MoveResult(np.array([x[0] for x in path]).reshape(-1, 3),
                           np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r, sigma)
 
+    def status_values(self, code: ResultCode | None) -> dict[str, object]:
+        """The positioner's state for its diagnostics (``code``: of the move that just ended,
+        if any): state, reason, mode, code, referenced, position confirmed, calibration."""
+        return {'state': self.state.value, 'reason': self.reason, 'mode': self.mode.value,
+                'code': code.value if code else '', 'referenced': self.referenced,
+                'position_confirmed': self.position_confirmed,
+                'calibration': self.settings.compensation.calibration_file or 'none'}
+
     def compensation_report(self) -> tuple[str, str, dict[str, str]]:
         """(level, message, values) of the conditions the compensation works under
         (:meth:`Compensation.report`)."""

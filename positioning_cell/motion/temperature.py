@@ -81,6 +81,8 @@ class TemperatureInput:
         self._reading: tuple[float, float, float] | None = None  # value, sigma, time
         self.refused = 0
         self.last_refusal = ''
+        #: The latest reading was refused (the one before it is in use).
+        self.refusing = False
 
     def update(self, value: float, variance: float, now: float) -> str:
         """Take a reading (°C, K², at ``now`` s); '' when taken, else the reason it was refused
@@ -94,9 +96,11 @@ class TemperatureInput:
             sigma = max(math.sqrt(variance), self.settings.sensor_sigma)
             with self._lock:
                 self._reading = (float(value), sigma, float(now))
+                self.refusing = False
             return ''
         with self._lock:
             self.refused += 1
+            self.refusing = True
             self.last_refusal = f'{reason}: refused, the previous reading kept'
         return self.last_refusal
 

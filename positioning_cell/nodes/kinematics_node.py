@@ -89,7 +89,6 @@ class PositionerNode(Node):
         self._estimates = 0
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
                                  qos.DIAGNOSTICS_QOS, callback_group=topics)
-        self._refusal = ''
         self.create_subscription(Temperature, names.AIR_TEMPERATURE, self._on_temperature,
                                  qos.STREAM_QOS, callback_group=topics)
         for name, kind, cb in ((names.HOME, Trigger, self._srv_home),
@@ -121,11 +120,8 @@ class PositionerNode(Node):
             if status.name == names.STATUS_DRIVER:
                 self.mover.driver_status({**m.status_values(status), 'message': status.message})
 
-    def _on_temperature(self, msg: Temperature) -> None:
-        refused = self.mover.air_temperature(msg.temperature, msg.variance)
-        if refused and refused != self._refusal:  # once per new reason, not per reading
-            self.get_logger().warning(refused)
-        self._refusal = refused
+    def _on_temperature(self, msg: Temperature) -> None:  # refused: on the compensation status
+        self.mover.air_temperature(msg.temperature, msg.variance)
 
     # -- outputs --------------------------------------------------------------------------------
     def _publish_pose(self) -> None:
@@ -138,22 +134,14 @@ class PositionerNode(Node):
         self.pub_pose.publish(msg)
         self._estimates += 1
         if self._estimates % self.params.settings.markers_every == 0:
-            mech = self.mover.mech
-            top = kinematics.platform_points(mech, estimate.position[None],
-                                             estimate.quaternion[None])[0]
-            self.pub_markers.publish(m.platform_markers(mech.base_joints, top, msg.header))
+            self.pub_markers.publish(m.platform_markers(self.mover.mech, estimate.position,
+                                                        estimate.quaternion, msg.header))
 
     def _status(self, level: str, message: str, code: ResultCode | None) -> None:
-        mover, op = self.mover, getattr(self, 'controller', None)
+        op = getattr(self, 'controller', None)
         if level != 'ok':
             self.get_logger().warning(message)
-        values: dict[str, Any] = {
-            'state': mover.state.value, 'reason': mover.reason, 'mode': mover.mode.value,
-            'code': code.value if code else '', 'referenced': mover.referenced,
-            'position_confirmed': mover.position_confirmed,
-            'calibration': mover.settings.compensation.calibration_file or 'none'}
-        if op is not None:
-            values.update(op.status_values())
+        values = {**self.mover.status_values(code), **(op.status_values() if op else {})}
         self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER, level, message, values,
                                            self._now()))
 
@@ -164,9 +152,8 @@ class PositionerNode(Node):
     def _publish_diagnostics(self) -> None:
         self._state_changed(self.mover.state, self.mover.reason, None)
         self._publish_inputs()
-        level, message, values = self.mover.compensation_report()
-        self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER_COMPENSATION, level, message,
-                                           values, self._now()))
+        self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER_COMPENSATION,
+                                           *self.mover.compensation_report(), self._now()))
 
     def _publish_inputs(self) -> None:
         """Who else publishes on the inputs (their messages are ignored): ERROR while any

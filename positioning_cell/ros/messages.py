@@ -17,7 +17,8 @@ from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
-from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.core.kinematics import platform_points
+from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.motion.mover import Answer, JointReading, Measurement
 from positioning_cell.moves.trajectory import Trajectory
@@ -116,11 +117,12 @@ def _points(rows: ArrayLike) -> list[Point]:
     return [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in np.reshape(rows, (-1, 3))]
 
 
-def platform_markers(base_joints: ArrayLike, platform_joints: ArrayLike,
+def platform_markers(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
                      header: Header) -> MarkerArray:
-    """Legs (lines A_i → B_i) and the platform triangle for RViz / Foxglove, from the U
-    centres A_i and S centres B_i (3, 3) m in the header's frame."""
-    a, b = np.reshape(base_joints, (3, 3)), np.reshape(platform_joints, (3, 3))
+    """Legs (lines A_i → B_i) and the platform triangle for RViz / Foxglove of the machine
+    ``mech`` at the platform pose (3,) m, (4,) in the header's frame."""
+    a = np.reshape(mech.base_joints, (3, 3))
+    b = platform_points(mech, np.reshape(position, (1, 3)), np.reshape(quaternion, (1, 4)))[0]
     legs = Marker(header=header, ns='legs', id=0, type=Marker.LINE_LIST, action=Marker.ADD)
     legs.scale.x, legs.color.r, legs.color.g, legs.color.a = 0.004, 0.2, 0.6, 1.0
     legs.points = _points(np.stack([a, b], axis=1))
