@@ -123,12 +123,13 @@ def main() -> int:
     visited = (np.vstack([program.position, program.hold_out_position]),
                np.vstack([program.quaternion, program.hold_out_quaternion]))
     cell_time = prog.duration(MECH, *visited, POSITIONER.motion, DWELL, settings.approach,
-                              POSITIONER.settle_time)
+                              POSITIONER.settle_time, settings.approach_rule)
     hp, hq = program.hold_out_position, program.hold_out_quaternion
     print(f'program: {len(program.position)} poses (+{len(hp)} hold-out) chosen in '
           f'{t_program:.2f} s; cell time of all {len(visited[0])}: {cell_time:.0f} s (moves, each '
           f'approached from '
-          f'{settings.approach * 1e3:.1f} mm below, + {DWELL:.1f} s per pose)')
+          f'{settings.approach * 1e3:.1f} mm {settings.approach_rule}, + {DWELL:.1f} s per '
+          'pose)')
     failures: list[str] = []
     if len(program.position) > 60:
         failures.append('more than 60 poses')

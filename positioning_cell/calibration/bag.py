@@ -81,7 +81,11 @@ def read_bag(path: Path, run: str | None = None,
     joint_stream = col.Stream(np.array([t for t, _ in joints], dtype=float),
                               (np.array([v for _, v in joints], dtype=float).reshape(-1, 6),))
     if not has_air:
-        say(f'{path}: no {names.AIR_TEMPERATURE} recorded: the poses carry no temperature')
+        say(f'{path}: no {names.AIR_TEMPERATURE} recorded')
     air_stream = col.Stream(np.array([t for t, _ in air], dtype=float),
                             (np.array([v for _, v in air], dtype=float),)) if has_air else None
-    return col.collect(markers, joint_stream, pose_stream, col.JOINT_SIGMA_FLOOR, air_stream)
+    collected = col.collect(markers, joint_stream, pose_stream, col.JOINT_SIGMA_FLOOR,
+                            air_stream)
+    for why in collected.missing:
+        say(f'calibration: the poses carry no {why}')
+    return collected
