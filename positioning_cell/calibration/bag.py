@@ -1,8 +1,9 @@
-"""A recorded calibration run read back (``calibrate_cell --from-bag``): the markers of one run
-on ``/cell/calibration``, the encoder readings (/legs/joint_states), the tracker poses
-(/metrology/pose) and, when recorded, the air temperature (/cell/air_temperature) of the bag, made into the same calibration data as the live run
-(:func:`positioning_cell.calibration.collect.collect`). Messages as the bag reader decodes
-them (the ROS field names), no rclpy."""
+"""A recorded calibration run read back (``calibrate_cell --from-bag``): the markers of one run on
+``/cell/calibration``, the encoder readings (/legs/joint_states), the tracker poses
+(/metrology/pose) and, when recorded, the air temperature (/cell/air_temperature) of the bag,
+made into the same calibration data as the live run
+(:func:`positioning_cell.calibration.collect.collect`). Messages as the bag reader decodes them
+(the ROS field names), no rclpy."""
 
 from __future__ import annotations
 

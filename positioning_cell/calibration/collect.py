@@ -27,9 +27,9 @@ Each pose's conditions (:class:`~positioning_cell.calibration.identify.Calibrati
   reading before the window that is more than :data:`APPROACH_THRESHOLD` away from it). The
   threshold is ten encoder counts, well above the encoders' noise and dither, far below a
   move. The look-back is the stream since the previous measured pose's ``start`` (before the
-  first: the whole stream, live the calibration's); an axis that stayed within the threshold over it keeps the previous
-  pose's approach. (What the live run holds of the encoder stream between two poses is
-  always enough: the ROS port keeps 30 s of it.)
+  first: the whole stream; live, from the calibration's homing on); an axis that stayed
+  within the threshold over it keeps the previous pose's approach. (What the live run holds
+  of the encoder stream between two poses is enough: the ROS port keeps 30 s of it.)
 """
 
 from __future__ import annotations

@@ -7,22 +7,22 @@ put back afterwards, whatever happens); the covariance of an averaged tracker po
 from the tracker's own reading at rest; the measurement program
 (:func:`positioning_cell.calibration.program.choose`: poses chosen by the D, I or G criterion,
 and hold-out poses; its criterion, predicted pose σ at the production poses and observability
-indices said) is
-driven pose by pose, each approached through a pose ``approach`` m from it along base z
-(``approach_rule``: below every pose, or below and above in turn:
+indices said) is driven pose by pose, each approached through a pose ``approach`` m from it
+along base z (``approach_rule``: below every pose, or below and above in turn:
 :func:`~positioning_cell.calibration.program.approach_poses`), then the pose; at each pose
-``samples`` tracker readings are taken with the encoder values over the same window, the
-pose's conditions (the air-temperature sensor's reading and the side each axis came from:
+``samples`` tracker readings are taken with the encoder values over the same window, the pose's
+conditions (the air-temperature sensor's reading and the side each axis came from:
 :func:`~positioning_cell.calibration.collect.pose_conditions`, what the port holds of the
-encoder and temperature streams) are taken with them, and a marker (:class:`~positioning_cell.calibration.collect.Marker`, with the
-window's start) goes out on ``/cell/calibration`` so that a recorder keeps what
-``calibrate_cell --from-bag`` needs to repeat the identification from the same data. A pose
-the cell refuses, aborts or does not measure in time is left out (said). A line per pose says
-how far the measured pose is from the commanded one and, every ten fit poses, the residual of
-a fit so far. Then the machine is identified from what the port measured (never the
-simulator's truth), validated on the hold-out poses, and ``OUT/calibration.yaml`` and
-``OUT/calibration_report.md`` are written (:mod:`positioning_cell.calibration.identified`);
-``load`` then asks the positioner to load the file.
+encoder and temperature streams) are taken with them, and a marker
+(:class:`~positioning_cell.calibration.collect.Marker`, with the window's start) goes out on
+``/cell/calibration`` so that a recorder keeps what ``calibrate_cell --from-bag`` needs to
+repeat the identification from the same data. A pose the cell refuses, aborts or does not
+measure in time is left out (said). A line per pose says how far the measured pose is from the
+commanded one and, every ten fit poses, the residual of a fit so far. Then the machine is
+identified from what the port measured (never the simulator's truth), validated on the hold-out
+poses, and ``OUT/calibration.yaml`` and ``OUT/calibration_report.md`` are written
+(:mod:`positioning_cell.calibration.identified`); ``load`` then asks the positioner to load the
+file.
 
 A stop (``stop``, an event set from another thread: an action's cancel, a node's shutdown)
 stops the drives at once, puts the mode back, writes nothing and raises
