@@ -153,6 +153,9 @@ def set_parameters_service(node: str) -> str:
 STATUS_POSITIONER = 'positioner: state'
 #: Who publishes the positioner's inputs: other nodes on them are reported (and ignored).
 STATUS_POSITIONER_INPUTS = 'positioner: inputs'
+#: The conditions the positioner compensates under (air temperature, approach) and the last
+#: move's warnings (outside the calibration's envelope, a stale temperature): WARN while any.
+STATUS_POSITIONER_COMPENSATION = 'positioner: compensation'
 STATUS_DRIVER = 'leg_driver'
 STATUS_TRAJECTORY = 'leg_driver: trajectory'
 STATUS_MEASUREMENT = 'pose_measurement'

@@ -162,7 +162,8 @@ def test_settle_after_a_move_with_overshoot_and_noise() -> None:
     offset = np.array([30e-6, -20e-6, 10e-6])
     p = approach(HOME, goal + offset, t, move=0.6, overshoot=0.4e-3, noise=5e-6, rng=rng)
     q = Rotation.from_rotvec(rng.normal(0, 2e-5, (t.size, 3))).as_quat()
-    visits = acc.settled_visits(t, p, q, [0.0], goal, ID, settings)
+    # The move end reported with the target: the first stable window settles the visit.
+    visits = acc.settled_visits(t, p, q, [0.0], goal, ID, settings, end_times=[0.0])
     assert len(visits) == 1
     v = visits[0]
     _, rv = acc.measurement_error(p, q, goal, ID)
@@ -197,12 +198,12 @@ def test_dwell_and_window_bound_the_earliest_settle() -> None:
     t = np.arange(0, 2.0, 1.0 / RATE) + 10.0
     p, q = np.tile(HOME, (t.size, 1)), np.tile(ID, (t.size, 1))
     settings = acc.SettleSettings(window=0.3, dwell=0.4, min_samples=5)
-    (v,) = acc.settled_visits(t, p, q, [10.0], HOME, ID, settings)
+    (v,) = acc.settled_visits(t, p, q, [10.0], HOME, ID, settings, end_times=[10.0])
     # Already at the target: the first complete window ends at target + dwell + window.
     first = int(np.flatnonzero(t - 0.3 >= 10.0 + 0.4)[0])
     assert v.settle_time == t[first] and v.window_start > 10.0 + 0.4
     assert acc.settled_visits(t[:first], p[:first], q[:first], [10.0], HOME, ID,
-                              settings) == []
+                              settings, end_times=[10.0]) == []
 
 
 def cycle_series(n_cycles: int, rng: np.random.Generator, rate: float = RATE,
@@ -245,32 +246,45 @@ def test_visits_are_grouped_per_commanded_pose() -> None:
 
 
 def feed(stream: acc.AccuracyAccumulator, t: Arr, p: Arr, q: Arr, tt: Arr, tp: Arr,
-         tq: Arr) -> list[acc.SampleUpdate]:
+         tq: Arr, te: Arr | None = None) -> list[acc.SampleUpdate]:
     """Drive the accumulator with the events in time order (a target before samples of its
-    time), as a node receives them."""
-    events = sorted([(x, 0, i) for i, x in enumerate(tt)] + [(x, 1, i) for i, x in enumerate(t)])
+    time, a move end after the targets and before the samples of its time), as a node
+    receives them."""
+    te = np.empty(0) if te is None else te
+    events = sorted([(x, 1, i) for i, x in enumerate(tt)] + [(x, 2, i) for i, x in enumerate(te)]
+                    + [(x, 3, i) for i, x in enumerate(t)])
     updates = []
     for _, kind, i in events:
-        if kind == 0:
+        if kind == 1:
             stream.add_target(tt[i], tp[i], tq[i])
+        elif kind == 2:
+            stream.end_move(te[i])
         else:
             updates.append(stream.add_sample(t[i], p[i], q[i]))
     return updates
 
 
-def test_streaming_accumulator_equals_batch() -> None:
+@pytest.mark.parametrize('with_ends', [True, False])
+def test_streaming_accumulator_equals_batch(with_ends: bool) -> None:
     rng = np.random.default_rng(31)
     t, p, q, tt, tp, tq = cycle_series(4, rng)
     # Samples before the first target are ignored by both.
     t, tt = t + 0.2, tt + 0.3
+    te = tt + 0.7 if with_ends else None
     stream = acc.AccuracyAccumulator()
-    updates = feed(stream, t, p, q, tt, tp, tq)
-    batch = acc.analyse(t, p, q, tt, tp, tq)
+    updates = feed(stream, t, p, q, tt, tp, tq, te)
+    batch = acc.analyse(t, p, q, tt, tp, tq, end_times=() if te is None else te)
     assert len(batch.visits) == 12
+    settled = [u.visit for u in updates if u.visit is not None]
+    # With move ends each visit settles on a sample after its end; without, each is closed by
+    # the next target and the last by the end of the stream.
+    assert len(settled) == (12 if with_ends else 0)
+    assert stream.finish() is (None if with_ends else stream.visits[-1])
     assert stream.result() == batch  # exactly, not approximately
     assert stream.result().to_dict() == batch.to_dict()
-    settled = [u.visit for u in updates if u.visit is not None]
-    assert settled == list(batch.visits)
+    if with_ends:
+        assert settled == list(batch.visits)
+        assert all(v.window_start >= e for v, e in zip(batch.visits, te, strict=True))
     # Per-sample errors against the target in force.
     seg = np.searchsorted(tt, t, side='right') - 1
     have = seg >= 0
@@ -282,11 +296,114 @@ def test_streaming_accumulator_equals_batch() -> None:
                                 if u.orientation_error is not None], rv, atol=1e-15)
 
 
+def corrected_visit(rate: float = RATE) -> tuple[Arr, Arr, Arr, float, Arr, Arr]:
+    """A ``measured``-mode visit: the platform stops 200 µm and 0.3° off the goal for 1.5 s
+    (the pause that measures), then a correction brings it to within 4 µm, where it stays
+    3 s; the move ends (the positioner reports it settled) once the correction is over.
+    Times (N,) s, positions (N, 3), quaternions (N, 4), the move end (s), the goal's final
+    offset (3,) m and the pause's offset (3,) m."""
+    rng = np.random.default_rng(5)
+    t = np.arange(1, int(6.0 * rate)) / rate
+    pause_off = np.array([200e-6, -50e-6, 30e-6])
+    final_off = np.array([3e-6, -2e-6, 1e-6])
+    off = np.where((t < 2.0)[:, None], pause_off, final_off)
+    rv = np.where((t < 2.0)[:, None], [math.radians(0.3), 0.0, 0.0], [0.0, 0.0, 0.0])
+    p = HOME + off + rng.normal(0, 3e-6, (t.size, 3))
+    q = Rotation.from_rotvec(rv + rng.normal(0, 1e-5, (t.size, 3))).as_quat()
+    return t, p, q, 2.3, final_off, pause_off
+
+
+def test_a_corrected_visit_is_judged_on_its_final_window() -> None:
+    t, p, q, end, final_off, pause_off = corrected_visit()
+    # The pause before the correction is stable: the old rule (first stable window) judged it.
+    settings = acc.SettleSettings()
+    _, rv = acc.measurement_error(p, q, HOME, ID)
+    first = reference_settle(t, p, rv, 0.0, settings)
+    assert first is not None and t[first] < 2.0
+    window = (t > t[first] - settings.window) & (t <= t[first])
+    np.testing.assert_allclose(p[window].mean(axis=0) - HOME, pause_off, atol=3e-6)
+    # With the move end: the first stable window after it, at the corrected pose.
+    (v,) = acc.settled_visits(t, p, q, [0.0], HOME, ID, end_times=[end])
+    assert v.window_start >= end
+    dp, rot = v.error()
+    np.testing.assert_allclose(dp, final_off, atol=3e-6)
+    assert np.linalg.norm(rot) < 1e-4
+    # Fallback without a move end: the last stable window before the next target.
+    t_next = t[-1] + 0.01
+    (w,) = acc.settled_visits(t, p, q, [0.0, t_next], [HOME, HOME + [1e-3, 0, 0]], [ID, ID])
+    assert w.settle_time == t[-1] and w.window_start > end
+    np.testing.assert_allclose(w.error()[0], final_off, atol=3e-6)
+    # Streaming, one event at a time: the same visits, the fallback one closed by the target.
+    stream = acc.AccuracyAccumulator()
+    stream.add_target(0.0, HOME, ID)
+    assert all(stream.add_sample(t[i], p[i], q[i]).visit is None for i in range(t.size))
+    assert stream.visits == ()
+    stream.add_target(t_next, HOME + [1e-3, 0, 0], ID)
+    assert stream.visits == (w,)
+
+
+def test_the_monitor_judges_a_visit_closed_by_the_next_target() -> None:
+    """Without a move end the monitor's verdict of a visit comes with the next target (the
+    live node publishes it then), on the last stable window; with one, with the sample that
+    completes the first stable window after it."""
+    t, p, q, _, final_off, _ = corrected_visit()
+    monitor = acc.Monitor()
+    monitor.target(0.0, 'base', HOME, ID)
+    assert all(isinstance(monitor.measurement(t[i], 'base', p[i], q[i]), acc.Measured)
+               for i in range(t.size))
+    assert monitor.verdicts == [] and monitor.report()['target']['move_end'] is None
+    fed = monitor.feed(targets=acc.PoseMessages.one(t[-1] + 0.01, 'base', HOME + [1e-3, 0, 0],
+                                                    ID))
+    ((index, visit, verdict),) = fed.closed
+    assert index == 0 and monitor.verdicts == [verdict] and verdict.ok
+    np.testing.assert_allclose(visit.error()[0], final_off, atol=3e-6)
+    # The next visit reports its end: the verdict comes with a measurement.
+    assert monitor.move_end(t[-1] + 0.02) is None
+    assert monitor.report()['target']['move_end'] == t[-1] + 0.02
+    assert isinstance(monitor.move_end(math.nan), acc.Ignored)
+    later = t[-1] + 0.03 + t
+    done = [monitor.measurement(x, 'base', p[-1] + [1e-3, 0, 0], q[-1]) for x in later]
+    settled = [d for d in done if isinstance(d, acc.Measured) and d.verdict is not None]
+    assert len(settled) == 1 and len(monitor.verdicts) == 2
+    assert settled[0].update.visit is not None
+    assert settled[0].update.visit.window_start >= t[-1] + 0.02
+
+
+def test_a_move_end_applies_to_samples_that_arrive_after_it() -> None:
+    """A window is judged with the move ends that arrived before its last sample: a sample
+    stamped after the end but received before it was judged without it (the same however the
+    messages are grouped)."""
+    t, p, q, end, _, _ = corrected_visit()
+    late = int(np.searchsorted(t, end + 1.0))  # the end arrives 1 s after its stamp
+    for split in (None, late - 3, late + 5):
+        stream = acc.AccuracyAccumulator()
+        targets = acc.Targets(np.zeros(1, dtype=np.intp), np.zeros(1), HOME[None], ID[None])
+        ends = acc.Ends(np.array([late]), np.array([end]), np.ones(1, dtype=np.intp))
+        if split is None:
+            batch = stream.add(t, p, q, targets, ends)
+            ((row, v),) = batch.visits
+            assert t[row] == v.settle_time and row >= late
+        else:
+            stream.add(t[:split], p[:split], q[:split], targets)
+            rest = acc.Ends(np.array([late - split]), np.array([end]), np.zeros(1, dtype=np.intp))
+            batch = stream.add(t[split:], p[split:], q[split:], ends=rest if split < late
+                               else None)
+            if split >= late:
+                stream.end_move(end)  # arrives after the samples fed: nothing settles yet
+                assert stream.visits == ()
+                stream.add_sample(t[-1] + 0.01, p[-1], q[-1])
+            (v,) = stream.visits
+        assert v.window_start >= end
+        if split is None or split < late:
+            assert v.settle_time == t[late + max(0, int(np.searchsorted(
+                t, end + acc.SettleSettings().window)) - late)]
+
+
 def test_reset_keeps_the_target_and_forgets_the_rest() -> None:
     t, p, q, tt, tp, tq = cycle_series(1, np.random.default_rng(41))
     stream = acc.AccuracyAccumulator()
     feed(stream, t, p, q, tt, tp, tq)
-    assert len(stream.visits) == 3
+    assert len(stream.visits) == 2  # the last visit is open: no move end, no next target
     last = stream.target
     stream.reset(keep_target=True)
     assert stream.visits == () and stream.result().poses == ()
@@ -466,6 +583,8 @@ def _stream(seed: int) -> list[tuple[str, float, str, Arr, Arr]]:
     for i, t in enumerate(run.target_time):
         out.append((t, 0, ('target', t, 'base', run.target_position[i],
                            run.target_quaternion[i])))
+        if i != 2:  # the third move reports no end: its last stable window judges it
+            out.append((run.end_time[i], 3, ('end', run.end_time[i], '', HOME, ID)))
     out.append((run.target_time[1] + 0.01, 0, ('target', run.target_time[1] + 0.01, 'base',
                                                 run.target_position[1],
                                                 run.target_quaternion[1])))
@@ -486,7 +605,7 @@ def _stream(seed: int) -> list[tuple[str, float, str, Arr, Arr]]:
 
 def _fed(events: list[tuple[str, float, str, Arr, Arr]], start: int) -> dict[str, object]:
     rows: dict[str, list[tuple[int, float, str, Arr, Arr]]] = {
-        'target': [], 'measured': [], 'truth': []}
+        'target': [], 'measured': [], 'truth': [], 'end': []}
     for k, (topic, t, frame, p, q) in enumerate(events):
         rows[topic].append((start + k, t, frame, p, q))
 
@@ -498,8 +617,10 @@ def _fed(events: list[tuple[str, float, str, Arr, Arr]], start: int) -> dict[str
                                 np.array([r[2] for r in mine], dtype=object),
                                 np.array([r[3] for r in mine]), np.array([r[4] for r in mine]))
 
+    ends = acc.MoveEnds(np.array([r[0] for r in rows['end']], dtype=np.intp),
+                        np.array([r[1] for r in rows['end']], dtype=float))
     return {'targets': messages('target'), 'measured': messages('measured'),
-            'truth': messages('truth')}
+            'truth': messages('truth'), 'ends': ends}
 
 
 @functools.cache
@@ -508,8 +629,11 @@ def _one_by_one(seed: int) -> acc.Monitor:
     events = _stream(seed)
     monitor = acc.Monitor()
     for topic, t, frame, p, q in events:
-        {'target': monitor.target, 'measured': monitor.measurement,
-         'truth': monitor.truth}[topic](t, frame, p, q)
+        if topic == 'end':
+            monitor.move_end(t)
+        else:
+            {'target': monitor.target, 'measured': monitor.measurement,
+             'truth': monitor.truth}[topic](t, frame, p, q)
     return monitor
 
 

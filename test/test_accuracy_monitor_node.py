@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 from std_srvs.srv import Trigger
 
 from positioning_cell import accuracy as acc
+from positioning_cell import names
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
 from positioning_cell.recording import SILENT_AFTER_S
@@ -64,6 +65,7 @@ class Cell:
         self.orientation_errors = client.collect(Vector3Stamped, '/accuracy/orientation_error',
                                                  STREAM_QOS)
         self.diagnostics = client.collect(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+        self.pub_diag = node.create_publisher(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
         self.rng = np.random.default_rng(7)
         self.now = 1_000_000_000_000  # ns
         self.clear()
@@ -71,6 +73,7 @@ class Cell:
 
     def clear(self) -> None:
         self.targets: list[tuple[float, Any, Any]] = []
+        self.ends: list[float] = []
         self.meas: list[tuple[float, Any, Any]] = []
         self.truth: list[tuple[float, Any, Any]] = []
 
@@ -81,8 +84,9 @@ class Cell:
 
     def visit(self, name: str, offset: Any = None) -> None:
         """Command pose ``name``, wait until the node has it, then stream the approach and the
-        rest at ``offset`` (default OFFSETS[name]), measured and true, waiting until the node
-        has taken them all."""
+        rest at ``offset`` (default OFFSETS[name]), measured and true, with the positioner's
+        move end (its ``settled`` status) when the approach is over, waiting until the node has
+        taken them all."""
         goal_p, goal_rv = POSES[name]
         goal_q = Rotation.from_rotvec(goal_rv).as_quat()
         self.now += 20_000_000
@@ -111,6 +115,13 @@ class Cell:
             self.truth.append((t, p_true, q_true))
             self.meas.append((t, p_meas, q_meas))
             expected += 1
+            if k == int(0.3 * RATE):  # arrived: the positioner reports the move's end
+                self.pub_diag.publish(diagnostic(
+                    names.STATUS_POSITIONER, 'ok', 'settled: there',
+                    {'state': 'settled', 'code': 'success', 'mode': 'model'}, stamp(self.now)))
+                self.ends.append(t)
+                wait_until(lambda e=t: (self.report()['target'] or {}).get('move_end') == e,
+                           15.0, 'the node to take the move end')
             if k % 20 == 0:  # pace: the node has taken every measurement so far
                 wait_until(lambda n=expected: len(self.position_errors) >= n, 15.0,
                            'the position errors')
@@ -123,7 +134,8 @@ class Cell:
         """The library's batch analysis of what was sent."""
         t, p, q = (np.array(x) for x in zip(*series, strict=True))
         tt, tp, tq = (np.array(x) for x in zip(*self.targets, strict=True))
-        return acc.analyse(t, p, q, tt, tp, tq, settings())
+        return acc.analyse(t, p, q, tt, tp, tq, settings(),
+                           end_times=[e for e in self.ends if e >= tt[0]])
 
 
 def set_parameter(client: Client, name: str, value: float) -> Any:
@@ -261,7 +273,7 @@ def test_reset_and_tolerances_then_the_figures_again(visited: Cell) -> None:
     assert cell.report()['tolerances']['position'] == 1e-4
 
     # After the reset: B is key 0 (kept target), the new visit to A is key 1.
-    cell.targets, cell.meas, cell.truth = cell.targets[-1:], [], []
+    cell.targets, cell.meas, cell.truth, cell.ends = cell.targets[-1:], [], [], []
     cell.visit('A', offset=OFFSETS['B'])
     verdicts = wait_until(lambda: (v := statuses(cell, 'accuracy_monitor: settled pose'))
                           and len(v) >= 5 and v, 10.0, 'the fifth verdict')

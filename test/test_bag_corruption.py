@@ -23,7 +23,7 @@ from positioning_cell.analysis import analyse_bag
 from positioning_cell.bag import BagError, BagReader, recover_bag, verify_bag, verify_file
 from positioning_cell.bag.verify import MIN_MCAP_BYTES, sound_records, utc
 from positioning_cell.config import config_path
-from positioning_cell.names import MEASURED_POSE, TARGET
+from positioning_cell.names import DIAGNOSTICS, MEASURED_POSE, TARGET
 from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
 from positioning_cell.tools import recover_bag as recover_tool
 from positioning_cell.tools.analyze_bag import main
@@ -169,9 +169,11 @@ def test_a_flipped_chunk_is_named_and_the_rest_is_analysed(
     keep_target = np.array([(TARGET, _log_ns(t)) not in lost for t in run.target_time])
     assert analysis.replay.measured.count == keep.sum() == run.time.size - lost_topics[
         MEASURED_POSE]
+    keep_end = np.array([(DIAGNOSTICS, _log_ns(t)) not in lost for t in run.end_time])
     batch = accuracy.analyse(run.time[keep], run.position[keep], run.quaternion[keep],
                              run.target_time[keep_target], run.target_position[keep_target],
-                             run.target_quaternion[keep_target], SETTINGS.settle)
+                             run.target_quaternion[keep_target], SETTINGS.settle,
+                             end_times=run.end_time[keep_end])
     visits = analysis.replay.visits
     assert 25 <= len(visits) == len(batch.visits) <= 30
     for mine, theirs in zip(visits, batch.visits, strict=True):

@@ -19,6 +19,7 @@ from positioning_cell_interfaces.action import Calibrate
 
 from positioning_cell import names
 from positioning_cell.calibration import file as calfile
+from positioning_cell.calibration import parameters as cp
 from positioning_cell.motion.settings import CALIBRATION_FILE, machine_settings
 from positioning_cell.ros.client import GoalClient
 from positioning_cell.ros.messages import status_values
@@ -121,7 +122,7 @@ def test_a_goal_calibrates_the_cell_with_feedback_per_pose(cell: Cell) -> None:
     calfile.load(path, machine_settings(CELL_YAML).mechanism)  # parses, this mechanism's
     assert 0.0 < result.fit_rms < 20e-6, result.fit_rms
     assert np.isfinite(result.hold_out_rms) and result.hold_out_rms > 0.0
-    assert 0 < result.identified <= 26
+    assert 0 < result.identified <= cp.COUNT
     client = cell.client
     assert client.get_parameter(names.NODE_POSITIONER, CALIBRATION_FILE) == str(path)
     assert client.get_parameter(names.NODE_POSITIONER, MODE) == 'measured'  # put back

@@ -249,7 +249,9 @@ def test_a_real_calibration_file_is_far_within_its_limit(tmp_path: Path) -> None
             'date': '2026-01-01T00:00:00+00:00', 'program': {'poses': 60, 'hold_out': 20},
             'seating_force': 1.0, 'parameters': params,
             'covariance': (covariance @ covariance.T).tolist(),
-            'residuals': {'chi2': 1.0, 'dof': 300, 'pose_position_um': [1.234] * 1000}}
+            'residuals': {'chi2': 1.0, 'dof': 300, 'pose_position_um': [1.234] * 1000},
+            'reference_temperature': 20.5,
+            'model_error': {'length_m': 1.2345678e-6, 'theta_rad': 5.4321e-6}}
     path = calfile.write(tmp_path / 'calibration.yaml', {'calibration': body})
     assert path.stat().st_size * 5 < files.CALIBRATION_FILE.max_bytes
     assert calfile.load(path, MECH).x[0] == 1e-5

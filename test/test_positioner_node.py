@@ -282,12 +282,14 @@ def test_home_service_and_parameters(positioner: Positioner) -> None:
 
 
 def _calibration_doc(fingerprint: str, length_offset: float) -> dict[str, Any]:
-    """A calibration file's content: a machine with one leg zero offset."""
+    """A calibration file's content (the current format): a machine with one leg zero
+    offset."""
+    from positioning_cell.calibration.file import FORMAT
     from positioning_cell.calibration.parameters import PARAMETER_NAMES
     params = {name: {'value': length_offset if name == 'leg1.length_offset' else 0.0,
                      'sigma': 1e-6, 'identified': True} for name in PARAMETER_NAMES}
     covariance = (np.eye(len(PARAMETER_NAMES)) * 1e-12).tolist()
-    return {'calibration': {'format': 1, 'mechanism_fingerprint': fingerprint,
+    return {'calibration': {'format': FORMAT, 'mechanism_fingerprint': fingerprint,
                             'parameters': params, 'covariance': covariance}}
 
 

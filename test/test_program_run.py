@@ -19,6 +19,7 @@ from exact_calibration import exact_calibration
 from positioning_cell import names
 from positioning_cell.analysis.axis_test import AxisPlan, AxisTest, AxisTestMarker
 from positioning_cell.analysis.program import Calibrating, Program, ProgramStep
+from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.program import ProgramSettings
 from positioning_cell.config import config_path
 from positioning_cell.motion.settings import PositionerSettings, machine_settings
@@ -192,8 +193,8 @@ def test_the_calibration_is_loaded_judged_and_noted(tmp_path: Path) -> None:
                                    'identified from its own measurements in this run '
                                    '(calibration/calibration.yaml)')
     table = out / 'truth.md'
-    assert lines[1] == (f'truth table: {table}: 26 of 26 identified parameters within 3 '
-                        'sigma of the truth')
+    assert lines[1] == (f'truth table: {table}: {cp.COUNT} of {cp.COUNT} identified parameters '
+                        'within 3 sigma of the truth')
     assert '| parameter | identified | sigma | truth |' in table.read_text()
     assert [s.note for s in _steps(port)] == [None] * 3 + [outcome.note] * 6
     model = [float(m[1]) for line in lines if ' model ' in line

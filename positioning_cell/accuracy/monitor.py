@@ -2,7 +2,10 @@
 and the offline replay of a bag (thousands at a time, as arrays) both run.
 
 Messages go in in the order they arrived (stamp s, frame id, position (3,) m, quaternion (4,)
-x, y, z, w): a pose message not in the ``base`` frame, not finite, with a quaternion off unit
+x, y, z, w), with the positioner's move ends (the stamp of a ``positioner: state`` status on
+/diagnostics that ends a move: :func:`move_ended`), which go to both accumulators at their place
+(a visit is judged on its final settled window: :mod:`positioning_cell.accuracy.settle`): a
+pose message not in the ``base`` frame, not finite, with a quaternion off unit
 length or older than the latest taken from its topic is ignored with its reason; a target is
 clamped to just after the last sample (``add_target(..., clamp=True)``) and goes to both the
 measured and the truth accumulators at its place among the samples; measurements go to the
@@ -15,6 +18,7 @@ accumulators' batch form: :meth:`positioning_cell.accuracy.settle.AccuracyAccumu
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from positioning_cell.accuracy.settle import (
     AccuracyAccumulator,
     CheckedSamples,
+    Ends,
     SampleBatch,
     SampleUpdate,
     SettleSettings,
@@ -38,7 +43,15 @@ from positioning_cell.accuracy.verdicts import Tolerances, Verdict, judge_visits
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import InputError
-from positioning_cell.names import BASE_FRAME, MEASURED_POSE, NODE_MONITOR, TARGET, TRUE_POSE
+from positioning_cell.moves.outcomes import ResultCode, State
+from positioning_cell.names import (
+    BASE_FRAME,
+    DIAGNOSTICS,
+    MEASURED_POSE,
+    NODE_MONITOR,
+    TARGET,
+    TRUE_POSE,
+)
 from positioning_cell.parameters import check_fields, group, parse, setting
 
 FloatArray = NDArray[np.float64]
@@ -81,6 +94,48 @@ class MonitorSettings:
 #: windows read and follow them by (:mod:`positioning_cell.ros.watch_inputs`).
 TOLERANCES_PREFIX = 'tolerance.'
 
+
+
+#: The positioner's states that end a move (with the result code of the move they end).
+MOVE_END_STATES = frozenset({State.SETTLED.value, State.ABORTED.value, State.FAULT.value})
+
+
+def move_ended(values: Mapping[str, str]) -> bool:
+    """Whether the values of a ``positioner: state`` status (``state``, ``code``) report the
+    end of a move: a state that ends one (settled, aborted, fault) with the result code of the
+    move it ends; not a refusal (the state stays, nothing moved) nor a periodic status (no
+    code)."""
+    code = values.get('code', '')
+    return (values.get('state') in MOVE_END_STATES and code != ''
+            and not code.startswith('refused') and code in _RESULT_CODES)
+
+
+_RESULT_CODES = frozenset(c.value for c in ResultCode)
+
+
+@dataclass(frozen=True)
+class MoveEnds:
+    """K move ends reported by the positioner, in arrival order: ``rank`` (K,) their places in
+    the arrival order of everything fed together (as :attr:`PoseMessages.rank`) and the stamps
+    (K,) s of the statuses that reported them."""
+
+    rank: NDArray[np.intp]
+    stamp: FloatArray
+
+    @classmethod
+    def empty(cls) -> MoveEnds:
+        """No move end."""
+        return cls(np.empty(0, dtype=np.intp), np.empty(0))
+
+    @classmethod
+    def one(cls, stamp: float) -> MoveEnds:
+        """A single move end."""
+        return cls(np.zeros(1, dtype=np.intp), np.array([stamp], dtype=float))
+
+    @property
+    def count(self) -> int:
+        """K."""
+        return int(self.rank.size)
 
 
 @dataclass(frozen=True)
@@ -170,12 +225,15 @@ class NewSegment:
 @dataclass(frozen=True)
 class Fed:
     """What :meth:`Monitor.feed` did: the targets ignored (index, reason), the segments
-    started, and the measured and true poses' batches."""
+    started, the measured and true poses' batches, and the measured visits a target closed on
+    their last stable window (no move end settled them): (index of that target, visit,
+    verdict)."""
 
     targets_ignored: tuple[tuple[int, Ignored], ...]
     segments: tuple[NewSegment, ...]
     measured: PoseBatch
     truth: PoseBatch
+    closed: tuple[tuple[int, Visit, Verdict], ...] = ()
 
 
 _EMPTY = np.empty((0, 3))
@@ -236,13 +294,14 @@ class Monitor:
                              targets.position[rows], q), ignored
 
     def _source(self, topic: str, accumulator: AccuracyAccumulator, poses: PoseMessages,
-                target_rank: NDArray[np.intp], targets: Targets
+                target_rank: NDArray[np.intp], targets: Targets, ends: MoveEnds,
+                ends_after: NDArray[np.intp]
                 ) -> tuple[PoseBatch, NDArray[np.intp], CheckedSamples]:
         """The messages of one source the monitor takes (frame ``base``, the sample checks,
         not older than the latest taken) through ``accumulator`` with the targets; the rows
         taken and the checked values."""
         n = poses.count
-        if n == 0 and targets.count == 0:  # nothing for this source (one message of another)
+        if n == 0 and targets.count == 0 and ends.count == 0:  # a message of another source
             return _NOTHING, np.empty(0, dtype=np.intp), _NOTHING_CHECKED
         in_base = poses.frame == BASE_FRAME if n else np.zeros(0, dtype=bool)
         base_rows = np.flatnonzero(in_base)
@@ -254,7 +313,8 @@ class Monitor:
         batch = accumulator.add_checked(
             CheckedSamples(checked.time[ok], checked.position[ok], checked.quaternion[ok],
                            np.ones(rows.size, dtype=bool), {}),
-            Targets(at, targets.time, targets.position, targets.quaternion))
+            Targets(at, targets.time, targets.position, targets.quaternion),
+            Ends(np.searchsorted(poses.rank[rows], ends.rank), ends.stamp, ends_after))
         if rows.size:
             self._latest[topic] = float(checked.time[checked.accepted][-1])
         reasons = {int(i): f'frame_id {poses.frame[i]!r}: expected {BASE_FRAME!r}'
@@ -268,28 +328,45 @@ class Monitor:
         dp, rv = np.full((n, 3), math.nan), np.full((n, 3), math.nan)
         dp[rows], rv[rows] = batch.position_error, batch.orientation_error
         samples = SampleBatch(accepted, reasons, local, dp, rv, batch.started,
-                              tuple((int(rows[r]), v) for r, v in batch.visits))
+                              tuple((int(rows[r]), v) for r, v in batch.visits), batch.closed)
         ignored = tuple((i, Ignored(topic, float(poses.stamp[i]), reasons[i]))
                         for i in sorted(reasons))
         return PoseBatch(samples, segment, ignored), rows, checked
 
+    def _ends(self, ends: MoveEnds) -> tuple[MoveEnds, list[tuple[int, Ignored]]]:
+        """The move ends with a finite stamp, and the others (rank, ignored with the reason)."""
+        finite = np.isfinite(ends.stamp)
+        ignored = []
+        for k in np.flatnonzero(~finite):  # rare
+            try:
+                as_time(float(ends.stamp[k]), 'move end stamp')
+            except InputError as err:
+                ignored.append((int(ends.rank[k]),
+                                Ignored(DIAGNOSTICS, float(ends.stamp[k]), str(err))))
+        return MoveEnds(ends.rank[finite], ends.stamp[finite]), ignored
+
     def feed(self, targets: PoseMessages | None = None, measured: PoseMessages | None = None,
-             truth: PoseMessages | None = None) -> Fed:
-        """Targets (/positioner/target), measurements (/metrology/pose) and true poses
-        (/sim/platform/true_pose) that arrived together, each topic in arrival order and the
-        three interleaved by their ``rank``. A message is ignored with its reason when not in
-        ``base``, not finite, with a quaternion off unit length, or (a pose) older than the
-        latest taken from its topic; every target goes to both accumulators at its place.
-        Each visit a measurement settles gets a verdict against the tolerances in force."""
+             truth: PoseMessages | None = None, ends: MoveEnds | None = None) -> Fed:
+        """Targets (/positioner/target), measurements (/metrology/pose), true poses
+        (/sim/platform/true_pose) and the positioner's move ends (/diagnostics) that arrived
+        together, each in arrival order and all interleaved by their ``rank``. A message is
+        ignored with its reason when not in ``base``, not finite, with a quaternion off unit
+        length, or (a pose) older than the latest taken from its topic; every target and move
+        end goes to both accumulators at its place. Each measured visit settled (by a
+        measurement after a move end, or closed by the next target) gets a verdict against the
+        tolerances in force."""
         targets = targets or PoseMessages.empty()
         measured = measured or PoseMessages.empty()
         truth = truth or PoseMessages.empty()
+        ends, ends_ignored = self._ends(ends or MoveEnds.empty())
         valid, values, targets_ignored = self._targets(targets)
         rank = targets.rank[valid]
+        ends_after = np.searchsorted(rank, ends.rank)
+        before = self.measured.visit_count
         m_batch, m_rows, m_checked = self._source(MEASURED_POSE, self.measured, measured,
-                                                  rank, values)
+                                                  rank, values, ends, ends_after)
         t_batch, t_rows, t_checked = self._source(TRUE_POSE, self.truth_accumulator, truth,
-                                                  rank, values)
+                                                  rank, values, ends, ends_after)
         truth_started = {s.target: s.time for s in t_batch.samples.started}
         segments = tuple(NewSegment(int(valid[s.target]), s.time,
                                     truth_started.get(s.target, s.time), s.key,
@@ -304,16 +381,20 @@ class Monitor:
         self.tracker.add_truth(t_checked.time[ok_t], t_checked.position[ok_t],
                                t_checked.quaternion[ok_t], label_t)
         self.truth_seen = self.truth_seen or bool(t_rows.size)
-        judged = judge_visits([v for _, v in m_batch.samples.visits], self.tolerances)
+        new = self.measured.visits[before:]
+        judged = judge_visits(new, self.tolerances)
         self.verdicts.extend(judged)
-        verdicts = tuple(zip([r for r, _ in m_batch.samples.visits], judged, strict=True))
+        verdict_of = {id(v): j for v, j in zip(new, judged, strict=True)}
+        verdicts = tuple((r, verdict_of[id(v)]) for r, v in m_batch.samples.visits)
+        closed = tuple((int(valid[k]), v, verdict_of[id(v)]) for k, v in m_batch.samples.closed)
         m_batch = PoseBatch(m_batch.samples, m_batch.segment, m_batch.ignored, verdicts)
         ranked = sorted([(int(targets.rank[i]), x) for i, x in targets_ignored]
                         + [(int(measured.rank[i]), x) for i, x in m_batch.ignored]
-                        + [(int(truth.rank[i]), x) for i, x in t_batch.ignored],
+                        + [(int(truth.rank[i]), x) for i, x in t_batch.ignored]
+                        + ends_ignored,
                         key=lambda item: item[0])
         self.ignored.extend(x for _, x in ranked)
-        return Fed(tuple(targets_ignored), segments, m_batch, t_batch)
+        return Fed(tuple(targets_ignored), segments, m_batch, t_batch, closed)
 
     def target(self, stamp: float, frame: str, position: ArrayLike,
                quaternion: ArrayLike) -> Ignored | None:
@@ -340,6 +421,25 @@ class Monitor:
             return batch.ignored[0][1]
         return batch.samples.update(0)
 
+    def move_end(self, stamp: float) -> Ignored | None:
+        """One move end (the stamp of a ``positioner: state`` status :func:`move_ended`
+        accepts); None when it was taken."""
+        count = len(self.ignored)
+        self.feed(ends=MoveEnds.one(stamp))
+        return self.ignored[-1] if len(self.ignored) > count else None
+
+    def finish(self) -> tuple[tuple[Visit, Verdict], ...]:
+        """The end of the stream (a bag's end): each accumulator's open segment closed on its
+        last stable window as a next target would; the measured visit closed, with its
+        verdict."""
+        self.truth_accumulator.finish()
+        visit = self.measured.finish()
+        if visit is None:
+            return ()
+        verdict = judge_visits([visit], self.tolerances)[0]
+        self.verdicts.append(verdict)
+        return ((visit, verdict),)
+
     def figures_of(self, visit: Visit) -> dict[str, str]:
         """The ISO 9283 figures (for people) of the pose that ``visit`` is a visit of."""
         return next(f for f in self.measured.result().poses if f.key == visit.key).for_people()
@@ -354,7 +454,8 @@ class Monitor:
 
     def report(self) -> dict[str, Any]:
         """The JSON document of /accuracy_monitor/report (SI: m, rad, s): ``tolerances``,
-        ``settle`` (settings), ``target`` (current one or null), ``verdicts`` (counts ok /
+        ``settle`` (settings), ``target`` (current one or null, with the ``move_end`` time
+        reported for it or null), ``verdicts`` (counts ok /
         error), ``measured`` and ``truth`` (settled ``visits`` and ISO 9283 ``poses``; truth
         null until a true pose arrives), ``tracker`` (measured − true statistics, or null)."""
         target = self.measured.target
@@ -366,7 +467,8 @@ class Monitor:
             'settle': self.measured.settings.to_params(),
             'target': None if target is None else {
                 'time': target[0], 'position': target[1].tolist(),
-                'quaternion': target[2].tolist(), 'key': target[3]},
+                'quaternion': target[2].tolist(), 'key': target[3],
+                'move_end': self.measured.move_end},
             'verdicts': {'ok': ok, 'error': len(self.verdicts) - ok},
             'measured': self.measured.result().to_dict(),
             'truth': self.truth_accumulator.result().to_dict() if self.truth_seen else None,

@@ -17,12 +17,22 @@ streaming :class:`AccuracyAccumulator`):
 * A complete window is *stable* when the diagonal of the bounding box of its positions is
   <= ``position_threshold`` and that of its orientation errors (rotation vectors of
   R_cmdᵀ·R, rad) is <= ``angle_threshold``.
-* The first stable window of a segment settles it: the attained pose of the visit is the
-  window's mean position and mean rotation (chordal L2 mean). Later samples of that segment
-  are not used.
+* A visit is judged on the *final* settled window of its segment, not on a pause before a
+  correction (``measured`` compensation moves, pauses, measures and corrects, then reports
+  the move settled): once the positioner has reported the end of the move (a *move end* at
+  time E, :func:`positioning_cell.accuracy.monitor.move_ended`), the first stable window that
+  begins after it (t_i − window >= E) of a sample that arrived after the move end settles the
+  segment. Otherwise (no move end: a bag recorded before the positioner's end reports were
+  read, a move that reports none; or the next target came too soon after the end for a whole
+  window) the last stable window of the segment settles it when the next target arrives (or
+  at the end of the stream: :meth:`AccuracyAccumulator.finish`). The attained pose of the
+  visit is the window's mean position and mean rotation (chordal L2 mean). Later samples of
+  that segment are not used.
 
 Events must come in time order (samples non-decreasing; a target after the last sample), so a
-live node and an offline run over a recorded bag give identical figures.
+live node and an offline run over a recorded bag give identical figures: whether a window
+counts depends only on what arrived before its last sample, never on how the events are
+grouped into batches.
 """
 
 from __future__ import annotations
@@ -246,70 +256,34 @@ def as_time(value: float, name: str) -> float:
 def settled_visits(times: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
                    target_times: ArrayLike, target_position: ArrayLike,
                    target_quaternion: ArrayLike,
-                   settings: SettleSettings | None = None) -> list[Visit]:
+                   settings: SettleSettings | None = None,
+                   end_times: ArrayLike = ()) -> list[Visit]:
     """The settled visits (in time order) of a measured series against a target series.
 
     ``times`` (N,) s non-decreasing, ``position`` (N, 3) m, ``quaternion`` (N, 4): the
     measured poses; ``target_times`` (M,) s non-decreasing with their commanded poses (M, 3),
-    (M, 4). The rule is in the module docstring; vectorised over samples.
+    (M, 4); ``end_times`` (K,) s non-decreasing: the positioner's move ends. At equal times a
+    target comes before the samples and a move end after the targets and before the samples.
+    The rule is in the module docstring: the streaming accumulator fed the whole series at
+    once, then :meth:`AccuracyAccumulator.finish` (the end of the series closes the last
+    segment); vectorised over samples.
     """
     settings = settings or SettleSettings()
     t = as_times(times, 'times')
     p, q = as_pose_batch(position, quaternion)
     tt = as_times(target_times, 'target_times')
     tp, tq = as_pose_batch(target_position, target_quaternion)
+    te = as_times(end_times, 'end_times')
     if t.size != p.shape[0] or tt.size != tp.shape[0]:
         raise InputError(f'{t.size} times for {p.shape[0]} poses, {tt.size} target times '
                          f'for {tp.shape[0]} targets')
-    keys = PoseKeys(settings.key_position_tolerance, settings.key_angle_tolerance)
-    segments: list[tuple[float, FloatArray, FloatArray, int]] = []
-    for k in range(tt.size):  # over targets, not samples
-        if segments and keys.same(segments[-1][1][np.newaxis], segments[-1][2][np.newaxis],
-                                  tp[k], tq[k])[0]:
-            continue
-        segments.append((float(tt[k]), tp[k], tq[k], keys.key_for(tp[k], tq[k])))
-    if not segments or t.size == 0:
-        return []
-    seg_time = np.array([s[0] for s in segments])
-    seg = np.searchsorted(seg_time, t, side='right') - 1
-    first = int(np.searchsorted(seg, 0, side='left'))
-    t, p, q, seg = t[first:], p[first:], q[first:], seg[first:]
-    if t.size == 0:
-        return []
-    seg_p = np.array([s[1] for s in segments])
-    seg_q = np.array([s[2] for s in segments])
-    _, rv = pose_error(p, q, seg_p[seg], seg_q[seg])
-    index = np.arange(t.size)
-    start = np.searchsorted(t, t - settings.window, side='right')
-    complete = ((t - settings.window >= seg_time[seg] + settings.dwell)
-                & (index - start + 1 >= settings.min_samples))
-    cand = np.flatnonzero(complete)
-    if cand.size == 0:
-        return []
-    stable = ((_window_spreads(p, start[cand], cand) <= settings.position_threshold)
-              & (_window_spreads(rv, start[cand], cand) <= settings.angle_threshold))
-    settled = cand[stable]
-    _, first_of_segment = np.unique(seg[settled], return_index=True)
-    ends = settled[first_of_segment]  # one per settled segment
-    return _visits([segments[int(k)] for k in seg[ends]], start[ends], ends + 1, t, p, q, {})
+    stream = AccuracyAccumulator(settings)
+    stream.add(t, p, q, Targets(np.searchsorted(t, tt, side='left'), tt, tp, tq),
+               Ends(np.searchsorted(t, te, side='left'), te,
+                    np.searchsorted(tt, te, side='right')))
+    stream.finish()
+    return list(stream.visits)
 
-
-def _visits(targets: Sequence[tuple[float, FloatArray, FloatArray, int]], starts: IntArray,
-            stops: IntArray, t: FloatArray, p: FloatArray, q: FloatArray,
-            cycles: dict[int, int]) -> list[Visit]:
-    """The visits of the settle windows ``starts[v]:stops[v]`` of the samples t, p, q, each of
-    the segment of ``targets[v]`` (time, position, quaternion, key), in time order; ``cycles``
-    (visits so far per key) is counted on."""
-    position, quaternion = window_poses(p, q, starts, stops)
-    out = []
-    for v, (target_time, target_p, target_q, key) in enumerate(targets):
-        cycles[key] = cycles.get(key, 0) + 1
-        out.append(Visit(key=key, cycle=cycles[key], target_time=target_time,
-                         window_start=float(t[starts[v]]), settle_time=float(t[stops[v] - 1]),
-                         samples=int(stops[v] - starts[v]), commanded_position=triple(target_p),
-                         commanded_quaternion=quad(target_q), position=triple(position[v]),
-                         quaternion=quad(quaternion[v])))
-    return out
 
 def figures_by_pose(visits: Sequence[Visit]) -> list[PoseFigures]:
     """ISO 9283 figures per pose key (ascending) from settled visits in time order. The
@@ -340,11 +314,12 @@ class AccuracyResult:
 
 def analyse(times: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
             target_times: ArrayLike, target_position: ArrayLike, target_quaternion: ArrayLike,
-            settings: SettleSettings | None = None) -> AccuracyResult:
+            settings: SettleSettings | None = None,
+            end_times: ArrayLike = ()) -> AccuracyResult:
     """Batch analysis of a recorded series: :func:`settled_visits` then the ISO figures."""
     return AccuracyResult.from_visits(settled_visits(
         times, position, quaternion, target_times, target_position, target_quaternion,
-        settings))
+        settings, end_times))
 
 # -- streaming -------------------------------------------------------------------------------
 @dataclass(frozen=True)
@@ -381,6 +356,33 @@ class Targets:
 
 
 @dataclass(frozen=True)
+class Ends:
+    """K move ends among a batch of samples, in arrival order: the positioner reported the end
+    of the move to the target then current at ``time`` (K,) s (its stamp); ``at`` (K,) how
+    many of the batch's samples and ``after`` (K,) how many of its targets arrived before each
+    (both non-decreasing)."""
+
+    at: IntArray
+    time: FloatArray
+    after: IntArray
+
+    @classmethod
+    def none(cls) -> Ends:
+        """No move end."""
+        return cls(np.empty(0, dtype=np.intp), np.empty(0), np.empty(0, dtype=np.intp))
+
+    @property
+    def count(self) -> int:
+        """K."""
+        return int(self.time.size)
+
+
+#: A settle window reduced to what its visit needs: first and last sample time (s), sample
+#: count, mean position (3,) m and mean quaternion (4,).
+_Window = tuple[float, float, int, FloatArray, FloatArray]
+
+
+@dataclass(frozen=True)
 class SegmentStart:
     """A target of a batch that started a segment (one equal to the current target does not):
     its index among the batch's targets, the time it took effect (s) and its pose key."""
@@ -400,7 +402,9 @@ class SampleBatch:
     current when the batch began, s >= 1 the one ``started[s − 1]`` began.
     ``position_error`` (N, 3) m and ``orientation_error`` (N, 3) rad against that segment's
     target, NaN where refused or without a target. ``visits``: (row that completed the stable
-    window, visit), in time order."""
+    window after a move end, visit), in time order; ``closed``: (index among the batch's
+    targets of the target that closed it, visit) of the visits settled on their last stable
+    window when the next target arrived (module docstring)."""
 
     accepted: NDArray[np.bool_]
     reasons: Mapping[int, str]
@@ -409,6 +413,7 @@ class SampleBatch:
     orientation_error: FloatArray
     started: tuple[SegmentStart, ...] = ()
     visits: tuple[tuple[int, Visit], ...] = ()
+    closed: tuple[tuple[int, Visit], ...] = ()
 
     def update(self, row: int) -> SampleUpdate:
         """The :class:`SampleUpdate` of one accepted row."""
@@ -475,11 +480,12 @@ def check_samples(time: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
 
 
 class AccuracyAccumulator:
-    """Streaming form of :func:`analyse`: on the same time-ordered events it gives exactly the
-    same visits and figures, however the events are split into batches (one code path:
-    :meth:`add_sample` is a batch of one sample, :meth:`add_target` of one target).
-    :meth:`add` takes N samples and the targets among them, vectorised over the samples and
-    across segments; memory is one window plus the visits."""
+    """Streaming form of :func:`settled_visits`: on the same time-ordered events it gives
+    exactly the same visits and figures, however the events are split into batches (one code
+    path: :meth:`add_sample` is a batch of one sample, :meth:`add_target` of one target,
+    :meth:`end_move` of one move end). :meth:`add` takes N samples and the targets and move
+    ends among them, vectorised over the samples and across segments; memory is one window,
+    the open segment's best window so far, plus the visits."""
 
     def __init__(self, settings: SettleSettings | None = None) -> None:
         self.settings = settings or SettleSettings()
@@ -489,7 +495,14 @@ class AccuracyAccumulator:
                               self.settings.key_angle_tolerance)
         self._visits: list[Visit] = []
         self._cycles: dict[int, int] = {}
+        self._open_segment()
+
+    def _open_segment(self) -> None:
+        """The current segment as just begun: not settled, no move end (−inf), no stable
+        window yet, no sample in the stability window."""
         self._settled = False
+        self._end = -math.inf
+        self._pending: _Window | None = None
         self._clear_window()
 
     def _clear_window(self) -> None:
@@ -506,8 +519,7 @@ class AccuracyAccumulator:
         self._visits = []
         self._cycles = {}
         self._target = None
-        self._settled = False
-        self._clear_window()
+        self._open_segment()
         if target is not None:
             self._target = (target[0], target[1], target[2],
                             self._keys.key_for(target[1], target[2]))
@@ -520,6 +532,11 @@ class AccuracyAccumulator:
         return self._target
 
     @property
+    def move_end(self) -> float | None:
+        """The latest move end (s) reported for the current target, None: none yet."""
+        return self._end if math.isfinite(self._end) else None
+
+    @property
     def last_sample(self) -> float:
         """Time (s) of the latest sample taken against a target (−inf: none since the last
         reset without target)."""
@@ -529,6 +546,11 @@ class AccuracyAccumulator:
     def visits(self) -> tuple[Visit, ...]:
         """Settled visits so far, in time order."""
         return tuple(self._visits)
+
+    @property
+    def visit_count(self) -> int:
+        """How many visits settled so far."""
+        return len(self._visits)
 
     def result(self) -> AccuracyResult:
         """Visits and ISO 9283 figures so far."""
@@ -550,8 +572,7 @@ class AccuracyAccumulator:
         if is_current:
             return None
         self._target = (max(time, earliest), position, quaternion, key)
-        self._settled = False
-        self._clear_window()
+        self._open_segment()
         return self._target[0]
 
     def add_target(self, time: float, position: ArrayLike, quaternion: ArrayLike, *,
@@ -559,18 +580,53 @@ class AccuracyAccumulator:
         """A new commanded pose at ``time`` s; returns the time it takes effect. A target must
         be later than the last sample and not earlier than the current target; with
         ``clamp`` an earlier one takes effect just after them instead of raising InputError.
-        A target equal to the current one (key tolerances) changes nothing."""
+        A target equal to the current one (key tolerances) changes nothing. A new target closes
+        the segment before it on its last stable window, if no move end settled it."""
         t = as_time(time, 'target time')
         p, q = as_pose_batch(position, quaternion)
-        taken = self._take_target(t, p[0], q[0], self._last_sample, clamp)
+        batch = self.add_checked(_NO_SAMPLES, Targets(np.zeros(1, dtype=np.intp),
+                                                      np.array([t]), p, q), clamp=clamp)
         assert self._target is not None
-        return self._target[0] if taken is None else taken
+        return batch.started[0].time if batch.started else self._target[0]
+
+    def end_move(self, time: float) -> None:
+        """The positioner reported the end of the move to the current target at ``time`` s:
+        from the next sample on, a window settles the segment only if it begins at or after
+        ``time`` (module docstring). Nothing without a target or once the segment settled."""
+        self.add_checked(_NO_SAMPLES, ends=Ends(np.zeros(1, dtype=np.intp),
+                                                np.array([as_time(time, 'move end time')]),
+                                                np.zeros(1, dtype=np.intp)))
+
+    def finish(self) -> Visit | None:
+        """The end of the stream closes the open segment as a next target would: on its last
+        stable window (None: no target, settled already, or no stable window)."""
+        if self._target is None or self._settled or self._pending is None:
+            return None
+        visit = self._visit(self._target, self._pending)
+        self._visits.append(visit)
+        self._settled = True
+        self._pending = None
+        self._clear_window()
+        return visit
+
+    def _visit(self, target: tuple[float, FloatArray, FloatArray, int],
+               window: _Window) -> Visit:
+        """The next visit of ``target`` (time, position, quaternion, key) settled on
+        ``window``; the cycles of its key are counted on."""
+        key = target[3]
+        self._cycles[key] = self._cycles.get(key, 0) + 1
+        start, end, count, position, quaternion = window
+        return Visit(key=key, cycle=self._cycles[key], target_time=target[0],
+                     window_start=start, settle_time=end, samples=count,
+                     commanded_position=triple(target[1]),
+                     commanded_quaternion=quad(target[2]), position=triple(position),
+                     quaternion=quad(quaternion))
 
     def add_sample(self, time: float, position: ArrayLike,
                    quaternion: ArrayLike) -> SampleUpdate:
         """One measured pose at ``time`` s (non-decreasing): its error against the current
-        target, and the visit it settled, if it completed a stable window. A sample that cannot
-        be taken raises InputError and changes nothing."""
+        target, and the visit it settled, if it completed a stable window after a move end. A
+        sample that cannot be taken raises InputError and changes nothing."""
         if np.size(time) != 1:
             raise InputError(f'add_sample takes one pose, got {np.size(time)}')
         batch = self.add(np.reshape(np.asarray(time, dtype=float), 1), position, quaternion)
@@ -579,23 +635,26 @@ class AccuracyAccumulator:
         return batch.update(0)
 
     def add(self, time: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
-            targets: Targets | None = None) -> SampleBatch:
+            targets: Targets | None = None, ends: Ends | None = None) -> SampleBatch:
         """N measured poses at ``time`` (N,) s, positions (N, 3) m, quaternions (N, 4), and the
-        ``targets`` among them (each takes effect clamped, as ``add_target(clamp=True)``), all
-        in arrival order: the rule of the module docstring, vectorised over the samples and
-        across the segments. Samples before any target are taken and give nothing."""
+        ``targets`` among them (each takes effect clamped, as ``add_target(clamp=True)``) and
+        the move ``ends``, all in arrival order: the rule of the module docstring, vectorised
+        over the samples and across the segments. Samples before any target are taken and
+        give nothing."""
         targets = targets or Targets.none()
         first_ordered = 0 if self._target is not None else (
             int(targets.at[0]) if targets.count else np.size(time))
         return self.add_checked(check_samples(time, position, quaternion, self._last_sample,
-                                              ordered_from=first_ordered), targets)
+                                              ordered_from=first_ordered), targets, ends)
 
-    def add_checked(self, checked: CheckedSamples, targets: Targets | None = None
-                    ) -> SampleBatch:
+    def add_checked(self, checked: CheckedSamples, targets: Targets | None = None,
+                    ends: Ends | None = None, *, clamp: bool = True) -> SampleBatch:
         """:meth:`add` of samples already checked by :func:`check_samples` with rules at least
         as strict as this accumulator's (the monitor's: every accepted sample is not older than
-        any taken before): the checks are not made twice."""
+        any taken before): the checks are not made twice. Without ``clamp`` a target earlier
+        than the last sample raises InputError (:meth:`add_target`)."""
         targets = targets or Targets.none()
+        ends = ends or Ends.none()
         k_count = targets.count
         first_ordered = 0 if self._target is not None else (
             int(targets.at[0]) if k_count else checked.time.size)
@@ -606,48 +665,77 @@ class AccuracyAccumulator:
         # Segments: 0 the current one (None if no target yet), then those targets start.
         segs: list[tuple[float, FloatArray, FloatArray, int] | None] = [self._target]
         settled = [self._settled]
-        window = self._window
+        window, end0, pending0 = self._window, self._end, self._pending
         started: list[SegmentStart] = []
         starts_at: list[int] = []
+        started_after = [0]  # segments started after each number of targets
         for k in range(k_count):  # over targets, not samples
             taken = self._take_target(float(targets.time[k]), targets.position[k],
                                       targets.quaternion[k], float(latest[targets.at[k]]),
-                                      True)
+                                      clamp)
             if taken is not None:
                 assert self._target is not None
                 segs.append(self._target)
                 settled.append(False)
                 started.append(SegmentStart(k, taken, self._target[3]))
                 starts_at.append(int(targets.at[k]))
+            started_after.append(len(started))
         self._last_sample = float(latest[-1])
         segment = np.searchsorted(np.array(starts_at, dtype=np.intp), np.arange(n),
                                   side='right')
         if segs[0] is None:
             segment = np.where(segment == 0, -1, segment)
+        bound = self._end_bounds(segs, segment, ends, np.array(started_after)[ends.after],
+                                 end0)
         dp = np.full((n, 3), math.nan)
         rv = np.full((n, 3), math.nan)
         rows = np.flatnonzero(ok & (segment >= 0))
-        visits: list[tuple[int, Visit]] = []
+        seg_t = np.array([g[0] if g is not None else math.nan for g in segs])
+        eligible = np.empty(0, dtype=np.intp)
         if rows.size:
-            seg_t = np.array([g[0] if g is not None else math.nan for g in segs])
             seg_p = np.array([g[1] if g is not None else np.zeros(3) for g in segs])
             seg_q = np.array([g[2] if g is not None else (0.0, 0.0, 0.0, 1.0) for g in segs])
             sr = segment[rows]
             dp[rows], rv[rows] = pose_error(checked.position[rows], checked.quaternion[rows],
                                             seg_p[sr], seg_q[sr])
-            eligible = rows[(checked.time[rows] >= seg_t[sr])
-                            & ~np.array(settled)[sr]]
-            visits = self._settle(segs, segment, eligible, checked, rv, window, seg_t)
-        return SampleBatch(ok, checked.reasons, segment, dp, rv, tuple(started), tuple(visits))
+            eligible = rows[(checked.time[rows] >= seg_t[sr]) & ~np.array(settled)[sr]]
+        visits, closed = self._settle(segs, settled, segment, eligible, checked, rv, window,
+                                      seg_t, bound, pending0, started)
+        return SampleBatch(ok, checked.reasons, segment, dp, rv, tuple(started), tuple(visits),
+                           tuple(closed))
+
+    def _end_bounds(self, segs: list[tuple[float, FloatArray, FloatArray, int] | None],
+                    segment: IntArray, ends: Ends, end_segment: IntArray,
+                    end0: float) -> FloatArray:
+        """Per row (N,): the latest move end (s) of its segment that arrived before it (−inf:
+        none); the open segment's latest move end is kept for the next batch."""
+        bound = np.full(segment.size, -math.inf)
+        first = np.searchsorted(segment, np.arange(len(segs)), side='left')
+        stop = np.searchsorted(segment, np.arange(len(segs)), side='right')
+        bound[first[0]:stop[0]] = end0
+        last_end = [end0] + [-math.inf] * (len(segs) - 1)
+        for e in range(ends.count):  # over move ends, not samples
+            s = int(end_segment[e])
+            if segs[s] is None:
+                continue
+            lo, hi = max(int(ends.at[e]), int(first[s])), int(stop[s])
+            bound[lo:hi] = np.maximum(bound[lo:hi], ends.time[e])
+            last_end[s] = max(last_end[s], float(ends.time[e]))
+        self._end = last_end[-1]
+        return bound
 
     def _settle(self, segs: list[tuple[float, FloatArray, FloatArray, int] | None],
-                segment: IntArray, eligible: IntArray, checked: CheckedSamples,
-                rv: FloatArray, window: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
-                seg_t: FloatArray) -> list[tuple[int, Visit]]:
-        """The stable windows of the eligible rows (those not before their target, of a
-        segment not settled yet), the window carried in (segment 0) first: the first stable
-        window of each segment settles it (module docstring); the last segment keeps its
-        window for the next batch."""
+                settled: list[bool], segment: IntArray, eligible: IntArray,
+                checked: CheckedSamples, rv: FloatArray,
+                window: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+                seg_t: FloatArray, bound: FloatArray, pending0: _Window | None,
+                started: list[SegmentStart]
+                ) -> tuple[list[tuple[int, Visit]], list[tuple[int, Visit]]]:
+        """The visits the eligible rows (those not before their target, of a segment not
+        settled yet; the window carried in, of segment 0, first) and the targets settle
+        (module docstring): (row, visit) of those settled after a move end, (target, visit) of
+        those closed by the next target. The last segment keeps its window and its latest
+        stable window for the next batch."""
         s = self.settings
         last = len(segs) - 1
         k0 = window[0].size  # empty once segment 0 settled
@@ -656,36 +744,68 @@ class AccuracyAccumulator:
         eq = np.concatenate([window[2], checked.quaternion[eligible]])
         er = np.concatenate([window[3], rv[eligible]])
         es = np.concatenate([np.zeros(k0, dtype=np.intp), segment[eligible]])
-        visits: list[tuple[int, Visit]] = []
-        if et.size == 0:
-            return visits
+        eb = np.concatenate([np.full(k0, -math.inf), bound[eligible]])
         index = np.arange(et.size)
         first = np.searchsorted(es, es, side='left')
         start = np.maximum(np.searchsorted(et, et - s.window, side='right'), first)
-        complete = ((et - s.window >= seg_t[es] + s.dwell) & (index - start + 1 >= s.min_samples)
-                    & (index >= k0))
+        complete = ((et - s.window >= seg_t[es] + s.dwell)
+                    & (index - start + 1 >= s.min_samples) & (index >= k0))
         cand = np.flatnonzero(complete)
-        settled_segs: set[int] = set()
-        if cand.size:
-            stable = ((_window_spreads(ep, start[cand], cand) <= s.position_threshold)
-                      & (_window_spreads(er, start[cand], cand) <= s.angle_threshold))
-            hits = cand[stable]
-            _, firsts = np.unique(es[hits], return_index=True)
-            ends = hits[firsts]  # one per settled segment
-            targets = [segs[int(k)] for k in es[ends]]
-            found = _visits([g for g in targets if g is not None], start[ends], ends + 1, et, ep,
-                            eq, self._cycles)
-            self._visits.extend(found)
-            visits = [(int(eligible[i - k0]), v) for i, v in zip(ends.tolist(), found,
-                                                                   strict=True)]
-            settled_segs = {int(k) for k in es[ends]}
-        if last in settled_segs:
+        hits = cand[(_window_spreads(ep, start[cand], cand) <= s.position_threshold)
+                    & (_window_spreads(er, start[cand], cand) <= s.angle_threshold)
+                    ] if cand.size else cand
+        # Stable windows that begin after the move end known when their last sample came.
+        ended = hits[np.isfinite(eb[hits]) & (et[hits] - s.window >= eb[hits])]
+        segs_e, first_e = np.unique(es[ended], return_index=True)
+        settle_at = dict(zip(segs_e.tolist(), ended[first_e].tolist(), strict=True))
+        segs_h, last_h = np.unique(es[hits][::-1], return_index=True)
+        latest = dict(zip(segs_h.tolist(), hits[::-1][last_h].tolist(), strict=True))
+        # Per segment: the row index (into et) of its visit's window, or a carried window.
+        chosen: dict[int, int | _Window] = {}
+        pending: int | _Window | None = None
+        for k in range(len(segs)):  # over segments, not samples
+            if segs[k] is None or settled[k]:
+                continue
+            if k in settle_at:
+                chosen[k] = settle_at[k]
+                continue
+            best: int | _Window | None = latest.get(k, pending0 if k == 0 else None)
+            if k < last and best is not None:
+                chosen[k] = best
+            elif k == last:
+                pending = best
+        new = [i for i in (*chosen.values(), pending) if isinstance(i, int)]
+        ends_ = np.array(new, dtype=np.intp)
+        mean_p, mean_q = window_poses(ep, eq, start[ends_], ends_ + 1)
+        reduced: dict[int, _Window] = {
+            i: (float(et[start[i]]), float(et[i]), int(i + 1 - start[i]), mean_p[j], mean_q[j])
+            for j, i in enumerate(new)}
+        visits: list[tuple[int, Visit]] = []
+        closed: list[tuple[int, Visit]] = []
+        for k in sorted(chosen):
+            pick = chosen[k]
+            target = segs[k]
+            assert target is not None
+            visit = self._visit(target, reduced[pick] if isinstance(pick, int) else pick)
+            self._visits.append(visit)
+            if k in settle_at:
+                visits.append((int(eligible[settle_at[k] - k0]), visit))
+            else:
+                closed.append((started[k].target, visit))
+        self._pending = reduced[pending] if isinstance(pending, int) else pending
+        if last in settle_at:
             self._settled = True
+            self._pending = None
             self._clear_window()
-            return visits
+            return visits, closed
         mine = np.flatnonzero(es == last)
         if mine.size:
             keep = max(int(np.searchsorted(et, et[mine[-1]] - s.window, side='right')),
                        int(mine[0]))
             self._window = (et[keep:], ep[keep:], eq[keep:], er[keep:])
-        return visits
+        return visits, closed
+
+
+#: An empty batch of samples (a target or a move end alone).
+_NO_SAMPLES = CheckedSamples(np.empty(0), np.empty((0, 3)), np.empty((0, 4)),
+                             np.zeros(0, dtype=bool), {})

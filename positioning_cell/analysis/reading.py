@@ -56,6 +56,8 @@ from positioning_cell.names import (
     AXIS_TEST,
     CALIBRATION,
     DIAGNOSTICS,
+    JOINT_STATES,
+    JOINT_TRAJECTORY,
     MEASURED_POSE,
     PROGRAM,
     STATUS_MEASUREMENT,
@@ -71,6 +73,9 @@ FloatArray = NDArray[np.float64]
 POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth'}
 #: The text topics (std_msgs/String) and their MessageBatch field.
 TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test'}
+#: Topics decoded message by message (variable layout, few or read only when asked) and
+#: their MessageBatch field.
+OBJECT_TOPICS = {JOINT_STATES: 'joint_states', JOINT_TRAJECTORY: 'trajectories'}
 #: A /diagnostics message is decoded only when it holds one of these statuses.
 DIAGNOSTIC_STATUSES = (STATUS_POSITIONER.encode(), STATUS_MEASUREMENT.encode())
 #: Messages per batch where a bag is read message by message (not MCAP).
@@ -133,16 +138,24 @@ def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> Mess
                 raise BagError(bag.path, f'{name} is {decoded.msgtype}, not std_msgs/String')
             fields[TEXT_TOPICS[name]] = tuple(zip(decoded.log_time_ns.tolist(), data.tolist(),
                                                   strict=True))
+        elif name in OBJECT_TOPICS:
+            m = block.topics[name]
+            fields[OBJECT_TOPICS[name]] = tuple(
+                (int(m.log_time_ns[i]), bag.typestore.deserialize_cdr(block.payload(name, i),
+                                                                      m.msgtype))
+                for i in range(m.log_time_ns.shape[0]))
         elif name == DIAGNOSTICS:
             m = block.topics[name]
             store, msgtype = bag.typestore, m.msgtype
-            diagnostics = []
+            diagnostics, ranks = [], []
             for i in range(m.log_time_ns.shape[0]):  # few: the statuses that matter only
                 raw = block.payload(name, i)
                 if any(s in raw for s in DIAGNOSTIC_STATUSES):
                     diagnostics.append((int(m.log_time_ns[i]),
                                         store.deserialize_cdr(raw, msgtype)))
+                    ranks.append(int(rank[i]))
             fields['diagnostics'] = tuple(diagnostics)
+            fields['diagnostic_ranks'] = tuple(ranks)
     return MessageBatch(**fields)
 
 
@@ -151,6 +164,8 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
     poses: dict[str, list[tuple[int, Any]]] = {name: [] for name in POSE_TOPICS}
     texts: dict[str, list[tuple[int, str]]] = {name: [] for name in TEXT_TOPICS}
     diagnostics: list[tuple[int, Any]] = []
+    diagnostic_ranks: list[int] = []
+    objects: dict[str, list[tuple[int, Any]]] = {name: [] for name in OBJECT_TOPICS}
     for rank, item in enumerate(messages, start=offset):
         if item.topic in POSE_TOPICS:
             poses[item.topic].append((rank, item.message))
@@ -158,6 +173,9 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
             texts[item.topic].append((item.log_time_ns, item.message.data))
         elif item.topic == DIAGNOSTICS:
             diagnostics.append((item.log_time_ns, item.message))
+            diagnostic_ranks.append(rank)
+        elif item.topic in OBJECT_TOPICS:
+            objects[item.topic].append((item.log_time_ns, item.message))
     rows: dict[str, PoseMessages] = {}
     for topic, found in poses.items():
         pose = [getattr(m.pose, 'pose', m.pose) for _, m in found]
@@ -173,7 +191,9 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
     return MessageBatch(targets=rows[TARGET], measured=rows[MEASURED_POSE],
                         truth=rows[TRUE_POSE], program=tuple(texts[PROGRAM]),
                         diagnostics=tuple(diagnostics), calibration=tuple(texts[CALIBRATION]),
-                        axis_test=tuple(texts[AXIS_TEST]))
+                        axis_test=tuple(texts[AXIS_TEST]),
+                        diagnostic_ranks=tuple(diagnostic_ranks),
+                        **{OBJECT_TOPICS[t]: tuple(found) for t, found in objects.items()})
 
 
 def message_batches(messages: Iterator[BagMessage], size: int = MESSAGES_PER_BATCH

@@ -5,8 +5,13 @@ The recording arrives as :class:`MessageBatch` es (:mod:`.reading`): the pose me
 topic as arrays, with their place in the recorded order. Between two targets the measured and
 the true poses go to the monitor as arrays (:meth:`Monitor.measurements`, :meth:`Monitor.truths`:
 the one implementation the live node runs one message at a time, giving the same figures for
-any batching); each target goes alone, at its place. Memory is one batch plus what the run
-found (segments, visits, program steps, a bounded error trace), whatever the bag's length.
+any batching); each target goes alone, at its place. The positioner's move ends (its
+``positioner: state`` statuses on /diagnostics that end a move: :func:`move_ends`) go at their
+places too, so that each visit is judged on its final settled window (after a ``measured``
+mode's correction, not on the pause before it); a bag without them falls back on the last
+stable window before the next target, and the end of the bag closes the last visit
+(:mod:`positioning_cell.accuracy.settle`). Memory is one batch plus what the run found
+(segments, visits, program steps, a bounded error trace), whatever the bag's length.
 
 Labels come from ``/cell/program`` (std_msgs/String, JSON written by :meth:`ProgramStep.to_json`:
 ``{"mode": "model", "cycle": 2, "pose": "P3", "stamp": 1700000000.25}``) published by the run
@@ -39,7 +44,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
-from positioning_cell.accuracy.monitor import Monitor, MonitorSettings, PoseBatch, PoseMessages
+from positioning_cell.accuracy.monitor import (
+    Monitor,
+    MonitorSettings,
+    MoveEnds,
+    PoseBatch,
+    PoseMessages,
+)
 from positioning_cell.analysis.context import ContextCollector
 from positioning_cell.analysis.program import ProgramStep
 from positioning_cell.analysis.trace import Envelope, ErrorTrace
@@ -85,6 +96,14 @@ class MessageBatch:
     diagnostics: tuple[tuple[int, Any], ...] = ()
     calibration: tuple[tuple[int, str], ...] = ()
     axis_test: tuple[tuple[int, str], ...] = ()
+    #: The place of each of ``diagnostics`` in the recorded order (as the pose messages'
+    #: ``rank``): where the positioner's move ends go to the monitor. Empty: not known (the
+    #: move ends are not used; the monitor falls back on the last stable window of a visit).
+    diagnostic_ranks: tuple[int, ...] = ()
+    #: Read only when asked (the error budget's pass): /legs/joint_states and
+    #: /legs/joint_trajectory as (log time ns, decoded message) pairs.
+    joint_states: tuple[tuple[int, Any], ...] = ()
+    trajectories: tuple[tuple[int, Any], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -173,6 +192,18 @@ class _Source:
         return SampleTrace(self.count, self.first, self.trace.envelope())
 
 
+def move_ends(diagnostics: Sequence[tuple[int, Any]]) -> MoveEnds:
+    """The positioner's move ends among decoded /diagnostics messages (rank, DiagnosticArray)
+    in recorded order: the header stamp of each message holding a ``positioner: state``
+    status that ends a move (:func:`positioning_cell.accuracy.move_ended`)."""
+    found = [(rank, accuracy.stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec))
+             for rank, msg in diagnostics
+             if any(status.name == STATUS_POSITIONER and accuracy.move_ended(
+                 {kv.key: kv.value for kv in status.values}) for status in msg.status)]
+    return MoveEnds(np.array([r for r, _ in found], dtype=np.intp),
+                    np.array([t for _, t in found], dtype=float))
+
+
 def _diagnostic_modes(msg: Any) -> list[tuple[float, str]]:
     stamp = accuracy.stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec)
     return [(stamp, kv.value) for status in msg.status if status.name == STATUS_POSITIONER
@@ -210,7 +241,10 @@ class Replayer:
         for log_ns, text in batch.calibration:
             self.context.calibration_marker(log_ns * 1e-9, text)
         self.axis_test.extend(text for _, text in batch.axis_test)
-        fed = self.monitor.feed(batch.targets, batch.measured, batch.truth)
+        ranked = (tuple(zip(batch.diagnostic_ranks, (m for _, m in batch.diagnostics),
+                            strict=True))
+                  if len(batch.diagnostic_ranks) == len(batch.diagnostics) else ())
+        fed = self.monitor.feed(batch.targets, batch.measured, batch.truth, move_ends(ranked))
         for seg in fed.segments:
             self._segments.append((seg.time, seg.truth_time, seg.key, seg.position,
                                    seg.quaternion, float(batch.targets.stamp[seg.target])))
@@ -218,8 +252,10 @@ class Replayer:
         self._truth.took(batch.truth, fed.truth)
 
     def finish(self) -> Replay:
-        """The replay of everything fed."""
+        """The replay of everything fed; the end of the recording closes the visit still open
+        (:meth:`Monitor.finish`)."""
         monitor = self.monitor
+        monitor.finish()
         segments = _label(self._segments, self._steps, self._modes)
         by_time = {s[0]: i for i, s in enumerate(self._segments)}
         by_truth_time = {s[1]: i for i, s in enumerate(self._segments)}

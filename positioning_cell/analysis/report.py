@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from positioning_cell.accuracy import ErrorStatistics
+from positioning_cell.analysis.error_budget import CONTRIBUTIONS, Contribution, ErrorBudget
 from positioning_cell.analysis.replay import BEFORE_PROGRAM
 from positioning_cell.analysis.summary import ModeSummary, RunAnalysis
 
@@ -79,6 +80,24 @@ POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p µm', 'AP_x', 
                'in tol.')
 
 
+BUDGET_HEADER = ('mode', 'visits', 'truth RMS µm', *CONTRIBUTIONS)
+
+
+def _budget_cell(c: Contribution) -> str:
+    if c.rms is None:
+        return 'n/a'
+    size = f'{c.rms * 1e6:.2f}'
+    if not c.in_chain:
+        return f'{size} (—)'
+    return size if c.share is None else f'{size} ({c.share * 100:.0f} %)'
+
+
+def _budget_row(b: ErrorBudget) -> list[str]:
+    """One mode's budget for people (µm, %)."""
+    return [b.mode, str(b.visits), 'n/a' if b.truth_rms is None else f'{b.truth_rms * 1e6:.2f}',
+            *(_budget_cell(b.contribution(name)) for name in CONTRIBUTIONS)]
+
+
 def _tracker_line(label: str, stats: ErrorStatistics | None) -> str:
     if stats is None:
         return f'- {label}: no measurement paired with a true pose'
@@ -128,6 +147,15 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 'The tracker against the truth (measured minus true pose):', '',
                 _tracker_line('whole run', a.tracker),
                 *(_tracker_line(m.mode, m.tracker) for m in a.modes), '']
+    if a.budgets:
+        out += ['## Error budget', '', 'What the true position error of each mode\'s settled '
+                'visits is made of (RMS over the visits, µm; in brackets the share of the '
+                'squared truth error; "—": does not reach the platform in that mode). '
+                'Formulas: positioning_cell.analysis.error_budget.', '',
+                *markdown_table(BUDGET_HEADER, [_budget_row(b) for b in a.budgets]), '',
+                *(f'- {b.mode}: {note}' for b in a.budgets for note in b.notes),
+                *(f'- {c.name}: {c.note}' for c in a.budgets[0].contributions
+                  if c.rms is None and c.note.startswith('not recorded')), '']
     for test in a.axis_tests:
         out += [f'## Axis test (ISO 230-2), run {test.run}', '',
                 'Each actuator driven through its targets in both directions (config/'

@@ -18,12 +18,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from positioning_cell import accuracy
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
 from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
 from positioning_cell.analysis.axis_test import runs as axis_runs
+from positioning_cell.analysis.budget_pass import BUDGET_TOPICS, gather
 from positioning_cell.analysis.context import RunContext
+from positioning_cell.analysis.error_budget import ErrorBudget
 from positioning_cell.analysis.reading import Recording, with_recording
 from positioning_cell.analysis.replay import (
     BEFORE_PROGRAM,
@@ -35,6 +38,13 @@ from positioning_cell.analysis.replay import (
     Replayer,
 )
 from positioning_cell.bag import BagError
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.names import NODE_DRIVER, NODE_POSITIONER
+from positioning_cell.parameters import parse
+from positioning_cell.sim.encoders import EncoderSettings
+
+FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -165,6 +175,8 @@ class RunAnalysis:
     problems: tuple[str, ...] = ()
     missing_optional: tuple[str, ...] = ()
     ignored: tuple[Ignored, ...] = field(default_factory=tuple)
+    #: The error budget of each mode (:mod:`.error_budget`).
+    budgets: tuple[ErrorBudget, ...] = ()
 
     @cached_property
     def monitor(self) -> dict[str, Any]:
@@ -203,6 +215,7 @@ class RunAnalysis:
             'ignored': [i.__dict__ for i in self.ignored],
             'context': self.context.to_dict(),
             'axis_tests': [a.to_dict() for a in self.axis_tests],
+            'error_budget': [b.to_dict() for b in self.budgets],
             'monitor': self.monitor,
         }
 
@@ -241,12 +254,29 @@ def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
         ignored=tuple(result.monitor.ignored))
 
 
-def analyse_bag(path: str | Path, settings: MonitorSettings | None = None) -> RunAnalysis:
+def budget_settings(config: str | Path) -> tuple[Mechanism, FloatArray]:
+    """What the error budget takes from a cell parameter file: the nominal mechanism (the
+    positioner's ``mechanism:`` block) and the encoder resolution (6,) m and rad (the drives'
+    ``encoder:`` block)."""
+    params = load_parameter_file(config)
+    mech = Mechanism.from_params(node_parameters(params, NODE_POSITIONER).get('mechanism', {}))
+    encoder = parse(EncoderSettings, node_parameters(params, NODE_DRIVER).get('encoder', {}))
+    return mech, encoder.resolution
+
+
+def analyse_bag(path: str | Path, settings: MonitorSettings | None = None,
+                config: str | Path | None = None) -> RunAnalysis:
     """Read the bag at ``path`` in recorded order, batch by batch, replay it through the
-    monitor's rules and summarise it per mode and pose. BagError when it is not a readable bag
+    monitor's rules and summarise it per mode and pose, then read it again for the error
+    budget of each mode (:mod:`.budget_pass`; mechanism and encoders from the cell parameter
+    file ``config``, default config/cell.yaml). BagError when it is not a readable bag
     (nothing in it is an MCAP file: an empty or too short file, wrong magic) or lacks a topic
     of :data:`REQUIRED_TOPICS`; a truncated or damaged bag is analysed as far as it is
     readable: its sound chunks (``problems`` names each corrupt chunk and the time range and
     messages lost; :mod:`positioning_cell.analysis.reading`)."""
     settings = settings or MonitorSettings()
-    return with_recording(path, ANALYSED_TOPICS, partial(_analyse, settings=settings))
+    analysis = with_recording(path, ANALYSED_TOPICS, partial(_analyse, settings=settings))
+    mech, resolution = budget_settings(config or config_path('cell.yaml'))
+    budgets = with_recording(path, BUDGET_TOPICS, partial(
+        gather, visits=analysis.replay.visits, mech=mech, resolution=resolution))
+    return replace(analysis, budgets=budgets)

@@ -4,16 +4,17 @@ a bounded time."""
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from positioning_cell import files
+from positioning_cell.calibration.envelope import Envelope
 from positioning_cell.calibration.file import CalibrationFileError, load
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.mechanics.statics import Payload, Structure
 
 #: Longest time the positioner waits for a calibration file to load (s): a real one loads in
-#: some 20 ms, the largest accepted (256 KiB) in some 0.2 s; the bound keeps the node's
+#: some 15 ms, the largest accepted (384 KiB) in some 0.25 s; the bound keeps the node's
 #: parameter services and its stop answering whatever the file system does.
 LOAD_TIMEOUT_S = 1.0
 
@@ -46,8 +47,18 @@ class CalibratedSettings(Nominal, Protocol):
     def compensation(self) -> _Compensation: ...
 
 
+class Calibrated(NamedTuple):
+    """A loaded calibration as the positioner uses it: the identified ``model`` built for the
+    payload, the validity ``envelope`` it was identified over (None: the file has none) and
+    what an older file ``lacks``."""
+
+    model: MachineModel
+    envelope: Envelope | None
+    lacks: tuple[str, ...]
+
+
 def calibrated_machine(settings: CalibratedSettings,
-                       timeout: float = LOAD_TIMEOUT_S) -> MachineModel | None:
+                       timeout: float = LOAD_TIMEOUT_S) -> Calibrated | None:
     """The machine identified in ``settings``' calibration file, carrying its payload (None:
     no file set), loaded in a worker thread within ``timeout`` s
     (:func:`positioning_cell.files.within`). CalibrationFileError (a ConfigError) when the
@@ -56,9 +67,11 @@ def calibrated_machine(settings: CalibratedSettings,
     if not path:
         return None
 
-    def build() -> MachineModel:
-        return load(path, settings.mechanism).model(settings.mechanism, settings.payload,
-                                                    settings.structure)
+    def build() -> Calibrated:
+        calibration = load(path, settings.mechanism)
+        return Calibrated(calibration.model(settings.mechanism, settings.payload,
+                                            settings.structure),
+                          calibration.envelope, calibration.lacks)
 
     return files.within(timeout, build, files.describe(files.CALIBRATION_FILE, path),
                         CalibrationFileError)

@@ -17,6 +17,7 @@ from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.calibrated import Nominal
 from positioning_cell.calibration.collect import Collected
+from positioning_cell.calibration.envelope import envelope_of
 from positioning_cell.calibration.report import predict, write_report
 
 
@@ -60,9 +61,13 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
     hold = predict(s.mechanism, model, collected.hold_out) if len(collected.hold_out.joints) \
         else None
     hold_doc = None
+    hold_verdict = None
     if hold is not None:
+        hold_verdict = idf.hold_out_adequacy(result, s.mechanism, s.payload, s.structure,
+                                             collected.hold_out)
         promised = idf.pose_uncertainty(result.x, result.covariance, s.mechanism, s.payload,
-                                        s.structure, *collected.hold_out_commanded)
+                                        s.structure, *collected.hold_out_commanded,
+                                        model_error=result.model_error)
         sigma_p = np.sqrt(np.trace(promised[:, :3, :3], axis1=1, axis2=2))
         hold_doc = {'poses': len(collected.hold_out.joints),
                     'promised_sigma_um': round(float(np.sqrt(np.mean(sigma_p**2))) * 1e6, 3),
@@ -74,10 +79,16 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
     indices = measured_indices(settings, collected.fit, ident.identified)
     production = production_sigma(settings, result, str(program.get('production', '')))
     out.mkdir(parents=True, exist_ok=True)
+    verdicts = [v for v in (result.adequacy, hold_verdict) if v is not None]
+    envelope = envelope_of(s.mechanism, collected.fit.position, collected.fit.quaternion,
+                           s.payload.mass, collected.fit.temperature)
+    extra = {'adequacy': {v.label: v.to_document() for v in verdicts},
+             'envelope': envelope.to_document()}
     doc = calfile.document(result, s.mechanism, idf.IdentificationSettings().seating_force,
-                           program, hold_doc)
+                           program, hold_doc, extra=extra)
     path = calfile.write(out / 'calibration.yaml', doc)
-    report = write_report(out, result, fit, hold, indices=indices, production=[production])
+    report = write_report(out, result, fit, hold, indices=indices, production=[production],
+                          verdicts=[v.verdict() for v in verdicts])
     say(f'identified {ident.rank}/{len(ident.identified)} parameters from '
         f'{len(collected.fit.joints)} poses (chi2/dof {result.chi2 / result.dof:.2f}); fit '
         f'residual RMS {rms(fit.calibrated[0]) * 1e6:.2f} um (nominal model '
@@ -87,8 +98,10 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
             f'{hold_doc["calibrated_rms_um"]} um, max {hold_doc["calibrated_max_um"]} um '
             f'(nominal model {hold_doc["nominal_rms_um"]} um); the calibrated model\'s own '
             f'uncertainty there: {hold_doc["promised_sigma_um"]} um (1 sigma, |dp|)')
+    for verdict in verdicts:
+        say(verdict.verdict())
     if ident.merged:
-        say('fixed (not separable): ' + ', '.join(ident.merged))
+        say('fixed (not separable or not excited): ' + ', '.join(ident.merged))
     known = indices['identified']
     say(f'observability of the identified parameters: smallest singular value '
         f'{known.sigma_min:.3g}, condition {known.condition:.3g}, O1 {known.o1:.3g}; '

@@ -11,7 +11,10 @@ model predicts at the measured pose, minus the encoder values read,
 closed form per leg with the load model's joint-centre shifts
 d_i = p + R (b_i + r_b s_B,i) − (A_i + r_a s_A,i), l_i = |d_i|, θ_i = asin(u_i · e_t,i)
 (s_A, s_B the seated force directions of :class:`~positioning_cell.clearance.load
-.LoadAwareClearance` at the measured pose). Its Jacobian is analytic: ∂l/∂d = uᵀ,
+.LoadAwareClearance` at the measured pose), and the terms beyond geometry of
+:mod:`positioning_cell.calibration.machine` (compliance times the statics' joint efforts,
+thermal expansion about the reference temperature, lead, reversal times the approach sign)
+under each pose's recorded conditions. Its Jacobian is analytic: ∂l/∂d = uᵀ,
 ∂θ/∂d = wᵀ with w = (e_t − (u·e_t) u) / (l cos θ) (the rows of
 :func:`positioning_cell.core.kinematics.inverse_jacobian`); the force directions s_A, s_B are
 those of the current geometry, held constant in the Jacobian (turning them adds at most a few
@@ -26,11 +29,15 @@ decomposed by QR with column pivoting (the base-parameter method of Khalil & Dom
 parameter whose new information |R_jj| is below ``min_information`` (its standard uncertainty
 would exceed 1/min_information of its expected size) cannot be separated from those already
 chosen: it is fixed at its nominal value (0) and the parameters that absorb it are named.
+Before that, the classes the settings switch off and those the data cannot excite (no
+temperature recorded or too narrow a range, an axis approached from one side only) are left
+out, each with why (:func:`excluded_parameters`). After the fit, the residuals' χ² test
+(:mod:`positioning_cell.calibration.adequacy`) says whether the model is adequate.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -38,14 +45,26 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
+from positioning_cell.calibration import adequacy as adq
 from positioning_cell.calibration import parameters as cp
-from positioning_cell.calibration.machine import MachineModel
+from positioning_cell.calibration.conditions import (
+    STANDARD_TEMPERATURE,
+    Conditions,
+    checked_approach,
+    checked_temperature,
+)
+from positioning_cell.calibration.machine import (
+    MachineModel,
+    leg_vectors,
+    mid_length,
+    terms_offsets,
+)
 from positioning_cell.clearance import LoadAwareClearance
 from positioning_cell.core.kinematics import inverse_jacobian, jacobian
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch, matrix_from_quaternion
 from positioning_cell.errors import InputError
-from positioning_cell.mechanics.statics import Payload, Structure
+from positioning_cell.mechanics.statics import Payload, Structure, actuator_efforts
 from positioning_cell.parameters import check_fields, setting
 
 FloatArray = NDArray[np.float64]
@@ -70,6 +89,28 @@ class IdentificationSettings:
     seating_force: float = setting(1.0, 'F_0 of the load model', 'N', low=0.0, low_open=True)
     fit_clearance: bool = setting(True, 'identify the clearances r_a, r_b (false: a '
                                   'geometry-only fit, the clearance fixed at 0)')
+    fit_compliance: bool = setting(True, "identify the legs' axial and the theta drives' "
+                                   'torsional compliance (false: rigid)')
+    fit_thermal: bool = setting(True, "identify the legs' and the structure's thermal "
+                                'expansion (false: none)')
+    fit_lead: bool = setting(True, "identify each leg's lead scale (false: none)")
+    fit_reversal: bool = setting(True, "identify each axis' reversal half-band (false: "
+                                 'none)')
+    allowance_length: float = setting(
+        1e-6, 'model allowance of the adequacy test: what the model may miss per leg', 'm',
+        low=0.0, high=1e-3)
+    allowance_theta: float = setting(
+        5e-6, 'model allowance of the adequacy test per theta axis', 'rad', low=0.0,
+        high=1e-2)
+    adequacy_p: float = setting(
+        0.01, 'the model is adequate when the p-value of its residuals\' chi2 is at least '
+        'this', low=0.0, low_open=True, high=0.5)
+    screw_pitch: float = setting(
+        0.005, "lead of the legs' screws (what a periodic error of the residuals is sought "
+        'at)', 'm', low=0.0, low_open=True, high=0.1)
+    min_temperature_range: float = setting(
+        1.0, 'thermal terms are fitted only over a wider range of measured temperatures', 'K',
+        low=0.0, high=50.0)
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -128,77 +169,75 @@ def check_data(data: CalibrationData) -> CalibrationData:
     if np.any(arrays['joint_sigma'] <= 0.0):
         raise InputError('calibration data joint_sigma must be > 0')
     return CalibrationData(arrays['joints'], arrays['joint_sigma'], p, q, arrays['covariance'],
-                           _checked_temperature(data.temperature, n),
-                           _checked_approach(data.approach, n))
-
-
-#: Air temperatures a calibration accepts, °C (a cell outside them is not a workshop).
-TEMPERATURE_RANGE = (-20.0, 60.0)
-
-
-def _checked_temperature(value: ArrayLike | None, n: int) -> FloatArray | None:
-    if value is None:
-        return None
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (n,):
-        raise InputError(f'calibration data temperature has shape {arr.shape}, expected ({n},)')
-    low, high = TEMPERATURE_RANGE
-    if not np.all(np.isfinite(arr)) or np.any((arr < low) | (arr > high)):
-        raise InputError(f'calibration data temperature must be finite and within {low:g} to '
-                         f'{high:g} degC')
-    return arr
-
-
-def _checked_approach(value: ArrayLike | None, n: int) -> FloatArray | None:
-    if value is None:
-        return None
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (n, 6):
-        raise InputError(f'calibration data approach has shape {arr.shape}, expected ({n}, 6)')
-    if not np.all(np.isin(arr, (-1.0, 0.0, 1.0))):
-        raise InputError('calibration data approach holds values other than -1, 0, +1')
-    return arr
+                           checked_temperature(data.temperature, n),
+                           checked_approach(data.approach, n))
 
 
 def predicted_joints(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
                      position: FloatArray, quaternion: FloatArray, seating_force: float = 1.0,
                      *, with_jacobian: bool = False,
                      directions: tuple[FloatArray, FloatArray] | None = None,
+                     conditions: Conditions | None = None,
+                     reference_temperature: float = STANDARD_TEMPERATURE,
+                     efforts: FloatArray | None = None,
                      ) -> tuple[FloatArray, FloatArray | None]:
     """Encoder values (N, 6) the machine of vector ``x`` reads at validated poses (N, 3),
-    (N, 4), and (``with_jacobian``) their analytic Jacobian (N, 6, COUNT) in the vector's units
-    (module docstring). ``directions``: the seated force directions (s_A base frame, s_B
-    platform frame, (N, 3, 3) each) to use instead of those of this geometry
-    (:func:`force_directions`)."""
+    (N, 4) under ``conditions`` (None: not known; the thermal terms about
+    ``reference_temperature`` °C), and (``with_jacobian``) their analytic Jacobian
+    (N, 6, COUNT) in the vector's units (module docstring; the terms beyond geometry:
+    :mod:`positioning_cell.calibration.machine`). ``directions``: the seated force directions
+    (s_A base frame, s_B platform frame, (N, 3, 3) each) to use instead of those of this
+    geometry (:func:`force_directions`). The joint efforts of the compliance are those of the
+    nominal machine at the pose (geometry errors of 0.1 mm change them by ~0.05 %), so the
+    Jacobian is exact with the force directions held."""
+    n = position.shape[0]
+    cond = conditions or Conditions()
+    change = cond.temperature_change(n, reference_temperature)
+    approach = cond.approach_signs(n)
     mech = _geometry(x, nominal)
     s_a, s_b = directions or force_directions(x, nominal, payload, structure, position,
                                               quaternion, seating_force)
     rot = matrix_from_quaternion(quaternion)
     s_b_base = np.einsum('nij,nkj->nki', rot, s_b)
     r_a, r_b = x[cp.R_A], x[cp.R_B]
+    eps = x[cp.STRUCTURE_EXPANSION] * change
     b_base = np.einsum('nij,kj->nki', rot, mech.platform_joints)
     d = position[:, None, :] + b_base + r_b * s_b_base - (mech.base_joints + r_a * s_a)
-    length = np.linalg.norm(d, axis=2)
-    u = d / length[..., None]
-    ut = np.einsum('nkj,kj->nk', u, mech.tangential)
-    theta = np.arcsin(np.clip(ut, -1.0, 1.0))
-    pred = np.concatenate([length - x[cp.LENGTH], theta - x[cp.THETA]], axis=1)
+    # the structure's expansion scales the seated joint centres by 1 + ε (machine.py)
+    lever = d - position[:, None, :]
+    d = d + eps[:, None, None] * lever
+    legs = leg_vectors(d, mech.tangential)
+    theta = np.arcsin(np.clip(legs.ut, -1.0, 1.0))
+    if efforts is None and (with_jacobian or x[cp.COMPLIANCE].any()):
+        efforts = actuator_efforts(mech, position, quaternion, payload, structure)
+    mid = mid_length(nominal)
+    gain, offset = terms_offsets(cp.terms_of(x, reference_temperature), legs.length, efforts,
+                                 change, approach, mid)
+    pred = np.concatenate([legs.length * gain + offset[:, :3] - x[cp.LENGTH],
+                           theta + offset[:, 3:] - x[cp.THETA]], axis=1)
     if not with_jacobian:
         return pred, None
-    cos_t = np.sqrt(np.clip(1.0 - ut**2, 1e-300, None))
-    w = (mech.tangential - ut[..., None] * u) / (length * cos_t)[..., None]
-    n = position.shape[0]
+    assert efforts is not None
+    grow = 1.0 + eps
     jac = np.zeros((n, 6, cp.COUNT))
     for i in range(3):  # three legs, each block vectorised over the poses
         base_cols = slice(cp.BASE.start + 3 * i, cp.BASE.start + 3 * i + 3)
         plat_cols = slice(cp.PLATFORM.start + 3 * i, cp.PLATFORM.start + 3 * i + 3)
-        for row, g in ((i, u[:, i]), (3 + i, w[:, i])):
+        for row, grad in ((i, legs.u[:, i] * gain[:, i, None]), (3 + i, legs.w[:, i])):
+            jac[:, row, cp.STRUCTURE_EXPANSION] = np.einsum('nj,nj->n', grad,
+                                                            lever[:, i]) * change
+            g = grad * grow[:, None]  # ∂d/∂(joint centres, clearances) scale with the structure
             jac[:, row, base_cols] = -g
             jac[:, row, plat_cols] = np.einsum('nj,njk->nk', g, rot)
             jac[:, row, cp.R_A] = -np.einsum('nj,nj->n', g, s_a[:, i])
             jac[:, row, cp.R_B] = np.einsum('nj,nj->n', g, s_b_base[:, i])
+            jac[:, row, cp.REVERSAL.start + row] = approach[:, row]
         jac[:, i, cp.LENGTH.start + i] = -1.0
         jac[:, 3 + i, cp.THETA.start + i] = -1.0
+        jac[:, i, cp.LEG_COMPLIANCE.start + i] = efforts[:, i]
+        jac[:, 3 + i, cp.THETA_COMPLIANCE.start + i] = efforts[:, 3 + i]
+        jac[:, i, cp.LEG_EXPANSION] = -change * legs.length[:, i]
+        jac[:, i, cp.LEAD.start + i] = mid - legs.length[:, i]
     return pred, jac
 
 
@@ -218,13 +257,18 @@ def force_directions(x: FloatArray, nominal: Mechanism, payload: Payload,
     return unit.offsets(_geometry(x, nominal), position, quaternion)
 
 
-def whitening(nominal: Mechanism, data: CalibrationData) -> FloatArray:
-    """W_k (N, 6, 6) with W_k C_k W_kᵀ = I, C_k = J⁻¹ Σ_k J⁻ᵀ + diag(σ_joint²): the joint-space
-    covariance of pose k's residual."""
+def joint_covariance(nominal: Mechanism, data: CalibrationData) -> FloatArray:
+    """C_k (N, 6, 6) = J⁻¹ Σ_k J⁻ᵀ + diag(σ_joint²): the joint-space covariance of pose k's
+    residual (m², rad²)."""
     jinv = inverse_jacobian(nominal, data.position, data.quaternion)
     cov = jinv @ data.covariance @ np.swapaxes(jinv, 1, 2)
-    cov = cov + np.einsum('ni,ij->nij', data.joint_sigma**2, np.eye(6))
-    chol = np.linalg.cholesky(cov)
+    out: FloatArray = cov + np.einsum('ni,ij->nij', data.joint_sigma**2, np.eye(6))
+    return out
+
+
+def whitening(nominal: Mechanism, data: CalibrationData) -> FloatArray:
+    """W_k (N, 6, 6) with W_k C_k W_kᵀ = I, C_k of :func:`joint_covariance`."""
+    chol = np.linalg.cholesky(joint_covariance(nominal, data))
     eye = np.broadcast_to(np.eye(6), chol.shape)
     white: FloatArray = np.asarray(np.linalg.solve(chol, eye), dtype=float)
     return white
@@ -284,7 +328,12 @@ class Identification:
     variance factor when χ²/dof > 1), the :class:`Identifiability`, the raw joint residuals
     (N, 6) and their whitened sum of squares ``chi2`` with ``dof`` degrees of freedom, and
     the pose-space residual position per pose (N,) m (the joint residual through the
-    velocity Jacobian), and ``nfev`` function evaluations."""
+    velocity Jacobian), ``nfev`` function evaluations, the ``reference_temperature`` °C of
+    the thermal terms (the data's mean temperature; 20 without one) and ``excluded``: the
+    parameters left out before the fit (not to be fitted, or not excited by the data: no
+    temperature, one approach direction), each with why, and the ``model_error`` (6,) per
+    joint (m, rad): what the model misses by the ``adequacy`` test (0: adequate; else the
+    allowance and the widening together; :mod:`positioning_cell.calibration.adequacy`)."""
 
     x: FloatArray
     covariance: FloatArray
@@ -294,6 +343,10 @@ class Identification:
     chi2: float
     dof: int
     nfev: int
+    reference_temperature: float = STANDARD_TEMPERATURE
+    excluded: dict[str, str] = field(default_factory=dict)
+    model_error: FloatArray = field(default_factory=lambda: np.zeros(6))
+    adequacy: adq.Adequacy | None = None
 
     @property
     def sigma(self) -> FloatArray:
@@ -305,7 +358,46 @@ class Identification:
               seating_force: float = 1.0) -> MachineModel:
         """The identified machine carrying ``payload`` (any payload: the clearance is a load
         model, so a new panel needs its mass and centre of gravity, not a new calibration)."""
-        return cp.machine_model(self.x, nominal, payload, structure, seating_force)
+        return cp.machine_model(self.x, nominal, payload, structure, seating_force,
+                                self.reference_temperature)
+
+
+def excluded_parameters(data: CalibrationData,
+                        settings: IdentificationSettings) -> dict[str, str]:
+    """The parameters identification leaves out before fitting (fixed at 0), with why: a
+    class switched off in ``settings``, the thermal terms without temperatures or over a
+    range narrower than ``min_temperature_range``, the reversal of an axis without approach
+    directions or approached from one side only (validated ``data``)."""
+    out: dict[str, str] = {}
+
+    def leave(index: slice | int, why: str) -> None:
+        names = cp.PARAMETER_NAMES[index]
+        for name in (names,) if isinstance(names, str) else names:
+            out.setdefault(name, why)
+
+    switches = (('clearance', settings.fit_clearance), ('compliance', settings.fit_compliance),
+                ('thermal', settings.fit_thermal), ('lead', settings.fit_lead),
+                ('reversal', settings.fit_reversal))
+    for kind, on in switches:
+        if not on:
+            leave(cp.CLASSES[kind], f'not fitted (identification.fit_{kind}: false)')
+    if data.temperature is None:
+        leave(cp.THERMAL, 'no temperature recorded')
+    elif np.ptp(data.temperature) < settings.min_temperature_range:
+        leave(cp.THERMAL, f'temperature range {np.ptp(data.temperature):.2f} K below '
+              f'{settings.min_temperature_range:g} K')
+    if data.approach is None:
+        leave(cp.REVERSAL, 'no approach directions recorded')
+    else:
+        for j in range(6):
+            if not (np.any(data.approach[:, j] > 0) and np.any(data.approach[:, j] < 0)):
+                leave(cp.REVERSAL.start + j, 'approached from one side only')
+    return out
+
+
+def reference_temperature(data: CalibrationData) -> float:
+    """The reference of the thermal terms: the data's mean temperature (°C; 20 without)."""
+    return STANDARD_TEMPERATURE if data.temperature is None else float(np.mean(data.temperature))
 
 
 def identify(nominal: Mechanism, payload: Payload, structure: Structure,
@@ -319,12 +411,17 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
     n = data.position.shape[0]
     if n < s.min_poses:
         raise IdentificationError(f'{n} poses: a calibration needs at least {s.min_poses}')
-    scale = cp.scales(nominal)
+    scale = cp.scales(nominal, structure=structure)
     white = whitening(nominal, data)
+    conditions = Conditions(data.temperature, data.approach)
+    reference = reference_temperature(data)
+    excluded = excluded_parameters(data, s)
+    out_cols = [cp.PARAMETER_NAMES.index(name) for name in excluded]
 
     def evaluate(x: FloatArray, jac: bool) -> tuple[FloatArray, FloatArray | None]:
         pred, j = predicted_joints(x, nominal, payload, structure, data.position,
-                                   data.quaternion, s.seating_force, with_jacobian=jac)
+                                   data.quaternion, s.seating_force, with_jacobian=jac,
+                                   conditions=conditions, reference_temperature=reference)
         res = np.einsum('nij,nj->ni', white, pred - data.joints).ravel()
         if j is None:
             return res, None
@@ -334,9 +431,8 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
     x0[cp.R_A], x0[cp.R_B] = scale[cp.R_A], scale[cp.R_B]
     _, j0 = evaluate(x0, True)
     assert j0 is not None
-    if not s.fit_clearance:
-        j0[:, [cp.R_A, cp.R_B]] = 0.0
-        x0[cp.R_A] = x0[cp.R_B] = 0.0
+    j0[:, out_cols] = 0.0
+    x0[out_cols] = 0.0
     ident = identifiability(j0, s.min_information)
     if ident.rank < s.min_identified or 6 * n <= ident.rank:
         unknown = ', '.join(name for name, ok in zip(cp.PARAMETER_NAMES, ident.identified,
@@ -375,19 +471,57 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
     cov = np.zeros((cp.COUNT, cp.COUNT))
     cov[np.ix_(free, free)] = cov_scaled * factor * np.outer(scale[free], scale[free])
     pred, _ = predicted_joints(x, nominal, payload, structure, data.position, data.quaternion,
-                               s.seating_force)
+                               s.seating_force, conditions=conditions,
+                               reference_temperature=reference)
     residuals = pred - data.joints
     pose_res = np.einsum('nij,nj->ni', jacobian(nominal, data.position, data.quaternion).matrix,
                          residuals)
+    allowance = adq.allowance_covariance(s.allowance_length, s.allowance_theta)
+    verdict = adq.assess('fit', residuals, joint_covariance(nominal, data) + allowance, dof,
+                         s.adequacy_p, _signatures(x, nominal, payload, structure, data, s))
+    model_error = np.zeros(6) if verdict.adequate else \
+        np.sqrt(np.diag(allowance) + verdict.model_error**2)
     return Identification(x, cov, ident, residuals, np.linalg.norm(pose_res[:, :3], axis=1),
-                          chi2, dof, int(fit.nfev))
+                          chi2, dof, int(fit.nfev), reference, excluded, model_error, verdict)
+
+
+def _signatures(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
+                data: CalibrationData, settings: IdentificationSettings
+                ) -> dict[str, FloatArray]:
+    """The effects' signatures at the poses of ``data`` (:func:`adequacy.signatures`)."""
+    efforts = actuator_efforts(_geometry(x, nominal), data.position, data.quaternion, payload,
+                               structure)
+    return adq.signatures(efforts, data.temperature, data.approach, data.joints[:, :3],
+                          settings.screw_pitch)
+
+
+def hold_out_adequacy(result: Identification, nominal: Mechanism, payload: Payload,
+                      structure: Structure, data: CalibrationData,
+                      settings: IdentificationSettings | None = None) -> adq.Adequacy:
+    """The χ² test of the identified model at hold-out poses ``data`` it was not fitted to
+    (6N degrees of freedom; their covariance: the measurement's, the allowance and the
+    identified parameters' own uncertainty; not the model error, which is what is tested)."""
+    s = settings or IdentificationSettings()
+    data = check_data(data)
+    pred, sens = predicted_joints(result.x, nominal, payload, structure, data.position,
+                                  data.quaternion, s.seating_force, with_jacobian=True,
+                                  conditions=Conditions(data.temperature, data.approach),
+                                  reference_temperature=result.reference_temperature)
+    assert sens is not None
+    cov = (joint_covariance(nominal, data)
+           + adq.allowance_covariance(s.allowance_length, s.allowance_theta)
+           + sens @ result.covariance @ np.swapaxes(sens, 1, 2))
+    residuals = pred - data.joints
+    return adq.assess('hold-out', residuals, cov, 6 * residuals.shape[0], s.adequacy_p,
+                      _signatures(result.x, nominal, payload, structure, data, s))
 
 
 def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
                      position: ArrayLike, quaternion: ArrayLike, covariance: FloatArray,
                      joint_sigma: ArrayLike, seating_force: float = 1.0) -> FloatArray:
     """The scaled whitened identification Jacobian of candidate poses (N, 6, COUNT): what each
-    pose would add to the calibration (for choosing the measurement program). ``covariance``
+    pose would add to the calibration (for choosing the measurement program; no conditions:
+    the thermal and reversal columns are 0, a pose alone does not excite them). ``covariance``
     (6, 6) or (N, 6, 6) the expected pose measurement covariance, ``joint_sigma`` (6,) the
     encoders'."""
     p, q = as_pose_batch(position, quaternion)
@@ -395,7 +529,7 @@ def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
     data = CalibrationData(np.zeros((n, 6)), np.broadcast_to(np.asarray(joint_sigma,
                                                                           dtype=float), (n, 6)),
                            p, q, np.broadcast_to(covariance, (n, 6, 6)))
-    scale = cp.scales(nominal)
+    scale = cp.scales(nominal, structure=structure)
     x0 = np.zeros(cp.COUNT)
     x0[cp.R_A], x0[cp.R_B] = scale[cp.R_A], scale[cp.R_B]
     _, j = predicted_joints(x0, nominal, payload, structure, p, q, seating_force,
@@ -407,17 +541,24 @@ def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
 
 def pose_uncertainty(x: FloatArray, covariance: FloatArray, nominal: Mechanism,
                      payload: Payload, structure: Structure, position: ArrayLike,
-                     quaternion: ArrayLike, seating_force: float = 1.0) -> FloatArray:
+                     quaternion: ArrayLike, seating_force: float = 1.0,
+                     model_error: ArrayLike | None = None) -> FloatArray:
     """Covariance (N, 6, 6) (x, y, z, rot-x, rot-y, rot-z; m², rad²) of where the calibrated
     machine puts the platform when commanded to poses (N, 3), (N, 4), from the identified
     parameters' covariance alone (first order: the encoder commands move by ∂e/∂x·δx, the pose
     by the velocity Jacobian of that): the accuracy the calibration itself promises there.
     ``x`` (COUNT,) and ``covariance`` (COUNT, COUNT): an :class:`Identification`'s, or a
-    calibration file's."""
+    calibration file's. ``model_error`` (6,): the standard uncertainty of what the model
+    misses, per joint (m, rad; :mod:`positioning_cell.calibration.adequacy`), added as an
+    independent joint error (None: none)."""
     p, q = as_pose_batch(position, quaternion)
     _, sens = predicted_joints(x, nominal, payload, structure, p, q, seating_force,
                                with_jacobian=True)
     assert sens is not None
-    pose_sens = jacobian(nominal, p, q).matrix @ sens
+    vel = jacobian(nominal, p, q).matrix
+    pose_sens = vel @ sens
     cov: FloatArray = pose_sens @ covariance @ np.swapaxes(pose_sens, 1, 2)
+    if model_error is not None:
+        joint_var = np.asarray(model_error, dtype=float)**2
+        cov = cov + np.einsum('nij,j,nkj->nik', vel, joint_var, vel)
     return cov

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.calibration import parameters as cp
+from positioning_cell.calibration.conditions import Conditions
 from positioning_cell.calibration.identify import CalibrationData, Identification
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.calibration.observability import Indices
@@ -35,16 +36,26 @@ class Prediction(NamedTuple):
 
 def predict(nominal: Mechanism, model: MachineModel, data: CalibrationData) -> Prediction:
     """How well each machine predicts the measured poses of ``data`` from their encoder
-    readings (module docstring)."""
+    readings under their recorded conditions (module docstring)."""
     out = []
+    conditions = Conditions(data.temperature, data.approach)
     for machine in (MachineModel(nominal), model):
-        pose = machine.poses(data.joints[:, :3], data.joints[:, 3:])
+        pose = machine.poses(data.joints[:, :3], data.joints[:, 3:], conditions=conditions)
         out.append(pose_error(data.position, data.quaternion, pose.position, pose.quaternion))
     return Prediction(out[0], out[1])
 
 
 def _rms(a: FloatArray) -> float:
     return float(np.sqrt(np.mean(np.sum(a**2, axis=1)))) if a.size else float('nan')
+
+
+#: How the report shows each unit: (shown unit, factor).
+_SHOWN = {'m': ('um', 1e6), 'rad': ('urad', 1e6), 'm/N': ('nm/N', 1e9),
+          'rad/(N m)': ('urad/(N m)', 1e6), '1/K': ('ppm/K', 1e6), '1': ('ppm', 1e6)}
+
+
+def _shown_unit(unit: str) -> tuple[str, float]:
+    return _SHOWN.get(unit, (unit, 1.0))
 
 
 def summary_lines(label: str, prediction: Prediction) -> list[str]:
@@ -78,11 +89,13 @@ def observability_lines(indices: dict[str, Indices]) -> list[str]:
 def write_report(folder: Path, result: Identification, fit: Prediction,
                  hold_out: Prediction | None, title: str = 'Calibration',
                  indices: dict[str, Indices] | None = None,
-                 production: list[str] | None = None) -> Path:
+                 production: list[str] | None = None,
+                 verdicts: list[str] | None = None) -> Path:
     """``folder/calibration_report.md`` with ``calibration_errors.png`` and
     ``calibration_singular_values.png``; returns the Markdown path. ``indices``: the
     observability indices of the program measured (a column per set of parameters);
-    ``production``: lines on what the calibration predicts at the production poses."""
+    ``production``: lines on what the calibration predicts at the production poses;
+    ``verdicts``: the adequacy tests' lines, fit and hold-out (default: the fit's)."""
     folder.mkdir(parents=True, exist_ok=True)
     sets = [('fit', fit)] + ([('hold-out', hold_out)] if hold_out is not None else [])
     fig, axes = figure(6 * len(sets), 3.5, 1, len(sets), constrained=True)
@@ -112,19 +125,24 @@ def write_report(folder: Path, result: Identification, fit: Prediction,
              '|---|---|---|---|---|---|']
     for label, pred in sets:
         lines += summary_lines(label, pred)
+    if verdicts is None:
+        verdicts = [result.adequacy.verdict()] if result.adequacy is not None else []
+    if verdicts:
+        lines += ['', '## Model adequacy', '', *(f'- {v}' for v in verdicts)]
     lines += ['', '![errors](calibration_errors.png)', '', '## Parameters', '',
               '| parameter | value | sigma | unit |', '|---|---|---|---|']
     for k, name in enumerate(cp.PARAMETER_NAMES):
-        unit, factor = ('urad', 1e6) if cp.UNITS[k] == 'rad' else ('um', 1e6)
+        unit, factor = _shown_unit(cp.UNITS[k])
         sigma = result.sigma[k]
         value = f'{result.x[k] * factor:.2f}' if ident.identified[k] else 'fixed at 0'
         lines.append(f'| {name} | {value} | '
                      f'{"" if np.isnan(sigma) else f"{sigma * factor:.2f}"} | {unit} |')
     if ident.merged:
-        lines += ['', '## Not separable (fixed at nominal)', '']
-        lines += [f'- {name}: absorbed by ' + (', '.join(f'{p} ({c:+.2f})' for p, c in partners)
-                                                or 'nothing (no effect on the data)')
-                  for name, partners in ident.merged.items()]
+        lines += ['', '## Not separable or not excited (fixed at 0)', '']
+        lines += [f'- {name}: ' + (result.excluded.get(name) or 'absorbed by ' + (
+            ', '.join(f'{p} ({c:+.2f})' for p, c in partners)
+            or 'nothing (too little effect on the data)'))
+            for name, partners in ident.merged.items()]
     lines += ['', '## Identifiability', '',
               'Singular values of the whitened Jacobian in units of each parameter\'s expected '
               'size: ' + ', '.join(f'{v:.3g}' for v in ident.singular_values) + '.', '',

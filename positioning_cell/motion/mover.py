@@ -29,11 +29,12 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from positioning_cell.calibration.calibrated import calibrated_machine
+from positioning_cell.calibration.calibrated import Calibrated, calibrated_machine
 from positioning_cell.clearance import ClearanceModel, attained_pose
 from positioning_cell.core.limits import LimitReport
 from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.motion.compensation import Compensation
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
 from positioning_cell.motion.standstill import Motion, StandstillWatch
 from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
@@ -119,8 +120,10 @@ class Mover:
         self.settings = settings
         self.mech = settings.mechanism
         self.model = settings.clearance_model()
-        self.calibration: ClearanceModel = calibrated_machine(settings)  # ConfigError: no start
-        self._pending: tuple[str, ClearanceModel] | None = None
+        self.calibration: Calibrated | None = calibrated_machine(settings)  # ConfigError
+        self._pending: tuple[str, Calibrated | None] | None = None
+        #: The conditions the calibrated machine is compensated under (temperature, approach).
+        self.compensation = Compensation(settings.compensation.temperature)
         self.machine = machine
         self.cond = threading.Condition()
         self._busy = threading.Lock()
@@ -167,6 +170,7 @@ class Mover:
                 self._pending, self.command = None, None
             self.settings = settings
             self.standstill.settings = settings.standstill
+            self.compensation.temperature.settings = settings.compensation.temperature
 
     def prepare(self, settings: PositionerSettings) -> None:
         """Check new settings before they are accepted: a new calibration file is loaded now
@@ -174,6 +178,11 @@ class Mover:
         path = settings.compensation.calibration_file
         if path != self.settings.compensation.calibration_file:
             self._pending = (path, calibrated_machine(settings))
+
+    def air_temperature(self, value: float, variance: float) -> str:
+        """A reading of the cell's air temperature (°C, K²) now: '' when taken, else why it
+        was refused (the previous reading kept; :mod:`positioning_cell.motion.temperature`)."""
+        return self.compensation.temperature.update(value, variance, self.machine.clock())
 
     def driver_status(self, values: Mapping[str, str]) -> None:
         """The leg driver's latest diagnostic values (state, enabled, referenced, message)."""
@@ -235,10 +244,25 @@ class Mover:
         """The drives report themselves referenced."""
         return self.driver.get('referenced', 'false').lower() == 'true'
 
-    def _model(self) -> ClearanceModel:
+    def _model(self, approach: FloatArray | None = None) -> ClearanceModel:
+        """The compensation model of the mode: none, the a-priori clearance model, or the
+        calibrated machine under the conditions now (``approach``: of the move being
+        planned; None: the axes' last)."""
         if self.mode is CompensationMode.NONE:
             return None
-        return self.calibration if self.calibration is not None else self.model
+        if self.calibration is None:
+            return self.model
+        return self.compensation.model(self.calibration, self.machine.clock(), approach)
+
+    def _approach_to(self, p: FloatArray, q: FloatArray) -> FloatArray | None:
+        """The direction each axis moves in to reach (p, q) from the encoders (None: no
+        calibrated machine in use or no reading yet: the axes' last directions stand)."""
+        with self.cond:
+            joints = self.joints
+        if self.mode is CompensationMode.NONE or self.calibration is None or joints is None:
+            return None
+        return self.compensation.approach_to(self.calibration, p, q, joints.position,
+                                             self.machine.clock())
 
     # -- the pose estimate --------------------------------------------------------------------
     def estimate_pose(self) -> Estimate | None:
@@ -491,7 +515,8 @@ class Mover:
                                        'no pose estimate from the encoders yet')
             command = (estimate.position, estimate.quaternion)
         return plan_move(self.mech, *command, p, q, period=self.settings.trajectory.period,
-                         limits=limits or self.settings.motion, clearance=self._model())
+                         limits=limits or self.settings.motion,
+                         clearance=self._model(self._approach_to(p, q)))
 
     def _checked(self, traj: Trajectory, path_check: PathCheck | None) -> Trajectory:
         """``traj`` if it violates no limit (the mechanism's, then ``path_check``'s, then the
@@ -559,9 +584,24 @@ class Mover:
                 path, self._path = self._path or [], None
             self._move_limits = (None, None)
         self.position_confirmed = True
+        reason += self._warnings(p, q)
         self._set_state(State.SETTLED, reason, ResultCode.SUCCESS)
         return MoveResult(np.array([x[0] for x in path]).reshape(-1, 3),
                           np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r, sigma)
+
+    def compensation_report(self) -> tuple[str, str, dict[str, str]]:
+        """(level, message, values) of the conditions the compensation works under
+        (:meth:`Compensation.report`)."""
+        calibrated = self.calibration if self.mode is not CompensationMode.NONE else None
+        return self.compensation.report(calibrated, self.machine.clock())
+
+    def _warnings(self, p: FloatArray, q: FloatArray) -> str:
+        """What the move's outcome adds about its compensation: '' or '; warning: ...'
+        (outside the calibration's envelope, a stale or nominal temperature)."""
+        calibrated = self.calibration if self.mode is not CompensationMode.NONE else None
+        found = self.compensation.judge(calibrated, self.mech, self.settings.payload.mass, p,
+                                        q, self.machine.clock())
+        return ''.join(f'; warning: {w}' for w in found)
 
     def _already_there(self, p: FloatArray, q: FloatArray, tol: GoalTolerance
                        ) -> tuple[str, FloatArray, FloatArray, FloatArray | None] | None:
@@ -636,7 +676,10 @@ class Mover:
 
     def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
         """Send the move to (p, q), wait for the drives to accept it, to arrive, to settle."""
+        approach = self._approach_to(p, q)  # what the plan was made with
         traj = planned if planned is not None else self._plan(p, q)
+        if approach is not None:
+            self.compensation.moved(approach)
         self._drive(traj, (p, q))
 
     def _drive(self, traj: Trajectory, command: tuple[FloatArray, FloatArray] | None) -> None:

@@ -18,6 +18,7 @@ from positioning_cell.errors import InputError
 from positioning_cell.limits.boxes import FactoryBoxSettings
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.motion.standstill import StandstillSettings
+from positioning_cell.motion.temperature import TemperatureSettings
 from positioning_cell.moves.trajectory import MotionLimits
 from positioning_cell.names import NODE_DRIVER, NODE_MEASUREMENT, NODE_POSITIONER
 from positioning_cell.parameters import ParameterError, check_fields, group, parse, setting
@@ -51,6 +52,9 @@ class CompensationSettings:
                                   dynamic=True)
     samples: int = setting(10, 'tracker samples averaged per correction', low=1, high=200,
                            dynamic=True)
+    temperature: TemperatureSettings = group(
+        TemperatureSettings, 'the measured air temperature (/cell/air_temperature) the '
+        'calibrated thermal terms use')
 
     def __post_init__(self) -> None:
         check_fields(self)

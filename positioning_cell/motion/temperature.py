@@ -3,7 +3,7 @@ temperature sensor, what the compensation uses when it is missing or stale, and 
 that value is.
 
 A reading is refused (and the previous one kept) when it is not finite or lies outside
-:data:`~positioning_cell.calibration.identify.TEMPERATURE_RANGE`. The value the compensation
+:data:`~positioning_cell.calibration.conditions.TEMPERATURE_RANGE`. The value the compensation
 uses at time t:
 
 - **measured**: the latest reading, at most ``max_age`` old; its standard uncertainty the
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import NamedTuple
 
-from positioning_cell.calibration.identify import TEMPERATURE_RANGE
+from positioning_cell.calibration.conditions import TEMPERATURE_RANGE
 from positioning_cell.names import AIR_TEMPERATURE
 from positioning_cell.parameters import check_fields, setting
 

@@ -3,6 +3,11 @@
 the simulation truth published, the true pose against the target and the tracker against the
 truth, reported apart. The rules: :class:`positioning_cell.accuracy.monitor.Monitor`.
 
+It reads the positioner's ``positioner: state`` statuses on /diagnostics: a move end
+(:func:`positioning_cell.accuracy.move_ended`) goes to the monitor, so that each visit is judged
+on its final settled window (a visit whose move reports no end is judged when the next target
+arrives, on its last stable window).
+
 It also watches the recorder's status on /diagnostics and tells when recording stopped (the
 rule: :func:`positioning_cell.recording.recording`): its own status ``accuracy_monitor:
 recording`` every second once a recorder was heard of, and at once on a change (ERROR
@@ -27,7 +32,15 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
-from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings, Visit, stamp_seconds
+from positioning_cell.accuracy import (
+    Ignored,
+    Monitor,
+    MonitorSettings,
+    PoseMessages,
+    Visit,
+    move_ended,
+    stamp_seconds,
+)
 from positioning_cell.accuracy.verdicts import Verdict
 from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recording, recording
 from positioning_cell.ros import messages as m
@@ -85,9 +98,11 @@ class AccuracyMonitorNode(Node):
                                            stamp))
 
     def _on_target(self, msg: PoseStamped) -> None:
-        ignored = self.monitor.target(*_pose(msg.header, msg.pose))
-        if ignored is not None:
+        fed = self.monitor.feed(targets=PoseMessages.one(*_pose(msg.header, msg.pose)))
+        for _, ignored in fed.targets_ignored:
             self._ignored(ignored, msg.header.stamp)
+        for _, visit, verdict in fed.closed:  # the visit before, on its last stable window
+            self._verdict(visit, verdict, msg.header.stamp)
 
     def _on_measured(self, msg: PoseWithCovarianceStamped) -> None:
         result = self.monitor.measurement(*_pose(msg.header, msg.pose.pose))
@@ -123,6 +138,11 @@ class AccuracyMonitorNode(Node):
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
+            if status.name == names.STATUS_POSITIONER and move_ended(m.status_values(status)):
+                ignored = self.monitor.move_end(stamp_seconds(msg.header.stamp.sec,
+                                                              msg.header.stamp.nanosec))
+                if ignored is not None:
+                    self._ignored(ignored, msg.header.stamp)
             if status.name == names.STATUS_RECORDER:
                 self.recorder = RecorderReport(m.status_level(status), status.message,
                                                m.status_values(status), time.time())

@@ -12,7 +12,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
@@ -89,6 +89,9 @@ class PositionerNode(Node):
         self._estimates = 0
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
                                  qos.DIAGNOSTICS_QOS, callback_group=topics)
+        self._refusal = ''
+        self.create_subscription(Temperature, names.AIR_TEMPERATURE, self._on_temperature,
+                                 qos.STREAM_QOS, callback_group=topics)
         for name, kind, cb in ((names.HOME, Trigger, self._srv_home),
                                (names.STOP, Trigger, self._srv_stop)):
             self.create_service(kind, name, cb, qos_profile=qos.SERVICE_QOS,
@@ -117,6 +120,12 @@ class PositionerNode(Node):
         for status in msg.status:
             if status.name == names.STATUS_DRIVER:
                 self.mover.driver_status({**m.status_values(status), 'message': status.message})
+
+    def _on_temperature(self, msg: Temperature) -> None:
+        refused = self.mover.air_temperature(msg.temperature, msg.variance)
+        if refused and refused != self._refusal:  # once per new reason, not per reading
+            self.get_logger().warning(refused)
+        self._refusal = refused
 
     # -- outputs --------------------------------------------------------------------------------
     def _publish_pose(self) -> None:
@@ -155,6 +164,9 @@ class PositionerNode(Node):
     def _publish_diagnostics(self) -> None:
         self._state_changed(self.mover.state, self.mover.reason, None)
         self._publish_inputs()
+        level, message, values = self.mover.compensation_report()
+        self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER_COMPENSATION, level, message,
+                                           values, self._now()))
 
     def _publish_inputs(self) -> None:
         """Who else publishes on the inputs (their messages are ignored): ERROR while any

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from positioning_cell.calibration.conditions import Conditions as ModelConditions
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.clearance import ClearanceParameters, build, compensate
 from positioning_cell.clearance.load import inverse_with_offsets
@@ -40,7 +41,7 @@ from positioning_cell.parameters import (
 from positioning_cell.sim.effects.compliance import ComplianceParameters, yielding
 from positioning_cell.sim.effects.drive_errors import DriveErrorParameters, DriveErrors
 from positioning_cell.sim.effects.history import Conditions
-from positioning_cell.sim.effects.thermal import Thermal, ThermalParameters
+from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE, Thermal, ThermalParameters
 
 FloatArray = NDArray[np.float64]
 
@@ -154,17 +155,18 @@ class Truth(MachineModel):
 
     effects: Effects = field(default_factory=Effects)
 
-    def poses(self, lengths: ArrayLike, thetas: ArrayLike, phi0: ArrayLike | None = None, *,
-              conditions: Conditions | None = None) -> ForwardResult:
+    def poses(self, lengths: ArrayLike, thetas: ArrayLike, phi0: ArrayLike | None = None,
+              conditions: Conditions | ModelConditions | None = None) -> ForwardResult:
         """Where the machine puts the platform when its encoders read lengths (N, 3) m and
-        thetas (N, 3) rad under ``conditions`` (None: 20 °C, approach unknown); without
+        thetas (N, 3) rad under ``conditions``: the true ones, or the cell's view of them
+        (the air temperature taken for the legs' too; None: 20 °C, approach unknown); without
         effects exactly :meth:`MachineModel.poses`. ConvergenceError when the fixed point does
         not settle."""
         if not self.effects.active:
             return super().poses(lengths, thetas, phi0)
         real_l = as_vectors(lengths, 3, 'lengths') + self.length_offsets
         real_t = as_vectors(thetas, 3, 'thetas') + self.theta_offsets
-        cond = conditions if conditions is not None else Conditions.reference(len(real_l))
+        cond = _true_conditions(conditions, len(real_l))
         fx = self.effects
         if fx.drives is not None:
             real_l, real_t = fx.drives.actual(real_l, real_t, cond.approach)
@@ -231,7 +233,18 @@ class Truth(MachineModel):
         except ParameterError as err:
             raise err.within('truth.') from None
         return cls(real, model, lengths, thetas,
-                   Effects.from_parameters(params, real, payload, structure))
+                   effects=Effects.from_parameters(params, real, payload, structure))
+
+
+def _true_conditions(conditions: Conditions | ModelConditions | None, n: int) -> Conditions:
+    """The true conditions of N samples from the truth's own, the cell's view of them (its
+    air temperature for the legs' too), or none (20 °C, approach unknown)."""
+    if conditions is None:
+        return Conditions.reference(n)
+    if isinstance(conditions, Conditions):
+        return conditions
+    air = REFERENCE_TEMPERATURE + conditions.temperature_change(n, REFERENCE_TEMPERATURE)
+    return Conditions(air, np.repeat(air[:, None], 3, axis=1), conditions.approach_signs(n))
 
 
 def truth_from_params(params: Mapping[str, Any], mech: Mechanism,

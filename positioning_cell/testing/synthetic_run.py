@@ -57,7 +57,8 @@ LATCHED_TOPICS = (TARGET, PROGRAM)
 @dataclass(frozen=True)
 class SyntheticRun:
     """Targets (M,) s / (M, 3) m / (M, 4) with their program steps, measurements and true
-    poses (N,) s / (N, 3) m / (N, 4)."""
+    poses (N,) s / (N, 3) m / (N, 4), and when each move ended (M,) s (the positioner's
+    report: the platform has arrived)."""
 
     target_time: FloatArray
     target_position: FloatArray
@@ -68,6 +69,7 @@ class SyntheticRun:
     quaternion: FloatArray
     true_position: FloatArray
     true_quaternion: FloatArray
+    end_time: FloatArray
 
 
 def synthetic_run(position: ArrayLike, quaternion: ArrayLike,
@@ -75,9 +77,14 @@ def synthetic_run(position: ArrayLike, quaternion: ArrayLike,
                   *, rate: float = 20.0, move_time: float = 1.0, dwell_time: float = 2.5,
                   bias: Mapping[str, tuple[Sequence[float], Sequence[float]]] | None = None,
                   visit_sigma: float = 5e-6, noise: float = 8e-6, angle_noise: float = 2e-5,
-                  start: float = 1.7e9, seed: int = 0) -> SyntheticRun:
+                  start: float = 1.7e9, seed: int = 0,
+                  pause: Mapping[str, float] | None = None, pause_time: float = 1.0,
+                  correction_time: float = 0.2) -> SyntheticRun:
     """The run: for each mode, ``cycles`` passes over the commanded poses (K, 3) m / (K, 4);
-    a move every ``move_time + dwell_time`` s; noise sigmas in m and rad."""
+    a move every ``move_time + dwell_time`` s; noise sigmas in m and rad. ``pause`` {mode:
+    offset m}: in that mode each move first stops ``offset`` off along x for ``pause_time`` s
+    (the pause that measures, in ``measured`` compensation), then a correction brings the
+    platform to its pose in ``correction_time`` s; the move ends after the correction."""
     rng = np.random.default_rng(seed)
     cp, cq = as_pose_batch(position, quaternion)
     bias = bias or DEFAULT_BIAS
@@ -105,13 +112,20 @@ def synthetic_run(position: ArrayLike, quaternion: ArrayLike,
     frac = np.clip((ts - tt[np.maximum(seg, 0)]) / move_time, 0.0, 1.0)[:, None]
     frac[seg < 0] = 1.0
     s = np.maximum(seg, 0)
+    pause_x = np.array([(pause or {}).get(step.mode, 0.0) for step in steps])
+    held = np.where(pause_x > 0.0, pause_time + correction_time, 0.0)
+    since = ts - tt[s] - move_time - pause_time  # into the correction (s)
+    weight = np.where(since <= 0.0, frac[:, 0], np.clip(1.0 - since / correction_time, 0, 1))
+    weight[seg < 0] = 0.0
     true_p = goal_p[prev] + (goal_p[s] - goal_p[prev]) * frac
+    true_p[:, 0] += pause_x[s] * weight
     rel = (goal_r[prev].inv() * goal_r[s]).as_rotvec()
     true_r = goal_r[prev] * Rotation.from_rotvec(rel * frac)
     meas_p = true_p + rng.normal(0.0, noise, true_p.shape)
     meas_r = true_r * Rotation.from_rotvec(rng.normal(0.0, angle_noise, true_p.shape))
     return SyntheticRun(tt, cp[index], cq[index], tuple(steps), ts, meas_p,
-                        meas_r.as_quat(canonical=True), true_p, true_r.as_quat(canonical=True))
+                        meas_r.as_quat(canonical=True), true_p, true_r.as_quat(canonical=True),
+                        tt + move_time + held)
 
 
 def _stamp(t: float) -> tuple[int, int]:
@@ -127,9 +141,11 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
                   latched_target_age: float = 0.0, calibration: str | None = None,
                   calibration_run: str | None = None,
                   registration_um: Sequence[float] | None = None,
-                  variance_factor: float = 1.0) -> int:
+                  variance_factor: float = 1.0, move_ends: bool = True) -> int:
     """Write ``run`` as a bag at ``path`` (must not exist): targets, measurements, and as
-    asked the truth, the program steps, the positioner's mode diagnostics and filler
+    asked the truth, the program steps, the positioner's mode diagnostics (a ``moving``
+    status at each target and, with ``move_ends``, a ``settled`` one at each move's end) and
+    filler
     /legs/joint_states at ``joint_state_rate`` Hz (same bytes, stamps patched). Log time =
     stamp + ``latency``. ``writer``: ``cell`` (BagWriter, chunks of ``chunk_bytes``, CRCs) or
     ``rosbags`` (rosbags' writer, no CRCs); ``compression``: ``none`` or ``zstd`` chunks.
@@ -190,7 +206,12 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
             values = {'mode': s.mode} if calibration is None else {
                 'mode': s.mode, 'calibration': calibration}
             events.append((t + 0.001, DIAGNOSTICS, diag, T[diag](header(t + 0.001), [
-                status(STATUS_POSITIONER, 'moving', values)])))
+                status(STATUS_POSITIONER, 'moving', {**values, 'state': 'moving'})])))
+        if move_ends:
+            for s, t in zip(run.steps, run.end_time, strict=True):
+                values = {'mode': s.mode, 'state': 'settled', 'code': 'success'}
+                events.append((t, DIAGNOSTICS, diag, T[diag](header(t), [
+                    status(STATUS_POSITIONER, 'settled: there', values)])))
     if registration_um is not None:
         r = np.asarray(registration_um, dtype=float)
         located: dict[str, Any] = {

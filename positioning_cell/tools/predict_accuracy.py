@@ -296,10 +296,12 @@ def calibrated_prediction(calibration: Path, config: Path | None = None,
     q = Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_quat()
     require_within_limits(mech, p, q)
     cov = pose_uncertainty(cal.x, cal.covariance, mech, machine.payload, machine.structure,
-                           p, q, cal.seating_force)[0]
+                           p, q, cal.seating_force, model_error=cal.model_error)[0]
     sigma = np.sqrt(np.diag(cov))
+    source = ' and the model error' if cal.model_error.any() else ''
     return (f'calibrated machine ({calibration}): standard uncertainty at the pose from the '
-            f'identified parameters: position x, y, z {np.round(sigma[:3] * 1e6, 3).tolist()} '
+            f'identified parameters{source}: position x, y, z '
+            f'{np.round(sigma[:3] * 1e6, 3).tolist()} '
             f'um (|dp| {np.linalg.norm(sigma[:3]) * 1e6:.3f} um), rotation '
             f'{np.round(sigma[3:] * 1e6, 2).tolist()} urad\n')
 
