@@ -254,10 +254,11 @@ def test_file_round_trip_and_the_positioner_loads_it(tmp_path: Path, calibrated:
     assert np.allclose(loaded.sigma, result.sigma, equal_nan=True)
     assert np.array_equal(loaded.covariance, result.covariance)
     settings = parse(PositionerSettings, {'compensation.calibration_file': str(path)})
-    machine = calibrated_machine(settings)
-    assert machine is not None
+    calibrated = calibrated_machine(settings)
+    assert calibrated is not None
+    assert calibrated.lacks == ('adequacy', 'envelope')  # document() was given neither
     p, q = MECH.home_position, MECH.home_quaternion
-    assert np.allclose(machine.commands(p, q).lengths,
+    assert np.allclose(calibrated.model.commands(p, q).lengths,
                        result.model(MECH, PAYLOAD, STRUCTURE).commands(p, q).lengths)
     text = path.read_text()
     assert 'truth' not in text  # the file holds what was identified, nothing of the simulator

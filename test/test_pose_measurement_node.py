@@ -29,7 +29,6 @@ from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
 from positioning_cell.parameters import parse
 from positioning_cell.ros.messages import joint_state, pose_arrays
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
-from positioning_cell.sim.effects.history import MachineHistory
 from positioning_cell.sim.pose_measurement import TARGETS_PREFIX, PoseMeasurementSettings
 
 pytestmark = pytest.mark.nodes
@@ -78,7 +77,7 @@ def run() -> Iterator[Run]:
     home = inverse(mech, mech.home_position, mech.home_quaternion)
     truth_machine = parse(PoseMeasurementSettings, params).true_machine()
     # The machine's conditions at its first joint state: the start of its history.
-    history = MachineHistory(truth_machine.effects.thermal)
+    history = truth_machine.history()
     history.update(np.r_[home.lengths[0], home.thetas[0]], 0.0)
     expected = truth_machine.poses(home.lengths, home.thetas,
                                    conditions=history.conditions(0.0))

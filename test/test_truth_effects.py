@@ -220,6 +220,22 @@ def test_stream_history_turns_only_beyond_the_dither() -> None:
     assert seen == [0.0, 1.0, 1.0, 1.0, -1.0]
 
 
+def test_the_reversal_band_is_a_play_that_servo_dither_does_not_cross() -> None:
+    band = 6e-6
+    history = MachineHistory(None, np.r_[[band] * 3, [2e-5] * 3])
+    real = []
+    # up 20 um (play taken up: +1), dither of 0.3 um, back 2 um (inside the play: the axis
+    # stays), back 10 um more (the play taken up the other way: -1)
+    for k, x in enumerate([0.0, 2e-5, 2e-5 - 3e-7, 2e-5, 1.8e-5, 0.8e-5]):
+        history.update(np.full(6, x), float(k))
+        a = history.conditions(float(k)).approach[0, 0]
+        real.append(x - 0.5 * a * band)
+    np.testing.assert_allclose(real[1:4], [2e-5 - band / 2] * 3, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(real[4], 2e-5 - band / 2, rtol=0, atol=1e-15)
+    assert history.conditions(5.0).approach[0, 0] == pytest.approx(-1.0)
+    np.testing.assert_allclose(real[5], 0.8e-5 + band / 2, rtol=0, atol=1e-15)
+
+
 def test_seeds_make_different_machines_and_the_same_seed_the_same() -> None:
     a = machine(TRUTH).effects
     b = machine(TRUTH).effects

@@ -22,7 +22,6 @@ from positioning_cell.metrology.instrument import Tracker
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.trajectory import Trajectory, fingerprint
-from positioning_cell.sim.effects.history import MachineHistory
 from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.tracker import SimulatedTracker, observe
 from positioning_cell.sim.truth import Truth
@@ -47,7 +46,7 @@ class InstantCell:
         mech = truth.mechanism
         home = inverse(mech, mech.home_position, mech.home_quaternion)
         self.position: FloatArray = np.concatenate([home.lengths[0], home.thetas[0]])
-        self.history = MachineHistory(truth.effects.thermal)
+        self.history = truth.history()
         self.time = 0.0  # s since the start
         self.history.update(self.position, self.time)
         self._answers: list[Answer] = []

@@ -37,7 +37,6 @@ from positioning_cell.metrology.instrument import TrackerAccuracy
 from positioning_cell.metrology.locate import LocateSettings, Location, locate
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.parameters import check_fields, group, setting
-from positioning_cell.sim.effects.history import MachineHistory
 from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.tracker import SimulatedTracker, TrackerFaults, TrackerTruth, observe
 from positioning_cell.sim.truth import Truth, TruthParameters
@@ -137,8 +136,7 @@ class PoseMeasurementSimulator:
         self.instrument = SimulatedTracker(settings.truth.tracker, settings.tracker)
         self._rng = np.random.default_rng(settings.seed)
         self._sensor_rng = np.random.default_rng([settings.seed, 1])
-        thermal = self.truth.effects.thermal
-        self.history = MachineHistory(thermal)
+        self.history = self.truth.history()
         self._start: float | None = None
         self._time = 0.0  # s since the start of the joint state of the true pose
         self._computed_at = -np.inf

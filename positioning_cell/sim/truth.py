@@ -40,7 +40,7 @@ from positioning_cell.parameters import (
 )
 from positioning_cell.sim.effects.compliance import ComplianceParameters, yielding
 from positioning_cell.sim.effects.drive_errors import DriveErrorParameters, DriveErrors
-from positioning_cell.sim.effects.history import Conditions
+from positioning_cell.sim.effects.history import Conditions, MachineHistory
 from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE, Thermal, ThermalParameters
 
 FloatArray = NDArray[np.float64]
@@ -173,6 +173,12 @@ class Truth(MachineModel):
         if fx.thermal is not None:
             real_l = fx.thermal.expanded_lengths(real_l, cond.legs)
         return self._fixed_point(real_l, real_t, cond, phi0)
+
+    def history(self) -> MachineHistory:
+        """A history of this machine's true joint stream (its legs' heating, its axes' place
+        in their reversal bands), for :meth:`poses`' conditions."""
+        drives = self.effects.drives
+        return MachineHistory(self.effects.thermal, None if drives is None else drives.bands)
 
     def _fixed_point(self, real_l: FloatArray, real_t: FloatArray, cond: Conditions,
                      phi0: ArrayLike | None) -> ForwardResult:

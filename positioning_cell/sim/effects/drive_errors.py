@@ -79,6 +79,11 @@ class DriveErrors:
     theta_band: FloatArray
     reference_length: float
 
+    @property
+    def bands(self) -> FloatArray:
+        """The reversal bands (6,): legs m, then θ rad (full widths)."""
+        return np.concatenate([self.length_band, self.theta_band])
+
     def actual(self, lengths: FloatArray, thetas: FloatArray,
                approach: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Real leg lengths (N, 3) m and θ (N, 3) rad of axes whose motors stand at

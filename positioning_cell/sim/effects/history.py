@@ -65,12 +65,21 @@ def sequence_conditions(thermal: Thermal | None, commands: ArrayLike,
 
 
 class MachineHistory:
-    """The history of a stream of true joint states (6,) at times s since the start:
-    approach direction per axis (a reversal counts once the axis has moved back by more than
-    :data:`REVERSAL_THRESHOLD` from its furthest point) and the legs' heating."""
+    """The history of a stream of true joint states (6,) at times s since the start: where
+    each axis sits in its reversal band and the legs' heating.
 
-    def __init__(self, thermal: Thermal | None) -> None:
+    With the drives' reversal ``bands`` (6,) m, rad (full widths) the band is a play
+    (backlash) operator: the real axis follows the motor only once the motor has taken up the
+    play, real = motor − lag with lag = clip(motor − real_before, −band/2, +band/2); the
+    approach is lag / (band/2) in [−1, 1] (±1 after a move longer than the band, anything
+    between after a shorter reversal; servo dither within the band moves nothing). Without
+    bands, the approach is the sign of the last motion (a reversal counting once the axis has
+    moved back by more than :data:`REVERSAL_THRESHOLD` from its furthest point)."""
+
+    def __init__(self, thermal: Thermal | None, bands: ArrayLike | None = None) -> None:
         self.thermal = thermal
+        self._half = None if bands is None else 0.5 * np.asarray(bands, dtype=float)
+        self._real: FloatArray | None = None
         self._anchor: FloatArray | None = None
         self._previous = np.zeros(6)
         self.approach = np.zeros(6)
@@ -82,11 +91,18 @@ class MachineHistory:
         x = np.asarray(joints, dtype=float)
         if self._anchor is None:
             self._anchor, self._previous, self._time = x.copy(), x.copy(), time
+            self._real = x.copy()
             return
-        delta = x - self._anchor
-        onward = delta * self.approach > 0.0
-        turned = (np.abs(delta) > REVERSAL_THRESHOLD) & (np.sign(delta) != self.approach)
-        self.approach = np.where(turned, np.sign(delta), self.approach)
+        if self._half is not None and self._real is not None:
+            lag = np.clip(x - self._real, -self._half, self._half)
+            self._real = x - lag
+            self.approach = np.divide(lag, self._half, out=np.zeros(6), where=self._half > 0)
+            onward = turned = np.zeros(6, dtype=bool)
+        else:
+            delta = x - self._anchor
+            onward = delta * self.approach > 0.0
+            turned = (np.abs(delta) > REVERSAL_THRESHOLD) & (np.sign(delta) != self.approach)
+            self.approach = np.where(turned, np.sign(delta), self.approach)
         travel = np.abs(x[:3] - self._previous[:3])
         self._previous = x.copy()
         self._anchor = np.where(onward | turned, x, self._anchor)
