@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from positioning_cell.calibration import collect as col
+from positioning_cell.calibration import program as prog
 
 RATE_HZ, TRACKER_HZ, AIR_HZ = 100.0, 20.0, 1.0
 SAMPLES = 20
@@ -178,3 +179,20 @@ def test_the_live_path_gets_what_the_bag_path_gets(seed: int) -> None:
         for a, b in zip(getattr(got, part), getattr(want, part), strict=True):
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
     assert got.missing == want.missing == ()
+
+
+def test_alternate_approaches_each_pose_from_below_then_above() -> None:
+    p = np.tile([0.0, 0.0, 0.2], (5, 1))
+    below = prog.approach_poses(p, 5e-4, 'below')
+    alternate = prog.approach_poses(p, 5e-4, 'alternate')
+    np.testing.assert_allclose(below[:, 2], 0.2 - 5e-4, rtol=0.0, atol=1e-15)
+    np.testing.assert_allclose(alternate[:, 2], 0.2 + 5e-4 * np.array([-1, 1, -1, 1, -1]),
+                               rtol=0.0, atol=1e-15)
+    np.testing.assert_array_equal(alternate[:, :2], p[:, :2])
+
+
+def test_an_unknown_approach_rule_is_refused_by_name() -> None:
+    with pytest.raises(ValueError, match='approach_rule'):
+        prog.ProgramSettings(approach_rule='sideways')
+    with pytest.raises(ValueError, match='approach_rule'):
+        prog.approach_poses(np.zeros((1, 3)), 5e-4, 'sideways')
