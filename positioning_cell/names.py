@@ -64,7 +64,8 @@ MEASURED_POSE = '/metrology/pose'
 TRUE_POSE = '/sim/platform/true_pose'
 #: The cell's air temperature (sensor_msgs/Temperature, °C, frame ``base``): the sensor's
 #: reading, with its own error (the pose_measurement simulator publishes it); what the
-#: compensation and the tracker's refraction correction use.
+#: compensation, the tracker's refraction correction and each calibration pose's conditions
+#: use.
 AIR_TEMPERATURE = '/cell/air_temperature'
 POSITION_ERROR = '/accuracy/position_error'
 ORIENTATION_ERROR = '/accuracy/orientation_error'
@@ -86,8 +87,8 @@ MARKER_TOPICS = (PROGRAM, CALIBRATION, AXIS_TEST)
 #: Jazzy typestore).
 CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
-    ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRUE_POSE, POSITION_ERROR, ORIENTATION_ERROR,
-    DIAGNOSTICS, PROGRAM, CALIBRATION, AXIS_TEST,
+    ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRUE_POSE, AIR_TEMPERATURE, POSITION_ERROR,
+    ORIENTATION_ERROR, DIAGNOSTICS, PROGRAM, CALIBRATION, AXIS_TEST,
 )
 
 #: Parameter changes of every node (rcl_interfaces ParameterEvent, ROS's own topic): the watch

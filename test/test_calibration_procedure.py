@@ -9,6 +9,7 @@ simulator: it judges the result here)."""
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -18,14 +19,18 @@ import yaml
 
 from positioning_cell import names
 from positioning_cell.calibration import file as calfile
-from positioning_cell.calibration.collect import Marker
+from positioning_cell.calibration.collect import Collected, Marker
+from positioning_cell.calibration.identified import identify_and_write
 from positioning_cell.calibration.program import ProgramSettings
-from positioning_cell.config import config_path
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.motion.settings import machine_settings
+from positioning_cell.parameters import parse
+from positioning_cell.procedures import calibration as procedure
 from positioning_cell.procedures import port as port_module
 from positioning_cell.procedures.calibration import Outcome, Status, calibrate
 from positioning_cell.procedures.port import Moved, ProcedureError, Readings
 from positioning_cell.procedures.stopping import Stopped
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.testing.instant_port import InstantPort
 
 MACHINE = machine_settings(config_path('cell.yaml'))
@@ -202,3 +207,61 @@ def test_poses_the_tracker_does_not_measure_are_left_out_and_said(
                line.endswith(': left out') for line in lines), lines
     assert not (tmp_path / 'calibration').exists()
 
+
+
+def _thermal_port(folder: Path) -> InstantPort:
+    """The shipped cell in process with its air drifting and its sensor reading it (an
+    offset drawn from 1 K, so that its reading is told from the true air)."""
+    params = node_parameters(load_parameter_file(config_path()), names.NODE_MEASUREMENT)
+    sim = parse(PoseMeasurementSettings, params)
+    truth = replace(sim.truth, thermal=replace(sim.truth.thermal, enabled=True,
+                                               sensor_offset_sigma=1.0))
+    return InstantPort.from_config(folder, sim_settings=replace(sim, truth=truth))
+
+
+def _measured(port: Any, out: Path, program: ProgramSettings,
+              monkeypatch: pytest.MonkeyPatch) -> tuple[Collected, list[str]]:
+    """What a calibration with ``program`` measured on ``port`` (taken on its way to the
+    identification) and the lines it said."""
+    taken: list[Collected] = []
+
+    def keep(machine: Any, collected: Collected, *args: Any) -> Any:
+        taken.append(collected)
+        return identify_and_write(machine, collected, *args)
+
+    monkeypatch.setattr(procedure, 'identify_and_write', keep)
+    lines: list[str] = []
+    outcome = calibrate(port, MACHINE, program, SAMPLES, out, lines.append)
+    assert outcome.status is Status.WRITTEN, outcome.reason
+    return taken[0], lines
+
+
+def test_a_calibration_records_each_poses_temperature_and_mixed_approaches(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Alternate approaches: every axis seen from both sides; the temperature is the sensor's
+    (the truth's air plus the sensor's offset, judged here), never missing."""
+    port = _thermal_port(tmp_path / 'cell')
+    got, lines = _measured(PortOnly(port), tmp_path / 'out', PROGRAM, monkeypatch)
+    assert PROGRAM.approach_rule == 'alternate' and got.missing == ()
+    approach = np.vstack([got.fit.approach, got.hold_out.approach])
+    assert approach.shape == (PROGRAM.poses + PROGRAM.hold_out, 6)
+    assert np.all(np.abs(approach) == 1.0), approach
+    assert all({-1.0, 1.0} <= set(approach[:, j]) for j in range(6)), approach
+    thermal = port.cell.truth.effects.thermal
+    assert thermal is not None
+    temperature = np.concatenate([got.fit.temperature, got.hold_out.temperature])
+    air = thermal.air(np.linspace(0.0, port.cell.time, 200)) + thermal.sensor_offset
+    noise = 5.0 * thermal.parameters.sensor_noise
+    assert np.all((temperature > air.min() - noise) & (temperature < air.max() + noise)), \
+        (temperature, air.min(), air.max())
+    assert abs(thermal.sensor_offset) > 2.0 * noise + np.ptp(air)  # the reading, not the air
+    assert not any('carry no' in line for line in lines)
+
+
+def test_approached_from_below_every_leg_comes_the_same_way(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The check above can fail: from below only, each leg always lengthens into its pose."""
+    got, _ = _measured(instant(tmp_path / 'cell'), tmp_path / 'out',
+                       replace(PROGRAM, approach_rule='below'), monkeypatch)
+    approach = np.vstack([got.fit.approach, got.hold_out.approach])
+    assert all(len(set(approach[:, j])) == 1 for j in range(3)), approach

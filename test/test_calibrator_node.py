@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from action_msgs.msg import GoalStatus
 from cell_harness import CELL_YAML, Client, ProcessGroup, isolated_domain
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
@@ -120,6 +121,12 @@ def test_a_goal_calibrates_the_cell_with_feedback_per_pose(cell: Cell) -> None:
     assert path == (cell.out / 'calibration.yaml').resolve() and path.is_file()
     assert (cell.out / 'calibration_report.md').is_file()
     calfile.load(path, machine_settings(CELL_YAML).mechanism)  # parses, this mechanism's
+    # the ROS port gave each pose's conditions: the sensor's temperature, and approaches from
+    # both sides (the reversal terms are not left out for want of them)
+    excluded = yaml.safe_load(path.read_text())['calibration']['excluded']
+    assert 'no temperature recorded' not in excluded.values(), excluded
+    assert 'no approach directions recorded' not in excluded.values(), excluded
+    assert [n for n in cp.PARAMETER_NAMES[cp.REVERSAL] if n not in excluded], excluded
     assert 0.0 < result.fit_rms < 20e-6, result.fit_rms
     assert np.isfinite(result.hold_out_rms) and result.hold_out_rms > 0.0
     assert 0 < result.identified <= cp.COUNT

@@ -150,6 +150,12 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     a = calfile.load(run / 'calibration' / 'calibration.yaml', MECH)
     b = calfile.load(tmp_path / 'offline' / 'calibration.yaml', MECH)
     assert np.array_equal(a.x, b.x) and np.allclose(a.sigma, b.sigma, equal_nan=True)
+    # ... with the poses' conditions: the recorded air temperature and the approaches
+    excluded = [yaml.safe_load((d / 'calibration.yaml').read_text())['calibration']['excluded']
+                for d in (run / 'calibration', tmp_path / 'offline')]
+    assert excluded[0] == excluded[1], excluded
+    assert not {'no temperature recorded', 'no approach directions recorded'} & set(
+        excluded[0].values()), excluded
     live = json.loads((run / 'monitor_report.json').read_text())
     assert live['verdicts'] == summary['monitor']['verdicts']
     # the home pose, the calibration poses the monitor saw settle, then the program's moves

@@ -1,8 +1,9 @@
-"""A recorded calibration run read back (``calibrate_cell --from-bag``): the markers of one run
-on ``/cell/calibration``, the encoder readings (/legs/joint_states) and the tracker poses
-(/metrology/pose) of the bag, made into the same calibration data as the live run
-(:func:`positioning_cell.calibration.collect.collect`). Messages as the bag reader decodes
-them (the ROS field names), no rclpy."""
+"""A recorded calibration run read back (``calibrate_cell --from-bag``): the markers of one run on
+``/cell/calibration``, the encoder readings (/legs/joint_states), the tracker poses
+(/metrology/pose) and, when recorded, the air temperature (/cell/air_temperature) of the bag,
+made into the same calibration data as the live run
+(:func:`positioning_cell.calibration.collect.collect`). Messages as the bag reader decodes them
+(the ROS field names), no rclpy."""
 
 from __future__ import annotations
 
@@ -40,14 +41,18 @@ def read_bag(path: Path, run: str | None = None,
     markers: list[col.Marker] = []
     joints: list[tuple[float, np.ndarray]] = []
     poses: list[tuple[float, Any]] = []
+    air: list[tuple[float, float]] = []
     with open_bag(path) as reader:
         topics = (names.CALIBRATION, names.JOINT_STATES, names.MEASURED_POSE)
         missing = [t for t in topics if t not in reader.topics]
         if missing:
             raise PositioningError(f'{path}: not a calibration run: no {", ".join(missing)}')
-        for item in reader.messages(list(topics)):
+        has_air = names.AIR_TEMPERATURE in reader.topics
+        for item in reader.messages([*topics, *([names.AIR_TEMPERATURE] if has_air else [])]):
             msg = item.message
-            if item.topic == names.CALIBRATION:
+            if item.topic == names.AIR_TEMPERATURE:
+                air.append((_stamp(msg), float(msg.temperature)))
+            elif item.topic == names.CALIBRATION:
                 markers.append(col.Marker.from_json(msg.data))
             elif item.topic == names.JOINT_STATES:
                 values = _joints(msg)
@@ -76,4 +81,12 @@ def read_bag(path: Path, run: str | None = None,
                   dtype=float).reshape(-1, 6, 6)))
     joint_stream = col.Stream(np.array([t for t, _ in joints], dtype=float),
                               (np.array([v for _, v in joints], dtype=float).reshape(-1, 6),))
-    return col.collect(markers, joint_stream, pose_stream, col.JOINT_SIGMA_FLOOR)
+    if not has_air:
+        say(f'{path}: no {names.AIR_TEMPERATURE} recorded')
+    air_stream = col.Stream(np.array([t for t, _ in air], dtype=float),
+                            (np.array([v for _, v in air], dtype=float),)) if has_air else None
+    collected = col.collect(markers, joint_stream, pose_stream, col.JOINT_SIGMA_FLOOR,
+                            air_stream)
+    for why in collected.missing:
+        say(f'calibration: the poses carry no {why}')
+    return collected

@@ -44,6 +44,8 @@ from positioning_cell.moves.trajectory import MotionLimits, plan_profile
 from positioning_cell.parameters import ParameterError, check_fields, parse, setting
 
 FloatArray = NDArray[np.float64]
+#: Where a program's poses are approached from (:func:`approach_poses`).
+APPROACH_RULES = ('below', 'alternate')
 
 
 @dataclass(frozen=True)
@@ -59,9 +61,14 @@ class ProgramSettings:
     rotation_span: float = setting(0.12, 'largest rotation-vector component of a candidate',
                                    'rad', low=0.0, high=1.0)
     seed: int = setting(0, 'seed of the candidate draw', low=0, high=2**31 - 1)
-    approach: float = setting(0.0005, 'each pose is approached from this far below it along '
-                              'base z, the same way every time (0: directly)', 'm', low=0.0,
+    approach: float = setting(0.0005, 'each pose is approached from this far from it along '
+                              'base z, as approach_rule says (0: directly)', 'm', low=0.0,
                               high=0.005)
+    approach_rule: str = setting('alternate', 'where poses are approached from: below (every '
+                                 'pose from below, the same way every time) or alternate '
+                                 '(successive poses from below and from above, so each axis '
+                                 'is seen from both sides and a reversal error is '
+                                 'identifiable)', choices=APPROACH_RULES)
     criterion: str = setting('D', 'design criterion of the program: D (log det of the '
                              'information), I (mean predicted pose variance at the production '
                              'poses), G (worst predicted pose variance there)',
@@ -272,21 +279,28 @@ def visiting_order(mech: Mechanism, p: FloatArray, q: FloatArray) -> NDArray[np.
     return np.asarray(order, dtype=np.int64)
 
 
-def approach_pose(position: FloatArray, approach: float) -> FloatArray:
-    """Where a pose (…, 3) m is approached from: ``approach`` m below it along base z."""
-    out: FloatArray = position - np.array([0.0, 0.0, approach])
+def approach_poses(position: FloatArray, approach: float, rule: str = 'below') -> FloatArray:
+    """Where each of a program's poses (N, 3) m, in the order visited, is approached from:
+    ``approach`` m along base z below it (``rule`` ``below``), or below and above it in turn
+    (``alternate``: the first from below)."""
+    if rule not in APPROACH_RULES:
+        raise ValueError(f'approach_rule {rule!r}: one of {", ".join(APPROACH_RULES)}')
+    p = np.asarray(position, dtype=float).reshape(-1, 3)
+    side = np.ones(p.shape[0]) if rule == 'below' else 1.0 - 2.0 * (np.arange(p.shape[0]) % 2)
+    out: FloatArray = p - side[:, None] * np.array([0.0, 0.0, approach])
     return out
 
 
 def duration(mech: Mechanism, p: FloatArray, q: FloatArray, limits: MotionLimits,
-             dwell: float, approach: float = 0.0, approach_dwell: float = 0.0) -> float:
+             dwell: float, approach: float = 0.0, approach_dwell: float = 0.0,
+             rule: str = 'below') -> float:
     """Cell time (s) of visiting poses (N, 3), (N, 4) in order from home and back, each move
     planned as the positioner plans it (:func:`positioning_cell.moves.trajectory
     .plan_profile`), with ``dwell`` s at each pose (settling and the averaged measurement),
-    each reached through its :func:`approach_pose` (``approach_dwell`` s there) if
-    ``approach`` > 0."""
+    each reached through its approach pose (:func:`approach_poses` by ``rule``;
+    ``approach_dwell`` s there) if ``approach`` > 0."""
     if approach > 0.0:
-        p = np.stack([approach_pose(p, approach), p], axis=1).reshape(-1, 3)
+        p = np.stack([approach_poses(p, approach, rule), p], axis=1).reshape(-1, 3)
         q = np.repeat(q, 2, axis=0)
         dwell = dwell + approach_dwell
     path_p = np.vstack([mech.home_position, p, mech.home_position])

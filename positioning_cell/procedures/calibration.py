@@ -7,18 +7,22 @@ put back afterwards, whatever happens); the covariance of an averaged tracker po
 from the tracker's own reading at rest; the measurement program
 (:func:`positioning_cell.calibration.program.choose`: poses chosen by the D, I or G criterion,
 and hold-out poses; its criterion, predicted pose σ at the production poses and observability
-indices said) is
-driven pose by pose, each approached the same way (``approach`` m below it along base z, then
-the pose); at each pose ``samples`` tracker readings are taken with the encoder values over
-the same window, and a marker (:class:`~positioning_cell.calibration.collect.Marker`, with the
-window's start) goes out on ``/cell/calibration`` so that a recorder keeps what
-``calibrate_cell --from-bag`` needs to repeat the identification from the same data. A pose
-the cell refuses, aborts or does not measure in time is left out (said). A line per pose says
-how far the measured pose is from the commanded one and, every ten fit poses, the residual of
-a fit so far. Then the machine is identified from what the port measured (never the
-simulator's truth), validated on the hold-out poses, and ``OUT/calibration.yaml`` and
-``OUT/calibration_report.md`` are written (:mod:`positioning_cell.calibration.identified`);
-``load`` then asks the positioner to load the file.
+indices said) is driven pose by pose, each approached through a pose ``approach`` m from it
+along base z (``approach_rule``: below every pose, or below and above in turn:
+:func:`~positioning_cell.calibration.program.approach_poses`), then the pose; at each pose
+``samples`` tracker readings are taken with the encoder values over the same window, the pose's
+conditions (the air-temperature sensor's reading and the side each axis came from:
+:func:`~positioning_cell.calibration.collect.pose_conditions`, what the port holds of the
+encoder and temperature streams) are taken with them, and a marker
+(:class:`~positioning_cell.calibration.collect.Marker`, with the window's start) goes out on
+``/cell/calibration`` so that a recorder keeps what ``calibrate_cell --from-bag`` needs to
+repeat the identification from the same data. A pose the cell refuses, aborts or does not
+measure in time is left out (said). A line per pose says how far the measured pose is from the
+commanded one and, every ten fit poses, the residual of a fit so far. Then the machine is
+identified from what the port measured (never the simulator's truth), validated on the hold-out
+poses, and ``OUT/calibration.yaml`` and ``OUT/calibration_report.md`` are written
+(:mod:`positioning_cell.calibration.identified`); ``load`` then asks the positioner to load the
+file.
 
 A stop (``stop``, an event set from another thread: an action's cancel, a node's shutdown)
 stops the drives at once, puts the mode back, writes nothing and raises
@@ -113,6 +117,7 @@ def calibrate(port: CellPort, machine: PositionerSettings, program: prog.Program
 def _calibrate(port: CellPort, machine: PositionerSettings, program: prog.ProgramSettings,
                samples: int, out: Path, say: Say, load: bool, timeout: float,
                progress: Progress | None, signal: StopSignal) -> Outcome:
+    began = port.now()  # the first pose's look-back for its approach: from the homing on
     moved = port.home()
     signal.check()  # a stop while homing ends the homing move (nothing else to undo yet)
     if not moved.success:
@@ -127,7 +132,8 @@ def _calibrate(port: CellPort, machine: PositionerSettings, program: prog.Progra
     except ProcedureError as err:
         return _ended(say, Status.REFUSED, str(err))
     try:
-        measured = _measure(port, machine, program, samples, say, timeout, progress, signal)
+        measured = _measure(port, machine, program, samples, say, timeout, progress, signal,
+                            began)
     except ProcedureError as err:  # the tracker gave no reading: nothing measured
         return _ended(say, Status.NOT_THERE, str(err) + _put_back(port, previous, say))
     except BaseException:
@@ -140,9 +146,13 @@ def _calibrate(port: CellPort, machine: PositionerSettings, program: prog.Progra
         else 'no recorder took the markers: this run cannot be repeated from a bag')
     doc = {'poses': program.poses, 'hold_out': program.hold_out, 'samples': samples,
            'seed': program.seed, 'candidates': program.candidates,
-           'criterion': program.criterion, 'production': program.production}
+           'criterion': program.criterion, 'production': program.production,
+           'approach': program.approach, 'approach_rule': program.approach_rule}
+    collected = col.assemble(measured)
+    for why in collected.missing:
+        say(f'calibration: the poses carry no {why}')
     try:
-        written = identify_and_write(machine, col.assemble(measured), out, doc, say)
+        written = identify_and_write(machine, collected, out, doc, say)
     except idf.IdentificationError as err:
         return _ended(say, Status.NOT_IDENTIFIED, f'not identified, nothing written: {err}'
                       + restored)
@@ -173,9 +183,10 @@ def _put_back(port: CellPort, mode: str, say: Say) -> str:
 
 def _measure(port: CellPort, machine: PositionerSettings, program: prog.ProgramSettings,
              samples: int, say: Say, timeout: float, progress: Progress | None,
-             signal: StopSignal) -> list[col.PoseData]:
+             signal: StopSignal, since: float) -> list[col.PoseData]:
     """Drive the program and measure each pose: the measured poses (ProcedureError when the
-    tracker gives no reading at all)."""
+    tracker gives no reading at all); the first pose's approach from the encoder readings
+    since ``since`` s."""
     s = machine
     # the tracker's covariance of one averaged pose, from its own reading at rest
     cov = port.readings(1, timeout).covariance[-1] / samples
@@ -185,10 +196,11 @@ def _measure(port: CellPort, machine: PositionerSettings, program: prog.ProgramS
     plan = [(col.FIT, p, q) for p, q in zip(chosen.position, chosen.quaternion, strict=True)]
     plan += [(col.HOLD_OUT, p, q) for p, q in zip(chosen.hold_out_position,
                                                     chosen.hold_out_quaternion, strict=True)]
-    estimate = prog.duration(s.mechanism, np.asarray([x[1] for x in plan]),
-                             np.asarray([x[2] for x in plan]), s.motion,
+    visited = np.asarray([x[1] for x in plan])
+    estimate = prog.duration(s.mechanism, visited, np.asarray([x[2] for x in plan]), s.motion,
                              s.settle_time + samples / TRACKER_RATE_HZ, program.approach,
-                             s.settle_time)
+                             s.settle_time, program.approach_rule)
+    vias = prog.approach_poses(visited, program.approach, program.approach_rule)
     say(f'calibration program: {len(chosen.position)} poses + '
         f'{len(chosen.hold_out_position)} hold-out, about {estimate:.0f} s of cell time; '
         + program_words(chosen))
@@ -197,10 +209,14 @@ def _measure(port: CellPort, machine: PositionerSettings, program: prog.ProgramS
     for k, (which, p, q) in enumerate(plan, start=1):
         signal.check()
         head = f'[{k}/{len(plan)}] {which:<8}'
-        pose = _measure_pose(port, program, samples, timeout, signal, run, k - 1, which, p, q)
+        prior = measured[-1].conditions if measured else None
+        pose = _measure_pose(port, program.approach > 0.0, samples, timeout, signal, run,
+                             k - 1, which, (p, q, vias[k - 1]),
+                             (since, None if prior is None else prior.approach))
         if isinstance(pose, str):
             say(f'{head} {pose}: left out')
             continue
+        since = pose.marker.start
         measured.append(pose)
         deviation = float(np.linalg.norm(pose.position - p))
         line = f'{head} |measured - commanded| {deviation * 1e6:7.1f} um'
@@ -228,13 +244,15 @@ def program_words(chosen: prog.Program) -> str:
     return words
 
 
-def _measure_pose(port: CellPort, program: prog.ProgramSettings, samples: int,
-                  timeout: float, signal: StopSignal, run: str, index: int, which: str,
-                  p: Any, q: Any) -> col.PoseData | str:
-    """Approach, move to and measure one pose: its data and marker sent, or why not."""
-    # every pose approached the same way: from `approach` m below it along base z
-    if program.approach > 0.0:
-        moved = port.move(prog.approach_pose(p, program.approach), q)
+def _measure_pose(port: CellPort, approach: bool, samples: int, timeout: float,
+                  signal: StopSignal, run: str, index: int, which: str,
+                  goal: tuple[Any, Any, Any], before: tuple[float, Any]) -> col.PoseData | str:
+    """Approach (through ``goal``'s third, the approach position, if ``approach``), move to
+    and measure one pose ``goal`` (position, quaternion): its data (conditions taken from the
+    streams since ``before``'s start, its approach the prior) and marker sent, or why not."""
+    p, q, via = goal
+    if approach:
+        moved = port.move(via, q)
         signal.check()
         if not moved.success:
             return f'approach pose {moved.code or "no answer"}: {moved.reason}'
@@ -252,5 +270,9 @@ def _measure_pose(port: CellPort, program: prog.ProgramSettings, samples: int,
                         samples)
     port.mark(names.CALIBRATION, marker.to_json())
     sem = r.encoder_sem if r.encoder_sem is not None else np.zeros(6)
+    enc_t, enc_v = port.encoder_stream(before[0])
+    air_t, air_v = port.air_temperature(r.start - col.TEMPERATURE_AGE)
+    conditions = col.pose_conditions(col.Stream(enc_t, (enc_v,)), col.Stream(air_t, (air_v,)),
+                                     r.start, r.end, r.encoder, before[1])
     return col.pose_data(marker, r.encoder, sem, r.position, r.quaternion, r.covariance,
-                         col.JOINT_SIGMA_FLOOR)
+                         col.JOINT_SIGMA_FLOOR, conditions)

@@ -103,6 +103,15 @@ class CellPort(Protocol):
         simulated, true) values over the same window (ProcedureError naming what did not
         come within ``timeout`` s)."""
 
+    def encoder_stream(self, since: float) -> tuple[FloatArray, FloatArray]:
+        """The encoder readings stamped from ``since`` s on, as far as the port still holds
+        them (at least the last 30 s): stamps (M,) s ascending and values (M, 6)."""
+
+    def air_temperature(self, since: float) -> tuple[FloatArray, FloatArray]:
+        """The air-temperature sensor's readings (/cell/air_temperature: the reading, not the
+        true air) stamped from ``since`` s on: stamps (K,) s ascending and values (K,) °C
+        (empty: none came)."""
+
     def mark(self, topic: str, text: str) -> None:
         """Send a marker (JSON text) on one of the cell's marker topics
         (:data:`positioning_cell.names.MARKER_TOPICS`), kept for a recorder that joins late."""

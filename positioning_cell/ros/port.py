@@ -1,7 +1,7 @@
 """The ROS port: :class:`~positioning_cell.procedures.port.CellPort` on the running cell,
 through a :class:`~positioning_cell.ros.client.CellClient` (its services, its parameters, its
-own subscriptions to the encoders, the tracker, the simulator's true axis positions and the
-monitor's verdicts, and the marker publishers)."""
+own subscriptions to the encoders, the tracker, the air-temperature sensor, the simulator's
+true axis positions and the monitor's verdicts, and the marker publishers)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from numpy.typing import ArrayLike
 from positioning_cell_interfaces.msg import MoveCommand
 from positioning_cell_interfaces.srv import Jog, MoveToPose
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -30,8 +30,11 @@ from positioning_cell.ros.client import CellClient, verdict_text
 from positioning_cell.ros.messages import joint_values, measurement, pose_stamped, seconds
 from positioning_cell.ros.qos import MARKER_QOS, SERVICE_QOS, STREAM_QOS
 
-#: Messages kept per stream (at 200 Hz, 15 s): a procedure's window is far shorter.
+#: Messages kept per stream (the encoders' 100 Hz: 30 s): a procedure's window is far
+#: shorter, and so is the time between two calibration poses.
 HISTORY = 3000
+#: Air-temperature readings kept (the sensor's 1 Hz: 10 min).
+AIR_HISTORY = 600
 #: After the monitor's verdict, how long (s) the true pose may take to settle as well, so the
 #: simulation-truth figures have every visit.
 TRUTH_WAIT = 1.5
@@ -52,6 +55,7 @@ class RosCellPort:
         self._joints: deque[tuple[float, FloatArray]] = deque(maxlen=HISTORY)
         self._true: deque[tuple[float, FloatArray]] = deque(maxlen=HISTORY)
         self._poses: deque[tuple[float, Any]] = deque(maxlen=HISTORY)
+        self._air: deque[tuple[float, float]] = deque(maxlen=AIR_HISTORY)
         node = client.node
         node.create_subscription(JointState, names.JOINT_STATES,
                                  lambda m: self._on_joints(self._joints, m), STREAM_QOS)
@@ -59,6 +63,7 @@ class RosCellPort:
                                  lambda m: self._on_joints(self._true, m), STREAM_QOS)
         node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
                                  self._on_pose, STREAM_QOS)
+        node.create_subscription(Temperature, names.AIR_TEMPERATURE, self._on_air, STREAM_QOS)
         self._markers: dict[str, Any] = {}
         self._verdicts = client.statuses(names.STATUS_MONITOR_VERDICT)
         # its own client of /positioner/stop: stop() may be called from any thread, while the
@@ -76,6 +81,10 @@ class RosCellPort:
         reading = measurement(msg)
         with self._lock:
             self._poses.append((seconds(msg.header.stamp), reading))
+
+    def _on_air(self, msg: Any) -> None:
+        with self._lock:
+            self._air.append((seconds(msg.header.stamp), float(msg.temperature)))
 
     def now(self) -> float:
         return float(self.client.node.get_clock().now().nanoseconds * 1e-9)
@@ -186,6 +195,19 @@ class RosCellPort:
                         np.array([m.quaternion for _, m in taken]),
                         np.array([m.covariance for _, m in taken]),
                         mean, np.mean(true, axis=0) if true else None, start, end, sem)
+
+    def encoder_stream(self, since: float) -> tuple[FloatArray, FloatArray]:
+        with self._lock:
+            kept = [(t, v) for t, v in self._joints if t >= since]
+        kept.sort(key=lambda e: e[0])
+        return (np.array([t for t, _ in kept], dtype=float),
+                np.array([v for _, v in kept], dtype=float).reshape(-1, 6))
+
+    def air_temperature(self, since: float) -> tuple[FloatArray, FloatArray]:
+        with self._lock:
+            kept = sorted((e for e in self._air if e[0] >= since), key=lambda e: e[0])
+        return (np.array([t for t, _ in kept], dtype=float),
+                np.array([v for _, v in kept], dtype=float))
 
     # -- markers and the monitor ----------------------------------------------------------------
     def mark(self, topic: str, text: str) -> None:

@@ -22,6 +22,7 @@ from positioning_cell.metrology.instrument import Tracker
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.trajectory import Trajectory, fingerprint
+from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.tracker import SimulatedTracker, observe
 from positioning_cell.sim.truth import Truth
 
@@ -36,10 +37,12 @@ class InstantCell:
     of the mover at the tracker gets ``samples`` new readings."""
 
     def __init__(self, truth: Truth, instrument: SimulatedTracker, located: Tracker,
-                 targets: TargetLayout, rng: np.random.Generator, samples: int = 10) -> None:
+                 targets: TargetLayout, rng: np.random.Generator, samples: int = 10,
+                 sensor_seed: int = 1) -> None:
         self.truth, self.instrument, self.located, self.targets = truth, instrument, located, \
             targets
         self.rng, self.samples = rng, samples
+        self._sensor_rng = np.random.default_rng(sensor_seed)
         mech = truth.mechanism
         home = inverse(mech, mech.home_position, mech.home_quaternion)
         self.position: FloatArray = np.concatenate([home.lengths[0], home.thetas[0]])
@@ -60,6 +63,15 @@ class InstantCell:
         pose = self.truth.poses(self.position[None, :3], self.position[None, 3:],
                                 conditions=self.history.conditions(self.time))
         return pose.position[0], pose.quaternion[0]
+
+    def air_readings(self, count: int) -> FloatArray:
+        """``count`` readings (count,) °C of the cell's air-temperature sensor now (its offset
+        and noise: :meth:`~positioning_cell.sim.effects.thermal.Thermal.sensor`); without
+        thermal effects the air is at 20 °C and the sensor exact, as the live simulator's."""
+        thermal = self.truth.effects.thermal
+        if thermal is None:
+            return np.full(count, REFERENCE_TEMPERATURE)
+        return thermal.sensor(np.full(count, self.time), self._sensor_rng)
 
     def _send(self, traj: Trajectory) -> None:
         joints = np.hstack([traj.lengths, traj.thetas])

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -43,6 +44,17 @@ def _moved(action: object) -> Moved:
     return Moved(True, 'success', str(getattr(action, 'reason', 'done')))
 
 
+def _since(log: list[tuple[float, Any]], since: float,
+           shape: tuple[int, ...]) -> tuple[FloatArray, FloatArray]:
+    """The entries of a (stamp, value) log stamped from ``since`` on: stamps (M,) ascending
+    (equal stamps in the log's order) and values (M, *shape)."""
+    stamps = np.array([t for t, _ in log], dtype=float)
+    keep = np.flatnonzero(stamps >= since)
+    keep = keep[np.argsort(stamps[keep], kind='stable')]
+    values = np.array([log[k][1] for k in keep], dtype=float).reshape(-1, *shape)
+    return stamps[keep], values
+
+
 class InstantPort:
     """The procedures' cell in process (module docstring): the machine of the simulator
     ``sim`` (located), driven by a mover with ``settings`` (its settle time should be 0: the
@@ -71,6 +83,12 @@ class InstantPort:
         self.stops = 0
         self._verdicts: list[str] = []
         self._goal: tuple[FloatArray, FloatArray] | None = None
+        #: The encoder stream: a reading after every command and at every window's start.
+        self._encoders: list[tuple[float, FloatArray]] = []
+        #: The air-temperature sensor's readings, at its rate on the port's clock.
+        self._air: list[tuple[float, float]] = []
+        self._air_next: float | None = None
+        self._air_period = 1.0 / sim.settings.air_sensor.rate_hz
 
     @classmethod
     def from_config(cls, folder: Path, config: Path | None = None, *, seed: int = 2,
@@ -106,6 +124,7 @@ class InstantPort:
         except MoveAbortedError as err:
             moved = Moved(False, err.code.value, str(err))
         self.commands.append((kind, what, moved))
+        self._encoders.append((self.now(), self.joints()))
         return moved
 
     def home(self) -> Moved:
@@ -170,12 +189,32 @@ class InstantPort:
                          np.repeat(p[None], samples, 0), np.repeat(q[None], samples, 0),
                          self.rng)
         start = self.clock
+        self._encoders.append((start, self.joints()))
         stamps = start + np.arange(samples) / TRACKER_RATE_HZ
         self.clock = start + samples / TRACKER_RATE_HZ
+        self._sense_air()
         # the encoders read the axes exactly here: the truth is where they stand
         return Readings(stamps, fit.position, fit.quaternion, fit.covariance,
                         self.cell.position.copy(), self.cell.position.copy(), start,
                         float(stamps[-1]))
+
+    def encoder_stream(self, since: float) -> tuple[FloatArray, FloatArray]:
+        return _since(self._encoders, since, (6,))
+
+    def _sense_air(self) -> None:
+        """The sensor's readings due on the port's clock since the last (at its rate; the
+        first now)."""
+        now = self.now()
+        first = now if self._air_next is None else self._air_next
+        stamps = np.arange(first, now + 1e-9, self._air_period)
+        values = self.cell.air_readings(stamps.size)
+        self._air.extend(zip(stamps.tolist(), values.tolist(), strict=True))
+        self._air_next = first + stamps.size * self._air_period
+
+    def air_temperature(self, since: float) -> tuple[FloatArray, FloatArray]:
+        self._sense_air()
+        stamps, values = _since(self._air, since, ())
+        return stamps, values
 
     # -- markers and the monitor ----------------------------------------------------------------
     def mark(self, topic: str, text: str) -> None:

@@ -140,14 +140,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--production', type=Path, help='program file whose production: block '
                         'says where the cell is used (default: the shipped config/program.yaml)')
     parser.add_argument('--approach', type=float, default=defaults.approach,
-                        help='approach each pose from this far below it, m (0: directly)')
+                        help='approach each pose from this far from it along base z, m (0: '
+                        'directly)')
+    parser.add_argument('--approach-rule', choices=prog.APPROACH_RULES,
+                        default=defaults.approach_rule,
+                        help='below: every pose from below; alternate: from below and from '
+                        'above in turn, so each axis is seen from both sides (its reversal '
+                        f'identifiable); default {defaults.approach_rule}')
     parser.add_argument('--load', action='store_true',
                         help='set the positioner\'s compensation.calibration_file afterwards')
     args = parser.parse_args(argv)
     try:
         machine = machine_settings(args.config or config_path('cell.yaml'))
         settings = replace(defaults, poses=args.poses, hold_out=args.hold_out, seed=args.seed,
-                           approach=args.approach, criterion=args.criterion,
+                           approach=args.approach, approach_rule=args.approach_rule,
+                           criterion=args.criterion,
                            production=str(args.production or ''))
     except PositioningError as err:
         say(f'calibrate_cell: error: {err}')
