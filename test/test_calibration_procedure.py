@@ -88,6 +88,11 @@ def test_a_small_program_identifies_the_machine_and_writes_the_file(
     assert 'O1 (Borm & Menq)' in report and '## At the production poses' in report
     assert any(f'chosen by criterion {PROGRAM.criterion}' in line for line in lines), lines
     assert any('observability of the identified parameters' in line for line in lines), lines
+    # indices of what is excited: the program's by its poses, the identified parameters' under
+    # the conditions measured (the approach-driven reversal columns are not 0 there)
+    for words in ('program: ', 'observability of the identified parameters'):
+        line = next(line for line in lines if words in line)
+        assert 'smallest singular value 0,' not in line and 'condition inf' not in line, line
     poses = PROGRAM.poses + PROGRAM.hold_out
     assert [(k, n) for k, n, _, _ in progress] == [(k, poses) for k in range(1, poses + 1)]
     assert [s for _, _, s, _ in progress] == ['fit'] * PROGRAM.poses + ['hold_out'] * 3

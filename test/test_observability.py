@@ -154,7 +154,12 @@ def test_the_chosen_program_beats_random_programs_of_its_size_at_production(
     # the program states its predicted sigma at production and its indices
     assert chosen.production_sigma is not None and chosen.indices is not None
     assert_allclose(np.mean(chosen.production_sigma**2), value, rtol=1e-9)
-    assert_allclose(chosen.indices.o1, obs.observability(chosen_rows).o1, rtol=1e-9)
+    # its indices are those of the columns poses alone excite (thermal, reversal: 0 here)
+    posed = np.any(chosen_rows != 0.0, axis=(0, 1))
+    assert not posed[cp.THERMAL].any() and not posed[cp.REVERSAL].any() and posed[:26].all()
+    assert_allclose(chosen.indices.o1, obs.observability(chosen_rows[:, :, posed]).o1,
+                    rtol=1e-9)
+    assert chosen.indices.sigma_min > 0.0
 
 
 def test_exchange_never_makes_the_greedy_program_worse(

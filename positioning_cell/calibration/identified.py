@@ -17,6 +17,7 @@ from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.calibrated import Nominal
 from positioning_cell.calibration.collect import Collected
+from positioning_cell.calibration.conditions import Conditions
 from positioning_cell.calibration.envelope import envelope_of
 from positioning_cell.calibration.report import predict, write_report
 
@@ -117,11 +118,14 @@ def identify_and_write(settings: Nominal, collected: Collected, out: Path,
 
 def measured_indices(settings: Nominal, data: idf.CalibrationData,
                      identified: np.ndarray) -> dict[str, obs.Indices]:
-    """The observability indices of the measured fit poses' scaled whitened Jacobian: of all
-    the parameters and of the ``identified`` (mask) ones."""
+    """The observability indices of the measured fit poses' scaled whitened Jacobian, under
+    the conditions they were measured in: of all the parameters and of the ``identified``
+    (mask) ones."""
     s = settings
     rows = idf.information_rows(s.mechanism, s.payload, s.structure, data.position,
-                                data.quaternion, data.covariance, data.joint_sigma)
+                                data.quaternion, data.covariance, data.joint_sigma,
+                                conditions=Conditions(data.temperature, data.approach),
+                                reference=idf.reference_temperature(data))
     return {'all parameters': obs.observability(rows),
             'identified': obs.observability(rows[:, :, identified])}
 

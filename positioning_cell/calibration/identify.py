@@ -526,12 +526,15 @@ def hold_out_adequacy(result: Identification, nominal: Mechanism, payload: Paylo
 
 def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
                      position: ArrayLike, quaternion: ArrayLike, covariance: FloatArray,
-                     joint_sigma: ArrayLike, seating_force: float = 1.0) -> FloatArray:
+                     joint_sigma: ArrayLike, seating_force: float = 1.0,
+                     conditions: Conditions | None = None,
+                     reference: float = STANDARD_TEMPERATURE) -> FloatArray:
     """The scaled whitened identification Jacobian of candidate poses (N, 6, COUNT): what each
-    pose would add to the calibration (for choosing the measurement program; no conditions:
-    the thermal and reversal columns are 0, a pose alone does not excite them). ``covariance``
-    (6, 6) or (N, 6, 6) the expected pose measurement covariance, ``joint_sigma`` (6,) the
-    encoders'."""
+    pose would add to the calibration (for choosing the measurement program; without
+    ``conditions`` the thermal and reversal columns are 0, a pose alone does not excite
+    them; with the measured ones, about the ``reference`` temperature °C, what the measured
+    poses did add). ``covariance`` (6, 6) or (N, 6, 6) the expected pose measurement
+    covariance, ``joint_sigma`` (6,) the encoders'."""
     p, q = as_pose_batch(position, quaternion)
     n = p.shape[0]
     data = CalibrationData(np.zeros((n, 6)), np.broadcast_to(np.asarray(joint_sigma,
@@ -541,7 +544,8 @@ def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
     x0 = np.zeros(cp.COUNT)
     x0[cp.R_A], x0[cp.R_B] = scale[cp.R_A], scale[cp.R_B]
     _, j = predicted_joints(x0, nominal, payload, structure, p, q, seating_force,
-                            with_jacobian=True)
+                            with_jacobian=True, conditions=conditions,
+                            reference_temperature=reference)
     assert j is not None
     rows: FloatArray = whitening(nominal, data) @ j * scale
     return rows

@@ -103,7 +103,8 @@ class Program(NamedTuple):
     """Chosen poses: calibration (N, 3) m / (N, 4) and hold-out (H, 3) / (H, 4), base frame;
     ``log_det`` of the information matrix after each pick (N,); the ``criterion`` it was
     chosen by and that criterion's value after each pick (N,) (``values``: −log det, or m²);
-    the observability ``indices`` of its stacked Jacobian; the predicted pose σ (m,
+    the observability ``indices`` of its stacked Jacobian (the columns poses alone excite:
+    not the thermal and reversal ones, which need the run's conditions); the predicted pose σ (m,
     equivalent position: :mod:`~positioning_cell.calibration.observability`) at each
     production pose (Q,)."""
 
@@ -189,8 +190,11 @@ def choose(mech: Mechanism, payload: Payload, structure: Structure, settings: Pr
     hold = rng.choice(np.flatnonzero(free), settings.hold_out, replace=False)
     order = visiting_order(mech, p[idx], q[idx])
     sigma = np.sqrt(obs.predicted_variance(obs.information(rows[idx]), sens))
+    # the indices of what the poses alone excite: the thermal and reversal columns need the
+    # conditions the run will record (their columns are 0 here)
+    posed = np.any(rows != 0.0, axis=(0, 1))
     return Program(p[idx][order], q[idx][order], p[hold], q[hold], log_det,
-                   settings.criterion, values, obs.observability(rows[idx]), sigma)
+                   settings.criterion, values, obs.observability(rows[idx][:, :, posed]), sigma)
 
 
 def select(rows: FloatArray, sensitivity: FloatArray, count: int, criterion: str,
