@@ -193,8 +193,8 @@ def test_the_calibration_is_loaded_judged_and_noted(tmp_path: Path) -> None:
                                    'identified from its own measurements in this run '
                                    '(calibration/calibration.yaml)')
     table = out / 'truth.md'
-    assert lines[1] == (f'truth table: {table}: {cp.COUNT} of {cp.COUNT} identified parameters '
-                        'within 3 sigma of the truth')
+    assert lines[1] == (f'truth table: {table}: {cp.FORMAT1_COUNT} of {cp.FORMAT1_COUNT} '
+                        'identified geometric parameters within 3 sigma of the truth')
     assert '| parameter | identified | sigma | truth |' in table.read_text()
     assert [s.note for s in _steps(port)] == [None] * 3 + [outcome.note] * 6
     model = [float(m[1]) for line in lines if ' model ' in line

@@ -121,7 +121,8 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     run = _run_dir(runs)
     assert not processes_naming(run / 'run_overrides.yaml'), 'a cell process outlived run_cell'
     for line in ('calibrating: 8 poses + 1 hold-out', '[9/9] hold_out',
-                 'the positioner loaded it', 'identified parameters within 3 sigma of the truth',
+                 'the positioner loaded it',
+                 'identified geometric parameters within 3 sigma of the truth',
                  '[1/4] none     cycle 1 P1',
                  '[4/4] model    cycle 1 P2', 'compensation mode: model', 'worst AP_p µm',
                  "reproduces the live monitor's figures", f'bag:     {run / "bag"}',
