@@ -71,7 +71,8 @@ def test_each_axis_approaches_in_the_direction_it_moves_and_keeps_it_at_rest() -
     below[5] = target[5]  # theta 3 does not move
     approach = compensation.approach_to(machine, HOME_P, HOME_Q, below, 0.0)
     np.testing.assert_array_equal(approach, [1, 1, -1, 1, 1, 0])
-    compensation.moved(approach)
+    compensation.moved(target + approach * 1e-4, below)
+    np.testing.assert_array_equal(compensation.approach, approach)
     # the reversal band enters the command: half a band per side, the sign of the approach
     with_band = joints_of(compensation.model(machine, 0.0).compensate(MECH, HOME_P, HOME_Q))
     np.testing.assert_allclose(with_band - target,

@@ -78,14 +78,22 @@ class Compensation:
             return previous
         target = calibrated.model.commands(position[None], quaternion[None],
                                            self.conditions(now, previous))
-        delta = np.concatenate([target.lengths[0], target.thetas[0]]) - joints
-        out: FloatArray = np.where(np.abs(delta) > APPROACH_DEADBAND, np.sign(delta), previous)
+        return self.direction(np.concatenate([target.lengths[0], target.thetas[0]]), joints)
+
+    def direction(self, target: FloatArray, joints: FloatArray) -> FloatArray:
+        """The direction (6,) each axis moves in from ``joints`` (6,) to ``target`` (6,); an
+        axis that does not move keeps the one it last moved in."""
+        delta = target - joints
+        out: FloatArray = np.where(np.abs(delta) > APPROACH_DEADBAND, np.sign(delta),
+                                   self.approach)
         return out
 
-    def moved(self, approach: FloatArray) -> None:
-        """A move was sent with ``approach`` (6,): the axes' directions from now on."""
+    def moved(self, target: FloatArray, joints: FloatArray) -> None:
+        """A move from the encoder reading ``joints`` (6,) to the joint ``target`` (6,) was
+        sent: the axes' directions from now on."""
+        approach = self.direction(target, joints)
         with self._lock:
-            self._approach = np.asarray(approach, dtype=float).copy()
+            self._approach = approach
 
     def judge(self, calibrated: Calibrated | None, mech: Mechanism, mass: float,
               position: FloatArray, quaternion: FloatArray, now: float) -> tuple[str, ...]:

@@ -684,10 +684,11 @@ class Mover:
 
     def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
         """Send the move to (p, q), wait for the drives to accept it, to arrive, to settle."""
-        approach = self._approach_to(p, q)  # what the plan was made with
         traj = planned if planned is not None else self._plan(p, q)
-        if approach is not None:
-            self.compensation.moved(approach)
+        with self.cond:
+            joints = self.joints
+        if joints is not None:  # the direction each axis takes (what the plan was made with)
+            self.compensation.moved(np.r_[traj.lengths[-1], traj.thetas[-1]], joints.position)
         self._drive(traj, (p, q))
 
     def _drive(self, traj: Trajectory, command: tuple[FloatArray, FloatArray] | None) -> None:
