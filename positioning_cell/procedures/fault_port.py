@@ -26,7 +26,8 @@ class Unsupported(ProcedureError):  # noqa: N818 - what the port answers, not it
 
 
 class Report(NamedTuple):
-    """A status a node reported (or the positioner's result): its receipt ``time`` s, the
+    """A status a node reported (or the positioner's result): its ``time`` s (of publication
+    where the port knows it, else of receipt; the port's monotonic clock), the
     result ``code`` ('' when the status carries none) and its words."""
 
     time: float

@@ -9,11 +9,12 @@ rules here.
 
 The README's "Fault matrix" table is :data:`FAULTS` (:func:`markdown_table`).
 Reaction time: from the injection (just before the parameter call, the kill, the publish) to
-the receipt of the positioner's status carrying the result code (the driver's answer for a
-trajectory sent to it directly; the driver's status for a silent commander; the positioner's
-input status for a second publisher; the last reply for a flood of calls); for motion nobody
-commanded, from the moment the true position passes the standstill tolerance. The truth is
-read only to judge.
+the publication of the positioner's status carrying the result code (its source timestamp, so
+that the client's own scheduling on a busy machine is not counted as the cell's): the driver's
+answer for a trajectory sent to it directly; the driver's status for a silent commander; the
+positioner's input status for a second publisher; the last reply for a flood of calls. For
+motion nobody commanded, from the moment the true position passes the standstill tolerance.
+The truth is read only to judge.
 """
 
 from __future__ import annotations
@@ -357,7 +358,7 @@ def judge(trial: Trial, fault: Fault) -> None:
 
 
 def _take(trial: Trial, report: Report, since: float) -> float:
-    """Note ``report`` as the trial's result, reacted to from ``since``; its receipt time."""
+    """Note ``report`` as the trial's result, reacted to from ``since``; its time."""
     trial.code, trial.reason, trial.reaction_s = report.code, report.message, report.time - since
     return report.time
 

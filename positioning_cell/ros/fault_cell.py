@@ -47,7 +47,13 @@ from positioning_cell.procedures.fault_trials import CLIENT_NODE, ready
 from positioning_cell.procedures.port import FloatArray, Moved
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import free_domain
-from positioning_cell.ros.messages import duration, pose_arrays, pose_stamped, status_values
+from positioning_cell.ros.messages import (
+    duration,
+    pose_arrays,
+    pose_stamped,
+    published_monotonic,
+    status_values,
+)
 from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.processes import Processes, cell_environment
 from positioning_cell.ros.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
@@ -90,7 +96,9 @@ class FaultCell(RosCellPort):
         self._true_pose: list[tuple[float, np.ndarray]] = []
         self._estimates: list[tuple[float, np.ndarray]] = []
         self._sigma = math.nan
-        node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
+        # rclpy hands a two-argument callback the MessageInfo too (its stubs do not say so)
+        node.create_subscription(DiagnosticArray, names.DIAGNOSTICS,
+                                 self._on_diagnostics,  # type: ignore[arg-type]
                                  DIAGNOSTICS_QOS)
         node.create_subscription(DiagnosticStatus, names.TRAJECTORY_STATUS, self._on_answer,
                                  STREAM_QOS)
@@ -107,8 +115,8 @@ class FaultCell(RosCellPort):
         self._params = [self.config, overrides]
 
     # -- what the client sees -------------------------------------------------------------------
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        now = time.monotonic()
+    def _on_diagnostics(self, msg: DiagnosticArray, info: dict[str, int]) -> None:
+        now = published_monotonic(info)
         with self._guard:
             for status in msg.status:
                 into = self._statuses.get(status.name)

@@ -4,6 +4,7 @@ message class of a ROS type name. No mathematics here."""
 from __future__ import annotations
 
 import importlib
+import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -155,6 +156,17 @@ def answer(status: DiagnosticStatus) -> Answer | None:
     if not values.get('key'):
         return None
     return Answer(values['key'], values.get('accepted') == 'true', status.message)
+
+
+def published_monotonic(info: Mapping[str, int]) -> float:
+    """When a message received now was published, on this process's ``time.monotonic()`` clock
+    (s): its age from the middleware's source timestamp (system clock, ns) taken off now.
+    Without a source timestamp (0), or one from the future, the time of receipt."""
+    now = time.monotonic()
+    source_ns = int(info.get('source_timestamp', 0))
+    if source_ns <= 0:
+        return now
+    return now - max(0.0, (time.time_ns() - source_ns) * 1e-9)
 
 
 def stamp_is_zero(stamp: Time) -> bool:
