@@ -114,12 +114,15 @@ class Positioner:
         self.markers = ros.client.collect(MarkerArray, '/positioner/markers', STREAM_QOS)
         self.targets = ros.client.collect(PoseStamped, '/positioner/target', STREAM_QOS)
         # The fake driver shares this process (and its GIL) with the test: a stall here is
-        # not a lost driver. Liveness itself is proven on real processes (test_faults).
+        # not a lost driver; and its readings jump to a trajectory's end on receipt, so they
+        # stand still while the trajectory runs, which on a busy machine outlasts the frozen-
+        # encoder window. Liveness itself is proven on real processes (test_faults).
         self.node = ros.start(PositionerNode, **{COMPENSATION_MODE: 'none',
                                                  'settle_time': 0.0,
                                                  # the test client plays the driver
                                                  'sources.leg_driver': '/test_client',
                                                  'liveness.joint_silence': 1.0,
+                                                 'liveness.freeze_window': 10.0,
                                                  'operator.coordinate_systems_file':
                                                      str(systems_file)})
         wait_until(lambda: self.poses, 30.0, 'the first /positioner/pose')
