@@ -109,6 +109,14 @@ class IdentificationSettings:
     adequacy_p: float = setting(
         0.01, 'the model is adequate when the p-value of its residuals\' chi2 is at least '
         'this', low=0.0, low_open=True, high=0.5)
+    compliance_prior: float = setting(
+        0.3, "relative standard uncertainty of the nominal structure's compliances (its "
+        'stiffnesses by design or FEA), which a compliance the data cannot separate keeps: '
+        'carried into the stated uncertainty (consider covariance)', low=0.0, high=10.0)
+    fixed_prior: float = setting(
+        1.0, 'standard uncertainty of any other parameter the data cannot separate, held at '
+        'its nominal value, in units of its expected size (calibration.parameters.scales): '
+        'carried into the stated uncertainty', low=0.0, high=100.0)
     screw_pitch: float = setting(
         0.005, "lead of the legs' screws (what a periodic error of the residuals is sought "
         'at)', 'm', low=0.0, low_open=True, high=0.1)
@@ -327,17 +335,19 @@ def identifiability(scaled_jacobian: FloatArray, min_information: float) -> Iden
 
 @dataclass(frozen=True)
 class Identification:
-    """An identified machine: the vector ``x`` (COUNT,) (fixed parameters 0), its covariance
-    (COUNT, COUNT) (zero rows and columns for fixed parameters; scaled by the a-posteriori
-    variance factor when χ²/dof > 1), the :class:`Identifiability`, the raw joint residuals
-    (N, 6) and their whitened sum of squares ``chi2`` with ``dof`` degrees of freedom, and
-    the pose-space residual position per pose (N,) m (the joint residual through the
-    velocity Jacobian), ``nfev`` function evaluations, the ``reference_temperature`` °C of
-    the thermal terms (the data's mean temperature; 20 without one) and ``excluded``: the
-    parameters left out before the fit (not to be fitted, or not excited by the data: no
-    temperature, one approach direction), each with why, and the ``model_error`` (6,) per
-    joint (m, rad): what the model misses by the ``adequacy`` test (0: adequate; else the
-    allowance and the widening together; :mod:`positioning_cell.calibration.adequacy`)."""
+    """An identified machine: the vector ``x`` (COUNT,) (fixed parameters at their nominal values),
+    its covariance (COUNT, COUNT) (the fitted parameters' scaled by the a-posteriori variance
+    factor when χ²/dof > 1; with the fixed ones' prior uncertainty considered:
+    :func:`consider_covariance`; zero rows and columns for classes left out), the
+    :class:`Identifiability`, the raw joint residuals (N, 6) and their whitened sum of squares
+    ``chi2`` with ``dof`` degrees of freedom, and the pose-space residual position per pose
+    (N,) m (the joint residual through the velocity Jacobian), ``nfev`` function evaluations,
+    the ``reference_temperature`` °C of the thermal terms (the data's mean temperature; 20
+    without one) and ``excluded``: the parameters left out before the fit (not to be fitted, or
+    not excited by the data: no temperature, one approach direction), each with why, and the
+    ``model_error`` (6,) per joint (m, rad): what the model misses by the ``adequacy`` test (0:
+    adequate; else the allowance and the widening together;
+    :mod:`positioning_cell.calibration.adequacy`)."""
 
     x: FloatArray
     covariance: FloatArray
@@ -366,6 +376,61 @@ class Identification:
                                 self.reference_temperature)
 
 
+def switched_off(settings: IdentificationSettings) -> tuple[str, ...]:
+    """The parameter classes (:data:`~positioning_cell.calibration.parameters.CLASSES`) the
+    ``settings`` leave out of the model (``fit_<class>: false``)."""
+    switches = (('clearance', settings.fit_clearance), ('compliance', settings.fit_compliance),
+                ('thermal', settings.fit_thermal), ('lead', settings.fit_lead),
+                ('reversal', settings.fit_reversal))
+    return tuple(kind for kind, on in switches if not on)
+
+
+def prior_sigma(settings: IdentificationSettings) -> FloatArray:
+    """The standard uncertainty (COUNT,) a parameter the data cannot identify keeps, in units
+    of its expected size (:func:`~positioning_cell.calibration.parameters.scales`): a
+    compliance ``compliance_prior`` (its expected size is the nominal structure's 1/k, which
+    it keeps), the others ``fixed_prior`` (their expected size is that of their error); 0 for
+    the classes the settings leave out (the model has no such term: what they miss is the
+    adequacy test's to find, not a stated uncertainty)."""
+    out = np.full(cp.COUNT, settings.fixed_prior)
+    out[cp.COMPLIANCE] = settings.compliance_prior
+    for kind in switched_off(settings):
+        out[cp.CLASSES[kind]] = 0.0
+    return out
+
+
+def consider_covariance(scaled_jacobian: FloatArray, free: NDArray[np.intp],
+                        free_covariance: FloatArray, prior: FloatArray) -> FloatArray:
+    """The covariance (COUNT, COUNT) of the whole vector, in units of the expected sizes, when
+    the parameters outside ``free`` are not fitted but held at their nominal values with the
+    standard uncertainty ``prior`` (COUNT,): the consider covariance of Schmidt's consider
+    analysis (e.g. Tapley, Schutz & Born, *Statistical Orbit Determination*, 2004, §6.3).
+    The fitted parameters absorb the held ones' errors δc by δz = A δc with
+    A = −(J_Fᵀ J_F)⁺ J_Fᵀ J_C (``scaled_jacobian`` (M, COUNT) whitened), so
+
+        P_FF = ``free_covariance`` + A Σ_c Aᵀ,  P_FC = A Σ_c,  P_CC = Σ_c = diag(prior²).
+
+    A prediction's covariance S P Sᵀ through this then holds what the held parameters do
+    where the fit could not absorb them: at the calibration's poses and load little, at
+    another payload or temperature what the unidentified compliance or expansion does
+    there."""
+    held = np.setdiff1d(np.arange(cp.COUNT), free)
+    held = held[prior[held] > 0.0]
+    out = np.zeros((cp.COUNT, cp.COUNT))
+    out[np.ix_(free, free)] = free_covariance
+    if not held.size:
+        return out
+    j_free, j_held = scaled_jacobian[:, free], scaled_jacobian[:, held]
+    absorb = -np.linalg.pinv(j_free.T @ j_free) @ (j_free.T @ j_held)
+    sigma_held = np.diag(prior[held]**2)
+    cross = absorb @ sigma_held
+    out[np.ix_(free, free)] += cross @ absorb.T
+    out[np.ix_(free, held)] = cross
+    out[np.ix_(held, free)] = cross.T
+    out[np.ix_(held, held)] = sigma_held
+    return out
+
+
 def excluded_parameters(data: CalibrationData,
                         settings: IdentificationSettings) -> dict[str, str]:
     """The parameters identification leaves out before fitting (fixed at 0), with why: a
@@ -379,12 +444,8 @@ def excluded_parameters(data: CalibrationData,
         for name in (names,) if isinstance(names, str) else names:
             out.setdefault(name, why)
 
-    switches = (('clearance', settings.fit_clearance), ('compliance', settings.fit_compliance),
-                ('thermal', settings.fit_thermal), ('lead', settings.fit_lead),
-                ('reversal', settings.fit_reversal))
-    for kind, on in switches:
-        if not on:
-            leave(cp.CLASSES[kind], f'not fitted (identification.fit_{kind}: false)')
+    for kind in switched_off(settings):
+        leave(cp.CLASSES[kind], f'not fitted (identification.fit_{kind}: false)')
     if data.temperature is None:
         leave(cp.THERMAL, 'no temperature recorded')
     elif np.ptp(data.temperature) < settings.min_temperature_range:
@@ -474,10 +535,9 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
     chi2 = float(res_white @ res_white)
     dof = 6 * n - free.size
     jf = j_final[:, free]
-    cov_scaled = np.linalg.pinv(jf.T @ jf)
     factor = max(chi2 / dof, 1.0) if dof > 0 else 1.0
-    cov = np.zeros((cp.COUNT, cp.COUNT))
-    cov[np.ix_(free, free)] = cov_scaled * factor * np.outer(scale[free], scale[free])
+    cov = consider_covariance(j_final, free, np.linalg.pinv(jf.T @ jf) * factor,
+                              prior_sigma(s)) * np.outer(scale, scale)
     pred, _ = predicted_joints(x, nominal, payload, structure, data.position, data.quaternion,
                                s.seating_force, conditions=conditions,
                                reference_temperature=reference)
