@@ -330,8 +330,13 @@ def test_pose_uncertainty_matches_machines_drawn_from_the_parameter_covariance(
         program: prog.Program, calibrated: Any) -> None:
     """Second path: machines drawn from N(x, Cov) of the identification, each commanded with
     the calibrated model; the scatter of where they put the platform against the first-order
-    covariance pose_uncertainty promises."""
-    _, result = calibrated
+    covariance pose_uncertainty promises. The fixed parameters' prior is left out here (its
+    consider covariance holds r_a about its bound 0, which a draw would cross; it has its own
+    Monte Carlo test below)."""
+    sim, _ = calibrated
+    data = campaign(sim, program.position, program.quaternion)
+    result = idf.identify(MECH, PAYLOAD, STRUCTURE, data, idf.IdentificationSettings(
+        fixed_prior=0.0, compliance_prior=0.0))
     p, q = program.hold_out_position[:3], program.hold_out_quaternion[:3]
     promised = idf.pose_uncertainty(result.x, result.covariance, MECH, PAYLOAD, STRUCTURE,
                                     p, q)
@@ -373,3 +378,34 @@ def test_predict_accuracy_gives_the_calibrated_machines_uncertainty(
     path.write_text(yaml.safe_dump(other))
     with pytest.raises(calfile.CalibrationFileError, match='belongs to mechanism'):
         calibrated_prediction(path)
+
+
+def test_the_consider_covariance_is_that_of_a_fit_with_parameters_held() -> None:
+    """Monte Carlo of the linear model y = J x + noise fitted with the columns outside
+    ``free`` held at 0 while their true values scatter with ``prior``: the sample covariance
+    of (fitted error, held values) matches consider_covariance."""
+    rng = np.random.default_rng(5)
+    jac = rng.normal(size=(60, cp.COUNT))
+    jac[:, 30] = jac[:, 3] + 0.3 * rng.normal(size=60)  # held, partly absorbed by column 3
+    free = np.setdiff1d(np.arange(cp.COUNT), [30, 31, 40])
+    prior = np.zeros(cp.COUNT)
+    prior[[30, 31]] = [0.5, 2.0]  # column 40 held without uncertainty
+    j_free = jac[:, free]
+    fit = np.linalg.pinv(j_free.T @ j_free) @ j_free.T
+    draws = 20000
+    x_true = rng.normal(size=(draws, cp.COUNT)) * np.where(np.isin(np.arange(cp.COUNT), free),
+                                                           1.0, prior)
+    y = x_true @ jac.T + rng.normal(size=(draws, 60))
+    error = np.zeros((draws, cp.COUNT))
+    error[:, free] = y @ fit.T - x_true[:, free]
+    error[:, [30, 31, 40]] = -x_true[:, [30, 31, 40]]  # held at 0: off by the true value
+    expected = idf.consider_covariance(jac, free, np.linalg.pinv(j_free.T @ j_free), prior)
+    sample = np.cov(error.T)
+    scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected))) + 1e-12
+    np.testing.assert_allclose(sample / scale, expected / scale, atol=0.05)
+    assert expected[30, 30] == pytest.approx(0.25) and expected[40, 40] == 0.0
+    # without prior the held columns add nothing
+    bare = idf.consider_covariance(jac, free, np.linalg.pinv(j_free.T @ j_free),
+                                   np.zeros(cp.COUNT))
+    np.testing.assert_allclose(bare[np.ix_(free, free)], np.linalg.pinv(j_free.T @ j_free))
+    assert not bare[[30, 31, 40]].any()

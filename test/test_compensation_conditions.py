@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.calibrated import Calibrated
 from positioning_cell.calibration.conditions import Conditions
@@ -144,3 +145,30 @@ def test_the_mover_refuses_a_bad_temperature_and_warns_outside_the_envelope(
     assert mover.compensation_report()[0] == 'warn'
     # the move reversed every leg it moved: the axes' approach now says so
     assert set(mover.compensation.approach[:3]) <= {-1.0, 1.0}
+
+
+def test_the_stated_uncertainty_holds_the_temperature_in_use() -> None:
+    """Model mode states the calibration's uncertainty at the goal; a nominal temperature
+    (no reading: sigma 3 K) states more than a measured one (0.1 K) by what the thermal terms
+    make of the difference, and a calibration without a file's data states none."""
+    x = np.zeros(cp.COUNT)
+    x[cp.LEG_EXPANSION] = 2e-5
+    cov = np.diag(np.r_[np.full(26, 1e-12), np.zeros(cp.COUNT - 26)])
+    model = cp.machine_model(x, MECH, PAYLOAD, STRUCTURE, reference_temperature=20.0)
+    file = calfile.Calibration(x, np.sqrt(np.diag(cov)), np.diag(cov) > 0, covariance=cov,
+                               reference_temperature=20.0)
+    machine = Calibrated(model, None, (), file, MECH)
+    compensation = Compensation(TEMPERATURE)
+    nominal = compensation.uncertainty(machine, HOME_P, HOME_Q, 0.0)
+    compensation.temperature.update(25.0, 0.01, now=1.0)
+    measured = compensation.uncertainty(machine, HOME_P, HOME_Q, 1.0)
+    assert nominal is not None and measured is not None
+    # the thermal part: the legs' expansion over 1 K times the temperature's sigma
+    shift = (model.poses(*np.split(joints_of(model.commands(HOME_P, HOME_Q,
+                                                            Conditions(25.0))), 2),
+                         conditions=Conditions(26.0)).position[0] - HOME_P)
+    thermal = np.linalg.norm(shift)
+    total_nominal, total_measured = (np.linalg.norm(s[:3]) for s in (nominal, measured))
+    assert total_nominal**2 - total_measured**2 == pytest.approx(
+        thermal**2 * (3.0**2 - 0.1**2), rel=0.02)
+    assert calibrated().pose_covariance(HOME_P, HOME_Q, Conditions(20.0), 0.1) is None

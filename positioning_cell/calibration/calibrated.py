@@ -6,12 +6,19 @@ from __future__ import annotations
 
 from typing import NamedTuple, Protocol
 
+import numpy as np
+from numpy.typing import NDArray
+
 from positioning_cell import files
+from positioning_cell.calibration.conditions import Conditions
 from positioning_cell.calibration.envelope import Envelope
-from positioning_cell.calibration.file import CalibrationFileError, load
+from positioning_cell.calibration.file import Calibration, CalibrationFileError, load
+from positioning_cell.calibration.identify import pose_uncertainty
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.mechanics.statics import Payload, Structure
+
+FloatArray = NDArray[np.float64]
 
 #: Longest time the positioner waits for a calibration file to load (s): a real one loads in
 #: some 15 ms, the largest accepted (384 KiB) in some 0.25 s; the bound keeps the node's
@@ -49,12 +56,34 @@ class CalibratedSettings(Nominal, Protocol):
 
 class Calibrated(NamedTuple):
     """A loaded calibration as the positioner uses it: the identified ``model`` built for the
-    payload, the validity ``envelope`` it was identified over (None: the file has none) and
-    what an older file ``lacks``."""
+    payload, the validity ``envelope`` it was identified over (None: the file has none), what
+    an older file ``lacks``, and the loaded ``calibration`` over the ``nominal`` mechanism
+    (None: not known; then no uncertainty is stated)."""
 
     model: MachineModel
     envelope: Envelope | None
     lacks: tuple[str, ...]
+    calibration: Calibration | None = None
+    nominal: Mechanism | None = None
+
+    def pose_covariance(self, position: FloatArray, quaternion: FloatArray,
+                        conditions: Conditions, temperature_sigma: float) -> FloatArray | None:
+        """Covariance (6, 6) (m², rad²) of where this machine puts the platform when
+        commanded to the pose (3,) m, (4,) under ``conditions`` whose temperature has the
+        standard uncertainty ``temperature_sigma`` K: the file's parameter covariance and
+        model error, and the temperature's
+        (:func:`positioning_cell.calibration.identify.pose_uncertainty`). None without the
+        file's data."""
+        cal, model = self.calibration, self.model
+        if cal is None or self.nominal is None or model.payload is None \
+                or model.structure is None:
+            return None
+        cov: FloatArray = pose_uncertainty(
+            cal.x, cal.covariance, self.nominal, model.payload, model.structure,
+            position[None], quaternion[None], cal.seating_force, cal.model_error,
+            conditions=conditions, reference_temperature=cal.reference_temperature,
+            temperature_sigma=temperature_sigma)[0]
+        return cov
 
 
 def calibrated_machine(settings: CalibratedSettings,
@@ -71,7 +100,8 @@ def calibrated_machine(settings: CalibratedSettings,
         calibration = load(path, settings.mechanism)
         return Calibrated(calibration.model(settings.mechanism, settings.payload,
                                             settings.structure),
-                          calibration.envelope, calibration.lacks)
+                          calibration.envelope, calibration.lacks, calibration,
+                          settings.mechanism)
 
     return files.within(timeout, build, files.describe(files.CALIBRATION_FILE, path),
                         CalibrationFileError)

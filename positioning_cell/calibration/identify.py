@@ -614,18 +614,25 @@ def information_rows(nominal: Mechanism, payload: Payload, structure: Structure,
 def pose_uncertainty(x: FloatArray, covariance: FloatArray, nominal: Mechanism,
                      payload: Payload, structure: Structure, position: ArrayLike,
                      quaternion: ArrayLike, seating_force: float = 1.0,
-                     model_error: ArrayLike | None = None) -> FloatArray:
+                     model_error: ArrayLike | None = None, *,
+                     conditions: Conditions | None = None,
+                     reference_temperature: float = STANDARD_TEMPERATURE,
+                     temperature_sigma: float = 0.0) -> FloatArray:
     """Covariance (N, 6, 6) (x, y, z, rot-x, rot-y, rot-z; m², rad²) of where the calibrated
-    machine puts the platform when commanded to poses (N, 3), (N, 4), from the identified
-    parameters' covariance alone (first order: the encoder commands move by ∂e/∂x·δx, the pose
-    by the velocity Jacobian of that): the accuracy the calibration itself promises there.
-    ``x`` (COUNT,) and ``covariance`` (COUNT, COUNT): an :class:`Identification`'s, or a
-    calibration file's. ``model_error`` (6,): the standard uncertainty of what the model
+    machine puts the platform when commanded to poses (N, 3), (N, 4) under ``conditions``
+    (None: not known; the thermal terms about ``reference_temperature`` °C), from the
+    identified parameters' covariance (first order: the encoder commands move by ∂e/∂x·δx, the
+    pose by the velocity Jacobian of that): the accuracy the calibration itself promises
+    there. ``x`` (COUNT,) and ``covariance`` (COUNT, COUNT): an :class:`Identification`'s, or
+    a calibration file's. ``model_error`` (6,): the standard uncertainty of what the model
     misses, per joint (m, rad; :mod:`positioning_cell.calibration.adequacy`), added as an
-    independent joint error (None: none)."""
+    independent joint error (None: none). ``temperature_sigma`` K: the standard uncertainty
+    of the temperature the thermal terms are given, added through the model's own
+    sensitivity to it (a central difference of ±1 K; the terms are linear in it)."""
     p, q = as_pose_batch(position, quaternion)
     _, sens = predicted_joints(x, nominal, payload, structure, p, q, seating_force,
-                               with_jacobian=True)
+                               with_jacobian=True, conditions=conditions,
+                               reference_temperature=reference_temperature)
     assert sens is not None
     vel = jacobian(nominal, p, q).matrix
     pose_sens = vel @ sens
@@ -633,4 +640,25 @@ def pose_uncertainty(x: FloatArray, covariance: FloatArray, nominal: Mechanism,
     if model_error is not None:
         joint_var = np.asarray(model_error, dtype=float)**2
         cov = cov + np.einsum('nij,j,nkj->nik', vel, joint_var, vel)
+    if temperature_sigma > 0.0:
+        per_kelvin = vel @ (_at_temperature(x, nominal, payload, structure, p, q, seating_force,
+                                            conditions, reference_temperature, 1.0)
+                            - _at_temperature(x, nominal, payload, structure, p, q,
+                                              seating_force, conditions,
+                                              reference_temperature, -1.0))[..., None] / 2.0
+        cov = cov + temperature_sigma**2 * per_kelvin @ np.swapaxes(per_kelvin, 1, 2)
     return cov
+
+
+def _at_temperature(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
+                    p: FloatArray, q: FloatArray, seating_force: float,
+                    conditions: Conditions | None, reference: float, change: float
+                    ) -> FloatArray:
+    """The encoder values (N, 6) the machine of ``x`` reads at poses when the temperature is
+    ``change`` K from that of ``conditions`` (the reference's when it has none)."""
+    n = p.shape[0]
+    cond = conditions or Conditions()
+    shifted = Conditions(reference + cond.temperature_change(n, reference) + change,
+                         cond.approach)
+    return predicted_joints(x, nominal, payload, structure, p, q, seating_force,
+                            conditions=shifted, reference_temperature=reference)[0]

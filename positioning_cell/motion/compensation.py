@@ -69,6 +69,17 @@ class Compensation:
         """The calibrated machine under the conditions at ``now`` (a ClearanceLike)."""
         return calibrated.model.at(self.conditions(now, approach))
 
+    def uncertainty(self, calibrated: Calibrated, position: FloatArray, quaternion: FloatArray,
+                    now: float) -> FloatArray | None:
+        """Standard uncertainty (6,) (m, rad; x, y, z, rot-x, rot-y, rot-z) of where the
+        calibrated machine puts the platform when commanded to the pose (3,) m, (4,) under the
+        conditions at ``now``: the calibration's own and that of the temperature in use
+        (:meth:`Calibrated.pose_covariance`). None when the calibration does not say."""
+        air = self.temperature.current(now)
+        cov = calibrated.pose_covariance(position, quaternion,
+                                         Conditions(air.value, self.approach), air.sigma)
+        return None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
+
     def approach_to(self, calibrated: Calibrated, position: FloatArray, quaternion: FloatArray,
                     joints: FloatArray, now: float) -> FloatArray:
         """The direction (6,) each axis moves in from the encoder reading ``joints`` (6,) to

@@ -569,7 +569,7 @@ class Mover:
             if self.mode is CompensationMode.MEASURED:
                 e_p, e_r, reason, sigma = self._correct(command, p, q, tol)
             else:
-                e_p, e_r, reason = self._check_estimate(p, q, tol)
+                e_p, e_r, reason, sigma = self._check_estimate(p, q, tol)
         except MoveAbortedError as err:
             with self.cond:
                 self.command = None  # the axes stopped somewhere else: re-plan from them
@@ -639,19 +639,26 @@ class Mover:
         return (f'already within tolerance, not moved: {_error_text(e_p, e_r, what)}', e_p, e_r,
                 sigma)
 
-    def _check_estimate(self, p: FloatArray, q: FloatArray,
-                        tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str]:
+    def _check_estimate(self, p: FloatArray, q: FloatArray, tol: GoalTolerance
+                        ) -> tuple[FloatArray, FloatArray, str, FloatArray | None]:
         """``none`` / ``model``: the pose the encoders show (through the model) must be within
-        the tolerance of the goal."""
+        the tolerance of the goal. In ``model`` mode with a calibration file, the result
+        states the calibration's uncertainty at the goal under the conditions in use
+        (:meth:`Compensation.uncertainty`); else none."""
         estimate = self.estimate_pose()
         if estimate is None:
             raise MoveAbortedError(ResultCode.ABORTED_FAULT, f'no pose estimate: {self.reason}')
         e_p, e_r = deviation(estimate.position, estimate.quaternion, p, q)
         text = _error_text(e_p, e_r, 'estimated error')
+        sigma = None
+        if self.mode is CompensationMode.MODEL and self.calibration is not None:
+            sigma = self.compensation.uncertainty(self.calibration, p, q, self.machine.clock())
+        if sigma is not None:
+            text += f' ± {_sigma_text(sigma)} (1 sigma, the calibration\'s)'
         if not tol.holds(e_p, e_r):
             raise MoveAbortedError(ResultCode.OUT_OF_TOLERANCE,
                                    f'settled outside tolerance: {text}')
-        return e_p, e_r, f'settled within tolerance: {text}'
+        return e_p, e_r, f'settled within tolerance: {text}', sigma
 
     def _correct(self, command: tuple[FloatArray, FloatArray], p: FloatArray, q: FloatArray,
                  tol: GoalTolerance) -> tuple[FloatArray, FloatArray, str, FloatArray]:
