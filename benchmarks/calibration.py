@@ -90,13 +90,19 @@ FULL = idf.IdentificationSettings()
 GEOMETRY_ONLY = idf.IdentificationSettings(fit_compliance=False, fit_thermal=False,
                                            fit_lead=False, fit_reversal=False)
 LEFT_OUT = ('compliance', 'thermal', 'reversal', 'lead')
+LEAD_POWER = 10.0  # the lead error of the power trial, times the configured one
+LEAD_POWER_CASE = f'lead x{LEAD_POWER:g}'
 
 
-def simulator(seed: int, effects: bool, mass: float | None = None) -> PoseMeasurementSimulator:
-    """The seeded machine ``seed`` (geometry, drives and thermal seeds) carrying ``mass``."""
+def simulator(seed: int, effects: bool, mass: float | None = None,
+              lead_factor: float = 1.0) -> PoseMeasurementSimulator:
+    """The seeded machine ``seed`` (geometry, drives and thermal seeds) carrying ``mass``,
+    its screws' lead error ``lead_factor`` times the configured one."""
     payload = PAYLOAD if mass is None else replace(PAYLOAD, mass=mass)
     truth = SIM.truth if effects else SIM.truth.without_effects()
-    truth = replace(truth, geometry_seed=seed, drives=replace(truth.drives, seed=seed),
+    drives = replace(truth.drives, seed=seed,
+                     lead_error_sigma=truth.drives.lead_error_sigma * lead_factor)
+    truth = replace(truth, geometry_seed=seed, drives=drives,
                     thermal=replace(truth.thermal, seed=seed))
     return PoseMeasurementSimulator(replace(SIM, truth=truth, payload=payload))
 
@@ -340,15 +346,22 @@ def main() -> int:
 
 def adequacy_trials(machines: int, effects: bool, pp: np.ndarray, pq: np.ndarray,
                     failures: list[str]) -> None:
-    """The χ² test with each class left out and with none, NOISE_SEEDS draws per machine."""
-    fired: dict[str, list[bool]] = {k: [] for k in ('none', *LEFT_OUT)}
+    """The χ² test with each class left out and with none, NOISE_SEEDS draws per machine;
+    and the lead left out of a machine whose screws' lead error is LEAD_POWER times the
+    configured one (what the test can see of a lead error above the noise)."""
+    fired: dict[str, list[bool]] = {k: [] for k in ('none', *LEFT_OUT, LEAD_POWER_CASE)}
     named: dict[str, dict[str, int]] = {k: {} for k in fired}
     for seed in range(machines):
-        sim = simulator(seed, effects)
+        sims = {1.0: simulator(seed, effects), LEAD_POWER: simulator(seed, effects,
+                                                                     lead_factor=LEAD_POWER)}
         for noise in range(NOISE_SEEDS):
-            data = calibration_run(sim, pp, pq, np.random.default_rng(1000 * (noise + 1) + seed))
+            runs = {factor: calibration_run(sim, pp, pq,
+                                            np.random.default_rng(1000 * (noise + 1) + seed))
+                    for factor, sim in sims.items()}
             for case, hits in fired.items():
-                s = FULL if case == 'none' else replace(FULL, **{f'fit_{case}': False})
+                left = 'lead' if case == LEAD_POWER_CASE else case
+                s = FULL if case == 'none' else replace(FULL, **{f'fit_{left}': False})
+                data = runs[LEAD_POWER if case == LEAD_POWER_CASE else 1.0]
                 verdict = idf.identify(MECH, PAYLOAD, STRUCTURE, data, s).adequacy
                 assert verdict is not None
                 hits.append(not verdict.adequate)
