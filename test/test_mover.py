@@ -552,26 +552,43 @@ def test_the_mode_can_change_between_moves() -> None:
                                atol=1e-9)
 
 
+class StatedWorld(World):
+    """A world whose tracker readings (identical: their error all common, not averaged down)
+    state ``sigma`` m per position axis, 10·``sigma`` rad per rotation."""
+
+    def __init__(self, sigma: float) -> None:
+        super().__init__()
+        self.covariance = np.diag([sigma**2] * 3 + [(10.0 * sigma)**2] * 3)
+
+    def measurements(self) -> list[Measurement]:
+        return [Measurement(*self.attained(), self.covariance)] * self.samples
+
+
 def test_measured_mode_does_not_chase_an_error_within_the_measurement_noise() -> None:
-    """Readings of 20 µm sigma (6 µm for a 10-sample mean) and a 4 µm error: no correction
-    is sent, the move ends out of a 1 µm tolerance and says why, with the uncertainty."""
-
-    class NoisyWorld(World):
-        def measurements(self) -> list[Measurement]:
-            cov = np.diag([20e-6**2] * 3 + [2e-4**2] * 3)
-            return [Measurement(*self.attained(), cov)] * self.samples
-
-    world = NoisyWorld()
+    """Readings of 5 µm sigma that agree exactly (so 5 µm for their mean too) and a 4 µm
+    error: no correction is sent, the move ends out of a 1 µm tolerance and says why, with
+    the uncertainty."""
+    world = StatedWorld(5e-6)
     world.bias[:3] = 4e-6
     err, _ = abort(mover(world, 'measured'), world, tolerance=1e-6)
     assert err.code is ResultCode.OUT_OF_TOLERANCE
     assert 'within 2 sigma of the measurement, a correction would be noise' in str(err)
     assert '(1 sigma) after 0 corrections' in str(err)
     assert len(world.trajectories) == 1  # the move itself, no correction
-    quiet = World()  # the same error with a 1.6 µm sigma mean is corrected
+    quiet = StatedWorld(1e-6)  # the same error measured to 1 µm is corrected
     quiet.bias[:3] = 4e-6
     result = mover(quiet, 'measured').move('base', GOAL, GOAL_Q, tolerance=2e-6)
     assert result.reason.startswith('settled within tolerance') and len(quiet.trajectories) > 1
+
+
+def test_measured_mode_states_a_common_error_of_its_readings_undiminished() -> None:
+    """Readings that agree exactly carry no independent noise to average away: the settled
+    move states each reading's own sigma for their mean, not sigma / sqrt(samples)."""
+    world = StatedWorld(1e-6)
+    result = mover(world, 'measured').move('base', GOAL, GOAL_Q)
+    assert result.uncertainty is not None
+    np.testing.assert_allclose(result.uncertainty, np.sqrt(np.diag(world.covariance)),
+                               rtol=1e-6)
 
 
 # -- standstill monitoring ---------------------------------------------------------------------

@@ -38,7 +38,7 @@ from positioning_cell.motion.compensation import Compensation
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
 from positioning_cell.motion.standstill import Motion, StandstillWatch
 from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
-from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
+from positioning_cell.moves.correction import corrected_command, deviation, mean_reading
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.outcomes import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.moves.trajectory import MotionLimits, Trajectory, fingerprint, plan_move
@@ -744,11 +744,11 @@ class Mover:
                    'settling', measuring=measuring)
 
     def _measure(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """The next ``samples`` tracker readings averaged: the position weighted by each
-        reading's covariance, the mean rotation, and the covariance (6, 6) of that mean
-        (inv Σ C_i⁻¹: the readings taken as independent; a part common to all, such as the
-        tracker's registration, is so understated). A tracker that falls silent or readings
-        that scatter beyond their stated uncertainty abort."""
+        """The next ``samples`` tracker readings averaged (:func:`mean_reading`): the mean
+        position and rotation, and the covariance (6, 6) of that mean, each axis' stated
+        variance split by the readings' own scatter into a part that averages down and one
+        common to all (the tracker's registration) that does not. A tracker that falls silent
+        or readings that scatter beyond their stated uncertainty abort."""
         n = self.settings.compensation.samples
         with self.cond:
             start = self.measurement_count
@@ -767,13 +767,8 @@ class Mover:
                     ResultCode.ABORTED_TRACKER_INCONSISTENT,
                     f'tracker readings scatter {np.max(scatter) * 1e6:.1f} um, {ratio:.0f}x '
                     'their stated sigma: outliers or a disturbed line of sight')
-        covariances = np.array([s.covariance for s in samples])
-        information = np.linalg.inv(covariances)
-        weights = np.linalg.inv(covariances[:, :3, :3])
-        position = np.linalg.solve(weights.sum(axis=0),
-                                   np.einsum('nij,nj->i', weights, positions))
-        _, quaternion = mean_pose(positions, [s.quaternion for s in samples])
-        return position, quaternion, np.linalg.inv(information.sum(axis=0))
+        return mean_reading(positions, [s.quaternion for s in samples],
+                            [s.covariance for s in samples])
 
     def _wait(self, condition: Callable[[], bool], timeout: float, what: str,
               timeout_code: ResultCode = ResultCode.ABORTED_TIMEOUT, *,

@@ -1,7 +1,7 @@
-"""The closed loop on the laser tracker: averaged measured poses, their deviation from the
-desired pose, and the next command that moves the measured pose onto it (the way digital
-assembly cells close the loop through a tracker). Poses in the base frame: m, unit quaternions
-x, y, z, w."""
+"""The closed loop on the laser tracker: averaged measured poses and the covariance of their
+mean, their deviation from the desired pose, and the next command that moves the measured pose
+onto it (the way digital assembly cells close the loop through a tracker). Poses in the base
+frame: m, unit quaternions x, y, z, w."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.core.poses import as_pose_batch, pose_error
+from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
 
@@ -40,3 +41,46 @@ def mean_pose(positions: ArrayLike, quaternions: ArrayLike) -> tuple[FloatArray,
     """Mean of k poses: arithmetic mean position (3,) m, chordal L2 mean rotation (4,)."""
     p, q = as_pose_batch(positions, quaternions)
     return p.mean(axis=0), np.asarray(Rotation.from_quat(q).mean().as_quat(canonical=True))
+
+
+def mean_reading(positions: ArrayLike, quaternions: ArrayLike,
+                 covariances: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The mean of k tracker readings of one pose (:func:`mean_pose`: position (3,) m,
+    quaternion (4,)) and the covariance (6, 6) of that mean, from the readings' positions
+    (k, 3) m, quaternions (k, 4) and stated covariances (k, 6, 6) in ``base``, order x, y, z,
+    rot-x, rot-y, rot-z (m², m·rad, rad²; rotations small angles about the base axes,
+    R_i = exp([δθ_i]×)·R̄, as :func:`positioning_cell.metrology.fit.pose_covariance` states them).
+
+    A reading's stated covariance is its own noise plus a part common to all readings (the
+    tracker's registration) that averaging does not reduce, so inv(Σ C_i⁻¹) — the readings
+    taken as independent — understates the mean's. The readings' own scatter tells the two
+    apart without knowing either: per axis i, the independent share
+    f_i = clip(s_i² / C̄_ii, 0, 1) of the mean stated variance C̄_ii (C̄ the mean of the C_i),
+    s_i² the sample variance of the positions or of the rotation vectors of R_i·R̄ᵀ; the
+    rest is common. The mean's variance is then C̄_ii·(1 − f_i + f_i/k), and its covariance
+    D·C̄·D with D = diag(√(1 − f_i + f_i/k)): symmetric positive semi-definite as C̄ is, C̄/k
+    for readings scattering as stated, C̄ for identical readings (a single reading: C̄). With
+    few readings s_i² is itself uncertain (relative σ √(2/(k − 1))), so the split leans to
+    stating more than C̄/k for independent readings; readings scattering beyond their stated
+    σ are capped at C̄/k (judging such scatter is the caller's).
+    """
+    p, q = as_pose_batch(positions, quaternions)
+    cov = np.asarray(covariances, dtype=float)
+    if cov.shape != (len(p), 6, 6):
+        raise InputError(f'covariances: expected shape ({len(p)}, 6, 6) for the {len(p)} '
+                         f'readings, got {cov.shape}')
+    if not np.all(np.isfinite(cov)):
+        raise InputError('covariances: not finite')
+    position, quaternion = mean_pose(p, q)
+    mean_cov = cov.mean(axis=0)
+    k = len(p)
+    if k > 1:
+        rotvec = (Rotation.from_quat(q) * Rotation.from_quat(quaternion).inv()).as_rotvec()
+        scatter = np.concatenate([p.var(axis=0, ddof=1), rotvec.var(axis=0, ddof=1)])
+    else:
+        scatter = np.zeros(6)
+    stated = np.diag(mean_cov)
+    share = np.clip(np.divide(scatter, stated, out=np.ones(6), where=stated > 0.0), 0.0, 1.0)
+    d = np.sqrt(1.0 - share + share / k)
+    out: FloatArray = d[:, None] * mean_cov * d[None, :]
+    return position, quaternion, 0.5 * (out + out.T)
