@@ -1,4 +1,5 @@
-"""CPU cost of the four-node cell at rest and while moving, and the leg driver's publish rate.
+"""CPU cost and memory of the cell's nodes at rest and while moving, and the leg driver's
+publish rate.
 
 Starts kinematics_node (positioner), leg_driver_node, pose_measurement_node and
 accuracy_monitor_node as separate processes with config/cell.yaml on a free ROS domain, waits
@@ -7,14 +8,18 @@ as shipped), and while the positioner moves back to back between poses within 4 
 (compensation.mode set to 'none' first, to keep the moves short). For each window: CPU seconds
 per wall second of each node (utime + stime of all its threads, /proc/<pid>/stat) and their
 total, and the rate and p99 interval of /legs/joint_states from its header stamps (the driver's
-own clock, so a slow subscriber is not blamed on the driver).
+own clock, so a slow subscriber is not blamed on the driver). After both windows: each
+node's peak and current resident set (VmHWM, VmRSS of /proc/<pid>/status) and whether it
+loaded numba (a compiled kernel ran in it: numba is imported on a kernel's first call).
 
 The same run measures a baseline: a bare rclpy node (parameter services, no callbacks of its
 own) started the same way, the floor under every node's figure.
 
 Run: .venv/bin/python benchmarks/idle_cpu.py [--seconds S]
 Targets (issue): the idle cell <= 0.4 core in total; the driver publishes at >= 95 % of its
-nominal rate with a p99 interval <= 2 periods. Prints what it measured and whether each target
+nominal rate with a p99 interval <= 2 periods; memory (issue 24): each node's peak RSS <= 2x
+the bare node's unless it runs compiled kernels (then <= 160 MB), the nodes together <= 700
+MB. Prints what it measured and whether each target
 is met; exits non-zero only if the cell did not come up or could not be measured.
 """
 
@@ -59,6 +64,10 @@ BARE_NODE = ('import rclpy, rclpy.node\n'
              'except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):\n'
              '    pass\n')
 IDLE_TARGET = 0.4        # cores, the idle cell in total
+NODE_FACTOR_TARGET = 2.0  # a node that runs no compiled kernel: peak RSS <= this x a bare node's
+KERNEL_NODE_TARGET_MB = 160.0  # MB, a node that runs compiled kernels
+CELL_TARGET_MB = 700.0   # MB, the cell's nodes together
+MIB_MB = 1.048576        # MB per MiB
 RATE_TARGET = 0.95       # fraction of the nominal publish rate
 P99_TARGET = 2.0         # periods
 START_TIMEOUT = 90.0     # s, first start compiles the numba kernels in every process
@@ -195,6 +204,48 @@ def measure(procs: Processes, stamps: list[int], seconds: float,
                   DriverRate.from_stamps(stamps[first:last]), moves1 - moves0)
 
 
+@dataclass(frozen=True)
+class Memory:
+    """One process's memory after the windows: peak and current resident set, MiB, and
+    whether it has loaded numba (it ran a compiled kernel)."""
+
+    peak: float
+    resident: float
+    kernels: bool
+
+    @classmethod
+    def of(cls, pid: int) -> Memory:
+        status = dict(line.split(':', 1) for line in
+                      Path(f'/proc/{pid}/status').read_text().splitlines() if ':' in line)
+        maps = Path(f'/proc/{pid}/maps').read_text()
+        return cls(int(status['VmHWM'].split()[0]) / 1024,
+                   int(status['VmRSS'].split()[0]) / 1024, '/numba/' in maps)
+
+
+def memory(procs: Processes) -> dict[str, Memory]:
+    """Node (and 'bare_node') -> its :class:`Memory` now."""
+    return {NODES.get(label, label): Memory.of(p.pid) for label, p in procs.procs.items()}
+
+
+def report_memory(memory: dict[str, Memory]) -> None:
+    """The table: each node's peak RSS against the bare node's, and the targets."""
+    bare = memory['bare_node'].peak
+    print(row('memory, MiB', 'peak RSS', 'RSS now', 'x bare', 'numba', 'target'))
+    for node in NODES.values():
+        m = memory[node]
+        limit = (f'<= {KERNEL_NODE_TARGET_MB / MIB_MB:.0f}' if m.kernels
+                 else f'<= {NODE_FACTOR_TARGET:g}x')
+        ok = (m.peak <= KERNEL_NODE_TARGET_MB / MIB_MB if m.kernels
+              else m.peak <= NODE_FACTOR_TARGET * bare)
+        print(row(f'  {node}', f'{m.peak:.0f}', f'{m.resident:.0f}', f'{m.peak / bare:.2f}',
+                  'yes' if m.kernels else 'no', f'{limit} {verdict(ok)}'))
+    total = sum(memory[node].peak for node in NODES.values())
+    print(row('  baseline: a bare rclpy node', f'{bare:.0f}',
+              f'{memory["bare_node"].resident:.0f}'))
+    print(f'target cell total <= {CELL_TARGET_MB:g} MB ({CELL_TARGET_MB / MIB_MB:.0f} MiB): '
+          f'{verdict(total <= CELL_TARGET_MB / MIB_MB)} ({total:.0f} MiB)')
+
+
 def set_parameter(client: CellClient, node: str, name: str, value: Any) -> None:
     result = client.set_parameter(node, name, value)
     if not result.successful:
@@ -280,6 +331,8 @@ def run(seconds: float, log_dir: Path) -> int:
               f'(mean {mean:.2f} s command to settled), {mover.refused} refused in all')
         print()
         report(rest, moving, nominal)
+        print()
+        report_memory(memory(procs))
         codes = procs.stop()
         print('\nnodes stopped, exit codes: '
               + ', '.join(f'{NODES.get(exe, exe)} {code}' for exe, code in codes.items()))
