@@ -38,9 +38,16 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 	$(PY) -c 'from positioning_cell.tolerance import montecarlo; montecarlo.warm_up()'
 	touch $(STAMP)
 
+# The suite in two tiers: everything but the timing tests in TEST_WORKERS pytest-xdist workers
+# (each node test takes its own ROS domain, so they run side by side), then the tests that judge
+# a reaction time, a stop bound or a rate on real processes (marker `timing`) alone, so that
+# the suite's own load is not what they measure.
+TEST_WORKERS ?= 2
+
 test: $(STAMP)
 	mkdir -p $(TMP)
-	env $(RUN_ENV) $(PY) -m pytest
+	env $(RUN_ENV) $(PY) -m pytest -n $(TEST_WORKERS) -m 'not timing'
+	env $(RUN_ENV) $(PY) -m pytest -m timing
 
 # The library tier alone, without ROS: every test not marked nodes or slow, with rclpy made
 # unimportable (a stand-in package first on the path that raises ImportError), so a test or a

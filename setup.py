@@ -51,6 +51,9 @@ CELL = [
 TEST = [
     'pytest==9.2.0',
     'pytest-timeout==2.4.0',
+    # make test runs the suite in two workers (each node test takes its own ROS domain)
+    'pytest-xdist==3.8.0',
+    'execnet==2.1.2',
     'hypothesis==6.170.15',
     'ruff==0.17.6',
     'mypy==2.4.1',

@@ -19,7 +19,7 @@ import pytest
 
 from positioning_cell.ros.driver_probes import DRIVER, PROBES, CommandedDriver
 
-pytestmark = [pytest.mark.nodes, pytest.mark.slow]
+pytestmark = [pytest.mark.nodes, pytest.mark.slow, pytest.mark.timing]
 
 #: Largest interval between two encoder publications the driver may leave while it takes a
 #: command (its period is 0.01 s; a loaded 2-core machine delays a timer by tens of ms; the

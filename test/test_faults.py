@@ -21,7 +21,7 @@ from fault_expectations import EXPECTED
 from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
 from positioning_cell.ros.fault_cell import FaultCell
 
-pytestmark = [pytest.mark.nodes, pytest.mark.slow]
+pytestmark = [pytest.mark.nodes, pytest.mark.slow, pytest.mark.timing]
 
 @pytest.fixture(scope='module')
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultCell]:

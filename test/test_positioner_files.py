@@ -40,7 +40,7 @@ from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.testing.stops import CRASH_SIGNS
 
-pytestmark = pytest.mark.nodes
+pytestmark = [pytest.mark.nodes, pytest.mark.timing]
 
 #: The issue's bounds: a refusal well under a second, its reason under 400 characters, a stop
 #: within 2 s of SIGINT / SIGTERM.

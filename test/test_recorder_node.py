@@ -182,6 +182,7 @@ def test_records_cell_topics_and_closes_on_sigterm(tmp_path: Path) -> None:
         assert reader.topics['/legs/joint_states'].qos[0].reliability.name == 'RELIABLE'
 
 
+@pytest.mark.timing
 def test_lossless_under_load(tmp_path: Path) -> None:
     per_topic = 2100  # 10 500 messages over five cell topics, published as fast as possible
     with isolated_domain() as domain, ProcessGroup(domain, tmp_path) as group, \
