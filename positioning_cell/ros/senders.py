@@ -19,7 +19,9 @@ takes in one call everything that came.
 from __future__ import annotations
 
 import ctypes
+import math
 import threading
+import time
 from functools import cache
 from typing import Any, NamedTuple
 
@@ -27,6 +29,8 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 GID_BYTES = 16  # RMW_GID_STORAGE_SIZE in Jazzy
+#: Longest time between two looks at the graph while messages come (s).
+RELOOK_S = 1.0
 #: What the graph names a publisher whose node it does not know yet (rmw_dds_common).
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
@@ -114,6 +118,7 @@ class IdentifiedSubscription:
         self._sub = self._node.create_subscription(msg_type, topic, lambda _: None, qos)
         self._lock = threading.Lock()
         self._senders: dict[bytes, str] = {}
+        self._looked = -math.inf
         lib = _rcl()
         self._buffer = _Bytes()
         allocator = lib.allocator()
@@ -133,8 +138,14 @@ class IdentifiedSubscription:
                 data = ctypes.string_at(self._buffer.buffer, self._buffer.buffer_length)
                 gid = bytes(info.publisher_gid.data)
                 taken.append((data, gid))
-        if any(gid not in self._senders for _, gid in taken):
-            self.publishers()  # once per take: a publisher new since the last look
+        now = time.monotonic()
+        if taken and (any(gid not in self._senders for _, gid in taken)
+                      or now - self._looked >= RELOOK_S):
+            # once per take for a publisher new since the last look; and at least every
+            # RELOOK_S while messages come, so a name the graph gave late or wrong (seen after
+            # a node was killed and started again beside a running publisher) is corrected
+            self.publishers()
+            self._looked = now
         return [Taken(data, self._senders.get(gid, '')) for data, gid in taken]
 
     def publishers(self) -> list[str]:
