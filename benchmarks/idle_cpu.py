@@ -238,7 +238,7 @@ def report_memory(memory: dict[str, Memory]) -> None:
         ok = (m.peak <= KERNEL_NODE_TARGET_MB / MIB_MB if m.kernels
               else m.peak <= NODE_FACTOR_TARGET * bare)
         print(row(f'  {node}', f'{m.peak:.0f}', f'{m.resident:.0f}', f'{m.peak / bare:.2f}',
-                  'yes' if m.kernels else 'no', f'{limit} {verdict(ok)}'))
+                  'yes' if m.kernels else 'no', f'  {limit} {verdict(ok)}'))
     total = sum(memory[node].peak for node in NODES.values())
     print(row('  baseline: a bare rclpy node', f'{bare:.0f}',
               f'{memory["bare_node"].resident:.0f}'))
