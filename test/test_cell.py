@@ -40,7 +40,7 @@ from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSimulator,
 )
 
-pytestmark = [pytest.mark.nodes, pytest.mark.slow]
+pytestmark = [pytest.mark.nodes, pytest.mark.slow, pytest.mark.timing]
 
 NODES = ('kinematics_node', 'leg_driver_node', 'pose_measurement_node', 'accuracy_monitor_node')
 GOALS = [

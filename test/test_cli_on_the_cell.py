@@ -23,7 +23,7 @@ from positioning_cell.frames.transforms import Transform
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.ros.qos import STREAM_QOS
 
-pytestmark = pytest.mark.nodes
+pytestmark = [pytest.mark.nodes, pytest.mark.timing]
 
 USER = [10.0, -5.0, 2.0, 0.0, 0.0, 10.0]  # mm, deg
 OBJECT = [0.0, 0.0, 50.0, 0.0, 0.0, 0.0]

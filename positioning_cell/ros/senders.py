@@ -125,8 +125,9 @@ class IdentifiedSubscription:
         if lib.init(ctypes.byref(self._buffer), 0, ctypes.byref(allocator)) != _RCL_RET_OK:
             raise RuntimeError('rcutils_uint8_array_init failed')
 
-    def take(self, limit: int = 1000) -> list[Taken]:
-        """Every message received since the last call (at most ``limit``), oldest first."""
+    def take(self, limit: int = 1000, expect: str | None = None) -> list[Taken]:
+        """Every message received since the last call (at most ``limit``), oldest first;
+        ``expect``: the node the caller takes messages from (above)."""
         lib, taken = _rcl(), list[tuple[bytes, bytes]]()
         info = _MessageInfo()
         with self._lock, self._sub.handle:
@@ -140,10 +141,12 @@ class IdentifiedSubscription:
                 taken.append((data, gid))
         now = time.monotonic()
         if taken and (any(gid not in self._senders for _, gid in taken)
-                      or now - self._looked >= RELOOK_S):
-            # once per take for a publisher new since the last look; and at least every
-            # RELOOK_S while messages come, so a name the graph gave late or wrong (seen after
-            # a node was killed and started again beside a running publisher) is corrected
+                      or (expect is not None and now - self._looked >= RELOOK_S
+                          and all(self._senders.get(gid) != expect for _, gid in taken))):
+            # once per take for a publisher new since the last look; and, while messages come
+            # but none from ``expect``, at least every RELOOK_S, so a name the graph gave late
+            # or wrong (seen after a node was killed and started again beside a running
+            # publisher) is corrected
             self.publishers()
             self._looked = now
         return [Taken(data, self._senders.get(gid, '')) for data, gid in taken]
