@@ -54,6 +54,9 @@ LAX_LIVENESS = {f.name: f.metadata[RULE].high for f in fields(LivenessSettings)
                               'tracker_silence', 'scatter_limit')}
 #: The node a foreign message comes from: what the cell sees as its sender.
 CLIENT_NODE = 'fault_matrix'
+#: A positioner restarted after a SIGKILL hears the encoders within this (s): Fast DDS keeps
+#: the killed participant until its lease (20 s) runs out.
+RESTART_HEARD_S = 30.0
 #: How far ahead the foreign trajectory is stamped (the issue's probe: run 4 s later).
 AHEAD_S = 4.0
 #: Where the foreign trajectory takes the axes: leg 1, leg 2 lengths (m), theta 1 (rad).
@@ -563,9 +566,18 @@ def _running(node: str) -> Callable[[FaultPort], None]:
 
 
 def _first_move_after_restart(port: FaultPort, trial: Trial) -> None:
-    """The positioner started again beside the running driver: its very first move succeeds
-    (it waits for the inputs it has not seen yet and plans from where the encoders are)."""
+    """The positioner started again beside the running driver hears the encoders within
+    :data:`RESTART_HEARD_S` (its first pose estimate), and its first move then succeeds (it
+    plans from where the encoders are). Within a DDS participant's lease of the killed one
+    the new process can take seconds to be sent the driver's readings."""
+    restarted = port.monotonic()
     port.restart(names.NODE_POSITIONER)
+    try:
+        wait_until(lambda: len(port.estimates(restarted)) > 0, RESTART_HEARD_S,
+                   "the restarted positioner's first pose estimate")
+    except TimeoutError as err:
+        trial.problems.append(str(err))
+        return
     _next_move_succeeds(port, trial, 'the first move of the restarted positioner')
 
 
