@@ -11,53 +11,23 @@ order of operations written.
 
 from __future__ import annotations
 
-import functools
 import os
-import threading
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 Kernel = TypeVar('Kernel', bound=Callable[..., Any])
 
-#: The kernels declared and not yet handed to numba, and the lock of that hand-over.
-_PENDING: list[Callable[..., Any]] = []
-_LOCK = threading.Lock()
-
 
 def kernel(function: Kernel) -> Kernel:
     """``function`` compiled in nopython mode, with the same signature for callers and mypy.
 
-    numba itself (~125 MB of a process, a third of a second to import) is loaded only when a
-    kernel is first called: a node that never runs one does not carry it. Then every kernel
-    declared so far becomes a numba dispatcher, bound under its own name in its module (so a
-    kernel calling another one compiles against the dispatcher), and the call goes on to it.
     The uncompiled original stays reachable as ``.py_func`` (tests step through it).
     """
-    with _LOCK:
-        _PENDING.append(function)
-
-    @functools.wraps(function)
-    def first_call(*args: Any) -> Any:
-        return _dispatcher(function)(*args)
-
-    first_call.py_func = function  # type: ignore[attr-defined]
-    return cast(Kernel, first_call)
-
-
-def _dispatcher(function: Callable[..., Any]) -> Any:
-    """The numba dispatcher of the kernel ``function`` (every pending kernel made one)."""
-    with _LOCK:
-        if _PENDING:
-            import numba  # only when a kernel runs: the point of this function
-
-            for pending in _PENDING:
-                pending.__globals__[pending.__name__] = numba.njit(
-                    cache=True, nogil=True, error_model='numpy')(pending)
-            _PENDING.clear()
-    return function.__globals__[function.__name__]
+    return cast(Kernel, numba.njit(cache=True, nogil=True, error_model='numpy')(function))
 
 
 def kernel_array(value: ArrayLike, dtype: DTypeLike = np.float64) -> NDArray[Any]:
