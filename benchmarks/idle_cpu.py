@@ -10,7 +10,7 @@ per wall second of each node (utime + stime of all its threads, /proc/<pid>/stat
 total, and the rate and p99 interval of /legs/joint_states from its header stamps (the driver's
 own clock, so a slow subscriber is not blamed on the driver). After both windows: each
 node's peak and current resident set (VmHWM, VmRSS of /proc/<pid>/status) and whether it
-loaded numba (a compiled kernel ran in it: numba is imported on a kernel's first call).
+loaded numba (it imported a module holding compiled kernels).
 
 The same run measures a baseline: a bare rclpy node (parameter services, no callbacks of its
 own) started the same way, the floor under every node's figure.
