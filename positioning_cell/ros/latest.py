@@ -73,7 +73,7 @@ class SourceReader:
 
     def _accepted(self) -> list[bytes]:
         mine = []
-        taken = self._sub.take(expect=self.source)
+        taken = self._sub.take()
         with self._lock:
             for item in taken:
                 if item.sender == self.source:

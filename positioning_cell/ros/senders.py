@@ -19,9 +19,7 @@ takes in one call everything that came.
 from __future__ import annotations
 
 import ctypes
-import math
 import threading
-import time
 from functools import cache
 from typing import Any, NamedTuple
 
@@ -29,8 +27,6 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 GID_BYTES = 16  # RMW_GID_STORAGE_SIZE in Jazzy
-#: Longest time between two looks at the graph while messages come (s).
-RELOOK_S = 1.0
 #: What the graph names a publisher whose node it does not know yet (rmw_dds_common).
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
@@ -118,16 +114,14 @@ class IdentifiedSubscription:
         self._sub = self._node.create_subscription(msg_type, topic, lambda _: None, qos)
         self._lock = threading.Lock()
         self._senders: dict[bytes, str] = {}
-        self._looked = -math.inf
         lib = _rcl()
         self._buffer = _Bytes()
         allocator = lib.allocator()
         if lib.init(ctypes.byref(self._buffer), 0, ctypes.byref(allocator)) != _RCL_RET_OK:
             raise RuntimeError('rcutils_uint8_array_init failed')
 
-    def take(self, limit: int = 1000, expect: str | None = None) -> list[Taken]:
-        """Every message received since the last call (at most ``limit``), oldest first;
-        ``expect``: the node the caller takes messages from (above)."""
+    def take(self, limit: int = 1000) -> list[Taken]:
+        """Every message received since the last call (at most ``limit``), oldest first."""
         lib, taken = _rcl(), list[tuple[bytes, bytes]]()
         info = _MessageInfo()
         with self._lock, self._sub.handle:
@@ -139,16 +133,8 @@ class IdentifiedSubscription:
                 data = ctypes.string_at(self._buffer.buffer, self._buffer.buffer_length)
                 gid = bytes(info.publisher_gid.data)
                 taken.append((data, gid))
-        now = time.monotonic()
-        if taken and (any(gid not in self._senders for _, gid in taken)
-                      or (expect is not None and now - self._looked >= RELOOK_S
-                          and all(self._senders.get(gid) != expect for _, gid in taken))):
-            # once per take for a publisher new since the last look; and, while messages come
-            # but none from ``expect``, at least every RELOOK_S, so a name the graph gave late
-            # or wrong (seen after a node was killed and started again beside a running
-            # publisher) is corrected
-            self.publishers()
-            self._looked = now
+        if any(gid not in self._senders for _, gid in taken):
+            self.publishers()  # once per take: a publisher new since the last look
         return [Taken(data, self._senders.get(gid, '')) for data, gid in taken]
 
     def publishers(self) -> list[str]:
