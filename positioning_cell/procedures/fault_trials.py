@@ -54,8 +54,9 @@ LAX_LIVENESS = {f.name: f.metadata[RULE].high for f in fields(LivenessSettings)
                               'tracker_silence', 'scatter_limit')}
 #: The node a foreign message comes from: what the cell sees as its sender.
 CLIENT_NODE = 'fault_matrix'
-#: A positioner restarted after a SIGKILL hears the encoders within this (s): Fast DDS keeps
-#: the killed participant until its lease (20 s) runs out.
+#: A positioner restarted after a SIGKILL hears the encoders within this (s): its start-up on
+#: a busy machine, then until the killed participant's lease (5 s,
+#: config/fastdds_loopback.xml) runs out, the driver does not send it its readings.
 RESTART_HEARD_S = 30.0
 #: How far ahead the foreign trajectory is stamped (the issue's probe: run 4 s later).
 AHEAD_S = 4.0
@@ -568,8 +569,8 @@ def _running(node: str) -> Callable[[FaultPort], None]:
 def _first_move_after_restart(port: FaultPort, trial: Trial) -> None:
     """The positioner started again beside the running driver hears the encoders within
     :data:`RESTART_HEARD_S` (its first pose estimate), and its first move then succeeds (it
-    plans from where the encoders are). Within a DDS participant's lease of the killed one
-    the new process can take seconds to be sent the driver's readings."""
+    plans from where the encoders are). Within the DDS lease of the killed participant (5 s in
+    the cell's profile) the new process is not yet sent the driver's readings."""
     restarted = port.monotonic()
     port.restart(names.NODE_POSITIONER)
     try:
