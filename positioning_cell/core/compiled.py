@@ -36,7 +36,8 @@ _PENDING: list[Callable[..., Any]] = []
 #: The numba dispatchers made so far.
 _DISPATCHERS: list[Any] = []
 _LOCK = threading.Lock()
-_sealed = False
+#: Set by :func:`seal`.
+_SEALED = threading.Event()
 
 
 class ColdKernelError(RuntimeError):
@@ -66,7 +67,7 @@ def kernel(function: Kernel) -> Kernel:
 def load() -> None:
     """Hand every kernel declared so far to numba (imports numba; compiles nothing)."""
     with _LOCK:
-        if _sealed and _PENDING:
+        if _SEALED.is_set() and _PENDING:
             raise ColdKernelError(
                 f'kernel {_PENDING[0].__module__}.{_PENDING[0].__name__} called after the '
                 'process was sealed without being warmed: warm it while the node is built')
@@ -93,9 +94,8 @@ def seal() -> None:
     node calls this (through :func:`positioning_cell.ros.spin.run`) once it is built, after its
     warm-up, before it spins. Without numba loaded, only the flag is set: a kernel call then
     raises before importing it."""
-    global _sealed
     with _LOCK:
-        _sealed = True
+        _SEALED.set()
         for dispatcher in _DISPATCHERS:
             if dispatcher.signatures:
                 dispatcher.disable_compile()
@@ -117,7 +117,7 @@ def _cold(function: Callable[..., Any]) -> Callable[..., Any]:
 
 def sealed() -> bool:
     """Whether :func:`seal` has been called in this process."""
-    return _sealed
+    return _SEALED.is_set()
 
 
 def kernel_array(value: ArrayLike, dtype: DTypeLike = np.float64) -> NDArray[Any]:
