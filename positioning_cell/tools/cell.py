@@ -65,9 +65,9 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
-from typing import Any
 
 from positioning_cell.tools.cell_parser import build_parser
+from positioning_cell.tools.lazy import attributes_of
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -79,18 +79,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run(args)
 
 
-def __getattr__(name: str) -> Any:
-    """The commands' names (``Report``, ``Output``, ``COMMANDS``, ...) as attributes of this
-    module too, imported on first use."""
-    if name.startswith('__'):  # a lookup of Python's own (a module's spec, a registry)
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
-    from positioning_cell.tools import cell_commands
-
-    try:
-        return getattr(cell_commands, name)
-    except AttributeError:
-        raise AttributeError(f'module {__name__!r} has no attribute {name!r}') from None
-
+#: The commands' names (``Report``, ``Output``, ``COMMANDS``, ...) as this module's too.
+__getattr__ = attributes_of('positioning_cell.tools.cell_commands', __name__)
 
 if __name__ == '__main__':
     sys.exit(main())
