@@ -253,10 +253,10 @@ def run(starts: int, watch: bool, log_dir: Path) -> int:
             CellClient(domain, 'startup_benchmark') as client:
         print(f'domain {domain}, {os.cpu_count()} CPUs, load average '
               f'{os.getloadavg()[0]:.2f} before start, {starts} starts each')
+        failed = False
         try:
             helps = time_helps(starts, cell_environment(domain))
             nodes = time_nodes(procs, client, log_dir, starts)
-            ready, home, move = time_cell(procs, client)
         except (RuntimeError, TimeoutError) as err:
             print(f'could not measure: {err}', file=sys.stderr)
             return 1
@@ -265,18 +265,24 @@ def run(starts: int, watch: bool, log_dir: Path) -> int:
         print(f'target every node answering <= {NODE_TARGET:g} s after its start: '
               f'{verdict(all_ok)}')
         print()
-        print(f'cell ready (4 nodes spawned, homed, a first 0.5 mm move settled): {ready:.2f} s'
-              f' (homed after {home:.2f} s, the move {move:.2f} s)')
-        print()
         report_helps(helps)
+        print()
+        try:
+            ready, home, move = time_cell(procs, client)
+            print(f'cell ready (4 nodes spawned, homed, a first 0.5 mm move settled): '
+                  f'{ready:.2f} s (homed after {home:.2f} s, the move {move:.2f} s)')
+        except (RuntimeError, TimeoutError) as err:
+            print(f'cell ready: could not measure: {err}', file=sys.stderr)
+            procs.stop()
+            failed = True
         print()
         if watch:
             try:
                 measure_watch(client, domain, starts, log_dir)
             except (RuntimeError, TimeoutError) as err:
-                print(f'could not measure: {err}', file=sys.stderr)
-                return 1
-    return 0
+                print(f'cell watch: could not measure: {err}', file=sys.stderr)
+                failed = True
+    return 1 if failed else 0
 
 
 def main(argv: list[str] | None = None) -> int:
