@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
+from types import ModuleType
 
 from positioning_cell.tools.cell_parser import build_parser
 from positioning_cell.tools.lazy import attributes_of
@@ -79,8 +80,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run(args)
 
 
+def _commands() -> ModuleType:
+    from positioning_cell.tools import cell_commands
+
+    return cell_commands
+
+
 #: The commands' names (``Report``, ``Output``, ``COMMANDS``, ...) as this module's too.
-__getattr__ = attributes_of('positioning_cell.tools.cell_commands', __name__)
+__getattr__ = attributes_of(_commands, __name__)
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -13,6 +13,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 
 from positioning_cell.tools.exits import exit_table
 from positioning_cell.tools.lazy import attributes_of
@@ -55,8 +56,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run(args)
 
 
+def _work() -> ModuleType:
+    from positioning_cell.tools import accuracy_prediction
+
+    return accuracy_prediction
+
+
 #: The work's names (``predict``, ``shipped_config``, ...) as this module's too.
-__getattr__ = attributes_of('positioning_cell.tools.accuracy_prediction', __name__)
+__getattr__ = attributes_of(_work, __name__)
 
 if __name__ == '__main__':
     sys.exit(main())

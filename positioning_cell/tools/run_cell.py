@@ -33,6 +33,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 
 from positioning_cell.tools.exits import exit_table
 from positioning_cell.tools.lazy import attributes_of
@@ -69,8 +70,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run(args.program, args.config, args.runs, lambda s: print(s, flush=True), axis_file)
 
 
+def _work() -> ModuleType:
+    from positioning_cell.tools import cell_run
+
+    return cell_run
+
+
 #: The work's names (``run``, ...) as this module's too.
-__getattr__ = attributes_of('positioning_cell.tools.cell_run', __name__)
+__getattr__ = attributes_of(_work, __name__)
 
 if __name__ == '__main__':
     sys.exit(main())
