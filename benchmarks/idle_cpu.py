@@ -10,7 +10,8 @@ per wall second of each node (utime + stime of all its threads, /proc/<pid>/stat
 total, and the rate and p99 interval of /legs/joint_states from its header stamps (the driver's
 own clock, so a slow subscriber is not blamed on the driver). After both windows: each
 node's peak and current resident set (VmHWM, VmRSS of /proc/<pid>/status) and whether it
-loaded numba (it imported a module holding compiled kernels).
+loaded numba (it runs compiled kernels: numba is loaded only by such a node, while it is
+built; positioning_cell.core.compiled).
 
 The same run measures a baseline: a bare rclpy node (parameter services, no callbacks of its
 own) started the same way, the floor under every node's figure.
@@ -70,7 +71,7 @@ CELL_TARGET_MB = 700.0   # MB, the cell's nodes together
 MIB_MB = 1.048576        # MB per MiB
 RATE_TARGET = 0.95       # fraction of the nominal publish rate
 P99_TARGET = 2.0         # periods
-START_TIMEOUT = 90.0     # s, first start compiles the numba kernels in every process
+START_TIMEOUT = 90.0     # s, a first start compiles the numba kernels of the kernel nodes
 MOVE_TIMEOUT = 30.0      # s, one move from command to settled
 CENTRE = np.array([0.0, 0.0, 0.196])  # m, near home (0, 0, 0.19596)
 OFFSETS = np.array([[4.0, 0.0, 0.0], [0.0, 4.0, -2.0], [-4.0, 0.0, 2.0], [0.0, -4.0, 0.0]]) * 1e-3

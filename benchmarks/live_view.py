@@ -142,6 +142,29 @@ def time_to_screen(socket: str, command: str, done: str, log_dir: Path, env: dic
         return float('nan')
 
 
+def time_watch(client: CellClient, domain: int, trials: int,
+               log_dir: Path) -> tuple[list[float], list[float]]:
+    """``cell watch`` (frame user) timed ``trials`` times in a tmux pane from its spawn to the
+    first screen with the deviation table, against the poses this process streams (a
+    :class:`Cell` streaming) and a stand-in positioner node (the mechanism parameters); and
+    ``cell --help`` timed the same way, the baseline. Seconds of each start (NaN: not shown)."""
+    positioner = stand_in_positioner(client.context)
+    client.executor.add_node(positioner)
+    env = cell_environment(domain)
+    cli = shlex.quote(executable('cell'))
+    watch, helps = [], []
+    try:
+        for k in range(trials):
+            watch.append(time_to_screen(f'pc_bench_{domain}_{k}', f'{cli} watch --domain '
+                                        f'{domain}', '|Δp|', log_dir, env))
+            helps.append(time_to_screen(f'pc_bench_{domain}_h{k}', f'{cli} --help',
+                                        'exit codes', log_dir, env))
+    finally:
+        client.executor.remove_node(positioner)
+        positioner.destroy_node()
+    return watch, helps
+
+
 def run(seconds: float, trials: int, log_dir: Path) -> int:
     cell_yaml = load_parameter_file(CELL_YAML)
     tracker_rate = float(node_parameters(cell_yaml, names.NODE_MEASUREMENT)['rate_hz'])
@@ -213,18 +236,7 @@ def run(seconds: float, trials: int, log_dir: Path) -> int:
             cell.close()
             return 0
         cell.streaming.set()  # the watch needs measurements
-        positioner = stand_in_positioner(client.context)
-        client.executor.add_node(positioner)
-        env = cell_environment(domain)
-        cli = shlex.quote(executable('cell'))
-        watch, helps = [], []
-        for k in range(trials):
-            watch.append(time_to_screen(f'pc_bench_{domain}_{k}', f'{cli} watch --domain '
-                                        f'{domain}', '|Δp|', log_dir, env))
-            helps.append(time_to_screen(f'pc_bench_{domain}_h{k}', f'{cli} --help',
-                                        'exit codes', log_dir, env))
-        client.executor.remove_node(positioner)
-        positioner.destroy_node()
+        watch, helps = time_watch(client, domain, trials, log_dir)
         cell.close()
         print(f'cell watch (frame user) to its first deviation table, {trials} starts: median '
               f'{np.median(watch):.2f} s (each {", ".join(f"{t:.2f}" for t in watch)}); '

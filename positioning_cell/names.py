@@ -11,6 +11,22 @@ from typing import NamedTuple
 BASE_FRAME = 'base'
 PLATFORM_FRAME = 'platform'
 TRACKER_FRAME = 'tracker'
+#: The machine CS: at the platform's home pose, axes parallel to ``base``.
+MACHINE_FRAME = 'machine'
+#: The user CS (T_machine_user).
+USER_FRAME = 'user'
+#: The object CS (T_platform_object); its origin is the pivot.
+OBJECT_FRAME = 'object'
+#: The frames an absolute goal may be given in.
+ABSOLUTE_FRAMES = (BASE_FRAME, MACHINE_FRAME, USER_FRAME)
+#: The frames a watch window shows deviations in.
+WATCH_FRAMES = (BASE_FRAME, USER_FRAME)
+
+# -- joints ---------------------------------------------------------------------------------------
+#: Joint names on the wire, kinematics.md order.
+JOINT_NAMES = (
+    'leg1_length', 'leg2_length', 'leg3_length', 'leg1_theta', 'leg2_theta', 'leg3_theta',
+)
 
 
 # -- nodes ----------------------------------------------------------------------------------------

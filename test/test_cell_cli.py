@@ -37,6 +37,7 @@ from positioning_cell.ros import cell_messages as cm
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.tools import cell
 from positioning_cell.tools import cell_format as cf
+from positioning_cell.tools import cell_parser as cp
 from positioning_cell.tools.exits import Exit, exit_table
 from positioning_cell.tools.interruption import Interrupted, Signals
 
@@ -44,7 +45,7 @@ MECH = Mechanism.default()
 
 
 def parse(*argv: str) -> Any:
-    return cf.build_parser().parse_args(list(argv))
+    return cp.build_parser().parse_args(list(argv))
 
 
 def usage_error(*argv: str) -> None:
@@ -148,19 +149,19 @@ def test_usage_errors_exit_2(argv: list[str]) -> None:
 def test_common_options_and_default_timeouts() -> None:
     args = parse('status', '--json', '--domain', '42')
     assert (args.command, args.json, args.domain, args.timeout) == ('status', True, 42, None)
-    assert cf.default_timeout('move') == cf.default_timeout('home') == 300.0
-    assert cf.default_timeout('status') < 60.0
+    assert cp.default_timeout('move') == cp.default_timeout('home') == 300.0
+    assert cp.default_timeout('status') < 60.0
     assert parse('move', '0', '0', '0', '0', '0', '0', '--timeout', '5').timeout == 5.0
     assert {parse(*a).command for a in (['status'], ['move', *'000000'], ['check', *'000000'],
                                          ['frames', 'get'], ['frames', 'set'], ['home'],
                                          ['stop'], ['jog', 'leg1_theta', '1'], ['speed'],
                                          ['limits', 'get'], ['limits', 'set'], ['watch'])} == \
-        set(cf.COMMANDS) == set(cell.COMMANDS)
+        set(cp.COMMANDS) == set(cell.COMMANDS)
 
 
 def test_watch_options_are_checked() -> None:
     args = parse('watch')
-    assert (args.command, args.frame, args.rate) == ('watch', 'user', cf.WATCH_RATE)
+    assert (args.command, args.frame, args.rate) == ('watch', 'user', cp.WATCH_RATE)
     assert parse('watch', '--frame', 'base', '--rate', '2.5').rate == 2.5
     for bad in (['--frame', 'tracker'], ['--rate', '0'], ['--rate', '31'], ['--rate', 'nan']):
         with pytest.raises(SystemExit) as exc:
@@ -278,7 +279,7 @@ def test_one_exit_code_table_documented_everywhere() -> None:
     assert doc_rows == [[str(code.value), code.label] for code in Exit]
     assert [code.label for code in Exit] == ['success', 'out_of_tolerance', 'usage', 'refused',
                                              'aborted', 'not_there', 'interrupted']
-    epilog = cf.build_parser().epilog or ''
+    epilog = cp.build_parser().epilog or ''
     assert exit_table() in epilog
     assert all(f'{code.value:>3}  {code.label}' in epilog for code in Exit)
 
@@ -640,10 +641,10 @@ def test_help_of_cell_and_of_every_subcommand_exits_0(
         capsys: pytest.CaptureFixture[str]) -> None:
     """Every subcommand's --help, in this process (the installed `cell --help` runs in
     test_package)."""
-    parser = cf.build_parser()
+    parser = cp.build_parser()
     for args in HELPS:
         with pytest.raises(SystemExit) as done:
             parser.parse_args([*args, '--help'])
         assert done.value.code == 0, args
         assert capsys.readouterr().out.startswith('usage: cell'), args
-    assert {c.split()[0] for c in cf.COMMANDS} == {a[0] for a in HELPS if a}
+    assert {c.split()[0] for c in cp.COMMANDS} == {a[0] for a in HELPS if a}

@@ -19,6 +19,7 @@ from positioning_cell.calibration.calibrated import Nominal
 from positioning_cell.calibration.collect import Collected
 from positioning_cell.calibration.conditions import Conditions
 from positioning_cell.calibration.envelope import envelope_of
+from positioning_cell.calibration.program_settings import ProgramSettings
 from positioning_cell.calibration.report import predict, write_report
 
 
@@ -135,7 +136,7 @@ def production_sigma(settings: Nominal, result: idf.Identification, production: 
     angle) at the production poses of the program file ``production`` (empty: the shipped
     one; :func:`positioning_cell.calibration.program.production_poses`)."""
     s = settings
-    p, q = prog.production_poses(s.mechanism, prog.ProgramSettings(production=production))
+    p, q = prog.production_poses(s.mechanism, ProgramSettings(production=production))
     cov = idf.pose_uncertainty(result.x, result.covariance, s.mechanism, s.payload,
                                s.structure, p, q)
     sigma_p = np.sqrt(np.trace(cov[:, :3, :3], axis1=1, axis2=2))

@@ -49,6 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.calibration.identify import information_rows
+from positioning_cell.calibration.program_settings import CRITERIA  # (module docstring)
 from positioning_cell.core.kinematics import jacobian
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch
@@ -56,8 +57,6 @@ from positioning_cell.mechanics.statics import Payload, Structure
 
 FloatArray = NDArray[np.float64]
 
-#: The design criteria a program can be chosen by (module docstring).
-CRITERIA = ('D', 'I', 'G')
 
 
 class Indices(NamedTuple):

@@ -34,6 +34,11 @@ from scipy.spatial.transform import Rotation
 
 from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration.identify import information_rows
+from positioning_cell.calibration.program_settings import (
+    APPROACH_RULES,
+    CRITERIA,
+    ProgramSettings,
+)
 from positioning_cell.config import config_path, load_parameter_file
 from positioning_cell.core.limits import within_limits
 from positioning_cell.core.mechanism import Mechanism
@@ -44,42 +49,6 @@ from positioning_cell.moves.trajectory import MotionLimits, plan_profile
 from positioning_cell.parameters import ParameterError, check_fields, parse, setting
 
 FloatArray = NDArray[np.float64]
-#: Where a program's poses are approached from (:func:`approach_poses`).
-APPROACH_RULES = ('below', 'alternate')
-
-
-@dataclass(frozen=True)
-class ProgramSettings:
-    """The ``calibration.program`` block: how many poses, where candidates come from."""
-
-    poses: int = setting(60, 'calibration poses measured', low=8, high=1000)
-    hold_out: int = setting(20, 'validation poses, never used in the fit', low=0, high=1000)
-    candidates: int = setting(3000, 'candidate poses drawn to choose from', low=10,
-                              high=100000)
-    position_span: Triple = setting((0.015, 0.015, 0.012), 'half-widths of the candidate box '
-                                    'around home', 'm')
-    rotation_span: float = setting(0.12, 'largest rotation-vector component of a candidate',
-                                   'rad', low=0.0, high=1.0)
-    seed: int = setting(0, 'seed of the candidate draw', low=0, high=2**31 - 1)
-    approach: float = setting(0.0005, 'each pose is approached from this far from it along '
-                              'base z, as approach_rule says (0: directly)', 'm', low=0.0,
-                              high=0.005)
-    approach_rule: str = setting('alternate', 'where poses are approached from: below (every '
-                                 'pose from below, the same way every time) or alternate '
-                                 '(successive poses from below and from above, so each axis '
-                                 'is seen from both sides and a reversal error is '
-                                 'identifiable)', choices=APPROACH_RULES)
-    criterion: str = setting('D', 'design criterion of the program: D (log det of the '
-                             'information), I (mean predicted pose variance at the production '
-                             'poses), G (worst predicted pose variance there)',
-                             choices=obs.CRITERIA)
-    production: str = setting('', 'program file whose production: block says where the cell '
-                              'is used (empty: the shipped config/program.yaml)')
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-
 @dataclass(frozen=True)
 class ProductionSettings:
     """The ``production:`` block of a program file: the poses the cell is used at, a grid of
@@ -206,8 +175,8 @@ def select(rows: FloatArray, sensitivity: FloatArray, count: int, criterion: str
     indices (count,) in the order greedy picked them (exchanged ones in their place), the
     criterion's value after each greedy pick (count,; the last: of the final program) and log
     det M likewise (count,)."""
-    if criterion not in obs.CRITERIA:
-        raise ValueError(f'criterion {criterion!r}: one of {", ".join(obs.CRITERIA)}')
+    if criterion not in CRITERIA:
+        raise ValueError(f'criterion {criterion!r}: one of {", ".join(CRITERIA)}')
     info = np.eye(rows.shape[2])
     free = np.ones(rows.shape[0], dtype=bool)
     picked: list[int] = []

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from positioning_cell.calibration.program import ProgramSettings
+from positioning_cell.calibration.program_settings import ProgramSettings
 from positioning_cell.config import config_path
 from positioning_cell.parameters import check_fields, group, setting
 

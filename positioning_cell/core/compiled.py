@@ -7,27 +7,117 @@ of a second instead of compiling for several.
 Kernels are serial (one core), release the GIL, and follow numpy's floating-point rules
 (division by zero gives inf or NaN, never an exception); no fast-math, so results match the
 order of operations written.
+
+numba itself (~125 MB of a process, a third of a second and more to import) is loaded only
+where a kernel runs: a kernel is handed to numba on its first call (or by :func:`load`). A node
+that runs kernels runs each of them once while it is built (its ``warm_up``: numba imported,
+every specialisation it will call loaded from the disk cache) and is then *sealed*
+(:func:`seal`, by :func:`positioning_cell.ros.spin.run` before the node spins): from then on
+a kernel that was not warmed, or a call that would compile a new specialisation, raises
+:class:`ColdKernelError` instead of pausing the node's executor for the import or the compile.
+A node that never runs a kernel never imports numba.
 """
 
 from __future__ import annotations
 
+import functools
 import os
+import threading
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 Kernel = TypeVar('Kernel', bound=Callable[..., Any])
 
+#: The kernels declared and not yet handed to numba, and the lock of that hand-over.
+_PENDING: list[Callable[..., Any]] = []
+#: The numba dispatchers made so far.
+_DISPATCHERS: list[Any] = []
+_LOCK = threading.Lock()
+#: Set by :func:`seal`.
+_SEALED = threading.Event()
+
+
+class ColdKernelError(RuntimeError):
+    """A kernel called in a sealed process (a node spinning) that was not warmed while the node
+    was built: its import or compile would stall the node's executor."""
+
 
 def kernel(function: Kernel) -> Kernel:
     """``function`` compiled in nopython mode, with the same signature for callers and mypy.
 
-    The uncompiled original stays reachable as ``.py_func`` (tests step through it).
+    Nothing is compiled or imported here: on the first call of any kernel (or :func:`load`),
+    every kernel declared so far becomes a numba dispatcher, bound under its own name in its
+    module (so a kernel calling another one compiles against the dispatcher; callers look
+    kernels up as module globals). The uncompiled original stays reachable as ``.py_func``.
     """
-    return cast(Kernel, numba.njit(cache=True, nogil=True, error_model='numpy')(function))
+    with _LOCK:
+        _PENDING.append(function)
+
+    @functools.wraps(function)
+    def first_call(*args: Any) -> Any:
+        return _dispatcher(function)(*args)
+
+    first_call.py_func = function  # type: ignore[attr-defined]
+    return cast(Kernel, first_call)
+
+
+def load() -> None:
+    """Hand every kernel declared so far to numba (imports numba; compiles nothing)."""
+    with _LOCK:
+        if _SEALED.is_set() and _PENDING:
+            raise ColdKernelError(
+                f'kernel {_PENDING[0].__module__}.{_PENDING[0].__name__} called after the '
+                'process was sealed without being warmed: warm it while the node is built')
+        if _PENDING:
+            import numba  # only where a kernel runs: the point of this module's laziness
+
+            for pending in _PENDING:
+                dispatcher = numba.njit(cache=True, nogil=True, error_model='numpy')(pending)
+                pending.__globals__[pending.__name__] = dispatcher
+                _DISPATCHERS.append(dispatcher)
+            _PENDING.clear()
+
+
+def _dispatcher(function: Callable[..., Any]) -> Any:
+    """The numba dispatcher of the kernel ``function`` (every pending kernel made one)."""
+    load()
+    return function.__globals__[function.__name__]
+
+
+def seal() -> None:
+    """From now on no kernel is imported or compiled in this process: a kernel that has not run
+    yet, or a call that needs a new specialisation of one that has, raises
+    :class:`ColdKernelError` (numba's TypeError "No matching definition" for the latter). A
+    node calls this (through :func:`positioning_cell.ros.spin.run`) once it is built, after its
+    warm-up, before it spins. Without numba loaded, only the flag is set: a kernel call then
+    raises before importing it."""
+    with _LOCK:
+        _SEALED.set()
+        for dispatcher in _DISPATCHERS:
+            if dispatcher.signatures:
+                dispatcher.disable_compile()
+            else:  # declared but never run: any call would compile it
+                name = dispatcher.py_func.__name__
+                dispatcher.py_func.__globals__[name] = _cold(dispatcher.py_func)
+
+
+def _cold(function: Callable[..., Any]) -> Callable[..., Any]:
+    """What a never-run kernel becomes at :func:`seal`: a function that raises."""
+    @functools.wraps(function)
+    def cold(*args: Any) -> Any:
+        raise ColdKernelError(f'kernel {function.__module__}.{function.__name__} called after '
+                              'the process was sealed without being warmed: warm it while the '
+                              'node is built')
+
+    return cold
+
+
+def sealed() -> bool:
+    """Whether :func:`seal` has been called in this process."""
+    return _SEALED.is_set()
 
 
 def kernel_array(value: ArrayLike, dtype: DTypeLike = np.float64) -> NDArray[Any]:

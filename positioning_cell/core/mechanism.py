@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from positioning_cell import names
 from positioning_cell.config import flatten
 from positioning_cell.parameters import (
     ParameterError,
@@ -32,10 +33,8 @@ FloatArray = NDArray[np.float64]
 #: Leg azimuths γ_i = 90° + 120°·(i−1).
 LEG_AZIMUTHS = (math.pi / 2, math.pi / 2 + 2 * math.pi / 3, math.pi / 2 + 4 * math.pi / 3)
 
-#: Joint names on the wire, kinematics.md order.
-JOINT_NAMES = (
-    'leg1_length', 'leg2_length', 'leg3_length', 'leg1_theta', 'leg2_theta', 'leg3_theta',
-)
+#: Joint names on the wire, kinematics.md order (declared in :mod:`positioning_cell.names`).
+JOINT_NAMES = names.JOINT_NAMES
 PASSIVE_JOINT_NAMES = ('leg1_phi', 'leg2_phi', 'leg3_phi')
 
 _ZERO_OFFSETS = ((0.0, 0.0, 0.0),) * 3

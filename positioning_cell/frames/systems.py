@@ -30,22 +30,19 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import FloatArray, as_pose_batch
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform, compose_poses
-from positioning_cell.names import BASE_FRAME
-
-#: The machine CS: at the platform's home pose, axes parallel to ``base``.
-MACHINE_FRAME = 'machine'
-#: The user CS (T_machine_user).
-USER_FRAME = 'user'
-#: The object CS (T_platform_object); its origin is the pivot.
-OBJECT_FRAME = 'object'
+from positioning_cell.names import (  # the frames' names, declared there
+    ABSOLUTE_FRAMES,
+    BASE_FRAME,
+    MACHINE_FRAME,
+    OBJECT_FRAME,
+    USER_FRAME,
+)
 
 #: Move kinds of :meth:`CoordinateSystems.resolve_goal`.
 ABSOLUTE = 'absolute'
 RELATIVE_USER = 'relative_user'
 RELATIVE_OBJECT = 'relative_object'
 MOVE_KINDS = (ABSOLUTE, RELATIVE_USER, RELATIVE_OBJECT)
-#: The frames an absolute goal may be given in.
-ABSOLUTE_FRAMES = (BASE_FRAME, MACHINE_FRAME, USER_FRAME)
 
 #: A pose argument: a Transform, or (position (3,) m, unit quaternion (4,) x, y, z, w).
 PoseLike = Transform | tuple[ArrayLike, ArrayLike]

@@ -47,6 +47,7 @@ from positioning_cell.calibration import collect as col
 from positioning_cell.calibration import identify as idf
 from positioning_cell.calibration import program as prog
 from positioning_cell.calibration.identified import Figures, fit_so_far, identify_and_write
+from positioning_cell.calibration.program_settings import ProgramSettings
 from positioning_cell.motion.settings import CompensationMode, PositionerSettings
 from positioning_cell.procedures.port import CellPort, Moved, ProcedureError, Say
 from positioning_cell.procedures.stopping import Stopped, StopSignal
@@ -95,7 +96,7 @@ def _failed(moved: Moved) -> Status:
     return Status.REFUSED if moved.code.startswith('refused') else Status.ABORTED
 
 
-def calibrate(port: CellPort, machine: PositionerSettings, program: prog.ProgramSettings,
+def calibrate(port: CellPort, machine: PositionerSettings, program: ProgramSettings,
               samples: int, out: Path, say: Say, *, stop: threading.Event | None = None,
               load: bool = False, timeout: float = 10.0,
               progress: Progress | None = None) -> Outcome:
@@ -114,7 +115,7 @@ def calibrate(port: CellPort, machine: PositionerSettings, program: prog.Program
             raise
 
 
-def _calibrate(port: CellPort, machine: PositionerSettings, program: prog.ProgramSettings,
+def _calibrate(port: CellPort, machine: PositionerSettings, program: ProgramSettings,
                samples: int, out: Path, say: Say, load: bool, timeout: float,
                progress: Progress | None, signal: StopSignal) -> Outcome:
     began = port.now()  # the first pose's look-back for its approach: from the homing on
@@ -181,7 +182,7 @@ def _put_back(port: CellPort, mode: str, say: Say) -> str:
     return ''
 
 
-def _measure(port: CellPort, machine: PositionerSettings, program: prog.ProgramSettings,
+def _measure(port: CellPort, machine: PositionerSettings, program: ProgramSettings,
              samples: int, say: Say, timeout: float, progress: Progress | None,
              signal: StopSignal, since: float) -> list[col.PoseData]:
     """Drive the program and measure each pose: the measured poses (ProcedureError when the

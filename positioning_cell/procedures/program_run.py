@@ -18,7 +18,7 @@ from typing import NamedTuple, Protocol
 from positioning_cell import names
 from positioning_cell.analysis.axis_test import AxisTest, AxisTestResults
 from positioning_cell.analysis.program import Program, ProgramStep
-from positioning_cell.calibration.program import ProgramSettings
+from positioning_cell.calibration.program_settings import ProgramSettings
 from positioning_cell.errors import PositioningError
 from positioning_cell.motion.settings import CompensationMode, PositionerSettings, machine_settings
 from positioning_cell.procedures import calibration

@@ -21,7 +21,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from positioning_cell.core.kinematics import platform_points
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
-from positioning_cell.motion.mover import Answer, JointReading, Measurement
+from positioning_cell.moves.machine import Answer, JointReading, Measurement
 from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.names import BASE_FRAME
 

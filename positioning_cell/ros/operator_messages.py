@@ -4,7 +4,7 @@ requests, outcomes, validity, coordinate systems, limit boxes, speeds."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from geometry_msgs.msg import Pose
@@ -31,9 +31,11 @@ from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.boxes import BoxLimits
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.limits.validity import CheckResult
-from positioning_cell.motion.controller import MoveCommand
 from positioning_cell.moves.outcomes import MoveResult, ResultCode
 from positioning_cell.ros.messages import pose_arrays, pose_msg
+
+if TYPE_CHECKING:
+    from positioning_cell.motion.controller import MoveCommand
 
 #: MoveCommand.mode ↔ the library's move kinds.
 KINDS = {MoveCommandMsg.ABSOLUTE: ABSOLUTE, MoveCommandMsg.RELATIVE_USER: RELATIVE_USER,
@@ -44,6 +46,10 @@ CODES = {code: int(getattr(MoveOutcome, code.name)) for code in ResultCode}
 
 def move_command(msg: MoveCommandMsg) -> MoveCommand:
     """The library's request of a MoveCommand (an unknown mode is an invalid kind, named)."""
+    # Only the positioner converts commands (it has the controller loaded already); the
+    # operator's client, which imports this module too, does not load the motion layer.
+    from positioning_cell.motion.controller import MoveCommand
+
     p, q = pose_arrays(msg.pose.pose)
     return MoveCommand(KINDS.get(msg.mode, f'mode {msg.mode}'), msg.pose.header.frame_id, p, q,
                        float(msg.tolerance), float(msg.speed_scale))

@@ -18,6 +18,7 @@ from rclpy.task import Future
 from rclpy.utilities import get_default_context
 
 from positioning_cell import files
+from positioning_cell.core import compiled
 from positioning_cell.errors import PositioningError
 from positioning_cell.ros.entry import hold_stops, stop_requested
 
@@ -80,6 +81,9 @@ def _spin(node_factory: Callable[[], Node], spin: Spin, threads: int) -> int:
         if stop_requested():
             return 0
         node = node_factory()
+        # Built, its kernels warmed: none is imported or compiled from here on (a pause of
+        # the executor), a cold one raises instead (positioning_cell.core.compiled).
+        compiled.seal()
         # EventsExecutor.spin() does not run callbacks in this rclpy build (platform.md), and
         # Python's signal handlers run only between two slices: spin in bounded slices.
         executor = (MultiThreadedExecutor(num_threads=threads) if spin is Spin.THREADS

@@ -20,14 +20,13 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from positioning_cell.accuracy.monitor import MonitorSettings
-from positioning_cell.analysis.plots import write_plots
-from positioning_cell.analysis.report import comparison_table, write_report
-from positioning_cell.analysis.summary import RunAnalysis, analyse_bag
-from positioning_cell.config import config_path
 from positioning_cell.errors import PositioningError
 from positioning_cell.tools.exits import Exit, exit_table
+
+if TYPE_CHECKING:
+    from positioning_cell.analysis.summary import RunAnalysis
 
 
 @dataclass(frozen=True)
@@ -51,6 +50,14 @@ def analyze(bag: str | Path, out_dir: str | Path | None = None,
     """Analyse the bag and write the report, summary and (unless ``plots`` is False) the
     plots into ``out_dir``. Raises PositioningError (BagError, ConfigError) when nothing can
     be analysed."""
+    # The analysis (numpy, scipy, matplotlib, the bag reader) loads here, not with the command
+    # line: --help and a usage error answer at once.
+    from positioning_cell.accuracy.monitor import MonitorSettings
+    from positioning_cell.analysis.plots import write_plots
+    from positioning_cell.analysis.report import write_report
+    from positioning_cell.analysis.summary import analyse_bag
+    from positioning_cell.config import config_path
+
     bag = Path(bag)
     settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
     analysis = analyse_bag(bag, settings)
@@ -62,6 +69,8 @@ def analyze(bag: str | Path, out_dir: str | Path | None = None,
 
 def describe(output: AnalysisOutput) -> str:
     """What to print after an analysis: problems, the comparison table, the files."""
+    from positioning_cell.analysis.report import comparison_table  # loaded by analyze()
+
     a = output.analysis
     lines = [f'analyze_bag: problem: {p}' for p in a.problems]
     if a.modes:

@@ -29,12 +29,10 @@ from positioning_cell.core.poses import FloatArray, as_pose_batch
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import USER_FRAME, CoordinateSystems
 from positioning_cell.frames.transforms import Transform, euler_angles
-from positioning_cell.names import BASE_FRAME
+from positioning_cell.names import BASE_FRAME, WATCH_FRAMES
 
 #: The six axes of a deviation: positions m, then rotations rad.
 AXES = ('x', 'y', 'z', 'rx', 'ry', 'rz')
-#: The frames a watch window shows deviations in.
-WATCH_FRAMES = (BASE_FRAME, USER_FRAME)
 
 __all__ = ['AXES', 'WATCH_FRAMES', 'Deviation', 'deviation', 'skew', 'watched_pose',
            'watched_poses']

@@ -1,0 +1,301 @@
+"""Start-up time of the cell's nodes and command-line tools (issue 24).
+
+Nodes: every node executable (positioning_cell.names.NODE_EXECUTABLES) is started --starts
+times as a process, alone, with config/cell.yaml (--params-file) on a free ROS domain, as
+idle_cpu.py starts them; its start-up time is from just before the process is spawned to the
+first answer of its parameter service ``/<node>/list_parameters`` to this process (the node is
+built, warmed and its executor spins: what any client first sees). The recorder writes into a
+temporary folder, the live view takes any free port, the bag player plays (looping) a bag the
+recorder wrote in its last start. Baseline: a bare rclpy node (no callbacks of its own) started
+and timed the same way, in the same run. Medians are reported.
+
+Cell ready: the four cell nodes (leg driver, pose measurement, positioner, monitor) started at
+once, and the time from their spawn to the first small move settled: homing (/positioner/home,
+retried while the positioner refuses because the cell is still coming up), then a move 0.5 mm
+from home through /positioner/move_to_pose. The time to homed and the move's duration are
+given beside it.
+
+Tools: ``--help`` of cell, run_cell, predict_accuracy, analyze_bag and calibrate_cell, each
+timed --starts times (spawn to exit, output discarded); baseline ``python -c 'import rclpy'``.
+Then, with tmux, ``cell watch`` to its first deviation table (benchmarks/live_view.py's
+measurement: this process streams poses, a stand-in positioner serves the mechanism).
+
+The targets are absolute (an idle machine: a bare node answers in 0.23-0.30 s, ``import
+rclpy`` takes ~0.07 s); on a loaded machine read each figure against its baseline (the "x bare"
+and "x baseline" columns).
+
+Run: .venv/bin/python benchmarks/startup.py [--starts N] [--skip-watch]
+Targets (issue 24): every node answers <= 0.6 s after its start; ``cell --help`` <= 0.3 s and
+the other tools' --help likewise; ``cell watch`` shows its first table <= 1 s (median). Prints
+what it measured, the baselines and whether each target is met; exits non-zero only if
+something could not start or be measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from idle_cpu import BARE_NODE, CENTRE, IDENTITY, standalone_environment
+from live_view import Cell, time_watch
+from rcl_interfaces.srv import ListParameters
+
+from positioning_cell import names
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.domains import free_domain
+from positioning_cell.ros.processes import Processes, cell_environment, executable
+from positioning_cell.ros.qos import SERVICE_QOS
+
+CELL_YAML = config_path('cell.yaml')
+NODE_TARGET = 0.6        # s, start to answering
+HELP_TARGET = 0.3        # s, a tool's --help
+WATCH_TARGET = 1.0       # s, cell watch to its first table (median)
+START_TIMEOUT = 90.0     # s, a node's first start may compile kernels
+MOVE_TIMEOUT = 30.0      # s, the first move
+TOOLS = ('cell', 'run_cell', 'predict_accuracy', 'analyze_bag', 'calibrate_cell')
+BARE = 'bare_node'
+#: Offset of the first move from the centre near home, m.
+FIRST_MOVE = np.array([0.5e-3, 0.0, 0.0])
+
+
+def verdict(ok: bool) -> str:
+    return 'met' if ok else 'NOT met'
+
+
+def row(*cells: str) -> str:
+    return f'{cells[0]:<36}' + ''.join(f' {c:>13}' for c in cells[1:])
+
+
+class Starter:
+    """Starts one node process at a time and times it to its parameter service's answer."""
+
+    def __init__(self, procs: Processes, client: CellClient, log_dir: Path) -> None:
+        self.procs, self.client, self.log_dir = procs, client, log_dir
+        self.bag: Path | None = None
+
+    def overrides(self, exe: str, k: int) -> dict[str, Mapping[str, Any]]:
+        if exe == names.RECORDER.executable:
+            self.bag = self.log_dir / f'bag_{k}'
+            return {names.NODE_RECORDER: {'output': str(self.bag)}}
+        if exe == names.PLAYER.executable:
+            return {names.NODE_PLAYER: {'bag': str(self.bag), 'loop': True,
+                                        'wait_for_subscribers_s': 0.0}}
+        if exe == names.CALIBRATOR.executable:
+            return {names.NODE_CALIBRATOR: {'out_dir': str(self.log_dir / 'calibration')}}
+        if exe == names.LIVE_VIEW.executable:
+            return {names.NODE_LIVE_VIEW: {'port': 0}}
+        return {}
+
+    def time(self, exe: str, node: str, k: int) -> float:
+        """Seconds from spawning ``exe`` to ``/<node>/list_parameters`` answering; the
+        process is stopped after. RuntimeError if it exits or never answers."""
+        label = f'{node}_{k}'
+        ping = self.client.node.create_client(ListParameters, f'/{node}/list_parameters',
+                                              qos_profile=SERVICE_QOS)
+        try:
+            t0 = time.monotonic()
+            if exe == BARE:
+                self.procs.start('python', label=label, extra_args=('-c', BARE_NODE))
+            else:
+                self.procs.start(exe, label=label, params=[CELL_YAML],
+                                 overrides=self.overrides(exe, k))
+            answered = _answered(ping, lambda: self._alive(label))
+            return answered - t0
+        finally:
+            self.procs.stop(label)
+            self.client.node.destroy_client(ping)
+
+    def _alive(self, label: str) -> None:
+        if self.procs.procs[label].poll() is not None:
+            raise RuntimeError(f'{label} exited with {self.procs.procs[label].returncode}:\n'
+                               f'{self.procs.log(label)[-2000:]}')
+
+
+def _answered(ping: Any, check: Callable[[], None]) -> float:
+    """monotonic() when ``ping`` (a ListParameters client) got its first answer; requests are
+    sent as soon as the service shows, and again every 0.2 s unanswered (one sent before
+    the server matched this client's reader is answered into the void)."""
+    deadline = time.monotonic() + START_TIMEOUT
+    future = None
+    sent = 0.0
+    while time.monotonic() < deadline:
+        if future is not None and future.done():
+            return time.monotonic()
+        if ping.service_is_ready() and (future is None or time.monotonic() - sent > 0.2):
+            future, sent = ping.call_async(ListParameters.Request()), time.monotonic()
+        check()
+        time.sleep(0.002)
+    raise RuntimeError(f'{ping.srv_name} did not answer within {START_TIMEOUT:g} s')
+
+
+def time_nodes(procs: Processes, client: CellClient, log_dir: Path,
+               starts: int) -> dict[str, list[float]]:
+    """Executable (and 'bare_node') -> seconds to answering, one per start."""
+    starter = Starter(procs, client, log_dir)
+    order = [(BARE, BARE), *((n.executable, n.name) for n in names.NODE_EXECUTABLES)]
+    # the player plays what the recorder wrote: the recorder first
+    order.sort(key=lambda e: e[0] == names.PLAYER.executable)
+    times: dict[str, list[float]] = {exe: [] for exe, _ in order}
+    for k in range(starts):
+        for exe, node in order:
+            times[exe].append(starter.time(exe, node, k))
+    return times
+
+
+def time_cell(procs: Processes, client: CellClient) -> tuple[float, float, float]:
+    """(seconds from spawning the four cell nodes to the first small move settled, to homed,
+    of the move's call)."""
+    t0 = time.monotonic()
+    for node in names.CELL_NODES:
+        procs.start(node.executable, params=[CELL_YAML])
+    last = [0.0]
+
+    def timed(call: Callable[[], bool]) -> bool:
+        dead = [n.executable for n in names.CELL_NODES if n.executable in procs.dead()]
+        if dead:
+            raise RuntimeError(f'{dead} exited:\n{procs.log(dead[0])[-2000:]}')
+        t = time.monotonic()
+        ok = call()
+        last[0] = time.monotonic() - t
+        return ok
+
+    homed, message = client.home(START_TIMEOUT)
+    if not homed:
+        raise RuntimeError(f'homing failed: {message}')
+    home = time.monotonic() - t0
+    wait_until(lambda: timed(lambda: client.plan(names.MOVE_TO_POSE, CENTRE + FIRST_MOVE,
+                                                 IDENTITY, timeout=MOVE_TIMEOUT)),
+               MOVE_TIMEOUT, 'the first move settled')
+    ready = time.monotonic() - t0
+    procs.stop()
+    return ready, home, last[0]
+
+
+def time_helps(starts: int, env: dict[str, str]) -> dict[str, list[float]]:
+    """Tool (and 'import rclpy') -> seconds of ``<tool> --help``, spawn to exit."""
+    commands = {'import rclpy': [sys.executable, '-c', 'import rclpy'],
+                **{tool: [executable(tool), '--help'] for tool in TOOLS}}
+    times: dict[str, list[float]] = {name: [] for name in commands}
+    for _ in range(starts):
+        for name, command in commands.items():
+            t0 = time.monotonic()
+            done = subprocess.run(command, env=env, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.PIPE, check=False)
+            times[name].append(time.monotonic() - t0)
+            if done.returncode != 0:
+                raise RuntimeError(f'{name}: exit {done.returncode}\n{done.stderr[-2000:]!r}')
+    return times
+
+
+def report_nodes(times: dict[str, list[float]]) -> bool:
+    bare = float(np.median(times[BARE]))
+    print(row('node start to answering, s', 'median', 'each', 'x bare', 'target'))
+    ok_all = True
+    for exe, each in times.items():
+        if exe == BARE:
+            continue
+        med = float(np.median(each))
+        ok_all &= med <= NODE_TARGET
+        print(row(f'  {exe}', f'{med:.2f}', ' '.join(f'{t:.2f}' for t in each),
+                  f'{med / bare:.2f}', f'<= {NODE_TARGET:g} {verdict(med <= NODE_TARGET)}'))
+    print(row('  baseline: a bare rclpy node', f'{bare:.2f}',
+              ' '.join(f'{t:.2f}' for t in times[BARE])))
+    return ok_all
+
+
+def report_helps(times: dict[str, list[float]]) -> None:
+    base = float(np.median(times['import rclpy']))
+    print(row('--help, s', 'median', 'each', 'x baseline', 'target'))
+    for name, each in times.items():
+        if name == 'import rclpy':
+            continue
+        med = float(np.median(each))
+        print(row(f'  {name} --help', f'{med:.2f}', ' '.join(f'{t:.2f}' for t in each),
+                  f'{med / base:.2f}', f'<= {HELP_TARGET:g} {verdict(med <= HELP_TARGET)}'))
+    print(row("  baseline: python -c 'import rclpy'", f'{base:.2f}',
+              ' '.join(f'{t:.2f}' for t in times['import rclpy'])))
+
+
+def measure_watch(client: CellClient, domain: int, trials: int, log_dir: Path) -> None:
+    if shutil.which('tmux') is None:
+        print('tmux not found: cell watch was not timed')
+        return
+    cell_yaml = load_parameter_file(CELL_YAML)
+    cell = Cell(client, float(node_parameters(cell_yaml, names.NODE_MEASUREMENT)['rate_hz']),
+                float(node_parameters(cell_yaml, names.NODE_POSITIONER)['pose_rate_hz']))
+    try:
+        cell.streaming.set()
+        watch, helps = time_watch(client, domain, trials, log_dir)
+    finally:
+        cell.close()
+    if not all(np.isfinite(watch)):
+        raise RuntimeError('cell watch did not show its table')
+    med = float(np.median(watch))
+    print(f'cell watch to its first deviation table, {trials} starts: median {med:.2f} s '
+          f'(each {", ".join(f"{t:.2f}" for t in watch)}); baseline cell --help in the same '
+          f'pane {np.median(helps):.2f} s')
+    print(f'target <= {WATCH_TARGET:g} s: {verdict(med <= WATCH_TARGET)}')
+
+
+def run(starts: int, watch: bool, log_dir: Path) -> int:
+    with free_domain() as domain, Processes(cell_environment(domain), log_dir) as procs, \
+            CellClient(domain, 'startup_benchmark') as client:
+        print(f'domain {domain}, {os.cpu_count()} CPUs, load average '
+              f'{os.getloadavg()[0]:.2f} before start, {starts} starts each')
+        failed = False
+        try:
+            helps = time_helps(starts, cell_environment(domain))
+            nodes = time_nodes(procs, client, log_dir, starts)
+        except (RuntimeError, TimeoutError) as err:
+            print(f'could not measure: {err}', file=sys.stderr)
+            return 1
+        print()
+        all_ok = report_nodes(nodes)
+        print(f'target every node answering <= {NODE_TARGET:g} s after its start: '
+              f'{verdict(all_ok)}')
+        print()
+        report_helps(helps)
+        print()
+        try:
+            ready, home, move = time_cell(procs, client)
+            print(f'cell ready (4 nodes spawned, homed, a first 0.5 mm move settled): '
+                  f'{ready:.2f} s (homed after {home:.2f} s, the move {move:.2f} s)')
+        except (RuntimeError, TimeoutError) as err:
+            print(f'cell ready: could not measure: {err}', file=sys.stderr)
+            procs.stop()
+            failed = True
+        print()
+        if watch:
+            try:
+                measure_watch(client, domain, starts, log_dir)
+            except (RuntimeError, TimeoutError) as err:
+                print(f'cell watch: could not measure: {err}', file=sys.stderr)
+                failed = True
+    return 1 if failed else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--starts', type=int, default=3,
+                        help='starts of each node and tool (default 3)')
+    parser.add_argument('--skip-watch', action='store_true',
+                        help='do not time cell watch (needs tmux)')
+    args = parser.parse_args(argv)
+    standalone_environment('startup')
+    with tempfile.TemporaryDirectory(prefix='startup_') as log_dir:
+        return run(args.starts, not args.skip_watch, Path(log_dir))
+
+
+if __name__ == '__main__':
+    sys.exit(main())

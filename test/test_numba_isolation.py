@@ -1,0 +1,140 @@
+"""numba (~125 MB of a process) is loaded only by the nodes that run compiled kernels, and there
+while the node is built: importing any node's module loads no numba; building a kernel node
+loads it and warms its kernels (their specialisations loaded) before the node spins; building
+any other node leaves it out. Once a process is sealed (positioning_cell.core.compiled.seal, by
+the nodes' runner before they spin), a kernel that was not warmed raises instead of pausing the
+executor for numba's import or a compile (issue 24; the 0.2 s joint-silence watch).
+
+Each check runs in a fresh interpreter: sys.modules and the seal are per process."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from cell_harness import CELL_YAML, REPO, isolated_domain
+
+from positioning_cell import names
+from positioning_cell.ros.processes import cell_environment
+
+#: The nodes whose work runs compiled kernels (forward kinematics: the positioner's pose from
+#: the encoders, the driver's efforts, the simulated tracker's truth, the calibrator's machine
+#: model); every other node must not load numba.
+KERNEL_NODES = {'kinematics_node', 'leg_driver_node', 'pose_measurement_node', 'calibrator_node'}
+#: Node executable -> the library modules its work needs besides its own module's imports
+#: (the bag player cannot be built without a bag: its module and its playback are imported).
+LIBRARY = {'bag_player_node': ('positioning_cell.bag.playback',)}
+
+BUILD = '''
+import importlib, json, sys
+import rclpy
+from rclpy.node import Node
+from positioning_cell.core import compiled
+from positioning_cell.errors import PositioningError
+module_name, params, extra = sys.argv[1], sys.argv[2:4], sys.argv[4:]
+module = importlib.import_module(module_name)
+for name in extra:
+    importlib.import_module(name)
+report = {'imported': 'numba' in sys.modules}
+rclpy.init(args=['--ros-args', '--params-file', params[0], '--params-file', params[1]])
+node_class = next(v for v in vars(module).values() if isinstance(v, type)
+                  and issubclass(v, Node) and v.__module__ == module.__name__)
+try:
+    node = node_class()
+    report['built'] = True
+except PositioningError as err:
+    report['built'] = str(err)
+report['after_build'] = 'numba' in sys.modules
+compiled.seal()
+from positioning_cell.core import kinematics
+from positioning_cell.core.mechanism import Mechanism
+mech = Mechanism.default()
+home = kinematics.inverse(mech, mech.home_position[None], mech.home_quaternion[None])
+try:
+    kinematics.forward(mech, home.lengths, home.thetas)
+    report['forward_after_seal'] = 'ran'
+except compiled.ColdKernelError:
+    report['forward_after_seal'] = 'cold'
+report['numba_at_end'] = 'numba' in sys.modules
+print(json.dumps(report))
+'''
+
+
+def _build(executable: str, tmp_path: Path) -> dict[str, object]:
+    overrides = tmp_path / 'overrides.yaml'
+    overrides.write_text(yaml.safe_dump({
+        names.NODE_RECORDER: {'ros__parameters': {'output': str(tmp_path / 'bag')}},
+        names.NODE_CALIBRATOR: {'ros__parameters': {'out_dir': str(tmp_path / 'cal')}},
+        names.NODE_LIVE_VIEW: {'ros__parameters': {'port': 0}}}))
+    module = f'positioning_cell.nodes.{executable}'
+    with isolated_domain() as domain:
+        done = subprocess.run(
+            [sys.executable, '-c', BUILD, module, str(CELL_YAML), str(overrides),
+             *LIBRARY.get(executable, ())],
+            env=cell_environment(domain), cwd=tmp_path, capture_output=True, text=True,
+            timeout=240, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    report: dict[str, object] = json.loads(done.stdout.strip().splitlines()[-1])
+    return report
+
+
+@pytest.mark.nodes
+@pytest.mark.slow
+@pytest.mark.parametrize('executable', [n.executable for n in names.NODE_EXECUTABLES])
+def test_numba_is_loaded_only_by_kernel_nodes_and_only_while_they_are_built(
+        executable: str, tmp_path: Path) -> None:
+    report = _build(executable, tmp_path)
+    assert report['imported'] is False, 'importing the node module loaded numba'
+    if executable == names.PLAYER.executable:
+        assert report['built'] != True  # noqa: E712 (no bag given: it refuses to start)
+    else:
+        assert report['built'] is True, report['built']
+    kernels = executable in KERNEL_NODES
+    assert report['after_build'] is kernels
+    # A kernel node warmed forward kinematics while built: after the seal it runs; any other
+    # node would have paused for numba here, and raises instead, still without numba.
+    assert report['forward_after_seal'] == ('ran' if kernels else 'cold')
+    assert report['numba_at_end'] is kernels
+
+
+SEALED = '''
+import sys
+import numpy as np
+from positioning_cell.core import compiled, kinematics
+from positioning_cell.core.mechanism import Mechanism
+kinematics.warm_up()
+import positioning_cell.tolerance.montecarlo as mc  # its kernels declared after the warm-up
+compiled.seal()
+mech = Mechanism.default()
+home = kinematics.inverse(mech, mech.home_position[None], mech.home_quaternion[None])
+assert kinematics.forward(mech, home.lengths, home.thetas).converged.all()
+try:
+    mc.warm_up()
+except compiled.ColdKernelError as err:
+    print('cold:', err)
+out = (np.empty((1, 3)), np.empty((1, 3)), np.empty((1, 3, 3)), np.empty(1, dtype=bool))
+for lengths in (home.lengths.copy(), home.lengths.astype(np.float32)):  # float32: would compile
+    try:
+        kinematics._forward_kernel(lengths, home.thetas.copy(), home.phis.copy(),
+                                   *kinematics._closure_constants(mech),
+                                   kinematics.FK_TOLERANCE, 40, *out)
+        print('ran:', lengths.dtype)
+    except TypeError as err:
+        print('no compile:', lengths.dtype, str(err).splitlines()[0])
+'''
+
+
+@pytest.mark.slow
+def test_a_sealed_process_neither_loads_nor_compiles_a_kernel() -> None:
+    done = subprocess.run([sys.executable, '-c', SEALED], cwd=REPO, capture_output=True,
+                          text=True, timeout=240, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = done.stdout.splitlines()
+    assert any(line.startswith('cold: kernel positioning_cell.tolerance.montecarlo.')
+               for line in lines), done.stdout
+    assert 'ran: float64' in lines, done.stdout  # the warmed specialisation
+    assert any(line.startswith('no compile: float32') for line in lines), done.stdout
