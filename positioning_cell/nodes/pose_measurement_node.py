@@ -28,7 +28,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros.latest import Reader
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, SERVICE_QOS, STREAM_QOS
-from positioning_cell.ros.spin import NodeStart, run
+from positioning_cell.ros.spin import NodeStart
 from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSettings,
     PoseMeasurementSimulator,
@@ -117,13 +117,8 @@ class PoseMeasurementNode(Node):
                                             self.get_clock().now().to_msg()))
 
 
-#: How this node starts (alone: :func:`main`; with others: ``cell_container``).
-START = NodeStart(PoseMeasurementNode)
-
-
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``pose_measurement_node``."""
-    return run(START, args)
+#: The entry point of ``pose_measurement_node`` (alone; ``cell_container`` hosts it with others).
+main = NodeStart(PoseMeasurementNode)
 
 
 if __name__ == '__main__':

@@ -4,14 +4,15 @@ without its component machinery (rclcpp_components has no rclpy counterpart).
     cell_container [NODE ...] --ros-args --params-file config/cell.yaml
 
 NODE: node names (``leg_driver``, ``positioner``, ...; names.NODE_EXECUTABLES), built in the
-order given; by default the cell's nodes (names.CELL_NODES). Each node is built by what builds
-it in its own process (its module's ``START``) and reads its own section of the parameter
-files, as alone; the nodes share one context, one DDS participant and one executor
-(:func:`positioning_cell.ros.spin.run_together`: why a multi-threaded one), and one copy of
-rclpy, numpy, scipy and numba: the memory composition saves (docs/howto/run.md). SIGINT and
-SIGTERM stop every node as they stop a node alone (the drives stop, a recorder closes its bag),
-exit 0; a node that cannot be built ends them all, exit 2. A global node rename
-(``-r __node:=x``) would rename every hosted node: rename one with ``-r <node>:__node:=x``.
+order given; by default the cell's nodes (names.CELL_NODES). Each node is built by what runs it
+alone (its module's ``main``, a NodeStart) and reads its own section of the parameter files, as
+alone, and keeps its own executor. The nodes share one context and its DDS participant, the
+interpreter and one copy of rclpy, numpy, scipy and numba: the memory composition saves
+(:func:`positioning_cell.ros.spin.run_together`: the executors and why; docs/howto/run.md: the
+figures). SIGINT and SIGTERM stop every node as they stop a node alone (the drives stop, a
+recorder closes its bag), exit 0; a node that cannot be built ends them all, exit 2. A global
+node rename (``-r __node:=x``) would rename every hosted node: rename one with
+``-r <node>:__node:=x``.
 """
 
 from __future__ import annotations
@@ -51,8 +52,8 @@ def hosted_nodes(argv: Sequence[str]) -> list[str]:
 
 
 def node_start(name: str) -> NodeStart:
-    """How node ``name`` starts: its module's ``START``."""
-    start: NodeStart = importlib.import_module(node_module(HOSTABLE[name])).START
+    """How node ``name`` starts: its module's ``main``."""
+    start: NodeStart = importlib.import_module(node_module(HOSTABLE[name])).main
     return start
 
 

@@ -96,8 +96,8 @@ def _console(module: str) -> Callable[[], int]:
 
 
 def node_module(executable: str) -> str:
-    """The module of a node executable (names.NODE_EXECUTABLES): its ``main`` runs the node
-    alone, its ``START`` (:class:`positioning_cell.ros.spin.NodeStart`) says how it starts."""
+    """The module of a node executable (names.NODE_EXECUTABLES): its ``main`` (a
+    :class:`positioning_cell.ros.spin.NodeStart`) runs the node alone and says how it starts."""
     return f'positioning_cell.nodes.{executable}'
 
 

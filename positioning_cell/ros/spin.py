@@ -44,15 +44,19 @@ class Spin(Enum):
 
 @dataclass(frozen=True)
 class NodeStart:
-    """How one of the cell's nodes starts: what builds it (called with no arguments, in the
-    initialised default context: the node reads its parameters from the process's
-    ``--ros-args``), the executor it needs when it runs alone, and that executor's threads
-    (THREADS only). Each node module declares its own (``START``); its ``main`` runs it alone
-    (:func:`run`), ``cell_container`` runs several together (:func:`run_together`)."""
+    """How one of the cell's nodes starts, and its entry point: what builds it (called with no
+    arguments, in the initialised default context: the node reads its parameters from the
+    process's ``--ros-args``), the executor it needs, and that executor's threads (THREADS
+    only). Each node module's ``main`` is one: called, it runs the node alone (:func:`run`);
+    ``cell_container`` runs several together (:func:`run_together`)."""
 
     factory: Callable[[], Node]
     spin: Spin = Spin.EVENTS
     threads: int = 1
+
+    def __call__(self, args: Sequence[str] | None = None) -> int:
+        """Run the node alone (:func:`run`): the exit status."""
+        return run(self, args)
 
     def executor(self) -> Executor:
         """A new executor of the kind this node needs."""
