@@ -99,15 +99,18 @@ def run_together(nodes: Sequence[NodeStart], args: Sequence[str] | None = None) 
     the rest: the context and its DDS participant, the interpreter and one copy of rclpy,
     numpy, scipy and numba (the memory composition saves), and the GIL.
 
-    Not one executor for all, measured with benchmarks/idle_cpu.py --one-process. One
-    multi-threaded executor (each node's callbacks mutually exclusive in its default group):
-    its wait set rebuilt over every node's entities at each wake-up cost more CPU than the
-    four processes together (0.65 core at rest against 0.50) and held the driver to about
-    two thirds of its publish rate, the tracker's readings up to 0.6 s apart: the positioner
-    aborted homing (0.5 s without a reading). One single-threaded or events executor cannot
-    host the positioner (a service callback waiting for a move would block the timers it
-    waits on). One events executor per kind (driver, tracker and monitor on one): their
-    callbacks wait for one another, the driver's rate lower than with one each."""
+    Not one executor for all. Measured with the cell's four nodes at rest, as
+    benchmarks/idle_cpu.py measures (CPU from /proc, the driver's rate from its stamps; 2
+    shared cores, load average 5 to 7: one to four runs each): one multi-threaded executor
+    (each node's callbacks mutually exclusive in its default group; it rebuilds its wait set
+    over every node's entities at each wake-up) took 0.65 core against the four processes'
+    0.50 and held the driver to 47 to 67 % of its publish rate, the tracker's readings up to
+    0.6 s apart: the positioner aborted homing (0.5 s without a reading). One single-threaded
+    or events executor cannot host the positioner (a service callback waiting for a move would
+    block the timers it waits on). One events executor for the driver, the tracker and the
+    monitor together: their callbacks wait for one another, 62 to 96 Hz against 95 to 99 Hz
+    with one executor each. A node that shuts the context down (the player at the end of its bag)
+    ends them all too."""
     # A stop gives up the loads waited on at once (files.within), even while the node is
     # being built (the positioner loads its calibration file then).
     hold_stops(files.abandon_loads)
