@@ -16,7 +16,14 @@ built; positioning_cell.core.compiled).
 The same run measures a baseline: a bare rclpy node (parameter services, no callbacks of its
 own) started the same way, the floor under every node's figure.
 
-Run: .venv/bin/python benchmarks/idle_cpu.py [--seconds S]
+With --one-process, the same run then starts the same four nodes composed in one process
+(cell_container, on a domain of its own, after the separate cell has stopped) and measures it
+the same way, then compares the two: CPU at rest and moving, peak and current RSS, and the
+proportional set (PSS, /proc/<pid>/smaps_rollup: the pages shared between the separate processes
+counted once in all, which the sum of their RSS counts once per process), the driver's rate
+and p99 interval.
+
+Run: .venv/bin/python benchmarks/idle_cpu.py [--seconds S] [--one-process]
 Targets (issue): the idle cell <= 0.4 core in total; the driver publishes at >= 95 % of its
 nominal rate with a p99 interval <= 2 periods; memory (issue 24): each node's peak RSS <= 2x
 the bare node's unless it runs compiled kernels (then <= 160 MB), the nodes together <= 700
@@ -56,7 +63,8 @@ from positioning_cell.sim.drives import DriverSettings
 CELL_YAML = config_path('cell.yaml')
 #: Executable -> node name, in start order.
 NODES = {node.executable: node.name for node in names.CELL_NODES}
-#: The baseline: a bare node, started as a process like the others.
+#: The baseline's label, and the baseline: a bare node, started as a process like the others.
+BARE = 'bare_node'
 BARE_NODE = ('import rclpy, rclpy.node\n'
              'rclpy.init()\n'
              'node = rclpy.node.Node("bare_node")\n'
@@ -117,13 +125,13 @@ class Window:
 
     @property
     def total(self) -> float:
-        """The four cell nodes."""
-        return sum(v for k, v in self.cpu.items() if k in NODES.values())
+        """The cell: its four nodes, or the one process hosting them."""
+        return sum(v for k, v in self.cpu.items() if k != BARE)
 
     @property
     def baseline(self) -> float:
         """The bare node."""
-        return self.cpu['bare_node']
+        return self.cpu[BARE]
 
 
 class Mover:
@@ -207,42 +215,60 @@ def measure(procs: Processes, stamps: list[int], seconds: float,
 
 @dataclass(frozen=True)
 class Memory:
-    """One process's memory after the windows: peak and current resident set, MiB, and
-    whether it has loaded numba (it ran a compiled kernel)."""
+    """One process's memory after the windows: peak and current resident set, its proportional
+    set now (the pages it shares with other processes divided among them), MiB, and whether it
+    has loaded numba (it ran a compiled kernel)."""
 
     peak: float
     resident: float
+    proportional: float
     kernels: bool
 
     @classmethod
     def of(cls, pid: int) -> Memory:
-        status = dict(line.split(':', 1) for line in
-                      Path(f'/proc/{pid}/status').read_text().splitlines() if ':' in line)
+        def kib(path: str, field: str) -> float:
+            return next(int(line.split()[1]) for line in
+                        Path(f'/proc/{pid}/{path}').read_text().splitlines()
+                        if line.startswith(f'{field}:'))
+
         maps = Path(f'/proc/{pid}/maps').read_text()
-        return cls(int(status['VmHWM'].split()[0]) / 1024,
-                   int(status['VmRSS'].split()[0]) / 1024, '/numba/' in maps)
+        return cls(kib('status', 'VmHWM') / 1024, kib('status', 'VmRSS') / 1024,
+                   kib('smaps_rollup', 'Pss') / 1024, '/numba/' in maps)
 
 
 def memory(procs: Processes) -> dict[str, Memory]:
-    """Node (and 'bare_node') -> its :class:`Memory` now."""
+    """Node (or the container, and 'bare_node') -> its :class:`Memory` now."""
     return {NODES.get(label, label): Memory.of(p.pid) for label, p in procs.procs.items()}
 
 
+def cell_memory(memory: dict[str, Memory]) -> Memory:
+    """The cell's processes together (peaks summed: each process's own peak)."""
+    cell = [m for label, m in memory.items() if label != BARE]
+    return Memory(sum(m.peak for m in cell), sum(m.resident for m in cell),
+                  sum(m.proportional for m in cell), any(m.kernels for m in cell))
+
+
 def report_memory(memory: dict[str, Memory]) -> None:
-    """The table: each node's peak RSS against the bare node's, and the targets."""
-    bare = memory['bare_node'].peak
-    print(row('memory, MiB', 'peak RSS', 'RSS now', 'x bare', 'numba', 'target'))
-    for node in NODES.values():
-        m = memory[node]
-        limit = (f'<= {KERNEL_NODE_TARGET_MB / MIB_MB:.0f}' if m.kernels
-                 else f'<= {NODE_FACTOR_TARGET:g}x')
-        ok = (m.peak <= KERNEL_NODE_TARGET_MB / MIB_MB if m.kernels
-              else m.peak <= NODE_FACTOR_TARGET * bare)
-        print(row(f'  {node}', f'{m.peak:.0f}', f'{m.resident:.0f}', f'{m.peak / bare:.2f}',
-                  'yes' if m.kernels else 'no', f'  {limit} {verdict(ok)}'))
-    total = sum(memory[node].peak for node in NODES.values())
-    print(row('  baseline: a bare rclpy node', f'{bare:.0f}',
-              f'{memory["bare_node"].resident:.0f}'))
+    """The table: each process's peak RSS against the bare node's, and the targets (a node's
+    own, or for the one process hosting the cell the cell's)."""
+    bare = memory[BARE].peak
+    print(row('memory, MiB', 'peak RSS', 'RSS now', 'PSS now', 'x bare', 'numba', 'target'))
+    for label, m in memory.items():
+        if label == BARE:
+            continue
+        if label == names.CONTAINER:
+            limit, ok = f'<= {CELL_TARGET_MB / MIB_MB:.0f}', m.peak <= CELL_TARGET_MB / MIB_MB
+        elif m.kernels:
+            limit = f'<= {KERNEL_NODE_TARGET_MB / MIB_MB:.0f}'
+            ok = m.peak <= KERNEL_NODE_TARGET_MB / MIB_MB
+        else:
+            limit, ok = f'<= {NODE_FACTOR_TARGET:g}x', m.peak <= NODE_FACTOR_TARGET * bare
+        print(row(f'  {label}', f'{m.peak:.0f}', f'{m.resident:.0f}', f'{m.proportional:.0f}',
+                  f'{m.peak / bare:.2f}', 'yes' if m.kernels else 'no',
+                  f'  {limit} {verdict(ok)}'))
+    total = cell_memory(memory).peak
+    print(row('  baseline: a bare rclpy node', f'{bare:.0f}', f'{memory[BARE].resident:.0f}',
+              f'{memory[BARE].proportional:.0f}'))
     print(f'target cell total <= {CELL_TARGET_MB:g} MB ({CELL_TARGET_MB / MIB_MB:.0f} MiB): '
           f'{verdict(total <= CELL_TARGET_MB / MIB_MB)} ({total:.0f} MiB)')
 
@@ -265,9 +291,11 @@ def report(rest: Window, moving: Window, nominal: float) -> None:
     """The table: CPU per node and total, driver rate, targets."""
     windows = (rest, moving)
     print(row('CPU s per wall s', 'at rest', 'moving'))
-    for node in NODES.values():
-        print(row(f'  {node}', *(f'{w.cpu[node]:.3f}' for w in windows)))
-    print(row('  total (4 nodes)', *(f'{w.total:.3f}' for w in windows)))
+    cell = [label for label in rest.cpu if label != BARE]
+    for label in cell:
+        print(row(f'  {label}', *(f'{w.cpu[label]:.3f}' for w in windows)))
+    print(row(f'  total ({len(cell)} process{"es" if len(cell) > 1 else ""})',
+              *(f'{w.total:.3f}' for w in windows)))
     print(row('  baseline: a bare rclpy node', *(f'{w.baseline:.3f}' for w in windows)))
     print(row('  benchmark client (not in total)', *(f'{w.own:.3f}' for w in windows)))
     print(f'target idle total <= {IDLE_TARGET} core: {verdict(rest.total <= IDLE_TARGET)} '
@@ -289,13 +317,24 @@ def report(rest: Window, moving: Window, nominal: float) -> None:
               *(verdict(d.p99 <= P99_TARGET * period) for d in rates)))
 
 
-def run(seconds: float, log_dir: Path) -> int:
-    driver = parse(DriverSettings, node_parameters(load_parameter_file(CELL_YAML),
-                                                   names.NODE_DRIVER))
-    nominal = driver.publish_rate
+@dataclass(frozen=True)
+class Cell:
+    """One way of running the cell, measured: its two windows and its memory."""
+
+    rest: Window
+    moving: Window
+    memory: dict[str, Memory]
+
+
+def measure_cell(seconds: float, log_dir: Path, one_process: bool,
+                 nominal: float) -> Cell | None:
+    """Start the cell (its four nodes as processes, or ``cell_container`` hosting them) and a
+    bare node on a free domain, measure both windows and the memory, print them, stop it.
+    None if the cell did not come up (its logs printed)."""
+    start = (names.CONTAINER,) if one_process else tuple(NODES)
+    log_dir.mkdir(parents=True, exist_ok=True)
     with free_domain() as domain, Processes(cell_environment(domain), log_dir) as procs, \
             CellClient(domain, 'idle_cpu_benchmark') as client:
-        print(f'package {Path(positioning_cell.__file__).parent}, config {CELL_YAML}')
         print(f'domain {domain}, {os.cpu_count()} CPUs, load average '
               f'{os.getloadavg()[0]:.2f} before start, windows of {seconds:g} s')
         stamps: list[int] = []
@@ -304,16 +343,16 @@ def run(seconds: float, log_dir: Path) -> int:
             lambda m: stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec),
             STREAM_QOS)
         t0 = time.monotonic()
-        for exe in NODES:
+        for exe in start:
             procs.start(exe, params=[CELL_YAML])
-        procs.start('python', label='bare_node', extra_args=('-c', BARE_NODE))
+        procs.start('python', label=BARE, extra_args=('-c', BARE_NODE))
         try:
             wait_for_cell(procs, client)
         except (TimeoutError, RuntimeError) as err:
             print(f'the cell did not come up: {err}', file=sys.stderr)
-            for exe in NODES:
+            for exe in start:
                 print(f'--- {exe} log (tail) ---\n{procs.log(exe)[-1500:]}', file=sys.stderr)
-            return 1
+            return None
         print(f'cell up after {time.monotonic() - t0:.1f} s')
         homed, message = client.trigger(names.HOME)  # references the drives
         if not homed:
@@ -333,10 +372,54 @@ def run(seconds: float, log_dir: Path) -> int:
         print()
         report(rest, moving, nominal)
         print()
-        report_memory(memory(procs))
+        used = memory(procs)
+        report_memory(used)
         codes = procs.stop()
-        print('\nnodes stopped, exit codes: '
+        print('\nstopped, exit codes: '
               + ', '.join(f'{NODES.get(exe, exe)} {code}' for exe, code in codes.items()))
+    return Cell(rest, moving, used)
+
+
+def compare(separate: Cell, composed: Cell, nominal: float) -> None:
+    """The table: the cell as separate processes against the cell in one process."""
+    period = 1.0 / nominal
+    apart, one = cell_memory(separate.memory), cell_memory(composed.memory)
+    print(row('the cell, separate vs one process', 'separate', 'one process', 'ratio'))
+    lines: list[tuple[str, float, float, str]] = [
+        ('  CPU at rest, core', separate.rest.total, composed.rest.total, '.3f'),
+        ('  CPU moving, core', separate.moving.total, composed.moving.total, '.3f'),
+        ('  moves settled in the window', separate.moving.moves, composed.moving.moves, '.0f'),
+        ('  peak RSS, MiB (sum)', apart.peak, one.peak, '.0f'),
+        ('  RSS now, MiB (sum)', apart.resident, one.resident, '.0f'),
+        ('  PSS now, MiB (sum)', apart.proportional, one.proportional, '.0f'),
+        ('  driver rate at rest, Hz', separate.rest.driver.rate, composed.rest.driver.rate, '.1f'),
+        ('  driver rate moving, Hz', separate.moving.driver.rate, composed.moving.driver.rate,
+         '.1f'),
+        ('  driver p99 at rest, periods', separate.rest.driver.p99 / period,
+         composed.rest.driver.p99 / period, '.2f'),
+        ('  driver p99 moving, periods', separate.moving.driver.p99 / period,
+         composed.moving.driver.p99 / period, '.2f')]
+    for label, a, b, fmt in lines:
+        print(row(label, format(a, fmt), format(b, fmt), f'{b / a:.2f}' if a else '-'))
+
+
+def run(seconds: float, log_dir: Path, one_process: bool) -> int:
+    driver = parse(DriverSettings, node_parameters(load_parameter_file(CELL_YAML),
+                                                   names.NODE_DRIVER))
+    nominal = driver.publish_rate
+    print(f'package {Path(positioning_cell.__file__).parent}, config {CELL_YAML}')
+    print('\n== the cell as separate processes ==')
+    separate = measure_cell(seconds, log_dir / 'separate', False, nominal)
+    if separate is None:
+        return 1
+    if not one_process:
+        return 0
+    print(f'\n== the cell in one process ({names.CONTAINER}) ==')
+    composed = measure_cell(seconds, log_dir / 'one_process', True, nominal)
+    if composed is None:
+        return 1
+    print()
+    compare(separate, composed, nominal)
     return 0
 
 
@@ -355,11 +438,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seconds', type=float, default=20.0,
                         help='length of each measurement window, s (default 20)')
+    parser.add_argument('--one-process', action='store_true',
+                        help=f'then the same cell in one process ({names.CONTAINER}), compared')
     args = parser.parse_args(argv)
     standalone_environment('idlecpu')
     with tempfile.TemporaryDirectory(prefix='idle_cpu_') as log_dir:
         try:
-            return run(args.seconds, Path(log_dir))
+            return run(args.seconds, Path(log_dir), args.one_process)
         except (TimeoutError, RuntimeError) as err:
             print(f'benchmark failed: {err}', file=sys.stderr)
             return 1

@@ -60,6 +60,9 @@ CALIBRATOR = CellNode('calibrator_node', NODE_CALIBRATOR)
 LIVE_VIEW = CellNode('live_view_node', NODE_LIVE_VIEW)
 #: Every node executable of the package.
 NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR, LIVE_VIEW)
+#: The executable that runs several of the nodes above in one process (ROS 2's composition:
+#: ``cell_container [node name ...] --ros-args ...``; by default the CELL_NODES).
+CONTAINER = 'cell_container'
 
 # -- topics ---------------------------------------------------------------------------------------
 JOINT_TRAJECTORY = '/legs/joint_trajectory'

@@ -46,7 +46,7 @@ from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recordin
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
-from positioning_cell.ros.spin import run
+from positioning_cell.ros.spin import NodeStart
 
 _LEVELS = ('ok', 'warn', 'error')
 
@@ -183,9 +183,8 @@ class AccuracyMonitorNode(Node):
         return response
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``accuracy_monitor_node``."""
-    return run(AccuracyMonitorNode, args)
+#: The entry point of ``accuracy_monitor_node`` (alone; ``cell_container`` hosts it with others).
+main = NodeStart(AccuracyMonitorNode)
 
 
 if __name__ == '__main__':

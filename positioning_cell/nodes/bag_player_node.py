@@ -36,7 +36,7 @@ from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.ros.messages import message_class
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import profile_from_qos
-from positioning_cell.ros.spin import run
+from positioning_cell.ros.spin import NodeStart
 
 ACK_TIMEOUT_S = 5.0
 
@@ -113,9 +113,8 @@ class BagPlayerNode(Node):
         self._reader.close()
 
 
-def main(args: list[str] | None = None) -> int:
-    """Play until the end of the bag (or Ctrl-C / SIGTERM when looping)."""
-    return run(BagPlayerNode, args)
+#: The entry point: play until the end of the bag (or Ctrl-C / SIGTERM when looping).
+main = NodeStart(BagPlayerNode)
 
 
 if __name__ == '__main__':

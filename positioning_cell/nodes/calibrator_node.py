@@ -32,7 +32,7 @@ from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.goals import Ran, run_goal
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.port import RosCellPort
-from positioning_cell.ros.spin import Spin, run
+from positioning_cell.ros.spin import NodeStart, Spin
 
 #: Longest wait at shutdown for a running calibration to stop the drives, put the mode back
 #: and end, s (it ends as soon as the stopped move has ended).
@@ -142,9 +142,8 @@ class CalibratorNode(Node):
         self._idle.wait(CLOSE_WAIT_S)
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``calibrator_node``."""
-    return run(CalibratorNode, args, Spin.THREADS, threads=3)
+#: The entry point of ``calibrator_node`` (alone; ``cell_container`` hosts it with others).
+main = NodeStart(CalibratorNode, Spin.THREADS, threads=3)
 
 
 if __name__ == '__main__':

@@ -35,7 +35,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros import qos
 from positioning_cell.ros.latest import SourceReader
 from positioning_cell.ros.parameters import NodeParameters
-from positioning_cell.ros.spin import Spin, run
+from positioning_cell.ros.spin import NodeStart, Spin
 
 _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
 
@@ -187,9 +187,8 @@ class PositionerNode(Node):
         self.mover.stop()
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point of `ros2 run positioning_cell kinematics_node`."""
-    return run(PositionerNode, args, Spin.THREADS, threads=6)
+#: The entry point of ``kinematics_node`` (alone; ``cell_container`` hosts it with others).
+main = NodeStart(PositionerNode, Spin.THREADS, threads=6)
 
 
 if __name__ == '__main__':

@@ -40,7 +40,7 @@ from positioning_cell.ros.qos import (
     STREAM_QOS,
 )
 from positioning_cell.ros.senders import IdentifiedSubscription
-from positioning_cell.ros.spin import run
+from positioning_cell.ros.spin import NodeStart
 from positioning_cell.sim.commands import CommandQueue
 from positioning_cell.sim.drives import DriverSettings, LegDriver, Outcome
 from positioning_cell.sim.guard import TrajectoryRefusedError
@@ -178,9 +178,8 @@ class LegDriverNode(Node):
                                                hardware_id='leg_drives'))
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``leg_driver_node``."""
-    return run(LegDriverNode, args)
+#: The entry point of ``leg_driver_node`` (alone; ``cell_container`` hosts it with others).
+main = NodeStart(LegDriverNode)
 
 
 if __name__ == '__main__':

@@ -22,7 +22,7 @@ from positioning_cell.nodes.live_view_messages import LiveChannels
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS
-from positioning_cell.ros.spin import Spin, run
+from positioning_cell.ros.spin import NodeStart, Spin
 from positioning_cell.ros.watch_inputs import WatchInputs
 from positioning_cell.watch.settings import LiveViewSettings
 from positioning_cell.watch.state import WatchState
@@ -100,9 +100,8 @@ class LiveViewNode(Node):
         self.server.stop()
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``live_view_node``."""
-    return run(LiveViewNode, args, Spin.EVENTS)
+#: The entry point of ``live_view_node`` (alone; ``cell_container`` hosts it with others).
+main = NodeStart(LiveViewNode, Spin.EVENTS)
 
 
 if __name__ == '__main__':

@@ -28,7 +28,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros.latest import Reader
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, SERVICE_QOS, STREAM_QOS
-from positioning_cell.ros.spin import run
+from positioning_cell.ros.spin import NodeStart
 from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSettings,
     PoseMeasurementSimulator,
@@ -117,9 +117,8 @@ class PoseMeasurementNode(Node):
                                             self.get_clock().now().to_msg()))
 
 
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``pose_measurement_node``."""
-    return run(PoseMeasurementNode, args)
+#: The entry point of ``pose_measurement_node`` (alone; ``cell_container`` hosts it with others).
+main = NodeStart(PoseMeasurementNode)
 
 
 if __name__ == '__main__':

@@ -40,7 +40,7 @@ from positioning_cell.ros.qos import (
     profile_from_qos,
     qos_from_profile,
 )
-from positioning_cell.ros.spin import run
+from positioning_cell.ros.spin import NodeStart
 
 #: Exit status when writing the bag failed (sysexits' EX_IOERR; 2: it could not start).
 EXIT_WRITE_FAILED = 74
@@ -189,10 +189,10 @@ class RecorderNode(Node):
         super().destroy_node()
 
 
-def main(args: list[str] | None = None) -> int:
-    """Record until SIGINT / SIGTERM, then close the bag: exit 0; 2: the bag could not be
-    created; :data:`EXIT_WRITE_FAILED`: writing failed (the bag was closed with what it had)."""
-    return run(RecorderNode, args)
+#: The entry point: record until SIGINT / SIGTERM, then close the bag: exit 0; 2: the bag
+#: could not be created; :data:`EXIT_WRITE_FAILED`: writing failed (the bag was closed
+#: with what it had).
+main = NodeStart(RecorderNode)
 
 
 if __name__ == '__main__':

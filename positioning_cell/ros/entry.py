@@ -1,7 +1,7 @@
 """The console entry points of the cell's nodes: SIGINT and SIGTERM stop a node cleanly (exit
 0, no traceback) from the first instant, not only once rclpy is up.
 
-A node's module imports rclpy, numpy, scipy and numba: about a second in which Python's default
+A node's module imports rclpy, numpy and scipy (and numba where it runs kernels): about a second in which Python's default
 handlers would turn SIGINT into a ``KeyboardInterrupt`` traceback and SIGTERM into a kill. This
 module is imported first (standard library only) and installs handlers that end the process at
 once with exit 0: nothing is open yet (no rclpy context, no file), and an exception raised inside
@@ -95,11 +95,18 @@ def _console(module: str) -> Callable[[], int]:
     return main
 
 
-recorder_node = _console('positioning_cell.nodes.recorder_node')
-bag_player_node = _console('positioning_cell.nodes.bag_player_node')
-leg_driver_node = _console('positioning_cell.nodes.leg_driver_node')
-pose_measurement_node = _console('positioning_cell.nodes.pose_measurement_node')
-kinematics_node = _console('positioning_cell.nodes.kinematics_node')
-accuracy_monitor_node = _console('positioning_cell.nodes.accuracy_monitor_node')
-calibrator_node = _console('positioning_cell.nodes.calibrator_node')
-live_view_node = _console('positioning_cell.nodes.live_view_node')
+def node_module(executable: str) -> str:
+    """The module of a node executable (names.NODE_EXECUTABLES): its ``main`` (a
+    :class:`positioning_cell.ros.spin.NodeStart`) runs the node alone and says how it starts."""
+    return f'positioning_cell.nodes.{executable}'
+
+
+recorder_node = _console(node_module('recorder_node'))
+bag_player_node = _console(node_module('bag_player_node'))
+leg_driver_node = _console(node_module('leg_driver_node'))
+pose_measurement_node = _console(node_module('pose_measurement_node'))
+kinematics_node = _console(node_module('kinematics_node'))
+accuracy_monitor_node = _console(node_module('accuracy_monitor_node'))
+calibrator_node = _console(node_module('calibrator_node'))
+live_view_node = _console(node_module('live_view_node'))
+cell_container = _console('positioning_cell.ros.container')

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import gc
 import sys
+import threading
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
@@ -41,8 +43,29 @@ class Spin(Enum):
     THREADS = 'threads'
 
 
-def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
-        spin: Spin = Spin.EVENTS, *, threads: int = 3) -> int:
+@dataclass(frozen=True)
+class NodeStart:
+    """How one of the cell's nodes starts, and its entry point: what builds it (called with no
+    arguments, in the initialised default context: the node reads its parameters from the
+    process's ``--ros-args``), the executor it needs, and that executor's threads (THREADS
+    only). Each node module's ``main`` is one: called, it runs the node alone (:func:`run`);
+    ``cell_container`` runs several together (:func:`run_together`)."""
+
+    factory: Callable[[], Node]
+    spin: Spin = Spin.EVENTS
+    threads: int = 1
+
+    def __call__(self, args: Sequence[str] | None = None) -> int:
+        """Run the node alone (:func:`run`): the exit status."""
+        return run(self, args)
+
+    def executor(self) -> Executor:
+        """A new executor of the kind this node needs."""
+        return (MultiThreadedExecutor(num_threads=self.threads) if self.spin is Spin.THREADS
+                else EventsExecutor())
+
+
+def run(node: NodeStart, args: Sequence[str] | None = None) -> int:
     """Init, build the node, spin until SIGINT / SIGTERM / shutdown, clean up (the node's
     ``close()`` if it has one, then destroy it, then shut the context down). A node that cannot
     be built (invalid parameters, an unreadable bag: a PositioningError) prints the reason and
@@ -57,13 +80,45 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
     the node closed and the context shut down. A stop that came before ``rclpy.init`` is
     honoured after it.
     """
+    return run_together([node], args)
+
+
+def run_together(nodes: Sequence[NodeStart], args: Sequence[str] | None = None) -> int:
+    """:func:`run` for several nodes in this one process (ROS 2's composition: one context, one
+    DDS participant, one copy of rclpy, numpy, scipy and numba), built in the order given; a
+    stop, a node's ``exit_status`` or a node that cannot be built ends them all (closed, then
+    destroyed, in reverse order).
+
+    The executors: each node gets the executor it gets alone (:meth:`NodeStart.executor`, the
+    one it was written and tested on), spun in a thread of its own (the first node's in this
+    thread). Nodes together keep their concurrency exactly: the leg driver, the tracker and
+    the monitor one callback at a time each on an events executor (several times cheaper per
+    callback than the others, and most of the cell's callbacks are theirs: the driver's
+    200 Hz physics timer, its 100 Hz joint states, the tracker's readings), the positioner
+    its threads and callback groups (its service callbacks wait for a move to settle while
+    its timers and subscriptions run; its heartbeat alone in a group). What the nodes share is
+    the rest: the context and its DDS participant, the interpreter and one copy of rclpy,
+    numpy, scipy and numba (the memory composition saves), and the GIL.
+
+    Not one executor for all. Measured with the cell's four nodes at rest, as
+    benchmarks/idle_cpu.py measures (CPU from /proc, the driver's rate from its stamps; 2
+    shared cores, load average 5 to 7: one to four runs each): one multi-threaded executor
+    (each node's callbacks mutually exclusive in its default group; it rebuilds its wait set
+    over every node's entities at each wake-up) took 0.65 core against the four processes'
+    0.50 and held the driver to 47 to 67 % of its publish rate, the tracker's readings up to
+    0.6 s apart: the positioner aborted homing (0.5 s without a reading). One single-threaded
+    or events executor cannot host the positioner (a service callback waiting for a move would
+    block the timers it waits on). One events executor for the driver, the tracker and the
+    monitor together: their callbacks wait for one another, 62 to 96 Hz against 95 to 99 Hz
+    with one executor each. A node that shuts the context down (the player at the end of its bag)
+    ends them all too."""
     # A stop gives up the loads waited on at once (files.within), even while the node is
     # being built (the positioner loads its calibration file then).
     hold_stops(files.abandon_loads)
     rclpy.init(args=list(args) if args is not None else None,
                signal_handler_options=SignalHandlerOptions.NO)
     try:
-        return _spin(node_factory, spin, threads)
+        return _spin(nodes)
     finally:
         rclpy.try_shutdown()
         # The participant goes now, its shared memory with it, rather than in the interpreter's
@@ -73,25 +128,50 @@ def run(node_factory: Callable[[], Node], args: Sequence[str] | None = None,
         get_default_context().destroy()
 
 
-def _spin(node_factory: Callable[[], Node], spin: Spin, threads: int) -> int:
-    """:func:`run` from the node's construction to its destruction (the exit code)."""
-    node: Node | None = None
-    executor: Executor | None = None
-    try:
-        if stop_requested():
-            return 0
-        node = node_factory()
-        # Built, its kernels warmed: none is imported or compiled from here on (a pause of
-        # the executor), a cold one raises instead (positioning_cell.core.compiled).
-        compiled.seal()
+def _spin(starts: Sequence[NodeStart]) -> int:
+    """:func:`run_together` from the nodes' construction to their destruction (the exit
+    code)."""
+    nodes: list[Node] = []
+    spinning: list[Executor] = []
+    workers: list[threading.Thread] = []
+    done = threading.Event()
+    failures: list[BaseException] = []
+
+    def spin(executor: Executor) -> None:
         # EventsExecutor.spin() does not run callbacks in this rclpy build (platform.md), and
         # Python's signal handlers run only between two slices: spin in bounded slices.
-        executor = (MultiThreadedExecutor(num_threads=threads) if spin is Spin.THREADS
-                    else EventsExecutor())
-        executor.add_node(node)
         never: Future = Future()
-        while rclpy.ok() and not stop_requested() and _exit_status(node) is None:
+        while (not done.is_set() and rclpy.ok() and not stop_requested()
+               and _exit_status(nodes) is None):
             executor.spin_until_future_complete(never, timeout_sec=STOP_POLL_S)
+
+    def spin_aside(executor: Executor) -> None:
+        try:
+            spin(executor)
+        except ExternalShutdownException:
+            pass
+        except BaseException as err:  # a callback's: raised in this thread once all stop
+            failures.append(err)
+        finally:
+            done.set()  # one executor ended: all end
+
+    try:
+        for start in starts:
+            if stop_requested():
+                return 0
+            nodes.append(start.factory())
+        # All built, their kernels warmed: none is imported or compiled from here on (a pause
+        # of an executor), a cold one raises instead (positioning_cell.core.compiled).
+        compiled.seal()
+        for start, node in zip(starts, nodes, strict=True):
+            spinning.append(start.executor())
+            spinning[-1].add_node(node)
+        workers = [threading.Thread(target=spin_aside, args=(executor,), daemon=True,
+                                    name=f'spin {node.get_name()}')
+                   for executor, node in zip(spinning[1:], nodes[1:], strict=True)]
+        for worker in workers:
+            worker.start()
+        spin(spinning[0])
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except PositioningError as err:
@@ -100,23 +180,32 @@ def _spin(node_factory: Callable[[], Node], spin: Spin, threads: int) -> int:
         print(f'{Path(sys.argv[0]).name}: {err}', file=sys.stderr)
         return 2
     finally:
+        done.set()  # the other executors stop between two callbacks (within STOP_POLL_S)
+        for worker in workers:
+            worker.join(timeout=SHUTDOWN_WAIT_S)
         # No callback waits for a file any more (a calibration file's load in the positioner's
         # parameter callback: given up since the signal); then close(): it ends what a worker
         # thread may still wait on (a move), so the executor's shutdown then finds its
         # callbacks returning.
         files.abandon_loads()
-        if node is not None:
+        for node in reversed(nodes):
             close = getattr(node, 'close', None)
             if callable(close):
                 close()
-        if executor is not None:
+        for executor in spinning:
             executor.shutdown(timeout_sec=SHUTDOWN_WAIT_S)
-        if node is not None:
+        for node in reversed(nodes):
             node.destroy_node()
-    return _exit_status(node) or 0
+    if failures:  # a callback raised in another executor's thread: as if in this one
+        raise failures[0]
+    return _exit_status(nodes) or 0
 
 
-def _exit_status(node: Node | None) -> int | None:
-    """The exit status a node asked for (its ``exit_status``), None if it did not."""
-    status = getattr(node, 'exit_status', None)
-    return status if isinstance(status, int) else None
+def _exit_status(nodes: Sequence[Node]) -> int | None:
+    """The exit status the first of ``nodes`` that asked for one asked for (its
+    ``exit_status``), None if none did."""
+    for node in nodes:
+        status = getattr(node, 'exit_status', None)
+        if isinstance(status, int):
+            return status
+    return None
