@@ -1,8 +1,9 @@
 """The console entry points of the cell's nodes: SIGINT and SIGTERM stop a node cleanly (exit
 0, no traceback) from the first instant, not only once rclpy is up.
 
-A node's module imports rclpy, numpy and scipy (and numba where it runs kernels): about a second in which Python's default
-handlers would turn SIGINT into a ``KeyboardInterrupt`` traceback and SIGTERM into a kill. This
+A node's module imports rclpy, numpy and scipy (numba where it runs kernels): about a second
+in which Python's default handlers would turn SIGINT into a ``KeyboardInterrupt`` traceback and
+SIGTERM into a kill. This
 module is imported first (standard library only) and installs handlers that end the process at
 once with exit 0: nothing is open yet (no rclpy context, no file), and an exception raised inside
 an import would surface as a C extension's ImportError, so none is raised. Just before
