@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+from contextlib import suppress
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -102,10 +103,8 @@ def _marker_times_ns(text: str) -> list[int]:
     out = [round(float(doc[k]) * NS) for k in SECONDS_KEYS
            if isinstance(doc.get(k), (int, float))]
     for key in ISO_KEYS:
-        try:
+        with suppress(KeyError, ValueError):
             out.append(round(datetime.fromisoformat(str(doc[key])).timestamp() * NS))
-        except (KeyError, ValueError):
-            pass
     return out
 
 
