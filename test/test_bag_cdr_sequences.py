@@ -18,7 +18,13 @@ from rosbags.typesys import Stores, get_typestore
 
 from positioning_cell.analysis.reading import _joint_block, joint_samples
 from positioning_cell.bag import BagReader, IndexedBag
-from positioning_cell.bag.cdr_sequences import MAX_LAYOUTS, decode_by_layout, layout
+from positioning_cell.bag.cdr_sequences import (
+    MAX_LAYOUTS,
+    LayoutError,
+    decode_by_layout,
+    layout,
+    trajectory_end,
+)
 from positioning_cell.names import JOINT_STATES
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
@@ -124,3 +130,52 @@ def test_a_recorded_runs_joint_states_read_vectorised_equal_rosbags_one_by_one()
     assert reference.count > 1000
     assert_array_equal(np.concatenate([p.stamp for p in parts]), reference.stamp)
     assert_array_equal(np.concatenate([p.position for p in parts]), reference.position)
+
+
+def _trajectory(rng: np.random.Generator, shapes: list[tuple[int, int, int, int]]) -> bytes:
+    point = T['trajectory_msgs/msg/JointTrajectoryPoint']
+    return bytes(STORE.serialize_cdr(T[TRAJECTORY](
+        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](0, 0),
+                                        frame_id=''),
+        joint_names=[f'j{k}' for k in range(6)],
+        points=[point(*(rng.normal(size=n) for n in shape),
+                      time_from_start=T['builtin_interfaces/msg/Duration'](k, 3))
+                for k, shape in enumerate(shapes)]), TRAJECTORY))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 300),
+       st.tuples(st.integers(0, 7), st.integers(0, 7), st.integers(0, 2), st.integers(0, 1)),
+       st.booleans())
+def test_a_trajectorys_last_point_is_what_rosbags_decodes(
+        seed: int, points: int, shape: tuple[int, int, int, int], uneven: bool) -> None:
+    """Points of one shape: read at the last point's offset, equal to rosbags' (bit for
+    bit); of mixed shapes or sizes that leave the alignment varying: refused (LayoutError),
+    never misread."""
+    rng = np.random.default_rng(seed)
+    shapes = [shape] * points
+    if uneven and points > 2:
+        shapes[points // 2] = (shape[0] + 1, *shape[1:])
+    data = _trajectory(rng, shapes)
+    msg = STORE.deserialize_cdr(data, TRAJECTORY)
+    try:
+        names, last = trajectory_end(data, STORE)
+    except LayoutError:
+        assert (uneven and points > 2) or points > 1  # a stride that is no multiple of 8
+        return
+    assert names == tuple(msg.joint_names)
+    if points == 0:
+        assert last is None
+    else:
+        assert not (uneven and points > 2)
+        assert_array_equal(last, msg.points[-1].positions)
+
+
+def test_the_cells_trajectories_are_read_without_rosbags() -> None:
+    """Six joints, positions and velocities (what the positioner sends): one stride."""
+    rng = np.random.default_rng(5)
+    for points in (1, 2, 231):
+        data = _trajectory(rng, [(6, 6, 0, 0)] * points)
+        names, last = trajectory_end(data, STORE)
+        assert last is not None and names == tuple(f'j{k}' for k in range(6))
+        assert_array_equal(last, STORE.deserialize_cdr(data, TRAJECTORY).points[-1].positions)

@@ -59,10 +59,10 @@ def gather(recording: Recording, visits: Sequence[LabelledVisit], mech: Mechanis
             truth.add(batch.truth.stamp, batch.truth.position)
         if batch.joint_states.count:
             encoders.add(batch.joint_states.stamp, batch.joint_states.position)
-        for log_ns, msg in batch.trajectories:  # one per move or correction: few
-            if msg.points:
+        for log_ns, names, last in batch.trajectories:  # one per move or correction: few
+            if last is not None:
                 sent_at.append(log_ns * 1e-9)
-                sent.append(joint_values(list(msg.joint_names), list(msg.points[-1].positions)))
+                sent.append(joint_values(list(names), last.tolist()))
     has_truth = bool(truth.count.sum())
     commanded = last_before(np.array(sent_at), np.array(sent).reshape(-1, 6), stops)
     servo = encoders.mean() - commanded if encoders.count.sum() and sent else None

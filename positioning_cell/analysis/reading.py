@@ -50,7 +50,7 @@ from positioning_cell.bag import (
     recover_bag,
 )
 from positioning_cell.bag.cdr import Columns, Strings
-from positioning_cell.bag.cdr_sequences import decode_by_layout
+from positioning_cell.bag.cdr_sequences import LayoutError, decode_by_layout, trajectory_end
 from positioning_cell.bag.indexed import Block, IndexedBag, IndexedReadError
 from positioning_cell.bag.opening import mcap_files
 from positioning_cell.bag.verify import BagCheck, storage_files, verify_bag
@@ -76,9 +76,6 @@ FloatArray = NDArray[np.float64]
 POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth'}
 #: The text topics (std_msgs/String) and their MessageBatch field.
 TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test'}
-#: Topics decoded message by message (variable layout, few, read only when asked) and their
-#: MessageBatch field.
-OBJECT_TOPICS = {JOINT_TRAJECTORY: 'trajectories'}
 #: A /diagnostics message is decoded only when it holds one of these statuses.
 DIAGNOSTIC_STATUSES = (STATUS_POSITIONER.encode(), STATUS_MEASUREMENT.encode())
 #: Messages per batch where a bag is read message by message (not MCAP).
@@ -160,6 +157,24 @@ def _joint_block(bag: IndexedBag, block: Block, topic: str) -> JointSamples:
     return JointSamples(stamp, position)
 
 
+def _last_point(message: Any) -> tuple[tuple[str, ...], FloatArray | None]:
+    """A decoded JointTrajectory's joint names and its last point's positions (None: no
+    point)."""
+    return (tuple(message.joint_names), np.asarray(message.points[-1].positions, dtype=float)
+            if message.points else None)
+
+
+def _trajectory_end(store: Any, data: bytes, msgtype: str
+                    ) -> tuple[tuple[str, ...], FloatArray | None]:
+    """:func:`_last_point` of a JointTrajectory's CDR bytes, without decoding its points
+    (:func:`positioning_cell.bag.cdr_sequences.trajectory_end`) where its points share one
+    shape, else through rosbags."""
+    try:
+        return trajectory_end(data, store)
+    except LayoutError:
+        return _last_point(store.deserialize_cdr(data, msgtype))
+
+
 def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> MessageBatch:
     """A block of the indexed read as a MessageBatch."""
     order = block.order
@@ -182,12 +197,12 @@ def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> Mess
                                                   strict=True))
         elif name == JOINT_STATES:
             fields['joint_states'] = _joint_block(bag, block, name)
-        elif name in OBJECT_TOPICS:
+        elif name == JOINT_TRAJECTORY:
             m = block.topics[name]
-            fields[OBJECT_TOPICS[name]] = tuple(
-                (int(m.log_time_ns[i]), bag.typestore.deserialize_cdr(block.payload(name, i),
-                                                                      m.msgtype))
-                for i in range(m.log_time_ns.shape[0]))
+            fields['trajectories'] = tuple(
+                (int(m.log_time_ns[i]), *_trajectory_end(bag.typestore, block.payload(name, i),
+                                                         m.msgtype))
+                for i in range(m.log_time_ns.shape[0]))  # one per move or correction: few
         elif name == DIAGNOSTICS:
             m = block.topics[name]
             store, msgtype = bag.typestore, m.msgtype
@@ -209,7 +224,7 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
     texts: dict[str, list[tuple[int, str]]] = {name: [] for name in TEXT_TOPICS}
     diagnostics: list[tuple[int, Any]] = []
     diagnostic_ranks: list[int] = []
-    objects: dict[str, list[tuple[int, Any]]] = {name: [] for name in OBJECT_TOPICS}
+    trajectories: list[tuple[int, tuple[str, ...], FloatArray | None]] = []
     joints: list[Any] = []
     for rank, item in enumerate(messages, start=offset):
         if item.topic in POSE_TOPICS:
@@ -221,8 +236,8 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
             diagnostic_ranks.append(rank)
         elif item.topic == JOINT_STATES:
             joints.append(item.message)
-        elif item.topic in OBJECT_TOPICS:
-            objects[item.topic].append((item.log_time_ns, item.message))
+        elif item.topic == JOINT_TRAJECTORY:
+            trajectories.append((item.log_time_ns, *_last_point(item.message)))
     rows: dict[str, PoseMessages] = {}
     for topic, found in poses.items():
         pose = [getattr(m.pose, 'pose', m.pose) for _, m in found]
@@ -241,7 +256,7 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
                         axis_test=tuple(texts[AXIS_TEST]),
                         diagnostic_ranks=tuple(diagnostic_ranks),
                         joint_states=joint_samples(joints),
-                        **{OBJECT_TOPICS[t]: tuple(found) for t, found in objects.items()})
+                        trajectories=tuple(trajectories))
 
 
 def message_batches(messages: Iterator[BagMessage], size: int = MESSAGES_PER_BATCH

@@ -116,9 +116,10 @@ class MessageBatch:
     #: move ends are not used; the monitor falls back on the last stable window of a visit).
     diagnostic_ranks: tuple[int, ...] = ()
     #: Read only when asked (the error budget's pass): /legs/joint_states as arrays and
-    #: /legs/joint_trajectory as (log time ns, decoded message) pairs.
+    #: /legs/joint_trajectory as (log time ns, joint names, the last point's positions (J,);
+    #: None for a trajectory without points).
     joint_states: JointSamples = field(default_factory=JointSamples)
-    trajectories: tuple[tuple[int, Any], ...] = ()
+    trajectories: tuple[tuple[int, tuple[str, ...], FloatArray | None], ...] = ()
 
 
 @dataclass(frozen=True)

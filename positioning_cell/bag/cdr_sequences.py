@@ -67,20 +67,27 @@ class _Walk:
         self.store = store
         self.pos = ENCAPSULATION_BYTES
         self.leaves: list[Leaf] = []
+        #: Every sequence or string length read: (its byte offset, its value).
+        self.lengths: list[tuple[int, int]] = []
 
     def u32(self) -> int:
         self.pos = _aligned(self.pos, 4)
         if self.pos + 4 > len(self.data):
             raise LayoutError(f'a length at byte {self.pos} is past the end')
         (value,) = struct.unpack_from('<I', self.data, self.pos)
+        self.lengths.append((self.pos, int(value)))
         self.pos += 4
         return int(value)
 
-    def skip_string(self) -> None:
+    def string(self) -> str:
         n = self.u32()
         if n < 1 or self.pos + n > len(self.data) or self.data[self.pos + n - 1] != 0:
             raise LayoutError(f'a string at byte {self.pos - 4} is not terminated')
         self.pos += n
+        return self.data[self.pos - n:self.pos - 1].decode()
+
+    def skip_string(self) -> None:
+        self.string()
 
     def numbers(self, path: str, base: str, count: int, scalar: bool) -> None:
         size = WIRE_DTYPES[base].itemsize
@@ -214,3 +221,47 @@ def decode_by_layout(msgtype: str, store: Typestore, buffer: NDArray[np.uint8],
         left = np.setdiff1d(left, mine, assume_unique=True)
     return Grouped(tuple(groups), np.sort(np.concatenate(
         [np.array(failed, dtype=np.intp), left])))
+
+
+#: The trajectory type :func:`trajectory_end` reads, and the type of its points.
+TRAJECTORY = 'trajectory_msgs/msg/JointTrajectory'
+TRAJECTORY_POINT = 'trajectory_msgs/msg/JointTrajectoryPoint'
+
+
+def trajectory_end(data: bytes, store: Typestore
+                   ) -> tuple[tuple[str, ...], NDArray[np.float64] | None]:
+    """The joint names and the last point's positions of a JointTrajectory (CDR, little
+    endian) without decoding its points one by one: the first two points are walked, and when
+    they have one size, a multiple of 8 bytes (so every point has the same alignment), every
+    point's sequence lengths are checked against the first's in one numpy operation and the
+    last point read at its offset. LayoutError when the message is not so (points of
+    different shapes): decode it with rosbags. A trajectory without points: None."""
+    if len(data) < ENCAPSULATION_BYTES or tuple(data[:2]) != _LITTLE_ENDIAN:
+        raise LayoutError('not little-endian CDR')
+    walk = _Walk(data, store)
+    walk.message('std_msgs/msg/Header', 'header.')
+    names = tuple(walk.string() for _ in range(walk.u32()))
+    count = walk.u32()
+    if count == 0:
+        return names, None
+    first = walk.pos
+    walk.lengths, walk.leaves = [], []
+    walk.message(TRAJECTORY_POINT, '')
+    stride = walk.pos - first
+    shape, leaves = list(walk.lengths), {leaf.path: leaf for leaf in walk.leaves}
+    if count > 1:
+        walk.message(TRAJECTORY_POINT, '')
+        if walk.pos - first != 2 * stride or stride % 8:
+            raise LayoutError('points of different sizes')
+    end = first + count * stride
+    if not 0 <= len(data) - end <= MAX_PADDING:
+        raise LayoutError(f'the points end at byte {end} of {len(data)}')
+    raw = np.frombuffer(data, dtype=np.uint8)
+    at = np.array([pos for pos, _ in shape], dtype=np.int64)
+    every = (at[None, :] + stride * np.arange(count, dtype=np.int64)[:, None]).reshape(-1)
+    found = gather(raw, every, 4).view('<u4').reshape(count, len(shape))
+    if not (found == np.array([n for _, n in shape], dtype=np.uint32)).all():
+        raise LayoutError('points of different shapes')
+    leaf = leaves['positions']
+    start = leaf.offset + (count - 1) * stride
+    return names, raw[start:start + 8 * leaf.elements].view('<f8').astype(float)
