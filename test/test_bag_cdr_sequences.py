@@ -22,6 +22,7 @@ from positioning_cell.bag.cdr_sequences import (
     MAX_LAYOUTS,
     LayoutError,
     decode_by_layout,
+    diagnostic_array,
     layout,
     trajectory_end,
 )
@@ -179,3 +180,32 @@ def test_the_cells_trajectories_are_read_without_rosbags() -> None:
         names, last = trajectory_end(data, STORE)
         assert last is not None and names == tuple(f'j{k}' for k in range(6))
         assert_array_equal(last, STORE.deserialize_cdr(data, TRAJECTORY).points[-1].positions)
+
+
+def _as_plain(message: Any) -> Any:
+    """A DiagnosticArray (rosbags' or ours) as nested tuples of its fields."""
+    return ((message.header.stamp.sec, message.header.stamp.nanosec, message.header.frame_id),
+            [(s.level, s.name, s.message, s.hardware_id, [(v.key, v.value) for v in s.values])
+             for s in message.status])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 3), st.text(max_size=12), st.text(max_size=30),
+                          st.lists(st.tuples(st.text(max_size=9), st.text(max_size=20)),
+                                   max_size=6)), max_size=4),
+       st.text(max_size=7), st.integers(0, 2**31 - 1), st.integers(0, 10**9 - 1))
+def test_a_diagnostic_array_reads_as_rosbags_decodes_it(
+        statuses: list[Any], frame: str, sec: int, nanosec: int) -> None:
+    """Any statuses, names and values (unicode, empty), every string boundary alignment."""
+    msg = T['diagnostic_msgs/msg/DiagnosticArray'](
+        header=T['std_msgs/msg/Header'](stamp=T['builtin_interfaces/msg/Time'](sec, nanosec),
+                                        frame_id=frame),
+        status=[T['diagnostic_msgs/msg/DiagnosticStatus'](
+            level=level, name=name, message=text, hardware_id='cell',
+            values=[T['diagnostic_msgs/msg/KeyValue'](k, v) for k, v in values])
+            for level, name, text, values in statuses])
+    data = bytes(STORE.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticArray'))
+    assert _as_plain(diagnostic_array(data)) == _as_plain(
+        STORE.deserialize_cdr(data, 'diagnostic_msgs/msg/DiagnosticArray'))
+    with pytest.raises(LayoutError):
+        diagnostic_array(data[:-5] if len(data) > 24 else data[:2] + b'\0')

@@ -28,8 +28,10 @@ from __future__ import annotations
 import math
 import os
 import shutil
+import struct
 import tempfile
 from collections.abc import Callable, Collection, Iterator, Sequence
+from contextlib import suppress
 from dataclasses import dataclass, replace
 from itertools import islice
 from pathlib import Path
@@ -50,7 +52,12 @@ from positioning_cell.bag import (
     recover_bag,
 )
 from positioning_cell.bag.cdr import Columns, Strings
-from positioning_cell.bag.cdr_sequences import LayoutError, decode_by_layout, trajectory_end
+from positioning_cell.bag.cdr_sequences import (
+    LayoutError,
+    decode_by_layout,
+    diagnostic_array,
+    trajectory_end,
+)
 from positioning_cell.bag.indexed import Block, IndexedBag, IndexedReadError
 from positioning_cell.bag.opening import mcap_files
 from positioning_cell.bag.verify import BagCheck, storage_files, verify_bag
@@ -76,8 +83,13 @@ FloatArray = NDArray[np.float64]
 POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth'}
 #: The text topics (std_msgs/String) and their MessageBatch field.
 TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test'}
-#: A /diagnostics message is decoded only when it holds one of these statuses.
-DIAGNOSTIC_STATUSES = (STATUS_POSITIONER.encode(), STATUS_MEASUREMENT.encode())
+#: A /diagnostics message is decoded only when it holds one of these statuses: their names
+#: as CDR strings (length, bytes, NUL), so that a text that only mentions a name (the
+#: positioner's inputs status names /pose_measurement) does not count (either byte order).
+DIAGNOSTIC_STATUSES = tuple(struct.pack(order, len(name) + 1) + name.encode() + b'\0'
+                            for name in (STATUS_POSITIONER, STATUS_MEASUREMENT)
+                            for order in ('<I', '>I'))
+DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
 #: Messages per batch where a bag is read message by message (not MCAP).
 MESSAGES_PER_BATCH = 20_000
 
@@ -175,6 +187,15 @@ def _trajectory_end(store: Any, data: bytes, msgtype: str
         return _last_point(store.deserialize_cdr(data, msgtype))
 
 
+def _diagnostic(store: Any, data: bytes, msgtype: str) -> Any:
+    """A /diagnostics message decoded: a DiagnosticArray in one pass
+    (:func:`positioning_cell.bag.cdr_sequences.diagnostic_array`), else through rosbags."""
+    if msgtype == DIAGNOSTIC_ARRAY:
+        with suppress(LayoutError):
+            return diagnostic_array(data)
+    return store.deserialize_cdr(data, msgtype)
+
+
 def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> MessageBatch:
     """A block of the indexed read as a MessageBatch."""
     order = block.order
@@ -210,8 +231,8 @@ def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> Mess
             for i in range(m.log_time_ns.shape[0]):  # few: the statuses that matter only
                 raw = block.payload(name, i)
                 if any(s in raw for s in DIAGNOSTIC_STATUSES):
-                    diagnostics.append((int(m.log_time_ns[i]),
-                                        store.deserialize_cdr(raw, msgtype)))
+                    diagnostics.append((int(m.log_time_ns[i]), _diagnostic(store, raw,
+                                                                           msgtype)))
                     ranks.append(int(rank[i]))
             fields['diagnostics'] = tuple(diagnostics)
             fields['diagnostic_ranks'] = tuple(ranks)

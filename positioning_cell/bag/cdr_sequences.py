@@ -265,3 +265,90 @@ def trajectory_end(data: bytes, store: Typestore
     leaf = leaves['positions']
     start = leaf.offset + (count - 1) * stride
     return names, raw[start:start + 8 * leaf.elements].view('<f8').astype(float)
+
+
+# -- diagnostic_msgs/DiagnosticArray: strings only, read in one pass -----------------------
+class Time(NamedTuple):
+    """builtin_interfaces/Time."""
+
+    sec: int
+    nanosec: int
+
+
+class Header(NamedTuple):
+    """std_msgs/Header."""
+
+    stamp: Time
+    frame_id: str
+
+
+class KeyValue(NamedTuple):
+    """diagnostic_msgs/KeyValue."""
+
+    key: str
+    value: str
+
+
+class DiagnosticStatus(NamedTuple):
+    """diagnostic_msgs/DiagnosticStatus."""
+
+    level: int
+    name: str
+    message: str
+    hardware_id: str
+    values: tuple[KeyValue, ...]
+
+
+class DiagnosticArray(NamedTuple):
+    """diagnostic_msgs/DiagnosticArray, with the field names of the ROS message (and of
+    rosbags' decoding of it)."""
+
+    header: Header
+    status: tuple[DiagnosticStatus, ...]
+
+
+_STAMP = struct.Struct('<iI')
+_LENGTH = struct.Struct('<I')
+
+
+def diagnostic_array(data: bytes) -> DiagnosticArray:
+    """A DiagnosticArray (little-endian CDR) read in one pass of struct reads: the fields of
+    rosbags' decoding, ~3 times faster (no per-field checks beyond the bounds and each
+    string's terminator). LayoutError for big-endian CDR or bytes that do not parse."""
+    if len(data) < 16 or tuple(data[:2]) != _LITTLE_ENDIAN:
+        raise LayoutError('not little-endian CDR')
+    size = len(data)
+    pos = 12
+
+    def u32() -> int:
+        nonlocal pos
+        pos = (pos + 3) & ~3  # 4-aligned relative to byte 4 = absolute (4 is aligned)
+        if pos + 4 > size:
+            raise LayoutError(f'a length at byte {pos} is past the end')
+        (value,) = _LENGTH.unpack_from(data, pos)
+        pos += 4
+        return int(value)
+
+    def string() -> str:
+        nonlocal pos
+        n = u32()
+        end = pos + n
+        if n < 1 or end > size or data[end - 1] != 0:
+            raise LayoutError(f'a string at byte {pos - 4} is not terminated')
+        pos = end
+        return data[end - n:end - 1].decode()
+
+    sec, nanosec = _STAMP.unpack_from(data, 4)
+    header = Header(Time(int(sec), int(nanosec)), string())
+    statuses = []
+    for _ in range(u32()):
+        if pos >= size:
+            raise LayoutError(f'a status at byte {pos} is past the end')
+        level = data[pos]
+        pos += 1
+        name, message, hardware_id = string(), string(), string()
+        values = tuple(KeyValue(string(), string()) for _ in range(u32()))
+        statuses.append(DiagnosticStatus(level, name, message, hardware_id, values))
+    if not 0 <= size - pos <= MAX_PADDING:
+        raise LayoutError(f'the fields end at byte {pos} of {size}')
+    return DiagnosticArray(header, tuple(statuses))
