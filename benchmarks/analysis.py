@@ -148,6 +148,7 @@ def child(bag: Path, out: Path, plots: bool) -> None:
     a = output.analysis
     print(json.dumps({'seconds': seconds, 'rss_mib': peak_rss_mib(),
                       'visits': len(a.replay.visits), 'modes': [m.mode for m in a.modes],
+                      'visits_by_mode': {m.mode: m.extremes.n for m in a.modes},
                       'measured': a.replay.measured.count, 'truth': a.replay.truth.count,
                       'problems': list(a.problems), 'plots': len(output.plots)}))
 

@@ -13,46 +13,27 @@ The sensitivities J_n come from the nominal mechanism at the commanded pose
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from positioning_cell.accuracy import stamp_seconds
 from positioning_cell.analysis.error_budget import (
     ErrorBudget,
     WindowStats,
     error_budget,
     last_before,
 )
-from positioning_cell.analysis.reading import Recording
+from positioning_cell.analysis.reading import Recording, joint_values
 from positioning_cell.analysis.replay import BEFORE_PROGRAM, LabelledVisit
 from positioning_cell.core import kinematics
-from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.names import JOINT_STATES, JOINT_TRAJECTORY, MEASURED_POSE, TRUE_POSE
 
 FloatArray = NDArray[np.float64]
 
 #: The topics the budget's pass reads.
 BUDGET_TOPICS = (MEASURED_POSE, TRUE_POSE, JOINT_STATES, JOINT_TRAJECTORY)
-
-
-def _joints(names: Sequence[str], values: Sequence[float]) -> FloatArray:
-    """Joint values (6,) in JOINT_NAMES order from a message's names and values (NaN for a
-    joint it lacks)."""
-    found = dict(zip(names, values, strict=False))
-    return np.array([float(found.get(n, math.nan)) for n in JOINT_NAMES])
-
-
-def _joint_rows(messages: Sequence[tuple[int, Any]]) -> tuple[FloatArray, FloatArray]:
-    """/legs/joint_states as header stamps (M,) s and positions (M, 6)."""
-    stamps = np.array([stamp_seconds(m.header.stamp.sec, m.header.stamp.nanosec)
-                       for _, m in messages], dtype=float)
-    values = np.array([_joints(list(m.name), list(m.position)) for _, m in messages],
-                      dtype=float).reshape(-1, 6)
-    return stamps, values
 
 
 def gather(recording: Recording, visits: Sequence[LabelledVisit], mech: Mechanism | None,
@@ -76,12 +57,12 @@ def gather(recording: Recording, visits: Sequence[LabelledVisit], mech: Mechanis
             measured.add(batch.measured.stamp, batch.measured.position)
         if batch.truth.count:
             truth.add(batch.truth.stamp, batch.truth.position)
-        if batch.joint_states:
-            encoders.add(*_joint_rows(batch.joint_states))
-        for log_ns, msg in batch.trajectories:  # one per move or correction: few
-            if msg.points:
+        if batch.joint_states.count:
+            encoders.add(batch.joint_states.stamp, batch.joint_states.position)
+        for log_ns, names, last in batch.trajectories:  # one per move or correction: few
+            if last is not None:
                 sent_at.append(log_ns * 1e-9)
-                sent.append(_joints(list(msg.joint_names), list(msg.points[-1].positions)))
+                sent.append(joint_values(list(names), last.tolist()))
     has_truth = bool(truth.count.sum())
     commanded = last_before(np.array(sent_at), np.array(sent).reshape(-1, 6), stops)
     servo = encoders.mean() - commanded if encoders.count.sum() and sent else None

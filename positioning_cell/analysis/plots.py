@@ -133,11 +133,13 @@ def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
 
 
 def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
-    """Per commanded pose (columns): the attained positions relative to it (µm), x-y (top)
-    and x-z (bottom), one colour per mode, crosses at each mode's barycentre (ISO AP)."""
-    visits = analysis.replay.visits
-    poses = list(dict.fromkeys(v.pose for v in sorted(visits, key=lambda v: v.visit.key)))
+    """Per commanded pose of the program (columns): the attained positions relative to it
+    (µm), x-y (top) and x-z (bottom), one colour per mode, crosses at each mode's barycentre
+    (ISO AP). The visits of no mode of the program (before it: calibration, homing) are not
+    drawn and get no column."""
     mode_colour = colours([m.mode for m in analysis.modes])
+    visits = [v for v in analysis.replay.visits if v.mode in mode_colour]
+    poses = list(dict.fromkeys(v.pose for v in sorted(visits, key=lambda v: v.visit.key)))
     n = max(len(poses), 1)
     fig, axes = figure(3.2 * n, 6.4, 2, n, margins=(0.05, 0.99, 0.9, 0.08),
                        space=(0.35, 0.3))

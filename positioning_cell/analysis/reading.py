@@ -25,10 +25,13 @@ messages lost when the index says. A bag that is not MCAP (rosbag2 sqlite3) is r
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
+import struct
 import tempfile
 from collections.abc import Callable, Collection, Iterator, Sequence
+from contextlib import suppress
 from dataclasses import dataclass, replace
 from itertools import islice
 from pathlib import Path
@@ -39,7 +42,7 @@ from numpy.typing import NDArray
 
 from positioning_cell.accuracy.monitor import PoseMessages
 from positioning_cell.accuracy.settle import stamp_seconds
-from positioning_cell.analysis.replay import MessageBatch
+from positioning_cell.analysis.replay import JointSamples, MessageBatch
 from positioning_cell.bag import (
     BagError,
     BagMessage,
@@ -49,9 +52,16 @@ from positioning_cell.bag import (
     recover_bag,
 )
 from positioning_cell.bag.cdr import Columns, Strings
+from positioning_cell.bag.cdr_sequences import (
+    LayoutError,
+    decode_by_layout,
+    diagnostic_array,
+    trajectory_end,
+)
 from positioning_cell.bag.indexed import Block, IndexedBag, IndexedReadError
 from positioning_cell.bag.opening import mcap_files
 from positioning_cell.bag.verify import BagCheck, storage_files, verify_bag
+from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.names import (
     AXIS_TEST,
     CALIBRATION,
@@ -73,11 +83,13 @@ FloatArray = NDArray[np.float64]
 POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth'}
 #: The text topics (std_msgs/String) and their MessageBatch field.
 TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test'}
-#: Topics decoded message by message (variable layout, few or read only when asked) and
-#: their MessageBatch field.
-OBJECT_TOPICS = {JOINT_STATES: 'joint_states', JOINT_TRAJECTORY: 'trajectories'}
-#: A /diagnostics message is decoded only when it holds one of these statuses.
-DIAGNOSTIC_STATUSES = (STATUS_POSITIONER.encode(), STATUS_MEASUREMENT.encode())
+#: A /diagnostics message is decoded only when it holds one of these statuses: their names
+#: as CDR strings (length, bytes, NUL), so that a text that only mentions a name (the
+#: positioner's inputs status names /pose_measurement) does not count (either byte order).
+DIAGNOSTIC_STATUSES = tuple(struct.pack(order, len(name) + 1) + name.encode() + b'\0'
+                            for name in (STATUS_POSITIONER, STATUS_MEASUREMENT)
+                            for order in ('<I', '>I'))
+DIAGNOSTIC_ARRAY = 'diagnostic_msgs/msg/DiagnosticArray'
 #: Messages per batch where a bag is read message by message (not MCAP).
 MESSAGES_PER_BATCH = 20_000
 
@@ -118,6 +130,72 @@ def _pose_rows(columns: Columns, rank: NDArray[np.intp]) -> PoseMessages:
                     position.astype(float), quaternion.astype(float))
 
 
+def joint_values(names: Sequence[str], values: Sequence[float]) -> FloatArray:
+    """Joint values (6,) in JOINT_NAMES order from a message's names and values (NaN for a
+    joint it lacks)."""
+    found = dict(zip(names, values, strict=False))
+    return np.array([float(found.get(n, math.nan)) for n in JOINT_NAMES])
+
+
+def joint_samples(messages: Sequence[Any]) -> JointSamples:
+    """Decoded JointState messages (rosbags objects) as :class:`JointSamples`, one by one:
+    the reading of a bag read message by message, and the reference of :func:`_joint_block`."""
+    stamps = np.array([stamp_seconds(m.header.stamp.sec, m.header.stamp.nanosec)
+                       for m in messages], dtype=float)
+    values = np.array([joint_values(list(m.name), list(m.position)) for m in messages],
+                      dtype=float).reshape(-1, 6)
+    return JointSamples(stamps, values)
+
+
+def _joint_block(bag: IndexedBag, block: Block, topic: str) -> JointSamples:
+    """A block's JointState messages as :class:`JointSamples`, decoded vectorised per layout
+    (:func:`positioning_cell.bag.cdr_sequences.decode_by_layout`; the joints named as in each
+    layout's template), those of no layout one by one."""
+    m = block.topics[topic]
+    grouped = decode_by_layout(m.msgtype, bag.typestore, block.buffer, m.offsets, m.lengths)
+    n = m.offsets.shape[0]
+    stamp, position = np.empty(n), np.full((n, 6), math.nan)
+    for group in grouped.groups:
+        stamp[group.index] = (group.columns['header.stamp.sec'].astype(float)
+                              + group.columns['header.stamp.nanosec'].astype(float) * 1e-9)
+        names = list(group.template.name)[:group.columns['position'].shape[1]]
+        for j, joint in enumerate(JOINT_NAMES):
+            if joint in names:
+                position[group.index, j] = group.columns['position'][:, names.index(joint)]
+    if grouped.rest.size:  # layouts the vectorised decoding left: one by one
+        rest = joint_samples([bag.typestore.deserialize_cdr(block.payload(topic, int(i)),
+                                                            m.msgtype) for i in grouped.rest])
+        stamp[grouped.rest], position[grouped.rest] = rest.stamp, rest.position
+    return JointSamples(stamp, position)
+
+
+def _last_point(message: Any) -> tuple[tuple[str, ...], FloatArray | None]:
+    """A decoded JointTrajectory's joint names and its last point's positions (None: no
+    point)."""
+    return (tuple(message.joint_names), np.asarray(message.points[-1].positions, dtype=float)
+            if message.points else None)
+
+
+def _trajectory_end(store: Any, data: bytes, msgtype: str
+                    ) -> tuple[tuple[str, ...], FloatArray | None]:
+    """:func:`_last_point` of a JointTrajectory's CDR bytes, without decoding its points
+    (:func:`positioning_cell.bag.cdr_sequences.trajectory_end`) where its points share one
+    shape, else through rosbags."""
+    try:
+        return trajectory_end(data, store)
+    except LayoutError:
+        return _last_point(store.deserialize_cdr(data, msgtype))
+
+
+def _diagnostic(store: Any, data: bytes, msgtype: str) -> Any:
+    """A /diagnostics message decoded: a DiagnosticArray in one pass
+    (:func:`positioning_cell.bag.cdr_sequences.diagnostic_array`), else through rosbags."""
+    if msgtype == DIAGNOSTIC_ARRAY:
+        with suppress(LayoutError):
+            return diagnostic_array(data)
+    return store.deserialize_cdr(data, msgtype)
+
+
 def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> MessageBatch:
     """A block of the indexed read as a MessageBatch."""
     order = block.order
@@ -138,12 +216,14 @@ def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> Mess
                 raise BagError(bag.path, f'{name} is {decoded.msgtype}, not std_msgs/String')
             fields[TEXT_TOPICS[name]] = tuple(zip(decoded.log_time_ns.tolist(), data.tolist(),
                                                   strict=True))
-        elif name in OBJECT_TOPICS:
+        elif name == JOINT_STATES:
+            fields['joint_states'] = _joint_block(bag, block, name)
+        elif name == JOINT_TRAJECTORY:
             m = block.topics[name]
-            fields[OBJECT_TOPICS[name]] = tuple(
-                (int(m.log_time_ns[i]), bag.typestore.deserialize_cdr(block.payload(name, i),
-                                                                      m.msgtype))
-                for i in range(m.log_time_ns.shape[0]))
+            fields['trajectories'] = tuple(
+                (int(m.log_time_ns[i]), *_trajectory_end(bag.typestore, block.payload(name, i),
+                                                         m.msgtype))
+                for i in range(m.log_time_ns.shape[0]))  # one per move or correction: few
         elif name == DIAGNOSTICS:
             m = block.topics[name]
             store, msgtype = bag.typestore, m.msgtype
@@ -151,8 +231,8 @@ def _block_batch(bag: IndexedBag, block: Block, topics: Collection[str]) -> Mess
             for i in range(m.log_time_ns.shape[0]):  # few: the statuses that matter only
                 raw = block.payload(name, i)
                 if any(s in raw for s in DIAGNOSTIC_STATUSES):
-                    diagnostics.append((int(m.log_time_ns[i]),
-                                        store.deserialize_cdr(raw, msgtype)))
+                    diagnostics.append((int(m.log_time_ns[i]), _diagnostic(store, raw,
+                                                                           msgtype)))
                     ranks.append(int(rank[i]))
             fields['diagnostics'] = tuple(diagnostics)
             fields['diagnostic_ranks'] = tuple(ranks)
@@ -165,7 +245,8 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
     texts: dict[str, list[tuple[int, str]]] = {name: [] for name in TEXT_TOPICS}
     diagnostics: list[tuple[int, Any]] = []
     diagnostic_ranks: list[int] = []
-    objects: dict[str, list[tuple[int, Any]]] = {name: [] for name in OBJECT_TOPICS}
+    trajectories: list[tuple[int, tuple[str, ...], FloatArray | None]] = []
+    joints: list[Any] = []
     for rank, item in enumerate(messages, start=offset):
         if item.topic in POSE_TOPICS:
             poses[item.topic].append((rank, item.message))
@@ -174,8 +255,10 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
         elif item.topic == DIAGNOSTICS:
             diagnostics.append((item.log_time_ns, item.message))
             diagnostic_ranks.append(rank)
-        elif item.topic in OBJECT_TOPICS:
-            objects[item.topic].append((item.log_time_ns, item.message))
+        elif item.topic == JOINT_STATES:
+            joints.append(item.message)
+        elif item.topic == JOINT_TRAJECTORY:
+            trajectories.append((item.log_time_ns, *_last_point(item.message)))
     rows: dict[str, PoseMessages] = {}
     for topic, found in poses.items():
         pose = [getattr(m.pose, 'pose', m.pose) for _, m in found]
@@ -193,7 +276,8 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
                         diagnostics=tuple(diagnostics), calibration=tuple(texts[CALIBRATION]),
                         axis_test=tuple(texts[AXIS_TEST]),
                         diagnostic_ranks=tuple(diagnostic_ranks),
-                        **{OBJECT_TOPICS[t]: tuple(found) for t, found in objects.items()})
+                        joint_states=joint_samples(joints),
+                        trajectories=tuple(trajectories))
 
 
 def message_batches(messages: Iterator[BagMessage], size: int = MESSAGES_PER_BATCH

@@ -83,6 +83,21 @@ BEFORE_PROGRAM = 'before program'
 
 
 @dataclass(frozen=True)
+class JointSamples:
+    """Joint messages (/legs/joint_states) as arrays: header stamps (M,) s and positions
+    (M, 6) in :data:`positioning_cell.core.mechanism.JOINT_NAMES` order (m and rad; NaN for a
+    joint a message lacks)."""
+
+    stamp: FloatArray = field(default_factory=lambda: np.empty(0))
+    position: FloatArray = field(default_factory=lambda: np.empty((0, 6)))
+
+    @property
+    def count(self) -> int:
+        """Number of messages."""
+        return int(self.stamp.shape[0])
+
+
+@dataclass(frozen=True)
 class MessageBatch:
     """Consecutive messages of a recording, as the analysis needs them: the pose topics as
     :class:`PoseMessages`, the other topics as (log time ns, message) pairs in recorded order
@@ -100,10 +115,11 @@ class MessageBatch:
     #: ``rank``): where the positioner's move ends go to the monitor. Empty: not known (the
     #: move ends are not used; the monitor falls back on the last stable window of a visit).
     diagnostic_ranks: tuple[int, ...] = ()
-    #: Read only when asked (the error budget's pass): /legs/joint_states and
-    #: /legs/joint_trajectory as (log time ns, decoded message) pairs.
-    joint_states: tuple[tuple[int, Any], ...] = ()
-    trajectories: tuple[tuple[int, Any], ...] = ()
+    #: Read only when asked (the error budget's pass): /legs/joint_states as arrays and
+    #: /legs/joint_trajectory as (log time ns, joint names, the last point's positions (J,);
+    #: None for a trajectory without points).
+    joint_states: JointSamples = field(default_factory=JointSamples)
+    trajectories: tuple[tuple[int, tuple[str, ...], FloatArray | None], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,8 @@
   chunks flushed on demand, optional zstd chunk compression, size / duration splits.
 - :class:`BagReader`: a bag read back through rosbags, raw or decoded.
 - :class:`IndexedBag`: chosen topics of an MCAP bag read through its index in blocks, in
-  bounded memory, decoded vectorised (:mod:`positioning_cell.bag.cdr`); a file without the
+  bounded memory, decoded vectorised (:mod:`positioning_cell.bag.cdr`; types with sequences
+  per layout, :mod:`positioning_cell.bag.cdr_sequences`); a file without the
   index this needs (any valid MCAP layout) is scanned when it is opened
   (:mod:`positioning_cell.bag.file_index`); IndexedReadError when a file cannot be read as
   it is (truncated, damaged).
