@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import os
 import sys
 import tempfile
 import threading
@@ -257,7 +258,7 @@ def run(moves: int, log_dir: Path, verbose: bool = False) -> int:
         print(f'package {Path(positioning_cell.__file__).parent}, config {CELL_YAML}, '
               f'domain {domain}; {moves} moves of {STEP * 1e3:g} mm per mode; one averaged '
               f'reading = {positioner.compensation.samples} at {tracker.rate_hz:g} Hz = '
-              f'{reading_s:.2f} s')
+              f'{reading_s:.2f} s; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs')
         watcher = Watcher(client)
         for exe in NODES:
             procs.start(exe, params=[CELL_YAML])
@@ -270,6 +271,7 @@ def run(moves: int, log_dir: Path, verbose: bool = False) -> int:
         if not homed:
             raise RuntimeError(f'homing failed: {message}')
         results = {mode: run_mode(client, watcher, mode, moves, verbose) for mode in MODES}
+        print(f'load average {os.getloadavg()[0]:.1f} at the end')
         report(results, reading_s)
         procs.stop()
     return 0

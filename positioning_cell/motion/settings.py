@@ -52,6 +52,16 @@ class CompensationSettings:
                                   dynamic=True)
     samples: int = setting(10, 'tracker samples averaged per correction', low=1, high=200,
                            dynamic=True)
+    min_samples: int = setting(
+        3, 'tracker samples after which an averaged reading may end early: once its error is '
+        'within or outside the goal tolerance beyond SIGNIFICANCE standard uncertainties '
+        '(samples or more: never early)', low=3, high=200, dynamic=True)
+    carry_distance: float = setting(
+        0.01, "measured: a goal this close to the last settled move's goal starts with that "
+        "move's correction (0: never)", 'm', low=0.0, high=1.0, dynamic=True)
+    carry_angle: float = setting(
+        0.05, '... and whose orientation differs from it by at most this', 'rad', low=0.0,
+        high=3.2, dynamic=True)
     temperature: TemperatureSettings = group(
         TemperatureSettings, 'the measured air temperature (/cell/air_temperature) the '
         'calibrated thermal terms use')

@@ -5,6 +5,8 @@ frame: m, unit quaternions x, y, z, w."""
 
 from __future__ import annotations
 
+from enum import Enum
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -84,3 +86,38 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike,
     d = np.sqrt(1.0 - share + share / k)
     out: FloatArray = d[:, None] * mean_cov * d[None, :]
     return position, quaternion, 0.5 * (out + out.T)
+
+
+class Verdict(Enum):
+    """What a measured error says of a tolerance, its uncertainty taken into account."""
+
+    WITHIN = 'within'        # within, even each component enlarged by its margin
+    OUTSIDE = 'outside'      # outside, even each component shrunk by its margin
+    UNDECIDED = 'undecided'  # the measurement cannot tell yet
+
+
+def verdict(position_error: ArrayLike, rotation_error: ArrayLike, sigma: ArrayLike,
+            position_tolerance: float, orientation_tolerance: float,
+            significance: float) -> Verdict:
+    """Whether an error Δp (3,) m, rotation vector (3,) rad measured with standard uncertainty
+    ``sigma`` (6,) (x, y, z m, rot-x, rot-y, rot-z rad) is within the tolerances (norms of Δp
+    and of the rotation vector, m and rad) beyond doubt: WITHIN when the norms stay within
+    both even with every component's magnitude enlarged by ``significance``·σ; OUTSIDE when
+    one exceeds its tolerance even with every magnitude shrunk by that much (not below 0);
+    else UNDECIDED. With σ = 0 it is the plain comparison of the norms."""
+    e = np.abs(np.concatenate([np.asarray(position_error, dtype=float).reshape(3),
+                               np.asarray(rotation_error, dtype=float).reshape(3)]))
+    margin = significance * np.asarray(sigma, dtype=float).reshape(6)
+    if not (np.all(np.isfinite(e)) and np.all(np.isfinite(margin)) and np.all(margin >= 0.0)):
+        raise InputError('verdict: errors and sigma must be finite, sigma >= 0')
+    tolerances = (position_tolerance, orientation_tolerance)
+
+    def norms(v: FloatArray) -> tuple[float, float]:
+        return float(np.linalg.norm(v[:3])), float(np.linalg.norm(v[3:]))
+
+    high, low = norms(e + margin), norms(np.maximum(e - margin, 0.0))
+    if all(n <= t for n, t in zip(high, tolerances, strict=True)):
+        return Verdict.WITHIN
+    if any(n > t for n, t in zip(low, tolerances, strict=True)):
+        return Verdict.OUTSIDE
+    return Verdict.UNDECIDED
