@@ -41,8 +41,11 @@ from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
 from positioning_cell.moves.correction import (
     Verdict,
     corrected_command,
+    correction_offset,
     deviation,
     mean_reading,
+    offset_command,
+    predicted_offset,
     verdict,
 )
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
@@ -109,6 +112,8 @@ class Estimate(NamedTuple):
 POLL_PERIOD = 0.02
 #: Tracker readings kept for averaging.
 MEASUREMENTS_KEPT = 200
+#: Settled moves whose corrections a nearby goal starts with (``measured`` mode).
+CARRIED_MOVES = 6
 
 
 def _joints(traj: Trajectory, t: float) -> FloatArray:
@@ -161,9 +166,9 @@ class Mover:
         #: ``measured``: the averaged reading (position, quaternion, covariance) that ended the
         #: last move, while the machine has not moved since (None otherwise).
         self._verified: tuple[FloatArray, FloatArray, FloatArray] | None = None
-        #: ``measured``: the last move that settled on the tracker, as (goal, its last command,
-        #: the reading there), each (position, quaternion): its correction is carried forward.
-        self._carry: tuple[tuple[FloatArray, FloatArray], ...] | None = None
+        #: ``measured``: the last :data:`CARRIED_MOVES` moves that settled on the tracker, as
+        #: (goal position, goal quaternion, correction offset): nearby goals start with them.
+        self._carry: list[tuple[FloatArray, FloatArray, FloatArray]] = []
 
     # -- inputs ---------------------------------------------------------------------------------
     def reconfigure(self, settings: PositionerSettings) -> None:
@@ -173,13 +178,13 @@ class Mover:
         model are not those of the new one)."""
         with self.cond:
             if settings.mode is not self.settings.mode:
-                self.command, self._carry = None, None
+                self.command, self._carry = None, []
             path = settings.compensation.calibration_file
             if path != self.settings.compensation.calibration_file:
                 pending = self._pending
                 self.calibration = (pending[1] if pending is not None and pending[0] == path
                                     else calibrated_machine(settings))
-                self._pending, self.command, self._carry = None, None, None
+                self._pending, self.command, self._carry = None, None, []
             self.settings = settings
             self.standstill.settings = settings.standstill
             self.compensation.temperature.settings = settings.compensation.temperature
@@ -709,7 +714,8 @@ class Mover:
             if tol.holds(e_p, e_r):
                 with self.cond:
                     self._verified = (m_p, m_q, cov)
-                    self._carry = ((p, q), command, (m_p, m_q))
+                    self._carry = [*self._carry[1 - CARRIED_MOVES:],
+                                   (p, q, correction_offset(*command, m_p, m_q))]
                 return e_p, e_r, f'settled within tolerance: {text}', sigma
             if not np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma):
                 raise MoveAbortedError(
@@ -725,22 +731,24 @@ class Mover:
         raise AssertionError('unreachable')
 
     def _carried(self, p: FloatArray, q: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """The first command of a move to (p, q): in ``measured`` mode, when the last move that
-        settled on the tracker had its goal within ``compensation.carry_distance`` and
-        ``carry_angle`` of this one, the goal moved by that move's correction (the deviation
-        of its last command from its last reading: the machine's error changes little over
-        such a step, :func:`corrected_command`); else the goal."""
+        """The first command of a move to (p, q): in ``measured`` mode, the goal moved by the
+        correction expected there from the last moves that settled on the tracker with goals
+        within ``compensation.carry_distance`` and ``carry_angle`` of it (the machine's error
+        changes little and smoothly over such steps: :func:`predicted_offset`, an affine fit
+        over their goals); without such moves, the goal."""
         comp = self.settings.compensation
         with self.cond:
-            carry = self._carry
-        if carry is None or self.mode is not CompensationMode.MEASURED:
+            carry = list(self._carry)
+        if self.mode is not CompensationMode.MEASURED or comp.carry_distance <= 0.0:
             return p, q
-        goal, command, reading = carry
-        d_p, d_r = deviation(p, q, *goal)
-        if not (np.linalg.norm(d_p) <= comp.carry_distance
-                and np.linalg.norm(d_r) <= comp.carry_angle and comp.carry_distance > 0.0):
+        near = [(g_p, off) for g_p, g_q, off in carry
+                if np.linalg.norm(g_p - p) <= comp.carry_distance
+                and np.linalg.norm(deviation(p, q, g_p, g_q)[1]) <= comp.carry_angle]
+        if not near:
             return p, q
-        return corrected_command(p, q, *command, *reading)
+        offset = predicted_offset([g for g, _ in near], [o for _, o in near], p,
+                                  comp.carry_distance)
+        return offset_command(p, q, offset)
 
     def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
         """Send the move to (p, q), wait for the drives to accept it, to arrive, to settle."""

@@ -5,6 +5,7 @@ frame: m, unit quaternions x, y, z, w."""
 
 from __future__ import annotations
 
+import math
 from enum import Enum
 
 import numpy as np
@@ -121,3 +122,49 @@ def verdict(position_error: ArrayLike, rotation_error: ArrayLike, sigma: ArrayLi
     if any(n > t for n, t in zip(low, tolerances, strict=True)):
         return Verdict.OUTSIDE
     return Verdict.UNDECIDED
+
+
+def correction_offset(command_p: ArrayLike, command_q: ArrayLike, measured_p: ArrayLike,
+                      measured_q: ArrayLike) -> FloatArray:
+    """What a settled move's correction was: the offset (6,) from the measured pose to the
+    command that put the platform there, p_cmd − p_meas (m) and the rotation vector of
+    R_cmd·R_measᵀ (rad), base frame (:func:`offset_command` applies it to another goal as
+    :func:`corrected_command` does)."""
+    cp, cq = as_pose_batch(command_p, command_q)
+    mp, mq = as_pose_batch(measured_p, measured_q)
+    turn = Rotation.from_quat(cq) * Rotation.from_quat(mq).inv()
+    return np.concatenate([(cp - mp)[0], turn.as_rotvec()[0]])
+
+
+def offset_command(goal_p: ArrayLike, goal_q: ArrayLike,
+                   offset: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """The command (3,) m, (4,) for a goal moved by a correction ``offset`` (6,)
+    (:func:`correction_offset`): p = p_goal + Δp, R = exp([θ]×)·R_goal (base frame)."""
+    gp, gq = as_pose_batch(goal_p, goal_q)
+    off = np.asarray(offset, dtype=float).reshape(6)
+    rot = Rotation.from_rotvec(off[3:]) * Rotation.from_quat(gq[0])
+    return gp[0] + off[:3], np.asarray(rot.as_quat(canonical=True))
+
+
+def predicted_offset(goals_p: ArrayLike, offsets: ArrayLike, goal_p: ArrayLike,
+                     scale: float, rcond: float = 0.2) -> FloatArray:
+    """The correction offset (6,) (:func:`correction_offset`) expected at ``goal_p`` (3,) m
+    from those of K nearby settled moves, ``offsets`` (K, 6) at their goals (K, 3) m: a
+    least-squares affine fit offset(p) = a + B·(p − p̄)/scale, the goals' mean p̄ and
+    ``scale`` m (the neighbourhood's size). Directions in which the goals spread less than
+    ``rcond`` times the fit's strongest direction (as singular values of [1, (p − p̄)/scale])
+    get no slope: one goal, or goals close together, carry their mean offset; goals along a
+    line, a slope along it only."""
+    g = np.asarray(goals_p, dtype=float).reshape(-1, 3)
+    off = np.asarray(offsets, dtype=float)
+    if off.shape != (len(g), 6) or len(g) == 0:
+        raise InputError(f'offsets: expected shape ({len(g)}, 6) for {len(g)} goals (at least '
+                         f'one), got {off.shape}')
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise InputError(f'scale = {scale!r}: must be a finite length > 0 (m)')
+    centre = g.mean(axis=0)
+    design = np.hstack([np.ones((len(g), 1)), (g - centre) / scale])
+    coef = np.linalg.lstsq(design, off, rcond=rcond)[0]
+    at = np.concatenate([[1.0], (np.asarray(goal_p, dtype=float).reshape(3) - centre) / scale])
+    out: FloatArray = at @ coef
+    return out
