@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from idle_cpu import (
     NODES,
     START_TIMEOUT,
@@ -116,10 +116,26 @@ class Watcher:
         self._guard = threading.Lock()
         self.states: list[tuple[float, str]] = []   # (published, 'state: reason')
         self.truth: tuple[np.ndarray, np.ndarray] | None = None
+        self.readings: list[float] = []             # published, each /metrology/pose
         client.node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diag,
                                         DIAGNOSTICS_QOS)
         client.node.create_subscription(PoseStamped, names.TRUE_POSE, self._on_truth,
                                         STREAM_QOS)
+        client.node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
+                                        self._on_reading, STREAM_QOS)
+
+    def _on_reading(self, _: PoseWithCovarianceStamped, info: dict[str, int]) -> None:
+        at = published_monotonic(info)
+        with self._guard:
+            self.readings.append(at)
+
+    def tracker_rate(self, t0: float, t1: float) -> tuple[float, float]:
+        """The tracker's readings per s between t0 and t1 and its longest gap, s."""
+        with self._guard:
+            t = np.array([r for r in self.readings if t0 <= r <= t1])
+        if len(t) < 2:
+            return float('nan'), float('nan')
+        return (len(t) - 1) / (t[-1] - t[0]), float(np.diff(t).max())
 
     def _on_diag(self, msg: DiagnosticArray, info: dict[str, int]) -> None:
         at = published_monotonic(info)
@@ -300,7 +316,13 @@ def run(moves: int, log_dir: Path, verbose: bool = False) -> int:
         homed, message = client.trigger(names.HOME)
         if not homed:
             raise RuntimeError(f'homing failed: {message}')
-        runs = {mode: run_mode(client, watcher, mode, moves, verbose) for mode in MODES}
+        runs = {}
+        for mode in MODES:
+            t0 = time.monotonic()
+            runs[mode] = run_mode(client, watcher, mode, moves, verbose)
+            rate, gap = watcher.tracker_rate(t0, time.monotonic())
+            print(f'{mode}: the tracker published {rate:.1f} readings/s (nominal '
+                  f'{tracker.rate_hz:g}), longest gap {gap:.2f} s')
         print(f'load average {os.getloadavg()[0]:.1f} at the end')
         for mode, (_, failed) in runs.items():
             for words in failed:

@@ -650,7 +650,7 @@ class Mover:
                 verified = self._verified
             if verified is not None and self._verdict(*verified, p, q, tol) is Verdict.OUTSIDE:
                 return None  # the reading that ended the last move puts the goal out of reach
-            m_p, m_q, cov = self._measure(lambda *mean: self._verdict(*mean, p, q, tol)
+            m_p, m_q, cov = self._measure(lambda mp, mq, c: self._verdict(mp, mq, c, p, q, tol)
                                           is not Verdict.UNDECIDED)
             e_p, e_r = deviation(m_p, m_q, p, q)
             sigma = np.sqrt(np.diag(cov))
@@ -705,7 +705,7 @@ class Mover:
         for done in range(iterations + 1):
             self._set_state(self.state, f'measuring: up to {self.settings.compensation.samples}'
                             f' readings on {MEASURED_POSE}')
-            m_p, m_q, cov = self._measure(lambda *mean: self._verdict(*mean, p, q, tol)
+            m_p, m_q, cov = self._measure(lambda mp, mq, c: self._verdict(mp, mq, c, p, q, tol)
                                           is Verdict.WITHIN)
             e_p, e_r = deviation(m_p, m_q, p, q)
             sigma = np.sqrt(np.diag(cov))
