@@ -167,8 +167,9 @@ class Mover:
         #: last move, while the machine has not moved since (None otherwise).
         self._verified: tuple[FloatArray, FloatArray, FloatArray] | None = None
         #: ``measured``: the last :data:`CARRIED_MOVES` moves that settled on the tracker, as
-        #: (goal position, goal quaternion, correction offset): nearby goals start with them.
-        self._carry: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+        #: (goal position, goal quaternion, correction offset, standard uncertainty (6,) of the
+        #: reading it rests on): nearby goals start with them.
+        self._carry: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []
 
     # -- inputs ---------------------------------------------------------------------------------
     def reconfigure(self, settings: PositionerSettings) -> None:
@@ -715,7 +716,7 @@ class Mover:
                 with self.cond:
                     self._verified = (m_p, m_q, cov)
                     self._carry = [*self._carry[1 - CARRIED_MOVES:],
-                                   (p, q, correction_offset(*command, m_p, m_q))]
+                                   (p, q, correction_offset(*command, m_p, m_q), sigma)]
                 return e_p, e_r, f'settled within tolerance: {text}', sigma
             if not np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma):
                 raise MoveAbortedError(
@@ -735,19 +736,25 @@ class Mover:
         correction expected there from the last moves that settled on the tracker with goals
         within ``compensation.carry_distance`` and ``carry_angle`` of it (the machine's error
         changes little and smoothly over such steps: :func:`predicted_offset`, an affine fit
-        over their goals); without such moves, the goal."""
+        over their goals); without such moves, or when no component of that correction
+        exceeds :data:`SIGNIFICANCE` times the mean standard uncertainty of their readings (a
+        machine the model already fits: carrying would only add the readings' noise), the
+        goal."""
         comp = self.settings.compensation
         with self.cond:
             carry = list(self._carry)
         if self.mode is not CompensationMode.MEASURED or comp.carry_distance <= 0.0:
             return p, q
-        near = [(g_p, off) for g_p, g_q, off in carry
+        near = [(g_p, off, sigma) for g_p, g_q, off, sigma in carry
                 if np.linalg.norm(g_p - p) <= comp.carry_distance
                 and np.linalg.norm(deviation(p, q, g_p, g_q)[1]) <= comp.carry_angle]
         if not near:
             return p, q
-        offset = predicted_offset([g for g, _ in near], [o for _, o in near], p,
+        offset = predicted_offset([g for g, _, _ in near], [o for _, o, _ in near], p,
                                   comp.carry_distance)
+        noise = np.mean([sigma for _, _, sigma in near], axis=0)
+        if not np.any(np.abs(offset) > SIGNIFICANCE * noise):
+            return p, q
         return offset_command(p, q, offset)
 
     def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
