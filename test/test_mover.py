@@ -818,3 +818,22 @@ def test_a_reading_ends_early_only_when_it_decides(decided: object, expected: in
     assert start >= first - 1e-9
     np.testing.assert_allclose(start, round(start), atol=1e-6)
     assert world.count >= round(start) + expected - 1
+
+
+@pytest.mark.parametrize(('sigma', 'carried'), [(5e-6, False), (1e-6, True)])
+def test_a_correction_within_the_readings_noise_is_not_carried(sigma: float,
+                                                               carried: bool) -> None:
+    """Legs 4 µm long settle within tolerance without a correction: that offset, within
+    2 sigma of 5 µm readings, is noise and the next goal starts from the model; read to
+    1 µm it is the machine's and is carried."""
+    world = StatedWorld(sigma)
+    world.bias[:3] = 4e-6
+    m = mover(world, 'measured')
+    assert 'after 0 corrections' in m.move('base', GOAL, GOAL_Q).reason
+    sent = len(world.trajectories)
+    reason = m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q).reason
+    assert ("(started with the last move's correction)" in reason) is carried, reason
+    ideal = kinematics.inverse(MECH, GOAL + [0.001, 0.0, 0.0], GOAL_Q)
+    first = world.trajectories[sent]
+    at_goal = np.allclose(first.lengths[-1], ideal.lengths[0], atol=1e-9)
+    assert at_goal is not carried
