@@ -52,8 +52,13 @@ import positioning_cell
 from positioning_cell import names
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.poses import pose_error
-from positioning_cell.motion.settings import COMPENSATION_MODE, PositionerSettings
+from positioning_cell.motion.settings import (
+    CARRY_DISTANCE,
+    COMPENSATION_MODE,
+    PositionerSettings,
+)
 from positioning_cell.parameters import parse
+from positioning_cell.polling import wait_until
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import free_domain
 from positioning_cell.ros.messages import pose_arrays, pose_stamped, published_monotonic
@@ -116,7 +121,7 @@ class Watcher:
     def __init__(self, client: CellClient) -> None:
         self._guard = threading.Lock()
         self.states: list[tuple[float, str]] = []   # (published, 'state: reason')
-        self.truth: tuple[np.ndarray, np.ndarray] | None = None
+        self.truth: tuple[float, np.ndarray, np.ndarray] | None = None  # published, pose
         self.readings: list[float] = []             # published, each /metrology/pose
         client.node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diag,
                                         DIAGNOSTICS_QOS)
@@ -150,18 +155,24 @@ class Watcher:
                         not self.states or self.states[-1][1] != status.message):
                     self.states.append((at, status.message))
 
-    def _on_truth(self, msg: PoseStamped) -> None:
+    def _on_truth(self, msg: PoseStamped, info: dict[str, int]) -> None:
+        at = published_monotonic(info)
         with self._guard:
-            self.truth = pose_arrays(msg.pose)
+            self.truth = (at, *pose_arrays(msg.pose))
 
     def since(self, t0: float) -> list[tuple[float, str]]:
         with self._guard:
             return [s for s in self.states if s[0] >= t0]
 
-    def true_pose(self) -> tuple[np.ndarray, np.ndarray]:
+    def true_pose(self, after: float) -> tuple[np.ndarray, np.ndarray]:
+        """The first true pose published after ``after`` (monotonic s)."""
+        def fresh() -> bool:
+            with self._guard:
+                return self.truth is not None and self.truth[0] > after
+        wait_until(fresh, 10.0, f'a true pose on {names.TRUE_POSE}')
         with self._guard:
-            assert self.truth is not None, 'no true pose yet'
-            return self.truth
+            assert self.truth is not None
+            return self.truth[1], self.truth[2]
 
 
 def phases(states: list[tuple[float, str]], t0: float, t1: float,
@@ -218,8 +229,7 @@ def move(client: CellClient, watcher: Watcher, goal: np.ndarray,
     if response.outcome.code != MoveOutcome.SUCCESS:
         raise MoveFailedError(f'move to {goal.tolist()} failed: {response.outcome.code_name}: '
                            f'{response.outcome.reason}')
-    time.sleep(0.3)  # the newest true pose is of the platform at rest
-    p, q = watcher.true_pose()
+    p, q = watcher.true_pose(t1)  # of the platform at rest
     if verbose:
         for at, text in watcher.since(t0 - 0.05):
             print(f'  {at - t0:7.3f} {text[:110]}')
@@ -244,9 +254,12 @@ def walk(moves: int) -> np.ndarray:
 
 
 def run_mode(client: CellClient, watcher: Watcher, mode: str, moves: int,
-             verbose: bool) -> tuple[list[Timed], list[str]]:
-    """The timed moves that succeeded, and how the others failed."""
+             verbose: bool, carry: float = 0.0) -> tuple[list[Timed], list[str]]:
+    """The timed moves that succeeded, and how the others failed (``carry``: the
+    positioner's compensation.carry_distance, m)."""
     set_parameter(client, names.NODE_POSITIONER, COMPENSATION_MODE, mode)
+    if carry:  # else as configured (a positioner before the carry has no such parameter)
+        set_parameter(client, names.NODE_POSITIONER, CARRY_DISTANCE, carry)
     goals = walk(moves)
     with contextlib.suppress(MoveFailedError):  # from where the last mode ended: not timed
         move(client, watcher, goals[0])
@@ -307,7 +320,7 @@ def report(results: dict[str, list[Timed]], reading_s: float, rate_hz: float) ->
     return ok
 
 
-def run(moves: int, log_dir: Path, verbose: bool = False) -> int:
+def run(moves: int, log_dir: Path, verbose: bool = False, carry_m: float = 0.0) -> int:
     config = load_parameter_file(CELL_YAML)
     positioner = parse(PositionerSettings, node_parameters(config, names.NODE_POSITIONER))
     tracker = parse(PoseMeasurementSettings, node_parameters(config, names.NODE_MEASUREMENT))
@@ -331,11 +344,12 @@ def run(moves: int, log_dir: Path, verbose: bool = False) -> int:
         if not homed:
             raise RuntimeError(f'homing failed: {message}')
         runs = {}
-        for mode in MODES:
+        for label, mode, carry in [(m, m, 0.0) for m in MODES] + (
+                [(f'carry {carry_m * 1e3:g}mm', 'measured', carry_m)] if carry_m else []):
             t0 = time.monotonic()
-            runs[mode] = run_mode(client, watcher, mode, moves, verbose)
+            runs[label] = run_mode(client, watcher, mode, moves, verbose, carry)
             rate, gap = watcher.tracker_rate(t0, time.monotonic())
-            print(f'{mode}: the tracker published {rate:.1f} readings/s (nominal '
+            print(f'{label}: the tracker published {rate:.1f} readings/s (nominal '
                   f'{tracker.rate_hz:g}), longest gap {gap:.2f} s')
         print(f'load average {os.getloadavg()[0]:.1f} at the end')
         for mode, (_, failed) in runs.items():
@@ -350,13 +364,15 @@ def run(moves: int, log_dir: Path, verbose: bool = False) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--moves', type=int, default=8, help='timed moves per mode (default 8)')
+    parser.add_argument('--carry', type=float, default=0.0, metavar='M',
+                        help='also run measured mode with compensation.carry_distance M (m)')
     parser.add_argument('--verbose', action='store_true',
                         help="print each move's state changes")
     args = parser.parse_args(argv)
     standalone_environment('measuredmove')
     with tempfile.TemporaryDirectory(prefix='measured_move_') as log_dir:
         try:
-            return run(args.moves, Path(log_dir), args.verbose)
+            return run(args.moves, Path(log_dir), args.verbose, args.carry)
         except (TimeoutError, RuntimeError) as err:
             print(f'benchmark failed: {err}', file=sys.stderr)
             return 1

@@ -769,7 +769,7 @@ def trajectories_for_a_second_move(**changes: object) -> tuple[int, str, Mover, 
     """A measured move to GOAL on a machine with clearance, then one 1 mm away: the
     trajectories the second sent, its words, the mover and the world."""
     world = World(CLEARANCE)
-    m = mover(world, 'measured', **changes)
+    m = mover(world, 'measured', **{'compensation.carry_distance': 0.01, **changes})
     m.move('base', GOAL, GOAL_Q)
     sent = len(world.trajectories)
     result = m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q)
@@ -783,7 +783,7 @@ def test_a_nearby_goal_starts_with_the_last_moves_correction() -> None:
     e_p, e_r = deviation(*world.attained(), GOAL + [0.001, 0.0, 0.0], GOAL_Q)
     assert tol.holds(e_p, e_r)  # within tolerance, as the tracker judged
     fresh, plain, _, _ = trajectories_for_a_second_move(**{'compensation.carry_distance': 0.0})
-    assert 'started with' not in plain and fresh >= 2  # the model alone needs a correction
+    assert 'started with' not in plain and fresh >= 2  # 0: never; the model alone corrects
     assert carried < fresh
     _, far, _, _ = trajectories_for_a_second_move(**{'compensation.carry_distance': 5e-4})
     assert 'started with' not in far  # 1 mm is beyond 0.5 mm: not carried
@@ -828,7 +828,7 @@ def test_a_correction_within_the_readings_noise_is_not_carried(sigma: float,
     1 µm it is the machine's and is carried."""
     world = StatedWorld(sigma)
     world.bias[:3] = 4e-6
-    m = mover(world, 'measured')
+    m = mover(world, 'measured', **{'compensation.carry_distance': 0.01})
     assert 'after 0 corrections' in m.move('base', GOAL, GOAL_Q).reason
     sent = len(world.trajectories)
     reason = m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q).reason

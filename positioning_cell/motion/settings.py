@@ -57,8 +57,10 @@ class CompensationSettings:
         'within or outside the goal tolerance beyond SIGNIFICANCE standard uncertainties '
         '(samples or more: never early)', low=3, high=200, dynamic=True)
     carry_distance: float = setting(
-        0.01, "measured: a goal this close to the last settled move's goal starts with that "
-        "move's correction (0: never)", 'm', low=0.0, high=1.0, dynamic=True)
+        0.0, 'measured: a goal this close to recently settled goals starts with their '
+        'corrections (affine fit; 0: never; quicker on an uncalibrated machine, but a landing '
+        'within tolerance is then kept where a fresh correction would land closer)', 'm',
+        low=0.0, high=1.0, dynamic=True)
     carry_angle: float = setting(
         0.05, '... and whose orientation differs from it by at most this', 'rad', low=0.0,
         high=3.2, dynamic=True)
@@ -301,8 +303,10 @@ class PositionerSettings:
 
 
 #: The positioner's parameters that other programs read or set (the tools, the calibrator):
-#: its compensation mode and the calibration file it loads (:class:`CompensationSettings`).
+#: its compensation mode, the carry distance and the calibration file it loads
+#: (:class:`CompensationSettings`).
 COMPENSATION_MODE = 'compensation.mode'
+CARRY_DISTANCE = 'compensation.carry_distance'
 CALIBRATION_FILE = 'compensation.calibration_file'
 
 
