@@ -837,3 +837,21 @@ def test_a_correction_within_the_readings_noise_is_not_carried(sigma: float,
     first = world.trajectories[sent]
     at_goal = np.allclose(first.lengths[-1], ideal.lengths[0], atol=1e-9)
     assert at_goal is not carried
+
+
+def test_a_carried_start_within_tolerance_is_corrected_when_the_error_is_significant() -> None:
+    """Legs 4 µm short, then 4 µm long (the drives arrive within their 5 µm): the second move
+    starts with the first's correction and lands about twice as far off, within tolerance
+    but beyond 2 sigma of 1 µm readings: corrected once. A start from the model alone lands
+    within tolerance and is kept, as the loop always did."""
+    def second(carry: float) -> str:
+        world = StatedWorld(1e-6)
+        world.bias[:3] = -4e-6
+        m = mover(world, 'measured', **{'compensation.carry_distance': carry})
+        m.move('base', GOAL, GOAL_Q)
+        world.bias[:3] = 4e-6
+        return m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q).reason
+
+    carried = second(0.01)
+    assert "after 1 corrections (started with the last move's correction)" in carried, carried
+    assert 'after 0 corrections' in second(0.0)

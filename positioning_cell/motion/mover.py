@@ -698,7 +698,9 @@ class Mover:
         """``measured``: the closed loop on the tracker until within ``tol``. A remaining error
         that no component of exceeds :data:`SIGNIFICANCE` standard uncertainties of the
         averaged measurement is not corrected (that would chase noise): within tolerance it is
-        a success, else out of tolerance, as is running out of iterations. The result states
+        a success, else out of tolerance, as is running out of iterations. A start with carried
+        corrections (:meth:`_carried`) that lands within tolerance but with a significant error
+        is corrected once (a correction from the model would land closer). The result states
         the measured error with its uncertainty."""
         iterations = self.settings.compensation.max_iterations
         carried = (' (started with the last move\'s correction)'
@@ -712,13 +714,15 @@ class Mover:
             sigma = np.sqrt(np.diag(cov))
             text = (_error_text(e_p, e_r, 'measured error') + f' ± {_sigma_text(sigma)} (1 '
                     f'sigma) after {done} corrections{carried}')
-            if tol.holds(e_p, e_r):
+            significant = bool(np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma))
+            # a carried start is kept only where a correction could not improve it
+            if tol.holds(e_p, e_r) and not (carried and done == 0 and significant):
                 with self.cond:
                     self._verified = (m_p, m_q, cov)
                     self._carry = [*self._carry[1 - CARRIED_MOVES:],
                                    (p, q, correction_offset(*command, m_p, m_q), sigma)]
                 return e_p, e_r, f'settled within tolerance: {text}', sigma
-            if not np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma):
+            if not significant:
                 raise MoveAbortedError(
                     ResultCode.OUT_OF_TOLERANCE, f'settled outside tolerance: {text}; the '
                     f'error is within {SIGNIFICANCE:g} sigma of the measurement, a correction '
