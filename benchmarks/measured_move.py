@@ -254,11 +254,11 @@ def walk(moves: int) -> np.ndarray:
 
 
 def run_mode(client: CellClient, watcher: Watcher, mode: str, moves: int,
-             verbose: bool, carry: float = 0.0) -> tuple[list[Timed], list[str]]:
+             verbose: bool, carry: float | None = None) -> tuple[list[Timed], list[str]]:
     """The timed moves that succeeded, and how the others failed (``carry``: the
-    positioner's compensation.carry_distance, m)."""
+    positioner's compensation.carry_distance, m; None: as configured)."""
     set_parameter(client, names.NODE_POSITIONER, COMPENSATION_MODE, mode)
-    if carry:  # else as configured (a positioner before the carry has no such parameter)
+    if carry is not None:  # (a positioner before the carry has no such parameter)
         set_parameter(client, names.NODE_POSITIONER, CARRY_DISTANCE, carry)
     goals = walk(moves)
     with contextlib.suppress(MoveFailedError):  # from where the last mode ended: not timed
@@ -320,7 +320,8 @@ def report(results: dict[str, list[Timed]], reading_s: float, rate_hz: float) ->
     return ok
 
 
-def run(moves: int, log_dir: Path, verbose: bool = False, carry_m: float = 0.0) -> int:
+def run(moves: int, log_dir: Path, verbose: bool = False,
+        carry_m: float | None = None) -> int:
     config = load_parameter_file(CELL_YAML)
     positioner = parse(PositionerSettings, node_parameters(config, names.NODE_POSITIONER))
     tracker = parse(PoseMeasurementSettings, node_parameters(config, names.NODE_MEASUREMENT))
@@ -344,8 +345,10 @@ def run(moves: int, log_dir: Path, verbose: bool = False, carry_m: float = 0.0) 
         if not homed:
             raise RuntimeError(f'homing failed: {message}')
         runs = {}
-        for label, mode, carry in [(m, m, 0.0) for m in MODES] + (
-                [(f'carry {carry_m * 1e3:g}mm', 'measured', carry_m)] if carry_m else []):
+        sets: list[tuple[str, str, float | None]] = [(m, m, None) for m in MODES]
+        if carry_m is not None:
+            sets.append((f'carry {carry_m * 1e3:g}mm', 'measured', carry_m))
+        for label, mode, carry in sets:
             t0 = time.monotonic()
             runs[label] = run_mode(client, watcher, mode, moves, verbose, carry)
             rate, gap = watcher.tracker_rate(t0, time.monotonic())
@@ -364,8 +367,9 @@ def run(moves: int, log_dir: Path, verbose: bool = False, carry_m: float = 0.0) 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--moves', type=int, default=8, help='timed moves per mode (default 8)')
-    parser.add_argument('--carry', type=float, default=0.0, metavar='M',
-                        help='also run measured mode with compensation.carry_distance M (m)')
+    parser.add_argument('--carry', type=float, default=None, metavar='M',
+                        help='also run measured mode with compensation.carry_distance M (m; '
+                        '0: without carrying corrections)')
     parser.add_argument('--verbose', action='store_true',
                         help="print each move's state changes")
     args = parser.parse_args(argv)

@@ -57,10 +57,9 @@ class CompensationSettings:
         'within or outside the goal tolerance beyond SIGNIFICANCE standard uncertainties '
         '(samples or more: never early)', low=3, high=200, dynamic=True)
     carry_distance: float = setting(
-        0.0, 'measured: a goal this close to recently settled goals starts with their '
-        'corrections (affine fit; 0: never; quicker on an uncalibrated machine, but a landing '
-        'within tolerance is then kept where a fresh correction would land closer)', 'm',
-        low=0.0, high=1.0, dynamic=True)
+        0.01, 'measured: a goal this close to recently settled goals starts with their '
+        'corrections beyond the readings\' noise (affine fit; 0: never)', 'm', low=0.0,
+        high=1.0, dynamic=True)
     carry_angle: float = setting(
         0.05, '... and whose orientation differs from it by at most this', 'rad', low=0.0,
         high=3.2, dynamic=True)
