@@ -16,7 +16,8 @@ stops them (stop, drive fault, drives disabled, no joint states, an encoder froz
 number, the drives refusing the trajectory or not answering it, a silent or inconsistent
 tracker, a timeout). Compensation modes: ``none`` commands nominal inverse kinematics; ``model``
 the configured clearance model; ``measured`` the model, then corrections from averaged tracker
-readings until within the goal tolerance or out of iterations.
+readings until within the goal tolerance or out of iterations (a goal near recently settled
+ones starts with their corrections, :meth:`Mover._carried`).
 """
 
 from __future__ import annotations
