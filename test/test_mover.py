@@ -736,3 +736,122 @@ def test_the_inputs_report_names_every_second_publisher() -> None:
     level, message, values = inputs_report({'/a': ['/x', '/y'], '/b': []}, ['/leg_driver'])
     assert level == 'error' and message == 'second publisher on /a: /x, /y (ignored)'
     assert values == {'/a': '/x /y', '/b': ''}
+
+
+# -- the speed of measured mode ----------------------------------------------------------------
+CLEARANCE = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(3))
+
+
+def test_a_goal_beyond_doubt_away_from_the_last_reading_is_moved_to_without_reading_first(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The reading that settled the last move puts the next goal, 2 mm away, out of reach:
+    the move starts without an is-it-already-there reading; one within tolerance of it is
+    still read, and not moved to."""
+    world = World(CLEARANCE)
+    m = mover(world, 'measured')
+    m.move('base', GOAL, GOAL_Q)
+    sent = len(world.trajectories)
+    looks: list[int] = []  # trajectories sent before each reading
+    measure = m._measure
+    monkeypatch.setattr(m, '_measure', lambda *a, **k: (looks.append(len(world.trajectories)),
+                                                         measure(*a, **k))[1])
+    away = GOAL + [0.002, 0.0, 0.0]
+    m.move('base', away, GOAL_Q)
+    assert looks[0] == sent + 1  # first read after the move's own trajectory
+    looks.clear()
+    sent = len(world.trajectories)
+    again = m.move('base', away + [1e-6, 0.0, 0.0], GOAL_Q)
+    assert again.reason.startswith('already within tolerance, not moved: measured error')
+    assert looks == [sent] and len(world.trajectories) == sent
+
+
+def trajectories_for_a_second_move(**changes: object) -> tuple[int, str, Mover, World]:
+    """A measured move to GOAL on a machine with clearance, then one 1 mm away: the
+    trajectories the second sent, its words, the mover and the world."""
+    world = World(CLEARANCE)
+    m = mover(world, 'measured', **{'compensation.carry_distance': 0.01, **changes})
+    m.move('base', GOAL, GOAL_Q)
+    sent = len(world.trajectories)
+    result = m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q)
+    return len(world.trajectories) - sent, result.reason, m, world
+
+
+def test_a_nearby_goal_starts_with_the_last_moves_correction() -> None:
+    carried, reason, m, world = trajectories_for_a_second_move()
+    assert "(started with the last move's correction)" in reason, reason
+    tol = m.settings.goal_tolerance
+    e_p, e_r = deviation(*world.attained(), GOAL + [0.001, 0.0, 0.0], GOAL_Q)
+    assert tol.holds(e_p, e_r)  # within tolerance, as the tracker judged
+    fresh, plain, _, _ = trajectories_for_a_second_move(**{'compensation.carry_distance': 0.0})
+    assert 'started with' not in plain and fresh >= 2  # 0: never; the model alone corrects
+    assert carried < fresh
+    _, far, _, _ = trajectories_for_a_second_move(**{'compensation.carry_distance': 5e-4})
+    assert 'started with' not in far  # 1 mm is beyond 0.5 mm: not carried
+
+
+class CountingWorld(World):
+    """One exact reading per look, numbered: reading i is at x = i µm (the mean of readings
+    tells which were averaged)."""
+
+    def __init__(self) -> None:
+        super().__init__(samples=1)
+        self.count = 0
+
+    def measurements(self) -> list[Measurement]:
+        with self.lock:
+            self.count += 1
+            return [Measurement(np.array([self.count * 1e-6, 0.0, 0.0]), IDENTITY,
+                                TRACKER_COVARIANCE)]
+
+
+@pytest.mark.parametrize(('decided', 'expected'), [(None, 10), (lambda *_: True, 3),
+                                                   (lambda *_: False, 10)])
+def test_a_reading_ends_early_only_when_it_decides(decided: object, expected: int) -> None:
+    """From min_samples (3) new readings on the average so far may end the reading, when the
+    question it is asked is settled; else all ``samples`` (10) are averaged."""
+    world = CountingWorld()
+    m = mover(world, 'measured')
+    first = world.count + 1  # readings after this one are new to the reading
+    m_p, _, _ = m._measure(decided)  # type: ignore[arg-type]
+    # the mean of `expected` consecutive readings starting at or after `first`
+    start = m_p[0] * 1e6 - (expected - 1) / 2
+    assert start >= first - 1e-9
+    np.testing.assert_allclose(start, round(start), atol=1e-6)
+    assert world.count >= round(start) + expected - 1
+
+
+@pytest.mark.parametrize(('sigma', 'carried'), [(5e-6, False), (1e-6, True)])
+def test_a_correction_within_the_readings_noise_is_not_carried(sigma: float,
+                                                               carried: bool) -> None:
+    """Legs 4 µm long settle within tolerance without a correction: that offset, within
+    2 sigma of 5 µm readings, is noise and the next goal starts from the model; read to
+    1 µm it is the machine's and is carried."""
+    world = StatedWorld(sigma)
+    world.bias[:3] = 4e-6
+    m = mover(world, 'measured', **{'compensation.carry_distance': 0.01})
+    assert 'after 0 corrections' in m.move('base', GOAL, GOAL_Q).reason
+    sent = len(world.trajectories)
+    reason = m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q).reason
+    assert ("(started with the last move's correction)" in reason) is carried, reason
+    ideal = kinematics.inverse(MECH, GOAL + [0.001, 0.0, 0.0], GOAL_Q)
+    first = world.trajectories[sent]
+    at_goal = np.allclose(first.lengths[-1], ideal.lengths[0], atol=1e-9)
+    assert at_goal is not carried
+
+
+def test_a_carried_start_within_tolerance_is_corrected_when_the_error_is_significant() -> None:
+    """Legs 4 µm short, then 4 µm long (the drives arrive within their 5 µm): the second move
+    starts with the first's correction and lands about twice as far off, within tolerance
+    but beyond 2 sigma of 1 µm readings: corrected once. A start from the model alone lands
+    within tolerance and is kept, as the loop always did."""
+    def second(carry: float) -> str:
+        world = StatedWorld(1e-6)
+        world.bias[:3] = -4e-6
+        m = mover(world, 'measured', **{'compensation.carry_distance': carry})
+        m.move('base', GOAL, GOAL_Q)
+        world.bias[:3] = 4e-6
+        return m.move('base', GOAL + [0.001, 0.0, 0.0], GOAL_Q).reason
+
+    carried = second(0.01)
+    assert "after 1 corrections (started with the last move's correction)" in carried, carried
+    assert 'after 0 corrections' in second(0.0)

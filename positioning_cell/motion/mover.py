@@ -16,7 +16,8 @@ stops them (stop, drive fault, drives disabled, no joint states, an encoder froz
 number, the drives refusing the trajectory or not answering it, a silent or inconsistent
 tracker, a timeout). Compensation modes: ``none`` commands nominal inverse kinematics; ``model``
 the configured clearance model; ``measured`` the model, then corrections from averaged tracker
-readings until within the goal tolerance or out of iterations.
+readings until within the goal tolerance or out of iterations (a goal near recently settled
+ones starts with their corrections, :meth:`Mover._carried`).
 """
 
 from __future__ import annotations
@@ -38,7 +39,16 @@ from positioning_cell.motion.compensation import Compensation
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
 from positioning_cell.motion.standstill import Motion, StandstillWatch
 from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
-from positioning_cell.moves.correction import corrected_command, deviation, mean_reading
+from positioning_cell.moves.correction import (
+    Verdict,
+    corrected_command,
+    correction_offset,
+    deviation,
+    mean_reading,
+    offset_command,
+    predicted_offset,
+    verdict,
+)
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.outcomes import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.moves.trajectory import MotionLimits, Trajectory, fingerprint, plan_move
@@ -103,6 +113,8 @@ class Estimate(NamedTuple):
 POLL_PERIOD = 0.02
 #: Tracker readings kept for averaging.
 MEASUREMENTS_KEPT = 200
+#: Settled moves whose corrections a nearby goal starts with (``measured`` mode).
+CARRIED_MOVES = 6
 
 
 def _joints(traj: Trajectory, t: float) -> FloatArray:
@@ -152,6 +164,13 @@ class Mover:
         self._moved = False
         #: False once the machine moved while nothing was commanded, until a move settles.
         self.position_confirmed = True
+        #: ``measured``: the averaged reading (position, quaternion, covariance) that ended the
+        #: last move, while the machine has not moved since (None otherwise).
+        self._verified: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        #: ``measured``: the last :data:`CARRIED_MOVES` moves that settled on the tracker, as
+        #: (goal position, goal quaternion, correction offset, standard uncertainty (6,) of the
+        #: reading it rests on): nearby goals start with them.
+        self._carry: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []
 
     # -- inputs ---------------------------------------------------------------------------------
     def reconfigure(self, settings: PositionerSettings) -> None:
@@ -161,13 +180,13 @@ class Mover:
         model are not those of the new one)."""
         with self.cond:
             if settings.mode is not self.settings.mode:
-                self.command = None
+                self.command, self._carry = None, []
             path = settings.compensation.calibration_file
             if path != self.settings.compensation.calibration_file:
                 pending = self._pending
                 self.calibration = (pending[1] if pending is not None and pending[0] == path
                                     else calibrated_machine(settings))
-                self._pending, self.command = None, None
+                self._pending, self.command, self._carry = None, None, []
             self.settings = settings
             self.standstill.settings = settings.standstill
             self.compensation.temperature.settings = settings.compensation.temperature
@@ -228,6 +247,7 @@ class Mover:
         mark the position unconfirmed, plan the next move from the encoders, watch again."""
         self.machine.stop_drives()
         self.command = None
+        self._verified = None
         self.position_confirmed = False
         self.standstill.arm(now)
         self._set_state(State.FAULT, f'{motion.reason}; drives stopped, the position is '
@@ -547,8 +567,15 @@ class Mover:
     def _execute(self, p: FloatArray, q: FloatArray, tol: GoalTolerance,
                  limits: MotionLimits | None, path_check: PathCheck | None) -> MoveResult:
         self._move_limits = (limits, path_check)
-        try:
-            first = self._plan(p, q)  # refused before anything is announced or moved
+        command = self._carried(p, q)
+        try:  # refused before anything is announced or moved
+            try:
+                first = self._plan(*command)
+            except MoveAbortedError:
+                if command[0] is p:
+                    raise
+                command = (p, q)  # the goal itself, without the carried correction
+                first = self._plan(p, q)
         except MoveAbortedError as err:
             raise self.refusal(err.code, str(err)) from err
         with self.cond:
@@ -558,7 +585,6 @@ class Mover:
         try:
             self.machine.publish_target(p, q)
             self.goal = (p, q)
-            command = (p, q)
             there = self._already_there(p, q, tol)
             if there is not None:
                 self._set_state(State.SETTLED, there[0], ResultCode.SUCCESS)
@@ -622,7 +648,12 @@ class Mover:
             return None
         sigma: FloatArray | None = None
         if self.mode is CompensationMode.MEASURED:
-            m_p, m_q, cov = self._measure()
+            with self.cond:
+                verified = self._verified
+            if verified is not None and self._verdict(*verified, p, q, tol) is Verdict.OUTSIDE:
+                return None  # the reading that ended the last move puts the goal out of reach
+            m_p, m_q, cov = self._measure(lambda mp, mq, c: self._verdict(mp, mq, c, p, q, tol)
+                                          is not Verdict.UNDECIDED)
             e_p, e_r = deviation(m_p, m_q, p, q)
             sigma = np.sqrt(np.diag(cov))
             what = 'measured error'
@@ -634,6 +665,9 @@ class Mover:
             what = 'estimated error'
         if not tol.holds(e_p, e_r):
             return None
+        if sigma is not None:
+            with self.cond:
+                self._verified = (m_p, m_q, cov)
         # self.command stays the command that got the machine here (in measured mode the
         # corrected one, not the goal): the next move starts where the axes are
         return (f'already within tolerance, not moved: {_error_text(e_p, e_r, what)}', e_p, e_r,
@@ -665,18 +699,31 @@ class Mover:
         """``measured``: the closed loop on the tracker until within ``tol``. A remaining error
         that no component of exceeds :data:`SIGNIFICANCE` standard uncertainties of the
         averaged measurement is not corrected (that would chase noise): within tolerance it is
-        a success, else out of tolerance, as is running out of iterations. The result states
+        a success, else out of tolerance, as is running out of iterations. A start with carried
+        corrections (:meth:`_carried`) that lands within tolerance but with a significant error
+        is corrected once (a correction from the model would land closer). The result states
         the measured error with its uncertainty."""
         iterations = self.settings.compensation.max_iterations
+        carried = (' (started with the last move\'s correction)'
+                   if command[0] is not p else '')
         for done in range(iterations + 1):
-            m_p, m_q, cov = self._measure()
+            self._set_state(self.state, f'measuring: up to {self.settings.compensation.samples}'
+                            f' readings on {MEASURED_POSE}')
+            m_p, m_q, cov = self._measure(lambda mp, mq, c: self._verdict(mp, mq, c, p, q, tol)
+                                          is Verdict.WITHIN)
             e_p, e_r = deviation(m_p, m_q, p, q)
             sigma = np.sqrt(np.diag(cov))
             text = (_error_text(e_p, e_r, 'measured error') + f' ± {_sigma_text(sigma)} (1 '
-                    f'sigma) after {done} corrections')
-            if tol.holds(e_p, e_r):
+                    f'sigma) after {done} corrections{carried}')
+            significant = bool(np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma))
+            # a carried start is kept only where a correction could not improve it
+            if tol.holds(e_p, e_r) and not (carried and done == 0 and significant):
+                with self.cond:
+                    self._verified = (m_p, m_q, cov)
+                    self._carry = [*self._carry[1 - CARRIED_MOVES:],
+                                   (p, q, correction_offset(*command, m_p, m_q), sigma)]
                 return e_p, e_r, f'settled within tolerance: {text}', sigma
-            if not np.any(np.abs(np.concatenate([e_p, e_r])) > SIGNIFICANCE * sigma):
+            if not significant:
                 raise MoveAbortedError(
                     ResultCode.OUT_OF_TOLERANCE, f'settled outside tolerance: {text}; the '
                     f'error is within {SIGNIFICANCE:g} sigma of the measurement, a correction '
@@ -688,6 +735,32 @@ class Mover:
             command = corrected_command(*command, p, q, m_p, m_q)
             self._go(*command)
         raise AssertionError('unreachable')
+
+    def _carried(self, p: FloatArray, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The first command of a move to (p, q): in ``measured`` mode, the goal moved by the
+        correction expected there from the last moves that settled on the tracker with goals
+        within ``compensation.carry_distance`` and ``carry_angle`` of it (the machine's error
+        changes little and smoothly over such steps: :func:`predicted_offset`, an affine fit
+        over their goals); without such moves, or when no component of that correction
+        exceeds :data:`SIGNIFICANCE` times the mean standard uncertainty of their readings (a
+        machine the model already fits: carrying would only add the readings' noise), the
+        goal."""
+        comp = self.settings.compensation
+        with self.cond:
+            carry = list(self._carry)
+        if self.mode is not CompensationMode.MEASURED or comp.carry_distance <= 0.0:
+            return p, q
+        near = [(g_p, off, sigma) for g_p, g_q, off, sigma in carry
+                if np.linalg.norm(g_p - p) <= comp.carry_distance
+                and np.linalg.norm(deviation(p, q, g_p, g_q)[1]) <= comp.carry_angle]
+        if not near:
+            return p, q
+        offset = predicted_offset([g for g, _, _ in near], [o for _, o, _ in near], p,
+                                  comp.carry_distance)
+        noise = np.mean([sigma for _, _, sigma in near], axis=0)
+        if not np.any(np.abs(offset) > SIGNIFICANCE * noise):
+            return p, q
+        return offset_command(p, q, offset)
 
     def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
         """Send the move to (p, q), wait for the drives to accept it, to arrive, to settle."""
@@ -709,6 +782,7 @@ class Mover:
             if self.stop_requested:
                 raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
             self.command = command
+            self._verified = None
             self._moved = True
             self.answers.clear()
             counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
@@ -743,23 +817,46 @@ class Mover:
         self._wait(lambda: self.machine.clock() >= deadline, self.settings.settle_time + 1.0,
                    'settling', measuring=measuring)
 
-    def _measure(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def _measure(self, decided: Callable[[FloatArray, FloatArray, FloatArray], bool] | None = None
+                 ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The next ``samples`` tracker readings averaged (:func:`mean_reading`): the mean
         position and rotation, and the covariance (6, 6) of that mean, each axis' stated
         variance split by the readings' own scatter into a part that averages down and one
-        common to all (the tracker's registration) that does not. A tracker that falls silent
-        or readings that scatter beyond their stated uncertainty abort."""
-        n = self.settings.compensation.samples
+        common to all (the tracker's registration) that does not. From ``min_samples`` new
+        readings on, the average so far ends the wait early when ``decided(mean, quaternion,
+        covariance)`` says it settles the question asked. A tracker that falls silent or
+        readings that scatter beyond their stated uncertainty abort."""
+        comp = self.settings.compensation
+        n, least = comp.samples, min(comp.min_samples, comp.samples)
         with self.cond:
             start = self.measurement_count
-        self._wait(lambda: self.measurement_count - start >= n,
-                   self.settings.measurement_timeout, f'{n} new samples on {MEASURED_POSE}',
-                   measuring=True)
+        seen, early = [0], [(np.empty(0), np.empty(0), np.empty(0))]
+
+        def enough() -> bool:  # under the lock (_wait)
+            got = self.measurement_count - start
+            if got >= n:
+                return True
+            if decided is None or got < least or got == seen[0]:
+                return False
+            seen[0] = got
+            early[0] = self._averaged(self.measurements[-got:])
+            return decided(*early[0])
+
+        self._wait(enough, self.settings.measurement_timeout,
+                   f'{n} new samples on {MEASURED_POSE}', measuring=True)
         with self.cond:
+            if self.measurement_count - start < n:
+                return early[0]
             samples = self.measurements[-n:]
+        return self._averaged(samples)
+
+    def _averaged(self, samples: list[Measurement]) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """:func:`mean_reading` of ``samples``, after checking that they scatter within
+        ``liveness.scatter_limit`` times their stated σ (more than two of them; else
+        ABORTED_TRACKER_INCONSISTENT)."""
         positions = np.array([s.position for s in samples])
         sigma = np.sqrt(np.mean([np.diag(s.covariance)[:3] for s in samples], axis=0))
-        if n > 2:
+        if len(samples) > 2:
             scatter = positions.std(axis=0, ddof=1)
             ratio = float(np.max(scatter / np.maximum(sigma, 1e-12)))
             if ratio > self.settings.liveness.scatter_limit:
@@ -769,6 +866,15 @@ class Mover:
                     'their stated sigma: outliers or a disturbed line of sight')
         return mean_reading(positions, [s.quaternion for s in samples],
                             [s.covariance for s in samples])
+
+    @staticmethod
+    def _verdict(m_p: FloatArray, m_q: FloatArray, cov: FloatArray, p: FloatArray,
+                 q: FloatArray, tol: GoalTolerance) -> Verdict:
+        """What an averaged reading (position, quaternion, covariance) says of the goal (p, q)
+        and its tolerance, beyond :data:`SIGNIFICANCE` standard uncertainties (:func:`verdict`)."""
+        e_p, e_r = deviation(m_p, m_q, p, q)
+        return verdict(e_p, e_r, np.sqrt(np.clip(np.diag(cov), 0.0, None)), tol.position,
+                       tol.orientation, SIGNIFICANCE)
 
     def _wait(self, condition: Callable[[], bool], timeout: float, what: str,
               timeout_code: ResultCode = ResultCode.ABORTED_TIMEOUT, *,

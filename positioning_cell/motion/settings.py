@@ -52,6 +52,17 @@ class CompensationSettings:
                                   dynamic=True)
     samples: int = setting(10, 'tracker samples averaged per correction', low=1, high=200,
                            dynamic=True)
+    min_samples: int = setting(
+        3, 'tracker samples after which an averaged reading may end early: once its error is '
+        'within (or, before a move, outside) the goal tolerance beyond 2 standard '
+        'uncertainties (samples or more: never early)', low=3, high=200, dynamic=True)
+    carry_distance: float = setting(
+        0.01, 'measured: a goal this close to recently settled goals starts with their '
+        'corrections beyond the readings\' noise (affine fit; 0: never)', 'm', low=0.0,
+        high=1.0, dynamic=True)
+    carry_angle: float = setting(
+        0.05, '... and whose orientation differs from it by at most this', 'rad', low=0.0,
+        high=3.2, dynamic=True)
     temperature: TemperatureSettings = group(
         TemperatureSettings, 'the measured air temperature (/cell/air_temperature) the '
         'calibrated thermal terms use')
@@ -291,8 +302,10 @@ class PositionerSettings:
 
 
 #: The positioner's parameters that other programs read or set (the tools, the calibrator):
-#: its compensation mode and the calibration file it loads (:class:`CompensationSettings`).
+#: its compensation mode, the carry distance and the calibration file it loads
+#: (:class:`CompensationSettings`).
 COMPENSATION_MODE = 'compensation.mode'
+CARRY_DISTANCE = 'compensation.carry_distance'
 CALIBRATION_FILE = 'compensation.calibration_file'
 
 

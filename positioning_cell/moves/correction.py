@@ -5,6 +5,9 @@ frame: m, unit quaternions x, y, z, w."""
 
 from __future__ import annotations
 
+import math
+from enum import Enum
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -84,3 +87,84 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike,
     d = np.sqrt(1.0 - share + share / k)
     out: FloatArray = d[:, None] * mean_cov * d[None, :]
     return position, quaternion, 0.5 * (out + out.T)
+
+
+class Verdict(Enum):
+    """What a measured error says of a tolerance, its uncertainty taken into account."""
+
+    WITHIN = 'within'        # within, even each component enlarged by its margin
+    OUTSIDE = 'outside'      # outside, even each component shrunk by its margin
+    UNDECIDED = 'undecided'  # the measurement cannot tell yet
+
+
+def verdict(position_error: ArrayLike, rotation_error: ArrayLike, sigma: ArrayLike,
+            position_tolerance: float, orientation_tolerance: float,
+            significance: float) -> Verdict:
+    """Whether an error Δp (3,) m, rotation vector (3,) rad measured with standard uncertainty
+    ``sigma`` (6,) (x, y, z m, rot-x, rot-y, rot-z rad) is within the tolerances (norms of Δp
+    and of the rotation vector, m and rad) beyond doubt: WITHIN when the norms stay within
+    both even with every component's magnitude enlarged by ``significance``·σ; OUTSIDE when
+    one exceeds its tolerance even with every magnitude shrunk by that much (not below 0);
+    else UNDECIDED. With σ = 0 it is the plain comparison of the norms."""
+    e = np.abs(np.concatenate([np.asarray(position_error, dtype=float).reshape(3),
+                               np.asarray(rotation_error, dtype=float).reshape(3)]))
+    margin = significance * np.asarray(sigma, dtype=float).reshape(6)
+    if not (np.all(np.isfinite(e)) and np.all(np.isfinite(margin)) and np.all(margin >= 0.0)):
+        raise InputError('verdict: errors and sigma must be finite, sigma >= 0')
+    tolerances = (position_tolerance, orientation_tolerance)
+
+    def norms(v: FloatArray) -> tuple[float, float]:
+        return float(np.linalg.norm(v[:3])), float(np.linalg.norm(v[3:]))
+
+    high, low = norms(e + margin), norms(np.maximum(e - margin, 0.0))
+    if all(n <= t for n, t in zip(high, tolerances, strict=True)):
+        return Verdict.WITHIN
+    if any(n > t for n, t in zip(low, tolerances, strict=True)):
+        return Verdict.OUTSIDE
+    return Verdict.UNDECIDED
+
+
+def correction_offset(command_p: ArrayLike, command_q: ArrayLike, measured_p: ArrayLike,
+                      measured_q: ArrayLike) -> FloatArray:
+    """What a settled move's correction was: the offset (6,) from the measured pose to the
+    command that put the platform there, p_cmd − p_meas (m) and the rotation vector of
+    R_cmd·R_measᵀ (rad), base frame (:func:`offset_command` applies it to another goal as
+    :func:`corrected_command` does)."""
+    cp, cq = as_pose_batch(command_p, command_q)
+    mp, mq = as_pose_batch(measured_p, measured_q)
+    turn = Rotation.from_quat(cq) * Rotation.from_quat(mq).inv()
+    return np.concatenate([(cp - mp)[0], turn.as_rotvec()[0]])
+
+
+def offset_command(goal_p: ArrayLike, goal_q: ArrayLike,
+                   offset: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """The command (3,) m, (4,) for a goal moved by a correction ``offset`` (6,)
+    (:func:`correction_offset`): p = p_goal + Δp, R = exp([θ]×)·R_goal (base frame)."""
+    gp, gq = as_pose_batch(goal_p, goal_q)
+    off = np.asarray(offset, dtype=float).reshape(6)
+    rot = Rotation.from_rotvec(off[3:]) * Rotation.from_quat(gq[0])
+    return gp[0] + off[:3], np.asarray(rot.as_quat(canonical=True))
+
+
+def predicted_offset(goals_p: ArrayLike, offsets: ArrayLike, goal_p: ArrayLike,
+                     scale: float, rcond: float = 0.2) -> FloatArray:
+    """The correction offset (6,) (:func:`correction_offset`) expected at ``goal_p`` (3,) m
+    from those of K nearby settled moves, ``offsets`` (K, 6) at their goals (K, 3) m: a
+    least-squares affine fit offset(p) = a + B·(p − p̄)/scale, the goals' mean p̄ and
+    ``scale`` m (the neighbourhood's size). Directions in which the goals spread less than
+    ``rcond`` times the fit's strongest direction (as singular values of [1, (p − p̄)/scale])
+    get no slope: one goal, or goals close together, carry their mean offset; goals along a
+    line, a slope along it only."""
+    g = np.asarray(goals_p, dtype=float).reshape(-1, 3)
+    off = np.asarray(offsets, dtype=float)
+    if off.shape != (len(g), 6) or len(g) == 0:
+        raise InputError(f'offsets: expected shape ({len(g)}, 6) for {len(g)} goals (at least '
+                         f'one), got {off.shape}')
+    if not (math.isfinite(scale) and scale > 0.0):
+        raise InputError(f'scale = {scale!r}: must be a finite length > 0 (m)')
+    centre = g.mean(axis=0)
+    design = np.hstack([np.ones((len(g), 1)), (g - centre) / scale])
+    coef = np.linalg.lstsq(design, off, rcond=rcond)[0]
+    at = np.concatenate([[1.0], (np.asarray(goal_p, dtype=float).reshape(3) - centre) / scale])
+    out: FloatArray = at @ coef
+    return out
