@@ -14,7 +14,7 @@ day, the third recalibrated), then copied until there are as many bags as the la
 Measured, for each bag count (``--counts`` 2,4,8) and each of ``--repeats`` (3) rounds, the
 three in a rotating order so that a change of the machine's load falls on each alike:
 
-- the serial loop: ``digest_bag`` over the bags in this process (may use BLAS threads);
+- the serial loop: ``digest_bag`` over the bags in this process;
 - the work of ``analyze_bags`` on a LocalCluster of 1 and of 2 single-threaded worker
   processes (:func:`positioning_cell.tools.analyze_bags.digest_bags`: one task per bag, the
   path out, a ~6 kB digest back). Both clusters are started, and every worker has digested
@@ -37,7 +37,9 @@ modelled: memory bandwidth, disk (the rate the bags must be read at is printed),
 start-up. It is printed as an extrapolation.
 
 Target: 2 workers >= 1.6 x the 1-worker rate from 4 bags up. On a shared machine the wall
-ratio follows the cores obtained; it is printed beside them.
+ratio follows the cores obtained; it is printed beside them. With Linux's autogroup
+scheduling (printed when on), a busy machine gives this benchmark's session one share of
+the CPU, however many workers it starts: 2 workers then obtain no more CPU than 1.
 
 Run: ``.venv/bin/python benchmarks/fleet.py [--counts 2,4,8] [--repeats 3] [--messages N]``
 (make bench). Exits non-zero only if the analysis is wrong (a bag failed, a digest differs
@@ -106,6 +108,8 @@ class Run:
     cpu: float
     noncpu: float = math.nan
     computing: float = math.nan
+    workers_cpu: float = math.nan
+    client_cpu: float = math.nan
 
     @property
     def cores(self) -> float:
@@ -124,10 +128,11 @@ def split(results: list[RunDigest | BagFailure]) -> tuple[list[RunDigest], list[
 
 
 def serial(bags: list[Path], settings: MonitorSettings) -> Run:
-    """The serial loop in this process."""
-    cpu, start = time.process_time(), time.perf_counter()
+    """The serial loop in this process; its CPU seconds those of this thread, as Dask's
+    thread-cpu of a task (the idle clusters' threads in this process left out)."""
+    cpu, start = time.thread_time(), time.perf_counter()
     digests, failures = split([digest_bag(b, settings) for b in bags])
-    return Run(time.perf_counter() - start, digests, failures, time.process_time() - cpu)
+    return Run(time.perf_counter() - start, digests, failures, time.thread_time() - cpu)
 
 
 def _task_metrics(client: Any) -> dict[str, float]:
@@ -143,20 +148,29 @@ def _task_metrics(client: Any) -> dict[str, float]:
     return metrics
 
 
+def _process_cpu() -> float:
+    """The CPU seconds of this process, all its threads (run on each worker)."""
+    return time.process_time()
+
+
 def on_cluster(client: Any, bags: list[Path], settings: MonitorSettings) -> Run:
-    """The bags on the cluster of ``client`` (:func:`digest_bags`), with Dask's metrics."""
+    """The bags on the cluster of ``client`` (:func:`digest_bags`), with Dask's metrics and
+    the CPU seconds of the worker processes and of this one (the scheduler, the client)."""
     from dask.distributed import get_task_stream
 
     before = _task_metrics(client)
+    workers_before = sum(client.run(_process_cpu).values())
     with get_task_stream(client) as stream:
-        start = time.perf_counter()
+        start, client_cpu = time.perf_counter(), time.process_time()
         digests, failures = digest_bags(client, bags, settings, say=quiet)
-        wall = time.perf_counter() - start
+        wall, client_cpu = time.perf_counter() - start, time.process_time() - client_cpu
+    workers_cpu = sum(client.run(_process_cpu).values()) - workers_before
     after = _task_metrics(client)
     computing = sum(s['stop'] - s['start'] for task in stream.data
                     for s in task['startstops'] if s['action'] == 'compute')
     return Run(wall, digests, failures, after.get(THREAD_CPU, 0.0) - before.get(THREAD_CPU, 0.0),
-               after.get(THREAD_NONCPU, 0.0) - before.get(THREAD_NONCPU, 0.0), computing)
+               after.get(THREAD_NONCPU, 0.0) - before.get(THREAD_NONCPU, 0.0), computing,
+               workers_cpu, client_cpu)
 
 
 def same(run: Run, reference: list[RunDigest]) -> bool:
@@ -202,6 +216,14 @@ def print_profile(profile: dict[str, Any], top: int = 8) -> None:
             print(f'  {count / total:6.1%}  {name}')
     print('  innermost: ' + ', '.join(f'{name} {count / total:.1%}' for name, count in
                                       sorted(own.items(), key=lambda kv: -kv[1])[:top]))
+
+
+def autogroup() -> bool:
+    """Whether the Linux scheduler shares the CPU between sessions rather than threads."""
+    try:
+        return Path('/proc/sys/kernel/sched_autogroup_enabled').read_text().strip() == '1'
+    except OSError:
+        return False
 
 
 def median(values: list[float]) -> float:
@@ -269,6 +291,10 @@ def main() -> int:
         write_run_bag(small, long_run(2_000)[0])
         print(f'cores: {os.cpu_count()}; load average before: '
               f'{", ".join(f"{v:.1f}" for v in os.getloadavg())}', flush=True)
+        if autogroup():
+            print('the kernel shares the CPU between sessions (sched_autogroup_enabled): '
+                  'all processes of this benchmark, workers included, get one session\'s '
+                  'share of a busy machine however many workers there are', flush=True)
         digest_bag(small, settings)
 
         runs: dict[tuple[int, str], list[Run]] = {}
@@ -293,7 +319,8 @@ def main() -> int:
                     for label, run in got.items():
                         runs.setdefault((n, label), []).append(run)
                     print(f'round {r + 1}, {n} bags: ' + ', '.join(
-                        f'{label} {run.wall:.1f} s ({run.cores:.2f} cores)'
+                        f'{label} {run.wall:.1f} s ({run.cores:.2f} cores, '
+                        f'{run.cpu / n:.2f} s CPU per bag)'
                         for label, run in got.items()) + '; load average '
                         f'{os.getloadavg()[0]:.1f}', flush=True)
                     if r == 0:
@@ -332,7 +359,13 @@ def main() -> int:
               f'task, both clusters); on 1 worker {per_bag("1 worker", lambda x: x.computing):.2f}'
               f' s computing (wall) and {overhead * 1e3:.0f} ms overhead (wall not computing) '
               f'per task. The serial loop: {per_bag("serial", lambda x: x.cpu):.2f} s CPU per '
-              'bag (all its threads)')
+              'bag (its thread)')
+        both = [x for n in counts for label in labels[1:] for x in runs[n, label]]
+        extra = median([x.workers_cpu / x.cpu - 1 for x in both])
+        scheduler = median([x.client_cpu / x.cpu for x in both])
+        print('CPU besides the tasks, as a share of the tasks\' CPU (medians over the cluster '
+              f'runs): the worker processes {extra:.1%} (their profiler, heartbeats, comms), '
+              f'this process (scheduler, client) {scheduler:.1%}')
         big, low = counts[-1], counts[0]
         tail_per_bag = (tails[big] - tails[low]) / (big - low) if big > low else 0.0
         extrapolate(cpu_per_bag, max(overhead, 0.0), max(tail_per_bag, 0.0),
