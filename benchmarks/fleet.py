@@ -135,8 +135,15 @@ def serial(bags: list[Path], settings: MonitorSettings) -> Run:
     return Run(time.perf_counter() - start, digests, failures, time.thread_time() - cpu)
 
 
+async def _heartbeat(dask_worker: Any) -> None:
+    """Send the worker's heartbeat now (run on each worker): its metrics go with it."""
+    await dask_worker.heartbeat()
+
+
 def _task_metrics(client: Any) -> dict[str, float]:
-    """Dask's cumulative execute metrics of the digest_bag tasks (s), by metric."""
+    """Dask's cumulative execute metrics of the digest_bag tasks (s), by metric, with every
+    worker's metrics sent (they travel with the heartbeats, every second or so)."""
+    client.run(_heartbeat)
     def read(dask_scheduler: Any) -> dict[str, float]:
         out: dict[str, float] = {}
         for key, value in dask_scheduler.cumulative_worker_metrics.items():
