@@ -7,7 +7,8 @@ Each PATH is a bag (a rosbag2 folder or an ``.mcap`` file) or a folder searched 
 (:func:`positioning_cell.analysis.fleet.find_bags`). Every bag is one task
 (:func:`positioning_cell.analysis.fleet.digest_bag`: ``analyse_bag`` with the monitor's
 settings of ``config/cell.yaml`` or ``--config``, then the run's compact digest; only the
-digest comes back), gathered as the tasks complete, with a progress line each. The trends over
+digest comes back), the largest bags first, gathered as the tasks complete, with a progress
+line each. The trends over
 all runs (:mod:`positioning_cell.analysis.fleet`) are written to ``--out`` (default
 ``fleet_trends`` in the current folder): ``trends.md``, ``trends.json`` and PNG plots
 (:mod:`positioning_cell.analysis.fleet_report`).
