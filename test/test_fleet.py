@@ -10,12 +10,14 @@ import json
 import math
 import pickle
 import random
+import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.accuracy import PoseFigures
@@ -25,12 +27,14 @@ from positioning_cell.analysis.fleet import (
     BagFailure,
     PoseDigest,
     RunDigest,
+    digest_bag,
     find_bags,
     identify_poses,
     trends,
 )
 from positioning_cell.analysis.fleet_report import markdown, write_report
 from positioning_cell.errors import InputError
+from positioning_cell.testing.nested import assert_nested_close
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 from positioning_cell.tools import analyze_bags
 from positioning_cell.tools.exits import Exit
@@ -305,9 +309,11 @@ def test_the_command_line_on_a_local_cluster(tmp_path: Path,
         for k, bag in enumerate(s['bags']):
             mode = next(m for m in alone[bag].modes if m.mode == s['mode'])
             f = next(p.figures for p in mode.poses if p.pose == s['pose'])
-            assert s['ap_p'][k] == f.ap_p and s['rp_l'][k] == f.rp_l
-            assert s['ap'][k] == [f.ap_x, f.ap_y, f.ap_z]
-            assert s['barycentre'][k] == list(f.barycentre) and s['n'][k] == f.n
+            assert_allclose([s['ap_p'][k], s['rp_l'][k]], [f.ap_p, f.rp_l], rtol=1e-12,
+                            atol=1e-15)
+            assert_allclose(s['ap'][k], [f.ap_x, f.ap_y, f.ap_z], rtol=1e-12, atol=1e-15)
+            assert_allclose(s['barycentre'][k], f.barycentre, rtol=1e-12, atol=1e-15)
+            assert s['n'][k] == f.n
             compared += 1
     assert compared == sum(len(p.poses) for a in alone.values() for p in a.modes) >= 12
     # Epochs: cal_A, then the recalibration of the third run (its calibration run first,
@@ -331,6 +337,15 @@ def test_the_command_line_on_a_local_cluster(tmp_path: Path,
         'trend_accuracy.png', 'trend_repeatability.png', 'trend_drift.png',
         'trend_registrations.png'}
     assert 'garbage.mcap' in (out / 'trends.md').read_text()
+    # The whole report's figures are those of the serial loop in this process.
+    results = [digest_bag(b) for b in find_bags([tmp_path / 'plant'])]
+    serial = analyze_bags.report_fleet([r for r in results if isinstance(r, RunDigest)],
+                                       [r for r in results if isinstance(r, BagFailure)],
+                                       tmp_path / 'serial')
+    expected = json.loads(serial.summary.read_text())
+    for d in (doc, expected):
+        d['failed'].sort(key=lambda f: f['bag'])
+    assert_nested_close(doc, expected, rtol=1e-12, atol=1e-15)
 
 
 def test_the_command_line_on_a_scheduler(tmp_path: Path, scheduler: str,
@@ -372,3 +387,38 @@ def test_nothing_to_analyse(tmp_path: Path, capsys: pytest.CaptureFixture[str],
     code = analyze_bags.main([str(tmp_path / 'a.mcap'), '--scheduler', 'tcp://127.0.0.1:9'])
     assert code == Exit.NOT_THERE
     assert 'cannot reach the Dask scheduler at tcp://127.0.0.1:9' in capsys.readouterr().err
+
+
+def test_largest_bags_first(tmp_path: Path) -> None:
+    """The tasks go out largest bag first (a folder bag's files summed; a path that cannot
+    be read counts as empty: its task says why); equal sizes keep their order."""
+    folder = tmp_path / 'folder_bag'
+    folder.mkdir()
+    (folder / 'metadata.yaml').write_bytes(b'x' * 100)
+    (folder / 'bag_0.mcap').write_bytes(b'x' * 1000)
+    small, middle, twin = (tmp_path / f'{n}.mcap' for n in ('small', 'middle', 'twin'))
+    small.write_bytes(b'x' * 10)
+    middle.write_bytes(b'x' * 500)
+    twin.write_bytes(b'x' * 500)
+    gone = tmp_path / 'gone.mcap'
+    assert analyze_bags.bag_bytes(folder) == 1100 and analyze_bags.bag_bytes(gone) == 0
+    assert analyze_bags.largest_first([gone, small, middle, folder, twin]) == [
+        folder, middle, twin, small, gone]
+
+
+def test_nested_close_finds_the_first_difference() -> None:
+    """assert_nested_close passes within the tolerance (NaN equal to NaN) and names where a
+    figure, a key, a length, a string or a type differs."""
+    doc = {'runs': [{'bag': 'a', 'start': 1.77e9, 'n': 3, 'ap': [1e-6, math.nan, None]}]}
+    near = json.loads(json.dumps(doc).replace('1e-06', '1.0000000000001e-06'))
+    assert_nested_close(near, doc, rtol=1e-9)
+    cases = [({'runs': [{**doc['runs'][0], 'start': 1.77e9 + 10.0}]}, "['start']"),
+             ({'runs': [{**doc['runs'][0], 'ap': [2e-6, math.nan, None]}]}, "['ap'][0]"),
+             ({'runs': [{**doc['runs'][0], 'bag': 'b'}]}, "['bag']"),
+             ({'runs': [{**doc['runs'][0], 'n': 3.0}]}, "['n']"),
+             ({'runs': []}, "['runs']"),
+             ({'runs': [{'bag': 'a'}]}, "['runs'][0]"),
+             ({'runs': [{**doc['runs'][0], 'ap': [1e-6, 0.0, None]}]}, "['ap'][1]")]
+    for changed, where in cases:
+        with pytest.raises(AssertionError, match=re.escape(where)):
+            assert_nested_close(changed, doc, rtol=1e-9)

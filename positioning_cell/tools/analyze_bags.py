@@ -7,7 +7,8 @@ Each PATH is a bag (a rosbag2 folder or an ``.mcap`` file) or a folder searched 
 (:func:`positioning_cell.analysis.fleet.find_bags`). Every bag is one task
 (:func:`positioning_cell.analysis.fleet.digest_bag`: ``analyse_bag`` with the monitor's
 settings of ``config/cell.yaml`` or ``--config``, then the run's compact digest; only the
-digest comes back), gathered as the tasks complete, with a progress line each. The trends over
+digest comes back), the largest bags first, gathered as the tasks complete, with a progress
+line each. The trends over
 all runs (:mod:`positioning_cell.analysis.fleet`) are written to ``--out`` (default
 ``fleet_trends`` in the current folder): ``trends.md``, ``trends.json`` and PNG plots
 (:mod:`positioning_cell.analysis.fleet_report`).
@@ -153,15 +154,37 @@ def _outcome(future: Any, bag: str) -> RunDigest | BagFailure:
                       else f'the task was {future.status}')
 
 
+def bag_bytes(bag: Path) -> int:
+    """The bytes a bag holds on disk: its files (a rosbag2 folder) or the file (0 for a path
+    that cannot be read: its task reports why)."""
+    try:
+        if bag.is_dir():
+            return sum(f.stat().st_size for f in bag.iterdir() if f.is_file())
+        return bag.stat().st_size
+    except OSError:
+        return 0
+
+
+def largest_first(bags: Sequence[Path]) -> list[Path]:
+    """The bags by decreasing size on disk (:func:`bag_bytes`; a task's cost grows with
+    it), equal sizes in the given order."""
+    return sorted(bags, key=lambda b: -bag_bytes(b))
+
+
 def digest_bags(client: Any, bags: Sequence[Path], settings: MonitorSettings | None = None,
                 say: Callable[[str], None] = print
                 ) -> tuple[list[RunDigest], list[BagFailure]]:
-    """One :func:`digest_bag` task per bag on ``client``'s workers; the digests and the
-    failures, gathered as the tasks complete (``say`` gets a progress line each: the count,
-    the bag, what it held or why it failed, the seconds since the start)."""
+    """One :func:`digest_bag` task per bag on ``client``'s workers, the largest bags first
+    (:func:`largest_first`); the digests and the failures, gathered as the tasks complete
+    (``say`` gets a progress line each: the count, the bag, what it held or why it failed,
+    the seconds since the start)."""
     start = time.perf_counter()
-    futures = client.map(digest_bag, [str(b) for b in bags], settings=settings, pure=False)
-    bag_of = {f.key: str(b) for f, b in zip(futures, bags, strict=True)}
+    order = largest_first(bags)
+    # Largest first (LPT): a big bag started last would leave the other workers idle at
+    # the end. Dask runs the tasks of higher priority first.
+    futures = [client.submit(digest_bag, str(b), settings=settings, pure=False,
+                             priority=len(order) - rank) for rank, b in enumerate(order)]
+    bag_of = {f.key: str(b) for f, b in zip(futures, order, strict=True)}
     digests: list[RunDigest] = []
     failures: list[BagFailure] = []
     try:
@@ -199,6 +222,13 @@ def analyze_fleet(paths: Sequence[str | Path], out_dir: str | Path = DEFAULT_OUT
     say(f'analyze_bags: {len(bags)} bag(s) on {where}')
     with dask_client(scheduler, local) as client:
         digests, failures = digest_bags(client, bags, settings, say)
+    return report_fleet(digests, failures, out_dir)
+
+
+def report_fleet(digests: Sequence[RunDigest], failures: Sequence[BagFailure],
+                 out_dir: str | Path) -> FleetOutput:
+    """The part of :func:`analyze_fleet` after the workers, in this process: the trends of
+    the digests, and the plots, report and JSON written into ``out_dir``."""
     result = trends(digests)
     out = Path(out_dir)
     plots = write_plots(result, out)
