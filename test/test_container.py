@@ -1,7 +1,11 @@
 """cell_container: the cell's nodes in one process (ROS 2's composition pattern). Started with
 config/cell.yaml as the single nodes are; every hosted node on the graph, the positioner homes
 and makes one small move through its service, then SIGTERM stops the whole process cleanly:
-exit 0, no traceback or C++ abort printed, within a bound. Bad node names are refused before
+exit 0, no traceback or C++ abort printed, within a bound. The move runs with the positioner's
+liveness watches at the lax end of their ranges (as the fault trials' baseline does): the
+composed cell's nodes share one interpreter, and on a loaded machine a 0.2 s gap in the driver's
+readings there is a known limit of composition (docs/howto/run.md, measured by
+benchmarks/idle_cpu.py --one-process), not what this test judges. Bad node names are refused before
 anything starts (exit 2, naming them). Multi-process tier (the container is one process;
 benchmarks/idle_cpu.py --one-process measures what it costs)."""
 
@@ -19,6 +23,7 @@ from geometry_msgs.msg import PoseStamped
 from workspace import MECH
 
 from positioning_cell import names
+from positioning_cell.procedures.fault_trials import LAX_LIVENESS
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.ros.qos import STREAM_QOS
 from positioning_cell.testing.stops import CRASH_SIGNS
@@ -47,6 +52,9 @@ def test_container_hosts_the_cell_moves_and_stops_on_sigterm(tmp_path: Path) -> 
             return hosted <= set(client.node.get_node_names()) and bool(poses)
 
         wait_until(all_up, START_TIMEOUT_S, f'nodes {sorted(hosted)} and {names.ESTIMATED_POSE}')
+        for name, lax in LAX_LIVENESS.items():
+            assert client.set_parameter(names.NODE_POSITIONER, f'liveness.{name}',
+                                        float(lax)).successful, name
         homed, message = client.home()
         assert homed, message
         goal = MECH.home_position + np.array([0.002, -0.001, 0.0])
