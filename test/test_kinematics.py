@@ -3,6 +3,9 @@ second FK solver (scipy least squares on the full closure in pose space), finite
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from hypothesis import assume, given
@@ -168,6 +171,7 @@ def test_forward_bad_input() -> None:
 def test_forward_takes_any_array_layout_with_one_compiled_kernel() -> None:
     """Read-only, strided and Fortran-ordered inputs give the very poses plain arrays give, and
     the compiled kernel is never specialised again for them (no compile pause in a node)."""
+    kinematics.warm_up()  # numba loaded: forward() takes the kernel for any batch
     p, q = random_poses(50, np.random.default_rng(3))
     joints = kinematics.inverse(MECH, p, q)
     plain = kinematics.forward(MECH, joints.lengths, joints.thetas, joints.phis + 1e-3)
@@ -198,3 +202,69 @@ def test_compiled_kernel_computes_what_its_python_source_says() -> None:
     for compiled, interpreted in zip(*outputs, strict=True):
         np.testing.assert_allclose(compiled, interpreted, rtol=0, atol=1e-15)
     assert outputs[0][3].all()
+
+
+def _both_runs(lengths: np.ndarray, thetas: np.ndarray, start: np.ndarray
+               ) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """The forward kernel's outputs (phis, position, rot, converged), compiled and run as its
+    Python source (what a node without numba runs)."""
+    kinematics.warm_up()
+    n = len(lengths)
+    runs = []
+    for run in (kinematics._forward_kernel, kinematics._forward_kernel.py_func):
+        out = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3, 3)), np.empty(n, dtype=bool))
+        run(lengths.copy(), thetas.copy(), start.copy(), *kinematics._closure_constants(MECH),
+            kinematics.FK_TOLERANCE, 40, *out)
+        runs.append(out)
+    return runs[0], runs[1]
+
+
+def _assert_same(kernel: tuple[np.ndarray, ...], source: tuple[np.ndarray, ...]) -> None:
+    np.testing.assert_array_equal(source[3], kernel[3])
+    for got, want in zip(source[:3], kernel[:3], strict=True):  # m, rad: round-off only
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12, equal_nan=True)
+
+
+def test_uncompiled_forward_is_the_kernel_pose_by_pose() -> None:
+    """What a node runs (the kernel's source, no numba) solves as the compiled kernel does:
+    the same convergence, mirrored or failed poses included, from home and from a previous
+    solution, to round-off."""
+    rng = np.random.default_rng(5)
+    p, q = random_poses(400, rng)
+    joints = kinematics.inverse(MECH, p, q)
+    lengths = joints.lengths.copy()
+    lengths[::7] *= rng.uniform(0.4, 1.8, (len(lengths[::7]), 3))  # many out of reach
+    lengths[3] = 0.03  # no triangle at all
+    for start in (kinematics.home_phis(MECH)[None], joints.phis + 1e-3):
+        kernel, source = _both_runs(lengths, joints.thetas, start)
+        assert kernel[3].sum() > 300 and not kernel[3].all()  # both kinds are exercised
+        _assert_same(kernel, source)
+
+
+@given(poses())
+def test_uncompiled_forward_matches_the_kernel_over_the_workspace(
+        pose: tuple[np.ndarray, np.ndarray]) -> None:
+    p, q = pose
+    joints = kinematics.inverse(MECH, p, q)
+    _assert_same(*_both_runs(joints.lengths, joints.thetas, kinematics.home_phis(MECH)[None]))
+
+
+def test_forward_runs_small_batches_uncompiled_without_numba_loaded() -> None:
+    """The dispatch rule, in a fresh interpreter: one pose leaves numba out; a batch of
+    COMPILED_BATCH poses loads it (a tool's batch), and once loaded every batch takes it."""
+    code = (
+        'import sys, numpy as np\n'
+        'from positioning_cell.core import kinematics as k, compiled\n'
+        'from positioning_cell.core.mechanism import Mechanism\n'
+        'm = Mechanism.default()\n'
+        'h = k.inverse(m, m.home_position[None], m.home_quaternion[None])\n'
+        'assert k.forward(m, h.lengths, h.thetas).converged.all()\n'
+        'print("one", "numba" in sys.modules)\n'
+        'n = k.COMPILED_BATCH\n'
+        'assert k.forward(m, np.repeat(h.lengths, n, 0), np.repeat(h.thetas, n, 0))'
+        '.converged.all()\n'
+        'print("batch", "numba" in sys.modules, compiled.loaded())\n')
+    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=240, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.split('\n')[:2] == ['one False', 'batch True True'], done.stdout

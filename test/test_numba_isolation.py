@@ -1,9 +1,10 @@
-"""numba (~125 MB of a process) is loaded only by the nodes that run compiled kernels, and there
-while the node is built: importing any node's module loads no numba; building a kernel node
-loads it and warms its kernels (their specialisations loaded) before the node spins; building
-any other node leaves it out. Once a process is sealed (positioning_cell.core.compiled.seal, by
-the nodes' runner before they spin), a kernel that was not warmed raises instead of pausing the
-executor for numba's import or a compile (issue 24; the 0.2 s joint-silence watch).
+"""numba (~125 MB of a process) is loaded by no node: importing any node's module or building
+the node leaves it out, and forward kinematics (the one kernel a node would need) then runs as
+the kernel's Python source, uncompiled (positioning_cell.core.kinematics.forward), even once
+the process is sealed
+(positioning_cell.core.compiled.seal, by the nodes' runner before they spin), where a kernel
+that was not warmed raises instead of pausing the executor for numba's import or a compile
+(issue 24; the 0.2 s joint-silence watch).
 
 Each check runs in a fresh interpreter: sys.modules and the seal are per process."""
 
@@ -21,10 +22,10 @@ from cell_harness import CELL_YAML, REPO, isolated_domain
 from positioning_cell import names
 from positioning_cell.ros.processes import cell_environment
 
-#: The nodes whose work runs compiled kernels (forward kinematics: the positioner's pose from
-#: the encoders, the driver's efforts, the simulated tracker's truth, the calibrator's machine
-#: model); every other node must not load numba.
-KERNEL_NODES = {'kinematics_node', 'leg_driver_node', 'pose_measurement_node', 'calibrator_node'}
+#: The nodes whose work runs compiled kernels: none (forward kinematics, for the positioner's
+#: pose from the encoders, the driver's efforts, the simulated tracker's truth and the
+#: calibrator's machine model, runs uncompiled there, one pose at a time).
+KERNEL_NODES: set[str] = set()
 #: Node executable -> the library modules its work needs besides its own module's imports
 #: (the bag player cannot be built without a bag: its module and its playback are imported).
 LIBRARY = {'bag_player_node': ('positioning_cell.bag.playback',)}
@@ -85,7 +86,7 @@ def _build(executable: str, tmp_path: Path) -> dict[str, object]:
 @pytest.mark.nodes
 @pytest.mark.slow
 @pytest.mark.parametrize('executable', [n.executable for n in names.NODE_EXECUTABLES])
-def test_numba_is_loaded_only_by_kernel_nodes_and_only_while_they_are_built(
+def test_no_node_loads_numba_and_forward_kinematics_runs_sealed(
         executable: str, tmp_path: Path) -> None:
     report = _build(executable, tmp_path)
     assert report['imported'] is False, 'importing the node module loaded numba'
@@ -95,9 +96,8 @@ def test_numba_is_loaded_only_by_kernel_nodes_and_only_while_they_are_built(
         assert report['built'] is True, report['built']
     kernels = executable in KERNEL_NODES
     assert report['after_build'] is kernels
-    # A kernel node warmed forward kinematics while built: after the seal it runs; any other
-    # node would have paused for numba here, and raises instead, still without numba.
-    assert report['forward_after_seal'] == ('ran' if kernels else 'cold')
+    # After the seal forward kinematics runs, uncompiled, without loading numba.
+    assert report['forward_after_seal'] == 'ran'
     assert report['numba_at_end'] is kernels
 
 

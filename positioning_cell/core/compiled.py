@@ -15,7 +15,11 @@ every specialisation it will call loaded from the disk cache) and is then *seale
 (:func:`seal`, by :func:`positioning_cell.ros.spin.run` before the node spins): from then on
 a kernel that was not warmed, or a call that would compile a new specialisation, raises
 :class:`ColdKernelError` instead of pausing the node's executor for the import or the compile.
-A node that never runs a kernel never imports numba.
+A node that never runs a kernel never imports numba. The cell's nodes run none: they solve
+forward kinematics one pose at a time, and :func:`positioning_cell.core.kinematics.forward`
+runs small batches, and every batch in a sealed process without numba, as the kernel's Python
+source (``py_func``, ~0.1 ms a pose) instead of loading numba for them; the seal stays the
+guard against a kernel compiled or loaded from a callback.
 """
 
 from __future__ import annotations
@@ -113,6 +117,17 @@ def _cold(function: Callable[..., Any]) -> Callable[..., Any]:
                               'node is built')
 
     return cold
+
+
+def source(function: Kernel) -> Kernel:
+    """The kernel ``function``'s Python source, uncompiled (its ``py_func``): the same
+    operations at interpreter speed, without loading numba."""
+    return cast(Kernel, function.py_func)  # type: ignore[attr-defined]
+
+
+def loaded() -> bool:
+    """Whether numba is loaded in this process (a kernel has been handed to it)."""
+    return bool(_DISPATCHERS)
 
 
 def sealed() -> bool:

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from positioning_cell.core import compiled
 from positioning_cell.core.compiled import kernel, kernel_array
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import (
@@ -36,6 +37,10 @@ PAIRS_J = np.array([1, 2, 0])
 FK_TOLERANCE = 1e-14
 #: Largest Newton step in tan(φ/2): keeps the iteration on the branch it starts on.
 _MAX_STEP = 0.15
+#: Batches of at least this many poses run the compiled kernel (numba loaded for them) in a
+#: process that is not sealed; smaller ones, and every batch in a sealed process without numba
+#: (a node, one pose at a time: ~0.1 ms), run the kernel's own Python source, uncompiled.
+COMPILED_BATCH = 256
 
 
 class InverseResult(NamedTuple):
@@ -135,7 +140,9 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
     branch continuity) or from home, to ``tolerance`` in side length (m). The pose follows from
     the three B_i by an exact rigid construction. A pose that does not converge, or lands on the
     mirrored assembly branch, has converged = False and NaN position and quaternion: it is never
-    returned as a pose.
+    returned as a pose. Where numba is loaded, or for :data:`COMPILED_BATCH` poses and more in a
+    process not sealed, the compiled kernel runs; otherwise its Python source, uncompiled (the
+    same operations; a node solves one pose at a time and never loads numba).
     """
     lengths_arr = as_vectors(lengths, 3, 'lengths')
     thetas_arr = as_vectors(thetas, 3, 'thetas')
@@ -160,9 +167,10 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
     position = np.empty((n, 3))
     rot = np.empty((n, 3, 3))
     converged = np.empty(n, dtype=bool)
-    _forward_kernel(kernel_array(lengths_arr), kernel_array(thetas_arr), kernel_array(start),
-                    *constants, float(tolerance), int(max_iterations), phis, position, rot,
-                    converged)
+    compiled_run = compiled.loaded() or (n >= COMPILED_BATCH and not compiled.sealed())
+    solve = _forward_kernel if compiled_run else compiled.source(_forward_kernel)
+    solve(kernel_array(lengths_arr), kernel_array(thetas_arr), kernel_array(start), *constants,
+          float(tolerance), int(max_iterations), phis, position, rot, converged)
     if converged.all():
         quaternion = quaternion_from_matrix(rot, orthonormal=True)
     else:
@@ -172,9 +180,11 @@ def forward(mech: Mechanism, lengths: ArrayLike, thetas: ArrayLike,
 
 
 def warm_up() -> None:
-    """Compile the forward-kinematics kernel now, or load it from numba's on-disk cache (several
-    seconds the first time on a machine, about 0.3 s after): a node calls this while starting,
-    so that its first :func:`forward` in operation does not pause for it."""
+    """Load numba and compile the forward-kinematics kernel now, or load it from numba's
+    on-disk cache (several seconds the first time on a machine, about 0.3 s after): ``make
+    setup`` fills the cache this way, and batch work may call it before it is timed. Nodes do
+    not: they run :func:`forward` uncompiled, one pose at a time."""
+    compiled.load()  # numba loaded: forward() takes the kernel from here on, for any batch
     mech = Mechanism.default()
     home = _inverse_validated(mech, mech.home_position[None], mech.home_quaternion[None])
     forward(mech, home.lengths, home.thetas)
@@ -188,11 +198,24 @@ def _closure_constants(mech: Mechanism) -> tuple[FloatArray, FloatArray, FloatAr
     centroid (3,) m and frame (3, 3) of the platform's S-joint triangle."""
     b = mech.platform_joints
     side_sq = np.sum((b - np.roll(b, -1, axis=0)) ** 2, axis=1)
-    body_centroid, body_frame = np.empty(3), np.empty((3, 3))
-    _triangle_frame(kernel_array(b), body_centroid, body_frame)
-    base, radial, tangential = (kernel_array(a)
-                                for a in (mech.base_joints, mech.radial, mech.tangential))
+    body_centroid, body_frame = (a[0] for a in _triangle_frames(b[None]))
+    base, radial, tangential, body_centroid, body_frame = (
+        kernel_array(a) for a in (mech.base_joints, mech.radial, mech.tangential, body_centroid,
+                                  body_frame))
     return base, radial, tangential, side_sq, body_centroid, body_frame
+
+
+def _triangle_frames(points: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centroids (N, 3) and orthonormal frames (N, 3, 3) (columns x, y, z) of N triangles
+    (N, 3, 3) m: x along P3 − P2, y toward P1 in the triangle's plane (seed 000 eqs. 15-18;
+    per triangle inside :func:`_forward_kernel`)."""
+    centroid = points.mean(axis=1)
+    x = points[:, 2] - points[:, 1]
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    v = points[:, 0] - centroid
+    y = v - np.sum(v * x, axis=1, keepdims=True) * x
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    return centroid, np.stack([x, y, np.cross(x, y)], axis=2)
 
 
 @kernel
@@ -272,7 +295,28 @@ def _forward_kernel(lengths: FloatArray, thetas: FloatArray, start: FloatArray,
         for i in range(3):
             phis[s, i] = 2.0 * np.arctan(tau[i])
         if solved:
-            _triangle_frame(points, centroid, frame)
+            # Centroid and frame (columns x, y, z) of the S-joint triangle: x along P3 − P2, y
+            # toward P1 in its plane (seed 000 eqs. 15-18; :func:`_triangle_frames`), inline so
+            # that the kernel calls no other and its Python source runs without numba.
+            for i in range(3):
+                centroid[i] = (points[0, i] + points[1, i] + points[2, i]) / 3.0
+            x0 = points[2, 0] - points[1, 0]
+            x1 = points[2, 1] - points[1, 1]
+            x2 = points[2, 2] - points[1, 2]
+            norm = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            x0, x1, x2 = x0 / norm, x1 / norm, x2 / norm
+            v0 = points[0, 0] - centroid[0]
+            v1 = points[0, 1] - centroid[1]
+            v2 = points[0, 2] - centroid[2]
+            along = v0 * x0 + v1 * x1 + v2 * x2
+            y0, y1, y2 = v0 - along * x0, v1 - along * x1, v2 - along * x2
+            norm = np.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+            y0, y1, y2 = y0 / norm, y1 / norm, y2 / norm
+            frame[0, 0], frame[1, 0], frame[2, 0] = x0, x1, x2
+            frame[0, 1], frame[1, 1], frame[2, 1] = y0, y1, y2
+            frame[0, 2] = x1 * y2 - x2 * y1
+            frame[1, 2] = x2 * y0 - x0 * y2
+            frame[2, 2] = x0 * y1 - x1 * y0
             # R = F_base·F_bodyᵀ maps the body triangle's frame onto the base one; p = c − R·c_b.
             for x in range(3):
                 for y in range(3):
@@ -290,27 +334,6 @@ def _forward_kernel(lengths: FloatArray, thetas: FloatArray, start: FloatArray,
         if not solved:
             position[s] = np.nan
             rot[s] = np.nan
-
-
-@kernel
-def _triangle_frame(points: FloatArray, centroid: FloatArray, frame: FloatArray) -> None:
-    """Centroid (3,) and orthonormal frame (3, 3) (columns x, y, z) of three points (3, 3) m:
-    x along P3 − P2, y toward P1 in the triangle's plane (seed 000 eqs. 15-18)."""
-    for i in range(3):
-        centroid[i] = (points[0, i] + points[1, i] + points[2, i]) / 3.0
-    x0 = points[2, 0] - points[1, 0]
-    x1 = points[2, 1] - points[1, 1]
-    x2 = points[2, 2] - points[1, 2]
-    norm = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-    x0, x1, x2 = x0 / norm, x1 / norm, x2 / norm
-    v0, v1, v2 = points[0, 0] - centroid[0], points[0, 1] - centroid[1], points[0, 2] - centroid[2]
-    along = v0 * x0 + v1 * x1 + v2 * x2
-    y0, y1, y2 = v0 - along * x0, v1 - along * x1, v2 - along * x2
-    norm = np.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
-    y0, y1, y2 = y0 / norm, y1 / norm, y2 / norm
-    frame[0, 0], frame[1, 0], frame[2, 0] = x0, x1, x2
-    frame[0, 1], frame[1, 1], frame[2, 1] = y0, y1, y2
-    frame[0, 2], frame[1, 2], frame[2, 2] = x1 * y2 - x2 * y1, x2 * y0 - x0 * y2, x0 * y1 - x1 * y0
 
 
 def inverse_jacobian(mech: Mechanism, position: ArrayLike,

@@ -23,7 +23,6 @@ from rclpy.node import Node
 
 from positioning_cell import names
 from positioning_cell.calibration.settings import CalibratorSettings
-from positioning_cell.core import kinematics
 from positioning_cell.errors import ConfigError
 from positioning_cell.motion.settings import machine_settings
 from positioning_cell.procedures.calibration import Outcome, calibrate
@@ -49,7 +48,6 @@ class CalibratorNode(Node):
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS)
         self.machine = machine_settings(self.params.settings.machine_file())
-        kinematics.warm_up()  # compiled FK ready for the identification's machine model
         self._lock = threading.Lock()
         self._busy = False
         self._closing = threading.Event()

@@ -19,7 +19,6 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from positioning_cell import names
-from positioning_cell.core import kinematics
 from positioning_cell.motion.controller import Controller
 from positioning_cell.motion.inputs import inputs_report
 from positioning_cell.motion.mover import (
@@ -51,7 +50,6 @@ class PositionerNode(Node):
         self.params = NodeParameters(self, self.SETTINGS, lambda s, _: self.mover.reconfigure(s),
                                      lambda s, _: self.mover.prepare(s))
         settings = self.params.settings
-        kinematics.warm_up()  # compiled FK ready before the first command
         src, self._inputs_message = settings.sources, ''
         self._inputs = self._joints, self._tracker, self._answers = (  # from their source only
             SourceReader(self, JointState, names.JOINT_STATES, src.leg_driver,

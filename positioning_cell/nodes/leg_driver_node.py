@@ -28,7 +28,6 @@ from std_srvs.srv import SetBool, Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from positioning_cell import names
-from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.parameters import NodeParameters
@@ -59,7 +58,6 @@ class LegDriverNode(Node):
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS, self._on_change)
         settings = self.params.settings
-        kinematics.warm_up()  # compiled FK ready for the efforts
         self._t0 = self.get_clock().now().nanoseconds
         self.driver = LegDriver(settings, self._now())
         self._states = self.create_publisher(JointState, names.JOINT_STATES, STREAM_QOS)

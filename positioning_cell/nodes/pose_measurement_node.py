@@ -22,7 +22,6 @@ from sensor_msgs.msg import JointState, Temperature
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
-from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.latest import Reader
@@ -48,7 +47,6 @@ class PoseMeasurementNode(Node):
         settings = self.params.settings
         self.sim = PoseMeasurementSimulator(settings)
         self._log_location()
-        kinematics.warm_up()  # compiled FK ready before the first truth update
         self._joints = Reader(self, JointState, names.TRUE_JOINT_STATES)
         self._true_pub = self.create_publisher(PoseStamped, names.TRUE_POSE, STREAM_QOS)
         self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, names.MEASURED_POSE,
