@@ -70,15 +70,20 @@ def test_the_watch_shows_the_known_deviation_in_colour_and_q_quits(
     domain, client = cell
     command = f'{shlex.quote(executable("cell"))} watch --frame user --domain {domain}'
     with TmuxPane(f'pc_watch_{domain}', command, cell_environment(domain), tmp_path) as pane:
-        def full_table() -> str | None:
+        def rows(screen: str) -> dict[str, str]:
+            return {line.split('│')[1].strip(): line for line in screen.splitlines()
+                    if line.count('│') > 3}
+
+        def full_table() -> str | None:  # the last row's verdict drawn too (a whole frame)
             s = pane.screen(escapes=True)
-            return s if '-60.0 µm' in s and '-20.0 µm' in s else None
+            last = rows(s).get('|Δp|', '')
+            return s if '-60.0 µm' in s and '-20.0 µm' in s and ('IN' in last
+                                                                 or 'OUT' in last) else None
 
         start = time.monotonic()
         shown = wait_until(full_table, 90.0, 'the deviation in the watch window')
         print(f'first full table after {time.monotonic() - start:.2f} s')
-        lines = {line.split('│')[1].strip(): line for line in shown.splitlines()
-                 if line.count('│') > 3}
+        lines = rows(shown)
         # user x along base y: −20 µm, in; user y along −base x: −60 µm, out; z +10 µm
         assert '-20.0 µm' in lines['x'] and '\x1b[32mIN' in lines['x'], lines['x']
         assert '-60.0 µm' in lines['y'] and '\x1b[31mOUT' in lines['y'], lines['y']
