@@ -80,6 +80,9 @@ MARKERS = '/positioner/markers'
 #: CoordinateSystems), published at start and on every change.
 COORDINATE_SYSTEMS = '/positioner/coordinate_systems'
 MEASURED_POSE = '/metrology/pose'
+#: The tracker's located registration (its pose in ``base`` and that pose's covariance, the part
+#: common to every reading on MEASURED_POSE), latched: published on each locate.
+TRACKER_REGISTRATION = '/metrology/registration'
 TRUE_POSE = '/sim/platform/true_pose'
 #: The cell's air temperature (sensor_msgs/Temperature, °C, frame ``base``): the sensor's
 #: reading, with its own error (the pose_measurement simulator publishes it); what the
@@ -106,8 +109,8 @@ MARKER_TOPICS = (PROGRAM, CALIBRATION, AXIS_TEST)
 #: Jazzy typestore).
 CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
-    ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRUE_POSE, AIR_TEMPERATURE, POSITION_ERROR,
-    ORIENTATION_ERROR, DIAGNOSTICS, PROGRAM, CALIBRATION, AXIS_TEST,
+    ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRACKER_REGISTRATION, TRUE_POSE, AIR_TEMPERATURE,
+    POSITION_ERROR, ORIENTATION_ERROR, DIAGNOSTICS, PROGRAM, CALIBRATION, AXIS_TEST,
 )
 
 #: Parameter changes of every node (rcl_interfaces ParameterEvent, ROS's own topic): the watch

@@ -165,6 +165,16 @@ def test_measured_ends_within_twice_its_stated_uncertainty_of_the_truth(
         assert norm_um(errors['truth']) <= 2.0 * stated, (norm_um(errors['truth']), stated)
 
 
+def test_the_positioner_holds_the_trackers_registration(cell: Any) -> None:
+    """The positioner took /metrology/registration (latched, published before it started
+    or after): its measured moves state the readings' common part exactly."""
+    _, _, diagnostics, _ = cell
+    wait_until(lambda: any(v.key == 'tracker_registration' and v.value == 'received'
+                           for a in list(diagnostics) for s in a.status
+                           if s.name == 'positioner: state' for v in s.values),
+               15.0, 'the positioner reporting the registration received')
+
+
 def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: Any) -> None:
     client, _, diagnostics, _ = cell
     p, rv = MECH.home_position + [0.0, 0.0, 0.008], [0.0, 0.0, 0.0]

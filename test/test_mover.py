@@ -18,6 +18,7 @@ from workspace import MECH
 from positioning_cell import clearance as cl
 from positioning_cell.core import kinematics
 from positioning_cell.errors import InputError
+from positioning_cell.metrology.instrument import Registration
 from positioning_cell.motion.mover import (
     Answer,
     JointReading,
@@ -137,6 +138,7 @@ class World:
         self.targets: list[tuple[np.ndarray, np.ndarray]] = []
         self.states: list[tuple[State, str, ResultCode | None]] = []
         self.refusals: list[tuple[ResultCode, str]] = []
+        self.registration: Registration | None = None  # the tracker's, as published
         self.lock = threading.Lock()
 
     def machine(self) -> Machine:
@@ -147,7 +149,7 @@ class World:
                        drives_connected=lambda: self.connected,
                        state_changed=lambda s, r, c: self.states.append((s, r, c)),
                        refused=lambda c, r: self.refusals.append((c, r)),
-                       identity=self.identity)
+                       identity=self.identity, registration=lambda: self.registration)
 
     def send(self, traj: Trajectory) -> None:
         with self.lock:
@@ -589,6 +591,19 @@ def test_measured_mode_states_a_common_error_of_its_readings_undiminished() -> N
     assert result.uncertainty is not None
     np.testing.assert_allclose(result.uncertainty, np.sqrt(np.diag(world.covariance)),
                                rtol=1e-6)
+
+
+def test_measured_mode_states_the_published_registration_as_the_common_part() -> None:
+    """With the tracker's registration published, the settled move states that common part
+    plus the rest of a reading's covariance over the readings averaged, even for readings
+    that agree exactly (which, without it, are stated at a whole reading's σ)."""
+    world = StatedWorld(1e-6)
+    common = np.diag([0.4e-6**2] * 3 + [3e-6**2] * 3)
+    world.registration = Registration(GOAL.copy(), common)  # the lever arm (µm) is negligible
+    result = mover(world, 'measured').move('base', GOAL, GOAL_Q)
+    assert result.uncertainty is not None
+    expected = common + (world.covariance - common) / world.samples
+    np.testing.assert_allclose(result.uncertainty, np.sqrt(np.diag(expected)), rtol=1e-3)
 
 
 # -- standstill monitoring ---------------------------------------------------------------------

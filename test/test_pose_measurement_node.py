@@ -27,8 +27,8 @@ from positioning_cell.core.kinematics import inverse
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
 from positioning_cell.parameters import parse
-from positioning_cell.ros.messages import joint_state, pose_arrays
-from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.ros.messages import joint_state, pose_arrays, registration
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
 from positioning_cell.sim.pose_measurement import TARGETS_PREFIX, PoseMeasurementSettings
 
 pytestmark = pytest.mark.nodes
@@ -65,6 +65,7 @@ class Run:
     measured: list[PoseWithCovarianceStamped]
     air: list[Temperature]
     diagnostics: list[DiagnosticArray]
+    registrations: list[PoseWithCovarianceStamped]
     poses_before_home: int  # true poses after the malformed joint state
 
 
@@ -89,6 +90,9 @@ def run() -> Iterator[Run]:
         measured = client.collect(PoseWithCovarianceStamped, '/metrology/pose', STREAM_QOS)
         air = client.collect(Temperature, '/cell/air_temperature', STREAM_QOS)
         diagnostics = client.collect(DiagnosticArray, '/diagnostics', DIAGNOSTICS_QOS)
+        # latched: taken although the node published it before this subscription
+        registrations = client.collect(PoseWithCovarianceStamped, names.TRACKER_REGISTRATION,
+                                       LATCHED_QOS)
         joints = client.node.create_publisher(JointState, '/sim/legs/true_joint_states',
                                               STREAM_QOS)
         wait_until(lambda: joints.get_subscription_count() > 0, 30, 'the node subscribing')
@@ -102,7 +106,7 @@ def run() -> Iterator[Run]:
         wait_until(lambda: true_poses and len(measured) >= 10, 30, 'true and measured poses')
         wait_until(lambda: len(air) >= 2, 30, 'air temperatures')
         yield Run(ros, params, mech, expected, stamp, true_poses, measured, air, diagnostics,
-                  before_home)
+                  registrations, before_home)
 
 
 def test_a_malformed_joint_state_is_reported_and_yields_no_pose(run: Run) -> None:
@@ -165,11 +169,32 @@ def test_the_registration_and_its_residuals_are_on_diagnostics(run: Run) -> None
     assert 0.0 < float(values['locate_residual_rms_um']) < 20.0
 
 
+def test_the_registration_is_published_and_common_to_every_reading(run: Run) -> None:
+    """/metrology/registration, latched: the located tracker (near its true pose, not at it)
+    and its covariance, which every reading's covariance holds (reading − registration at
+    the reading's pose is positive semi-definite and not zero: the reading's own noise)."""
+    msgs = wait_until(lambda: list(run.registrations), 15, 'the registration')
+    located = registration(msgs[0])
+    true_position = np.asarray(run.params['truth']['tracker']['position'])
+    assert msgs[0].header.frame_id == 'base'
+    assert 0.0 < np.linalg.norm(located.position - true_position) < 1e-4
+    assert np.linalg.eigvalsh(located.covariance).min() > 0.0
+    for reading in list(run.measured)[:5]:
+        p, _ = pose_arrays(reading.pose.pose)
+        own = (np.asarray(reading.pose.covariance).reshape(6, 6)
+               - located.covariance_at(p)[0])
+        eig = np.linalg.eigvalsh(0.5 * (own + own.T))
+        assert eig.min() >= -1e-9 * eig.max() and eig.max() > 0.0
+
+
 def test_relocating_gives_a_fresh_registration(run: Run) -> None:
     response = run.ros.client.call(Trigger, names.LOCATE_TRACKER, Trigger.Request())
     assert response.success and 'tracker located on 6/6 base targets' in response.message
     wait_until(lambda: any({v.key: v.value for v in s.values}.get('locations') == '2'
                            for s in statuses(run.diagnostics)), 15, 'the new location reported')
+    wait_until(lambda: len(run.registrations) >= 2, 15, 'the new registration published')
+    first, second = (registration(msg) for msg in list(run.registrations)[:2])
+    assert np.any(first.position != second.position)  # fresh readings of the base targets
 
 
 @pytest.mark.parametrize(('name', 'value', 'words'), [

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -197,17 +198,41 @@ class Tracker:
 
     def registration_covariance(self, position: ArrayLike) -> FloatArray:
         """Covariance (N, 6, 6) that this registration's own uncertainty adds to rigid-body
-        poses at positions (N, 3) m, order x, y, z, rot-x, rot-y, rot-z (zero without a
-        covariance). Every point moves by δp + δθ × (x − p_tracker), so a body at p moves by
-        J·(δp, δθ) with J = [[I, −[p − p_tracker]×], [0, I]]; fully correlated between
-        readings: averaging does not reduce it."""
+        poses at positions (N, 3) m (:func:`registration_covariance`; zero without a
+        covariance)."""
         p = np.atleast_2d(np.asarray(position, dtype=float))
         if self.covariance is None:
             return np.zeros((len(p), 6, 6))
-        jac = np.broadcast_to(np.eye(6), (len(p), 6, 6)).copy()
-        jac[:, :3, 3:] = -skew(p - np.asarray(self.position))
-        out: FloatArray = jac @ self.covariance @ np.swapaxes(jac, 1, 2)
-        return out
+        return registration_covariance(self.position, self.covariance, p)
+
+
+def registration_covariance(tracker_position: ArrayLike, covariance: ArrayLike,
+                            position: ArrayLike) -> FloatArray:
+    """Covariance (N, 6, 6) that a registration's uncertainty ``covariance`` (6, 6: δp m, δθ
+    rad about the base axes at the tracker origin ``tracker_position`` (3,) m, base frame)
+    adds to rigid-body poses at positions (N, 3) m, order x, y, z, rot-x, rot-y, rot-z. Every
+    point moves by δp + δθ × (x − p_tracker), so a body at p moves by J·(δp, δθ) with
+    J = [[I, −[p − p_tracker]×], [0, I]]; fully correlated between readings: averaging does
+    not reduce it."""
+    p = np.atleast_2d(np.asarray(position, dtype=float))
+    jac = np.broadcast_to(np.eye(6), (len(p), 6, 6)).copy()
+    jac[:, :3, 3:] = -skew(p - np.asarray(tracker_position, dtype=float))
+    out: FloatArray = jac @ np.asarray(covariance, dtype=float) @ np.swapaxes(jac, 1, 2)
+    return out
+
+
+class Registration(NamedTuple):
+    """A located tracker as the cell's other nodes receive it (/metrology/registration): the
+    ``position`` (3,) m of its origin in ``base`` and the ``covariance`` (6, 6) of the
+    registration (δp m, δθ rad about the base axes at that origin), the part of every
+    reading's stated covariance that is common to all readings."""
+
+    position: FloatArray
+    covariance: FloatArray
+
+    def covariance_at(self, position: ArrayLike) -> FloatArray:
+        """:func:`registration_covariance` (N, 6, 6) at platform positions (N, 3) m."""
+        return registration_covariance(self.position, self.covariance, position)
 
 
 def skew(v: ArrayLike) -> FloatArray:

@@ -35,6 +35,7 @@ from positioning_cell.clearance import ClearanceModel, attained_pose
 from positioning_cell.core.limits import LimitReport
 from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.metrology.instrument import Registration
 from positioning_cell.motion.compensation import Compensation
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
 from positioning_cell.motion.standstill import Motion, StandstillWatch
@@ -144,6 +145,8 @@ class Mover:
         self.measurements: list[Measurement] = []
         self.measurement_count = 0
         self.measurement_time = -math.inf
+        #: The tracker's newest registration (the readings' common covariance); None: none yet.
+        self.registration: Registration | None = None
         self.answers: list[Answer] = []
         self.driver: dict[str, str] = {}
         self.command: tuple[FloatArray, FloatArray] | None = None
@@ -210,12 +213,16 @@ class Mover:
             self.cond.notify_all()
 
     def _refresh(self) -> None:
-        """Take what came in: the newest joint state, tracker readings, the drives' answers."""
+        """Take what came in: the newest joint state, tracker readings and registration, the
+        drives' answers."""
         joints = self.machine.latest_joints()
         taken = self.machine.new_measurements()
+        registration = self.machine.registration()
         answers = self.machine.trajectory_answers()
         now = self.machine.clock()
         with self.cond:
+            if registration is not None:
+                self.registration = registration
             if joints is not None:
                 self.joints, self.joints_time = joints, now
                 if self._motion is not None:
@@ -617,11 +624,14 @@ class Mover:
 
     def status_values(self, code: ResultCode | None) -> dict[str, object]:
         """The positioner's state for its diagnostics (``code``: of the move that just ended,
-        if any): state, reason, mode, code, referenced, position confirmed, calibration."""
+        if any): state, reason, mode, code, referenced, position confirmed, calibration, and
+        whether the tracker's registration (the readings' common covariance) was received."""
         return {'state': self.state.value, 'reason': self.reason, 'mode': self.mode.value,
                 'code': code.value if code else '', 'referenced': self.referenced,
                 'position_confirmed': self.position_confirmed,
-                'calibration': self.settings.compensation.calibration_file or 'none'}
+                'calibration': self.settings.compensation.calibration_file or 'none',
+                'tracker_registration': 'received' if self.registration is not None
+                else 'none (the readings\' common part told by their scatter)'}
 
     def compensation_report(self) -> tuple[str, str, dict[str, str]]:
         """(level, message, values) of the conditions the compensation works under
@@ -821,8 +831,9 @@ class Mover:
                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The next ``samples`` tracker readings averaged (:func:`mean_reading`): the mean
         position and rotation, and the covariance (6, 6) of that mean, each axis' stated
-        variance split by the readings' own scatter into a part that averages down and one
-        common to all (the tracker's registration) that does not. From ``min_samples`` new
+        variance split into a part that averages down and one common to all (the tracker's
+        registration, when published; else told apart by the readings' own scatter) that does
+        not. From ``min_samples`` new
         readings on, the average so far ends the wait early when ``decided(mean, quaternion,
         covariance)`` says it settles the question asked. A tracker that falls silent or
         readings that scatter beyond their stated uncertainty abort."""
@@ -864,8 +875,10 @@ class Mover:
                     ResultCode.ABORTED_TRACKER_INCONSISTENT,
                     f'tracker readings scatter {np.max(scatter) * 1e6:.1f} um, {ratio:.0f}x '
                     'their stated sigma: outliers or a disturbed line of sight')
+        common = (None if self.registration is None
+                  else self.registration.covariance_at(positions.mean(axis=0))[0])
         return mean_reading(positions, [s.quaternion for s in samples],
-                            [s.covariance for s in samples])
+                            [s.covariance for s in samples], common)
 
     @staticmethod
     def _verdict(m_p: FloatArray, m_q: FloatArray, cov: FloatArray, p: FloatArray,

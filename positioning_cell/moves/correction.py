@@ -46,8 +46,8 @@ def mean_pose(positions: ArrayLike, quaternions: ArrayLike) -> tuple[FloatArray,
     return p.mean(axis=0), np.asarray(Rotation.from_quat(q).mean().as_quat(canonical=True))
 
 
-def mean_reading(positions: ArrayLike, quaternions: ArrayLike,
-                 covariances: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+def mean_reading(positions: ArrayLike, quaternions: ArrayLike, covariances: ArrayLike,
+                 common: ArrayLike | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The mean of k tracker readings of one pose (:func:`mean_pose`: position (3,) m,
     quaternion (4,)) and the covariance (6, 6) of that mean, from the readings' positions
     (k, 3) m, quaternions (k, 4) and stated covariances (k, 6, 6) in ``base``, order x, y, z,
@@ -56,8 +56,12 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike,
 
     A reading's stated covariance is its own noise plus a part common to all readings (the
     tracker's registration) that averaging does not reduce, so inv(Σ C_i⁻¹) — the readings
-    taken as independent — understates the mean's. The readings' own scatter tells the two
-    apart without knowing either: per axis i, the independent share
+    taken as independent — understates the mean's. When that common part is known
+    (``common`` (6, 6): the published registration's covariance at these poses,
+    :meth:`~positioning_cell.metrology.instrument.Registration.covariance_at`), the mean's
+    covariance is common + (C̄ − common)/k, C̄ the mean of the C_i: exact for readings as
+    stated, positive semi-definite (a positive mix of C̄ and common). Without it, the
+    readings' own scatter tells the two apart: per axis i, the independent share
     f_i = clip(s_i² / C̄_ii, 0, 1) of the mean stated variance C̄_ii (C̄ the mean of the C_i),
     s_i² the sample variance of the positions or of the rotation vectors of R_i·R̄ᵀ; the
     rest is common. The mean's variance is then C̄_ii·(1 − f_i + f_i/k), and its covariance
@@ -77,6 +81,8 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike,
     position, quaternion = mean_pose(p, q)
     mean_cov = cov.mean(axis=0)
     k = len(p)
+    if common is not None:
+        return position, quaternion, averaged_covariance(mean_cov, common, k)
     if k > 1:
         rotvec = (Rotation.from_quat(q) * Rotation.from_quat(quaternion).inv()).as_rotvec()
         scatter = np.concatenate([p.var(axis=0, ddof=1), rotvec.var(axis=0, ddof=1)])
@@ -87,6 +93,22 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike,
     d = np.sqrt(1.0 - share + share / k)
     out: FloatArray = d[:, None] * mean_cov * d[None, :]
     return position, quaternion, 0.5 * (out + out.T)
+
+
+def averaged_covariance(mean_covariance: ArrayLike, common: ArrayLike,
+                        samples: int) -> FloatArray:
+    """Covariance (..., 6, 6) of the mean of ``samples`` readings whose stated covariances
+    average ``mean_covariance`` (..., 6, 6) and share the part ``common`` (..., 6, 6) (the
+    tracker's registration): common + (C̄ − common) / samples (:func:`mean_reading`)."""
+    mean_cov = np.asarray(mean_covariance, dtype=float)
+    shared = np.asarray(common, dtype=float)
+    if shared.shape[-2:] != (6, 6) or not np.all(np.isfinite(shared)):
+        raise InputError(f'common covariance: expected a finite 6 x 6 matrix, got shape '
+                         f'{shared.shape}')
+    if samples < 1:
+        raise InputError(f'samples: expected at least 1, got {samples}')
+    out: FloatArray = shared + (mean_cov - shared) / samples
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
 
 
 class Verdict(Enum):

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from positioning_cell.metrology.instrument import Registration
 from positioning_cell.moves.outcomes import ResultCode, State
 from positioning_cell.moves.trajectory import Trajectory
 
@@ -64,7 +65,10 @@ class Machine:
     matched both ways); ``state_changed(state, reason, code)`` reports a new state,
     ``refused(code, reason)`` a refusal (the state stays); ``clock()`` is a monotonic clock
     in s; ``identity`` the name the drives must take commands from (the positioner node's fully
-    qualified name; '' when not checked).
+    qualified name; '' when not checked); ``registration()`` the tracker's registration published
+    since the last call (None: nothing new; with none ever received the mover splits the
+    readings' stated covariance by their scatter,
+    :func:`~positioning_cell.moves.correction.mean_reading`).
     """
 
     send_trajectory: Callable[[Trajectory], None]
@@ -79,5 +83,6 @@ class Machine:
     refused: Callable[[ResultCode, str], None] = field(default=_nothing)
     clock: Callable[[], float] = time.monotonic
     identity: str = ''
+    registration: Callable[[], Registration | None] = lambda: None
 
 

@@ -2,7 +2,8 @@
 tracker measuring it (:mod:`positioning_cell.sim.pose_measurement`).
 
 At start the tracker locates itself on the base reference targets (``locate.*``; again on
-/pose_measurement/locate), and logs the registration and its residuals. The newest
+/pose_measurement/locate), logs the registration and its residuals and publishes it, latched, on
+/metrology/registration (the part of every reading's covariance common to all readings). The newest
 /sim/legs/true_joint_states → the true platform pose (at most ``truth_rate_hz``) on
 /sim/platform/true_pose, stamped with the joint state's time → at ``rate_hz`` a tracker reading
 of the SMRs, converted to ``base`` with the located registration, the fitted pose and the
@@ -26,7 +27,7 @@ from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.latest import Reader
 from positioning_cell.ros.parameters import NodeParameters
-from positioning_cell.ros.qos import DIAGNOSTICS_QOS, SERVICE_QOS, STREAM_QOS
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
 from positioning_cell.ros.spin import NodeStart
 from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSettings,
@@ -46,6 +47,8 @@ class PoseMeasurementNode(Node):
                                      lambda s, _: self.sim.reconfigure(s))
         settings = self.params.settings
         self.sim = PoseMeasurementSimulator(settings)
+        self._registration_pub = self.create_publisher(
+            PoseWithCovarianceStamped, names.TRACKER_REGISTRATION, LATCHED_QOS)
         self._log_location()
         self._joints = Reader(self, JointState, names.TRUE_JOINT_STATES)
         self._true_pub = self.create_publisher(PoseStamped, names.TRUE_POSE, STREAM_QOS)
@@ -61,6 +64,15 @@ class PoseMeasurementNode(Node):
         self.create_service(Trigger, names.LOCATE_TRACKER, self._locate, qos_profile=SERVICE_QOS)
 
     def _log_location(self) -> None:
+        """Log the located registration and publish it (latched) on
+        /metrology/registration."""
+        location = self.sim.location
+        covariance = None if location is None else location.tracker.covariance
+        if location is not None and covariance is not None:
+            tracker = location.tracker
+            self._registration_pub.publish(m.registration_msg(
+                tracker.position, tracker.orientation, covariance,
+                self.get_clock().now().to_msg()))
         level, message = self.sim.locate_status
         values = self.sim.location_values()
         if values:

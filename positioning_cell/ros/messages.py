@@ -21,6 +21,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from positioning_cell.core.kinematics import platform_points
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
+from positioning_cell.metrology.instrument import Registration
 from positioning_cell.moves.machine import Answer, JointReading, Measurement
 from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.names import BASE_FRAME
@@ -148,6 +149,29 @@ def measurement(msg: PoseWithCovarianceStamped) -> Measurement:
     """A tracker reading: pose and its covariance (6, 6)."""
     return Measurement(*pose_arrays(msg.pose.pose),
                        np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6))
+
+
+def registration(msg: PoseWithCovarianceStamped) -> Registration:
+    """The tracker's registration (/metrology/registration): its origin (3,) m in ``base`` and
+    the covariance (6, 6) of its pose."""
+    position, _ = pose_arrays(msg.pose.pose)
+    cov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)
+    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(cov))
+            and np.all(np.diag(cov) >= 0.0) and np.allclose(cov, cov.T, rtol=1e-9, atol=0.0)):
+        raise InputError('tracker registration: expected a finite position and a finite, '
+                         'symmetric covariance with a non-negative diagonal')
+    return Registration(position, cov)
+
+
+def registration_msg(position: ArrayLike, quaternion: ArrayLike, covariance: ArrayLike,
+                     stamp: Time) -> PoseWithCovarianceStamped:
+    """/metrology/registration: the located tracker's pose in ``base`` (m, x, y, z, w) and its
+    covariance (6, 6: δp m, δθ rad about the base axes at the tracker origin)."""
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp, msg.header.frame_id = stamp, BASE_FRAME
+    msg.pose.pose = pose_msg(position, quaternion)
+    msg.pose.covariance = np.asarray(covariance, dtype=float).reshape(36).tolist()
+    return msg
 
 
 def answer(status: DiagnosticStatus) -> Answer | None:

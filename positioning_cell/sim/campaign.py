@@ -27,7 +27,7 @@ from positioning_cell.core.poses import pose_error
 from positioning_cell.errors import ConvergenceError
 from positioning_cell.metrology.instrument import Tracker
 from positioning_cell.metrology.targets import TargetLayout
-from positioning_cell.moves.correction import mean_pose
+from positioning_cell.moves.correction import averaged_covariance, mean_pose
 from positioning_cell.sim.effects.history import sequence_conditions
 from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.encoders import EncoderSettings, quantise
@@ -95,9 +95,8 @@ def measure_program(truth: Truth, instrument: SimulatedTracker, located: Tracker
     for k in range(n):  # one mean per pose (rotation mean: scipy, per set)
         rows = slice(k * samples, (k + 1) * samples)
         position[k], quaternion[k] = mean_pose(fit.position[rows], fit.quaternion[rows])
-    common = located.registration_covariance(position)
-    covariance = (fit.covariance.reshape(n, samples, 6, 6).mean(axis=1) - common) / samples \
-        + common
+    covariance = averaged_covariance(fit.covariance.reshape(n, samples, 6, 6).mean(axis=1),
+                                     located.registration_covariance(position), samples)
     return CalibrationData(joints, joint_sigma, position, quaternion, covariance,
                            temperature=temperature, approach=conditions.approach)
 

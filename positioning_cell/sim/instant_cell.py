@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.core.kinematics import inverse
-from positioning_cell.metrology.instrument import Tracker
+from positioning_cell.metrology.instrument import Registration, Tracker
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.trajectory import Trajectory, fingerprint
@@ -56,7 +56,8 @@ class InstantCell:
         """The :class:`Machine` a mover drives."""
         return Machine(send_trajectory=self._send, stop_drives=lambda: None,
                        publish_target=lambda p, q: None, latest_joints=self._joints,
-                       new_measurements=self._measure, trajectory_answers=self._take)
+                       new_measurements=self._measure, trajectory_answers=self._take,
+                       registration=self._registration)
 
     def true_pose(self) -> tuple[FloatArray, FloatArray]:
         """Judging only: where the platform really is, position (3,) m, quaternion (4,)."""
@@ -90,6 +91,11 @@ class InstantCell:
     def _joints(self) -> JointReading:
         with self._lock:
             return JointReading(self.position.copy(), np.zeros(6))
+
+    def _registration(self) -> Registration | None:
+        """The located registration, as the tracker node publishes it."""
+        cov = self.located.covariance
+        return None if cov is None else Registration(np.asarray(self.located.position), cov)
 
     def _measure(self) -> list[Measurement]:
         p, q = self.true_pose()
