@@ -19,8 +19,6 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from positioning_cell import names
-from positioning_cell.errors import InputError
-from positioning_cell.metrology.instrument import Registration
 from positioning_cell.motion.controller import Controller
 from positioning_cell.motion.inputs import inputs_report
 from positioning_cell.motion.mover import (
@@ -36,6 +34,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros import qos
 from positioning_cell.ros.latest import SourceReader
 from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.registration import RegistrationReader
 from positioning_cell.ros.spin import NodeStart, Spin
 
 _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
@@ -60,9 +59,7 @@ class PositionerNode(Node):
                          qos.STREAM_QOS),
             SourceReader(self, DiagnosticStatus, names.TRAJECTORY_STATUS, src.leg_driver,
                          qos.STREAM_QOS))
-        self._registration = SourceReader(self, PoseWithCovarianceStamped,
-                                          names.TRACKER_REGISTRATION, src.tracker,
-                                          qos.LATCHED_QOS)
+        self._registration = RegistrationReader(self, src.tracker)
         self.pub_traj = self.create_publisher(JointTrajectory, names.JOINT_TRAJECTORY,
                                               qos.COMMAND_QOS)
         self.pub_target = self.create_publisher(PoseStamped, names.TARGET, qos.LATCHED_QOS)
@@ -88,7 +85,7 @@ class PositionerNode(Node):
             state_changed=self._state_changed,
             refused=self._refused,
             identity=self.get_fully_qualified_name(),
-            registration=self._take_registration))
+            registration=self._registration.take))
         self.controller = Controller(self.mover, settings.operator)  # ConfigError: no start
         self._estimates = 0
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
@@ -108,18 +105,6 @@ class PositionerNode(Node):
         self.create_timer(settings.liveness.heartbeat_period,
                           lambda: beat.publish(Header(stamp=self._now())),
                           callback_group=MutuallyExclusiveCallbackGroup())
-
-    def _take_registration(self) -> Registration | None:
-        """The tracker's registration published since the last call (None: nothing new or
-        not readable, which is logged and leaves the mover with the one it has)."""
-        msg = self._registration.newest()
-        if msg is None:
-            return None
-        try:
-            return m.registration(msg)
-        except InputError as exc:
-            self.get_logger().error(f'{names.TRACKER_REGISTRATION}: {exc}; not used')
-            return None
 
     def _reference_drives(self) -> bool:
         """Ask the drives to reference (False: the service is not there, nothing sent)."""
