@@ -19,8 +19,8 @@ from json_compare import differences
 from positioning_cell import accuracy
 from positioning_cell.accuracy import Ignored, Monitor, MonitorSettings
 from positioning_cell.analysis import analyse_bag, message_batches, replay
-from positioning_cell.analysis.program import load_program
-from positioning_cell.analysis.replay import BEFORE_PROGRAM
+from positioning_cell.analysis.program import ProgramStep, load_program
+from positioning_cell.analysis.replay import OUTSIDE_PROGRAM
 from positioning_cell.analysis.report import markdown
 from positioning_cell.analysis.summary import ANALYSED_TOPICS
 from positioning_cell.analysis.trace import ErrorTrace
@@ -230,20 +230,41 @@ def test_no_settle_time_exceeds_the_bag_after_an_old_latched_target(
 def test_a_move_before_the_first_program_step_is_left_out_of_the_mode_figures(
         run: SyntheticRun, bag: Path, tmp_path: Path) -> None:
     """run_cell homes before the program: that visit has no program step. It stays in the
-    monitor's figures, is labelled 'before program', and the mode summaries are those of the
+    monitor's figures, is labelled 'outside program', and the mode summaries are those of the
     program's visits alone."""
     path = tmp_path / 'homed_first'
     write_run_bag(path, dataclasses.replace(run, steps=run.steps[1:]), diagnostics=False)
     analysis = analyse_bag(path, SETTINGS)
     plain = analyse_bag(bag, SETTINGS)
     first, *rest = analysis.replay.visits
-    assert first.mode == BEFORE_PROGRAM
+    assert first.mode == OUTSIDE_PROGRAM
     assert [(v.mode, v.pose) for v in rest] == [(v.mode, v.pose) for v in plain.replay.visits[1:]]
     assert [m.mode for m in analysis.modes] == [m.mode for m in plain.modes]
     assert sum(m.extremes.n for m in analysis.modes) == len(rest)
     assert analysis.modes[0].extremes.n == plain.modes[0].extremes.n - 1
     assert len(analysis.monitor['verdicts']) == len(plain.monitor['verdicts'])
-    assert '1 visit(s) before the first program step' in markdown(analysis)
+    assert '1 visit(s) outside the program (homing, calibration)' in markdown(analysis)
+
+
+def test_a_move_after_a_programs_end_is_outside_every_program(
+        run: SyntheticRun, bag: Path, tmp_path: Path) -> None:
+    """Between two programs (a homing or calibration move after the first one's end marker,
+    before the second one's first step) a visit is labelled 'outside program'; a bag without
+    the end marker (recorded before it existed) gives it the first program's last step."""
+    j = len(run.steps) // 2  # the visit between the two "programs"
+    ended = dataclasses.replace(run, steps=(*run.steps[:j], ProgramStep.ended(run.steps[j].stamp),
+                                            *run.steps[j + 1:]))
+    without = dataclasses.replace(run, steps=run.steps[:j] + run.steps[j + 1:])
+    labels = {}
+    for name, variant in (('ended', ended), ('without', without)):
+        write_run_bag(tmp_path / name, variant, diagnostics=False)
+        labels[name] = [(v.mode, v.pose) for v in
+                        analyse_bag(tmp_path / name, SETTINGS).replay.visits]
+    plain = [(v.mode, v.pose) for v in analyse_bag(bag, SETTINGS).replay.visits]
+    assert labels['ended'][j] == (OUTSIDE_PROGRAM, plain[j][1])
+    assert labels['without'][j] == plain[j - 1]
+    for got in labels.values():
+        assert got[:j] == plain[:j] and got[j + 1:] == plain[j + 1:]
 
 
 def test_not_a_bag_and_missing_topics_fail_with_a_clear_message(
@@ -349,6 +370,8 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
     assert differences({k: v for k, v in before.items() if k not in judged},
                        {k: v for k, v in now.items() if k not in judged}) == []
     fields = ('mode', 'pose', 'key', 'cycle', 'target_time', 'commanded_position')
+    for v in before['visits']:  # the label's name since programs mark their end
+        v['mode'] = OUTSIDE_PROGRAM if v['mode'] == 'before program' else v['mode']
     assert ([[v[f] for f in fields] for v in before['visits']]
             == [[v[f] for f in fields] for v in now['visits']])
     assert all(a['window_start'] <= b['window_start']

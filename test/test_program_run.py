@@ -82,9 +82,15 @@ def port(tmp_path: Path) -> Port:
     return _port(tmp_path)
 
 
-def _steps(port: InstantPort) -> list[ProgramStep]:
+def _marked(port: InstantPort) -> list[ProgramStep]:
+    """Everything marked on /cell/program, the end-of-program markers included."""
     return [ProgramStep.from_json(text, 0.0) for topic, text in port.marks
             if topic == names.PROGRAM]
+
+
+def _steps(port: InstantPort) -> list[ProgramStep]:
+    """The program steps marked (no end-of-program marker)."""
+    return [s for s in _marked(port) if not s.end]
 
 
 def _never(*args: object) -> Path | None:
@@ -105,6 +111,9 @@ def test_each_move_is_marked_moved_and_judged_in_its_mode(port: Port, tmp_path: 
     assert [s.note for s in steps] == [None if m == 'none' else NO_CALIBRATION
                                        for m, _, _ in expected]
     assert all(b.stamp >= a.stamp for a, b in itertools.pairwise(steps))
+    # then, once, the end of the program: what moves after it is no program's
+    end = _marked(port)[-1]
+    assert end.end and end.stamp >= steps[-1].stamp and len(_marked(port)) == len(steps) + 1
     # each move in its mode, to its pose
     assert port.move_modes == [m for m, _, _ in expected]
     moves = [what for kind, what, _ in port.commands if kind == 'move']
@@ -157,6 +166,7 @@ def test_a_move_without_an_answer_ends_the_run(port: Port) -> None:
                        '/positioner/move_to_pose did not come'):
         drive(port, _program(), 'note', lines.append)
     assert len([line for line in lines if line.startswith('[')]) == 1
+    assert [s.end for s in _marked(port)] == [False, False, True]  # ended there all the same
 
 
 def test_the_calibration_is_loaded_judged_and_noted(tmp_path: Path) -> None:
@@ -228,7 +238,7 @@ def test_the_axis_test_runs_after_the_calibration_and_before_the_modes(
     first_move = lines.index('compensation mode: none')
     assert lines.index('axis test, ISO 230-2:2014 per axis (x = actual - commanded):') \
         < first_move
-    assert [topic for topic, _ in port.marks] == [names.AXIS_TEST] * 8 + [names.PROGRAM] * 9
+    assert [topic for topic, _ in port.marks] == [names.AXIS_TEST] * 8 + [names.PROGRAM] * 10
     # an axis test the positioner will not run: said, and the program still runs
     port.refuse = {'none'}
     port.marks.clear()

@@ -15,7 +15,7 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from positioning_cell.analysis import analyse_bag
-from positioning_cell.analysis.replay import BEFORE_PROGRAM
+from positioning_cell.analysis.replay import OUTSIDE_PROGRAM
 from positioning_cell.bag import BagReader
 from positioning_cell.names import PROGRAM
 from positioning_cell.testing.tiled_bag import shift_marker, tile_bag
@@ -72,16 +72,18 @@ def test_a_tiled_bag_holds_the_source_shifted_copy_after_copy(
 
 def test_a_tiled_bag_analyses_as_the_program_repeated(tmp_path: Path) -> None:
     """Two copies: every program visit twice, every sample twice, each calibration run twice
-    under names of its own. The moves before the second program (the calibration and homing
-    moves) follow a program step now, the first program's last: they take its mode, by the
-    analysis's labelling rule, and so are in that mode's visits."""
+    under names of its own. The stored bag was recorded before programs marked their end, so
+    the moves before the second program (the calibration and homing moves) follow a program
+    step, the first program's last: they take its mode, by the analysis's labelling rule for
+    such bags, and so are in that mode's visits (test_analysis: with the end marker they are
+    outside every program)."""
     one = analyse_bag(MAKE_RUN)
     two = analyse_bag(tile_bag(MAKE_RUN, tmp_path / 'tiled', 2 * one.message_count).path)
     assert not two.problems and two.message_count == 2 * one.message_count
     assert len(two.replay.visits) == 2 * len(one.replay.visits)
     assert two.replay.measured.count == 2 * one.replay.measured.count
     assert two.replay.truth.count == 2 * one.replay.truth.count
-    before = sum(v.mode == BEFORE_PROGRAM for v in one.replay.visits)
+    before = sum(v.mode == OUTSIDE_PROGRAM for v in one.replay.visits)
     last = one.replay.program[-1].mode
     counts = {m.mode: m.extremes.n for m in one.modes}
     assert {m.mode: m.extremes.n for m in two.modes} == {

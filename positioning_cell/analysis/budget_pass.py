@@ -25,7 +25,7 @@ from positioning_cell.analysis.error_budget import (
     last_before,
 )
 from positioning_cell.analysis.reading import Recording, joint_values
-from positioning_cell.analysis.replay import BEFORE_PROGRAM, LabelledVisit
+from positioning_cell.analysis.replay import OUTSIDE_PROGRAM, LabelledVisit
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.names import JOINT_STATES, JOINT_TRAJECTORY, MEASURED_POSE, TRUE_POSE
@@ -40,7 +40,7 @@ def gather(recording: Recording, visits: Sequence[LabelledVisit], mech: Mechanis
            resolution: FloatArray | None) -> tuple[ErrorBudget, ...]:
     """The budget of each mode of the program (in order of first appearance; the visits
     before the program are left out) from the bag, a second time through it."""
-    mine = [v for v in visits if v.mode != BEFORE_PROGRAM]
+    mine = [v for v in visits if v.mode != OUTSIDE_PROGRAM]
     if not mine:
         return ()
     starts = np.array([v.visit.window_start for v in mine])

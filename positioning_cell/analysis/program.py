@@ -143,13 +143,20 @@ def load_program(path: str | Path, mech: Mechanism) -> Program:
 class ProgramStep:
     """One step of the run program as published on /cell/program: compensation ``mode``,
     ``cycle`` (1-based) and ``pose`` name of the next move, ``stamp`` (s, publisher clock)
-    and an optional ``note`` for the report."""
+    and an optional ``note`` for the report; or, with ``end``, the end of a program (the
+    moves after it, until the next step, belong to no program: :meth:`ended`)."""
 
     mode: str
     stamp: float
     cycle: int | None = None
     pose: str | None = None
     note: str | None = None
+    end: bool = False
+
+    @classmethod
+    def ended(cls, stamp: float) -> ProgramStep:
+        """The end-of-program marker at ``stamp`` (s, publisher clock)."""
+        return cls('', stamp, end=True)
 
     def to_json(self) -> str:
         """The /cell/program message text."""
@@ -157,6 +164,8 @@ class ProgramStep:
                                'stamp': self.stamp}
         if self.note:
             doc['note'] = self.note
+        if self.end:
+            doc['end'] = True
         return json.dumps(doc)
 
     @classmethod
@@ -175,4 +184,4 @@ class ProgramStep:
         return cls(doc['mode'], float(stamp) if isinstance(stamp, (int, float)) else log_time,
                    cycle if isinstance(cycle, int) else None,
                    str(pose) if pose is not None else None,
-                   str(note) if note is not None else None)
+                   str(note) if note is not None else None, doc.get('end') is True)

@@ -17,7 +17,10 @@ Labels come from ``/cell/program`` (std_msgs/String, JSON written by :meth:`Prog
 ``{"mode": "model", "cycle": 2, "pose": "P3", "stamp": 1700000000.25}``) published by the run
 driver before each move: a segment (a new target) takes the last step whose ``stamp`` (s, the
 publisher's clock; the log time if absent) is not after the target's header stamp; one before
-the first step (the homing move) is labelled :data:`BEFORE_PROGRAM`. Without program steps the
+the first step (the homing move) or after a program's end marker (``"end": true``, sent when a
+program ends: the homing and calibration moves before a second program) is labelled
+:data:`OUTSIDE_PROGRAM`, outside every program. A bag recorded before the end marker existed
+labels the moves between two programs with the first one's last step. Without program steps the
 mode is the ``mode`` value of the positioner's ``positioner: state``
 diagnostics (the first status stamped at or after the target; the positioner publishes it when
 the move starts) and the pose is named ``P<key + 1>``.
@@ -77,9 +80,10 @@ OPTIONAL_TOPICS = (TRUE_POSE, PROGRAM, DIAGNOSTICS)
 #: Read when present: the calibration runs recorded in the run, its axis tests.
 CONTEXT_TOPICS = (CALIBRATION, AXIS_TEST)
 UNKNOWN_MODE = 'unknown'
-#: The label of a segment that starts before the first program step of a run that has steps
-#: (the homing move of run_cell): in the monitor's figures, not in the per-mode summaries.
-BEFORE_PROGRAM = 'before program'
+#: The label of a segment outside every program of a run that has steps (before its first step:
+#: the homing move of run_cell; after a program's end marker: the homing and calibration moves
+#: before the next program): in the monitor's figures, not in the per-mode summaries.
+OUTSIDE_PROGRAM = 'outside program'
 
 
 @dataclass(frozen=True)
@@ -316,7 +320,8 @@ def _label(raw: Sequence[tuple[float, float, int, Any, Any, float]],
         i = int(np.searchsorted(step_times[order], stamp, side='right')) - 1
         if steps:
             step = steps[int(order[i])] if i >= 0 else None
-            mode, pose = (step.mode, step.pose or pose) if step else (BEFORE_PROGRAM, pose)
+            mode, pose = ((step.mode, step.pose or pose) if step and not step.end
+                          else (OUTSIDE_PROGRAM, pose))
         elif modes:
             j = min(int(np.searchsorted(mode_times[mode_order], stamp, side='left')),
                     len(modes) - 1)

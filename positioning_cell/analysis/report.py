@@ -9,7 +9,7 @@ from pathlib import Path
 
 from positioning_cell.accuracy import ErrorStatistics
 from positioning_cell.analysis.error_budget import CONTRIBUTIONS, Contribution, ErrorBudget
-from positioning_cell.analysis.replay import BEFORE_PROGRAM
+from positioning_cell.analysis.replay import OUTSIDE_PROGRAM
 from positioning_cell.analysis.summary import ModeSummary, RunAnalysis
 
 REPORT_FILE = 'report.md'
@@ -125,9 +125,9 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
     if a.ignored:
         out += [f'{len(a.ignored)} message(s) ignored as the live monitor ignores them; '
                 f'first: {a.ignored[0].topic}: {a.ignored[0].reason}.', '']
-    before = sum(v.mode == BEFORE_PROGRAM for v in a.replay.visits)
+    before = sum(v.mode == OUTSIDE_PROGRAM for v in a.replay.visits)
     if before:
-        out += [f'{before} visit(s) before the first program step (homing) are in the live '
+        out += [f'{before} visit(s) outside the program (homing, calibration) are in the live '
                 'monitor\'s figures only, not in the comparison of modes.', '']
     out += ['## Comparison of compensation modes (measured by the tracker)', '']
     if a.modes:

@@ -29,9 +29,9 @@ from positioning_cell.analysis.context import RunContext
 from positioning_cell.analysis.error_budget import ErrorBudget
 from positioning_cell.analysis.reading import Recording, with_recording
 from positioning_cell.analysis.replay import (
-    BEFORE_PROGRAM,
     CONTEXT_TOPICS,
     OPTIONAL_TOPICS,
+    OUTSIDE_PROGRAM,
     REQUIRED_TOPICS,
     LabelledVisit,
     Replay,
@@ -238,7 +238,7 @@ def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
     truth = bool(result.truth.count)
 
     def in_program(visits: Sequence[LabelledVisit]) -> list[LabelledVisit]:
-        return [v for v in visits if v.mode != BEFORE_PROGRAM]
+        return [v for v in visits if v.mode != OUTSIDE_PROGRAM]
 
     markers, bad_markers = parse_markers(replayer.axis_test)
 

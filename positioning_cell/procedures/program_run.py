@@ -136,48 +136,52 @@ def axis_test(port: CellPort, test: AxisTest, config: Path, run_dir: Path,
 def drive(port: CellPort, program: Program, note: str, say: Say) -> Driven:
     """The program (module docstring): per mode, set it (a refused mode: said, its moves
     skipped); per move, the step marked on ``/cell/program`` (with ``note`` for the
-    compensated modes), the move, the monitor's verdict, a line. ProcedureError when the
-    positioner gives no answer to a move (the cell is not there)."""
+    compensated modes), the move, the monitor's verdict, a line; at the end, however it
+    ends, the end-of-program marker. ProcedureError when the positioner gives no answer to a
+    move (the cell is not there)."""
     failed = skipped = unjudged = 0
     refused: list[tuple[str, str]] = []
     width = len(str(program.moves))
     begin = port.now()
     mode_taken = True
-    for n, (mode, cycle, k) in enumerate(program.steps(), start=1):
-        if cycle == 1 and k == 0:
-            try:
-                port.set_mode(mode)
-            except ProcedureError as err:
-                refused.append((mode, str(err)))
-                left = program.cycles * len(program.names)
-                say(f'compensation mode: {mode} refused: {err}; its {left} moves left out')
-                mode_taken = False
-            else:
-                say(f'compensation mode: {mode}')
-                mode_taken = True
-        if not mode_taken:
-            skipped += 1
-            continue
-        name = program.names[k]
-        port.mark(names.PROGRAM, ProgramStep(
-            mode, port.now(), cycle, name,
-            note if mode != CompensationMode.NONE.value else None).to_json())
-        before = port.seen()
-        started = port.now()
-        moved = port.move(program.position[k], program.quaternion[k], program.tolerance)
-        took = port.now() - started
-        head = f'[{n:>{width}}/{program.moves}] {mode:<8} cycle {cycle} {name:<4}'
-        if not moved.success:
-            if not moved.code:  # no answer at all: the positioner is not there
-                moved_or_raise(moved, f'move to {name}')
-            failed += 1
-            say(f'{head} move refused or aborted: {moved.code}: {moved.reason}')
-            continue
-        verdict = port.verdict(before, program.settle_timeout)
-        if verdict is None:
-            unjudged += 1
-            verdict = f'monitor saw no settled pose within {program.settle_timeout:.0f} s'
-        say(f'{head} moved in {took:.1f} s; monitor: {verdict} [{port.now() - begin:.0f} s]')
+    try:
+        for n, (mode, cycle, k) in enumerate(program.steps(), start=1):
+            if cycle == 1 and k == 0:
+                try:
+                    port.set_mode(mode)
+                except ProcedureError as err:
+                    refused.append((mode, str(err)))
+                    left = program.cycles * len(program.names)
+                    say(f'compensation mode: {mode} refused: {err}; its {left} moves left out')
+                    mode_taken = False
+                else:
+                    say(f'compensation mode: {mode}')
+                    mode_taken = True
+            if not mode_taken:
+                skipped += 1
+                continue
+            name = program.names[k]
+            port.mark(names.PROGRAM, ProgramStep(
+                mode, port.now(), cycle, name,
+                note if mode != CompensationMode.NONE.value else None).to_json())
+            before = port.seen()
+            started = port.now()
+            moved = port.move(program.position[k], program.quaternion[k], program.tolerance)
+            took = port.now() - started
+            head = f'[{n:>{width}}/{program.moves}] {mode:<8} cycle {cycle} {name:<4}'
+            if not moved.success:
+                if not moved.code:  # no answer at all: the positioner is not there
+                    moved_or_raise(moved, f'move to {name}')
+                failed += 1
+                say(f'{head} move refused or aborted: {moved.code}: {moved.reason}')
+                continue
+            verdict = port.verdict(before, program.settle_timeout)
+            if verdict is None:
+                unjudged += 1
+                verdict = f'monitor saw no settled pose within {program.settle_timeout:.0f} s'
+            say(f'{head} moved in {took:.1f} s; monitor: {verdict} [{port.now() - begin:.0f} s]')
+    finally:  # what moves next (homing, a calibration, another program) is not this program
+        port.mark(names.PROGRAM, ProgramStep.ended(port.now()).to_json())
     return Driven(failed, skipped, tuple(refused), unjudged)
 
 
