@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from positioning_cell.calibration import collect as col
 from positioning_cell.calibration import program as prog
+from positioning_cell.metrology.instrument import Registration
 
 RATE_HZ, TRACKER_HZ, AIR_HZ = 100.0, 20.0, 1.0
 SAMPLES = 20
@@ -179,6 +180,44 @@ def test_the_live_path_gets_what_the_bag_path_gets(seed: int) -> None:
         for a, b in zip(getattr(got, part), getattr(want, part), strict=True):
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
     assert got.missing == want.missing == ()
+
+
+def test_a_poses_covariance_keeps_the_registrations_part_undiminished() -> None:
+    """With the tracker's registration recorded, each pose states its readings' common part
+    (the registration's covariance at the pose) plus the rest over the readings' number, on
+    the bag's path as on the live one; without, the mean covariance over that number. The
+    registration in force is the newest stamped up to the pose's start (else the first)."""
+    r = run(3)
+    p_t, (p_p, p_q, p_c) = r.poses
+    a = np.diag([4e-6, 3e-6, 5e-6, 2e-6, 3e-6, 1e-6]) ** 2
+    first = Registration(np.array([0.8, 0.3, 2.2]), a)
+    later = Registration(np.array([0.8, 0.3, 2.2]), 4.0 * a)
+    switch = float(r.windows[4, 0]) - 0.5  # a re-location between poses 4 and 5
+    registrations = [(switch, later), (float(r.windows[0, 0]) + 0.01, first)]
+    got = col.collect(r.markers, r.joints, r.poses, col.JOINT_SIGMA_FLOOR, r.air,
+                      registrations)
+    plain = _collect(r, r.air)
+    for k, (marker, (start, end)) in enumerate(zip(r.markers, r.windows, strict=True)):
+        take = (p_t >= start) & (p_t <= end)
+        in_force = later if start >= switch else first  # pose 0 starts before `first`
+        assert col.registration_at(registrations, float(start)) is in_force
+        common = in_force.covariance_at(p_p[take].mean(axis=0))[0]
+        mean_cov = p_c[take].mean(axis=0)
+        n = marker.samples
+        live = col.pose_data(marker, np.zeros(6), np.zeros(6), p_p[take], p_q[take], p_c[take],
+                             col.JOINT_SIGMA_FLOOR, None, common)
+        np.testing.assert_allclose(live.covariance, common + (mean_cov - common) / n,
+                                   rtol=1e-12, atol=0.0)
+        np.testing.assert_allclose(_pose_covariance(got, k), live.covariance, rtol=1e-12,
+                                   atol=0.0)
+        np.testing.assert_allclose(_pose_covariance(plain, k), mean_cov / n, rtol=1e-12,
+                                   atol=0.0)
+    assert col.registration_at([], 0.0) is None
+
+
+def _pose_covariance(c: col.Collected, k: int) -> np.ndarray:
+    """The measured pose covariance of the k-th pose in marker order."""
+    return np.asarray(_both(c, 'covariance')[k])
 
 
 def test_alternate_approaches_each_pose_from_below_then_above() -> None:

@@ -14,7 +14,8 @@ from scipy.spatial.transform import Rotation
 from workspace import MECH
 
 from positioning_cell.errors import InputError
-from positioning_cell.moves.correction import averaged_covariance, mean_pose, mean_reading
+from positioning_cell.metrology.instrument import averaged_covariance
+from positioning_cell.moves.correction import mean_pose, mean_reading
 
 K = 10  # readings per mean, as the positioner's default compensation.samples
 R0 = Rotation.from_rotvec([0.02, -0.01, 0.03])

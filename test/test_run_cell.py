@@ -138,8 +138,9 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     assert [[p['pose'] for p in m['poses']] for m in summary['modes']] == [['P1', 'P2']] * 2
     assert summary['problems'] == []
     assert any('identified from its own measurements' in n for n in summary['notes'])
+    # the program's four steps and its end
     assert '/cell/program' in summary['topics'] and summary['topics']['/cell/program'][
-        'count'] == 4
+        'count'] == 5
     # Judged against the truth: the calibration the cell made of itself removes the error.
     truth = {m['mode']: m['position_error_rms'] for m in summary['truth_modes']}
     assert truth['none'] > 50e-6 and truth['model'] < 0.1 * truth['none'], truth

@@ -1,6 +1,7 @@
 """A recorded calibration run read back (``calibrate_cell --from-bag``): the markers of one run on
 ``/cell/calibration``, the encoder readings (/legs/joint_states), the tracker poses
-(/metrology/pose) and, when recorded, the air temperature (/cell/air_temperature) of the bag,
+(/metrology/pose) and, when recorded, the air temperature (/cell/air_temperature) and the
+tracker's registrations (/metrology/registration) of the bag,
 made into the same calibration data as the live run
 (:func:`positioning_cell.calibration.collect.collect`). Messages as the bag reader decodes them
 (the ROS field names), no rclpy."""
@@ -18,7 +19,8 @@ from positioning_cell.accuracy.settle import stamp_seconds
 from positioning_cell.bag.opening import open_bag
 from positioning_cell.calibration import collect as col
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.errors import PositioningError
+from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.metrology.instrument import Registration
 
 
 def _stamp(msg: Any) -> float:
@@ -42,15 +44,25 @@ def read_bag(path: Path, run: str | None = None,
     joints: list[tuple[float, np.ndarray]] = []
     poses: list[tuple[float, Any]] = []
     air: list[tuple[float, float]] = []
+    located: list[tuple[float, Registration]] = []
     with open_bag(path) as reader:
         topics = (names.CALIBRATION, names.JOINT_STATES, names.MEASURED_POSE)
         missing = [t for t in topics if t not in reader.topics]
         if missing:
             raise PositioningError(f'{path}: not a calibration run: no {", ".join(missing)}')
-        has_air = names.AIR_TEMPERATURE in reader.topics
-        for item in reader.messages([*topics, *([names.AIR_TEMPERATURE] if has_air else [])]):
+        optional = [t for t in (names.AIR_TEMPERATURE, names.TRACKER_REGISTRATION)
+                    if t in reader.topics]
+        has_air = names.AIR_TEMPERATURE in optional
+        for item in reader.messages([*topics, *optional]):
             msg = item.message
-            if item.topic == names.AIR_TEMPERATURE:
+            if item.topic == names.TRACKER_REGISTRATION:
+                p = msg.pose.pose.position
+                try:
+                    located.append((_stamp(msg), Registration.checked((p.x, p.y, p.z),
+                                                                      msg.pose.covariance)))
+                except InputError as err:
+                    say(f'{path}: a registration not used: {err}')
+            elif item.topic == names.AIR_TEMPERATURE:
                 air.append((_stamp(msg), float(msg.temperature)))
             elif item.topic == names.CALIBRATION:
                 markers.append(col.Marker.from_json(msg.data))
@@ -85,8 +97,11 @@ def read_bag(path: Path, run: str | None = None,
         say(f'{path}: no {names.AIR_TEMPERATURE} recorded')
     air_stream = col.Stream(np.array([t for t, _ in air], dtype=float),
                             (np.array([v for _, v in air], dtype=float),)) if has_air else None
+    if not located:
+        say(f'{path}: no {names.TRACKER_REGISTRATION} recorded: each pose\'s tracker readings '
+            'are taken as independent (its covariance the mean one over their number)')
     collected = col.collect(markers, joint_stream, pose_stream, col.JOINT_SIGMA_FLOOR,
-                            air_stream)
+                            air_stream, located)
     for why in collected.missing:
         say(f'calibration: the poses carry no {why}')
     return collected

@@ -35,6 +35,7 @@ Each pose's conditions (:class:`~positioning_cell.calibration.identify.Calibrati
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
@@ -43,6 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.calibration.identify import CalibrationData
 from positioning_cell.errors import InputError
+from positioning_cell.metrology.instrument import Registration, averaged_covariance
 from positioning_cell.moves.correction import mean_pose
 
 FloatArray = NDArray[np.float64]
@@ -151,18 +153,24 @@ class PoseData(NamedTuple):
 
 def pose_data(marker: Marker, encoder_mean: ArrayLike, encoder_sem: ArrayLike,
               position: ArrayLike, quaternion: ArrayLike, covariance: ArrayLike,
-              joint_sigma_floor: ArrayLike, conditions: Conditions | None = None) -> PoseData:
+              joint_sigma_floor: ArrayLike, conditions: Conditions | None = None,
+              common: ArrayLike | None = None) -> PoseData:
     """The data of one pose (module docstring) from its ``marker.samples`` tracker readings
     (positions (k, 3) m, quaternions (k, 4), covariances (k, 6, 6)) and the mean (6,) and
     standard error of the mean (6,) of the encoder readings over the same window (the
     uncertainty at least ``joint_sigma_floor``), with its ``conditions``
-    (:func:`pose_conditions`): the one rule of the live run and of a bag."""
+    (:func:`pose_conditions`): the one rule of the live run and of a bag. The mean pose's
+    covariance is :func:`~positioning_cell.metrology.instrument.averaged_covariance` with
+    ``common`` (6, 6), the part of every reading's covariance the tracker's registration
+    gives (None: not known, the readings taken as independent: the mean covariance / k)."""
     p_mean, q_mean = mean_pose(np.asarray(position, dtype=float),
                                np.asarray(quaternion, dtype=float))
     floor = np.broadcast_to(np.asarray(joint_sigma_floor, dtype=float), (6,))
+    mean_cov = np.asarray(covariance, dtype=float).mean(axis=0)
     return PoseData(marker, np.asarray(encoder_mean, dtype=float),
                     np.maximum(np.asarray(encoder_sem, dtype=float), floor), p_mean, q_mean,
-                    np.asarray(covariance, dtype=float).mean(axis=0) / marker.samples,
+                    averaged_covariance(mean_cov, np.zeros((6, 6)) if common is None else common,
+                                        marker.samples),
                     conditions)
 
 
@@ -261,6 +269,16 @@ def assemble(poses: list[PoseData], skipped: tuple[tuple[Marker, str], ...] = ()
                      tuple(missing))
 
 
+def registration_at(registrations: Sequence[tuple[float, Registration]],
+                    start: float) -> Registration | None:
+    """The registration in force at ``start`` s: the newest of ``registrations`` (stamp s,
+    registration) stamped up to it, else the first (None: none)."""
+    before = [entry for entry in registrations if entry[0] <= start]
+    if before:
+        return max(before, key=lambda entry: entry[0])[1]
+    return min(registrations, key=lambda entry: entry[0])[1] if registrations else None
+
+
 def in_order(stream: Stream) -> Stream:
     """The stream's messages in ascending stamps (stable: equal stamps keep their order)."""
     order = np.argsort(stream.stamps, kind='stable')
@@ -268,11 +286,15 @@ def in_order(stream: Stream) -> Stream:
 
 
 def collect(markers: list[Marker], joints: Stream, poses: Stream,
-            joint_sigma_floor: ArrayLike, temperatures: Stream | None = None) -> Collected:
+            joint_sigma_floor: ArrayLike, temperatures: Stream | None = None,
+            registrations: Sequence[tuple[float, Registration]] = ()) -> Collected:
     """Calibration data from the markers and the joint (values: positions (M, 6)), tracker
     (values: position (K, 3), quaternion (K, 4), covariance (K, 6, 6)) and air-temperature
-    (values: (L,) °C; None: not recorded) streams (module docstring). Markers without enough
-    readings are skipped, with the reason."""
+    (values: (L,) °C; None: not recorded) streams (module docstring), and the tracker's
+    registrations (stamp s, registration; each pose takes the newest stamped up to its start,
+    else the first: the part of its readings' covariance common to all of them; none: the
+    readings taken as independent). Markers without enough readings are skipped, with the
+    reason."""
     j_t, (j_v,) = in_order(joints)
     p_t, (p_p, p_q, p_c) = in_order(poses)
     air = None if temperatures is None else in_order(temperatures)
@@ -295,6 +317,9 @@ def collect(markers: list[Marker], joints: Stream, poses: Stream,
         conditions = pose_conditions(Stream(j_t[since:], (j_v[since:],)), air, marker.start,
                                      float(end), mean, previous[1])
         previous = (marker.start, conditions.approach)
+        located = registration_at(registrations, marker.start)
+        common = (None if located is None
+                  else located.covariance_at(p_p[take].mean(axis=0))[0])
         measured.append(pose_data(marker, mean, sem, p_p[take], p_q[take], p_c[take],
-                                  joint_sigma_floor, conditions))
+                                  joint_sigma_floor, conditions, common))
     return assemble(measured, tuple(skipped))

@@ -196,6 +196,13 @@ class Tracker:
         out: FloatArray = self.rotation @ local @ self.rotation.T
         return out
 
+    @property
+    def registration(self) -> Registration | None:
+        """This registration as the cell publishes it (None without a covariance)."""
+        if self.covariance is None:
+            return None
+        return Registration(np.asarray(self.position, dtype=float), self.covariance)
+
     def registration_covariance(self, position: ArrayLike) -> FloatArray:
         """Covariance (N, 6, 6) that this registration's own uncertainty adds to rigid-body
         poses at positions (N, 3) m (:func:`registration_covariance`; zero without a
@@ -230,9 +237,43 @@ class Registration(NamedTuple):
     position: FloatArray
     covariance: FloatArray
 
+    @classmethod
+    def checked(cls, position: ArrayLike, covariance: ArrayLike) -> Registration:
+        """A registration from a received position (3,) m and covariance (36,) or (6, 6);
+        InputError unless the position is finite and the covariance finite, symmetric, with
+        a non-negative diagonal."""
+        p = np.asarray(position, dtype=float).reshape(-1)
+        cov = np.asarray(covariance, dtype=float)
+        if p.shape != (3,) or cov.size != 36:
+            raise InputError(f'tracker registration: expected a position (3,) and a 6 x 6 '
+                             f'covariance, got {p.shape} and {cov.shape}')
+        cov = cov.reshape(6, 6)
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(cov))
+                and np.all(np.diag(cov) >= 0.0) and np.allclose(cov, cov.T, rtol=1e-9, atol=0.0)):
+            raise InputError('tracker registration: expected a finite position and a finite, '
+                             'symmetric covariance with a non-negative diagonal')
+        return cls(p, cov)
+
     def covariance_at(self, position: ArrayLike) -> FloatArray:
         """:func:`registration_covariance` (N, 6, 6) at platform positions (N, 3) m."""
         return registration_covariance(self.position, self.covariance, position)
+
+
+def averaged_covariance(mean_covariance: ArrayLike, common: ArrayLike,
+                        samples: int) -> FloatArray:
+    """Covariance (..., 6, 6) of the mean of ``samples`` readings whose stated covariances
+    average ``mean_covariance`` (..., 6, 6) and share the part ``common`` (..., 6, 6) (the
+    tracker's registration): common + (C̄ − common) / samples
+    (:func:`positioning_cell.moves.correction.mean_reading`, a calibration pose)."""
+    mean_cov = np.asarray(mean_covariance, dtype=float)
+    shared = np.asarray(common, dtype=float)
+    if shared.shape[-2:] != (6, 6) or not np.all(np.isfinite(shared)):
+        raise InputError(f'common covariance: expected a finite 6 x 6 matrix, got shape '
+                         f'{shared.shape}')
+    if samples < 1:
+        raise InputError(f'samples: expected at least 1, got {samples}')
+    out: FloatArray = shared + (mean_cov - shared) / samples
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
 
 
 def skew(v: ArrayLike) -> FloatArray:

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from positioning_cell.core.poses import as_pose_batch, pose_error
 from positioning_cell.errors import InputError
+from positioning_cell.metrology.instrument import averaged_covariance
 
 FloatArray = NDArray[np.float64]
 
@@ -93,22 +94,6 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike, covariances: Arra
     d = np.sqrt(1.0 - share + share / k)
     out: FloatArray = d[:, None] * mean_cov * d[None, :]
     return position, quaternion, 0.5 * (out + out.T)
-
-
-def averaged_covariance(mean_covariance: ArrayLike, common: ArrayLike,
-                        samples: int) -> FloatArray:
-    """Covariance (..., 6, 6) of the mean of ``samples`` readings whose stated covariances
-    average ``mean_covariance`` (..., 6, 6) and share the part ``common`` (..., 6, 6) (the
-    tracker's registration): common + (C̄ − common) / samples (:func:`mean_reading`)."""
-    mean_cov = np.asarray(mean_covariance, dtype=float)
-    shared = np.asarray(common, dtype=float)
-    if shared.shape[-2:] != (6, 6) or not np.all(np.isfinite(shared)):
-        raise InputError(f'common covariance: expected a finite 6 x 6 matrix, got shape '
-                         f'{shared.shape}')
-    if samples < 1:
-        raise InputError(f'samples: expected at least 1, got {samples}')
-    out: FloatArray = shared + (mean_cov - shared) / samples
-    return 0.5 * (out + np.swapaxes(out, -1, -2))
 
 
 class Verdict(Enum):

@@ -43,7 +43,8 @@ class Readings(NamedTuple):
     the mean encoder values (6,) over the window; the mean true axis positions (6,) (judging
     only, a simulated cell; else None); the window ``start`` … ``end`` s; the standard error
     of the mean encoder values (6,) (std / √n over the window; None: not known, e.g. one
-    exact reading)."""
+    exact reading); the part (6, 6) of every reading's covariance common to all of them (the
+    tracker's published registration at the readings' mean position; None: none received)."""
 
     stamps: FloatArray
     position: FloatArray
@@ -54,6 +55,7 @@ class Readings(NamedTuple):
     start: float
     end: float
     encoder_sem: FloatArray | None = None
+    common: FloatArray | None = None
 
 
 class Seen(NamedTuple):

@@ -25,8 +25,8 @@ T = TypeVar('T')
 #: The recorder first, then the cell's nodes (the launch file's list).
 STARTED = (names.RECORDER, *names.CELL_NODES)
 #: Topics the recorder and the monitor must have subscribed before the program starts.
-RECORDED = (names.TARGET, names.MEASURED_POSE, names.TRUE_POSE, names.DIAGNOSTICS,
-            names.PROGRAM)
+RECORDED = (names.TARGET, names.MEASURED_POSE, names.TRACKER_REGISTRATION, names.TRUE_POSE,
+            names.DIAGNOSTICS, names.PROGRAM)
 MONITORED = (names.TARGET, names.MEASURED_POSE)
 MONITOR_INPUTS = (*MONITORED, names.TRUE_POSE)
 #: How long each stage of the start may take, s.

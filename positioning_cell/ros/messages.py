@@ -155,12 +155,7 @@ def registration(msg: PoseWithCovarianceStamped) -> Registration:
     """The tracker's registration (/metrology/registration): its origin (3,) m in ``base`` and
     the covariance (6, 6) of its pose."""
     position, _ = pose_arrays(msg.pose.pose)
-    cov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)
-    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(cov))
-            and np.all(np.diag(cov) >= 0.0) and np.allclose(cov, cov.T, rtol=1e-9, atol=0.0)):
-        raise InputError('tracker registration: expected a finite position and a finite, '
-                         'symmetric covariance with a non-negative diagonal')
-    return Registration(position, cov)
+    return Registration.checked(position, msg.pose.covariance)
 
 
 def registration_msg(position: ArrayLike, quaternion: ArrayLike, covariance: ArrayLike,

@@ -23,12 +23,20 @@ from std_srvs.srv import Trigger
 from positioning_cell import names
 from positioning_cell.calibration.collect import encoder_window
 from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.errors import InputError
+from positioning_cell.metrology.instrument import Registration
 from positioning_cell.motion.settings import CALIBRATION_FILE, COMPENSATION_MODE
 from positioning_cell.polling import wait_until
 from positioning_cell.procedures.port import FloatArray, Moved, ProcedureError, Readings, Seen
 from positioning_cell.ros.client import CellClient, verdict_text
-from positioning_cell.ros.messages import joint_values, measurement, pose_stamped, seconds
-from positioning_cell.ros.qos import MARKER_QOS, SERVICE_QOS, STREAM_QOS
+from positioning_cell.ros.messages import (
+    joint_values,
+    measurement,
+    pose_stamped,
+    registration,
+    seconds,
+)
+from positioning_cell.ros.qos import LATCHED_QOS, MARKER_QOS, SERVICE_QOS, STREAM_QOS
 
 #: Messages kept per stream (the encoders' 100 Hz: 30 s): a procedure's window is far
 #: shorter, and so is the time between two calibration poses.
@@ -64,6 +72,9 @@ class RosCellPort:
         node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
                                  self._on_pose, STREAM_QOS)
         node.create_subscription(Temperature, names.AIR_TEMPERATURE, self._on_air, STREAM_QOS)
+        self._registration: Registration | None = None
+        node.create_subscription(PoseWithCovarianceStamped, names.TRACKER_REGISTRATION,
+                                 self._on_registration, LATCHED_QOS)
         self._markers: dict[str, Any] = {}
         self._verdicts = client.statuses(names.STATUS_MONITOR_VERDICT)
         # its own client of /positioner/stop: stop() may be called from any thread, while the
@@ -81,6 +92,14 @@ class RosCellPort:
         reading = measurement(msg)
         with self._lock:
             self._poses.append((seconds(msg.header.stamp), reading))
+
+    def _on_registration(self, msg: Any) -> None:
+        try:
+            found = registration(msg)
+        except InputError:  # not usable: the readings are then taken as independent
+            return
+        with self._lock:
+            self._registration = found
 
     def _on_air(self, msg: Any) -> None:
         with self._lock:
@@ -185,16 +204,19 @@ class RosCellPort:
             encoder = [v for t, v in self._joints if start <= t <= end]
             latest = self._joints[-1][1] if self._joints else None
             true = [v for t, v in self._true if start <= t <= end]
+            located = self._registration
         if not encoder:
             if latest is None:
                 raise ProcedureError(f'no encoder reading on {names.JOINT_STATES}')
             encoder = [latest]
         mean, sem = encoder_window(encoder)
-        return Readings(np.array([t for t, _ in taken]),
-                        np.array([m.position for _, m in taken]),
+        position = np.array([m.position for _, m in taken])
+        return Readings(np.array([t for t, _ in taken]), position,
                         np.array([m.quaternion for _, m in taken]),
                         np.array([m.covariance for _, m in taken]),
-                        mean, np.mean(true, axis=0) if true else None, start, end, sem)
+                        mean, np.mean(true, axis=0) if true else None, start, end, sem,
+                        None if located is None
+                        else located.covariance_at(position.mean(axis=0))[0])
 
     def encoder_stream(self, since: float) -> tuple[FloatArray, FloatArray]:
         with self._lock:

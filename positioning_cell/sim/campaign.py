@@ -25,9 +25,9 @@ from positioning_cell.calibration.identify import CalibrationData
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import pose_error
 from positioning_cell.errors import ConvergenceError
-from positioning_cell.metrology.instrument import Tracker
+from positioning_cell.metrology.instrument import Tracker, averaged_covariance
 from positioning_cell.metrology.targets import TargetLayout
-from positioning_cell.moves.correction import averaged_covariance, mean_pose
+from positioning_cell.moves.correction import mean_pose
 from positioning_cell.sim.effects.history import sequence_conditions
 from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.encoders import EncoderSettings, quantise

@@ -94,8 +94,7 @@ class InstantCell:
 
     def _registration(self) -> Registration | None:
         """The located registration, as the tracker node publishes it."""
-        cov = self.located.covariance
-        return None if cov is None else Registration(np.asarray(self.located.position), cov)
+        return self.located.registration
 
     def _measure(self) -> list[Measurement]:
         p, q = self.true_pose()
