@@ -47,17 +47,22 @@ class CellClient:
     """An rclpy node spun in a background thread: what a tool or a test needs of the running
     cell. In its own context on ``domain`` (``signals``: let rclpy install its SIGINT handler;
     a tool that handles signals itself passes False), or in the given ``context`` (which its
-    owner shuts down)."""
+    owner shuts down), or on the given ``node`` (a node started already, its context taken and
+    shut down with this client: :func:`positioning_cell.ros.early.start_node`; ``domain``,
+    ``name`` and ``signals`` are then the node's own)."""
 
     def __init__(self, domain: int | None = None, name: str = 'cell_client', *,
-                 signals: bool = True, context: Context | None = None) -> None:
-        self._owns_context = context is None
+                 signals: bool = True, context: Context | None = None,
+                 node: Node | None = None) -> None:
+        if node is not None:
+            context = node.context
+        self._owns_context = context is None or node is not None
         if context is None:
             context = Context()
             options = SignalHandlerOptions.ALL if signals else SignalHandlerOptions.NO
             rclpy.init(context=context, domain_id=domain, signal_handler_options=options)
         self.context = context
-        self.node = Node(name, context=self.context)
+        self.node = node if node is not None else Node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients: dict[str, Any] = {}
