@@ -26,6 +26,7 @@ from positioning_cell.accuracy.verdicts import Tolerances
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.metrology.targets import TargetLayout
+from positioning_cell.polling import backoff
 from positioning_cell.recording.status import RecorderReport
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
@@ -84,7 +85,7 @@ class RemoteParameters:
         if self._client.service_is_ready():
             self._pending = self._client.call_async(GetParameters.Request(names=self.names))
             self._pending.add_done_callback(self._on_answer)
-            period = min(ANSWER_WAIT_MAX, ANSWER_WAIT * 1.5 ** self._requests)
+            period = backoff(self._requests, ANSWER_WAIT, ANSWER_WAIT_MAX)
             self._requests += 1
         else:
             period = min(ASK_PERIOD_MAX, 1.5 * self._period)
