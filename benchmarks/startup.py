@@ -17,7 +17,9 @@ time from their spawn to the first move accepted: the drives accepting the first
 home; the positioner sends it only once the drives are referenced and its inputs are live
 (encoders, the driver's status, the tracker in measured mode). Given beside it, from the same
 spawn: homed (settled at home, in measured mode after the tracker's closed loop), the 0.5 mm
-move accepted by the drives, and that move settled, with its call's duration. Until issue 24's
+move accepted by the drives, and that move settled, with its call's duration. Then the same
+with the four nodes hosted by one process (cell_container: one interpreter imports numpy,
+scipy and rclpy once instead of four times on the shared cores), for comparison. Until issue 24's
 target was read as "first move accepted", "cell ready" here was the 0.5 mm move settled (6.55
 to 6.63 s on a quiet VM); that figure is the one now named "settled". The cell is started
 --starts times (medians reported).
@@ -199,16 +201,19 @@ class Acceptances:
         return later[0]
 
 
-def time_cell(procs: Processes, client: CellClient, accepted: Acceptances) -> CellTimes:
-    """The cell's start-up (:class:`CellTimes`): the four cell nodes spawned at once, homed
+def time_cell(procs: Processes, client: CellClient, accepted: Acceptances,
+              one_process: bool = False) -> CellTimes:
+    """The cell's start-up (:class:`CellTimes`): the four cell nodes spawned at once (as
+    processes of their own, or with ``one_process`` hosted by one cell_container), homed
     (retried while refused), then the first small move; the nodes are stopped after."""
     t0 = time.monotonic()
-    for node in names.CELL_NODES:
-        procs.start(node.executable, params=[CELL_YAML])
+    labels = [names.CONTAINER] if one_process else [n.executable for n in names.CELL_NODES]
+    for label in labels:
+        procs.start(label, params=[CELL_YAML])
     last = [0.0]
 
     def timed(call: Callable[[], bool]) -> bool:
-        dead = [n.executable for n in names.CELL_NODES if n.executable in procs.dead()]
+        dead = [label for label in labels if label in procs.dead()]
         if dead:
             raise RuntimeError(f'{dead} exited:\n{procs.log(dead[0])[-2000:]}')
         t = time.monotonic()
@@ -242,6 +247,14 @@ def report_cell(times: list[CellTimes]) -> None:
     print(f'  then, from the same spawn: homed (settled at home) {figure("homed")}; the first '
           f'0.5 mm move accepted {figure("move_accepted")}, settled {figure("settled")}; its '
           f'call {figure("move_call")}')
+
+
+def report_one_process(times: list[CellTimes]) -> None:
+    each = [t.first_accepted for t in times]
+    print(f'  the same four nodes in one process ({names.CONTAINER}): first move accepted, '
+          f'median {np.median(each):.2f} s (each {", ".join(f"{x:.2f}" for x in each)}); '
+          f'homed {np.median([t.homed for t in times]):.2f} s, the 0.5 mm move settled '
+          f'{np.median([t.settled for t in times]):.2f} s')
 
 
 def time_helps(starts: int, env: dict[str, str]) -> dict[str, list[float]]:
@@ -330,13 +343,16 @@ def run(starts: int, nodes_too: bool, watch: bool, log_dir: Path) -> int:
             print()
             report_helps(helps)
             print()
-        try:
-            accepted = Acceptances(client)
-            report_cell([time_cell(procs, client, accepted) for _ in range(starts)])
-        except (RuntimeError, TimeoutError) as err:
-            print(f'cell ready: could not measure: {err}', file=sys.stderr)
-            procs.stop()
-            failed = True
+        accepted = Acceptances(client)
+        for one_process in (False, True):
+            try:
+                times = [time_cell(procs, client, accepted, one_process) for _ in range(starts)]
+                (report_one_process if one_process else report_cell)(times)
+            except (RuntimeError, TimeoutError) as err:
+                print(f'cell ready{" (one process)" if one_process else ""}: could not '
+                      f'measure: {err}', file=sys.stderr)
+                procs.stop()
+                failed = True
         print()
         if watch:
             try:
