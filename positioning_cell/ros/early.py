@@ -16,8 +16,11 @@ from rclpy.signals import SignalHandlerOptions
 
 from positioning_cell.ros.processes import use_loopback
 
+#: What :func:`start_node` gives, named for the command lines' type hints (they import no rclpy).
+ClientNode = Node
 
-def start_node(domain: int | None, prefix: str = 'cell') -> Node:
+
+def start_node(domain: int | None, prefix: str = 'cell') -> ClientNode:
     """A node named ``<prefix>_<pid>`` in a new context on ROS domain ``domain`` (None:
     ROS_DOMAIN_ID), this process on the loopback as the cell; rclpy's signal handlers left out
     (the command line handles SIGINT and SIGTERM). Whoever takes the node shuts its context
@@ -28,4 +31,4 @@ def start_node(domain: int | None, prefix: str = 'cell') -> Node:
     return Node(f'{prefix}_{os.getpid()}', context=context)
 
 
-__all__ = ['start_node']
+__all__ = ['ClientNode', 'start_node']

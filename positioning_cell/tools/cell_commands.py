@@ -25,8 +25,7 @@ from positioning_cell.tools.exits import Exit
 from positioning_cell.tools.interruption import Interrupted, Signals, interruptible
 
 if TYPE_CHECKING:
-    from rclpy.node import Node
-
+    from positioning_cell.ros.early import ClientNode
     from positioning_cell.ros.operator_client import Limits, OperatorClient
 
 #: status: after the positioner's status, how long the driver's status, the target and the
@@ -283,7 +282,7 @@ COMMANDS: dict[str, Callable[[Session, Any], Report]] = {
 
 
 # -- main -----------------------------------------------------------------------------------------
-def run(args: argparse.Namespace, node: Node | None = None) -> int:
+def run(args: argparse.Namespace, node: ClientNode | None = None) -> int:
     """Run the command of parsed command-line ``args`` (:mod:`positioning_cell.tools.cell`);
     its exit code. ``node``: the client's node, started before this module was imported
     (:func:`positioning_cell.ros.early.start_node`; None: made here)."""
