@@ -19,3 +19,10 @@ def wait_until(condition: Callable[[], Any], timeout: float, what: str,
         if time.monotonic() > deadline:
             raise TimeoutError(f'timed out after {timeout:.1f} s waiting for {what}')
         time.sleep(poll)
+
+
+def backoff(attempt: int, first: float, most: float, factor: float = 1.5) -> float:
+    """The wait (s) after attempt number ``attempt`` (0, 1, ...) of a request that may be lost
+    (an answer sent before discovery has matched its reader): ``first``, ``factor`` times
+    longer after each attempt, at most ``most``."""
+    return float(min(most, first * factor ** attempt))

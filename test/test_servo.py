@@ -9,6 +9,8 @@ import re
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import ConfigError, InputError
@@ -260,6 +262,35 @@ def test_path_sampling_hermite_and_linear() -> None:
     np.testing.assert_allclose(vel[:, 0], [1.0, 0.5, 0.0])
     with pytest.raises(InputError, match='strictly increasing'):
         JointPath(np.array([0.0, 0.0]), positions[:2])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(2, 12), st.integers(0, 2**32 - 1), st.booleans())
+def test_path_sampling_matches_scipy_interpolation(points: int, seed: int,
+                                                   hermite: bool) -> None:
+    """The numpy sampler is the cubic Hermite (or linear) interpolant scipy.interpolate
+    builds, with its derivative, at random times, the knots among them (the segment that
+    starts there), before the start and beyond the end (held, zero velocity)."""
+    from scipy.interpolate import CubicHermiteSpline, make_interp_spline
+
+    rng = np.random.default_rng(seed)
+    times = np.concatenate([[rng.uniform(0.0, 0.5)],
+                            rng.uniform(0.01, 0.3, points - 1)]).cumsum()
+    positions = rng.normal(0.0, 0.01, (points, AXES))
+    velocities = rng.normal(0.0, 0.05, (points, AXES)) if hermite else None
+    t = np.concatenate([rng.uniform(times[0], times[-1], 50), times])
+    spline = (CubicHermiteSpline(times, positions, velocities, axis=0) if hermite
+              else make_interp_spline(times, positions, k=1, axis=0))
+    pos, vel = JointPath(times, positions, velocities).sample(t)
+    np.testing.assert_allclose(pos, spline(t), rtol=0.0, atol=1e-12)
+    last = t == times[-1]
+    np.testing.assert_allclose(vel[~last], spline.derivative()(t[~last]), rtol=1e-9,
+                               atol=1e-9)
+    np.testing.assert_array_equal(vel[last], 0.0)
+    pos, vel = JointPath(times, positions, velocities).sample([times[0] - 0.1,
+                                                               times[-1] + 1.0])
+    np.testing.assert_allclose(pos, positions[[0, -1]], rtol=0.0, atol=1e-12)
+    np.testing.assert_array_equal(vel, 0.0)
 
 
 def test_path_from_points_reorders_names_and_refuses_bad_trajectories() -> None:

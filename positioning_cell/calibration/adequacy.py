@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-import scipy.optimize
 import scipy.special
 from numpy.typing import NDArray
 
@@ -124,6 +123,8 @@ def model_error(residuals: FloatArray, covariance: FloatArray, dof: int) -> Floa
         if excess(0.0) <= 0.0:
             continue
         high = float(np.mean(r2)) * 10.0 + float(v.max())
+        import scipy.optimize  # here: the positioner loads this module, only calibrations fit
+
         out[cols] = np.sqrt(scipy.optimize.brentq(excess, 0.0, high, xtol=1e-30, rtol=1e-10))
     return out
 

@@ -44,7 +44,6 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 
 from positioning_cell.calibration import adequacy as adq
 from positioning_cell.calibration import parameters as cp
@@ -526,6 +525,10 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
         return j[:, free]
 
     lower = np.where(np.isin(free, (cp.R_A, cp.R_B)), 0.0, -np.inf)
+    # imported here: the positioner loads this module (a calibration file's uncertainty) but
+    # never fits, and scipy.optimize cost its start ~0.1 s
+    from scipy.optimize import least_squares
+
     fit = least_squares(fun, start[free] / scale[free], jac=jac, method='trf',
                         bounds=(lower, np.full(free.size, np.inf)), x_scale=1.0,
                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100)

@@ -5,6 +5,7 @@ plain Python (starting the cell's processes: :mod:`positioning_cell.ros.processe
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import threading
 import time
@@ -33,7 +34,7 @@ from std_srvs.srv import Trigger
 
 from positioning_cell import names
 from positioning_cell.moves.outcomes import ResultCode
-from positioning_cell.polling import wait_until
+from positioning_cell.polling import backoff, wait_until
 from positioning_cell.ros.messages import pose_stamped, status_values
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
 
@@ -41,23 +42,33 @@ T = TypeVar('T')
 
 #: How long a parameter's get or set may take, its services' appearance included (s).
 PARAMETER_TIMEOUT = 30.0
+#: A handshake request unanswered this long is sent again, 1.5 times longer each time up to
+#: HANDSHAKE_WAIT_MAX (s): the match of a new client's reader takes tens to hundreds of ms, and
+#: a first wait of 2 s put 2 s on a tool's first call (or the benchmarked cell's homing) when
+#: the first answer was lost.
+HANDSHAKE_WAIT, HANDSHAKE_WAIT_MAX = 0.25, 2.0
 
 
 class CellClient:
     """An rclpy node spun in a background thread: what a tool or a test needs of the running
     cell. In its own context on ``domain`` (``signals``: let rclpy install its SIGINT handler;
     a tool that handles signals itself passes False), or in the given ``context`` (which its
-    owner shuts down)."""
+    owner shuts down), or on the given ``node`` (a node started already, its context taken and
+    shut down with this client: :func:`positioning_cell.ros.early.start_node`; ``domain``,
+    ``name`` and ``signals`` are then the node's own)."""
 
     def __init__(self, domain: int | None = None, name: str = 'cell_client', *,
-                 signals: bool = True, context: Context | None = None) -> None:
-        self._owns_context = context is None
+                 signals: bool = True, context: Context | None = None,
+                 node: Node | None = None) -> None:
+        if node is not None:
+            context = node.context
+        self._owns_context = context is None or node is not None
         if context is None:
             context = Context()
             options = SignalHandlerOptions.ALL if signals else SignalHandlerOptions.NO
             rclpy.init(context=context, domain_id=domain, signal_handler_options=options)
         self.context = context
-        self.node = Node(name, context=self.context)
+        self.node = node if node is not None else Node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients: dict[str, Any] = {}
@@ -99,24 +110,26 @@ class CellClient:
         call (the new process has not matched this client's endpoints)."""
         self._known = {name for name in self._known if serving_node(name) != node}
 
-    def handshake(self, node: str, timeout: float = 30.0, attempt: float = 2.0) -> None:
+    def handshake(self, node: str, timeout: float = 30.0) -> None:
         """Wait until node ``node`` knows every endpoint this client created so far: one
-        idempotent request of a new client (its /<node>/list_parameters) answered, retried
-        every ``attempt`` s (TimeoutError after ``timeout`` s). Discovery is not symmetric: a
-        server that has not yet matched a new client's response reader answers into the void
-        (the request arrives, a move may run, the answer is lost). A participant announces its
-        readers in order on one reliable channel, so the answer to a newer reader shows that
-        the older ones are matched too."""
+        idempotent request of a new client (its /<node>/list_parameters) answered, sent again
+        after :data:`HANDSHAKE_WAIT` s unanswered, 1.5 times longer each time up to
+        :data:`HANDSHAKE_WAIT_MAX` s (TimeoutError after ``timeout`` s). Discovery is not
+        symmetric: a server that has not yet matched a new client's response reader answers
+        into the void (the request arrives, a move may run, the answer is lost). A
+        participant announces its readers in order on one reliable channel, so the answer to a
+        newer reader shows that the older ones are matched too."""
         service = f'/{node}/list_parameters'
         ping = self.node.create_client(ListParameters, service, qos_profile=SERVICE_QOS)
         deadline = time.monotonic() + timeout
         try:
             wait_until(ping.service_is_ready, timeout, f'service {service}')
-            while True:
+            for attempt in itertools.count():
                 future = ping.call_async(ListParameters.Request())
                 left = deadline - time.monotonic()
+                wait = backoff(attempt, HANDSHAKE_WAIT, HANDSHAKE_WAIT_MAX)
                 try:
-                    wait_until(future.done, max(min(attempt, left), 0.0), 'an answer')
+                    wait_until(future.done, max(min(wait, left), 0.0), 'an answer')
                     return
                 except TimeoutError:
                     if time.monotonic() >= deadline:

@@ -24,6 +24,7 @@ from positioning_cell_interfaces.srv import (
     SetSpeed,
 )
 from rcl_interfaces.srv import GetParameters
+from rclpy.node import Node
 
 from positioning_cell import names
 from positioning_cell.core.mechanism import MECHANISM_PREFIX, Mechanism
@@ -121,13 +122,14 @@ class StatusFeed:
 
 # -- the client -----------------------------------------------------------------------------------
 class OperatorClient:
-    """The operator's calls on a :class:`CellClient` of its own (its own context on
-    ``domain``, rclpy's signal handlers left out: the command line handles SIGINT and
-    SIGTERM, :mod:`positioning_cell.tools.interruption`). Each call waits at most
-    ``timeout`` s (TimeoutError: the cell is not there)."""
+    """The operator's calls on a :class:`CellClient` of its own on ``node`` (from
+    :func:`positioning_cell.ros.early.start_node`: its own context, rclpy's signal handlers
+    left out, the command line handles SIGINT and SIGTERM,
+    :mod:`positioning_cell.tools.interruption`; shut down by :meth:`close`). Each call waits at
+    most ``timeout`` s (TimeoutError: the cell is not there)."""
 
-    def __init__(self, domain: int | None, name: str, timeout: float) -> None:
-        self.cell = CellClient(domain, name, signals=False)
+    def __init__(self, node: Node, timeout: float) -> None:
+        self.cell = CellClient(node=node)
         self.timeout = timeout
 
     def close(self) -> None:

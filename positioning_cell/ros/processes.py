@@ -58,6 +58,16 @@ def loopback_only(env: dict[str, str]) -> None:
     env.pop('ROS_LOCALHOST_ONLY', None)
 
 
+def use_loopback() -> None:
+    """This process's own environment as the cell's processes get it (:func:`loopback_only`):
+    for a command line's client, before its ROS context is initialised."""
+    env = dict(os.environ)
+    loopback_only(env)
+    for key in set(os.environ) - set(env):
+        del os.environ[key]
+    os.environ.update(env)
+
+
 def executable(name: str) -> str:
     """Path of one of the package's console scripts: beside this interpreter first (a venv),
     else on PATH; FileNotFoundError if it is not installed."""

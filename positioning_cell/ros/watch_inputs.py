@@ -8,7 +8,6 @@ publishes to the cell or sets anything. Used by ``live_view_node`` and ``cell wa
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -27,6 +26,7 @@ from positioning_cell.accuracy.verdicts import Tolerances
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.metrology.targets import TargetLayout
+from positioning_cell.polling import backoff
 from positioning_cell.recording.status import RecorderReport
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
@@ -41,11 +41,15 @@ WATCH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        durability=DurabilityPolicy.VOLATILE)
 #: How often another node's parameters are asked for until it answers, s (a graph query
 #: while its service is not there): first every ASK_PERIOD, 1.5 times longer after each
-#: attempt, at most every ASK_PERIOD_MAX (an absent node costs next to nothing).
-ASK_PERIOD, ASK_PERIOD_MAX = 0.1, 2.0
-#: A request unanswered this long is asked again, s: discovery is not symmetric, and an answer
-#: the server sends before it has matched this client's reader is lost.
-ANSWER_WAIT = 2.0
+#: attempt that finds no service, at most every ASK_PERIOD_MAX (an absent node costs next to
+#: nothing, one that comes is asked within ASK_PERIOD_MAX).
+ASK_PERIOD, ASK_PERIOD_MAX = 0.05, 0.5
+#: A request unanswered (or answered with values that do not parse) is asked again after
+#: ANSWER_WAIT s, 1.5 times longer after each request, at most every ANSWER_WAIT_MAX s:
+#: discovery is not symmetric, and an answer the server sends before it has matched this
+#: client's reader is lost (the match takes tens to hundreds of ms after the service shows;
+#: a first wait of 2 s put 2 s on ``cell watch``'s first table one start in two).
+ANSWER_WAIT, ANSWER_WAIT_MAX = 0.25, 2.0
 
 
 class RemoteParameters:
@@ -65,7 +69,7 @@ class RemoteParameters:
         self._client = node.create_client(GetParameters, f'/{remote}/get_parameters',
                                           qos_profile=SERVICE_QOS)
         self._pending: Any = None
-        self._asked = 0.0
+        self._requests = 0
         self._period = ASK_PERIOD
         self._timer = node.create_timer(ASK_PERIOD, self._ask)
         node.create_subscription(ParameterEvent, names.PARAMETER_EVENTS, self._on_event, 100)
@@ -75,17 +79,20 @@ class RemoteParameters:
         if self.values is not None:
             self._timer.cancel()
             return
-        now = time.monotonic()
-        if self._pending is not None and now - self._asked > ANSWER_WAIT:
+        if self._pending is not None:  # unanswered for a period (ANSWER_WAIT): asked again
             self._client.remove_pending_request(self._pending)
             self._pending = None
-        if self._pending is None and self._client.service_is_ready():
-            self._asked = now
+        if self._client.service_is_ready():
             self._pending = self._client.call_async(GetParameters.Request(names=self.names))
             self._pending.add_done_callback(self._on_answer)
-        if self._period < ASK_PERIOD_MAX:
-            self._period = min(ASK_PERIOD_MAX, 1.5 * self._period)
-            self._timer.timer_period_ns = int(self._period * 1e9)
+            period = backoff(self._requests, ANSWER_WAIT, ANSWER_WAIT_MAX)
+            self._requests += 1
+        else:
+            period = min(ASK_PERIOD_MAX, 1.5 * self._period)
+        if period != self._period:
+            self._period = period
+            self._timer.timer_period_ns = int(period * 1e9)
+            self._timer.reset()  # the new period from now (rcl would apply it after a tick)
 
     def close(self) -> None:
         """Stop asking (before the node is destroyed)."""

@@ -75,9 +75,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line (module docstring). The commands (and numpy, rclpy, rich with them) are
     imported only once the line is parsed: ``--help`` and a usage error answer at once."""
     args = build_parser((__doc__ or '').split('\n\n')[0].replace('``', '')).parse_args(argv)
+    # The client's node first: its participant discovers the cell while the commands import.
+    from positioning_cell.ros.early import start_node
+
+    node = start_node(args.domain)
     from positioning_cell.tools.cell_commands import run
 
-    return run(args)
+    return run(args, node)
 
 
 def _commands() -> ModuleType:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -26,6 +25,7 @@ from positioning_cell.tools.exits import Exit
 from positioning_cell.tools.interruption import Interrupted, Signals, interruptible
 
 if TYPE_CHECKING:
+    from positioning_cell.ros.early import ClientNode
     from positioning_cell.ros.operator_client import Limits, OperatorClient
 
 #: status: after the positioner's status, how long the driver's status, the target and the
@@ -282,29 +282,19 @@ COMMANDS: dict[str, Callable[[Session, Any], Report]] = {
 
 
 # -- main -----------------------------------------------------------------------------------------
-def use_loopback() -> None:
-    """This process's environment as the cell's processes get it (``loopback_only``)."""
-    from positioning_cell.ros.processes import loopback_only
-
-    env = dict(os.environ)
-    loopback_only(env)
-    for key in set(os.environ) - set(env):
-        del os.environ[key]
-    os.environ.update(env)
-
-
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace, node: ClientNode | None = None) -> int:
     """Run the command of parsed command-line ``args`` (:mod:`positioning_cell.tools.cell`);
-    its exit code."""
+    its exit code. ``node``: the client's node, started before this module was imported
+    (:func:`positioning_cell.ros.early.start_node`; None: made here)."""
     out = Output(args.json)
     timeout = args.timeout or default_timeout(args.command)
     client: OperatorClient | None = None
     with interruptible() as signals:
         try:
-            use_loopback()
+            from positioning_cell.ros.early import start_node
             from positioning_cell.ros.operator_client import OperatorClient
 
-            client = OperatorClient(args.domain, f'cell_{os.getpid()}', timeout)
+            client = OperatorClient(node or start_node(args.domain), timeout)
             report = COMMANDS[args.command](Session(client, signals, out), args)
         except Interrupted:
             report = Report(Exit.INTERRUPTED, error='interrupted')
