@@ -37,6 +37,7 @@ from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.errors import InputError, PositioningError
 from positioning_cell.metrology.instrument import Registration
 from positioning_cell.motion.compensation import Compensation
+from positioning_cell.motion.rest import RestWatch
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
 from positioning_cell.motion.standstill import Motion, StandstillWatch
 from positioning_cell.motion.watch import FreezeWatch, unreadable_axes
@@ -824,8 +825,15 @@ class Mover:
             self._sent = None
         self._set_state(State.SETTLING, 'settling')
         deadline = self.machine.clock() + self.settings.settle_time
-        self._wait(lambda: self.machine.clock() >= deadline, self.settings.settle_time + 1.0,
-                   'settling', measuring=measuring)
+        rest = RestWatch(final, arrival.settle_tolerance, arrival.settle_window)
+
+        def settled() -> bool:  # under the lock (_wait): at rest, or the longest dwell over
+            reading = self.joints
+            if reading is not None and rest.reading(reading.position, self.joints_time):
+                return True
+            return self.machine.clock() >= deadline
+
+        self._wait(settled, self.settings.settle_time + 1.0, 'settling', measuring=measuring)
 
     def _measure(self, decided: Callable[[FloatArray, FloatArray, FloatArray], bool] | None = None
                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
