@@ -8,6 +8,8 @@ stopping the drives, each within its time bound; referencing by homing."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import math
 import threading
 import time
 
@@ -926,3 +928,50 @@ def test_measured_mode_reads_the_tracker_only_once_the_encoders_stand_still() ->
     with contextlib.suppress(MoveAbortedError):
         mover(hasty, 'measured', settle_time=0.0).move('base', GOAL, GOAL_Q)
     assert len(hasty.trajectories) >= 2  # it corrected what it measured while still moving
+
+
+class StampedWorld(SettlingWorld):
+    """A :class:`SettlingWorld` giving one tracker reading per look, its encoder and tracker
+    readings stamped with the time they were taken (``stamped``; else not), that counts the
+    looks at the tracker and notes their count at every state change."""
+
+    def __init__(self, stamped: bool = True) -> None:
+        super().__init__()
+        self.samples, self.stamped, self.looks = 1, stamped, 0
+        self.looks_at: list[tuple[str, int]] = []
+
+    def machine(self) -> Machine:
+        def changed(state: State, reason: str, code: ResultCode | None) -> None:
+            self.states.append((state, reason, code))
+            self.looks_at.append((reason, self.looks))
+        return dataclasses.replace(super().machine(), state_changed=changed)
+
+    def stamp(self) -> float:
+        return time.monotonic() if self.stamped else math.nan
+
+    def latest(self) -> JointReading | None:
+        reading = super().latest()
+        return None if reading is None else reading._replace(stamp=self.stamp())
+
+    def measurements(self) -> list[Measurement]:
+        with self.lock:
+            self.looks += 1
+        return [r._replace(stamp=self.stamp()) for r in super().measurements()]
+
+
+@pytest.mark.parametrize('stamped', [True, False])
+def test_readings_stamped_while_the_axes_stood_still_count_from_the_dwell_on(
+        stamped: bool) -> None:
+    """With stamped readings, the tracker readings stamped since the encoders' still window
+    began (0.3 s of readings here) are averaged at once: the reading needs no new ones; those
+    stamped before (the platform still 1 mm off) are not used. Without stamps all ``samples``
+    (10) readings come after the dwell."""
+    world = StampedWorld(stamped)
+    threading.Timer(0.2, world.settle).start()
+    m = mover(world, 'measured', settle_time=5.0, **{'arrival.settle_window': 0.3})
+    result = m.move('base', GOAL, GOAL_Q)
+    assert result.reason.startswith('settled within tolerance'), result.reason
+    assert 'after 0 corrections' in result.reason and len(world.trajectories) == 1
+    measuring = next(n for reason, n in world.looks_at if reason.startswith('measuring'))
+    after = world.looks_at[-1][1] - measuring
+    assert (after < m.settings.compensation.samples) is stamped, after

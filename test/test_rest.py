@@ -75,3 +75,15 @@ def test_at_rest_only_after_a_whole_window_within(window: float, gaps: list[floa
 def test_bad_input_names_the_field(args: tuple[object, object, float], words: str) -> None:
     with pytest.raises(InputError, match=words):
         RestWatch(*args)  # type: ignore[arg-type]
+
+
+def test_still_from_is_the_stamp_of_the_window_s_first_reading_once_at_rest() -> None:
+    watch = RestWatch(TARGET, TOLERANCE, 0.05)
+    watch.reading(TARGET + 1e-3, 1.00, 10.00)  # still moving
+    watch.reading(TARGET, 1.01, 10.01)  # the still window starts here
+    assert np.isnan(watch.still_from)  # not yet at rest
+    watch.reading(TARGET, 1.06, 10.06)
+    assert watch.at_rest and watch.still_from == 10.01
+    unstamped = RestWatch(TARGET, TOLERANCE, 0.05)
+    unstamped.reading(TARGET, 1.00)
+    assert unstamped.reading(TARGET, 1.05) and np.isnan(unstamped.still_from)

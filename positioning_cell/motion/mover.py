@@ -161,6 +161,9 @@ class Mover:
         self._silence_stops = '0'
         self.stop_requested = False
         self._sent: tuple[float, float] | None = None
+        #: The stamp from which the axes stood still after the last motion (the settle dwell's
+        #: :attr:`RestWatch.still_from`), for the next reading only; NaN: not known.
+        self._still_from = math.nan
         self._move_limits: tuple[MotionLimits | None, PathCheck | None] = (None, None)
         self.state, self.reason = State.IDLE, 'waiting for encoder readings'
         #: Standstill monitoring (fed while no command runs; armed again after every motion).
@@ -796,6 +799,7 @@ class Mover:
                 raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
             self.command = command
             self._verified = None
+            self._still_from = math.nan
             self._moved = True
             self.answers.clear()
             counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
@@ -831,7 +835,9 @@ class Mover:
 
         def settled() -> bool:  # under the lock (_wait): at rest, or the longest dwell over
             reading = self.joints
-            if reading is not None and rest.reading(reading.position, self.joints_time):
+            if reading is not None and rest.reading(reading.position, self.joints_time,
+                                                    reading.stamp):
+                self._still_from = rest.still_from
                 return True
             return self.machine.clock() >= deadline
 
@@ -839,18 +845,20 @@ class Mover:
 
     def _measure(self, decided: Callable[[FloatArray, FloatArray, FloatArray], bool] | None = None
                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """The next ``samples`` tracker readings averaged (:func:`mean_reading`): the mean
-        position and rotation, and the covariance (6, 6) of that mean, each axis' stated
-        variance split into a part that averages down and one common to all (the tracker's
-        registration, when published; else told apart by the readings' own scatter) that does
-        not. From ``min_samples`` new
-        readings on, the average so far ends the wait early when ``decided(mean, quaternion,
+        """The next ``samples`` tracker readings averaged (:func:`mean_reading`; right after
+        a motion, those already in that were stamped since its settle dwell found the axes
+        standing still count too: :class:`RestWatch`): the mean position and rotation, and
+        the covariance (6, 6) of that mean, each axis' stated variance split into a part that
+        averages down and one common to all (the tracker's registration, when published; else
+        told apart by the readings' own scatter) that does not. From ``min_samples`` readings
+        on, the average so far ends the wait early when ``decided(mean, quaternion,
         covariance)`` says it settles the question asked. A tracker that falls silent or
         readings that scatter beyond their stated uncertainty abort."""
         comp = self.settings.compensation
         n, least = comp.samples, min(comp.min_samples, comp.samples)
-        with self.cond:
-            start = self.measurement_count
+        with self.cond:  # readings stamped since the axes stood still count already
+            start = self.measurement_count - _stamped_from(self.measurements, self._still_from)
+            self._still_from = math.nan
         seen, early = [0], [(np.empty(0), np.empty(0), np.empty(0))]
 
         def enough() -> bool:  # under the lock (_wait)
@@ -989,6 +997,17 @@ class _Exclusive:
                 m.standstill.arm(m.machine.clock())
             m._commanding = m._moved = False
         m._busy.release()
+
+
+def _stamped_from(readings: list[Measurement], stamp: float) -> int:
+    """How many of the last ``readings`` (in the order received) were stamped at or after
+    ``stamp`` s (0 when it is NaN or they carry no stamps)."""
+    count = 0
+    for reading in reversed(readings):
+        if not reading.stamp >= stamp:
+            break
+        count += 1
+    return count
 
 
 def _refused_path(report: LimitReport) -> str:
