@@ -7,6 +7,9 @@ stopping the drives, each within its time bound; referencing by homing."""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import math
 import threading
 import time
 
@@ -870,3 +873,105 @@ def test_a_carried_start_within_tolerance_is_corrected_when_the_error_is_signifi
     carried = second(0.01)
     assert "after 1 corrections (started with the last move's correction)" in carried, carried
     assert 'after 0 corrections' in second(0.0)
+
+
+# -- the settle dwell ---------------------------------------------------------------------------
+def timed_move(world: World, mode: str = 'none', **changes: object) -> float:
+    """How long a move to the goal took (s); it must succeed."""
+    m = mover(world, mode, **changes)
+    start = time.monotonic()
+    assert m.move('base', GOAL, GOAL_Q).reason.startswith('settled within tolerance')
+    return time.monotonic() - start
+
+
+def test_the_settle_dwell_ends_once_the_encoders_stand_still_at_the_target() -> None:
+    """Encoders at the target: the dwell ends after ``arrival.settle_window``, long before
+    ``settle_time``. Encoders that arrived (within the arrival tolerance, 5 µm) but stay off
+    the target beyond the settle tolerance (1.5 µm), or a window of 0, keep the whole
+    ``settle_time``."""
+    assert timed_move(World(), settle_time=10.0, **{'arrival.settle_window': 0.05}) < 5.0
+    off = World()
+    off.bias[0] = 3e-6
+    assert timed_move(off, settle_time=0.4, **{'arrival.settle_window': 0.05}) >= 0.4
+    assert timed_move(World(), settle_time=0.4, **{'arrival.settle_window': 0.0}) >= 0.4
+
+
+class SettlingWorld(World):
+    """Drives that arrive 3 µm off their target on leg 1 (within the arrival tolerance) and
+    close that gap only at :meth:`settle`; until then the tracker sees the platform 1 mm away
+    (still moving)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.bias[0] = 3e-6
+        self.tracker_shift = np.array([1e-3, 0.0, 0.0])
+
+    def settle(self) -> None:
+        with self.lock:
+            self.position[0] -= self.bias[0]
+            self.bias[:] = 0.0
+            self.tracker_shift = np.zeros(3)
+
+
+def test_measured_mode_reads_the_tracker_only_once_the_encoders_stand_still() -> None:
+    """The readings averaged are taken after the dwell, which lasts until the encoders stand
+    still at the target: the readings of the platform still moving are not used (a dwell
+    that ends at arrival measures them and corrects what it saw)."""
+    world = SettlingWorld()
+    threading.Timer(0.3, world.settle).start()
+    m = mover(world, 'measured', settle_time=5.0, **{'arrival.settle_window': 0.05})
+    result = m.move('base', GOAL, GOAL_Q)
+    assert result.reason.startswith('settled within tolerance'), result.reason
+    assert 'after 0 corrections' in result.reason and len(world.trajectories) == 1
+    hasty = SettlingWorld()
+    threading.Timer(0.3, hasty.settle).start()
+    with contextlib.suppress(MoveAbortedError):
+        mover(hasty, 'measured', settle_time=0.0).move('base', GOAL, GOAL_Q)
+    assert len(hasty.trajectories) >= 2  # it corrected what it measured while still moving
+
+
+class StampedWorld(SettlingWorld):
+    """A :class:`SettlingWorld` giving one tracker reading per look, its encoder and tracker
+    readings stamped with the time they were taken (``stamped``; else not), that counts the
+    looks at the tracker and notes their count at every state change."""
+
+    def __init__(self, stamped: bool = True) -> None:
+        super().__init__()
+        self.samples, self.stamped, self.looks = 1, stamped, 0
+        self.looks_at: list[tuple[str, int]] = []
+
+    def machine(self) -> Machine:
+        def changed(state: State, reason: str, code: ResultCode | None) -> None:
+            self.states.append((state, reason, code))
+            self.looks_at.append((reason, self.looks))
+        return dataclasses.replace(super().machine(), state_changed=changed)
+
+    def stamp(self) -> float:
+        return time.monotonic() if self.stamped else math.nan
+
+    def latest(self) -> JointReading | None:
+        reading = super().latest()
+        return None if reading is None else reading._replace(stamp=self.stamp())
+
+    def measurements(self) -> list[Measurement]:
+        with self.lock:
+            self.looks += 1
+        return [r._replace(stamp=self.stamp()) for r in super().measurements()]
+
+
+@pytest.mark.parametrize('stamped', [True, False])
+def test_readings_stamped_while_the_axes_stood_still_count_from_the_dwell_on(
+        stamped: bool) -> None:
+    """With stamped readings, the tracker readings stamped since the encoders' still window
+    began (0.3 s of readings here) are averaged at once: the reading needs no new ones; those
+    stamped before (the platform still 1 mm off) are not used. Without stamps all ``samples``
+    (10) readings come after the dwell."""
+    world = StampedWorld(stamped)
+    threading.Timer(0.2, world.settle).start()
+    m = mover(world, 'measured', settle_time=5.0, **{'arrival.settle_window': 0.3})
+    result = m.move('base', GOAL, GOAL_Q)
+    assert result.reason.startswith('settled within tolerance'), result.reason
+    assert 'after 0 corrections' in result.reason and len(world.trajectories) == 1
+    measuring = next(n for reason, n in world.looks_at if reason.startswith('measuring'))
+    after = world.looks_at[-1][1] - measuring
+    assert (after < m.settings.compensation.samples) is stamped, after

@@ -106,7 +106,10 @@ class GoalTolerance:
 @dataclass(frozen=True)
 class ArrivalSettings:
     """When the drives count as arrived: every encoder within its tolerance of the target and
-    slower than its speed; ``timeout`` beyond the trajectory's duration."""
+    slower than its speed; ``timeout`` beyond the trajectory's duration. Then when they stand
+    still: every encoder within its ``settle_*`` tolerance of the target for ``settle_window``
+    (:class:`~positioning_cell.motion.rest.RestWatch`) ends the settle dwell before
+    ``settle_time``."""
 
     length_tolerance: float = setting(5e-6, 'encoder arrival tolerance, legs', 'm', low=0.0,
                                       high=0.01, dynamic=True)
@@ -118,9 +121,23 @@ class ArrivalSettings:
                                  high=1.0, dynamic=True)
     timeout: float = setting(5.0, 'extra time to arrive after the trajectory ends', 's',
                              low=0.1, high=120.0, dynamic=True)
+    settle_length: float = setting(
+        1.5e-6, 'the settle dwell ends early once every leg encoder has stayed this close to '
+        'its target for settle_window', 'm', low=0.0, high=0.01, dynamic=True)
+    settle_theta: float = setting(1e-5, '... and every theta encoder this close', 'rad',
+                                  low=0.0, high=0.1, dynamic=True)
+    settle_window: float = setting(
+        0.05, '... for this long (at least the tracker\'s latency; 0: never early, the whole '
+        'settle_time)', 's', low=0.0, high=10.0, dynamic=True)
 
     def __post_init__(self) -> None:
         check_fields(self)
+
+    @property
+    def settle_tolerance(self) -> FloatArray:
+        """How close (6,) m, rad every encoder must stay to its target for ``settle_window``
+        to end the settle dwell early."""
+        return np.array([self.settle_length] * 3 + [self.settle_theta] * 3)
 
     @property
     def position_tolerance(self) -> FloatArray:
@@ -270,8 +287,9 @@ class PositionerSettings:
     sources: InputSources = group(InputSources, 'the nodes the inputs are taken from')
     operator: OperatorSettings = group(OperatorSettings, "the operator's surface: coordinate "
                                        'systems, limit layers, speed maxima, jog')
-    settle_time: float = setting(0.2, 'dwell after arrival before the pose counts as settled',
-                                 's', low=0.0, high=10.0, dynamic=True)
+    settle_time: float = setting(0.2, 'longest dwell after arrival before the pose counts as '
+                                 'settled (it ends earlier once the encoders stand still: '
+                                 'arrival.settle_*)', 's', low=0.0, high=10.0, dynamic=True)
     measurement_timeout: float = setting(5.0, 'wait for tracker samples', 's', low=0.1,
                                          high=60.0, dynamic=True)
     pose_rate_hz: float = setting(50.0, 'rate of the pose estimate on /positioner/pose', 'Hz',

@@ -7,6 +7,7 @@ order."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -23,19 +24,23 @@ FloatArray = NDArray[np.float64]
 
 
 class JointReading(NamedTuple):
-    """Encoder readings: position (6,) m / rad, velocity (6,) m/s / rad/s."""
+    """Encoder readings: position (6,) m / rad, velocity (6,) m/s / rad/s, and when the
+    drives took them (s on the cell's clock, the message stamp; NaN: not known)."""
 
     position: FloatArray
     velocity: FloatArray
+    stamp: float = math.nan
 
 
 class Measurement(NamedTuple):
     """A tracker reading of the platform: position (3,) m, quaternion (4,), covariance (6, 6)
-    (x, y, z, rot-x, rot-y, rot-z; m², rad²)."""
+    (x, y, z, rot-x, rot-y, rot-z; m², rad²), and the time of the pose it measured (s on the
+    clock of :attr:`JointReading.stamp`; NaN: not known)."""
 
     position: FloatArray
     quaternion: FloatArray
     covariance: FloatArray
+    stamp: float = math.nan
 
 
 class Answer(NamedTuple):

@@ -4,6 +4,7 @@ message class of a ROS type name. No mathematics here."""
 from __future__ import annotations
 
 import importlib
+import math
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -136,19 +137,27 @@ def platform_markers(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike
 
 
 def joint_reading(msg: JointState | None) -> JointReading | None:
-    """The six positions and velocities of a JointState (None: no message, or one that lacks
-    a joint)."""
+    """The six positions and velocities of a JointState and its stamp (None: no message, or
+    one that lacks a joint)."""
     if msg is None:
         return None
     position = joint_values(msg, JOINT_NAMES)
     velocity = joint_values(msg, JOINT_NAMES, 'velocity')
-    return None if position is None or velocity is None else JointReading(position, velocity)
+    if position is None or velocity is None:
+        return None
+    return JointReading(position, velocity, _stamp_seconds(msg.header.stamp))
 
 
 def measurement(msg: PoseWithCovarianceStamped) -> Measurement:
-    """A tracker reading: pose and its covariance (6, 6)."""
+    """A tracker reading: pose, its covariance (6, 6) and the time of the pose it measured."""
     return Measurement(*pose_arrays(msg.pose.pose),
-                       np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6))
+                       np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6),
+                       _stamp_seconds(msg.header.stamp))
+
+
+def _stamp_seconds(stamp: Time) -> float:
+    """A header stamp as s (NaN for a zero stamp: no time given)."""
+    return math.nan if stamp_is_zero(stamp) else seconds(stamp)
 
 
 def registration(msg: PoseWithCovarianceStamped) -> Registration:
