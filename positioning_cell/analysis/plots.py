@@ -106,25 +106,36 @@ def _grouped(analysis: RunAnalysis, mode: str
     return names, dp, rv, index
 
 
+def _per_pose(index: NDArray[np.intp], values: FloatArray, count: NDArray[np.intp]
+              ) -> FloatArray:
+    """The mean of the rows of ``values`` (n, 3) per pose (``index``: each row's pose,
+    ``count``: the rows of each pose, at least 1): (poses, 3)."""
+    return np.stack([np.bincount(index, values[:, k], minlength=count.size)
+                     for k in range(values.shape[1])], axis=1) / count[:, None]
+
+
 def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
     """Per mode (columns): the mean error per axis of each pose over its cycles, with the
     standard deviation as error bars: Δx, Δy, Δz (µm) and rotation vector x, y, z (°)."""
+    from matplotlib.patches import Rectangle
+
     modes = analysis.modes
     cols = max(len(modes), 1)
     fig, axes = figure(4.2 * cols, 6.5, 2, cols, margins=(0.06, 0.99, 0.9, 0.06),
                        space=(0.3, 0.3))
+    axis_colour = ['C0', 'C1', 'C2']  # x, y, z
     for col, mode in enumerate(modes):
         names, dp, rv, index = _grouped(analysis, mode.mode)
         x = np.arange(len(names))
         count = np.maximum(np.bincount(index, minlength=len(names)), 1)
         for row, (values, scale, unit) in enumerate(((dp, UM, 'µm'), (rv, DEG, '°'))):
             ax = axes[row, col]
-            for k, axis in enumerate('xyz'):
-                v = values[:, k] * scale
-                mean = np.bincount(index, v, minlength=len(names)) / count
-                var = np.bincount(index, (v - mean[index]) ** 2, minlength=len(names)) / count
-                ax.bar(x + (k - 1) * 0.27, mean, 0.27, yerr=np.sqrt(var), capsize=2,
-                       label=f'{"Δ" if row == 0 else "r"}{axis}')
+            v = values * scale
+            mean = _per_pose(index, v, count)
+            var = _per_pose(index, (v - mean[index]) ** 2, count)
+            # one call for the three axes' bars: x, y, z side by side at each pose
+            ax.bar((x[:, None] + (np.arange(3) - 1) * 0.27).ravel(), mean.ravel(), 0.27,
+                   yerr=np.sqrt(var).ravel(), capsize=2, color=axis_colour * len(names))
             ax.axhline(0.0, color='k', lw=0.5)
             ax.set_xticks(x, names)
             ax.set_ylabel(unit)
@@ -132,7 +143,8 @@ def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
             ax.set_title(f'{mode.mode}: {"position" if row == 0 else "orientation"}',
                          fontsize=9)
             if col == 0:  # the same colours in every column: one legend per row
-                ax.legend(fontsize=7)
+                ax.legend([Rectangle((0, 0), 1, 1, color=c) for c in axis_colour],
+                          [f'{"Δ" if row == 0 else "r"}{a}' for a in 'xyz'], fontsize=7)
     fig.suptitle('Error per axis per pose (attained minus commanded; bars: mean over cycles, '
                  'whiskers: std)', fontsize=10)
     return save(fig, path)
