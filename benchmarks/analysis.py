@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import shutil
 import subprocess
 import sys
@@ -146,7 +147,8 @@ def child(bag: Path, out: Path, plots: bool) -> None:
     output = analyze(bag, out, plots=plots)
     seconds = time.perf_counter() - start
     a = output.analysis
-    print(json.dumps({'seconds': seconds, 'rss_mib': peak_rss_mib(),
+    workers = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # plot workers
+    print(json.dumps({'seconds': seconds, 'rss_mib': peak_rss_mib(), 'workers_rss_mib': workers,
                       'visits': len(a.replay.visits), 'modes': [m.mode for m in a.modes],
                       'visits_by_mode': {m.mode: m.extremes.n for m in a.modes},
                       'measured': a.replay.measured.count, 'truth': a.replay.truth.count,

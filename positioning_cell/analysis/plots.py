@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,7 +16,7 @@ from numpy.typing import NDArray
 from positioning_cell import accuracy
 from positioning_cell.analysis.replay import LabelledVisit
 from positioning_cell.analysis.summary import RunAnalysis
-from positioning_cell.plotting import colours, figure, save
+from positioning_cell.plotting import colours, figure, log_scale, save
 
 FloatArray = NDArray[np.float64]
 UM = 1e6
@@ -51,7 +52,7 @@ def plot_error_over_time(analysis: RunAnalysis, path: Path) -> Path:
                                        (axes[1], env.angle_min, env.angle_max, DEG, 'angle °')):
         lo, hi = np.maximum(low * scale, 1e-3), np.maximum(high * scale, 1e-3)
         ax.fill_between(time, lo, hi, step='mid', color='0.2', lw=0.6)
-        ax.set_yscale('log')
+        log_scale(ax)
         ax.set_ylabel(unit)
         ax.grid(True, alpha=0.3)
     tol = analysis.settings.tolerance
@@ -62,11 +63,15 @@ def plot_error_over_time(analysis: RunAnalysis, path: Path) -> Path:
     starts = np.array([s.time - t0 for s in segs])
     mode_colour = colours([s.mode for s in analysis.modes] or ['measured'])
     changes = [i for i in range(len(segs)) if i == 0 or segs[i - 1].mode != segs[i].mode]
+    spans: dict[Any, list[tuple[float, float]]] = {}  # colour: (start, length) of its blocks
     for n, i in enumerate(changes):  # one shaded span per block of moves in one mode
         stop = float(starts[changes[n + 1]]) if n + 1 < len(changes) else end
+        spans.setdefault(mode_colour.get(segs[i].mode, '0.9'), []).append(
+            (float(starts[i]), stop - float(starts[i])))
+    for colour, blocks in spans.items():  # one artist per colour and axes, not per block
         for ax in axes:
-            ax.axvspan(float(starts[i]), stop, color=mode_colour.get(segs[i].mode, '0.9'),
-                       alpha=0.08, lw=0)
+            ax.broken_barh(blocks, (0, 1), transform=ax.get_xaxis_transform(), color=colour,
+                           alpha=0.08, lw=0)
     if len(segs) <= MAX_MARKED_MOVES:  # beyond, the marks would hide the curve
         for ax in axes:
             ax.vlines(starts, 0, 1, transform=ax.get_xaxis_transform(), color='0.5', lw=0.5)
@@ -101,32 +106,45 @@ def _grouped(analysis: RunAnalysis, mode: str
     return names, dp, rv, index
 
 
+def _per_pose(index: NDArray[np.intp], values: FloatArray, count: NDArray[np.intp]
+              ) -> FloatArray:
+    """The mean of the rows of ``values`` (n, 3) per pose (``index``: each row's pose,
+    ``count``: the rows of each pose, at least 1): (poses, 3)."""
+    return np.stack([np.bincount(index, values[:, k], minlength=count.size)
+                     for k in range(values.shape[1])], axis=1) / count[:, None]
+
+
 def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
     """Per mode (columns): the mean error per axis of each pose over its cycles, with the
     standard deviation as error bars: Δx, Δy, Δz (µm) and rotation vector x, y, z (°)."""
+    from matplotlib.patches import Rectangle
+
     modes = analysis.modes
     cols = max(len(modes), 1)
     fig, axes = figure(4.2 * cols, 6.5, 2, cols, margins=(0.06, 0.99, 0.9, 0.06),
                        space=(0.3, 0.3))
+    axis_colour = ['C0', 'C1', 'C2']  # x, y, z
     for col, mode in enumerate(modes):
         names, dp, rv, index = _grouped(analysis, mode.mode)
         x = np.arange(len(names))
         count = np.maximum(np.bincount(index, minlength=len(names)), 1)
         for row, (values, scale, unit) in enumerate(((dp, UM, 'µm'), (rv, DEG, '°'))):
             ax = axes[row, col]
-            for k, axis in enumerate('xyz'):
-                v = values[:, k] * scale
-                mean = np.bincount(index, v, minlength=len(names)) / count
-                var = np.bincount(index, (v - mean[index]) ** 2, minlength=len(names)) / count
-                ax.bar(x + (k - 1) * 0.27, mean, 0.27, yerr=np.sqrt(var), capsize=2,
-                       label=f'{"Δ" if row == 0 else "r"}{axis}')
+            v = values * scale
+            mean = _per_pose(index, v, count)
+            var = _per_pose(index, (v - mean[index]) ** 2, count)
+            # one call for the three axes' bars: x, y, z side by side at each pose
+            ax.bar((x[:, None] + (np.arange(3) - 1) * 0.27).ravel(), mean.ravel(), 0.27,
+                   yerr=np.sqrt(var).ravel(), capsize=2, color=axis_colour * len(names))
             ax.axhline(0.0, color='k', lw=0.5)
             ax.set_xticks(x, names)
             ax.set_ylabel(unit)
             ax.grid(True, axis='y', alpha=0.3)
             ax.set_title(f'{mode.mode}: {"position" if row == 0 else "orientation"}',
                          fontsize=9)
-            ax.legend(fontsize=7)
+            if col == 0:  # the same colours in every column: one legend per row
+                ax.legend([Rectangle((0, 0), 1, 1, color=c) for c in axis_colour],
+                          [f'{"Δ" if row == 0 else "r"}{a}' for a in 'xyz'], fontsize=7)
     fig.suptitle('Error per axis per pose (attained minus commanded; bars: mean over cycles, '
                  'whiskers: std)', fontsize=10)
     return save(fig, path)
@@ -154,7 +172,8 @@ def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
                 if not sel.any():
                     continue
                 pts = dp[sel] * UM
-                ax.scatter(pts[:, i], pts[:, j], s=14, color=colour, label=mode, alpha=0.8)
+                ax.plot(pts[:, i], pts[:, j], 'o', ms=4, color=colour, label=mode,
+                        alpha=0.8)  # markers of one line: cheaper to draw than a scatter
                 ax.plot(*pts[:, [i, j]].mean(axis=0), 'x', color=colour, ms=9)
             ax.plot(0.0, 0.0, '+', color='k', ms=12)
             ax.set_xlabel(f'Δ{"xyz"[i]} µm')
@@ -187,7 +206,7 @@ def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
                 jitter = np.linspace(-0.12, 0.12, values.size) if values.size > 1 else [0.0]
                 ax.plot(k + 1 + np.asarray(jitter), values, '.', alpha=0.6)
         ax.axhline(limit, color='red', ls='--', lw=0.8, label='tolerance')
-        ax.set_yscale('log')
+        log_scale(ax)
         ax.set_ylabel(unit)
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
@@ -195,13 +214,27 @@ def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
     return save(fig, path)
 
 
-def write_plots(analysis: RunAnalysis, out_dir: Path) -> list[Path]:
-    """All plots into ``out_dir`` (created); their paths. Without a settled visit only the
-    error over time is drawn."""
+#: File name of each plot, in the order the report lists them.
+ERROR_OVER_TIME, AXIS_ERRORS, CLUSTERS, ERROR_DISTRIBUTION = (
+    'error_over_time.png', 'axis_errors.png', 'clusters.png', 'error_distribution.png')
+_DRAW = {ERROR_OVER_TIME: plot_error_over_time, AXIS_ERRORS: plot_axis_errors,
+         CLUSTERS: plot_clusters, ERROR_DISTRIBUTION: plot_error_distribution}
+
+
+def plot_names(analysis: RunAnalysis) -> list[str]:
+    """The file names of the plots of ``analysis``, in report order: without a settled visit
+    only the error over time."""
+    return list(_DRAW) if analysis.replay.visits else [ERROR_OVER_TIME]
+
+
+def draw_plots(analysis: RunAnalysis, out_dir: Path, names: Sequence[str]) -> list[Path]:
+    """The plots ``names`` (of :func:`plot_names`) of ``analysis`` into ``out_dir``
+    (created); their paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = [plot_error_over_time(analysis, out_dir / 'error_over_time.png')]
-    if analysis.replay.visits:
-        paths += [plot_axis_errors(analysis, out_dir / 'axis_errors.png'),
-                  plot_clusters(analysis, out_dir / 'clusters.png'),
-                  plot_error_distribution(analysis, out_dir / 'error_distribution.png')]
-    return paths
+    return [_DRAW[name](analysis, out_dir / name) for name in names]
+
+
+def write_plots(analysis: RunAnalysis, out_dir: Path) -> list[Path]:
+    """All plots into ``out_dir`` (created), one after the other in this process; their
+    paths (:func:`plot_names`)."""
+    return draw_plots(analysis, out_dir, plot_names(analysis))

@@ -11,7 +11,7 @@ its settle window, so it never exceeds what the bag covers.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
 from pathlib import Path
@@ -265,7 +265,8 @@ def budget_settings(config: str | Path) -> tuple[Mechanism, FloatArray]:
 
 
 def analyse_bag(path: str | Path, settings: MonitorSettings | None = None,
-                config: str | Path | None = None) -> RunAnalysis:
+                config: str | Path | None = None, *,
+                replayed: Callable[[RunAnalysis], object] | None = None) -> RunAnalysis:
     """Read the bag at ``path`` in recorded order, batch by batch, replay it through the
     monitor's rules and summarise it per mode and pose, then read it again for the error
     budget of each mode (:mod:`.budget_pass`; mechanism and encoders from the cell parameter
@@ -273,9 +274,13 @@ def analyse_bag(path: str | Path, settings: MonitorSettings | None = None,
     (nothing in it is an MCAP file: an empty or too short file, wrong magic) or lacks a topic
     of :data:`REQUIRED_TOPICS`; a truncated or damaged bag is analysed as far as it is
     readable: its sound chunks (``problems`` names each corrupt chunk and the time range and
-    messages lost; :mod:`positioning_cell.analysis.reading`)."""
+    messages lost; :mod:`positioning_cell.analysis.reading`). ``replayed`` is called with
+    the analysis before the error budget's pass (its ``budgets`` still empty), e.g. to start
+    drawing the plots, which need no budget."""
     settings = settings or MonitorSettings()
     analysis = with_recording(path, ANALYSED_TOPICS, partial(_analyse, settings=settings))
+    if replayed is not None:
+        replayed(analysis)
     mech, resolution = budget_settings(config or config_path('cell.yaml'))
     budgets = with_recording(path, BUDGET_TOPICS, partial(
         gather, visits=analysis.replay.visits, mech=mech, resolution=resolution))

@@ -53,17 +53,26 @@ def analyze(bag: str | Path, out_dir: str | Path | None = None,
     # The analysis (numpy, scipy, matplotlib, the bag reader) loads here, not with the command
     # line: --help and a usage error answer at once.
     from positioning_cell.accuracy.monitor import MonitorSettings
-    from positioning_cell.analysis.plots import write_plots
+    from positioning_cell.analysis.plot_workers import PlotWorkers
     from positioning_cell.analysis.report import write_report
     from positioning_cell.analysis.summary import analyse_bag
     from positioning_cell.config import config_path
 
     bag = Path(bag)
     settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
-    analysis = analyse_bag(bag, settings)
     out = Path(out_dir) if out_dir is not None else default_out_dir(bag)
-    pngs = write_plots(analysis, out) if plots else []
-    report, summary = write_report(analysis, out, pngs)
+    if not plots:
+        analysis = analyse_bag(bag, settings)
+        report, summary = write_report(analysis, out)
+        return AnalysisOutput(analysis, report, summary, ())
+    # The plots are drawn in workers (warmed up while the bag is read) from the replay on,
+    # while the error budget and the report are done here (plot_workers).
+    with PlotWorkers() as workers:
+        planned: list[Path] = []
+        analysis = analyse_bag(
+            bag, settings, replayed=lambda a: planned.extend(workers.start(a, out)))
+        report, summary = write_report(analysis, out, planned)
+        pngs = workers.paths()
     return AnalysisOutput(analysis, report, summary, tuple(pngs))
 
 
