@@ -21,6 +21,7 @@ import multiprocessing
 import os
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
 from pathlib import Path
@@ -70,6 +71,11 @@ def can_fork(workers: int) -> bool:
             and 'fork' in multiprocessing.get_all_start_methods())
 
 
+#: The longest wait (s) for the workers' plots; past it they are ended and the plots drawn
+#: in this process (a few seconds is usual: nothing hangs on a stuck worker).
+PLOT_TIMEOUT = 120.0
+
+
 class PlotWorkers:
     """Workers that draw the plots of one analysis (module docstring); a context manager
     (its exit ends the workers). ``workers``: processes (default 2: the VMs' cores)."""
@@ -112,11 +118,23 @@ class PlotWorkers:
         analysis, out_dir, names = self._pending
         if self._pool is not None:
             try:
-                drawn = {p.name: p for f in self._futures for p in f.result()}
+                drawn = {p.name: p for f in self._futures
+                         for p in f.result(timeout=PLOT_TIMEOUT)}
                 return [drawn[name] for name in names]
             except BrokenProcessPool:
                 pass
+            except FutureTimeout:  # a worker stuck (e.g. a lock copied by the fork): end it
+                self._end_workers()
         return draw_plots(analysis, out_dir, names)
+
+    def _end_workers(self) -> None:
+        """Terminate the workers now and forget the pool (its plots are drawn here)."""
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        for process in list(getattr(pool, '_processes', {}).values()):
+            process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
 
     def __enter__(self) -> PlotWorkers:
         return self
