@@ -355,6 +355,18 @@ def test_a_silent_driver_refuses_motion() -> None:
     assert info.value.code is ResultCode.REFUSED_DRIVER_SILENT
 
 
+def test_a_driver_heard_again_within_its_silence_window_is_not_refused() -> None:
+    """Joint states older than joint_silence when a move is asked for, then a fresh one
+    within joint_silence: a driver starved for a moment, not a silent one: the move runs."""
+    world = World()
+    m = mover(world, **{'liveness.joint_silence': 1.0})
+    world.silent = True
+    time.sleep(1.1)  # the newest joint state is now older than joint_silence
+    threading.Timer(0.1, lambda: setattr(world, 'silent', False)).start()
+    result = m.move('base', GOAL, GOAL_Q)
+    assert result.reason.startswith('settled') and world.trajectories
+
+
 def test_busy_is_refused_without_touching_the_running_move_then_stop_aborts() -> None:
     world = World(follow=False)  # the drives never arrive: the move waits
     m = mover(world, **{'arrival.timeout': 60.0})

@@ -469,6 +469,7 @@ class Mover:
         once."""
         self._await_inputs()
         live = self.settings.liveness
+        self._await_fresh_joints(live.joint_silence)
         with self.cond:
             silence = self.machine.clock() - self.joints_time
             driver, estimate = dict(self.driver), self.estimate
@@ -519,6 +520,20 @@ class Mover:
                 or (self.mode is CompensationMode.MEASURED
                     and math.isinf(self.measurement_time))
                 or not self.machine.drives_connected())
+
+    def _await_fresh_joints(self, within: float) -> None:
+        """Before motion, when the newest joint state is older than ``within`` s: give the
+        driver ``within`` s more to show it is alive. A driver (or this process) starved of
+        the CPU for a moment by a loaded machine is not a silent driver, and nothing moves
+        meanwhile; a driver still silent after it is refused (:meth:`ready`)."""
+        deadline = self.machine.clock() + within
+        while True:
+            self._refresh()
+            with self.cond:
+                now = self.machine.clock()
+                if now - self.joints_time <= within or now >= deadline:
+                    return
+                self.cond.wait(min(deadline - now, POLL_PERIOD))
 
     def _await_inputs(self) -> None:
         """Wait (bounded by ``liveness.discovery_timeout``) until every input has been seen
