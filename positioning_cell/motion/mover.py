@@ -111,10 +111,8 @@ class Estimate(NamedTuple):
     phis: FloatArray
 
 
-#: How often a wait re-reads the world and re-checks stop, faults and liveness, s. Each wait
-#: ends up to this late (a corrected ``measured`` move has eight: answers, arrivals, settle
-#: dwells, readings), so 10 ms rather than 20 ms takes ~40 ms off such a move (issue 24).
-POLL_PERIOD = 0.01
+#: How often a wait re-reads the world and re-checks stop, faults and liveness, s.
+POLL_PERIOD = 0.02
 #: Tracker readings kept for averaging.
 MEASUREMENTS_KEPT = 200
 #: Settled moves whose corrections a nearby goal starts with (``measured`` mode).
