@@ -36,6 +36,7 @@ from positioning_cell.motion.mover import (
     validate_goal,
 )
 from positioning_cell.motion.settings import COMPENSATION_MODE, GoalTolerance
+from positioning_cell.motion.standstill import StandstillSettings, StandstillWatch
 from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
 from positioning_cell.moves.trajectory import Trajectory, fingerprint
 from positioning_cell.parameters import parse
@@ -674,6 +675,31 @@ def test_the_tracker_sees_the_platform_move_while_the_encoders_stand_still() -> 
     watch_until_fault(m)
     assert 'the tracker measures the platform 0.300 mm from where it came to rest' in m.reason
     assert world.states[-1][2] is ResultCode.UNCOMMANDED_MOTION
+
+
+def test_a_stray_reading_among_the_first_at_rest_does_not_become_the_rest_pose() -> None:
+    """The tracker's rest pose is the medoid of its first readings that agree: a reading 0.6
+    mm off among them (an outlier the fit kept) is neither the rest pose nor shifts it (a mean
+    would, by 0.2 mm, and every good reading after it would then be motion); readings that
+    scatter among themselves are not motion; readings that agree on a new place are."""
+    watch = StandstillWatch(StandstillSettings())
+    watch.arm(0.0)
+    zero6, q = np.zeros(6), np.array([0.0, 0.0, 0.0, 1.0])
+    assert watch.joints(zero6, zero6, np.full(6, 1e-6), 0.01) is None
+    here = np.array([0.1, 0.2, 1.0])
+    for p in (here + [0.0, 0.0, 0.6e-3], here, here + [1e-6, 0.0, 0.0]):
+        assert watch.tracker(p, q) is None
+    for k in range(10):
+        assert watch.tracker(here + [0.0, 2e-6 * (k % 2), 0.0], q) is None
+    found = watch.tracker(here + [0.0, 0.0, 0.3e-3], q)  # one: not motion
+    assert found is None
+    rng = np.random.default_rng(7)
+    for _ in range(30):  # a burst of outliers in random directions: a scattering tracker
+        assert watch.tracker(here + rng.normal(0.0, 0.5e-3, 3), q) is None
+    for _ in range(2):  # until three agree on the new place
+        assert watch.tracker(here + [0.0, 0.0, 0.3e-3], q) is None
+    found = watch.tracker(here + [0.0, 0.0, 0.3e-3], q)
+    assert found is not None and '0.300 mm from where it came to rest' in found.reason
 
 
 def test_axes_still_moving_after_the_command_ended_are_uncommanded_motion() -> None:

@@ -3,15 +3,19 @@ stay where they came to rest (the drive-safety pattern of a monitored standstill
 safe operating stop, done here by the commanding controller on its own sensors).
 
 After every command that moved the axes the watch is re-armed (:meth:`StandstillWatch.arm`);
-while a command runs the mover does not feed it. The encoders' rest
-position is taken at the first reading with every axis slower than its rest speed; from then
-on the mean of the readings of the last ``window`` s may not leave it by more than the
-tolerance of its axis. The tracker's rest pose is the mean of its first ``TRACKER_READINGS``
-readings after that; the median (per component) of the deviations of the last
-``TRACKER_READINGS`` readings may not exceed the tracker tolerances, so one stray reading is
-not motion. Axes that do not come to rest within ``rest_timeout`` of the command's end are
-motion too. Positions in m and rad (JOINT_NAMES order), poses in the base frame (m, unit
-quaternions x, y, z, w), times in s on one monotonic clock.
+while a command runs the mover does not feed it. The encoders' rest position is taken at the
+first reading with every axis slower than its rest speed; from then on the mean of the readings
+of the last ``window`` s may not leave it by more than the tolerance of its axis. The tracker
+is judged on its last ``TRACKER_READINGS`` readings once they agree (each within the tracker
+tolerances of their medoid, the reading closest to the others): the first that agree after the
+encoders came to rest give the rest pose (their medoid), later ones that agree may not leave it
+by more than the tolerances. Readings that disagree among themselves are a tracker scattering
+(outliers its fit kept, a disturbed line of sight), not a platform that moved: they are not
+judged, so neither one stray reading nor a burst of them is motion, nor shifts the rest pose as
+a mean would. A platform pushed through the joints' clearance comes to rest again and is then
+found. Axes that do not come to rest within ``rest_timeout`` of the command's end are motion
+too. Positions in m and rad (JOINT_NAMES order), poses in the base frame (m, unit quaternions
+x, y, z, w), times in s on one monotonic clock.
 """
 
 from __future__ import annotations
@@ -25,12 +29,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.moves.correction import deviation, mean_pose
+from positioning_cell.moves.correction import deviation
 from positioning_cell.parameters import check_fields, setting
 
 FloatArray = NDArray[np.float64]
 
-#: Tracker readings that make the rest pose, and whose median deviation is judged.
+#: Tracker readings that must agree to make the rest pose, and to be judged.
 TRACKER_READINGS = 3
 
 
@@ -47,8 +51,8 @@ class StandstillSettings:
     theta_tolerance: float = setting(5e-4, 'largest motion of a theta angle at standstill',
                                      'rad', low=1e-6, high=0.1, dynamic=True)
     tracker_position_tolerance: float = setting(
-        100e-6, 'largest displacement of the measured platform at standstill (median of the '
-        'last 3 tracker readings)', 'm', low=1e-6, high=0.01, dynamic=True)
+        100e-6, 'largest displacement of the measured platform at standstill (the last 3 '
+        'tracker readings, when they agree within it)', 'm', low=1e-6, high=0.01, dynamic=True)
     tracker_orientation_tolerance: float = setting(
         5e-4, 'largest rotation of the measured platform at standstill', 'rad', low=1e-6,
         high=0.1, dynamic=True)
@@ -147,13 +151,13 @@ class StandstillWatch:
         self._tracker.append((np.array(position, dtype=float), np.array(quaternion, dtype=float)))
         if len(self._tracker) < TRACKER_READINGS:
             return None
-        if self._tracker_rest is None:
-            self._tracker_rest = mean_pose([p for p, _ in self._tracker],
-                                           [q for _, q in self._tracker])
+        here = self._agreeing()
+        if here is None:
             return None
-        errors = [deviation(p, q, *self._tracker_rest) for p, q in self._tracker]
-        e_p = np.median([e[0] for e in errors], axis=0)
-        e_r = np.median([e[1] for e in errors], axis=0)
+        if self._tracker_rest is None:
+            self._tracker_rest = here
+            return None
+        e_p, e_r = deviation(*here, *self._tracker_rest)
         s = self.settings
         if np.linalg.norm(e_p) > s.tracker_position_tolerance:
             return Motion(f'uncommanded motion at standstill: the tracker measures the platform '
@@ -165,3 +169,19 @@ class StandstillWatch:
                           f'it came to rest (tolerance '
                           f'{math.degrees(s.tracker_orientation_tolerance):.4f} deg)')
         return None
+
+    def _agreeing(self) -> tuple[FloatArray, FloatArray] | None:
+        """The medoid of the tracker readings held (the one whose summed distance to the
+        others, position over tracker_position_tolerance plus rotation over
+        tracker_orientation_tolerance, is least) when every reading is within the tolerances
+        of it; None when they disagree."""
+        s = self.settings
+        readings = list(self._tracker)
+        scaled = np.array([[(float(np.linalg.norm(e_p)) / s.tracker_position_tolerance,
+                             float(np.linalg.norm(e_r)) / s.tracker_orientation_tolerance)
+                            for e_p, e_r in (deviation(*one, *other) for other in readings)]
+                           for one in readings])  # (reading, other, position/rotation)
+        centre = int(np.argmin(scaled.sum(axis=(1, 2))))
+        if np.any(scaled[centre] > 1.0):
+            return None
+        return readings[centre]
