@@ -15,7 +15,7 @@ from workspace import MECH
 
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import averaged_covariance
-from positioning_cell.moves.correction import mean_pose, mean_reading
+from positioning_cell.moves.correction import mean_pose, mean_reading, unread_sigma
 
 K = 10  # readings per mean, as the positioner's default compensation.samples
 R0 = Rotation.from_rotvec([0.02, -0.01, 0.03])
@@ -203,3 +203,25 @@ def test_the_covariance_of_the_mean_is_honest_psd_and_keeps_correlations(
     np.testing.assert_allclose(quaternion, mq, rtol=0, atol=1e-15)
     if scatter == 0.0:  # identical readings: all of it common
         np.testing.assert_allclose(cov, mean_cov, rtol=1e-9, atol=1e-30)
+
+
+def test_unread_sigma_is_how_far_the_readings_to_come_can_move_the_mean() -> None:
+    """Monte Carlo over readings with a common error and independent noise: the spread of
+    mean_K − mean_k is unread_sigma of the first k readings' stated covariances with the
+    common part given (within 3 % over 20 000 draws); without it, it overstates; at k = K
+    nothing is left; a malformed input is refused."""
+    rng = np.random.default_rng(11)
+    stated = np.diag(COMMON_SIGMA**2 + INDEPENDENT_SIGMA**2)
+    common = np.diag(COMMON_SIGMA**2)
+    draws = 20_000
+    for k in (3, 6):
+        x = rng.normal(0.0, COMMON_SIGMA, (draws, 1, 6)) + rng.normal(
+            0.0, INDEPENDENT_SIGMA, (draws, K, 6))
+        spread = (x.mean(axis=1) - x[:, :k].mean(axis=1)).std(axis=0)
+        covariances = np.repeat(stated[None], k, axis=0)
+        predicted = unread_sigma(covariances, common, K)
+        np.testing.assert_allclose(spread, predicted, rtol=0.03)
+        assert np.all(unread_sigma(covariances, None, K) > predicted)
+    assert not np.any(unread_sigma(np.repeat(stated[None], K, axis=0), common, K))
+    with pytest.raises(InputError, match='covariances'):
+        unread_sigma(np.zeros((3, 6)), None, K)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import math
 import threading
 import time
@@ -876,6 +877,43 @@ def test_a_reading_ends_early_only_when_it_decides(decided: object, expected: in
     assert world.count >= round(start) + expected - 1
 
 
+class OneReadingWorld(World):
+    """One tracker reading per look, ``offset`` m along x from where the platform is, stated
+    at TRACKER_COVARIANCE (5 µm, 20 µrad); counts the looks."""
+
+    def __init__(self, offset: float) -> None:
+        super().__init__(samples=1)
+        self.offset, self.looks = offset, 0
+
+    def measurements(self) -> list[Measurement]:
+        with self.lock:
+            self.looks += 1
+        p, q = self.attained()
+        return [Measurement(p + np.array([self.offset, 0.0, 0.0]), q, TRACKER_COVARIANCE)]
+
+
+@pytest.mark.parametrize(('offset', 'common_share', 'used'),
+                         [(0.0, 0.0, 3), (8e-6, 0.0, 8), (8e-6, 0.96, 3), (11e-6, 0.0, 10)])
+def test_a_reading_that_decides_success_ends_once_no_reading_to_come_could_change_it(
+        offset: float, common_share: float, used: int) -> None:
+    """Readings of 5 µm, a 10 µm tolerance, samples 10, min_samples 3: the average of k
+    readings ends the reading once it is within the tolerance with every component enlarged
+    by 2 · 5 µm · √(1/k − 1/10), what the readings still to come could change: at 3 for no
+    error, at 8 for 8 µm (at 7 the margin, 2.07 µm, still reaches past 10 µm). When 96 % of
+    the stated variance is the registration's, common to every reading, only 1 µm of noise
+    is left to average: 8 µm ends at 3. Outside the tolerance it takes all 10."""
+    world = OneReadingWorld(offset)
+    p, q = world.attained()
+    if common_share:
+        world.registration = Registration(p.copy(), common_share * TRACKER_COVARIANCE)
+    m = mover(world, 'measured')
+    rule = functools.partial(m._holds_whatever_follows, p=p, q=q,
+                             tol=m.settings.goal_tolerance)
+    before = world.looks
+    m._measure(rule)
+    assert world.looks - before == used
+
+
 @pytest.mark.parametrize(('sigma', 'carried'), [(5e-6, False), (1e-6, True)])
 def test_a_correction_within_the_readings_noise_is_not_carried(sigma: float,
                                                                carried: bool) -> None:
@@ -1003,10 +1041,11 @@ def test_readings_stamped_while_the_axes_stood_still_count_from_the_dwell_on(
     """With stamped readings, the tracker readings stamped since the encoders' still window
     began (0.3 s of readings here) are averaged at once: the reading needs no new ones; those
     stamped before (the platform still 1 mm off) are not used. Without stamps all ``samples``
-    (10) readings come after the dwell."""
+    (10) readings come after the dwell (the early end of a reading is off here)."""
     world = StampedWorld(stamped)
     threading.Timer(0.2, world.settle).start()
-    m = mover(world, 'measured', settle_time=5.0, **{'arrival.settle_window': 0.3})
+    m = mover(world, 'measured', settle_time=5.0,  # no early end: every reading counted
+              **{'arrival.settle_window': 0.3, 'compensation.min_samples': 10})
     result = m.move('base', GOAL, GOAL_Q)
     assert result.reason.startswith('settled within tolerance'), result.reason
     assert 'after 0 corrections' in result.reason and len(world.trajectories) == 1

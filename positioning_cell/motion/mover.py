@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable, Mapping
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
@@ -49,6 +50,7 @@ from positioning_cell.moves.correction import (
     mean_reading,
     offset_command,
     predicted_offset,
+    unread_sigma,
     verdict,
 )
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
@@ -681,7 +683,8 @@ class Mover:
                 verified = self._verified
             if verified is not None and self._verdict(*verified, p, q, tol) is Verdict.OUTSIDE:
                 return None  # the reading that ended the last move puts the goal out of reach
-            m_p, m_q, cov = self._measure(lambda mp, mq, c: self._verdict(mp, mq, c, p, q, tol)
+            m_p, m_q, cov = self._measure(lambda mp, mq, c, _: self._verdict(mp, mq, c, p, q,
+                                                                            tol)
                                           is not Verdict.UNDECIDED)
             e_p, e_r = deviation(m_p, m_q, p, q)
             sigma = np.sqrt(np.diag(cov))
@@ -730,16 +733,19 @@ class Mover:
         averaged measurement is not corrected (that would chase noise): within tolerance it is
         a success, else out of tolerance, as is running out of iterations. A start with carried
         corrections (:meth:`_carried`) that lands within tolerance but with a significant error
-        is corrected once (a correction from the model would land closer). The result states
-        the measured error with its uncertainty."""
+        is corrected once (a correction from the model would land closer). A reading may end
+        early (``min_samples``) once no reading still to come could make the average leave
+        the tolerance (:meth:`_holds_whatever_follows`); not the first reading of a carried
+        start, whose significance decides whether to correct. The result states the measured
+        error with its uncertainty."""
         iterations = self.settings.compensation.max_iterations
         carried = (' (started with the last move\'s correction)'
                    if command[0] is not p else '')
         for done in range(iterations + 1):
             self._set_state(self.state, f'measuring: up to {self.settings.compensation.samples}'
                             f' readings on {MEASURED_POSE}')
-            m_p, m_q, cov = self._measure(lambda mp, mq, c: self._verdict(mp, mq, c, p, q, tol)
-                                          is Verdict.WITHIN)
+            m_p, m_q, cov = self._measure(None if carried and done == 0 else partial(
+                self._holds_whatever_follows, p=p, q=q, tol=tol))
             e_p, e_r = deviation(m_p, m_q, p, q)
             sigma = np.sqrt(np.diag(cov))
             text = (_error_text(e_p, e_r, 'measured error') + f' ± {_sigma_text(sigma)} (1 '
@@ -856,8 +862,8 @@ class Mover:
 
         self._wait(settled, self.settings.settle_time + 1.0, 'settling', measuring=measuring)
 
-    def _measure(self, decided: Callable[[FloatArray, FloatArray, FloatArray], bool] | None = None
-                 ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def _measure(self, decided: Callable[[FloatArray, FloatArray, FloatArray, FloatArray], bool]
+                 | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
         """The next ``samples`` tracker readings averaged (:func:`mean_reading`; right after
         a motion, those already in that were stamped since its settle dwell found the axes
         standing still count too: :class:`RestWatch`): the mean position and rotation, and
@@ -865,8 +871,9 @@ class Mover:
         averages down and one common to all (the tracker's registration, when published; else
         told apart by the readings' own scatter) that does not. From ``min_samples`` readings
         on, the average so far ends the wait early when ``decided(mean, quaternion,
-        covariance)`` says it settles the question asked. A tracker that falls silent or
-        readings that scatter beyond their stated uncertainty abort."""
+        covariance, unread)`` says it settles the question asked (``unread`` (6,): how far the
+        full average could still move from it, :func:`unread_sigma`). A tracker that falls
+        silent or readings that scatter beyond their stated uncertainty abort."""
         comp = self.settings.compensation
         n, least = comp.samples, min(comp.min_samples, comp.samples)
         with self.cond:  # readings stamped since the axes stood still count already
@@ -881,8 +888,11 @@ class Mover:
             if decided is None or got < least or got == seen[0]:
                 return False
             seen[0] = got
-            early[0] = self._averaged(self.measurements[-got:])
-            return decided(*early[0])
+            samples = self.measurements[-got:]
+            early[0] = self._averaged(samples)
+            unread = unread_sigma([s.covariance for s in samples],
+                                  self._common(np.array([s.position for s in samples])), n)
+            return decided(*early[0], unread)
 
         self._wait(enough, self.settings.measurement_timeout,
                    f'{n} new samples on {MEASURED_POSE}', measuring=True)
@@ -891,6 +901,14 @@ class Mover:
                 return early[0]
             samples = self.measurements[-n:]
         return self._averaged(samples)
+
+    def _common(self, positions: FloatArray) -> FloatArray | None:
+        """The covariance (6, 6) every reading at ``positions`` (k, 3) m shares: the
+        published registration's at their mean (None while none is published)."""
+        if self.registration is None:
+            return None
+        common: FloatArray = self.registration.covariance_at(positions.mean(axis=0))[0]
+        return common
 
     def _averaged(self, samples: list[Measurement]) -> tuple[FloatArray, FloatArray, FloatArray]:
         """:func:`mean_reading` of ``samples``, after checking that they scatter within
@@ -906,10 +924,20 @@ class Mover:
                     ResultCode.ABORTED_TRACKER_INCONSISTENT,
                     f'tracker readings scatter {np.max(scatter) * 1e6:.1f} um, {ratio:.0f}x '
                     'their stated sigma: outliers or a disturbed line of sight')
-        common = (None if self.registration is None
-                  else self.registration.covariance_at(positions.mean(axis=0))[0])
         return mean_reading(positions, [s.quaternion for s in samples],
-                            [s.covariance for s in samples], common)
+                            [s.covariance for s in samples], self._common(positions))
+
+    @classmethod
+    def _holds_whatever_follows(cls, m_p: FloatArray, m_q: FloatArray, _cov: FloatArray,
+                                unread: FloatArray, *, p: FloatArray, q: FloatArray,
+                                tol: GoalTolerance) -> bool:
+        """The early end of a reading that decides success: the average so far (m_p, m_q)
+        is within ``tol`` of (p, q) even with every component enlarged by
+        :data:`SIGNIFICANCE` times ``unread`` (6,), how far the full average could still move
+        from it. The full average would then hold too (what success asks of it), though its
+        stated uncertainty, the registration's included, may be larger than the tolerance
+        allows beyond doubt; the outcome states that uncertainty, of the readings used."""
+        return cls._verdict(m_p, m_q, np.diag(unread**2), p, q, tol) is Verdict.WITHIN
 
     @staticmethod
     def _verdict(m_p: FloatArray, m_q: FloatArray, cov: FloatArray, p: FloatArray,

@@ -54,8 +54,9 @@ class CompensationSettings:
                            dynamic=True)
     min_samples: int = setting(
         3, 'tracker samples after which an averaged reading may end early: once its error is '
-        'within (or, before a move, outside) the goal tolerance beyond 2 standard '
-        'uncertainties (samples or more: never early)', low=3, high=200, dynamic=True)
+        'within the goal tolerance by 2 standard deviations of what the samples still to come '
+        'could change (before a move: within or outside it beyond 2 standard uncertainties; '
+        'samples or more: never early)', low=3, high=200, dynamic=True)
     carry_distance: float = setting(
         0.01, 'measured: a goal this close to recently settled goals starts with their '
         'corrections beyond the readings\' noise (affine fit; 0: never)', 'm', low=0.0,

@@ -96,6 +96,26 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike, covariances: Arra
     return position, quaternion, 0.5 * (out + out.T)
 
 
+def unread_sigma(covariances: ArrayLike, common: ArrayLike | None, samples: int) -> FloatArray:
+    """How far the mean of ``samples`` readings may still move from the mean of the k read so
+    far (stated covariances ``covariances`` (k, 6, 6), base frame, order x, y, z, rot-x,
+    rot-y, rot-z): the standard deviation (6,) m and rad of mean_samples − mean_k, the
+    readings' independent noise σ² times (1/k − 1/samples) (the variance of a mean of iid
+    readings, split at k). The independent noise is the stated C̄ less the part every
+    reading shares (``common`` (6, 6), the registration's at these poses, which no number of
+    readings changes: :func:`mean_reading`); without it all of C̄ is taken as independent,
+    which overstates what the remaining readings can change. Zero once k >= samples."""
+    cov = np.asarray(covariances, dtype=float)
+    k = cov.shape[0] if cov.ndim == 3 else 0
+    if cov.ndim != 3 or cov.shape[1:] != (6, 6) or k < 1 or not np.all(np.isfinite(cov)):
+        raise InputError(f'covariances: expected finite (k >= 1, 6, 6), got shape {cov.shape}')
+    independent = np.diag(cov.mean(axis=0))
+    if common is not None:
+        independent = independent - np.diag(np.asarray(common, dtype=float))
+    share = max(1.0 / k - 1.0 / samples, 0.0)
+    return np.sqrt(np.clip(independent, 0.0, None) * share)
+
+
 class Verdict(Enum):
     """What a measured error says of a tolerance, its uncertainty taken into account."""
 
