@@ -33,6 +33,14 @@ them. Not what bounds a stop: a callback still running holds the process at its 
 (the executor's threads are joined), so callbacks must return at a stop: the positioner's do
 at once (close() ends a move, :func:`positioning_cell.files.abandon_loads` a file load)."""
 
+SWITCH_INTERVAL_S = 0.001
+"""The GIL's switch interval in a process that hosts several nodes (s; CPython's 0.005). A
+thread that gives the GIL up (every rclpy call does) waits up to a switch interval for each
+busy thread ahead of it to get it back: with four nodes' executors in one process the leg
+driver's joint states fell silent long enough for the positioner's 0.2 s watch to abort
+homing in 2 of 8 composed starts on a quiet 2-core VM, 0 of 16 with 1 ms (ad hoc:
+benchmarks/startup.py's cell start repeated, separate and composed alternating)."""
+
 
 class Spin(Enum):
     """EVENTS: rclpy's events executor (several times cheaper per callback; for nodes whose
@@ -124,6 +132,7 @@ def run_together(nodes: Sequence[NodeStart], args: Sequence[str] | None = None) 
         # The participant goes now, its shared memory with it, rather than in the interpreter's
         # finalization (which entry.end_process skips): once the node's and the executor's
         # handles are collected, the context is no longer in use and is destroyed at once.
+        gc.unfreeze()  # (what _settle_interpreter froze is collectable again)
         gc.collect()
         get_default_context().destroy()
 
@@ -163,6 +172,7 @@ def _spin(starts: Sequence[NodeStart]) -> int:
         # All built, their kernels warmed: none is imported or compiled from here on (a pause
         # of an executor), a cold one raises instead (positioning_cell.core.compiled).
         compiled.seal()
+        _settle_interpreter(len(nodes))
         for start, node in zip(starts, nodes, strict=True):
             spinning.append(start.executor())
             spinning[-1].add_node(node)
@@ -199,6 +209,16 @@ def _spin(starts: Sequence[NodeStart]) -> int:
     if failures:  # a callback raised in another executor's thread: as if in this one
         raise failures[0]
     return _exit_status(nodes) or 0
+
+
+def _settle_interpreter(hosted: int) -> None:
+    """Once the ``hosted`` nodes are built: what exists now (the modules, the models, the
+    nodes) leaves the cyclic garbage collector's view (``gc.freeze``: a full collection scans
+    only what came after; before, 30-100 ms pauses of every thread of the composed cell); with
+    several nodes the GIL switches every :data:`SWITCH_INTERVAL_S`."""
+    gc.freeze()
+    if hosted > 1:
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
 
 
 def _exit_status(nodes: Sequence[Node]) -> int | None:
