@@ -431,7 +431,9 @@ def _judge_success(port: FaultPort, trial: Trial, target: FloatArray, received: 
 def _trajectory_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
     """A trajectory from another node beyond the axis limits at a legal speed, stamped
     AHEAD_S s ahead: refused as foreign, naming the sender, and the axes hold, also after the
-    stamp's time has come."""
+    stamp's time has come. It starts with the axes at rest (after the homing of the first
+    trial the servos still close the last 0.1 µm: not motion the trajectory caused)."""
+    _at_rest(port)
     recent = wait_until(lambda: len(port.true_states(port.monotonic() - 0.5).times) > 0 and
                         port.true_states(port.monotonic() - 0.5), 10.0, 'true joint states')
     beyond = recent.positions[-1].copy()
