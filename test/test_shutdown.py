@@ -1,7 +1,7 @@
-"""Every node executable stops cleanly on SIGINT and on SIGTERM: exit 0, no traceback, no
-C++ "terminate called", within a bounded time, wherever in its start the signal lands: while
-its modules load, while rclpy comes up and the node is built, and once it runs (the recorder
-then leaves a closed bag).
+"""Every node executable stops cleanly on SIGINT and on SIGTERM (and, running, on SIGHUP: its
+terminal closed): exit 0, no traceback, no C++ "terminate called", within a bounded time,
+wherever in its start the signal lands: while its modules load, while rclpy comes up and the
+node is built, and once it runs (the recorder then leaves a closed bag).
 
 Multi-process tier. The six executables run together in one private domain per trial. The
 running case waits for a condition before it signals (every node answering its parameter
@@ -42,7 +42,8 @@ def _unclean(stops: list[Stop]) -> list[Stop]:
     return [s for s in stops if not s.clean or s.seconds > STOP_BOUND_S]
 
 
-@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM, signal.SIGHUP],
+                         ids=['SIGINT', 'SIGTERM', 'SIGHUP'])
 def test_every_running_node_stops_cleanly(tmp_path: Path, sig: signal.Signals) -> None:
     commands = stop_commands(tmp_path)
     with isolated_domain() as domain, Client(domain, 'shutdown_test_client') as client:

@@ -39,6 +39,11 @@ class TmuxPane:
         """Type ``keys`` into the pane."""
         self._tmux('send-keys', '-t', 'pane', keys)
 
+    def program_pid(self) -> int:
+        """The process id of ``command`` (the child of the pane's bash)."""
+        shell = int(self._tmux('list-panes', '-t', 'pane', '-F', '#{pane_pid}').split()[0])
+        return int(Path(f'/proc/{shell}/task/{shell}/children').read_text().split()[0])
+
     def close(self) -> None:
         """Kill the tmux server and the program in it."""
         subprocess.run(['tmux', '-L', self.socket, 'kill-server'], check=False,

@@ -24,7 +24,7 @@ Exit status (:mod:`positioning_cell.tools.exits`): 0 every bag analysed; 1 analy
 bag failed: its reason is printed and in the report; or a bag was damaged and analysed as far
 as it was readable); 2 nothing analysed (no bag found, a path that is neither a bag nor holds
 one, a bad config, every bag failed); 5 the scheduler given with ``--scheduler`` not
-reachable; 130 interrupted (SIGINT or SIGTERM; the cluster is stopped).
+reachable; 130 interrupted (SIGINT, SIGTERM or SIGHUP; the cluster is stopped).
 :func:`analyze_fleet` does the work; :func:`main` parses the command line.
 """
 

@@ -47,7 +47,8 @@ MEANINGS = {
                   'the cell could not complete), or no outcome given',
     Exit.NOT_THERE: 'the cell is not there: a node, service, action server, status or answer '
                     'did not come within the time allowed, or the cell did not start',
-    Exit.INTERRUPTED: 'SIGINT or SIGTERM: the drives were stopped and what was recorded kept',
+    Exit.INTERRUPTED: 'SIGINT, SIGTERM or SIGHUP: the drives were stopped and what was '
+                      'recorded kept',
 }
 
 

@@ -1,9 +1,8 @@
-"""SIGINT and SIGTERM in a command line: one way for every tool. While :func:`interruptible`
-runs, either signal raises :class:`Interrupted` in the main thread (so the tool stops the
-drives, puts back what it changed and exits ``Exit.INTERRUPTED``,
-:mod:`positioning_cell.tools.exits`), or, inside :meth:`Signals.deferred`, is only counted
-(a goal loop reads the count and cancels);
-the previous handlers are put back afterwards."""
+"""SIGINT, SIGTERM and SIGHUP in a command line: one way for every tool. While
+:func:`interruptible` runs, each signal raises :class:`Interrupted` in the main thread (so the
+tool stops the drives, puts back what it changed and exits ``Exit.INTERRUPTED``,
+:mod:`positioning_cell.tools.exits`), or, inside :meth:`Signals.deferred`, is only counted (a
+goal loop reads the count and cancels); the previous handlers are put back afterwards."""
 
 from __future__ import annotations
 
@@ -12,12 +11,11 @@ import signal
 from collections.abc import Iterator
 from types import FrameType
 
-#: The signals a tool treats as "stop now".
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+from positioning_cell.ros.entry import STOP_SIGNALS  # "stop now", as for a node
 
 
 class Interrupted(Exception):  # noqa: N818 - what happened, not an error of the tool
-    """SIGINT or SIGTERM arrived (its name is the message)."""
+    """A stop signal arrived (its name is the message)."""
 
 
 class Signals:
