@@ -38,8 +38,9 @@ SWITCH_INTERVAL_S = 0.001
 thread that gives the GIL up (every rclpy call does) waits up to a switch interval for each
 busy thread ahead of it to get it back: with four nodes' executors in one process the leg
 driver's joint states fell silent long enough for the positioner's 0.2 s watch to abort
-homing in 2 of 8 composed starts on a quiet 2-core VM, 0 of 16 with 1 ms (ad hoc:
-benchmarks/startup.py's cell start repeated, separate and composed alternating)."""
+homing in 6 of 30 composed starts on a quiet 2-core VM, 0 of 32 with 1 ms and the GC freeze of
+:func:`_settle_interpreter` (benchmarks/startup.py, and an ad-hoc loop of its cell start,
+separate and composed alternating)."""
 
 
 class Spin(Enum):
