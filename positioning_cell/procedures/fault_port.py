@@ -91,6 +91,10 @@ class FaultPort(CellPort, Protocol):
     def running(self, node: str) -> bool:
         """Is ``node`` running (not killed)?"""
 
+    def forgotten(self, node: str) -> bool:
+        """Has the rest of the cell forgotten a killed ``node`` (its DDS participant's lease
+        run out, so a process started in its place is sent the others' data)?"""
+
     def foreign_trajectory(self, joints: FloatArray, ahead: float,
                            timeout: float) -> tuple[float, Report]:
         """From another node than the positioner (:data:`~.fault_trials.CLIENT_NODE`), once

@@ -58,6 +58,9 @@ CLIENT_NODE = 'fault_matrix'
 #: a busy machine, then until the killed participant's lease (5 s,
 #: config/fastdds_loopback.xml) runs out, the driver does not send it its readings.
 RESTART_HEARD_S = 30.0
+#: A killed node is forgotten by the rest of the cell within this (s): the lease of its DDS
+#: participant (5 s, config/fastdds_loopback.xml) on a busy machine.
+FORGET_S = 30.0
 #: How far ahead the foreign trajectory is stamped (the issue's probe: run 4 s later).
 AHEAD_S = 4.0
 #: Where the foreign trajectory takes the axes: leg 1, leg 2 lengths (m), theta 1 (rad).
@@ -555,7 +558,12 @@ TRIALS: dict[Kind, Callable[[FaultPort, Fault, Trial], None]] = {
 
 # -- what follows and what restores ------------------------------------------------------------
 def _restart(node: str) -> Callable[[FaultPort], None]:
+    """Restore after ``node`` was killed: started again once the cell has forgotten the
+    killed process (a process started in its place within the others' lease on it, 5 s, is
+    not sent their data: the positioner's homing then timed out waiting for the restarted
+    driver's answer, or found its joint states silent), then ready."""
     def restore(port: FaultPort) -> None:
+        wait_until(lambda: port.forgotten(node), FORGET_S, f'the killed {node} forgotten')
         port.restart(node)
         ready(port, 'none')
     return restore

@@ -224,6 +224,9 @@ class FaultCell(RosCellPort):
     def running(self, node: str) -> bool:
         return _node(node).executable not in self.procs.dead()
 
+    def forgotten(self, node: str) -> bool:
+        return _node(node).name not in self.client.node.get_node_names()
+
     def close(self) -> dict[str, int]:
         """Stop every process (SIGINT); their exit codes."""
         try:

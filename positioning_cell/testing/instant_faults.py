@@ -329,6 +329,9 @@ class InstantFaultPort(InstantPort):
     def running(self, node: str) -> bool:
         return self._alive.get(node, False)
 
+    def forgotten(self, node: str) -> bool:
+        return True  # in process: nothing remembers a killed node
+
     def foreign_trajectory(self, joints: FloatArray, ahead: float,
                            timeout: float) -> tuple[float, Report]:
         now = time.monotonic()
