@@ -53,11 +53,6 @@ CELL_NODES = (
     CellNode('kinematics_node', NODE_POSITIONER),
     CellNode('accuracy_monitor_node', NODE_MONITOR),
 )
-#: The simulated hardware started with a higher CPU priority than the rest where allowed
-#: (positioning_cell.ros.processes.HARDWARE_NICE): the drives with their controllers. Not the
-#: tracker's simulator, which also computes the machine's truth, most of the cell's CPU while
-#: it moves: favoured, it would starve the positioner instead.
-SIMULATED_HARDWARE = CELL_NODES[:1]
 RECORDER = CellNode('recorder_node', NODE_RECORDER)
 PLAYER = CellNode('bag_player_node', NODE_PLAYER)
 CALIBRATOR = CellNode('calibrator_node', NODE_CALIBRATOR)

@@ -17,8 +17,6 @@ from typing import IO, Any
 
 import yaml
 
-from positioning_cell import names
-
 
 def cell_environment(domain: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
     """The environment of a cell process: ``base`` (default: this process's) on ROS domain
@@ -79,24 +77,6 @@ def executable(name: str) -> str:
     return found
 
 
-#: The executables of the simulated hardware.
-HARDWARE_EXECUTABLES = frozenset(node.executable for node in names.SIMULATED_HARDWARE)
-#: The nice value the simulated hardware (names.SIMULATED_HARDWARE) is started with, below the
-#: default 0. A real cell's drives have controllers of their own that no load on the PC
-#: delays; simulated on the PC's cores, the leg driver was starved for 0.2-0.33 s by
-#: command lines and nodes starting beside a moving cell on two cores, and the positioner
-#: rightly aborted on its joint-silence watch. Lowering a nice value needs root or
-#: CAP_SYS_NICE; without, the process keeps the default (the attempt is all there is).
-HARDWARE_NICE = -5
-
-
-def _favour(proc: subprocess.Popen[bytes]) -> None:
-    """Give a just-started process (its main thread, before it starts others, which inherit
-    it) HARDWARE_NICE, when this process may."""
-    with contextlib.suppress(OSError):
-        os.setpriority(os.PRIO_PROCESS, proc.pid, HARDWARE_NICE)
-
-
 class Processes:
     """Processes started in environment ``env``, each in its own process group, output in
     ``log_dir/<label>.log``; :meth:`stop` ends them (SIGINT, SIGKILL after a grace period)."""
@@ -129,8 +109,6 @@ class Processes:
         self._logs[label] = log
         self.procs[label] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
                                              env=self.env, start_new_session=True)
-        if exe in HARDWARE_EXECUTABLES:
-            _favour(self.procs[label])
         return self.procs[label]
 
     def log(self, label: str) -> str:
