@@ -22,6 +22,10 @@ from cell_harness import CELL_YAML, REPO, isolated_domain
 from positioning_cell import names
 from positioning_cell.ros.processes import cell_environment
 
+# every test here starts a fresh interpreter, and the harness imports rclpy: the library tier
+# (-m "not nodes and not slow") must not even import this module
+pytestmark = pytest.mark.slow
+
 #: The nodes whose work runs compiled kernels: none (forward kinematics, for the positioner's
 #: pose from the encoders, the driver's efforts, the simulated tracker's truth and the
 #: calibrator's machine model, runs uncompiled there, one pose at a time).
@@ -84,7 +88,6 @@ def _build(executable: str, tmp_path: Path) -> dict[str, object]:
 
 
 @pytest.mark.nodes
-@pytest.mark.slow
 @pytest.mark.parametrize('executable', [n.executable for n in names.NODE_EXECUTABLES])
 def test_no_node_loads_numba_and_forward_kinematics_runs_sealed(
         executable: str, tmp_path: Path) -> None:
@@ -128,7 +131,6 @@ for lengths in (home.lengths.copy(), home.lengths.astype(np.float32)):  # float3
 '''
 
 
-@pytest.mark.slow
 def test_a_sealed_process_neither_loads_nor_compiles_a_kernel() -> None:
     done = subprocess.run([sys.executable, '-c', SEALED], cwd=REPO, capture_output=True,
                           text=True, timeout=240, check=False)
