@@ -99,15 +99,17 @@ LEAD_POWER_CASE = f'lead x{LEAD_POWER:g}'
 
 def simulator(seed: int, effects: bool, mass: float | None = None,
               lead_factor: float = 1.0) -> PoseMeasurementSimulator:
-    """The seeded machine ``seed`` (geometry, drives and thermal seeds) carrying ``mass``,
-    its screws' lead error ``lead_factor`` times the configured one."""
+    """The seeded machine ``seed`` (geometry, drives and thermal seeds, and the tracker's
+    registration: each machine is located anew, so the machines do not share one registration
+    error) carrying ``mass``, its screws' lead error ``lead_factor`` times the configured
+    one."""
     payload = PAYLOAD if mass is None else replace(PAYLOAD, mass=mass)
     truth = SIM.truth if effects else SIM.truth.without_effects()
     drives = replace(truth.drives, seed=seed,
                      lead_error_sigma=truth.drives.lead_error_sigma * lead_factor)
     truth = replace(truth, geometry_seed=seed, drives=drives,
                     thermal=replace(truth.thermal, seed=seed))
-    return PoseMeasurementSimulator(replace(SIM, truth=truth, payload=payload))
+    return PoseMeasurementSimulator(replace(SIM, seed=seed, truth=truth, payload=payload))
 
 
 def through_intermediates(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -233,6 +233,16 @@ def test_bad_data_is_refused() -> None:
             idf.check_data(good._replace(temperature=np.full(n, bad)))
     with pytest.raises(idf.InputError, match='approach holds values other than'):
         idf.check_data(good._replace(approach=np.full((n, 6), 0.5)))
+    located = good._replace(registration_origin=np.zeros((n, 3)),
+                            registration_covariance=np.tile(np.eye(6), (n, 1, 1)))
+    with pytest.raises(idf.InputError, match='come together'):
+        idf.check_data(located._replace(registration_covariance=None))
+    with pytest.raises(idf.InputError, match=r'expected \(10, 3\) and \(10, 6, 6\)'):
+        idf.check_data(located._replace(registration_origin=np.zeros((n - 1, 3))))
+    skewed = np.tile(np.eye(6), (n, 1, 1))
+    skewed[:, 0, 1] = 1e-3
+    with pytest.raises(idf.InputError, match='symmetric covariances'):
+        idf.check_data(located._replace(registration_covariance=skewed))
 
 
 def test_the_conditions_of_each_pose_follow_a_subset() -> None:
@@ -247,6 +257,43 @@ def test_the_conditions_of_each_pose_follow_a_subset() -> None:
     assert part.approach.shape == (2, 6)
     assert idf.check_data(data._replace(temperature=None, approach=None)).subset([0]).temperature \
         is None
+
+
+def test_the_registrations_share_is_how_a_registration_error_moves_the_fit(
+        program: prog.Program) -> None:
+    """The registration's consider term (identify.registration_consider) against the fit
+    itself: the same data re-measured through a registration off by one standard deviation
+    along each of its six axes (every measured pose moved rigidly, exactly), re-identified;
+    the parameters' responses A (COUNT, 6) give A·Σ_r·Aᵀ, which must match the stated share
+    at the hold-out poses. Without registrations in the data the share is zero."""
+    sim = simulator(0)
+    data = campaign(sim, program.position, program.quaternion)
+    assert data.registration_origin is not None and data.registration_covariance is not None
+    base = idf.identify(MECH, PAYLOAD, STRUCTURE, data)
+    assert base.registration_share is not None
+    origin, sigma_r = data.registration_origin[0], data.registration_covariance[0]
+    step = np.sqrt(np.diag(sigma_r))
+    response = np.empty((cp.COUNT, 6))
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = step[i]
+        turn = Rotation.from_rotvec(d[3:])
+        moved = data._replace(position=origin + d[:3] + turn.apply(data.position - origin),
+                              quaternion=(turn * Rotation.from_quat(data.quaternion)).as_quat())
+        response[:, i] = (idf.identify(MECH, PAYLOAD, STRUCTURE, moved).x - base.x) / step[i]
+    refit = response @ sigma_r @ response.T
+    hp, hq = program.hold_out_position, program.hold_out_quaternion
+    stated = idf.pose_uncertainty(base.x, base.registration_share, MECH, PAYLOAD, STRUCTURE,
+                                  hp, hq)
+    seen = idf.pose_uncertainty(base.x, refit, MECH, PAYLOAD, STRUCTURE, hp, hq)
+    np.testing.assert_allclose(np.sqrt(np.diagonal(stated, axis1=1, axis2=2)),
+                               np.sqrt(np.diagonal(seen, axis1=1, axis2=2)), rtol=0.05,
+                               atol=1e-8)
+    # the share is a micrometre-size part of the pose uncertainty, not a rounding error
+    assert np.sqrt(stated[:, 0, 0]).max() > 1e-6
+    bare = idf.identify(MECH, PAYLOAD, STRUCTURE,
+                        data._replace(registration_origin=None, registration_covariance=None))
+    assert bare.registration_share is not None and not bare.registration_share.any()
 
 
 # -- the calibration file ----------------------------------------------------------------------

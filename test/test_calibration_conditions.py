@@ -178,6 +178,9 @@ def test_the_live_path_gets_what_the_bag_path_gets(seed: int) -> None:
     got, want = col.assemble(live), _collect(r, r.air)
     for part in ('fit', 'hold_out'):
         for a, b in zip(getattr(got, part), getattr(want, part), strict=True):
+            if a is None or b is None:  # a field neither path has (no registration here)
+                assert a is None and b is None
+                continue
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
     assert got.missing == want.missing == ()
 
@@ -205,13 +208,18 @@ def test_a_poses_covariance_keeps_the_registrations_part_undiminished() -> None:
         mean_cov = p_c[take].mean(axis=0)
         n = marker.samples
         live = col.pose_data(marker, np.zeros(6), np.zeros(6), p_p[take], p_q[take], p_c[take],
-                             col.JOINT_SIGMA_FLOOR, None, common)
+                             col.JOINT_SIGMA_FLOOR, None, in_force)
         np.testing.assert_allclose(live.covariance, common + (mean_cov - common) / n,
                                    rtol=1e-12, atol=0.0)
         np.testing.assert_allclose(_pose_covariance(got, k), live.covariance, rtol=1e-12,
                                    atol=0.0)
         np.testing.assert_allclose(_pose_covariance(plain, k), mean_cov / n, rtol=1e-12,
                                    atol=0.0)
+        # the data name the registration each pose was measured through, for the fit
+        np.testing.assert_array_equal(_both(got, 'registration_covariance')[k],
+                                      in_force.covariance)
+        np.testing.assert_array_equal(_both(got, 'registration_origin')[k], in_force.position)
+    assert plain.fit.registration_origin is None and plain.fit.registration_covariance is None
     assert col.registration_at([], 0.0) is None
 
 

@@ -140,7 +140,7 @@ class PoseData(NamedTuple):
     """One measured pose as calibration data: its marker, the mean encoder values (6,) and
     their standard uncertainty (6,), the mean tracker pose (3,) m / (4,) and its covariance
     (6, 6) (the readings' mean covariance divided by their number); its conditions (None: not
-    taken)."""
+    taken) and the tracker registration it was measured through (None: not known)."""
 
     marker: Marker
     joints: FloatArray
@@ -149,29 +149,31 @@ class PoseData(NamedTuple):
     quaternion: FloatArray
     covariance: FloatArray
     conditions: Conditions | None = None
+    registration: Registration | None = None
 
 
 def pose_data(marker: Marker, encoder_mean: ArrayLike, encoder_sem: ArrayLike,
               position: ArrayLike, quaternion: ArrayLike, covariance: ArrayLike,
               joint_sigma_floor: ArrayLike, conditions: Conditions | None = None,
-              common: ArrayLike | None = None) -> PoseData:
+              registration: Registration | None = None) -> PoseData:
     """The data of one pose (module docstring) from its ``marker.samples`` tracker readings
     (positions (k, 3) m, quaternions (k, 4), covariances (k, 6, 6)) and the mean (6,) and
     standard error of the mean (6,) of the encoder readings over the same window (the
     uncertainty at least ``joint_sigma_floor``), with its ``conditions``
     (:func:`pose_conditions`): the one rule of the live run and of a bag. The mean pose's
     covariance is :func:`~positioning_cell.metrology.instrument.averaged_covariance` with
-    ``common`` (6, 6), the part of every reading's covariance the tracker's registration
-    gives (None: not known, the readings taken as independent: the mean covariance / k)."""
+    the part of every reading's covariance the tracker's ``registration`` gives at the mean
+    position (None: not known, the readings taken as independent: the mean covariance / k)."""
     p_mean, q_mean = mean_pose(np.asarray(position, dtype=float),
                                np.asarray(quaternion, dtype=float))
     floor = np.broadcast_to(np.asarray(joint_sigma_floor, dtype=float), (6,))
     mean_cov = np.asarray(covariance, dtype=float).mean(axis=0)
     return PoseData(marker, np.asarray(encoder_mean, dtype=float),
                     np.maximum(np.asarray(encoder_sem, dtype=float), floor), p_mean, q_mean,
-                    averaged_covariance(mean_cov, np.zeros((6, 6)) if common is None else common,
+                    averaged_covariance(mean_cov, np.zeros((6, 6)) if registration is None
+                                        else registration.covariance_at(p_mean)[0],
                                         marker.samples),
-                    conditions)
+                    conditions, registration)
 
 
 def window_temperature(stamps: ArrayLike, values: ArrayLike, start: float, end: float,
@@ -253,10 +255,15 @@ def assemble(poses: list[PoseData], skipped: tuple[tuple[Marker, str], ...] = ()
                                 for f in ('joints', 'joint_sigma', 'position', 'quaternion',
                                           'covariance')))
         cond = [r.conditions for r in rows if r.conditions is not None]
+        located = [r.registration for r in rows if r.registration is not None]
         return got._replace(
             temperature=np.array([c.temperature for c in cond], dtype=float)
             if temperature else None,
-            approach=np.stack([c.approach for c in cond]) if approach else None)
+            approach=np.stack([c.approach for c in cond]) if approach else None,
+            registration_origin=np.stack([g.position for g in located])
+            if len(located) == len(rows) else None,
+            registration_covariance=np.stack([g.covariance for g in located])
+            if len(located) == len(rows) else None)
 
     def cmd(which: str) -> tuple[FloatArray, FloatArray]:
         rows = [p.marker for p in poses if p.marker.set == which]
@@ -317,9 +324,7 @@ def collect(markers: list[Marker], joints: Stream, poses: Stream,
         conditions = pose_conditions(Stream(j_t[since:], (j_v[since:],)), air, marker.start,
                                      float(end), mean, previous[1])
         previous = (marker.start, conditions.approach)
-        located = registration_at(registrations, marker.start)
-        common = (None if located is None
-                  else located.covariance_at(p_p[take].mean(axis=0))[0])
         measured.append(pose_data(marker, mean, sem, p_p[take], p_q[take], p_c[take],
-                                  joint_sigma_floor, conditions, common))
+                                  joint_sigma_floor, conditions,
+                                  registration_at(registrations, marker.start)))
     return assemble(measured, tuple(skipped))

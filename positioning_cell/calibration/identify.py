@@ -65,6 +65,7 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch, matrix_from_quaternion
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.statics import Payload, Structure, actuator_efforts
+from positioning_cell.metrology.instrument import registration_jacobian
 from positioning_cell.parameters import check_fields, setting
 
 FloatArray = NDArray[np.float64]
@@ -137,7 +138,14 @@ class CalibrationData(NamedTuple):
     (N,) the measured cell air temperature, °C (the temperature sensor's reading, not the
     machine's own), and ``approach`` (N, 6) the direction each axis last moved in before
     the pose was reached, in JOINT_NAMES order: +1 increasing, −1 decreasing, 0 not known
-    (what a reversal error depends on)."""
+    (what a reversal error depends on).
+
+    The tracker registration each pose was measured through (None: not known):
+    ``registration_origin`` (N, 3) m, the located tracker origin in ``base``, and
+    ``registration_covariance`` (N, 6, 6), that registration's covariance (δp m, δθ rad at
+    the origin; :class:`~positioning_cell.metrology.instrument.Registration`). Its error is
+    common to every pose measured through it, so the fit cannot average it away: poses with
+    the same registration share one error (:func:`registration_consider`)."""
 
     joints: FloatArray
     joint_sigma: FloatArray
@@ -146,6 +154,8 @@ class CalibrationData(NamedTuple):
     covariance: FloatArray
     temperature: FloatArray | None = None
     approach: FloatArray | None = None
+    registration_origin: FloatArray | None = None
+    registration_covariance: FloatArray | None = None
 
     def subset(self, rows: ArrayLike) -> CalibrationData:
         """The poses ``rows`` (indices or a mask)."""
@@ -160,7 +170,9 @@ class CalibrationData(NamedTuple):
 
         return CalibrationData(take(self.joints), take(self.joint_sigma), take(self.position),
                                take(self.quaternion), take(self.covariance),
-                               pick(self.temperature), pick(self.approach))
+                               pick(self.temperature), pick(self.approach),
+                               pick(self.registration_origin),
+                               pick(self.registration_covariance))
 
 
 def check_data(data: CalibrationData) -> CalibrationData:
@@ -181,7 +193,32 @@ def check_data(data: CalibrationData) -> CalibrationData:
         raise InputError('calibration data joint_sigma must be > 0')
     return CalibrationData(arrays['joints'], arrays['joint_sigma'], p, q, arrays['covariance'],
                            checked_temperature(data.temperature, n),
-                           checked_approach(data.approach, n))
+                           checked_approach(data.approach, n),
+                           *checked_registrations(data.registration_origin,
+                                                  data.registration_covariance, n))
+
+
+def checked_registrations(origin: ArrayLike | None, covariance: ArrayLike | None, n: int
+                          ) -> tuple[FloatArray | None, FloatArray | None]:
+    """The registrations of n poses (:class:`CalibrationData`) as float arrays: both None, or
+    a finite origin (n, 3) and a finite, symmetric covariance (n, 6, 6) with a non-negative
+    diagonal; InputError naming what is wrong otherwise."""
+    if origin is None and covariance is None:
+        return None, None
+    if origin is None or covariance is None:
+        raise InputError('calibration data: registration_origin and registration_covariance '
+                         'come together (one is missing)')
+    o = np.asarray(origin, dtype=float)
+    c = np.asarray(covariance, dtype=float)
+    if o.shape != (n, 3) or c.shape != (n, 6, 6):
+        raise InputError(f'calibration data registrations: expected ({n}, 3) and ({n}, 6, 6), '
+                         f'got {o.shape} and {c.shape}')
+    if not (np.all(np.isfinite(o)) and np.all(np.isfinite(c))
+            and np.all(np.diagonal(c, axis1=1, axis2=2) >= 0.0)
+            and np.allclose(c, np.swapaxes(c, 1, 2), rtol=1e-9, atol=0.0)):
+        raise InputError('calibration data registrations: expected finite origins and finite, '
+                         'symmetric covariances with a non-negative diagonal')
+    return o, c
 
 
 def predicted_joints(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
@@ -346,7 +383,10 @@ class Identification:
     not excited by the data: no temperature, one approach direction), each with why, and the
     ``model_error`` (6,) per joint (m, rad): what the model misses by the ``adequacy`` test (0:
     adequate; else the allowance and the widening together;
-    :mod:`positioning_cell.calibration.adequacy`)."""
+    :mod:`positioning_cell.calibration.adequacy`). ``registration_share`` (COUNT, COUNT):
+    the part of the covariance the tracker registrations' errors give
+    (:func:`registration_consider`; None: not known), the accuracy the machine has in the
+    true base frame rather than in the located one."""
 
     x: FloatArray
     covariance: FloatArray
@@ -360,6 +400,7 @@ class Identification:
     excluded: dict[str, str] = field(default_factory=dict)
     model_error: FloatArray = field(default_factory=lambda: np.zeros(6))
     adequacy: adq.Adequacy | None = None
+    registration_share: FloatArray | None = None
 
     @property
     def sigma(self) -> FloatArray:
@@ -427,6 +468,37 @@ def consider_covariance(scaled_jacobian: FloatArray, free: NDArray[np.intp],
     out[np.ix_(free, held)] = cross
     out[np.ix_(held, free)] = cross.T
     out[np.ix_(held, held)] = sigma_held
+    return out
+
+
+def registration_consider(nominal: Mechanism, data: CalibrationData, white: FloatArray,
+                          scaled_jacobian: FloatArray, free: NDArray[np.intp]) -> FloatArray:
+    """The covariance (COUNT, COUNT), in units of the expected sizes, that the tracker
+    registrations' errors give the fitted parameters (zero without registrations in the
+    validated ``data``): a consider term like :func:`consider_covariance`'s. A registration
+    error δr (δp, δθ at its origin; covariance Σ_r) moves every pose measured through it by
+    J_r,k·δr (:func:`~positioning_cell.metrology.instrument.registration_jacobian`), so the
+    whitened residuals by G·δr, G_k = W_k·J⁻¹_k·J_r,k (``white`` W (N, 6, 6), J⁻¹ the inverse
+    Jacobian); the fit absorbs it by δz = A·δr, A = −(J_Fᵀ J_F)⁺ J_Fᵀ G (``scaled_jacobian``
+    J (6N, COUNT), ``free`` its fitted columns), so P_FF gains Σ_g A_g·Σ_r,g·A_gᵀ, one term
+    per registration g (poses with equal origin and covariance share one; registrations are
+    independent of each other). The per-pose covariances already hold J_r,k·Σ_r·J_r,kᵀ, but
+    as if independent between poses, which a fit of N poses averages down by ~N."""
+    out = np.zeros((cp.COUNT, cp.COUNT))
+    if data.registration_origin is None or data.registration_covariance is None:
+        return out
+    n = data.position.shape[0]
+    keys = np.concatenate([data.registration_origin,
+                           data.registration_covariance.reshape(n, 36)], axis=1)
+    _, first, group = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    moved = white @ inverse_jacobian(nominal, data.position, data.quaternion) \
+        @ registration_jacobian(data.registration_origin, data.position)
+    j_free = scaled_jacobian[:, free]
+    solve = np.linalg.pinv(j_free.T @ j_free) @ j_free.T
+    for g, row in enumerate(first):  # one pass per registration (a run has one or a few)
+        absorb = -solve @ np.where((group.ravel() == g)[:, None, None], moved, 0.0
+                                   ).reshape(6 * n, 6)
+        out[np.ix_(free, free)] += absorb @ data.registration_covariance[row] @ absorb.T
     return out
 
 
@@ -539,8 +611,10 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
     dof = 6 * n - free.size
     jf = j_final[:, free]
     factor = max(chi2 / dof, 1.0) if dof > 0 else 1.0
+    registration = registration_consider(nominal, data, white, j_final, free) \
+        * np.outer(scale, scale)
     cov = consider_covariance(j_final, free, np.linalg.pinv(jf.T @ jf) * factor,
-                              prior_sigma(s)) * np.outer(scale, scale)
+                              prior_sigma(s)) * np.outer(scale, scale) + registration
     pred, _ = predicted_joints(x, nominal, payload, structure, data.position, data.quaternion,
                                s.seating_force, conditions=conditions,
                                reference_temperature=reference)
@@ -553,7 +627,8 @@ def identify(nominal: Mechanism, payload: Payload, structure: Structure,
     model_error = np.zeros(6) if verdict.adequate else \
         np.sqrt(np.diag(allowance) + verdict.model_error**2)
     return Identification(x, cov, ident, residuals, np.linalg.norm(pose_res[:, :3], axis=1),
-                          chi2, dof, int(fit.nfev), reference, excluded, model_error, verdict)
+                          chi2, dof, int(fit.nfev), reference, excluded, model_error, verdict,
+                          registration)
 
 
 def _signatures(x: FloatArray, nominal: Mechanism, payload: Payload, structure: Structure,
@@ -571,9 +646,14 @@ def hold_out_adequacy(result: Identification, nominal: Mechanism, payload: Paylo
                       settings: IdentificationSettings | None = None) -> adq.Adequacy:
     """The χ² test of the identified model at hold-out poses ``data`` it was not fitted to
     (6N degrees of freedom; their covariance: the measurement's, the allowance and the
-    identified parameters' own uncertainty; not the model error, which is what is tested)."""
+    identified parameters' own uncertainty; not the model error, which is what is tested).
+    The parameters' share from the registrations is left out: a hold-out pose's own
+    covariance already holds its registration's error, which is the fit's too when both
+    were measured through one registration (they then cancel in the residual)."""
     s = settings or IdentificationSettings()
     data = check_data(data)
+    fitted = result.covariance if result.registration_share is None \
+        else result.covariance - result.registration_share
     pred, sens = predicted_joints(result.x, nominal, payload, structure, data.position,
                                   data.quaternion, s.seating_force, with_jacobian=True,
                                   conditions=Conditions(data.temperature, data.approach),
@@ -581,7 +661,7 @@ def hold_out_adequacy(result: Identification, nominal: Mechanism, payload: Paylo
     assert sens is not None
     cov = (joint_covariance(nominal, data)
            + adq.allowance_covariance(s.allowance_length, s.allowance_theta)
-           + sens @ result.covariance @ np.swapaxes(sens, 1, 2))
+           + sens @ fitted @ np.swapaxes(sens, 1, 2))
     residuals = pred - data.joints
     return adq.assess('hold-out', residuals, cov, 6 * residuals.shape[0], s.adequacy_p,
                       _signatures(result.x, nominal, payload, structure, data, s))

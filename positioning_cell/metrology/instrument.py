@@ -213,17 +213,25 @@ class Tracker:
         return registration_covariance(self.position, self.covariance, p)
 
 
+def registration_jacobian(tracker_position: ArrayLike, position: ArrayLike) -> FloatArray:
+    """J (N, 6, 6): how a registration's error (δp m, δθ rad about the base axes at the tracker
+    origin ``tracker_position`` (3,) m, base frame) moves the measured rigid-body poses at
+    positions (N, 3) m (order x, y, z, rot-x, rot-y, rot-z). Every point moves by
+    δp + δθ × (x − p_tracker), so J = [[I, −[p − p_tracker]×], [0, I]]."""
+    p = np.atleast_2d(np.asarray(position, dtype=float))
+    jac = np.broadcast_to(np.eye(6), (len(p), 6, 6)).copy()
+    jac[:, :3, 3:] = -skew(p - np.asarray(tracker_position, dtype=float))
+    return jac
+
+
 def registration_covariance(tracker_position: ArrayLike, covariance: ArrayLike,
                             position: ArrayLike) -> FloatArray:
     """Covariance (N, 6, 6) that a registration's uncertainty ``covariance`` (6, 6: δp m, δθ
     rad about the base axes at the tracker origin ``tracker_position`` (3,) m, base frame)
-    adds to rigid-body poses at positions (N, 3) m, order x, y, z, rot-x, rot-y, rot-z. Every
-    point moves by δp + δθ × (x − p_tracker), so a body at p moves by J·(δp, δθ) with
-    J = [[I, −[p − p_tracker]×], [0, I]]; fully correlated between readings: averaging does
-    not reduce it."""
-    p = np.atleast_2d(np.asarray(position, dtype=float))
-    jac = np.broadcast_to(np.eye(6), (len(p), 6, 6)).copy()
-    jac[:, :3, 3:] = -skew(p - np.asarray(tracker_position, dtype=float))
+    adds to rigid-body poses at positions (N, 3) m: J·Σ·Jᵀ with J of
+    :func:`registration_jacobian`; fully correlated between readings: averaging does not
+    reduce it."""
+    jac = registration_jacobian(tracker_position, position)
     out: FloatArray = jac @ np.asarray(covariance, dtype=float) @ np.swapaxes(jac, 1, 2)
     return out
 

@@ -276,4 +276,4 @@ def _measure_pose(port: CellPort, approach: bool, samples: int, timeout: float,
     conditions = col.pose_conditions(col.Stream(enc_t, (enc_v,)), col.Stream(air_t, (air_v,)),
                                      r.start, r.end, r.encoder, before[1])
     return col.pose_data(marker, r.encoder, sem, r.position, r.quaternion, r.covariance,
-                         col.JOINT_SIGMA_FLOOR, conditions, r.common)
+                         col.JOINT_SIGMA_FLOOR, conditions, r.registration)

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.errors import PositioningError
+from positioning_cell.metrology.instrument import Registration
 
 FloatArray = NDArray[np.float64]
 #: A line of progress for the person running the procedure.
@@ -43,8 +44,9 @@ class Readings(NamedTuple):
     the mean encoder values (6,) over the window; the mean true axis positions (6,) (judging
     only, a simulated cell; else None); the window ``start`` … ``end`` s; the standard error
     of the mean encoder values (6,) (std / √n over the window; None: not known, e.g. one
-    exact reading); the part (6, 6) of every reading's covariance common to all of them (the
-    tracker's published registration at the readings' mean position; None: none received)."""
+    exact reading); the tracker's published registration the readings were taken through
+    (its covariance at the readings' mean position is the part of every reading's covariance
+    common to all of them; None: none received)."""
 
     stamps: FloatArray
     position: FloatArray
@@ -55,7 +57,7 @@ class Readings(NamedTuple):
     start: float
     end: float
     encoder_sem: FloatArray | None = None
-    common: FloatArray | None = None
+    registration: Registration | None = None
 
 
 class Seen(NamedTuple):

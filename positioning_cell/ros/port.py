@@ -215,8 +215,7 @@ class RosCellPort:
                         np.array([m.quaternion for _, m in taken]),
                         np.array([m.covariance for _, m in taken]),
                         mean, np.mean(true, axis=0) if true else None, start, end, sem,
-                        None if located is None
-                        else located.covariance_at(position.mean(axis=0))[0])
+                        located)
 
     def encoder_stream(self, since: float) -> tuple[FloatArray, FloatArray]:
         with self._lock:

@@ -64,7 +64,8 @@ def measure_program(truth: Truth, instrument: SimulatedTracker, located: Tracker
     ``instrument``'s readings through the cell's ``located`` registration, with the fits' mean
     covariance divided by ``samples`` (the registration's own error is common to every pose:
     it is not divided); with each pose the sensor's air temperature and the approach
-    direction of each axis (module docstring, ``timing`` default :class:`Timing`)."""
+    direction of each axis and the registration (module docstring, ``timing`` default
+    :class:`Timing`)."""
     timing = timing or Timing()
     cmd = np.atleast_2d(np.asarray(commands, dtype=float))
     n = cmd.shape[0]
@@ -97,8 +98,13 @@ def measure_program(truth: Truth, instrument: SimulatedTracker, located: Tracker
         position[k], quaternion[k] = mean_pose(fit.position[rows], fit.quaternion[rows])
     covariance = averaged_covariance(fit.covariance.reshape(n, samples, 6, 6).mean(axis=1),
                                      located.registration_covariance(position), samples)
+    registration = located.registration
     return CalibrationData(joints, joint_sigma, position, quaternion, covariance,
-                           temperature=temperature, approach=conditions.approach)
+                           temperature=temperature, approach=conditions.approach,
+                           registration_origin=None if registration is None
+                           else np.tile(registration.position, (n, 1)),
+                           registration_covariance=None if registration is None
+                           else np.tile(registration.covariance, (n, 1, 1)))
 
 
 def true_errors(truth: Truth, lengths: ArrayLike, thetas: ArrayLike, position: ArrayLike,

@@ -194,11 +194,9 @@ class InstantPort:
         self.clock = start + samples / TRACKER_RATE_HZ
         self._sense_air()
         # the encoders read the axes exactly here: the truth is where they stand
-        located = self.cell.located.registration
         return Readings(stamps, fit.position, fit.quaternion, fit.covariance,
                         self.cell.position.copy(), self.cell.position.copy(), start,
-                        float(stamps[-1]), None, None if located is None
-                        else located.covariance_at(fit.position.mean(axis=0))[0])
+                        float(stamps[-1]), None, self.cell.located.registration)
 
     def encoder_stream(self, since: float) -> tuple[FloatArray, FloatArray]:
         return _since(self._encoders, since, (6,))
