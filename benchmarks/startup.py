@@ -2,9 +2,10 @@
 
 Nodes: every node executable (positioning_cell.names.NODE_EXECUTABLES) is started --starts
 times as a process, alone, with config/cell.yaml (--params-file) on a free ROS domain, as
-idle_cpu.py starts them; its start-up time is from just before the process is spawned to the
-first answer of its parameter service ``/<node>/list_parameters`` to this process (the node is
-built, warmed and its executor spins: what any client first sees). The recorder writes into a
+idle_cpu.py starts them, each once the previous one has left the graph; its start-up time is
+from just before the process is spawned to the first answer of its parameter service
+``/<node>/list_parameters`` to this process (the node is built, warmed and its executor spins:
+what any client first sees). The recorder writes into a
 temporary folder, the live view takes any free port, the bag player plays (looping) a bag the
 recorder wrote in its last start. Baseline: a bare rclpy node (no callbacks of its own) started
 and timed the same way, in the same run. Medians are reported.
@@ -76,6 +77,7 @@ HELP_TARGET = 0.3        # s, a tool's --help
 WATCH_TARGET = 1.0       # s, cell watch to its first table (median)
 READY_TARGET = 2.0       # s, the cell's spawn to its first move accepted
 START_TIMEOUT = 90.0     # s, a node's first start may compile kernels
+GONE_TIMEOUT = 30.0      # s, a stopped node to leave the graph (its participant's lease)
 MOVE_TIMEOUT = 30.0      # s, the first move
 TOOLS = ('cell', 'run_cell', 'predict_accuracy', 'analyze_bag', 'calibrate_cell')
 BARE = 'bare_node'
@@ -129,6 +131,9 @@ class Starter:
         finally:
             self.procs.stop(label)
             self.client.node.destroy_client(ping)
+            # the next start begins once this node has left the graph
+            wait_until(lambda: node not in self.client.node.get_node_names(), GONE_TIMEOUT,
+                       f'{node} to leave the graph')
 
     def _alive(self, label: str) -> None:
         if self.procs.procs[label].poll() is not None:
