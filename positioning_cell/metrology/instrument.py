@@ -215,9 +215,9 @@ class Tracker:
 
 def registration_jacobian(tracker_position: ArrayLike, position: ArrayLike) -> FloatArray:
     """J (N, 6, 6): how a registration's error (δp m, δθ rad about the base axes at the tracker
-    origin ``tracker_position`` (3,) m, base frame) moves the measured rigid-body poses at
-    positions (N, 3) m (order x, y, z, rot-x, rot-y, rot-z). Every point moves by
-    δp + δθ × (x − p_tracker), so J = [[I, −[p − p_tracker]×], [0, I]]."""
+    origin ``tracker_position`` (3,) m, or one per pose (N, 3), base frame) moves the measured
+    rigid-body poses at positions (N, 3) m (order x, y, z, rot-x, rot-y, rot-z). Every point
+    moves by δp + δθ × (x − p_tracker), so J = [[I, −[p − p_tracker]×], [0, I]]."""
     p = np.atleast_2d(np.asarray(position, dtype=float))
     jac = np.broadcast_to(np.eye(6), (len(p), 6, 6)).copy()
     jac[:, :3, 3:] = -skew(p - np.asarray(tracker_position, dtype=float))
