@@ -252,13 +252,16 @@ def test_ruff() -> None:
 @cache
 def _mypy_runs() -> dict[str, subprocess.Popen[str]]:
     """Both mypy checks, started together on first use (two cores: half the wall time), with
-    the rules of the mypy configuration alone (setup.cfg: strict, the ROS layer relaxed)."""
+    the rules of the mypy configuration alone (setup.cfg: strict, the ROS layer relaxed).
+    Each keeps its incremental cache in the checkout's .test-tmp (ignored by git), so a
+    second run checks only what changed: ~24 s cold on two cores, a few seconds warm."""
     library = [str(p.relative_to(REPO)) for p in sources() if not in_ros_layer(p)]
     ros = [str(p.relative_to(REPO)) for p in sources() if in_ros_layer(p)]
-    mypy = [sys.executable, '-m', 'mypy', '--cache-dir', '/dev/null']
-    return {name: subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE,
-                                   stderr=subprocess.STDOUT, text=True)
-            for name, cmd in (('library', [*mypy, *library]), ('ros', [*mypy, *ros]))}
+    return {name: subprocess.Popen([sys.executable, '-m', 'mypy', '--cache-dir',
+                                    str(REPO / '.test-tmp' / 'mypy_cache' / name), *files],
+                                   cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                   text=True)
+            for name, files in (('library', library), ('ros', ros))}
 
 
 def test_the_mypy_configuration_is_strict_on_the_library() -> None:
