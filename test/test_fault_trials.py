@@ -13,13 +13,18 @@ from dataclasses import replace
 import pytest
 from fault_expectations import IN_PROCESS, LIVE_ONLY
 
+from positioning_cell import names
 from positioning_cell.procedures.fault_port import Unsupported
 from positioning_cell.procedures.fault_trials import (
     ATTEMPTS,
     FAULTS,
     DrivesOff,
+    LandedLateError,
     fault,
+    ready,
     run_trial,
+    silence_stop,
+    start_move,
 )
 from positioning_cell.testing.instant_faults import InstantFaultPort
 
@@ -60,3 +65,24 @@ def test_a_move_that_never_starts_is_named_not_waited_for(port: InstantFaultPort
     assert trial.problems[0].startswith('the move ended before any axis moved: '), trial
     assert 'drives disabled' in trial.problems[0], trial
     assert trial.problems[0].endswith(f'in all {ATTEMPTS} attempts'), trial
+
+
+def test_a_kill_after_the_move_ended_is_a_late_landing_not_a_wait(
+        port: InstantFaultPort) -> None:
+    """The commander killed once its move had ended (what a loaded machine can make of the
+    trial's kill): the drives had nothing to stop, so the trial says it landed late (and
+    run_trial tries again) instead of waiting 11 s for a stop that cannot come (the CI
+    failure of 2026-12-03)."""
+    killed = fault('positioner killed')
+    ready(port, killed.mode)
+    move = start_move(port)
+    move.thread.join(timeout=30.0)
+    assert move.outcome and move.outcome[0].success, move.outcome
+    at = port.monotonic()
+    port.kill(names.NODE_POSITIONER)
+    try:
+        with pytest.raises(LandedLateError, match='nothing to stop'):
+            silence_stop(port, at, killed.bound_s)
+    finally:
+        killed.restore(port)
+

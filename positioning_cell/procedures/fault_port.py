@@ -68,6 +68,11 @@ class FaultPort(CellPort, Protocol):
         """The positioner's settings as configured at start (mechanism, tolerances, liveness,
         standstill)."""
 
+    @property
+    def heartbeat_timeout(self) -> float:
+        """The leg driver's ``command.heartbeat_timeout`` as configured at start (s): how long
+        it follows a trajectory after its commander's last heartbeat."""
+
     def monotonic(self) -> float:
         """The monotonic clock (s) the port stamps what it receives with."""
 

@@ -284,13 +284,13 @@ def within_limits(port: FaultPort, since: float) -> bool:
 
 
 # -- trials -----------------------------------------------------------------------------------
-class _LandedLateError(Exception):
+class LandedLateError(Exception):
     """The injection returned only after the motion had ended: the move rightly succeeded,
     and the trial did not test the fault mid-move (on a loaded machine a parameter call can
     take longer than the rest of the move)."""
 
 
-class _NeverMovedError(_LandedLateError):
+class _NeverMovedError(LandedLateError):
     """The trial's move ended before any axis moved (refused: a liveness rule on the wall
     clock, such as the tracker's silence in ``measured`` mode, can trip on a loaded machine
     between the trial's readiness check and the move): no fault was tested."""
@@ -319,7 +319,7 @@ def run_trial(port: FaultPort, fault: Fault) -> Trial:
         try:
             TRIALS[fault.kind](port, fault, trial)
             fault.after(port, trial)
-        except _LandedLateError as late:
+        except LandedLateError as late:
             if attempt < ATTEMPTS:
                 continue
             trial.problems.append(f'{late} in all {ATTEMPTS} attempts')
@@ -392,7 +392,7 @@ def _move_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
     success = trial.code == ResultCode.SUCCESS.value
     if (fault.mid_move and success and ResultCode.SUCCESS.value not in fault.codes
             and not _moving_rows(port.true_states(injection_done - 0.02).velocities[:3]).any()):
-        raise _LandedLateError(f'the injection took {trial.inject_s:.2f} s and ended after the '
+        raise LandedLateError(f'the injection took {trial.inject_s:.2f} s and ended after the '
                                'motion')
     judge(trial, fault)
     if success and fault.mode == 'measured':
@@ -529,11 +529,33 @@ def _commander_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
     _wait_for_motion(port, move)
     injected = port.monotonic()
     inject(port, fault.inject)
-    report = wait_until(lambda: port.status_after(names.STATUS_DRIVER, injected, 'silent'),
-                        fault.bound_s + 10.0, 'the driver to stop the axes')
+    report = silence_stop(port, injected, fault.bound_s)
     received = _take(trial, report._replace(code='commander_silent'), injected)
     judge(trial, fault)
     _judge_stop(port, trial, injected, received)
+
+
+def silence_stop(port: FaultPort, killed: float, bound_s: float) -> Report:
+    """The leg driver's status saying it stopped the axes because its commander, killed at
+    ``killed`` (port clock, s), fell silent. LandedLateError when the axes came to rest
+    without it within the driver's heartbeat timeout of the kill and no such status came in
+    ``bound_s`` s after: the move ended before the silence counted, so the drives rightly
+    finished it (on a loaded machine the kill can land at the very end of the move).
+    TimeoutError when neither comes (e.g. the drives finished a longer move unsupervised)."""
+    def seen() -> Report | None:
+        report = port.status_after(names.STATUS_DRIVER, killed, 'silent')
+        if report is not None:
+            return report
+        rest = rest_time(port, killed)
+        if (rest is not None and rest <= killed + port.heartbeat_timeout
+                and port.monotonic() > rest + bound_s):
+            raise LandedLateError(f'the axes were at rest {rest - killed:.2f} s after the '
+                                   'kill, within the driver\'s heartbeat timeout '
+                                   f'({port.heartbeat_timeout:g} s): nothing to stop')
+        return None
+
+    found: Report = wait_until(seen, bound_s + 10.0, 'the driver to stop the axes')
+    return found
 
 
 def _flood_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:

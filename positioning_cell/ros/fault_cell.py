@@ -57,6 +57,7 @@ from positioning_cell.ros.messages import (
 from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.processes import Processes, cell_environment
 from positioning_cell.ros.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.sim.drives import DriverSettings
 
 #: What is kept of each stream (receipt time first).
 KEPT_STATUSES, KEPT_TRUTH, KEPT_POSES = 5000, 20_000, 5000
@@ -80,6 +81,8 @@ class FaultCell(RosCellPort):
         params = load_parameter_file(self.config)
         self._settings = parse(PositionerSettings,
                                node_parameters(params, names.NODE_POSITIONER))
+        self._heartbeat_timeout = parse(DriverSettings, node_parameters(
+            params, names.NODE_DRIVER)).command.heartbeat_timeout
         self._stack = contextlib.ExitStack()
         self.domain = self._stack.enter_context(free_domain())
         self.procs = self._stack.enter_context(
@@ -152,6 +155,10 @@ class FaultCell(RosCellPort):
     @property
     def positioner_settings(self) -> PositionerSettings:
         return self._settings
+
+    @property
+    def heartbeat_timeout(self) -> float:
+        return self._heartbeat_timeout
 
     def monotonic(self) -> float:
         return time.monotonic()

@@ -262,6 +262,10 @@ class InstantFaultPort(InstantPort):
     def positioner_settings(self) -> PositionerSettings:
         return self._configured
 
+    @property
+    def heartbeat_timeout(self) -> float:
+        return self._driver_settings.command.heartbeat_timeout
+
     def monotonic(self) -> float:
         return time.monotonic()
 
