@@ -14,6 +14,7 @@ import pytest
 from fault_expectations import IN_PROCESS, LIVE_ONLY
 
 from positioning_cell import names
+from positioning_cell.polling import wait_until
 from positioning_cell.procedures.fault_port import Unsupported
 from positioning_cell.procedures.fault_trials import (
     ATTEMPTS,
@@ -21,6 +22,7 @@ from positioning_cell.procedures.fault_trials import (
     DrivesOff,
     LandedLateError,
     fault,
+    moving,
     ready,
     run_trial,
     silence_stop,
@@ -65,6 +67,18 @@ def test_a_move_that_never_starts_is_named_not_waited_for(port: InstantFaultPort
     assert trial.problems[0].startswith('the move ended before any axis moved: '), trial
     assert 'drives disabled' in trial.problems[0], trial
     assert trial.problems[0].endswith(f'in all {ATTEMPTS} attempts'), trial
+
+
+def test_a_trial_begins_with_the_axes_at_rest(port: InstantFaultPort) -> None:
+    """After the driver-killed trial the restarted driver is homed, and homing can end with an
+    axis still settling (a second U angle at 1e-5 rad/s). The next trial took that for the
+    motion of its own move, although the drives refused it (the CI failure of 2026-12-03):
+    ready returns only with every axis at rest."""
+    run_trial(port, fault('driver killed'))
+    ready(port, 'none')
+    returned = port.monotonic() - 0.1
+    wait_until(lambda: len(port.true_states(returned).times) >= 10, 10.0, 'true joint states')
+    assert not moving(port, returned)
 
 
 def test_a_kill_after_the_move_ended_is_a_late_landing_not_a_wait(

@@ -188,7 +188,7 @@ def goal(port: FaultPort, k: int) -> tuple[FloatArray, FloatArray]:
 
 def ready(port: FaultPort, mode: str) -> None:
     """No fault injected, drives enabled, compensation ``mode``, referenced and homed when
-    not, and the positioner accepting both trial goals."""
+    not, the positioner accepting both trial goals, and the axes at rest."""
     for node, name, value in CLEARED:
         port.set_parameter(node, name, value)
     port.enable_drives(True)
@@ -196,6 +196,10 @@ def ready(port: FaultPort, mode: str) -> None:
     for k in (0, 1):
         wait_until(partial(_accepts, port, *goal(port, k)), 60.0,
                    'the positioner to accept the trial goals')
+    # homing (after a restarted driver) can end with an axis still settling: motion seen in
+    # the trial must be the trial's own
+    settling = port.monotonic()
+    wait_until(lambda: at_rest(port, settling), 30.0, 'the axes to come to rest')
 
 
 def _accepts(port: FaultPort, position: FloatArray, quaternion: FloatArray) -> bool:
@@ -255,6 +259,16 @@ def _moving_rows(velocities: FloatArray) -> np.ndarray:
 def moving(port: FaultPort, since: float) -> bool:
     """One of the last 20 true joint states received after ``since`` shows an axis moving."""
     return bool(_moving_rows(port.true_states(since).velocities[-20:]).any())
+
+
+def at_rest(port: FaultPort, since: float) -> bool:
+    """Every axis at rest in the true joint states of the last REST_WINDOW s, those received
+    after ``since`` spanning at least that window."""
+    states = port.true_states(since)
+    if not len(states.times) or states.times[-1] - states.times[0] < REST_WINDOW:
+        return False
+    recent = states.times >= states.times[-1] - REST_WINDOW
+    return not _moving_rows(states.velocities[recent]).any()
 
 
 def rest_time(port: FaultPort, since: float) -> float | None:
