@@ -220,9 +220,14 @@ def _both_runs(lengths: np.ndarray, thetas: np.ndarray, start: np.ndarray
 
 
 def _assert_same(kernel: tuple[np.ndarray, ...], source: tuple[np.ndarray, ...]) -> None:
-    np.testing.assert_array_equal(source[3], kernel[3])
+    """The same convergence; the same solution to round-off where it converged. A pose that
+    did not converge has no solution to compare: its last Newton iterate after 40 steps
+    amplifies round-off (5e-9 rad once its inputs moved by 1e-16)."""
+    converged = kernel[3]
+    np.testing.assert_array_equal(source[3], converged)
     for got, want in zip(source[:3], kernel[:3], strict=True):  # m, rad: round-off only
-        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12, equal_nan=True)
+        np.testing.assert_allclose(got[converged], want[converged], rtol=0, atol=1e-12,
+                                   equal_nan=True)
 
 
 def test_uncompiled_forward_is_the_kernel_pose_by_pose() -> None:
