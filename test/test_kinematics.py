@@ -9,11 +9,13 @@ import sys
 import numpy as np
 import pytest
 from hypothesis import assume, given
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from workspace import MECH, poses, random_poses
 
 from positioning_cell.core import kinematics
 from positioning_cell.core.limits import check_poses
+from positioning_cell.core.poses import matrix_from_quaternion
 from positioning_cell.errors import InputError
 from positioning_cell.testing.reference_kinematics import reference_forward
 
@@ -32,6 +34,17 @@ def test_ik_fk_round_trip_property(pose: tuple[np.ndarray, np.ndarray]) -> None:
     assert np.abs(fk.position[0] - p).max() <= 1e-12
     assert rotation_error(fk.quaternion, q).max() <= 1e-12
     np.testing.assert_allclose(fk.phis, joints.phis, atol=1e-10)
+
+
+@given(st.lists(st.tuples(*[st.floats(-2.0, 2.0)] * 4)
+                .filter(lambda v: float(np.linalg.norm(v)) > 0.05), min_size=1, max_size=8))
+def test_rotation_matrices_are_scipys(quaternions: list[tuple[float, ...]]) -> None:
+    """core.poses' numpy quaternion -> matrix (every node's build uses it instead of scipy,
+    issue 24) against scipy's, for any quaternion, normalised as scipy normalises it."""
+    q = np.array(quaternions)
+    expected = Rotation.from_quat(q).as_matrix()
+    np.testing.assert_allclose(matrix_from_quaternion(q), expected, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(matrix_from_quaternion(q[0]), expected[0], rtol=0, atol=1e-14)
 
 
 def test_ik_fk_round_trip_batch() -> None:

@@ -1,10 +1,10 @@
 """numba (~125 MB of a process) is loaded by no node: importing any node's module or building
 the node leaves it out, and forward kinematics (the one kernel a node would need) then runs as
 the kernel's Python source, uncompiled (positioning_cell.core.kinematics.forward), even once
-the process is sealed
-(positioning_cell.core.compiled.seal, by the nodes' runner before they spin), where a kernel
-that was not warmed raises instead of pausing the executor for numba's import or a compile
-(issue 24; the 0.2 s joint-silence watch).
+the process is sealed (positioning_cell.core.compiled.seal, by the nodes' runner before they
+spin), where a kernel that was not warmed raises instead of pausing the executor for numba's
+import or a compile (issue 24; the 0.2 s joint-silence watch). scipy likewise: no node's
+module imports it, and only the nodes of SCIPY_AT_BUILD load it as they are built.
 
 Each check runs in a fresh interpreter: sys.modules and the seal are per process."""
 
@@ -30,6 +30,10 @@ pytestmark = pytest.mark.slow
 #: pose from the encoders, the driver's efforts, the simulated tracker's truth and the
 #: calibrator's machine model, runs uncompiled there, one pose at a time).
 KERNEL_NODES: set[str] = set()
+#: The nodes whose build needs scipy (its import is ~0.2-0.4 s of a node's start, issue 24):
+#: the simulated tracker locates itself (a matrix to quaternion), the positioner derives its
+#: factory box (Euler angles). Every node's module imports without it.
+SCIPY_AT_BUILD = {'pose_measurement_node', 'kinematics_node'}
 #: Node executable -> the library modules its work needs besides its own module's imports
 #: (the bag player cannot be built without a bag: its module and its playback are imported).
 LIBRARY = {'bag_player_node': ('positioning_cell.bag.playback',)}
@@ -44,7 +48,7 @@ module_name, params, extra = sys.argv[1], sys.argv[2:4], sys.argv[4:]
 module = importlib.import_module(module_name)
 for name in extra:
     importlib.import_module(name)
-report = {'imported': 'numba' in sys.modules}
+report = {'imported': 'numba' in sys.modules, 'scipy_imported': 'scipy' in sys.modules}
 rclpy.init(args=['--ros-args', '--params-file', params[0], '--params-file', params[1]])
 node_class = next(v for v in vars(module).values() if isinstance(v, type)
                   and issubclass(v, Node) and v.__module__ == module.__name__)
@@ -54,6 +58,7 @@ try:
 except PositioningError as err:
     report['built'] = str(err)
 report['after_build'] = 'numba' in sys.modules
+report['scipy_after_build'] = 'scipy' in sys.modules
 compiled.seal()
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import Mechanism
@@ -89,7 +94,7 @@ def _build(executable: str, tmp_path: Path) -> dict[str, object]:
 
 @pytest.mark.nodes
 @pytest.mark.parametrize('executable', [n.executable for n in names.NODE_EXECUTABLES])
-def test_no_node_loads_numba_and_forward_kinematics_runs_sealed(
+def test_no_node_loads_numba_or_scipy_and_forward_kinematics_runs_sealed(
         executable: str, tmp_path: Path) -> None:
     report = _build(executable, tmp_path)
     assert report['imported'] is False, 'importing the node module loaded numba'
@@ -97,6 +102,9 @@ def test_no_node_loads_numba_and_forward_kinematics_runs_sealed(
         assert report['built'] != True  # noqa: E712 (no bag given: it refuses to start)
     else:
         assert report['built'] is True, report['built']
+    assert report['scipy_imported'] is False, 'importing the node module loaded scipy'
+    if executable not in SCIPY_AT_BUILD:
+        assert report['scipy_after_build'] is False, 'building the node loaded scipy'
     kernels = executable in KERNEL_NODES
     assert report['after_build'] is kernels
     # After the seal forward kinematics runs, uncompiled, without loading numba.

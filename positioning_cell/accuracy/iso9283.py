@@ -10,7 +10,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.core.poses import (
     EULER_SEQUENCE,
@@ -19,6 +18,7 @@ from positioning_cell.core.poses import (
     as_pose_batch,
     as_unit_quaternions,
     quad,
+    scipy_rotation,
     triple,
 )
 from positioning_cell.errors import InputError
@@ -32,7 +32,7 @@ def orientation_angles(quaternion: ArrayLike) -> FloatArray:
     yaw about the fixed base axes x, y, z (R = Rz(c)·Ry(b)·Rx(a)); a, c in [−π, π],
     b in [−π/2, π/2]. Near b = ±π/2 (gimbal lock) a and c are not separable."""
     q = as_unit_quaternions(quaternion)
-    return np.asarray(Rotation.from_quat(q).as_euler(EULER_SEQUENCE))
+    return np.asarray(scipy_rotation().from_quat(q).as_euler(EULER_SEQUENCE))
 
 def wrap_angle(angle: ArrayLike) -> FloatArray:
     """Angles wrapped into [−π, π) rad."""

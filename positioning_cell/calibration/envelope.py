@@ -14,12 +14,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.spatial
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import as_pose_batch
+from positioning_cell.core.poses import as_pose_batch, scipy_rotation
 from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -33,14 +31,16 @@ ROTATION_MARGIN = 1e-3
 
 def rotation_from_home(mech: Mechanism, quaternion: ArrayLike) -> FloatArray:
     """The angle (N,) rad of each orientation (N, 4) from the home orientation."""
-    rot = Rotation.from_quat(np.atleast_2d(np.asarray(quaternion, dtype=float)))
-    angle: FloatArray = (rot * Rotation.from_quat(mech.home_quaternion).inv()).magnitude()
+    rot = scipy_rotation().from_quat(np.atleast_2d(np.asarray(quaternion, dtype=float)))
+    angle: FloatArray = (rot * scipy_rotation().from_quat(mech.home_quaternion).inv()).magnitude()
     return angle
 
 
 def _hull(points: FloatArray) -> FloatArray:
     """The vertices of the convex hull of points (N, 3) m; their bounding box's corners when
     they span no volume (fewer than 4 poses, or all in a plane)."""
+    import scipy.spatial  # here: ~0.2 s of the positioner's start, which builds no hull
+
     try:
         hull = scipy.spatial.ConvexHull(points)
         out: FloatArray = points[hull.vertices]
@@ -85,6 +85,8 @@ class Envelope:
                     out[k].append(f'temperature {t[k]:.1f} degC outside the calibrated '
                                   f'{self.temperature[0]:.1f} to {self.temperature[1]:.1f} '
                                   'degC')
+        import scipy.spatial  # here, as in _hull
+
         hull = scipy.spatial.ConvexHull(self.hull) if _spans_volume(self.hull) else None
         if hull is not None:
             distance = (p @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)

@@ -42,7 +42,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.calibration import adequacy as adq
@@ -343,6 +342,8 @@ class Identifiability(NamedTuple):
 def identifiability(scaled_jacobian: FloatArray, min_information: float) -> Identifiability:
     """Identifiable parameters of a whitened Jacobian (M, COUNT) in units of the parameters'
     expected sizes (module docstring)."""
+    import scipy.linalg  # here: only calibrations ask, the positioner's start does not
+
     _, r, piv = scipy.linalg.qr(scaled_jacobian, mode='economic', pivoting=True)
     diag = np.abs(np.diag(r))
     top = diag[0] if diag.size else 0.0

@@ -30,7 +30,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration.identify import information_rows
@@ -42,7 +41,7 @@ from positioning_cell.calibration.program_settings import (
 from positioning_cell.config import config_path, load_parameter_file
 from positioning_cell.core.limits import within_limits
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import Triple
+from positioning_cell.core.poses import Triple, scipy_rotation
 from positioning_cell.errors import ConfigError
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.moves.trajectory import MotionLimits, plan_profile
@@ -115,7 +114,7 @@ def production_grid(mech: Mechanism, production: ProductionSettings
     rotvecs = [np.zeros(3)]
     if production.tilt > 0.0:
         rotvecs += [sign * production.tilt * axis for axis in np.eye(3)[:2] for sign in (1, -1)]
-    quats = Rotation.from_rotvec(np.asarray(rotvecs)).as_quat()
+    quats = scipy_rotation().from_rotvec(np.asarray(rotvecs)).as_quat()
     p = np.repeat(grid, len(quats), axis=0)
     q = np.tile(quats, (grid.shape[0], 1))
     ok = within_limits(mech, p, q)
@@ -130,7 +129,7 @@ def candidates(mech: Mechanism, settings: ProgramSettings) -> tuple[FloatArray, 
     rng = np.random.default_rng(settings.seed)
     n = settings.candidates
     p = mech.home_position + rng.uniform(-1.0, 1.0, (n, 3)) * np.asarray(settings.position_span)
-    q = Rotation.from_rotvec(rng.uniform(-1.0, 1.0, (n, 3))
+    q = scipy_rotation().from_rotvec(rng.uniform(-1.0, 1.0, (n, 3))
                              * settings.rotation_span).as_quat()
     ok = within_limits(mech, p, q)
     return p[ok], q[ok]
@@ -233,7 +232,7 @@ def _gains(criterion: str, info: FloatArray, rows: FloatArray,
 def _separation(mech: Mechanism, p: FloatArray, q: FloatArray, p0: FloatArray,
                 q0: FloatArray) -> FloatArray:
     """|Δp| + R_B·angle (m) from one pose (3,), (4,) to poses (N, 3), (N, 4)."""
-    angle = (Rotation.from_quat(q) * Rotation.from_quat(q0).inv()).magnitude()
+    angle = (scipy_rotation().from_quat(q) * scipy_rotation().from_quat(q0).inv()).magnitude()
     out: FloatArray = np.linalg.norm(p - p0, axis=1) + mech.characteristic_length * angle
     return out
 
@@ -279,7 +278,7 @@ def duration(mech: Mechanism, p: FloatArray, q: FloatArray, limits: MotionLimits
     path_p = np.vstack([mech.home_position, p, mech.home_position])
     path_q = np.vstack([mech.home_quaternion, q, mech.home_quaternion])
     distance = np.linalg.norm(np.diff(path_p, axis=0), axis=1)
-    rot = Rotation.from_quat(path_q)
+    rot = scipy_rotation().from_quat(path_q)
     angle = (rot[1:] * rot[:-1].inv()).magnitude()
     moves = sum(plan_profile(float(d), float(a), limits)[2]
                 for d, a in zip(distance, angle, strict=True))

@@ -6,11 +6,15 @@ A pose is (p, q): position in the base frame (m) and unit quaternion x, y, z, w.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.errors import InputError
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation, Slerp
 
 FloatArray = NDArray[np.float64]
 #: Rotations as three angles about the fixed axes x, then y, then z: R = Rz·Ry·Rx (scipy's
@@ -21,6 +25,27 @@ Quad = tuple[float, float, float, float]
 
 #: Largest accepted | |q| − 1 |; within it the quaternion is normalised.
 QUATERNION_UNIT_TOLERANCE = 1e-6
+
+
+def scipy_rotation() -> type[Rotation]:
+    """scipy's :class:`~scipy.spatial.transform.Rotation`, imported at the first call, by
+    every module that rotates: importing scipy.spatial loads its k-d tree, qhull, distance and
+    sparse modules too, ~0.2 s of a node's 0.6-0.9 s start (issue 24), and the leg driver,
+    the monitor, the recorder, the bag player, the calibrator and the live view are built and
+    answer without one (test_numba_isolation)."""
+    from scipy.spatial.transform import Rotation
+
+    rotation_class: type[Rotation] = Rotation  # scipy is untyped here: Any
+    return rotation_class
+
+
+def scipy_slerp() -> type[Slerp]:
+    """scipy's :class:`~scipy.spatial.transform.Slerp`, imported at the first call (see
+    :func:`scipy_rotation`)."""
+    from scipy.spatial.transform import Slerp
+
+    slerp_class: type[Slerp] = Slerp
+    return slerp_class
 
 
 def as_number(value: object, name: str) -> float:
@@ -76,8 +101,26 @@ def as_pose_batch(position: ArrayLike, quaternion: ArrayLike) -> tuple[FloatArra
 
 
 def matrix_from_quaternion(quaternion: FloatArray) -> FloatArray:
-    """Rotation matrices (N, 3, 3) from unit quaternions (N, 4) x, y, z, w."""
-    return np.asarray(Rotation.from_quat(quaternion).as_matrix(), dtype=float)
+    """Rotation matrices (N, 3, 3) from quaternions (N, 4) x, y, z, w, normalised as scipy's
+    ``Rotation.from_quat(q).as_matrix()`` does (R = I + 2w[v]ₓ + 2[v]ₓ² over |q|², the
+    Euler-Rodrigues form). Elementwise numpy, not scipy: every node's build computes a pose
+    (the leg driver's and the positioner's inverse kinematics, the tracker's registration),
+    and scipy.spatial would cost each ~0.2 s of its start (issue 24); test_poses checks it
+    against scipy."""
+    q = np.asarray(quaternion, dtype=float)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1.0 - s * (y * y + z * z)
+    out[..., 0, 1] = s * (x * y - z * w)
+    out[..., 0, 2] = s * (x * z + y * w)
+    out[..., 1, 0] = s * (x * y + z * w)
+    out[..., 1, 1] = 1.0 - s * (x * x + z * z)
+    out[..., 1, 2] = s * (y * z - x * w)
+    out[..., 2, 0] = s * (x * z - y * w)
+    out[..., 2, 1] = s * (y * z + x * w)
+    out[..., 2, 2] = 1.0 - s * (x * x + y * y)
+    return out
 
 
 def quaternion_from_matrix(matrix: FloatArray, *, orthonormal: bool = False) -> FloatArray:
@@ -85,7 +128,7 @@ def quaternion_from_matrix(matrix: FloatArray, *, orthonormal: bool = False) -> 
 
     ``orthonormal=True`` skips scipy's re-orthonormalisation for matrices built orthonormal.
     """
-    rot = Rotation.from_matrix(matrix, assume_valid=orthonormal)
+    rot = scipy_rotation().from_matrix(matrix, assume_valid=orthonormal)
     return np.asarray(rot.as_quat(canonical=True))
 
 

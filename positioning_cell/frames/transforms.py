@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.core.poses import (
     EULER_SEQUENCE,
@@ -31,8 +31,12 @@ from positioning_cell.core.poses import (
     as_vectors,
     matrix_from_quaternion,
     quaternion_from_matrix,
+    scipy_rotation,
 )
 from positioning_cell.errors import InputError
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 #: Millimetres per metre: the translation of the human form.
 MM_PER_M = 1000.0
@@ -89,7 +93,7 @@ def pose6_from_pq(position: ArrayLike, quaternion: ArrayLike) -> FloatArray:
     q = _as_quaternions(quaternion, 'quaternion')
     if p.shape[:-1] != q.shape[:-1]:
         raise InputError(f'position {p.shape} and quaternion {q.shape} differ in batch shape')
-    angles = euler_angles(Rotation.from_quat(q.reshape(-1, 4))).reshape(p.shape)
+    angles = euler_angles(scipy_rotation().from_quat(q.reshape(-1, 4))).reshape(p.shape)
     return np.concatenate([p, angles], axis=-1)
 
 
@@ -97,7 +101,8 @@ def pq_from_pose6(pose6: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Positions (..., 3) m and unit quaternions (..., 4) x, y, z, w (w ≥ 0) of SI six numbers
     (..., 6): tx, ty, tz m and rx, ry, rz rad (R = Rz·Ry·Rx)."""
     v = _as_last(pose6, 6, 'pose6')
-    q = Rotation.from_euler(EULER_SEQUENCE, v.reshape(-1, 6)[:, 3:]).as_quat(canonical=True)
+    rotations = scipy_rotation().from_euler(EULER_SEQUENCE, v.reshape(-1, 6)[:, 3:])
+    q = rotations.as_quat(canonical=True)
     return v[..., :3].copy(), np.asarray(q, dtype=float).reshape(v.shape[:-1] + (4,))
 
 
@@ -175,7 +180,7 @@ class Transform:
         v = _as_last(pose6, 6, 'pose6')
         if v.shape != (6,):
             raise InputError(f'pose6: expected shape (6,), got {v.shape}')
-        return cls(v[:3], Rotation.from_euler(EULER_SEQUENCE, v[3:]).as_matrix())
+        return cls(v[:3], scipy_rotation().from_euler(EULER_SEQUENCE, v[3:]).as_matrix())
 
     @classmethod
     def from_human(cls, human: ArrayLike) -> Transform:
@@ -195,7 +200,7 @@ class Transform:
 
     def to_pose6(self) -> FloatArray:
         """SI six numbers (6,): tx, ty, tz m, rx, ry, rz rad (R = Rz·Ry·Rx)."""
-        return np.concatenate([self.p, euler_angles(Rotation.from_matrix(self.R))])
+        return np.concatenate([self.p, euler_angles(scipy_rotation().from_matrix(self.R))])
 
     def to_human(self) -> FloatArray:
         """Human six numbers (6,): Tx, Ty, Tz mm, Rx, Ry, Rz deg (R = Rz·Ry·Rx)."""
@@ -245,5 +250,5 @@ def compose_poses(left: Transform, position: ArrayLike, quaternion: ArrayLike,
 
 def distance(a: Transform, b: Transform) -> tuple[float, float]:
     """How far ``b`` is from ``a``: |p_b − p_a| m and the rotation angle of R_aᵀ·R_b rad."""
-    angle = Rotation.from_matrix(a.R.T @ b.R).magnitude()
+    angle = scipy_rotation().from_matrix(a.R.T @ b.R).magnitude()
     return float(np.linalg.norm(b.p - a.p)), float(angle)

@@ -23,11 +23,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import null_space
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.core.kinematics import inverse, leg_directions
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -102,6 +101,16 @@ def reciprocal_product(twists: ArrayLike, wrenches: ArrayLike) -> FloatArray:
     return product
 
 
+def _null_space(a: FloatArray) -> FloatArray:
+    """Orthonormal basis (columns) of the null space of ``a`` (scipy.linalg.null_space at
+    RANK_TOLERANCE). scipy.linalg is imported at the first call: ~0.15 s of the start of every
+    node that imports this module (through the clearance model) and never asks (issue 24)."""
+    from scipy.linalg import null_space
+
+    basis: FloatArray = null_space(a, rcond=RANK_TOLERANCE)
+    return basis
+
+
 def reciprocal_screws(screws: ArrayLike) -> FloatArray:
     """Basis (m, 6) of the screws reciprocal to every row of ``screws`` (k, 6) (seed 001
     eq. 2): orthonormal rows from scipy.linalg.null_space. For a limb's twist system these are
@@ -110,7 +119,7 @@ def reciprocal_screws(screws: ArrayLike) -> FloatArray:
     if s.size == 0:
         return np.eye(6)
     swapped = np.hstack([s[:, 3:], s[:, :3]])  # s ∘ w = swapped(s) · w
-    basis: FloatArray = null_space(swapped, rcond=RANK_TOLERANCE).T
+    basis: FloatArray = _null_space(swapped).T
     return basis
 
 
@@ -256,7 +265,7 @@ def mobility(limbs: Sequence[Limb]) -> Mobility:
     omega = free[:, :3]
     n_rot = rank(omega) if free.size else 0
     if free.size:
-        coeffs = null_space(omega.T, rcond=RANK_TOLERANCE).T
+        coeffs = _null_space(omega.T).T
         trans = coeffs @ free[:, 3:]
         trans = _orthonormal_rows(trans)
         rot_axes = _orthonormal_rows(omega)
@@ -363,7 +372,8 @@ class UpsUpp:
 
     def centre_rotation(self, alpha: float, beta: float) -> FloatArray:
         """Rotation (3, 3) of the U body (= platform): about base x by α, then body y by β."""
-        return np.asarray(Rotation.from_euler('XY', [alpha, beta]).as_matrix(), dtype=float)
+        rot = scipy_rotation().from_euler('XY', [alpha, beta])
+        return np.asarray(rot.as_matrix(), dtype=float)
 
     def pose(self, alpha: float = 0.0, beta: float = 0.0, slide_x: float = 0.0,
              slide_y: float = 0.0) -> tuple[FloatArray, FloatArray]:

@@ -10,9 +10,8 @@ from enum import Enum
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
-from positioning_cell.core.poses import as_pose_batch, pose_error
+from positioning_cell.core.poses import as_pose_batch, pose_error, scipy_rotation
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import averaged_covariance
 
@@ -30,7 +29,8 @@ def corrected_command(command_p: ArrayLike, command_q: ArrayLike, desired_p: Arr
     cp, cq = as_pose_batch(command_p, command_q)
     dp, dq = as_pose_batch(desired_p, desired_q)
     mp, mq = as_pose_batch(measured_p, measured_q)
-    rot = Rotation.from_quat(dq) * Rotation.from_quat(mq).inv() * Rotation.from_quat(cq)
+    quat = scipy_rotation().from_quat
+    rot = quat(dq) * quat(mq).inv() * quat(cq)
     return (cp + dp - mp)[0], np.asarray(rot.as_quat(canonical=True))[0]
 
 def deviation(measured_p: ArrayLike, measured_q: ArrayLike, desired_p: ArrayLike,
@@ -44,7 +44,7 @@ def deviation(measured_p: ArrayLike, measured_q: ArrayLike, desired_p: ArrayLike
 def mean_pose(positions: ArrayLike, quaternions: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Mean of k poses: arithmetic mean position (3,) m, chordal L2 mean rotation (4,)."""
     p, q = as_pose_batch(positions, quaternions)
-    return p.mean(axis=0), np.asarray(Rotation.from_quat(q).mean().as_quat(canonical=True))
+    return p.mean(axis=0), np.asarray(scipy_rotation().from_quat(q).mean().as_quat(canonical=True))
 
 
 def mean_reading(positions: ArrayLike, quaternions: ArrayLike, covariances: ArrayLike,
@@ -85,7 +85,8 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike, covariances: Arra
     if common is not None:
         return position, quaternion, averaged_covariance(mean_cov, common, k)
     if k > 1:
-        rotvec = (Rotation.from_quat(q) * Rotation.from_quat(quaternion).inv()).as_rotvec()
+        quat = scipy_rotation().from_quat
+        rotvec = (quat(q) * quat(quaternion).inv()).as_rotvec()
         scatter = np.concatenate([p.var(axis=0, ddof=1), rotvec.var(axis=0, ddof=1)])
     else:
         scatter = np.zeros(6)
@@ -159,7 +160,7 @@ def correction_offset(command_p: ArrayLike, command_q: ArrayLike, measured_p: Ar
     :func:`corrected_command` does)."""
     cp, cq = as_pose_batch(command_p, command_q)
     mp, mq = as_pose_batch(measured_p, measured_q)
-    turn = Rotation.from_quat(cq) * Rotation.from_quat(mq).inv()
+    turn = scipy_rotation().from_quat(cq) * scipy_rotation().from_quat(mq).inv()
     return np.concatenate([(cp - mp)[0], turn.as_rotvec()[0]])
 
 
@@ -169,7 +170,7 @@ def offset_command(goal_p: ArrayLike, goal_q: ArrayLike,
     (:func:`correction_offset`): p = p_goal + Δp, R = exp([θ]×)·R_goal (base frame)."""
     gp, gq = as_pose_batch(goal_p, goal_q)
     off = np.asarray(offset, dtype=float).reshape(6)
-    rot = Rotation.from_rotvec(off[3:]) * Rotation.from_quat(gq[0])
+    rot = scipy_rotation().from_rotvec(off[3:]) * scipy_rotation().from_quat(gq[0])
     return gp[0] + off[:3], np.asarray(rot.as_quat(canonical=True))
 
 

@@ -10,13 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation, Slerp
 
 from positioning_cell.clearance import ClearanceModel, compensate
 from positioning_cell.core.kinematics import _inverse_jacobian
 from positioning_cell.core.limits import LimitReport, check_poses
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import as_pose_batch
+from positioning_cell.core.poses import as_pose_batch, scipy_rotation, scipy_slerp
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.singularity import check_path
 from positioning_cell.parameters import check_fields, setting
@@ -132,7 +131,7 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
                                     np.reshape(goal_quaternion, (-1, 4))]))
     if p.shape[0] != 2:
         raise InputError('plan_move takes exactly one start and one goal pose')
-    rotations = Rotation.from_quat(q)
+    rotations = scipy_rotation().from_quat(q)
     delta_p = p[1] - p[0]
     rotvec = (rotations[0].inv() * rotations[1]).as_rotvec()
     distance, angle = float(np.linalg.norm(delta_p)), float(np.linalg.norm(rotvec))
@@ -145,7 +144,7 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
     else:
         s, sd = time_law(ta, peak, total, times)
     position = p[0] + s[:, None] * delta_p
-    quaternion = Slerp([0.0, 1.0], rotations)(s).as_quat()
+    quaternion = scipy_slerp()([0.0, 1.0], rotations)(s).as_quat()
     joints = compensate(mech, clearance, position, quaternion)
     # Platform twist: v = ṡ Δp; ω = ṡ · (R_start · rotvec) in the base frame.
     omega_axis = rotations[0].apply(rotvec)

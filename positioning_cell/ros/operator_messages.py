@@ -24,8 +24,8 @@ from positioning_cell_interfaces.msg import (
 from positioning_cell_interfaces.msg import (
     Speeds as SpeedsMsg,
 )
-from scipy.spatial.transform import Rotation
 
+from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.frames.systems import ABSOLUTE, RELATIVE_OBJECT, RELATIVE_USER
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.boxes import BoxLimits
@@ -59,7 +59,8 @@ def attained(result: MoveResult, goal: tuple[Any, Any]) -> tuple[Any, Any]:
     """The attained platform pose in base: the goal (p, q) ⊕ the result's error (Δp, and the
     rotation vector of R_goalᵀ·R_attained)."""
     p = np.asarray(goal[0]) + np.asarray(result.position_error)
-    q = (Rotation.from_quat(goal[1]) * Rotation.from_rotvec(result.orientation_error)).as_quat()
+    rot = scipy_rotation()
+    q = (rot.from_quat(goal[1]) * rot.from_rotvec(result.orientation_error)).as_quat()
     return p, q
 
 

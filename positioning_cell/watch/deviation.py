@@ -21,11 +21,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.accuracy.verdicts import Tolerances, Verdict, judge
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import FloatArray, as_pose_batch
+from positioning_cell.core.poses import FloatArray, as_pose_batch, scipy_rotation
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import USER_FRAME, CoordinateSystems
 from positioning_cell.frames.transforms import Transform, euler_angles
@@ -153,11 +152,11 @@ def deviation(commanded: tuple[FloatArray, FloatArray], measured: tuple[FloatArr
     p_base = np.stack([np.asarray(commanded[0], float), np.asarray(measured[0], float)])
     q_base = np.stack([np.asarray(commanded[1], float), np.asarray(measured[1], float)])
     p, q = watched_poses(p_base, q_base, frame, systems, mech)
-    rot = Rotation.from_quat(q)
+    rot = scipy_rotation().from_quat(q)
     dp = p[1] - p[0]
     dtheta = np.asarray((rot[1] * rot[0].inv()).as_rotvec(), dtype=float)
     t_object = np.array(systems.object.p)  # scipy takes no read-only array
-    r_object = (Rotation.from_quat(q_base[1]).apply(t_object) if frame == USER_FRAME
+    r_object = (scipy_rotation().from_quat(q_base[1]).apply(t_object) if frame == USER_FRAME
                 else np.zeros(3))
     jac = _frame_jacobian(frame, r_object, systems)
     cov_frame = jac @ cov @ jac.T
