@@ -18,6 +18,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+# Every analysis rotates (each visit's error), tests and fits: the scipy modules it needs are
+# imported with it, not at its first visit (the nodes defer them: core.poses.scipy_rotation),
+# so that an analysis's time is its own and the plot workers forked from it inherit them.
+import scipy.linalg
+import scipy.spatial.transform
+import scipy.special  # noqa: F401
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy

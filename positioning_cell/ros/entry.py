@@ -3,8 +3,8 @@ closed) stop a node cleanly (exit 0, no traceback) from the first instant, not o
 rclpy is up.
 
 A node's module imports rclpy and numpy (scipy and numba only as its work needs them): a
-quarter to half a second in which Python's default handlers would turn SIGINT into a ``KeyboardInterrupt`` traceback and
-SIGTERM into a kill. This
+quarter to half a second in which Python's default handlers would turn SIGINT into a
+``KeyboardInterrupt`` traceback and SIGTERM into a kill. This
 module is imported first (standard library only) and installs handlers that end the process at
 once with exit 0: nothing is open yet (no rclpy context, no file), and an exception raised inside
 an import would surface as a C extension's ImportError, so none is raised. Just before
