@@ -130,7 +130,7 @@ def candidates(mech: Mechanism, settings: ProgramSettings) -> tuple[FloatArray, 
     n = settings.candidates
     p = mech.home_position + rng.uniform(-1.0, 1.0, (n, 3)) * np.asarray(settings.position_span)
     q = scipy_rotation().from_rotvec(rng.uniform(-1.0, 1.0, (n, 3))
-                             * settings.rotation_span).as_quat()
+                                     * settings.rotation_span).as_quat()
     ok = within_limits(mech, p, q)
     return p[ok], q[ok]
 

@@ -30,9 +30,9 @@ QUATERNION_UNIT_TOLERANCE = 1e-6
 def scipy_rotation() -> type[Rotation]:
     """scipy's :class:`~scipy.spatial.transform.Rotation`, imported at the first call, by
     every module that rotates: importing scipy.spatial loads its k-d tree, qhull, distance and
-    sparse modules too, ~0.2 s of a node's 0.6-0.9 s start (issue 24), and the leg driver,
-    the monitor, the recorder, the bag player, the calibrator and the live view are built and
-    answer without one (test_numba_isolation)."""
+    sparse modules too, ~0.2 s of a node's 0.6-0.9 s start (issue 24), which the recorder and
+    the bag player never need; the other nodes import it once built, before they spin, so
+    that no callback pauses for it (positioning_cell.ros.spin.SCIPY_MODULES)."""
     from scipy.spatial.transform import Rotation
 
     rotation_class: type[Rotation] = Rotation  # scipy is untyped here: Any

@@ -114,7 +114,7 @@ class BagPlayerNode(Node):
 
 
 #: The entry point: play until the end of the bag (or Ctrl-C / SIGTERM when looping).
-main = NodeStart(BagPlayerNode)
+main = NodeStart(BagPlayerNode, imports=())
 
 
 if __name__ == '__main__':

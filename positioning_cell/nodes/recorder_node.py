@@ -192,7 +192,7 @@ class RecorderNode(Node):
 #: The entry point: record until SIGINT / SIGTERM, then close the bag: exit 0; 2: the bag
 #: could not be created; :data:`EXIT_WRITE_FAILED`: writing failed (the bag was closed
 #: with what it had).
-main = NodeStart(RecorderNode)
+main = NodeStart(RecorderNode, imports=())
 
 
 if __name__ == '__main__':

@@ -4,6 +4,7 @@ exit on SIGINT and SIGTERM."""
 from __future__ import annotations
 
 import gc
+import importlib
 import sys
 import threading
 from collections.abc import Callable, Sequence
@@ -52,17 +53,27 @@ class Spin(Enum):
     THREADS = 'threads'
 
 
+#: The scipy modules the library imports at their first use (core.poses.scipy_rotation, the
+#: calibration's tests and fits, the screw null space): a node whose work may use them imports
+#: them before it spins, since an import in a callback pauses the executor for 0.2 s or more
+#: (the positioner's 0.2 s joint-silence watch; 1.0 s was seen in CI on a loaded machine).
+SCIPY_MODULES = ('scipy.linalg', 'scipy.spatial.transform', 'scipy.special')
+
+
 @dataclass(frozen=True)
 class NodeStart:
     """How one of the cell's nodes starts, and its entry point: what builds it (called with no
     arguments, in the initialised default context: the node reads its parameters from the
     process's ``--ros-args``), the executor it needs, and that executor's threads (THREADS
     only). Each node module's ``main`` is one: called, it runs the node alone (:func:`run`);
-    ``cell_container`` runs several together (:func:`run_together`)."""
+    ``cell_container`` runs several together (:func:`run_together`). ``imports``: the modules
+    its work imports at their first use, imported once it is built, before it spins (the
+    recorder and the bag player never rotate: none, and they answer ~0.2 s sooner)."""
 
     factory: Callable[[], Node]
     spin: Spin = Spin.EVENTS
     threads: int = 1
+    imports: tuple[str, ...] = SCIPY_MODULES
 
     def __call__(self, args: Sequence[str] | None = None) -> int:
         """Run the node alone (:func:`run`): the exit status."""
@@ -170,8 +181,11 @@ def _spin(starts: Sequence[NodeStart]) -> int:
             if stop_requested():
                 return 0
             nodes.append(start.factory())
-        # All built, their kernels warmed: none is imported or compiled from here on (a pause
-        # of an executor), a cold one raises instead (positioning_cell.core.compiled).
+        for module in dict.fromkeys(m for start in starts for m in start.imports):
+            importlib.import_module(module)
+        # All built, their kernels warmed and their modules imported: none is imported or
+        # compiled from here on (a pause of an executor), a cold kernel raises instead
+        # (positioning_cell.core.compiled).
         compiled.seal()
         _settle_interpreter(len(nodes))
         for start, node in zip(starts, nodes, strict=True):
