@@ -21,7 +21,13 @@ from numpy.testing import assert_allclose
 
 from positioning_cell.accuracy import MonitorSettings
 from positioning_cell.analysis import analyse_bag
-from positioning_cell.analysis.plot_workers import COST_ORDER, PlotWorkers, can_fork, shares
+from positioning_cell.analysis.plot_workers import (
+    COST_ORDER,
+    WORKER_NICE,
+    PlotWorkers,
+    can_fork,
+    shares,
+)
 from positioning_cell.analysis.plots import plot_names, write_plots
 from positioning_cell.analysis.summary import RunAnalysis
 from positioning_cell.config import config_path
@@ -94,6 +100,16 @@ def test_with_another_thread_running_the_plots_are_drawn_here(analysis: RunAnaly
         other.join()
     assert drawn == planned
     _same_images(write_plots(analysis, tmp_path / 'here'), drawn)
+
+
+def test_a_worker_starts_at_the_lowest_priority_matplotlib_warm() -> None:
+    code = ('import os, sys; from positioning_cell.analysis.plot_workers import start_worker; '
+            'start_worker(); print(os.nice(0), "matplotlib" in sys.modules)')
+    done = subprocess.run([sys.executable, '-c', code], check=False, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == [str(WORKER_NICE), 'True']
+    assert WORKER_NICE == 19  # the lowest: a worker never takes a core from the analysis
 
 
 def test_paths_before_start_is_an_error() -> None:
