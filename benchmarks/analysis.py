@@ -39,6 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -70,13 +71,14 @@ def mcap_all_records(bag: Path) -> int:
     return count
 
 
-def rosbags_decoded(bag: Path) -> int:
-    """The analysed topics read and deserialised by rosbags (what analyze_bag did)."""
+def rosbags_decoded(bag: Path, topics: Collection[str] = ANALYSED_TOPICS) -> int:
+    """``topics`` (default: the replay's) read and deserialised by rosbags (what analyze_bag
+    did)."""
     from rosbags.highlevel import AnyReader
 
     count = 0
     with AnyReader([bag]) as reader:
-        conns = [c for c in reader.connections if c.topic in ANALYSED_TOPICS]
+        conns = [c for c in reader.connections if c.topic in topics]
         for conn, _, data in reader.messages(conns):
             reader.deserialize(data, conn.msgtype)
             count += 1

@@ -227,8 +227,10 @@ class RunAnalysis:
         }
 
 
-#: The topics the analysis reads.
+#: The topics the replay reads (the first pass over the bag).
 ANALYSED_TOPICS = (*REQUIRED_TOPICS, *OPTIONAL_TOPICS, *CONTEXT_TOPICS)
+#: Every topic the analysis reads: the replay's and the error budget's second pass.
+READ_TOPICS = tuple(dict.fromkeys((*ANALYSED_TOPICS, *BUDGET_TOPICS)))
 
 
 def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
