@@ -53,11 +53,13 @@ def analyze(bag: str | Path, out_dir: str | Path | None = None,
     # The analysis (numpy, scipy, matplotlib, the bag reader) loads here, not with the command
     # line: --help and a usage error answer at once.
     from positioning_cell.accuracy.monitor import MonitorSettings
+    from positioning_cell.analysis.heap import map_large_allocations
     from positioning_cell.analysis.plot_workers import PlotWorkers
     from positioning_cell.analysis.report import write_report
     from positioning_cell.analysis.summary import analyse_bag
     from positioning_cell.config import config_path
 
+    map_large_allocations()  # the batches' buffers freed back to the system (heap)
     bag = Path(bag)
     settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
     out = Path(out_dir) if out_dir is not None else default_out_dir(bag)
