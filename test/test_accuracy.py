@@ -484,6 +484,34 @@ def test_tracker_pairing_streams_equal_the_batch_rule(
             _same_statistics(stream.statistics(), batch)
 
 
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4))
+def test_tracker_sums_per_pair_of_labels_equal_the_batch_grouping(seed: int, size: int) -> None:
+    """The sums kept per (measurement's label, truth's label) (columns, joined every 64
+    pairings; issue 24) are those of grouping every pair of pair_by_stamp at once."""
+    rng = np.random.default_rng(seed)
+    n = 150
+    tt = np.arange(n) * 0.02
+    tm = tt + rng.uniform(-2e-4, 2e-4, n)
+    lm, lt = np.sort(rng.integers(0, 8, n)), np.sort(rng.integers(0, 8, n))
+    pt = HOME + rng.normal(0, 1e-3, (n, 3))
+    qt = Rotation.from_rotvec(rng.normal(0, 1e-2, (n, 3))).as_quat()
+    pm = pt + rng.normal(0, 10e-6, (n, 3))
+    qm = (Rotation.from_quat(qt) * Rotation.from_rotvec(rng.normal(0, 1e-5, (n, 3)))).as_quat()
+    stream = acc.TrackerErrorAccumulator(1e-3)
+    for i in range(0, n, size):
+        cut = slice(i, i + size)
+        stream.add_truth(tt[cut], pt[cut], qt[cut], lt[cut])
+        stream.add_measured(tm[cut], pm[cut], qm[cut], lm[cut])
+    ia, ib = acc.pair_by_stamp(tm, tt, 1e-3)
+    dp, rv = acc.measurement_error(pm[ia], qm[ia], pt[ib], qt[ib])
+    want = acc.ErrorSums.grouped(lm[ia], lt[ib], dp, rv)
+    got = stream.sums()
+    assert list(got) == sorted(want)
+    for key, sums in want.items():
+        _same_statistics(got[key].statistics(), sums.statistics())
+    _same_statistics(stream.statistics(), acc.error_statistics(dp, rv))
+
+
 # -- verdicts --------------------------------------------------------------------------------
 def test_verdicts_at_the_tolerance_boundary() -> None:
     tol = acc.Tolerances()

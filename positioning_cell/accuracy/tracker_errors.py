@@ -127,26 +127,9 @@ class ErrorSums:
     def grouped(label_m: IntArray, label_t: IntArray, position_error: FloatArray,
                 orientation_error: FloatArray) -> dict[tuple[int, int], ErrorSums]:
         """The sums of errors Δp (N, 3) m and rotation vectors (N, 3) rad per pair of labels
-        (N,), (N,): one sort and one reduction for all groups."""
-        if position_error.shape[0] == 0:
-            return {}
-        order = np.lexsort((label_t, label_m))
-        lm, lt = label_m[order], label_t[order]
-        starts = np.flatnonzero(np.r_[True, (lm[1:] != lm[:-1]) | (lt[1:] != lt[:-1])])
-        dp, rv = position_error[order], orientation_error[order]
-        d, a = row_norms(dp), row_norms(rv)
-        parts = np.column_stack([np.add.reduceat(dp, starts, axis=0),
-                                 np.add.reduceat(d * d, starts), np.add.reduceat(a * a, starts)])
-        max_d, max_a = np.maximum.reduceat(d, starts), np.maximum.reduceat(a, starts)
-        counts = np.diff(np.r_[starts, order.size])
-        out: dict[tuple[int, int], ErrorSums] = {}
-        for g, start in enumerate(starts.tolist()):  # over groups, not samples
-            sums = ErrorSums()
-            sums.count = int(counts[g])
-            sums._sum = parts[g].copy()
-            sums.max_position, sums.max_angle = float(max_d[g]), float(max_a[g])
-            out[int(lm[start]), int(lt[start])] = sums
-        return out
+        (N,), (N,): one sort and one reduction for all groups (:func:`grouped_rows`)."""
+        return sums_by_labels(*grouped_rows(label_m, label_t, position_error,
+                                            orientation_error))
 
     def merged(self, other: ErrorSums) -> ErrorSums:
         """These sums and ``other``'s together (a new object)."""
@@ -175,6 +158,82 @@ class ErrorSums:
                                max_position_error=self.max_position,
                                rms_orientation_error=float(np.sqrt(s[4])),
                                max_orientation_error=self.max_angle)
+
+
+#: The columns of a row of :func:`grouped_rows`: count, Σ Δx, Σ Δy, Σ Δz, Σ |Δp|², Σ angle²,
+#: max |Δp|, max angle.
+ROW_COLUMNS = 8
+
+
+def grouped_rows(label_m: IntArray, label_t: IntArray, position_error: FloatArray,
+                 orientation_error: FloatArray) -> tuple[IntArray, FloatArray]:
+    """The sums of errors Δp (N, 3) m and rotation vectors (N, 3) rad per pair of labels
+    (N,), (N,) as columns: the pairs (G, 2) and per pair the :data:`ROW_COLUMNS` figures
+    (G, 8), one sort and one reduction for all groups."""
+    if position_error.shape[0] == 0:
+        return np.empty((0, 2), dtype=np.intp), np.empty((0, ROW_COLUMNS))
+    order = np.lexsort((label_t, label_m))
+    lm, lt = label_m[order], label_t[order]
+    starts = np.flatnonzero(np.r_[True, (lm[1:] != lm[:-1]) | (lt[1:] != lt[:-1])])
+    dp, rv = position_error[order], orientation_error[order]
+    d, a = row_norms(dp), row_norms(rv)
+    rows = np.column_stack([np.diff(np.r_[starts, order.size]).astype(float),
+                            np.add.reduceat(dp, starts, axis=0),
+                            np.add.reduceat(d * d, starts), np.add.reduceat(a * a, starts),
+                            np.maximum.reduceat(d, starts), np.maximum.reduceat(a, starts)])
+    return np.column_stack([lm[starts], lt[starts]]).astype(np.intp), rows
+
+
+def sums_by_labels(labels: IntArray, rows: FloatArray) -> dict[tuple[int, int], ErrorSums]:
+    """Rows of :func:`grouped_rows` (several rows may share a pair of labels) as one
+    :class:`ErrorSums` per pair, in label order: each sum the correctly rounded sum of its
+    rows' (``math.fsum``), whatever their order."""
+    if labels.shape[0] == 0:
+        return {}
+    order = np.lexsort((labels[:, 1], labels[:, 0]))
+    labels, rows = labels[order], rows[order]
+    new = np.r_[True, (labels[1:] != labels[:-1]).any(axis=1)]
+    starts = np.flatnonzero(new)
+    ends = np.r_[starts[1:], labels.shape[0]]
+    max_d, max_a = np.maximum.reduceat(rows[:, 6], starts), np.maximum.reduceat(rows[:, 7],
+                                                                                starts)
+    out: dict[tuple[int, int], ErrorSums] = {}
+    for g, (start, end) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+        block = rows[start:end]  # over groups, not samples: one row per group and batch
+        sums = ErrorSums()
+        if end - start == 1:
+            sums.count, sums._sum = int(block[0, 0]), block[0, 1:6].copy()
+        else:
+            sums.count = round(math.fsum(block[:, 0]))
+            sums._sum = np.array([math.fsum(block[:, c]) for c in range(1, 6)])
+        sums.max_position, sums.max_angle = float(max_d[g]), float(max_a[g])
+        out[int(labels[start, 0]), int(labels[start, 1])] = sums
+    return out
+
+
+class _PairRows:
+    """The rows of :func:`grouped_rows` committed so far, in blocks of columns (two arrays a
+    block; every :data:`BLOCKS` blocks joined into one): ~80 bytes a row, a row per pair of
+    labels and pairing, instead of an :class:`ErrorSums` object per pair of labels (issue 24:
+    on a long run, one pair per segment or two)."""
+
+    BLOCKS = 64
+
+    def __init__(self) -> None:
+        self._labels: list[IntArray] = []
+        self._rows: list[FloatArray] = []
+
+    def add(self, labels: IntArray, rows: FloatArray) -> None:
+        if not labels.shape[0]:
+            return
+        self._labels.append(labels)
+        self._rows.append(rows)
+        if len(self._labels) >= self.BLOCKS:
+            self._labels, self._rows = [np.concatenate(self._labels)], [np.concatenate(self._rows)]
+
+    def with_rows(self, labels: IntArray, rows: FloatArray) -> tuple[IntArray, FloatArray]:
+        """Every committed row and ``labels``, ``rows`` after them."""
+        return (np.concatenate([*self._labels, labels]), np.concatenate([*self._rows, rows]))
 
 
 class _Series:
@@ -228,7 +287,7 @@ class TrackerErrorAccumulator:
         self._measured = _Series()
         self._truth = _Series()
         self._claimed = -1                      # truth index taken by the last pair
-        self._sums: dict[tuple[int, int], ErrorSums] = {}
+        self._sums = _PairRows()
 
     @property
     def last_measured(self) -> float:
@@ -278,13 +337,14 @@ class TrackerErrorAccumulator:
         left = np.clip(right - 1, 0, tb.size - 1)
         return np.where(np.abs(tb[left] - a) <= np.abs(tb[right] - a), left, right)
 
-    def _pair(self, *, final: bool) -> dict[tuple[int, int], ErrorSums]:
+    def _pair(self, *, final: bool) -> tuple[IntArray, FloatArray]:
         """Pair the waiting measurements: with ``final`` only those whose nearest truth is
         settled (committed to the sums, then forgotten); otherwise all of them, as if the
-        series ended now (returned, nothing committed)."""
+        series ended now (returned, nothing committed). The pairs' :func:`grouped_rows`."""
         m, tb = self._measured, self._truth.time
+        none = np.empty((0, 2), dtype=np.intp), np.empty((0, ROW_COLUMNS))
         if m.time.size == 0 or tb.size == 0:
-            return {}
+            return none
         n = int(np.searchsorted(m.time, tb[-1], side='right')) if final else m.time.size
         a = m.time[:n]
         near = self._nearest(a)
@@ -293,16 +353,15 @@ class TrackerErrorAccumulator:
         taken = near[rows] + self._truth.base
         first = taken != np.concatenate([[self._claimed], taken[:-1]])
         rows, near = rows[first], near[rows[first]]
-        out: dict[tuple[int, int], ErrorSums] = {}
+        out = none
         if rows.size:
             dp, rv = pose_error(m.position[rows], m.quaternion[rows], self._truth.position[near],
                                 self._truth.quaternion[near])
-            out = ErrorSums.grouped(m.label[rows], self._truth.label[near], dp, rv)
+            out = grouped_rows(m.label[rows], self._truth.label[near], dp, rv)
         if final:
             if rows.size:
                 self._claimed = int(near[-1]) + self._truth.base
-            for label, sums in out.items():
-                self._sums[label] = self._sums.get(label, ErrorSums()).merged(sums)
+            self._sums.add(*out)
             m.drop(n)
             # Keep the truths a later measurement may pair with: from the last one before the
             # earliest stamp still to come, and the last two (a measurement after every truth
@@ -315,10 +374,7 @@ class TrackerErrorAccumulator:
     def sums(self) -> dict[tuple[int, int], ErrorSums]:
         """Per (measurement's label, truth's label), the sums of every pair so far (waiting
         measurements paired as if the series ended now)."""
-        pending = self._pair(final=False)
-        return {k: ErrorSums.total(s for s in (self._sums.get(k), pending.get(k))
-                                   if s is not None)
-                for k in sorted(set(self._sums) | set(pending))}
+        return sums_by_labels(*self._sums.with_rows(*self._pair(final=False)))
 
     def statistics(self) -> ErrorStatistics | None:
         """Statistics over every pair so far, None without pairs."""
