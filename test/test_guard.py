@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from positioning_cell.core.mechanism import JOINT_NAMES
-from positioning_cell.moves.trajectory import fingerprint, time_law
+from positioning_cell.moves.fingerprint import fingerprint
+from positioning_cell.moves.trajectory import time_law
 from positioning_cell.parameters import parse
 from positioning_cell.sim.drives import DriverSettings, LegDriver
 from positioning_cell.sim.guard import Refusal

@@ -39,7 +39,8 @@ from positioning_cell.motion.mover import (
 from positioning_cell.motion.settings import COMPENSATION_MODE, GoalTolerance
 from positioning_cell.motion.standstill import StandstillSettings, StandstillWatch
 from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
-from positioning_cell.moves.trajectory import Trajectory, fingerprint
+from positioning_cell.moves.fingerprint import fingerprint
+from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.parameters import parse
 from positioning_cell.polling import wait_until
 

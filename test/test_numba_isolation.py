@@ -4,7 +4,8 @@ the kernel's Python source, uncompiled (positioning_cell.core.kinematics.forward
 the process is sealed (positioning_cell.core.compiled.seal, by the nodes' runner before they
 spin), where a kernel that was not warmed raises instead of pausing the executor for numba's
 import or a compile (issue 24; the 0.2 s joint-silence watch). scipy likewise: no node's
-module imports it, and only the nodes of SCIPY_AT_BUILD load it as they are built.
+module imports it, and only the nodes of SCIPY_AT_BUILD load it as they are built; only the
+nodes of PLANNER_NODES load the move planner.
 
 Each check runs in a fresh interpreter: sys.modules and the seal are per process."""
 
@@ -34,6 +35,11 @@ KERNEL_NODES: set[str] = set()
 #: the simulated tracker locates itself (a matrix to quaternion), the positioner derives its
 #: factory box (Euler angles). Every node's module imports without it.
 SCIPY_AT_BUILD = {'pose_measurement_node', 'kinematics_node'}
+#: The nodes that plan moves, and load the planner (positioning_cell.moves.trajectory, with
+#: the clearance model and the statics: ~0.1 s of a node's start, issue 24): the positioner,
+#: the calibrator, and the live view, which reads the operator's speed settings (limits.speed,
+#: on the planner's MotionLimits). The others only read or answer trajectories.
+PLANNER_NODES = {'kinematics_node', 'calibrator_node', 'live_view_node'}
 #: Node executable -> the library modules its work needs besides its own module's imports
 #: (the bag player cannot be built without a bag: its module and its playback are imported).
 LIBRARY = {'bag_player_node': ('positioning_cell.bag.playback',)}
@@ -59,6 +65,7 @@ except PositioningError as err:
     report['built'] = str(err)
 report['after_build'] = 'numba' in sys.modules
 report['scipy_after_build'] = 'scipy' in sys.modules
+report['planner_after_build'] = 'positioning_cell.moves.trajectory' in sys.modules
 compiled.seal()
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import Mechanism
@@ -105,6 +112,7 @@ def test_no_node_loads_numba_or_scipy_and_forward_kinematics_runs_sealed(
     assert report['scipy_imported'] is False, 'importing the node module loaded scipy'
     if executable not in SCIPY_AT_BUILD:
         assert report['scipy_after_build'] is False, 'building the node loaded scipy'
+    assert report['planner_after_build'] is (executable in PLANNER_NODES)
     kernels = executable in KERNEL_NODES
     assert report['after_build'] is kernels
     # After the seal forward kinematics runs, uncompiled, without loading numba.

@@ -27,7 +27,7 @@ from workspace import MECH
 from positioning_cell.core import kinematics
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.motion.settings import CALIBRATION_FILE, COMPENSATION_MODE
-from positioning_cell.moves.trajectory import fingerprint
+from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.ros.messages import pose_arrays, pose_stamped
 from positioning_cell.ros.qos import COMMAND_QOS, DIAGNOSTICS_QOS, STREAM_QOS

@@ -53,9 +53,10 @@ from positioning_cell.moves.correction import (
     unread_sigma,
     verdict,
 )
+from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.outcomes import MoveAbortedError, MoveResult, ResultCode, State
-from positioning_cell.moves.trajectory import MotionLimits, Trajectory, fingerprint, plan_move
+from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move
 from positioning_cell.names import (
     BASE_FRAME,
     DRIVER_ENABLE,

@@ -11,14 +11,16 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.metrology.instrument import Registration
 from positioning_cell.moves.outcomes import ResultCode, State
-from positioning_cell.moves.trajectory import Trajectory
+
+if TYPE_CHECKING:  # an annotation only: the planner stays out of the nodes that do not plan
+    from positioning_cell.moves.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
 

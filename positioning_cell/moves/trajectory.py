@@ -4,7 +4,6 @@ period, every sample checked against the mechanism's limits and the singularity 
 
 from __future__ import annotations
 
-import hashlib
 import math
 from dataclasses import dataclass
 
@@ -158,13 +157,3 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
                       rates[:, :3], rates[:, 3:], report)
 
 
-def fingerprint(times: ArrayLike, positions: ArrayLike) -> str:
-    """A short key of a joint trajectory: its point times (s, to the µs) and its last point's
-    positions (m, rad, to 1e-12), JOINT_NAMES order. The drives answer each trajectory with
-    its key, so the sender knows the answer is to what it sent (a trajectory that starts on
-    receipt has no stamp to key by)."""
-    with np.errstate(invalid='ignore'):  # NaN / inf (a malformed trajectory) key too
-        t_us = np.round(np.asarray(times, dtype=float) * 1e6).astype(np.int64)
-        final = np.round(np.asarray(positions, dtype=float)[-1] * 1e12).astype(np.int64)
-    digest = hashlib.sha1(t_us.tobytes() + final.tobytes(), usedforsecurity=False)
-    return digest.hexdigest()[:12]

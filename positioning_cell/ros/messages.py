@@ -7,7 +7,7 @@ import importlib
 import math
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
@@ -24,8 +24,10 @@ from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import Registration
 from positioning_cell.moves.machine import Answer, JointReading, Measurement
-from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.names import BASE_FRAME
+
+if TYPE_CHECKING:  # an annotation only: the planner stays out of the nodes that do not plan
+    from positioning_cell.moves.trajectory import Trajectory
 
 
 def pose_arrays(pose: Pose) -> tuple[np.ndarray, np.ndarray]:

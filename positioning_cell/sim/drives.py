@@ -20,7 +20,7 @@ from positioning_cell.core.kinematics import forward, inverse
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.statics import Payload, Structure, actuator_efforts
-from positioning_cell.moves.trajectory import fingerprint
+from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.names import JOINT_TRAJECTORY, NODE_POSITIONER
 from positioning_cell.parameters import ParameterError, check_fields, group, setting
 from positioning_cell.sim.encoders import EncoderReading, Encoders, EncoderSettings
@@ -150,7 +150,7 @@ class Step(NamedTuple):
 
 class Outcome(NamedTuple):
     """Whether a command was accepted, and the words for it; for a trajectory also its
-    :func:`~positioning_cell.moves.trajectory.fingerprint`, the refusal's code and the count of
+    :func:`~positioning_cell.moves.fingerprint.fingerprint`, the refusal's code and the count of
     trajectories received so far."""
 
     accepted: bool

@@ -20,8 +20,9 @@ from numpy.typing import NDArray
 from positioning_cell.core.kinematics import inverse
 from positioning_cell.metrology.instrument import Registration, Tracker
 from positioning_cell.metrology.targets import TargetLayout
+from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
-from positioning_cell.moves.trajectory import Trajectory, fingerprint
+from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
 from positioning_cell.sim.tracker import SimulatedTracker, observe
 from positioning_cell.sim.truth import Truth
