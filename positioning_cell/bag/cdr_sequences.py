@@ -311,44 +311,59 @@ _STAMP = struct.Struct('<iI')
 _LENGTH = struct.Struct('<I')
 
 
-def diagnostic_array(data: bytes) -> DiagnosticArray:
-    """A DiagnosticArray (little-endian CDR) read in one pass of struct reads: the fields of
-    rosbags' decoding, ~3 times faster (no per-field checks beyond the bounds and each
-    string's terminator). LayoutError for big-endian CDR or bytes that do not parse."""
-    if len(data) < 16 or tuple(data[:2]) != _LITTLE_ENDIAN:
-        raise LayoutError('not little-endian CDR')
+def _strings(data: bytes, pos: int, count: int, out: list[str]) -> int:
+    """``count`` consecutive CDR strings (little-endian) from byte ``pos`` appended to
+    ``out``; the byte after the last. One call reads a status's three strings or all its
+    keys and values (a call per string cost half the decoding)."""
     size = len(data)
-    pos = 12
-
-    def u32() -> int:
-        nonlocal pos
+    unpack = _LENGTH.unpack_from
+    for _ in range(count):
         pos = (pos + 3) & ~3  # 4-aligned relative to byte 4 = absolute (4 is aligned)
         if pos + 4 > size:
             raise LayoutError(f'a length at byte {pos} is past the end')
-        (value,) = _LENGTH.unpack_from(data, pos)
-        pos += 4
-        return int(value)
-
-    def string() -> str:
-        nonlocal pos
-        n = u32()
-        end = pos + n
+        (n,) = unpack(data, pos)
+        start = pos + 4
+        end = start + n
         if n < 1 or end > size or data[end - 1] != 0:
-            raise LayoutError(f'a string at byte {pos - 4} is not terminated')
+            raise LayoutError(f'a string at byte {pos} is not terminated')
+        out.append(data[start:end - 1].decode())
         pos = end
-        return data[end - n:end - 1].decode()
+    return pos
 
+
+def _length(data: bytes, pos: int) -> tuple[int, int]:
+    """A sequence length (uint32, 4-aligned) at byte ``pos``: the length and the next byte."""
+    pos = (pos + 3) & ~3
+    if pos + 4 > len(data):
+        raise LayoutError(f'a length at byte {pos} is past the end')
+    return int(_LENGTH.unpack_from(data, pos)[0]), pos + 4
+
+
+def diagnostic_array(data: bytes) -> DiagnosticArray:
+    """A DiagnosticArray (little-endian CDR) read in one pass of struct reads: the fields of
+    rosbags' decoding, twice as fast (no per-field checks beyond the bounds and each
+    string's terminator): 12 µs against rosbags' 26 µs for one of the cell's positioner
+    statuses (a string read per call took 25 µs). LayoutError for big-endian CDR or bytes
+    that do not parse."""
+    if len(data) < 16 or tuple(data[:2]) != _LITTLE_ENDIAN:
+        raise LayoutError('not little-endian CDR')
+    size = len(data)
     sec, nanosec = _STAMP.unpack_from(data, 4)
-    header = Header(Time(int(sec), int(nanosec)), string())
+    frame: list[str] = []
+    pos = _strings(data, 12, 1, frame)
+    count, pos = _length(data, pos)
     statuses = []
-    for _ in range(u32()):
+    for _ in range(count):
         if pos >= size:
             raise LayoutError(f'a status at byte {pos} is past the end')
         level = data[pos]
-        pos += 1
-        name, message, hardware_id = string(), string(), string()
-        values = tuple(KeyValue(string(), string()) for _ in range(u32()))
-        statuses.append(DiagnosticStatus(level, name, message, hardware_id, values))
+        fields: list[str] = []  # name, message, hardware_id
+        pos = _strings(data, pos + 1, 3, fields)
+        pairs, pos = _length(data, pos)
+        text: list[str] = []  # key, value, key, value, ...
+        pos = _strings(data, pos, 2 * pairs, text)
+        statuses.append(DiagnosticStatus(level, fields[0], fields[1], fields[2],
+                                         tuple(map(KeyValue, text[0::2], text[1::2]))))
     if not 0 <= size - pos <= MAX_PADDING:
         raise LayoutError(f'the fields end at byte {pos} of {size}')
-    return DiagnosticArray(header, tuple(statuses))
+    return DiagnosticArray(Header(Time(int(sec), int(nanosec)), frame[0]), tuple(statuses))
