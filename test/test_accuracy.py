@@ -285,6 +285,14 @@ def test_streaming_accumulator_equals_batch(with_ends: bool) -> None:
     if with_ends:
         assert settled == list(batch.visits)
         assert all(v.window_start >= e for v, e in zip(batch.visits, te, strict=True))
+    # The visits of one commanded pose share its tuples (one copy per pose kept, issue 24).
+    by_pose: dict[tuple[float, ...], tuple[float, ...]] = {}
+    for v in stream.visits:
+        assert v.commanded_position is by_pose.setdefault(v.commanded_position,
+                                                         v.commanded_position)
+        assert v.commanded_quaternion is by_pose.setdefault(v.commanded_quaternion,
+                                                           v.commanded_quaternion)
+    assert len(by_pose) == 6 and len(stream.visits) == 12
     # Per-sample errors against the target in force.
     seg = np.searchsorted(tt, t, side='right') - 1
     have = seg >= 0

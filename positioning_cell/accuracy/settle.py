@@ -495,6 +495,10 @@ class AccuracyAccumulator:
                               self.settings.key_angle_tolerance)
         self._visits: list[Visit] = []
         self._cycles: dict[int, int] = {}
+        #: Each commanded pose once, however many visits command it (the visits of a repeated
+        #: program share their commanded tuples: issue 24, an analysis's memory).
+        self._commanded_p: dict[Triple, Triple] = {}
+        self._commanded_q: dict[Quad, Quad] = {}
         self._open_segment()
 
     def _open_segment(self) -> None:
@@ -518,6 +522,7 @@ class AccuracyAccumulator:
                               self.settings.key_angle_tolerance)
         self._visits = []
         self._cycles = {}
+        self._commanded_p, self._commanded_q = {}, {}
         self._target = None
         self._open_segment()
         if target is not None:
@@ -616,11 +621,12 @@ class AccuracyAccumulator:
         key = target[3]
         self._cycles[key] = self._cycles.get(key, 0) + 1
         start, end, count, position, quaternion = window
+        p_cmd, q_cmd = triple(target[1]), quad(target[2])
         return Visit(key=key, cycle=self._cycles[key], target_time=target[0],
                      window_start=start, settle_time=end, samples=count,
-                     commanded_position=triple(target[1]),
-                     commanded_quaternion=quad(target[2]), position=triple(position),
-                     quaternion=quad(quaternion))
+                     commanded_position=self._commanded_p.setdefault(p_cmd, p_cmd),
+                     commanded_quaternion=self._commanded_q.setdefault(q_cmd, q_cmd),
+                     position=triple(position), quaternion=quad(quaternion))
 
     def add_sample(self, time: float, position: ArrayLike,
                    quaternion: ArrayLike) -> SampleUpdate:

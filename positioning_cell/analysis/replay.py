@@ -315,6 +315,7 @@ def _label(raw: Sequence[tuple[float, float, int, Any, Any, float]],
     mode_times = np.array([m[0] for m in modes])
     mode_order = np.argsort(mode_times, kind='stable')
     out = []
+    shared: dict[tuple[float, ...], tuple[float, ...]] = {}  # each commanded pose once
     for time, _, key, p, q, stamp in raw:
         mode, pose = UNKNOWN_MODE, f'P{key + 1}'
         i = int(np.searchsorted(step_times[order], stamp, side='right')) - 1
@@ -326,6 +327,7 @@ def _label(raw: Sequence[tuple[float, float, int, Any, Any, float]],
             j = min(int(np.searchsorted(mode_times[mode_order], stamp, side='left')),
                     len(modes) - 1)
             mode = modes[int(mode_order[j])][1]
-        out.append(Segment(time, key, tuple(float(v) for v in p),
-                           tuple(float(v) for v in q), mode, pose))
+        position, quaternion = tuple(float(v) for v in p), tuple(float(v) for v in q)
+        out.append(Segment(time, key, shared.setdefault(position, position),
+                           shared.setdefault(quaternion, quaternion), mode, pose))
     return tuple(out)
