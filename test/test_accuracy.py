@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from positioning_cell import accuracy as acc
+from positioning_cell.accuracy.tracker_errors import combined_rows
 from positioning_cell.errors import ConfigError, InputError
 
 ID = np.array([0.0, 0.0, 0.0, 1.0])
@@ -518,6 +519,35 @@ def test_tracker_sums_per_pair_of_labels_equal_the_batch_grouping(seed: int, siz
     for key, sums in want.items():
         _same_statistics(got[key].statistics(), sums.statistics())
     _same_statistics(stream.statistics(), acc.error_statistics(dp, rv))
+
+
+def test_combined_rows_add_counts_and_sums_and_keep_the_maxima() -> None:
+    labels = np.array([[2, 2], [0, 1], [2, 2], [0, 1], [0, 0]])
+    rows = np.array([[3, 1e-6, 0, 0, 3e-12, 1e-10, 2e-6, 1e-5],
+                     [1, 2e-6, 1, 0, 4e-12, 0, 2e-6, 0],
+                     [2, -1e-6, 0, 0, 1e-12, 2e-10, 1e-6, 2e-5],
+                     [4, 1e-6, 0, 5, 1e-12, 0, 3e-6, 0],
+                     [1, 0, 0, 0, 0, 0, 0, 0]])
+    got_labels, got = combined_rows(labels, rows)
+    assert got_labels.tolist() == [[0, 0], [0, 1], [2, 2]]
+    np.testing.assert_array_equal(got[:, 0], [1, 5, 5])
+    np.testing.assert_allclose(got[1, 1:6], [3e-6, 1, 5, 5e-12, 0], rtol=1e-15)
+    np.testing.assert_allclose(got[2, 1:6], [0, 0, 0, 4e-12, 3e-10], rtol=1e-15, atol=1e-30)
+    np.testing.assert_array_equal(got[:, 6:], [[0, 0], [3e-6, 0], [2e-6, 2e-5]])
+
+
+def test_the_tracker_sums_stay_one_row_per_pair_of_labels_in_a_long_run() -> None:
+    """The live monitor pairs at every reading: its sums must not grow with the readings."""
+    stream = acc.TrackerErrorAccumulator(1e-3)
+    q = np.array([0.0, 0.0, 0.0, 1.0])
+    for i in range(2000):
+        stream.add_truth(i * 0.05, HOME, q, label=i // 1000)
+        stream.add_measured(i * 0.05, HOME + 1e-6, q, label=i // 1000)
+    kept = len(stream._sums)  # the rows it keeps (private: what this test is about)
+    assert kept <= 2 + type(stream._sums).BLOCKS
+    stats = stream.statistics()
+    assert stats is not None and stats.samples == 2000
+    assert stats.rms_position_error == pytest.approx(math.sqrt(3) * 1e-6, rel=1e-9)
 
 
 # -- verdicts --------------------------------------------------------------------------------

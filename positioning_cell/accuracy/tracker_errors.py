@@ -184,38 +184,44 @@ def grouped_rows(label_m: IntArray, label_t: IntArray, position_error: FloatArra
     return np.column_stack([lm[starts], lt[starts]]).astype(np.intp), rows
 
 
-def sums_by_labels(labels: IntArray, rows: FloatArray) -> dict[tuple[int, int], ErrorSums]:
-    """Rows of :func:`grouped_rows` (several rows may share a pair of labels) as one
-    :class:`ErrorSums` per pair, in label order: each sum the correctly rounded sum of its
+def combined_rows(labels: IntArray, rows: FloatArray) -> tuple[IntArray, FloatArray]:
+    """Rows of :func:`grouped_rows` (several may share a pair of labels) as one row per pair,
+    in label order: counts and maxima combined, each sum the correctly rounded sum of its
     rows' (``math.fsum``), whatever their order."""
     if labels.shape[0] == 0:
-        return {}
+        return labels, rows
     order = np.lexsort((labels[:, 1], labels[:, 0]))
     labels, rows = labels[order], rows[order]
-    new = np.r_[True, (labels[1:] != labels[:-1]).any(axis=1)]
-    starts = np.flatnonzero(new)
+    starts = np.flatnonzero(np.r_[True, (labels[1:] != labels[:-1]).any(axis=1)])
+    out = rows[starts].copy()
+    out[:, 0] = np.add.reduceat(rows[:, 0], starts)  # counts: whole numbers, exact
+    out[:, 6:] = np.maximum.reduceat(rows[:, 6:], starts, axis=0)
     ends = np.r_[starts[1:], labels.shape[0]]
-    max_d, max_a = np.maximum.reduceat(rows[:, 6], starts), np.maximum.reduceat(rows[:, 7],
-                                                                                starts)
+    for g in np.flatnonzero(ends - starts > 1).tolist():  # over groups, not samples
+        block = rows[starts[g]:ends[g]]
+        out[g, 1:6] = [math.fsum(block[:, c]) for c in range(1, 6)]
+    return labels[starts], out
+
+
+def sums_by_labels(labels: IntArray, rows: FloatArray) -> dict[tuple[int, int], ErrorSums]:
+    """Rows of :func:`grouped_rows` as one :class:`ErrorSums` per pair of labels, in label
+    order (:func:`combined_rows`)."""
+    labels, rows = combined_rows(labels, rows)
     out: dict[tuple[int, int], ErrorSums] = {}
-    for g, (start, end) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
-        block = rows[start:end]  # over groups, not samples: one row per group and batch
+    for (m, t), row in zip(labels.tolist(), rows, strict=True):  # over groups, not samples
         sums = ErrorSums()
-        if end - start == 1:
-            sums.count, sums._sum = int(block[0, 0]), block[0, 1:6].copy()
-        else:
-            sums.count = round(math.fsum(block[:, 0]))
-            sums._sum = np.array([math.fsum(block[:, c]) for c in range(1, 6)])
-        sums.max_position, sums.max_angle = float(max_d[g]), float(max_a[g])
-        out[int(labels[start, 0]), int(labels[start, 1])] = sums
+        sums.count, sums._sum = int(row[0]), row[1:6].copy()
+        sums.max_position, sums.max_angle = float(row[6]), float(row[7])
+        out[m, t] = sums
     return out
 
 
 class _PairRows:
     """The rows of :func:`grouped_rows` committed so far, in blocks of columns (two arrays a
-    block; every :data:`BLOCKS` blocks joined into one): ~80 bytes a row, a row per pair of
-    labels and pairing, instead of an :class:`ErrorSums` object per pair of labels (issue 24:
-    on a long run, one pair per segment or two)."""
+    block): every :data:`BLOCKS` blocks are joined into one row per pair of labels
+    (:func:`combined_rows`), so that memory is ~80 bytes a pair of labels (issue 24: an
+    :class:`ErrorSums` object per pair took ~330), however many pairings fed it (the live
+    monitor pairs at every reading)."""
 
     BLOCKS = 64
 
@@ -229,11 +235,16 @@ class _PairRows:
         self._labels.append(labels)
         self._rows.append(rows)
         if len(self._labels) >= self.BLOCKS:
-            self._labels, self._rows = [np.concatenate(self._labels)], [np.concatenate(self._rows)]
+            joined = combined_rows(np.concatenate(self._labels), np.concatenate(self._rows))
+            self._labels, self._rows = [joined[0]], [joined[1]]
 
     def with_rows(self, labels: IntArray, rows: FloatArray) -> tuple[IntArray, FloatArray]:
         """Every committed row and ``labels``, ``rows`` after them."""
         return (np.concatenate([*self._labels, labels]), np.concatenate([*self._rows, rows]))
+
+    def __len__(self) -> int:
+        """The rows kept."""
+        return sum(labels.shape[0] for labels in self._labels)
 
 
 class _Series:
