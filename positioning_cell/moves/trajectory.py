@@ -155,5 +155,3 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
         check_path(mech, position, quaternion).as_limit_report())
     return Trajectory(times, position, quaternion, joints.lengths, joints.thetas,
                       rates[:, :3], rates[:, 3:], report)
-
-
