@@ -370,6 +370,34 @@ def test_a_driver_heard_again_within_its_silence_window_is_not_refused() -> None
     assert result.reason.startswith('settled') and world.trajectories
 
 
+def test_a_tracker_heard_again_within_its_silence_window_lets_a_measured_move_run() -> None:
+    """The newest tracker reading older than tracker_silence when a measured move is asked
+    for, then readings again within tracker_silence: a tracker held up for a moment, not a
+    silent one: the move runs (as for the driver above)."""
+    world = World()
+    m = mover(world, 'measured', **{'liveness.tracker_silence': 1.0})
+    m.estimate_pose()  # the tracker's last readings taken now
+    world.samples = 0
+    time.sleep(1.1)  # the newest reading is now older than tracker_silence
+    threading.Timer(0.1, lambda: setattr(world, 'samples', 10)).start()
+    result = m.move('base', GOAL, GOAL_Q)
+    assert result.reason.startswith('settled') and world.trajectories
+
+
+def test_a_tracker_still_silent_after_its_window_is_refused() -> None:
+    world = World()
+    m = mover(world, 'measured', **{'liveness.tracker_silence': 0.2})
+    m.estimate_pose()
+    world.samples = 0
+    time.sleep(0.25)  # the silence itself is what is tested
+    with pytest.raises(MoveAbortedError, match='laser tracker not responding: no '
+                       '/metrology/pose for ') as info:
+        m.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_TRACKER_SILENT and not world.trajectories
+    silence = float(str(info.value).split(' for ')[1].split(' s')[0])
+    assert silence >= 0.45  # refused only after the window given on top of the silence
+
+
 def test_busy_is_refused_without_touching_the_running_move_then_stop_aborts() -> None:
     world = World(follow=False)  # the drives never arrive: the move waits
     m = mover(world, **{'arrival.timeout': 60.0})

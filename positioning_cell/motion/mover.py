@@ -470,7 +470,7 @@ class Mover:
         once."""
         self._await_inputs()
         live = self.settings.liveness
-        self._await_fresh_joints(live.joint_silence)
+        self._await_fresh_inputs()
         with self.cond:
             silence = self.machine.clock() - self.joints_time
             driver, estimate = dict(self.driver), self.estimate
@@ -522,17 +522,26 @@ class Mover:
                     and math.isinf(self.measurement_time))
                 or not self.machine.drives_connected())
 
-    def _await_fresh_joints(self, within: float) -> None:
-        """Before motion, when the newest joint state is older than ``within`` s: give the
-        driver ``within`` s more to show it is alive. A driver (or this process) starved of
-        the CPU for a moment by a loaded machine is not a silent driver, and nothing moves
-        meanwhile; a driver still silent after it is refused (:meth:`ready`)."""
-        deadline = self.machine.clock() + within
+    def _await_fresh_inputs(self) -> None:
+        """Before motion, when the newest joint state is older than ``liveness.joint_silence``
+        or, in ``measured`` mode, the newest tracker reading older than
+        ``liveness.tracker_silence``: give that input as long again to show it is alive. A
+        driver or a tracker (or this process) held up for a moment by a loaded machine is not
+        a silent one, and nothing moves meanwhile; one still silent after it is refused
+        (:meth:`ready`). (A measured move of `make run` was refused once for a tracker silent
+        1.47 s that the recorder heard every 50 ms throughout.)"""
+        live = self.settings.liveness
+        measuring = self.mode is CompensationMode.MEASURED
+        window = max(live.joint_silence, live.tracker_silence if measuring else 0.0)
+        deadline = self.machine.clock() + window
         while True:
             self._refresh()
             with self.cond:
                 now = self.machine.clock()
-                if now - self.joints_time <= within or now >= deadline:
+                fresh = (now - self.joints_time <= live.joint_silence
+                         and (not measuring
+                              or now - self.measurement_time <= live.tracker_silence))
+                if fresh or now >= deadline:
                     return
                 self.cond.wait(min(deadline - now, POLL_PERIOD))
 
