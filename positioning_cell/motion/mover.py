@@ -528,7 +528,7 @@ class Mover:
         ``liveness.tracker_silence``: give that input as long again to show it is alive. A
         driver or a tracker (or this process) held up for a moment by a loaded machine is not
         a silent one, and nothing moves meanwhile; one still silent after it is refused
-        (:meth:`ready`). (A measured move of `make run` was refused once for a tracker silent
+        (:meth:`ready`). (A measured move of ``make run`` was refused once for a tracker silent
         1.47 s that the recorder heard every 50 ms throughout.)"""
         live = self.settings.liveness
         measuring = self.mode is CompensationMode.MEASURED
