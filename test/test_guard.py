@@ -187,14 +187,31 @@ def test_only_the_commander_is_obeyed_and_others_are_reported() -> None:
     assert outcome.message == ('trajectory refused: sent by /rogue: this driver takes commands '
                                'only from /positioner (command.commander)')
     assert driver.servos.pending is None and not driver.servos.moving
-    assert driver.publishers(['/positioner', '/rogue', '/rogue'])
+    assert driver.publishers([('/positioner', 'aa'), ('/rogue', 'bb'), ('/rogue', 'cc')])
     level, message, values = driver.status()
     assert level == 'error' and message.startswith(
         'foreign publisher on /legs/joint_trajectory: /rogue (only /positioner is obeyed')
     assert values['commander_seen'] and values['foreign_publishers'] == '/rogue'
-    assert driver.publishers(['/positioner']) and driver.status()[0] == 'ok'
+    assert values['commander_publishers'] == 'aa'
+    assert driver.publishers([('/positioner', 'aa')]) and driver.status()[0] == 'ok'
+    assert not driver.publishers([('/positioner', 'aa')])
     assert driver.follow(JOINT_NAMES, times, positions, velocities, None, 0.0,
                          '/positioner').accepted
+
+
+def test_a_restarted_commander_is_told_apart_from_its_predecessor_by_its_gids() -> None:
+    """Within the middleware's lease the graph names a killed commander and its successor
+    alike; the status lists both publishers' GIDs, so the successor can tell whether its own
+    is among them."""
+    driver = LegDriver(SETTINGS)
+    assert driver.status()[2]['commander_seen'] is False
+    assert driver.publishers([('/positioner', 'old')])
+    assert driver.publishers([('/positioner', 'old'), ('/positioner', 'new')])
+    values = driver.status()[2]
+    assert values['commander_seen'] is True
+    assert values['commander_publishers'] == 'new old'
+    assert driver.publishers([('/positioner', 'new')])
+    assert driver.status()[2]['commander_publishers'] == 'new'
 
 
 @pytest.mark.parametrize(('start', 'code', 'words'), [

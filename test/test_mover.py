@@ -43,6 +43,7 @@ from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.parameters import parse
 from positioning_cell.polling import wait_until
+from positioning_cell.sim.drives import DriverSettings, LegDriver
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -132,6 +133,7 @@ class World:
         self.velocity = np.zeros(6)  # what the encoders say the axes do
         self.tracker_shift = np.zeros(3)  # the platform moved where only the tracker sees it
         self.identity = ''
+        self.publisher_ids: frozenset[str] = frozenset()  # of the positioner's trajectories
         self.refuse: str | None = None
         self.answering = True
         self.silent = False
@@ -155,7 +157,8 @@ class World:
                        drives_connected=lambda: self.connected,
                        state_changed=lambda s, r, c: self.states.append((s, r, c)),
                        refused=lambda c, r: self.refusals.append((c, r)),
-                       identity=self.identity, registration=lambda: self.registration)
+                       identity=self.identity, publisher_ids=lambda: self.publisher_ids,
+                       registration=lambda: self.registration)
 
     def send(self, traj: Trajectory) -> None:
         with self.lock:
@@ -798,6 +801,41 @@ def test_a_driver_bound_to_another_commander_or_not_seeing_it_refuses() -> None:
     assert world.trajectories == []
     m.driver_status({**DRIVES_READY, 'commander': '/positioner', 'commander_seen': 'true'})
     assert m.move('base', GOAL, GOAL_Q).reason.startswith('settled within tolerance')
+
+
+def driver_words(driver: LegDriver) -> dict[str, str]:
+    """The leg driver's status values as the positioner receives them (words:
+    ``positioning_cell.ros.messages.status`` sends ``str(value)``)."""
+    return {key: str(value) for key, value in driver.status()[2].items()}
+
+
+def test_the_first_command_waits_until_the_driver_lists_this_positioners_publisher() -> None:
+    """A positioner restarted while the driver's graph still holds its killed predecessor is
+    named there at once; it sends nothing until the driver lists its own publisher's GID (the
+    fault matrix's "positioner killed" lost such a first trajectory)."""
+    world = World()
+    world.identity, world.publisher_ids = '/positioner', frozenset({'new'})
+    driver = LegDriver(parse(DriverSettings, {'referenced_at_start': True}))
+    driver.publishers([('/positioner', 'old')])
+    m = mover(world, **{'liveness.discovery_timeout': 0.3})
+    m.driver_status({**driver_words(driver), **DRIVES_READY})
+    with pytest.raises(MoveAbortedError) as info:
+        m.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.REFUSED_DRIVER_SILENT
+    assert "not discovered this positioner's publisher" in str(info.value)
+    assert world.trajectories == []
+    driver.publishers([('/positioner', 'old'), ('/positioner', 'new')])
+    m.driver_status({**driver_words(driver), **DRIVES_READY})
+    assert m.move('base', GOAL, GOAL_Q).reason.startswith('settled within tolerance')
+
+
+def test_a_driver_that_sees_no_commander_says_so_in_words_the_mover_reads() -> None:
+    world = World()
+    m = mover(world, **{'liveness.discovery_timeout': 0.3})
+    m.driver_status({**driver_words(LegDriver(parse(DriverSettings, {}))), **DRIVES_READY})
+    with pytest.raises(MoveAbortedError) as info:
+        m.move('base', GOAL, GOAL_Q)
+    assert "not discovered this positioner's publisher" in str(info.value)
 
 
 def test_drives_that_stopped_the_move_for_a_silent_heartbeat_abort_it_at_once() -> None:

@@ -13,7 +13,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 from positioning_cell.ros.latest import SourceReader
 from positioning_cell.ros.qos import COMMAND_QOS, JOINT_READER_QOS
-from positioning_cell.ros.senders import IdentifiedSubscription
+from positioning_cell.ros.senders import GID_BYTES, IdentifiedSubscription, own_publisher_ids
 
 pytestmark = pytest.mark.nodes
 
@@ -39,6 +39,32 @@ def test_each_message_is_taken_with_the_node_that_published_it(ros: InProcess) -
         sub.destroy()
     finally:
         for node in (talker, rogue, listener):
+            node.destroy_node()
+
+
+def test_a_publisher_knows_the_gid_its_listeners_see_and_a_successor_gets_another(
+        ros: InProcess) -> None:
+    """What the positioner compares with the driver's status (``commander_publishers``): its
+    own publisher's GID from its own graph is the one a listener's graph lists for it, and a
+    publisher created anew under the same node name has another."""
+    talker = Node('talker', context=ros.context)
+    listener = Node('listener', context=ros.context)
+    try:
+        sub = IdentifiedSubscription(listener, JointTrajectory, '/commands', COMMAND_QOS)
+        assert own_publisher_ids(talker, '/commands') == frozenset()
+        first = talker.create_publisher(JointTrajectory, '/commands', COMMAND_QOS)
+        mine = own_publisher_ids(talker, '/commands')
+        assert len(mine) == 1 and len(next(iter(mine))) == 2 * GID_BYTES
+        wait_until(lambda: {e.gid.hex() for e in sub.endpoints()} == mine, 10.0,
+                   "the talker's publisher in the listener's graph")
+        assert [e.node for e in sub.endpoints()] == ['/talker']
+        talker.destroy_publisher(first)
+        talker.create_publisher(JointTrajectory, '/commands', COMMAND_QOS)
+        again = own_publisher_ids(talker, '/commands')
+        assert len(again) == 1 and again != mine
+        sub.destroy()
+    finally:
+        for node in (talker, listener):
             node.destroy_node()
 
 

@@ -488,7 +488,7 @@ class Mover:
                                 f'the leg driver takes commands only from {bound}, not from '
                                 f'this positioner ({me}): its command.commander names another '
                                 'node')
-        if driver.get('commander_seen') == 'false':
+        if not self._driver_hears_me(driver):
             raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
                                 "leg driver not connected: it has not discovered this "
                                 f"positioner's publisher on {JOINT_TRAJECTORY} yet")
@@ -513,10 +513,22 @@ class Mover:
                                    else f'{tracker_silence:.2f} s')
                                 + ' (the measured mode needs it)')
 
+    def _driver_hears_me(self, driver: dict[str, str]) -> bool:
+        """The driver's status says it has discovered this positioner's trajectory publisher:
+        by its GIDs where both sides give them (value ``commander_publishers``), else by name
+        (``commander_seen``). By name alone, a positioner restarted within the middleware's
+        lease of its killed predecessor is "seen" before the driver can hear it, and its first
+        trajectory is lost (fault matrix: "positioner killed"). Values arrive as words
+        (``str(True)``)."""
+        if driver.get('commander_seen', '').lower() == 'false':
+            return False
+        mine, listed = self.machine.publisher_ids(), driver.get('commander_publishers')
+        return not mine or listed is None or mine <= set(listed.split())
+
     def _unseen(self) -> bool:
         """Some input of :meth:`ready` has never been seen yet (called under the lock)."""
         driver = self.driver
-        return (self.joints is None or not driver or driver.get('commander_seen') == 'false'
+        return (self.joints is None or not driver or not self._driver_hears_me(driver)
                 or (self.estimate is None and self.command is None)
                 or (self.mode is CompensationMode.MEASURED
                     and math.isinf(self.measurement_time))

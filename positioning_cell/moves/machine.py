@@ -72,7 +72,9 @@ class Machine:
     matched both ways); ``state_changed(state, reason, code)`` reports a new state,
     ``refused(code, reason)`` a refusal (the state stays); ``clock()`` is a monotonic clock
     in s; ``identity`` the name the drives must take commands from (the positioner node's fully
-    qualified name; '' when not checked); ``registration()`` the tracker's registration published
+    qualified name; '' when not checked); ``publisher_ids()`` the GIDs (hex) of the positioner's
+    trajectory publisher, which the drives' status must list before a command is sent (empty:
+    not checked); ``registration()`` the tracker's registration published
     since the last call (None: nothing new; with none ever received the mover splits the
     readings' stated covariance by their scatter,
     :func:`~positioning_cell.moves.correction.mean_reading`).
@@ -90,6 +92,7 @@ class Machine:
     refused: Callable[[ResultCode, str], None] = field(default=_nothing)
     clock: Callable[[], float] = time.monotonic
     identity: str = ''
+    publisher_ids: Callable[[], frozenset[str]] = frozenset
     registration: Callable[[], Registration | None] = lambda: None
 
 

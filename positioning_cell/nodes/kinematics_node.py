@@ -35,6 +35,7 @@ from positioning_cell.ros import qos
 from positioning_cell.ros.latest import SourceReader
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.registration import RegistrationReader
+from positioning_cell.ros.senders import own_publisher_ids
 from positioning_cell.ros.spin import NodeStart, Spin
 
 _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
@@ -85,6 +86,7 @@ class PositionerNode(Node):
             state_changed=self._state_changed,
             refused=self._refused,
             identity=self.get_fully_qualified_name(),
+            publisher_ids=lambda: own_publisher_ids(self, names.JOINT_TRAJECTORY),
             registration=self._registration.take))
         self.controller = Controller(self.mover, settings.operator)  # ConfigError: no start
         self._estimates = 0

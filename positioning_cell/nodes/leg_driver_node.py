@@ -136,7 +136,7 @@ class LegDriverNode(Node):
 
     def _watch_graph(self) -> None:
         """Who publishes on the command topic: the commander seen, others reported."""
-        if self.driver.publishers(self._commands.publishers()):
+        if self.driver.publishers([(e.node, e.gid.hex()) for e in self._commands.endpoints()]):
             if self.driver.foreign:
                 self.get_logger().error(f'foreign publisher on {names.JOINT_TRAJECTORY}: '
                                         f'{", ".join(self.driver.foreign)}')

@@ -93,6 +93,31 @@ def fully_qualified(namespace: str, name: str) -> str:
     return f'{namespace.rstrip("/")}/{name}'
 
 
+class Endpoint(NamedTuple):
+    """A publisher as the graph lists it: its node's fully qualified name and its GID."""
+
+    node: str
+    gid: bytes
+
+
+def named_publishers(node: Node, topic: str) -> list[Endpoint]:
+    """The publishers on ``topic`` in ``node``'s graph whose node the graph names already (an
+    endpoint discovered before its node's name, which ROS sends on a topic of its own, is
+    listed under rmw's placeholder: left out)."""
+    found = [Endpoint(fully_qualified(i.node_namespace, i.node_name),
+                      bytes(i.endpoint_gid)[:GID_BYTES])
+             for i in node.get_publishers_info_by_topic(topic)]
+    return [e for e in found if UNKNOWN_NODE not in e.node]
+
+
+def own_publisher_ids(node: Node, topic: str) -> frozenset[str]:
+    """The GIDs (hex) of ``node``'s own publishers on ``topic``, from its own graph (where a
+    publisher is listed as soon as it is created). A node restarted under the same name gets
+    new ones: a peer that lists these has discovered *this* process, not its predecessor."""
+    me = node.get_fully_qualified_name()
+    return frozenset(e.gid.hex() for e in named_publishers(node, topic) if e.node == me)
+
+
 class Taken(NamedTuple):
     """A message taken: its serialized bytes (CDR with the encapsulation header) and the
     fully qualified name of the node that published it ('' when the graph does not know the
@@ -137,18 +162,17 @@ class IdentifiedSubscription:
             self.publishers()  # once per take: a publisher new since the last look
         return [Taken(data, self._senders.get(gid, '')) for data, gid in taken]
 
+    def endpoints(self) -> list[Endpoint]:
+        """The publishers on the topic now whose node the graph names already
+        (:func:`named_publishers`)."""
+        named = named_publishers(self._node, self.topic)
+        self._senders.update((e.gid, e.node) for e in named)
+        return named
+
     def publishers(self) -> list[str]:
         """The nodes publishing on the topic now (one entry per publisher whose node the graph
         names already)."""
-        infos = self._node.get_publishers_info_by_topic(self.topic)
-        found = [(bytes(i.endpoint_gid)[:GID_BYTES], fully_qualified(i.node_namespace,
-                                                                      i.node_name))
-                 for i in infos]
-        # An endpoint discovered before its node's name (ROS sends the names on a topic of
-        # its own) is listed under rmw's placeholder: not a name to remember.
-        named = [(gid, name) for gid, name in found if UNKNOWN_NODE not in name]
-        self._senders.update(named)
-        return [name for _, name in named]
+        return [e.node for e in self.endpoints()]
 
     def destroy(self) -> None:
         """Release the subscription, its node and the take buffer."""

@@ -200,10 +200,11 @@ class LegDriver:
         #: Moves stopped because the commander fell silent (on /diagnostics: the commander,
         #: when it was only slow, learns its move was stopped).
         self.silence_stops = 0
-        #: Other nodes publishing on the command topic (the graph), and whether the commander
-        #: is among its publishers.
+        #: Other nodes publishing on the command topic (the graph), whether the commander is
+        #: among its publishers, and the GIDs (hex) of the commander's publishers there.
         self.foreign: tuple[str, ...] = ()
         self.commander_seen = False
+        self.commander_ids: tuple[str, ...] = ()
 
     def reconfigure(self, settings: DriverSettings, changed: Collection[str],
                     now: float) -> None:
@@ -273,14 +274,16 @@ class LegDriver:
         self.foreign = tuple(sorted({*self.foreign, sender}))
         return True
 
-    def publishers(self, nodes: Sequence[str]) -> bool:
-        """The nodes now publishing on the command topic (from the graph): the commander seen
-        or not, the others foreign. True when that changed."""
+    def publishers(self, endpoints: Sequence[tuple[str, str]]) -> bool:
+        """The publishers now on the command topic (from the graph), as (node, GID hex): the
+        commander seen or not, with the GIDs of its publishers (a commander restarted within
+        the middleware's lease of its predecessor is named twice, and only its own GID tells it
+        that this driver has discovered it), the others foreign. True when that changed."""
         commander = self.settings.command.commander
-        foreign = tuple(sorted({n for n in nodes if n != commander}))
-        seen = commander in nodes
-        changed = (foreign, seen) != (self.foreign, self.commander_seen)
-        self.foreign, self.commander_seen = foreign, seen
+        foreign = tuple(sorted({n for n, _ in endpoints if n != commander}))
+        ids = tuple(sorted({gid for n, gid in endpoints if n == commander}))
+        changed = (foreign, ids) != (self.foreign, self.commander_ids)
+        self.foreign, self.commander_ids, self.commander_seen = foreign, ids, bool(ids)
         return changed
 
     def readings(self) -> tuple[EncoderReading, AxisState]:
@@ -485,6 +488,7 @@ class LegDriver:
                   'referenced': self.referenced, 'referencing': self.referencing,
                   'commander': self.settings.command.commander,
                   'commander_seen': self.commander_seen,
+                  'commander_publishers': ' '.join(self.commander_ids),
                   'foreign_publishers': ' '.join(self.foreign),
                   'max_points': self.settings.command.max_points,
                   'silence_stops': self.silence_stops,

@@ -148,11 +148,20 @@ class InstantFaultPort(InstantPort):
         with self._lock:
             if not self._alive[names.NODE_DRIVER]:
                 return None
-            if self._alive[names.NODE_POSITIONER]:
+            positioner = self._alive[names.NODE_POSITIONER]
+            if positioner:
                 self.drives.heartbeat(now)
+            self._graph(positioner)
             self._advance(now, publish=False)
             _, message, values = self.drives.status()
         return {**{k: str(v) for k, v in values.items()}, 'message': message}
+
+    def _graph(self, positioner: bool) -> None:
+        """The driver's view of the command topic's publishers (under the lock): the live
+        positioner's, with a GID of its own for each life, and the foreign senders it has
+        noted (in process nothing takes them out of the graph)."""
+        mine = [('/' + names.NODE_POSITIONER, f'{self._generation:032x}')] if positioner else []
+        self.drives.publishers(mine + [(name, name) for name in self.drives.foreign])
 
     def _advance(self, now: float, publish: bool) -> JointReading | None:
         """Step the drives to ``now`` (under the lock): their events reported, the true state
@@ -234,7 +243,8 @@ class InstantFaultPort(InstantPort):
                        trajectory_answers=answers, reference_drives=reference,
                        drives_connected=driver, state_changed=result,
                        refused=lambda code, reason: result(State.IDLE, reason, code),
-                       identity='/' + names.NODE_POSITIONER)
+                       identity='/' + names.NODE_POSITIONER,
+                       publisher_ids=lambda: frozenset({f'{generation:032x}'}))
 
     def _measure(self) -> list[Measurement]:
         """The tracker readings due since the last look (at its rate, with its faults)."""
