@@ -31,8 +31,9 @@ def scipy_rotation() -> type[Rotation]:
     """scipy's :class:`~scipy.spatial.transform.Rotation`, imported at the first call, by
     every module that rotates: importing scipy.spatial loads its k-d tree, qhull, distance and
     sparse modules too, ~0.2 s of a node's 0.6-0.9 s start (issue 24), which the recorder and
-    the bag player never need; the other nodes import it once built, before they spin, so
-    that no callback pauses for it (positioning_cell.ros.spin.SCIPY_MODULES)."""
+    the bag player never need; the other nodes import it in a thread of its own as they start
+    to spin, so that no callback pauses for a whole import
+    (positioning_cell.ros.spin.SCIPY_MODULES)."""
     from scipy.spatial.transform import Rotation
 
     rotation_class: type[Rotation] = Rotation  # scipy is untyped here: Any

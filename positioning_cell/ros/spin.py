@@ -55,8 +55,11 @@ class Spin(Enum):
 
 #: The scipy modules the library imports at their first use (core.poses.scipy_rotation, the
 #: calibration's tests and fits, the screw null space): a node whose work may use them imports
-#: them before it spins, since an import in a callback pauses the executor for 0.2 s or more
-#: (the positioner's 0.2 s joint-silence watch; 1.0 s was seen in CI on a loaded machine).
+#: them as soon as it spins, in a thread of their own (:func:`_import_aside`), rather than in
+#: the first callback that needs one: an import in a callback pauses the executor for 0.2 s or
+#: more (the positioner's 0.2 s joint-silence watch; 1.0 s was seen in CI on a loaded machine).
+#: Imported before the spin instead, they held every node's first answer back by 0.2-0.3 s
+#: (issue 24).
 SCIPY_MODULES = ('scipy.linalg', 'scipy.spatial.transform', 'scipy.special')
 
 
@@ -67,8 +70,8 @@ class NodeStart:
     process's ``--ros-args``), the executor it needs, and that executor's threads (THREADS
     only). Each node module's ``main`` is one: called, it runs the node alone (:func:`run`);
     ``cell_container`` runs several together (:func:`run_together`). ``imports``: the modules
-    its work imports at their first use, imported once it is built, before it spins (the
-    recorder and the bag player never rotate: none, and they answer ~0.2 s sooner)."""
+    its work imports at their first use, imported in a thread of their own from the moment it
+    spins (:func:`_import_aside`; the recorder and the bag player never rotate: none)."""
 
     factory: Callable[[], Node]
     spin: Spin = Spin.EVENTS
@@ -181,11 +184,8 @@ def _spin(starts: Sequence[NodeStart]) -> int:
             if stop_requested():
                 return 0
             nodes.append(start.factory())
-        for module in dict.fromkeys(m for start in starts for m in start.imports):
-            importlib.import_module(module)
-        # All built, their kernels warmed and their modules imported: none is imported or
-        # compiled from here on (a pause of an executor), a cold kernel raises instead
-        # (positioning_cell.core.compiled).
+        # All built and their kernels warmed: no kernel is compiled from here on (a pause of an
+        # executor), a cold kernel raises instead (positioning_cell.core.compiled).
         compiled.seal()
         _settle_interpreter(len(nodes))
         for start, node in zip(starts, nodes, strict=True):
@@ -194,6 +194,11 @@ def _spin(starts: Sequence[NodeStart]) -> int:
         workers = [threading.Thread(target=spin_aside, args=(executor,), daemon=True,
                                     name=f'spin {node.get_name()}')
                    for executor, node in zip(spinning[1:], nodes[1:], strict=True)]
+        modules = tuple(dict.fromkeys(m for start in starts for m in start.imports))
+        if modules:
+            workers.append(threading.Thread(target=_import_aside,
+                                            args=(modules, failures, done), daemon=True,
+                                            name='imports'))
         for worker in workers:
             worker.start()
         spin(spinning[0])
@@ -224,6 +229,23 @@ def _spin(starts: Sequence[NodeStart]) -> int:
     if failures:  # a callback raised in another executor's thread: as if in this one
         raise failures[0]
     return _exit_status(nodes) or 0
+
+
+def _import_aside(modules: Sequence[str], failures: list[BaseException],
+                  done: threading.Event) -> None:
+    """Import ``modules`` while the nodes spin (a thread of its own), then take what they
+    built out of the collector's view as :func:`_settle_interpreter` did the rest. A callback
+    that needs one of them meanwhile waits for its import (Python's module lock), at most as
+    long as the import takes, which is what the node's start took before this thread: the
+    nodes answer 0.2-0.3 s sooner (issue 24). An import that fails ends the run, as a
+    callback's exception does (kept in ``failures``, ``done`` set)."""
+    try:
+        for module in modules:
+            importlib.import_module(module)
+        gc.freeze()
+    except BaseException as err:
+        failures.append(err)
+        done.set()
 
 
 def _settle_interpreter(hosted: int) -> None:
