@@ -15,7 +15,12 @@ from workspace import MECH, poses, random_poses
 
 from positioning_cell.core import kinematics
 from positioning_cell.core.limits import check_poses
-from positioning_cell.core.poses import matrix_from_quaternion
+from positioning_cell.core.poses import (
+    SMALL_BATCH,
+    matrix_from_quaternion,
+    quaternion_from_euler_xyz,
+    quaternion_from_matrix,
+)
 from positioning_cell.errors import InputError
 from positioning_cell.testing.reference_kinematics import reference_forward
 
@@ -45,6 +50,36 @@ def test_rotation_matrices_are_scipys(quaternions: list[tuple[float, ...]]) -> N
     expected = Rotation.from_quat(q).as_matrix()
     np.testing.assert_allclose(matrix_from_quaternion(q), expected, rtol=0, atol=1e-14)
     np.testing.assert_allclose(matrix_from_quaternion(q[0]), expected[0], rtol=0, atol=1e-14)
+
+
+@given(st.lists(st.tuples(*[st.floats(-2 * np.pi, 2 * np.pi)] * 3), min_size=1, max_size=8))
+def test_euler_quaternions_are_scipys(angles: list[tuple[float, ...]]) -> None:
+    """core.poses' numpy Euler angles (extrinsic x, y, z) -> quaternion, the positioner's
+    factory box and Transform.from_pose6 (issue 24), against scipy's, sign included."""
+    a = np.array(angles)
+    np.testing.assert_allclose(quaternion_from_euler_xyz(a),
+                               Rotation.from_euler('xyz', a).as_quat(), rtol=0, atol=1e-15)
+
+
+@given(st.lists(st.tuples(*[st.floats(-2.0, 2.0)] * 4)
+                .filter(lambda v: float(np.linalg.norm(v)) > 0.05), min_size=1,
+                max_size=SMALL_BATCH),
+       st.sampled_from([(), (0,), (1,), (2,)]))
+def test_small_batches_of_matrices_give_scipys_canonical_quaternions(
+        quaternions: list[tuple[float, ...]], half_turn: tuple[int, ...]) -> None:
+    """core.poses' numpy matrix -> quaternion for a few orthonormal matrices (Shepperd's
+    method: a node's build converts one or two, issue 24) against scipy's canonical ones, with
+    half turns about an axis (w = 0, where the sign rule reaches the next component) too."""
+    q = np.array(quaternions)
+    if half_turn:
+        q[0] = np.eye(4)[half_turn[0]] * (-1.0 if q[0, 0] < 0 else 1.0)
+    matrices = Rotation.from_quat(q).as_matrix()
+    got = quaternion_from_matrix(matrices, orthonormal=True)
+    expected = Rotation.from_matrix(matrices, assume_valid=True).as_quat(canonical=True)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=5e-15)
+    big = np.repeat(matrices, SMALL_BATCH + 1, axis=0)  # scipy's path, the same quaternions
+    np.testing.assert_allclose(quaternion_from_matrix(big, orthonormal=True)[::SMALL_BATCH + 1],
+                               expected, rtol=0, atol=5e-15)
 
 
 def test_ik_fk_round_trip_batch() -> None:

@@ -124,13 +124,66 @@ def matrix_from_quaternion(quaternion: FloatArray) -> FloatArray:
     return out
 
 
-def quaternion_from_matrix(matrix: FloatArray, *, orthonormal: bool = False) -> FloatArray:
-    """Unit quaternions (N, 4) x, y, z, w with w >= 0 from rotation matrices (N, 3, 3).
+def quaternion_from_euler_xyz(angles: FloatArray) -> FloatArray:
+    """Quaternions (N, 4) x, y, z, w of R = Rz(γ)·Ry(β)·Rx(α) from angles (N, 3) α, β, γ rad
+    (extrinsic x, y, z: scipy's ``Rotation.from_euler('xyz', angles).as_quat()``), as the
+    product q_z ⊗ q_y ⊗ q_x of the half-angle quaternions written out. Elementwise numpy, not
+    scipy, for the positioner's build (its factory box), where scipy.spatial would cost ~0.2 s
+    of its start (issue 24); test_poses checks it against scipy."""
+    half = 0.5 * np.asarray(angles, dtype=float)
+    c, s = np.cos(half), np.sin(half)
+    cx, cy, cz = c[..., 0], c[..., 1], c[..., 2]
+    sx, sy, sz = s[..., 0], s[..., 1], s[..., 2]
+    return np.stack([sx * cy * cz - cx * sy * sz,
+                     cx * sy * cz + sx * cy * sz,
+                     cx * cy * sz - sx * sy * cz,
+                     cx * cy * cz + sx * sy * sz], axis=-1)
 
-    ``orthonormal=True`` skips scipy's re-orthonormalisation for matrices built orthonormal.
+
+#: Up to this many matrices built orthonormal, :func:`quaternion_from_matrix` converts in numpy
+#: (a node's build converts one or two: scipy.spatial would cost ~0.2 s of its start); above
+#: it, in scipy (4.5× faster than this numpy form on 10⁵ matrices, ad hoc).
+SMALL_BATCH = 16
+
+
+def quaternion_from_matrix(matrix: FloatArray, *, orthonormal: bool = False) -> FloatArray:
+    """Unit quaternions (N, 4) x, y, z, w from rotation matrices (N, 3, 3), canonical as scipy
+    makes them (w > 0; w = 0: the first non-zero component > 0).
+
+    ``orthonormal=True`` skips scipy's re-orthonormalisation for matrices built orthonormal;
+    up to :data:`SMALL_BATCH` of them are converted in numpy by Shepperd's method (the
+    quaternion from the largest of the trace and the diagonal, as scipy does; test_poses
+    checks the two against each other).
     """
-    rot = scipy_rotation().from_matrix(matrix, assume_valid=orthonormal)
+    m = np.asarray(matrix, dtype=float)
+    if orthonormal and m.shape[:-2] and m.shape[0] <= SMALL_BATCH:
+        return _quaternion_shepperd(m)
+    rot = scipy_rotation().from_matrix(m, assume_valid=orthonormal)
     return np.asarray(rot.as_quat(canonical=True))
+
+
+def _quaternion_shepperd(m: FloatArray) -> FloatArray:
+    """Canonical unit quaternions (N, 4) of orthonormal matrices (N, 3, 3): of the four
+    expressions of q (each exact for a rotation matrix), the one whose divisor, the largest
+    of 1 + 2·R_ii − tr R and 1 + tr R, is largest (Shepperd 1978)."""
+    m00, m01, m02 = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
+    m10, m11, m12 = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
+    m20, m21, m22 = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
+    trace = m00 + m11 + m22
+    a, b, c = m10 + m01, m20 + m02, m21 + m12
+    u, v, w = m21 - m12, m02 - m20, m10 - m01
+    candidates = np.stack([np.stack([1 + 2 * m00 - trace, a, b, u], -1),
+                           np.stack([a, 1 + 2 * m11 - trace, c, v], -1),
+                           np.stack([b, c, 1 + 2 * m22 - trace, w], -1),
+                           np.stack([u, v, w, 1 + trace], -1)], 1)
+    choice = np.argmax(np.stack([m00, m11, m22, trace], -1), -1)
+    q = candidates[np.arange(m.shape[0]), choice]
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    # canonical: the first non-zero of w, x, y, z positive
+    ordered = q[:, [3, 0, 1, 2]]
+    lead = ordered[np.arange(q.shape[0]), np.argmax(ordered != 0.0, axis=-1)]
+    q *= np.where(lead < 0.0, -1.0, 1.0)[:, None]
+    return q
 
 
 def pose_error(position: FloatArray, quaternion: FloatArray, position_ref: FloatArray,

@@ -30,6 +30,7 @@ from positioning_cell.core.poses import (
     as_unit_quaternions,
     as_vectors,
     matrix_from_quaternion,
+    quaternion_from_euler_xyz,
     quaternion_from_matrix,
     scipy_rotation,
 )
@@ -180,7 +181,7 @@ class Transform:
         v = _as_last(pose6, 6, 'pose6')
         if v.shape != (6,):
             raise InputError(f'pose6: expected shape (6,), got {v.shape}')
-        return cls(v[:3], scipy_rotation().from_euler(EULER_SEQUENCE, v[3:]).as_matrix())
+        return cls(v[:3], matrix_from_quaternion(quaternion_from_euler_xyz(v[3:])))
 
     @classmethod
     def from_human(cls, human: ArrayLike) -> Transform:
@@ -191,7 +192,7 @@ class Transform:
     @property
     def q(self) -> FloatArray:
         """The rotation as a unit quaternion (4,) x, y, z, w with w ≥ 0."""
-        q: FloatArray = quaternion_from_matrix(self.R[np.newaxis])[0]
+        q: FloatArray = quaternion_from_matrix(self.R[np.newaxis], orthonormal=True)[0]
         return q
 
     def to_pq(self) -> tuple[FloatArray, FloatArray]:

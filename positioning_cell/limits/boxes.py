@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.core.limits import MAX_LISTED, within_limits
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import as_vectors, scipy_rotation
+from positioning_cell.core.poses import as_vectors, quaternion_from_euler_xyz
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.limits.validity import VALID, CheckResult, Validity
 from positioning_cell.parameters import ParameterError, check_fields, setting
@@ -215,8 +215,7 @@ def base_pq_of_machine_pose6(mech: Mechanism,
     """Platform poses in ``base`` of machine pose6 rows (N, 6): positions p_home + t (N, 3) m
     and quaternions (N, 4) x, y, z, w of R = Rz·Ry·Rx (the machine CS of the module
     docstring)."""
-    q = scipy_rotation().from_euler('xyz', pose6[:, LINEAR:]).as_quat()
-    return pose6[:, :LINEAR] + mech.home_position, np.asarray(q, dtype=float)
+    return pose6[:, :LINEAR] + mech.home_position, quaternion_from_euler_xyz(pose6[:, LINEAR:])
 
 
 def derived_factory_box(mech: Mechanism, rotation: float = DERIVED_ROTATION,

@@ -142,7 +142,8 @@ def locate(accuracy: TrackerAccuracy, base_targets: ArrayLike, readings: ArrayLi
     variance_factor = float(np.sum(chi2_each[used]) / dof)
     cov = rigid_fit_covariance((base - pos)[None], weight[None], point_cov[None])[0]
     cov *= max(1.0, variance_factor)
-    tracker = Tracker(accuracy, tuple(pos), tuple(quaternion_from_matrix(rot[None])[0]), cov)
+    q = quaternion_from_matrix(rot[None], orthonormal=True)[0]  # rot: an SVD's, orthonormal
+    tracker = Tracker(accuracy, tuple(pos), tuple(q), cov)
     norms = np.linalg.norm(residual[used], axis=-1)
     return Location(tracker, np.where(used[:, None], residual, np.nan),
                     np.where(used, np.sqrt(chi2_each), np.nan), samples.astype(np.int64),
