@@ -177,7 +177,7 @@ def _quaternion_shepperd(m: FloatArray) -> FloatArray:
                            np.stack([b, c, 1 + 2 * m22 - trace, w], -1),
                            np.stack([u, v, w, 1 + trace], -1)], 1)
     choice = np.argmax(np.stack([m00, m11, m22, trace], -1), -1)
-    q = candidates[np.arange(m.shape[0]), choice]
+    q: FloatArray = candidates[np.arange(m.shape[0]), choice]
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     # canonical: the first non-zero of w, x, y, z positive
     ordered = q[:, [3, 0, 1, 2]]
