@@ -106,7 +106,7 @@ def matrix_from_quaternion(quaternion: FloatArray) -> FloatArray:
     ``Rotation.from_quat(q).as_matrix()`` does (R = I + 2w[v]ₓ + 2[v]ₓ² over |q|², the
     Euler-Rodrigues form). Elementwise numpy, not scipy: every node's build computes a pose
     (the leg driver's and the positioner's inverse kinematics, the tracker's registration),
-    and scipy.spatial would cost each ~0.2 s of its start (issue 24); test_poses checks it
+    and scipy.spatial would cost each ~0.2 s of its start (issue 24); test_kinematics checks it
     against scipy."""
     q = np.asarray(quaternion, dtype=float)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -126,10 +126,11 @@ def matrix_from_quaternion(quaternion: FloatArray) -> FloatArray:
 
 def quaternion_from_euler_xyz(angles: FloatArray) -> FloatArray:
     """Quaternions (N, 4) x, y, z, w of R = Rz(γ)·Ry(β)·Rx(α) from angles (N, 3) α, β, γ rad
-    (extrinsic x, y, z: scipy's ``Rotation.from_euler('xyz', angles).as_quat()``), as the
-    product q_z ⊗ q_y ⊗ q_x of the half-angle quaternions written out. Elementwise numpy, not
-    scipy, for the positioner's build (its factory box), where scipy.spatial would cost ~0.2 s
-    of its start (issue 24); test_poses checks it against scipy."""
+    (extrinsic x, y, z, :data:`EULER_SEQUENCE`: scipy's ``Rotation.from_euler('xyz',
+    angles).as_quat()``), as the product q_z ⊗ q_y ⊗ q_x of the half-angle quaternions
+    written out. Elementwise numpy, not scipy, for the positioner's build (its factory box),
+    where scipy.spatial would cost ~0.2 s of its start (issue 24); test_kinematics checks it
+    against scipy."""
     half = 0.5 * np.asarray(angles, dtype=float)
     c, s = np.cos(half), np.sin(half)
     cx, cy, cz = c[..., 0], c[..., 1], c[..., 2]
@@ -152,7 +153,7 @@ def quaternion_from_matrix(matrix: FloatArray, *, orthonormal: bool = False) -> 
 
     ``orthonormal=True`` skips scipy's re-orthonormalisation for matrices built orthonormal;
     up to :data:`SMALL_BATCH` of them are converted in numpy by Shepperd's method (the
-    quaternion from the largest of the trace and the diagonal, as scipy does; test_poses
+    quaternion from the largest of the trace and the diagonal, as scipy does; test_kinematics
     checks the two against each other).
     """
     m = np.asarray(matrix, dtype=float)
