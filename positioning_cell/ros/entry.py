@@ -17,12 +17,18 @@ down and destroyed: the bag written, the ROS log flushed, Fast DDS's shared memo
 :func:`end_process` ends the process without the interpreter's finalization: it tears down
 every module and object of rclpy, numpy, scipy and numba, 0.4 to 0.6 s here and more than 1.5 s
 on a loaded machine, which would put a stop past its 2 s.
+
+A stop that has not ended the process :data:`STOP_DEADLINE_S` after its signal (a callback or a
+library call that never returns: "nothing hangs") ends it anyway: every thread's stack is
+written to stderr (the node's log) and the process exits with status 1 (``faulthandler``'s
+watchdog, a thread of C that needs neither the main thread nor the GIL).
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import faulthandler
 import importlib
 import logging
 import os
@@ -41,6 +47,12 @@ from typing import NoReturn
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _stop_requested = threading.Event()
 
+STOP_DEADLINE_S = 10.0
+"""Longest time from a stop signal to the end of the process (s) before it is ended with its
+threads' stacks written to stderr and status 1: five times issue 21's 2 s for a stop, and
+under the 15-20 s after which the tests kill a node that did not stop (so that its log says
+where it hung). Read when the first stop signal arrives."""
+
 
 def _exit_now(signum: int, frame: FrameType | None) -> None:
     """A stop while the node's modules load: nothing to close yet, exit 0 now."""
@@ -51,14 +63,17 @@ _on_stop: list[Callable[[], None]] = []
 
 
 def _remember(signum: int, frame: FrameType | None) -> None:
+    if not _stop_requested.is_set():
+        faulthandler.dump_traceback_later(STOP_DEADLINE_S, exit=True)
     _stop_requested.set()
     for call in _on_stop:
         call()
 
 
 def hold_stops(on_stop: Callable[[], None] | None = None) -> None:
-    """SIGINT / SIGTERM / SIGHUP only set a flag (:func:`stop_requested`) and call ``on_stop``
-    (quick, no exception: it runs in the main thread between two bytecodes). Installed just
+    """SIGINT / SIGTERM / SIGHUP only set a flag (:func:`stop_requested`), arm the stop's
+    deadline (:data:`STOP_DEADLINE_S`) and call ``on_stop`` (quick, no exception: it runs in
+    the main thread between two bytecodes). Installed just
     before ``rclpy.init`` (which installs no handlers of its own): no exception lands in the
     middle of a callback, the context is not shut down under a publishing timer, and the spin
     loop returns between two callbacks once the flag is up."""
