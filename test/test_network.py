@@ -9,6 +9,8 @@ import os
 import re
 import shutil
 import subprocess
+import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
@@ -102,6 +104,41 @@ def test_cell_environment_uses_the_shipped_profile_unless_the_caller_has_one(
     env = cell_environment(7, {PROFILE_VARIABLE: str(own),
                                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'})
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'  # widened deliberately
+
+
+#: Two contexts (two participants) in one process, as a test process holds them: they discover
+#: each other with discovery data through the transports.
+TWO_PARTICIPANTS = """
+import time
+import rclpy
+from rclpy.context import Context
+contexts = [Context(), Context()]
+nodes = []
+for k, context in enumerate(contexts):
+    rclpy.init(context=context)
+    nodes.append(rclpy.create_node(f'participant_{k}', context=context))
+deadline = time.monotonic() + 30.0
+while 'participant_1' not in nodes[0].get_node_names() and time.monotonic() < deadline:
+    time.sleep(0.02)
+print(sorted(nodes[0].get_node_names()))
+"""
+
+
+def test_the_profile_parses_and_keeps_discovery_out_of_intra_process_delivery(
+        tmp_path: Path) -> None:
+    """Fast DDS reads the profile without a parser error (a misplaced element or a bad value
+    is logged as XMLPARSER Error), delivers discovery data between participants of one
+    process through the transports (USER_DATA_ONLY: the 2.14 lock cycle of FULL, the
+    profile's comment), and two participants of one process still find each other."""
+    settings = ET.parse(PROFILE).getroot().find('library_settings')
+    assert settings is not None and settings.findtext('intraprocess_delivery') == 'USER_DATA_ONLY'
+    with isolated_domain() as domain:
+        result = subprocess.run([sys.executable, '-c', TWO_PARTICIPANTS], capture_output=True,
+                                text=True, timeout=120, check=False,
+                                env=cell_environment(domain), cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert 'XMLPARSER' not in result.stdout + result.stderr, result.stderr
+    assert "['participant_0', 'participant_1']" in result.stdout, result.stdout + result.stderr
 
 
 @pytest.mark.skipif(shutil.which('ss') is None, reason='needs ss (iproute2)')
