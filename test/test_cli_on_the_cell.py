@@ -75,7 +75,9 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
             procs.start(node.executable, overrides=overrides if
                         node.name == names.NODE_POSITIONER else None)
         wait_until(lambda: poses and tracker, 60.0, 'the cell to come up')
-        yield Cell(domain, procs, client)
+        cell = Cell(domain, procs, client)
+        _home(cell)  # once for the module: each test then runs alone too (in any order)
+        yield cell
         codes = procs.stop()
         assert all(c == 0 for c in codes.values()), {k: procs.log(k)[-1500:] for k in codes}
 
@@ -90,7 +92,6 @@ def _home(cell: Cell) -> None:
 
 
 def test_frames_moves_and_the_pivot(cell: Cell) -> None:
-    _home(cell)
     code, doc = cell.cli('frames', 'set', '--user', *map(str, USER), '--object',
                          *map(str, OBJECT))
     assert code == 0 and doc['success'], doc
