@@ -120,7 +120,8 @@ for k, context in enumerate(contexts):
 deadline = time.monotonic() + 30.0
 while 'participant_1' not in nodes[0].get_node_names() and time.monotonic() < deadline:
     time.sleep(0.02)
-print(sorted(nodes[0].get_node_names()))
+print('found' if {'participant_0', 'participant_1'} <= set(nodes[0].get_node_names())
+      else f'not found: {nodes[0].get_node_names()}')
 """
 
 
@@ -138,7 +139,8 @@ def test_the_profile_parses_and_keeps_discovery_out_of_intra_process_delivery(
                                 env=cell_environment(domain), cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert 'XMLPARSER' not in result.stdout + result.stderr, result.stderr
-    assert "['participant_0', 'participant_1']" in result.stdout, result.stdout + result.stderr
+    # (a domain may still list a killed process's nodes for the 5 s lease: not an equality)
+    assert result.stdout.strip() == 'found', result.stdout + result.stderr
 
 
 @pytest.mark.skipif(shutil.which('ss') is None, reason='needs ss (iproute2)')
