@@ -5,10 +5,18 @@ Pure numpy/scipy over arrays of samples; no ROS.
 - :mod:`.settle`: settle windows, visits, the batch and streaming accumulators;
 - :mod:`.iso9283`: ISO 9283:1998 AP and RP of a commanded pose;
 - :mod:`.verdicts`: tolerances and verdicts;
+- :mod:`.decisions`: ISO 14253-1 decisions with the measurement's expanded uncertainty;
 - :mod:`.tracker_errors`: measured minus true pose over paired stamps;
 - :mod:`.monitor`: the accuracy monitor's rules (node and offline replay).
 """
 
+from positioning_cell.accuracy.decisions import (
+    Decision,
+    DecisionRule,
+    decision,
+    decisions,
+    norm_expanded_uncertainty,
+)
 from positioning_cell.accuracy.iso230_2 import AxisFigures, iso230_2
 from positioning_cell.accuracy.iso9283 import (
     PoseFigures,
@@ -75,6 +83,8 @@ __all__ = [
     'AccuracyResult',
     'AxisFigures',
     'CheckedSamples',
+    'Decision',
+    'DecisionRule',
     'Ends',
     'ErrorStatistics',
     'ErrorSums',
@@ -101,6 +111,8 @@ __all__ = [
     'Visit',
     'analyse',
     'check_samples',
+    'decision',
+    'decisions',
     'error_statistics',
     'figures_by_pose',
     'iso230_2',
@@ -110,6 +122,7 @@ __all__ = [
     'judge_visits',
     'measurement_error',
     'move_ended',
+    'norm_expanded_uncertainty',
     'orientation_angles',
     'pair_by_stamp',
     'settled_visits',
