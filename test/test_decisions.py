@@ -180,6 +180,11 @@ def test_the_monte_carlo_covers_the_true_norm_as_stated() -> None:
     assert 0.85 <= covered.mean() <= 1.0, covered.mean()
 
 
+def test_an_exact_measurement_has_no_uncertainty() -> None:
+    d = np.array([[0.0, 0.0, 0.0], [1e-5, 0.0, 0.0]])
+    np.testing.assert_array_equal(norm_expanded_uncertainty(d, np.zeros((2, 3, 3))), [0.0, 0.0])
+
+
 @pytest.mark.parametrize(('d', 'cov', 'k', 'words'), [
     (np.zeros((2, 3)), np.zeros((1, 3, 3)), 2.0, 'expected'),
     (np.zeros((1, 2)), np.zeros((1, 3, 3)), 2.0, 'expected'),

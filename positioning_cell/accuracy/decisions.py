@@ -153,9 +153,10 @@ def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
         raise InputError('norm_expanded_uncertainty: a covariance is not positive '
                          'semi-definite')
     norms = np.sqrt((d * d).sum(axis=1))
-    linear = norms >= LINEAR_FROM_SIGMAS * np.sqrt(np.maximum(eigen[:, 2], 0.0))
+    # (|Δp| = 0 with an exact measurement: the Monte Carlo, whose draws all give 0)
+    linear = (norms >= LINEAR_FROM_SIGMAS * np.sqrt(np.maximum(eigen[:, 2], 0.0))) & (norms > 0)
     out = np.empty(d.shape[0])
-    n = d[linear] / np.where(norms[linear] > 0.0, norms[linear], 1.0)[:, None]
+    n = d[linear] / norms[linear][:, None]
     first = np.einsum('ni,nij,nj->n', n, cov[linear], n)
     # The norm's curvature, H = (I - n nᵀ) / |Δp|: the second-order term of the propagation
     # for normal inputs, ½ tr((H Σ)²) (JCGM 100:2008 §5.1.2 note, eq. 11 with correlations).
