@@ -84,8 +84,32 @@ class NodeStart:
 
     def executor(self) -> Executor:
         """A new executor of the kind this node needs."""
-        return (MultiThreadedExecutor(num_threads=self.threads) if self.spin is Spin.THREADS
-                else EventsExecutor())
+        return (JoinedMultiThreadedExecutor(num_threads=self.threads)
+                if self.spin is Spin.THREADS else EventsExecutor())
+
+
+class JoinedMultiThreadedExecutor(MultiThreadedExecutor):
+    """rclpy's multi-threaded executor whose ``shutdown`` waits for the callbacks it started.
+
+    Jazzy's ``Executor.shutdown`` sets its shutdown flag and then skips its own wait for
+    outstanding work (it waits only ``if not self._is_shutdown``), and the multi-threaded
+    executor does not join its thread pool: ``shutdown(timeout_sec=5)`` returned at once while
+    callbacks still ran, so the node was closed and destroyed under them. A callback handed to
+    the pool just before then found the executor's guard condition destroyed ("The following
+    exception was never retrieved: cannot use Destroyable because destruction was requested",
+    in 7 of 50 positioner stops, ad hoc). Here the pool is shut down first, its queued and
+    running callbacks finished (at most ``timeout_sec``), and only then the executor."""
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        """Finish the callbacks handed to the thread pool (within ``timeout_sec``; None:
+        without bound), then shut the executor down. True if they all finished."""
+        pool = self._executor  # rclpy's ThreadPoolExecutor of this executor's callbacks
+        drain = threading.Thread(target=pool.shutdown, kwargs={'wait': True}, daemon=True,
+                                 name='executor drain')
+        drain.start()
+        drain.join(timeout_sec)
+        finished = not drain.is_alive()
+        return super().shutdown(timeout_sec=0) and finished
 
 
 def run(node: NodeStart, args: Sequence[str] | None = None) -> int:
