@@ -25,8 +25,8 @@ def test_a_dds_error_on_stdout_does_not_spoil_the_json_answer(tmp_path: Path) ->
     profile.write_text(config_path('fastdds_loopback.xml').read_text().replace(
         '>USER_DATA_ONLY<', '>NOT_A_SETTING<'))
     with isolated_domain() as domain:
-        env = cell_environment(domain, dict(os.environ,
-                                                   FASTRTPS_DEFAULT_PROFILES_FILE=str(profile)))
+        own_profile = dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(profile))
+        env = cell_environment(domain, own_profile)
         result = subprocess.run([executable('cell'), 'status', '--json', '--timeout', '1'],
                                 capture_output=True, text=True, env=env, timeout=120,
                                 check=False)
