@@ -23,11 +23,24 @@ from positioning_cell.ros.client import CellClient as Client
 from positioning_cell.ros.domains import free_domain as isolated_domain
 from positioning_cell.ros.processes import Processes, cell_environment, executable
 
-__all__ = ['CELL_YAML', 'REPO', 'Client', 'InProcess', 'ProcessGroup', 'executable',
-           'in_process', 'isolated_domain', 'processes_naming', 'wait_until']
+__all__ = ['CELL_YAML', 'FAST_MOTION', 'LOADED_LIVENESS', 'REPO', 'Client', 'InProcess',
+           'ProcessGroup', 'executable', 'in_process', 'isolated_domain', 'processes_naming',
+           'wait_until']
 
 REPO = Path(__file__).resolve().parent.parent
 CELL_YAML = REPO / 'config' / 'cell.yaml'
+
+#: The positioner's ``motion`` for tests of what a move does, not of the motion: three times
+#: the default speed, within the drives' and the factory's maxima.
+FAST_MOTION = {'linear_speed': 0.03, 'linear_acceleration': 0.15, 'angular_speed': 0.3,
+               'angular_acceleration': 1.5}
+
+#: The positioner's ``liveness`` for tests that move the real cell in the parallel tier, where
+#: liveness is not under test (test_faults proves it alone, in the timing tier). On a loaded
+#: 2-core machine (three workers beside the docs build) the busiest minute held the driver's
+#: 100 Hz joint states past the default 0.2 s, and the tracker's 20 Hz readings past the
+#: default 0.5 s (0.51 s, a homing aborted in CI): a stalled process, not a lost input.
+LOADED_LIVENESS = {'joint_silence': 1.0, 'tracker_silence': 1.5}
 
 
 def processes_naming(marker: Path) -> list[int]:

@@ -14,7 +14,14 @@ import numpy as np
 import pytest
 import yaml
 from action_msgs.msg import GoalStatus
-from cell_harness import CELL_YAML, Client, ProcessGroup, isolated_domain
+from cell_harness import (
+    CELL_YAML,
+    FAST_MOTION,
+    LOADED_LIVENESS,
+    Client,
+    ProcessGroup,
+    isolated_domain,
+)
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import Calibrate
 
@@ -75,14 +82,9 @@ def cell(tmp_path: Path) -> Iterator[Cell]:
         poses = client.collect(PoseStamped, names.ESTIMATED_POSE, STREAM_QOS)
         measured = client.collect(PoseWithCovarianceStamped, names.MEASURED_POSE, STREAM_QOS)
         for exe in CELL:
-            # Liveness is not under test here (test_faults): a start on two loaded cores may
-            # hold the driver's 100 Hz stream past the default 0.2 s and abort the homing.
-            # Moves three times the default speed (within the drives' and the factory's
-            # maxima): the test is of the action, not of the motion.
+            # the test is of the action, not of the motion nor of liveness
             procs.start(exe, overrides={names.NODE_POSITIONER: {
-                'liveness': {'joint_silence': 1.0},
-                'motion': {'linear_speed': 0.03, 'linear_acceleration': 0.15,
-                           'angular_speed': 0.3, 'angular_acceleration': 1.5}}}
+                'liveness': LOADED_LIVENESS, 'motion': FAST_MOTION}}
                 if exe == 'kinematics_node' else None)
         procs.start(names.CALIBRATOR.executable,
                     # no approach moves: half the moves per pose (the approach is run_cell's)

@@ -16,7 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from cell_harness import CELL_YAML, executable, processes_naming, wait_until
+from cell_harness import (
+    CELL_YAML,
+    FAST_MOTION,
+    LOADED_LIVENESS,
+    executable,
+    processes_naming,
+    wait_until,
+)
 
 from positioning_cell import names
 from positioning_cell.analysis.axis_test import TRUTH, AxisTestMarker, axis_test_figures
@@ -57,23 +64,13 @@ def program(tmp_path: Path) -> Path:
 
 #: Moves three times the shipped speed (within the drives' and the factory's maxima): the test
 #: is of the run, not of the motion.
-FAST_MOTION = {'linear_speed': 0.03, 'linear_acceleration': 0.15, 'angular_speed': 0.3,
-               'angular_acceleration': 1.5}
-
-
-#: Liveness is not under test here (test_faults, in the timing tier): on a loaded 2-core
-#: machine the parallel tier's busiest minute (test_shutdown, test_fault_trials and the docs
-#: build beside this run) held the driver's 100 Hz joint states past the default 0.2 s once,
-#: a calibration move aborted and the run went on without its calibration (as it should).
-JOINT_SILENCE_S = 1.0
-
-
 def _fast_config(folder: Path) -> Path:
-    """config/cell.yaml with :data:`FAST_MOTION` and :data:`JOINT_SILENCE_S` for the
-    positioner."""
+    """config/cell.yaml with :data:`~cell_harness.FAST_MOTION` and
+    :data:`~cell_harness.LOADED_LIVENESS` for the positioner (a calibration move aborted by a
+    stalled driver would leave the run without its calibration, as it should)."""
     doc = yaml.safe_load(CELL_YAML.read_text())
     doc['positioner']['ros__parameters']['motion'].update(FAST_MOTION)
-    doc['positioner']['ros__parameters']['liveness']['joint_silence'] = JOINT_SILENCE_S
+    doc['positioner']['ros__parameters']['liveness'].update(LOADED_LIVENESS)
     path = folder / 'cell_fast.yaml'
     path.write_text(yaml.safe_dump(doc))
     return path
