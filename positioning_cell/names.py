@@ -46,9 +46,11 @@ NODE_PLAYER = 'bag_player'
 NODE_CALIBRATOR = 'calibrator'
 NODE_LIVE_VIEW = 'live_view'
 
+#: The simulated leg drives (actuators and encoders).
+DRIVER = CellNode('leg_driver_node', NODE_DRIVER)
 #: The cell's nodes in start order: the launch file and the run driver start these.
 CELL_NODES = (
-    CellNode('leg_driver_node', NODE_DRIVER),
+    DRIVER,
     CellNode('pose_measurement_node', NODE_MEASUREMENT),
     CellNode('kinematics_node', NODE_POSITIONER),
     CellNode('accuracy_monitor_node', NODE_MONITOR),

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from positioning_cell.ros.driver_probes import DRIVER, PROBES, CommandedDriver
+from positioning_cell.names import DRIVER
+from positioning_cell.ros.driver_probes import PROBES, CommandedDriver
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow, pytest.mark.timing]
 

@@ -38,7 +38,6 @@ from positioning_cell.ros.qos import COMMAND_QOS, HEARTBEAT_QOS, STREAM_QOS
 
 #: The client's node name: the driver's commander.
 COMMANDER = 'driver_probe'
-DRIVER = next(n for n in names.CELL_NODES if n.name == names.NODE_DRIVER)
 
 
 @dataclass(frozen=True)
@@ -95,7 +94,7 @@ class CommandedDriver:
         domain = self._stack.enter_context(free_domain())
         self.procs = self._stack.enter_context(Processes(cell_environment(domain), log_dir))
         self.client = self._stack.enter_context(CellClient(domain, COMMANDER))
-        self.procs.start(DRIVER.executable, params=[config_path('cell.yaml')], overrides={
+        self.procs.start(names.DRIVER.executable, params=[config_path('cell.yaml')], overrides={
             names.NODE_DRIVER: {'referenced_at_start': True,
                                 'command': {'commander': f'/{COMMANDER}'}}})
         node = self.client.node
