@@ -39,7 +39,8 @@ LINEAR_FROM_SIGMAS = 10.0
 #: significant digit; 10^5 here for two).
 MONTE_CARLO_DRAWS = 100_000
 
-#: Rows drawn at once by the Monte Carlo (bounds its memory: 8 × 10^5 × 3 doubles, 19 MB).
+#: Rows evaluated at once by the Monte Carlo (bounds its memory: 8 × 10^5 doubles, 6 MB, beside
+#: the draws' 10^5 × 9 monomials, 7 MB).
 MONTE_CARLO_ROWS = 8
 
 
@@ -175,20 +176,41 @@ def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
 def _monte_carlo(d: FloatArray, cov: FloatArray, k: float,
                  rng: np.random.Generator) -> FloatArray:
     """JCGM 101:2008 §7 for Y = |X|, X ~ N(d, cov), rows at once: the half-width of the
-    probabilistically symmetric coverage interval for probability erf(k / √2)."""
+    probabilistically symmetric coverage interval for probability erf(k / √2).
+
+    One set of :data:`MONTE_CARLO_DRAWS` standard normal draws z (M, 3) serves every row (a
+    valid sample of each row's X = d + L z, L Lᵀ = cov; the rows' figures are then
+    correlated, never biased), and |X|² = dᵀd + 2 (Lᵀd)·z + zᵀ(LᵀL)z is one matrix product
+    of the draws' nine monomials with each row's nine coefficients: ~20 times faster than a
+    draw per row (19 ms a row before), so that a replay of thousands of visits affords it."""
     p = math.erf(k / math.sqrt(2.0))
     # A symmetric positive semi-definite covariance's square root by its eigenvectors (a
     # Cholesky factor needs it definite: a reading may be exact along an axis).
     w, v = np.linalg.eigh(cov)
     root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (N, 3, 3): root @ rootᵀ = cov
+    z = rng.standard_normal((MONTE_CARLO_DRAWS, 3))
+    monomials = np.vstack([z.T, (z * z).T, z[:, 0] * z[:, 1], z[:, 0] * z[:, 2],
+                           z[:, 1] * z[:, 2]])  # (9, M)
+    linear = 2.0 * np.einsum('nji,nj->ni', root, d)  # 2 Lᵀd (N, 3)
+    quad = np.einsum('nki,nkj->nij', root, root)  # LᵀL (N, 3, 3)
+    coefficients = np.column_stack([
+        linear, quad[:, 0, 0], quad[:, 1, 1], quad[:, 2, 2],
+        2.0 * quad[:, 0, 1], 2.0 * quad[:, 0, 2], 2.0 * quad[:, 1, 2]])  # (N, 9)
+    constant = (d * d).sum(axis=1)
+    # np.quantile's linear interpolation between the order statistics around (M - 1)·p, taken
+    # from |X|² (the same order) and their roots only: no root of every draw.
+    at = (MONTE_CARLO_DRAWS - 1) * np.array([(1.0 - p) / 2.0, (1.0 + p) / 2.0])
+    below = np.floor(at).astype(np.intp)
+    share = at - below
+    ranks = np.concatenate([below, below + 1])
     out = np.empty(d.shape[0])
     for start in range(0, d.shape[0], MONTE_CARLO_ROWS):  # chunks of rows, not samples
         rows = slice(start, start + MONTE_CARLO_ROWS)
-        z = rng.standard_normal((d[rows].shape[0], MONTE_CARLO_DRAWS, 3))
-        x = d[rows, None, :] + np.einsum('nij,nmj->nmi', root[rows], z)
-        y = np.sqrt((x * x).sum(axis=2))
-        low, high = np.quantile(y, [(1.0 - p) / 2.0, (1.0 + p) / 2.0], axis=1)
-        out[rows] = (high - low) / 2.0
+        squared = coefficients[rows] @ monomials + constant[rows, None]  # (rows, M)
+        ordered = np.partition(squared, ranks, axis=1)
+        y = np.sqrt(np.maximum(ordered[:, ranks], 0.0))  # (rows, 4): low, high, low+1, high+1
+        low_high = y[:, :2] + share * (y[:, 2:] - y[:, :2])
+        out[rows] = (low_high[:, 1] - low_high[:, 0]) / 2.0
     return out
 
 
