@@ -561,7 +561,8 @@ def test_verdicts_at_the_tolerance_boundary() -> None:
     assert not v.ok and not v.position_ok and v.orientation_ok
     v = acc.judge(0.0, above_o, tol)
     assert not v.ok and v.position_ok and not v.orientation_ok
-    assert 'OUT OF TOLERANCE' in v.message() and '0.0100°' in v.message()
+    assert 'INDETERMINATE' in v.message() and '0.0100°' in v.message()  # U not stated
+    assert 'DOES NOT CONFORM' in acc.judge(0.0, above_o, tol, 0.0, 0.0).message()
     assert '50.0 µm' in acc.judge(0.0, 0.0).message()
     # Through a settled visit: exactly the tolerance off along x.
     visit = acc.Visit(0, 1, 0.0, 1.0, 1.5, 50, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0),
@@ -681,12 +682,21 @@ def _fed(events: list[tuple[str, float, str, Arr, Arr]], start: int) -> dict[str
             return acc.PoseMessages.empty()
         return acc.PoseMessages(np.array([r[0] for r in mine]), np.array([r[1] for r in mine]),
                                 np.array([r[2] for r in mine], dtype=object),
-                                np.array([r[3] for r in mine]), np.array([r[4] for r in mine]))
+                                np.array([r[3] for r in mine]), np.array([r[4] for r in mine]),
+                                np.array([_stated(r[1]) for r in mine])
+                                if kind == 'measured' else None)
 
     ends = acc.MoveEnds(np.array([r[0] for r in rows['end']], dtype=np.intp),
                         np.array([r[1] for r in rows['end']], dtype=float))
     return {'targets': messages('target'), 'measured': messages('measured'),
             'truth': messages('truth'), 'ends': ends}
+
+
+def _stated(t: float) -> Arr:
+    """The covariance (6, 6) the tracker states for a reading at ``t`` s (changing with t,
+    so that a visit's figure depends on which readings made it)."""
+    scale = 1.0 + 0.3 * math.sin(7.0 * t)
+    return np.diag([(8e-6 * scale) ** 2] * 3 + [(2e-5 * scale) ** 2] * 3)
 
 
 @functools.cache
@@ -697,9 +707,10 @@ def _one_by_one(seed: int) -> acc.Monitor:
     for topic, t, frame, p, q in events:
         if topic == 'end':
             monitor.move_end(t)
+        elif topic == 'measured':
+            monitor.measurement(t, frame, p, q, _stated(t).ravel())
         else:
-            {'target': monitor.target, 'measured': monitor.measurement,
-             'truth': monitor.truth}[topic](t, frame, p, q)
+            {'target': monitor.target, 'truth': monitor.truth}[topic](t, frame, p, q)
     return monitor
 
 
@@ -720,6 +731,11 @@ def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
         start += size
     a, b = live.report(), grouped.report()
     assert a['verdicts']['ok'] + a['verdicts']['error'] == 4
+    assert sum(a['decisions'].values()) == 4
+    uncertainties = [(v.position_uncertainty, v.orientation_uncertainty) for v in live.verdicts]
+    assert np.all(np.isfinite(uncertainties)) and np.all(np.array(uncertainties) > 0.0)
+    assert uncertainties == [(v.position_uncertainty, v.orientation_uncertainty)
+                             for v in grouped.verdicts]
     tracker_a, tracker_b = a.pop('tracker'), b.pop('tracker')
     assert a == b
     assert tracker_a['samples'] == tracker_b['samples'] > 200

@@ -37,6 +37,8 @@ POSES = {'A': (HOME + [0.002, 0.0, 0.0], [0.0, 0.0, 0.0]),
 # Measured − commanded at rest: A within the default 50 µm (30 µm), B outside it (80 µm).
 OFFSETS = {'A': np.array([18e-6, -24e-6, 0.0]), 'B': np.array([0.0, 48e-6, 64e-6])}
 TRACKER_BIAS = np.array([4e-6, 0.0, -3e-6])  # measured − true, m
+#: The covariance each reading states: its noise (3 µm, 10 µrad per axis), not the bias.
+STATED = np.diag([(3e-6) ** 2] * 3 + [(1e-5) ** 2] * 3)
 
 
 def settings() -> acc.SettleSettings:
@@ -111,6 +113,7 @@ class Cell:
             msg = PoseWithCovarianceStamped()
             msg.header.stamp, msg.header.frame_id = stamp(self.now), 'base'
             msg.pose.pose = pose_msg(p_meas, q_meas)
+            msg.pose.covariance = STATED.ravel().tolist()
             self.pub_meas.publish(msg)
             self.truth.append((t, p_true, q_true))
             self.meas.append((t, p_meas, q_meas))
@@ -200,7 +203,8 @@ def test_one_error_per_measurement_as_the_library_computes_it(visited: Cell) -> 
 
 
 def test_one_verdict_per_settled_pose(visited: Cell) -> None:
-    """A within tolerance, B (80 µm) outside."""
+    """A (30 µm) conforms, B (80 µm) does not, each by more than the U (k = 2) of its
+    window's mean reading, which the tracker's stated covariance gives (ISO 14253-1)."""
     verdicts = wait_until(lambda: (v := statuses(visited, 'accuracy_monitor: settled pose'))
                           and len(v) >= 4 and v, 10.0, 'four verdicts')
     assert [s.level for s in verdicts] == [DiagnosticStatus.OK, DiagnosticStatus.ERROR] * 2
@@ -208,6 +212,11 @@ def test_one_verdict_per_settled_pose(visited: Cell) -> None:
     values = {kv.key: kv.value for kv in verdicts[3].values}
     assert float(values['position_error_um']) == pytest.approx(80.0, abs=10.0)
     assert values['n'] == '2' and values['RP_l_um'] != 'n/a'
+    decided = [{kv.key: kv.value for kv in s.values} for s in verdicts]
+    assert [d['decision'] for d in decided] == ['conforms', 'does not conform'] * 2
+    assert all(d['decision_rule'] == 'iso_14253_1' for d in decided)
+    # one reading's 3 µm per axis, averaged down over the window: under 2 x 3 µm x sqrt(3)
+    assert all(0.0 < float(d['position_uncertainty_um']) < 10.4 for d in decided)
 
 
 def test_the_report_is_the_librarys_batch_computation(visited: Cell) -> None:
@@ -219,6 +228,7 @@ def test_the_report_is_the_librarys_batch_computation(visited: Cell) -> None:
     assert [(v.key, v.cycle) for v in batch.visits] == [(0, 1), (1, 1), (0, 2), (1, 2)]
     assert report['measured'] == jsonable(batch.to_dict())
     assert report['verdicts'] == {'ok': 2, 'error': 2}
+    assert report['decisions'] == {'conforms': 2, 'indeterminate': 0, 'does_not_conform': 2}
     assert report['truth'] == jsonable(cell.batch(cell.truth).to_dict())
     tm, pm, qm = (np.array(x) for x in zip(*cell.meas, strict=True))
     tt_, pt, qt = (np.array(x) for x in zip(*cell.truth, strict=True))

@@ -366,6 +366,7 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
     for key in ('bag', 'plots', 'context', 'axis_tests', 'error_budget'):  # path, files, new
         before.pop(key, None)
         now.pop(key, None)
+    assert now['settings']['tolerances'].pop('decision_rule') == 'iso_14253_1'  # issue 25
     judged = ('modes', 'truth_modes', 'visits', 'monitor')
     assert differences({k: v for k, v in before.items() if k not in judged},
                        {k: v for k, v in now.items() if k not in judged}) == []

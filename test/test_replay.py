@@ -78,6 +78,9 @@ def test_the_live_monitor_fed_by_the_player_reports_the_offline_figures(tmp_path
         live = latest
 
     assert live['verdicts'] == offline['verdicts']
+    # each visit's U from the covariances the bag's readings state, read the same way
+    assert live['decisions'] == offline['decisions']
+    assert offline['decisions']['conforms'] > 0
     for source in ('measured', 'truth'):
         assert len(live[source]['visits']) == len(offline[source]['visits']) == 8
         np.testing.assert_allclose(_numbers(live[source]['poses']),

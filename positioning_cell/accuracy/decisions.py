@@ -6,9 +6,9 @@ norm |Î”p|, by the GUM's law of propagation where the norm is nearly linear in Î
 100:2008 eq. 10) and by its Monte Carlo method where it is not (JCGM 101:2008). SI units
 throughout (m for positions, whatever unit the limits use for the rest).
 
-Not yet used by the monitor's verdicts, the reports or ``cell watch``: the uncertainty of a
-settled visit (the tracker's per-reading covariance carried through the monitor and the bag
-reader) comes next.
+The monitor's verdicts use them (:mod:`positioning_cell.accuracy.verdicts`, each settled
+visit's covariance from its readings': docs/howto/verdicts.md); ``cell watch``, the live view
+and the fleet trends do not yet.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ accumulators' batch form: :meth:`positioning_cell.accuracy.settle.AccuracyAccumu
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,10 +39,16 @@ from positioning_cell.accuracy.settle import (
     check_samples,
 )
 from positioning_cell.accuracy.tracker_errors import TrackerErrorAccumulator
-from positioning_cell.accuracy.verdicts import Tolerances, Verdict, judge_visits
+from positioning_cell.accuracy.verdicts import (
+    Tolerances,
+    Verdict,
+    decision_counts,
+    judge_visits,
+)
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import InputError
+from positioning_cell.moves.correction import mean_reading
 from positioning_cell.moves.outcomes import ResultCode, State
 from positioning_cell.names import (
     BASE_FRAME,
@@ -161,13 +167,16 @@ class PoseMessages:
     """N pose messages of one topic, in arrival order: ``rank`` (N,) their places in the
     arrival order of everything fed together (increasing; comparable across topics), header
     stamps (N,) s, frame ids (N,), positions (N, 3) m, quaternions (N, 4) x, y, z, w (as
-    received: the monitor checks them)."""
+    received: the monitor checks them), and the covariances (N, 6, 6) they state
+    (PoseWithCovarianceStamped's, row-major: x, y, z, rot-x, rot-y, rot-z in their frame;
+    None: the topic states none)."""
 
     rank: NDArray[np.intp]
     stamp: FloatArray
     frame: NDArray[np.object_]
     position: FloatArray
     quaternion: FloatArray
+    covariance: FloatArray | None = None
 
     @classmethod
     def empty(cls) -> PoseMessages:
@@ -176,17 +185,21 @@ class PoseMessages:
                    np.empty((0, 3)), np.empty((0, 4)))
 
     @classmethod
-    def one(cls, stamp: float, frame: str, position: ArrayLike,
-            quaternion: ArrayLike) -> PoseMessages:
-        """A single message (its values checked by the monitor, not here)."""
+    def one(cls, stamp: float, frame: str, position: ArrayLike, quaternion: ArrayLike,
+            covariance: ArrayLike | None = None) -> PoseMessages:
+        """A single message (its values checked by the monitor, not here; ``covariance``:
+        the 36 or 6 x 6 values it states, or None)."""
         try:
             p = np.asarray(position, dtype=float).reshape(1, 3)
             q = np.asarray(quaternion, dtype=float).reshape(1, 4)
+            c = (None if covariance is None
+                 else np.asarray(covariance, dtype=float).reshape(1, 6, 6))
         except (TypeError, ValueError) as err:
-            raise InputError(f'expected a position (3,) and a quaternion (4,), got '
-                             f'{position!r}, {quaternion!r}') from err
+            raise InputError(f'expected a position (3,), a quaternion (4,) and a covariance '
+                             f'(36,), got {position!r}, {quaternion!r}, {covariance!r}'
+                             ) from err
         return cls(np.zeros(1, dtype=np.intp), np.array([stamp], dtype=float),
-                   np.array([frame], dtype=object), p, q)
+                   np.array([frame], dtype=object), p, q, c)
 
     @property
     def count(self) -> int:
@@ -244,6 +257,54 @@ _NOTHING_CHECKED = CheckedSamples(np.empty(0), _EMPTY, np.empty((0, 4)), np.zero
                                   {})
 
 
+class Readings:
+    """The measurements the monitor took that a visit still to come may be settled on: times
+    (n,) s, positions (n, 3) m, quaternions (n, 4) and stated covariances (n, 6, 6) (NaN: not
+    stated), so that a settled visit's attained pose gets the covariance of the mean of its
+    window's readings. Bounded: what precedes the accumulator's
+    :meth:`~positioning_cell.accuracy.settle.AccuracyAccumulator.kept_since` is dropped."""
+
+    def __init__(self) -> None:
+        self.time = np.empty(0)
+        self.position = np.empty((0, 3))
+        self.quaternion = np.empty((0, 4))
+        self.covariance = np.empty((0, 6, 6))
+
+    def add(self, time: FloatArray, position: FloatArray, quaternion: FloatArray,
+            covariance: FloatArray | None) -> None:
+        """Readings taken (time-ordered, after those held); ``covariance`` None: not
+        stated."""
+        cov = (np.full((time.size, 6, 6), math.nan) if covariance is None
+               else np.asarray(covariance, dtype=float))
+        self.time = np.concatenate([self.time, time])
+        self.position = np.concatenate([self.position, position])
+        self.quaternion = np.concatenate([self.quaternion, quaternion])
+        self.covariance = np.concatenate([self.covariance, cov])
+
+    def drop_before(self, time: float) -> None:
+        """Forget the readings older than ``time`` s (all of them for inf)."""
+        keep = int(np.searchsorted(self.time, time, side='left'))
+        if keep:
+            self.time, self.position = self.time[keep:], self.position[keep:]
+            self.quaternion, self.covariance = self.quaternion[keep:], self.covariance[keep:]
+
+    def covariance_of(self, visits: Sequence[Visit]) -> FloatArray:
+        """The covariance (N, 6, 6) of each visit's attained pose, the mean of the readings
+        of its settle window (window_start..settle_time), by
+        :func:`positioning_cell.moves.correction.mean_reading` (the closed loop's mean of a
+        pose's readings): the readings' own noise averaged down by their scatter, the rest
+        (the registration, which every reading shares) not. NaN rows: no reading of the
+        window held, or one stated no covariance."""
+        out = np.full((len(visits), 6, 6), math.nan)
+        for i, visit in enumerate(visits):  # over visits, not samples
+            rows = slice(int(np.searchsorted(self.time, visit.window_start, side='left')),
+                         int(np.searchsorted(self.time, visit.settle_time, side='right')))
+            cov = self.covariance[rows]
+            if cov.shape[0] and np.all(np.isfinite(cov)):
+                out[i] = mean_reading(self.position[rows], self.quaternion[rows], cov)[2]
+        return out
+
+
 class Monitor:
     """Messages in, the monitor's state out. :meth:`feed` takes the targets, measured and true
     poses that arrived together (any number, interleaved by their ranks: one implementation,
@@ -266,6 +327,7 @@ class Monitor:
         self.truth_seen = False
         self.verdicts: list[Verdict] = []
         self.ignored: list[Ignored] = []
+        self.readings = Readings()
         # The latest stamp taken per source: an older sample is ignored (kept over reset).
         self._latest = {MEASURED_POSE: -math.inf, TRUE_POSE: -math.inf}
 
@@ -381,8 +443,12 @@ class Monitor:
         self.tracker.add_truth(t_checked.time[ok_t], t_checked.position[ok_t],
                                t_checked.quaternion[ok_t], label_t)
         self.truth_seen = self.truth_seen or bool(t_rows.size)
+        self.readings.add(m_checked.time[ok_m], m_checked.position[ok_m],
+                          m_checked.quaternion[ok_m],
+                          None if measured.covariance is None else measured.covariance[m_rows])
         new = self.measured.visits[before:]
-        judged = judge_visits(new, self.tolerances)
+        judged = judge_visits(new, self.tolerances, self.readings.covariance_of(new))
+        self.readings.drop_before(self.measured.kept_since())
         self.verdicts.extend(judged)
         verdict_of = {id(v): j for v, j in zip(new, judged, strict=True)}
         verdicts = tuple((r, verdict_of[id(v)]) for r, v in m_batch.samples.visits)
@@ -404,10 +470,12 @@ class Monitor:
         return fed.targets_ignored[0][1] if fed.targets_ignored else None
 
     def measurement(self, stamp: float, frame: str, position: ArrayLike,
-                    quaternion: ArrayLike) -> Measured | Ignored:
-        """One /metrology/pose message: the update and the verdict of a visit it settled."""
-        batch = self.feed(measured=PoseMessages.one(stamp, frame, position, quaternion)
-                          ).measured
+                    quaternion: ArrayLike, covariance: ArrayLike | None = None
+                    ) -> Measured | Ignored:
+        """One /metrology/pose message (``covariance``: the 36 values it states, or None):
+        the update and the verdict of a visit it settled."""
+        batch = self.feed(measured=PoseMessages.one(stamp, frame, position, quaternion,
+                                                    covariance)).measured
         if batch.ignored:
             return batch.ignored[0][1]
         return Measured(batch.samples.update(0), batch.verdicts[0][1] if batch.verdicts
@@ -436,7 +504,8 @@ class Monitor:
         visit = self.measured.finish()
         if visit is None:
             return ()
-        verdict = judge_visits([visit], self.tolerances)[0]
+        verdict = judge_visits([visit], self.tolerances, self.readings.covariance_of([visit]))[0]
+        self.readings.drop_before(math.inf)
         self.verdicts.append(verdict)
         return ((visit, verdict),)
 
@@ -451,25 +520,30 @@ class Monitor:
         self.tracker.reset()
         self.truth_seen = False
         self.verdicts = []
+        self.readings = Readings()
 
     def report(self) -> dict[str, Any]:
         """The JSON document of /accuracy_monitor/report (SI: m, rad, s): ``tolerances``,
         ``settle`` (settings), ``target`` (current one or null, with the ``move_end`` time
-        reported for it or null), ``verdicts`` (counts ok /
-        error), ``measured`` and ``truth`` (settled ``visits`` and ISO 9283 ``poses``; truth
+        reported for it or null), ``verdicts`` (counts ok / error, the errors as measured
+        against the tolerances), ``decisions`` (counts of each decision by the rule in force
+        when each was drawn: ``conforms``, ``indeterminate``, ``does_not_conform``),
+        ``measured`` and ``truth`` (settled ``visits`` and ISO 9283 ``poses``; truth
         null until a true pose arrives), ``tracker`` (measured − true statistics, or null)."""
         target = self.measured.target
         stats = self.tracker.statistics()
         ok = sum(v.ok for v in self.verdicts)
         return {
             'tolerances': {'position': self.tolerances.position,
-                           'orientation': self.tolerances.orientation},
+                           'orientation': self.tolerances.orientation,
+                           'decision_rule': self.tolerances.decision_rule},
             'settle': self.measured.settings.to_params(),
             'target': None if target is None else {
                 'time': target[0], 'position': target[1].tolist(),
                 'quaternion': target[2].tolist(), 'key': target[3],
                 'move_end': self.measured.move_end},
             'verdicts': {'ok': ok, 'error': len(self.verdicts) - ok},
+            'decisions': decision_counts(self.verdicts),
             'measured': self.measured.result().to_dict(),
             'truth': self.truth_accumulator.result().to_dict() if self.truth_seen else None,
             'tracker': None if stats is None else stats.to_dict(),

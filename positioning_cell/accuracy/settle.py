@@ -514,6 +514,16 @@ class AccuracyAccumulator:
         vectors against the target)."""
         self._window = (np.empty(0), np.empty((0, 3)), np.empty((0, 4)), np.empty((0, 3)))
 
+    def kept_since(self) -> float:
+        """The time (s) of the earliest sample a visit still to come may be settled on: the
+        start of the open segment's best stable window so far, else the first sample in the
+        stability window; inf when it holds neither (what came before is no longer needed,
+        e.g. by the monitor's record of each reading's covariance)."""
+        times = [self._pending[0]] if self._pending is not None else []
+        if self._window[0].size:
+            times.append(float(self._window[0][0]))
+        return min(times, default=math.inf)
+
     def reset(self, *, keep_target: bool = False) -> None:
         """Forget every sample, visit and pose key; with ``keep_target`` the current target
         stays, as if it had just been given (key 0, its time, no samples yet)."""

@@ -126,8 +126,10 @@ def _pose_rows(columns: Columns, rank: NDArray[np.intp]) -> PoseMessages:
              + columns.array('header.stamp.nanosec').astype(float) * 1e-9)
     position = np.column_stack([columns.array(f'{pose}.position.{a}') for a in 'xyz'])
     quaternion = np.column_stack([columns.array(f'{pose}.orientation.{a}') for a in 'xyzw'])
+    covariance = (columns.array('pose.covariance').astype(float).reshape(-1, 6, 6)
+                  if pose == 'pose.pose' else None)
     return PoseMessages(rank, stamp, np.array(frame.values, dtype=object)[frame.codes],
-                    position.astype(float), quaternion.astype(float))
+                        position.astype(float), quaternion.astype(float), covariance)
 
 
 def joint_values(names: Sequence[str], values: Sequence[float]) -> FloatArray:
@@ -270,7 +272,9 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
             np.array([(p.position.x, p.position.y, p.position.z) for p in pose],
                      dtype=float).reshape(-1, 3),
             np.array([(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w)
-                      for p in pose], dtype=float).reshape(-1, 4))
+                      for p in pose], dtype=float).reshape(-1, 4),
+            np.array([m.pose.covariance for _, m in found], dtype=float).reshape(-1, 6, 6)
+            if found and hasattr(found[0][1].pose, 'covariance') else None)
     return MessageBatch(targets=rows[TARGET], measured=rows[MEASURED_POSE],
                         truth=rows[TRUE_POSE], program=tuple(texts[PROGRAM]),
                         diagnostics=tuple(diagnostics), calibration=tuple(texts[CALIBRATION]),

@@ -286,11 +286,12 @@ class Replayer:
                        for v, verdict in zip(monitor.measured.visits, monitor.verdicts,
                                              strict=True))
         true = monitor.truth_accumulator.visits
+        exact = np.zeros((len(true), 6, 6))  # the simulation's truth: U = 0
         truth_visits = tuple(
             LabelledVisit(v, segments[by_truth_time[v.target_time]].mode,
                           segments[by_truth_time[v.target_time]].pose, verdict,
                           truth.start(v.target_time))
-            for v, verdict in zip(true, accuracy.judge_visits(true, monitor.tolerances),
+            for v, verdict in zip(true, accuracy.judge_visits(true, monitor.tolerances, exact),
                                   strict=True))
         notes = tuple(dict.fromkeys(s.note for s in self._steps if s.note))
         return Replay(monitor, segments, visits, truth_visits, measured, truth,

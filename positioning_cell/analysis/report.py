@@ -165,11 +165,15 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 'accuracy, R repeatability, B reversal, E systematic deviation (over the '
                 'means of both directions), M range of the bidirectional means.', '',
                 *test.markdown(level=3)]
-    monitor = a.monitor['verdicts']
+    monitor, decided = a.monitor['verdicts'], a.monitor['decisions']
+    rule = a.monitor['tolerances']['decision_rule']
     out += ['## Monitor', '', f'Replaying the bag through the accuracy monitor\'s rules gives '
             f'{monitor["ok"] + monitor["error"]} verdicts: {monitor["ok"]} within tolerance, '
-            f'{monitor["error"]} out of tolerance (the JSON summary holds the monitor\'s '
-            f'report).', '']
+            f'{monitor["error"]} out of tolerance as measured. Accounting for each '
+            f'measurement\'s expanded uncertainty U (k = 2, rule {rule}): '
+            f'{decided["conforms"]} conform, {decided["indeterminate"]} indeterminate (within '
+            f'U of a tolerance), {decided["does_not_conform"]} do not conform (the JSON '
+            f'summary holds the monitor\'s report).', '']
     if plots:
         out += ['## Plots', '', *(f'![{p.stem}]({p.name})' for p in plots), '']
     return '\n'.join(out)

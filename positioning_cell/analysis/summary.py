@@ -11,6 +11,7 @@ its settle window, so it never exceeds what the bag covers.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
@@ -67,6 +68,7 @@ class Extremes:
     settle_time_mean: float
     settle_time_max: float
     within_tolerance: int
+    decisions: dict[str, int]
 
     @classmethod
     def of(cls, visits: Sequence[LabelledVisit]) -> Extremes:
@@ -76,7 +78,8 @@ class Extremes:
         s = np.array([v.settle_duration for v in visits])
         return cls(len(visits), float(d.max()), float(np.sqrt((d * d).mean())),
                    float(a.max()), float(np.sqrt((a * a).mean())), float(s.mean()),
-                   float(s.max()), sum(v.verdict.ok for v in visits))
+                   float(s.max()), sum(v.verdict.ok for v in visits),
+                   accuracy.decision_counts([v.verdict for v in visits]))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI)."""
@@ -209,7 +212,8 @@ class RunAnalysis:
                         'truth': self.replay.truth.count},
             'settings': {'settle': s.settle.to_params(),
                          'tolerances': {'position': s.tolerance.position,
-                                        'orientation': s.tolerance.orientation},
+                                        'orientation': s.tolerance.orientation,
+                                        'decision_rule': s.tolerance.decision_rule},
                          'max_stamp_difference': s.tracker_error.max_stamp_difference},
             'modes': [m.to_dict() for m in self.modes],
             'truth_modes': [m.to_dict() for m in self.truth_modes],
@@ -217,6 +221,9 @@ class RunAnalysis:
             'visits': [{'mode': v.mode, 'pose': v.pose, 'ok': v.verdict.ok,
                         'position_error': v.verdict.position_error,
                         'orientation_error': v.verdict.orientation_error,
+                        'position_uncertainty': _stated(v.verdict.position_uncertainty),
+                        'orientation_uncertainty': _stated(v.verdict.orientation_uncertainty),
+                        'decision': v.verdict.decision.value,
                         'segment_start': v.start, 'settle_duration': v.settle_duration,
                         **v.visit.to_dict()} for v in self.replay.visits],
             'ignored': [i.__dict__ for i in self.ignored],
@@ -225,6 +232,11 @@ class RunAnalysis:
             'error_budget': [b.to_dict() for b in self.budgets],
             'monitor': self.monitor,
         }
+
+
+def _stated(uncertainty: float) -> float | None:
+    """An expanded uncertainty for JSON: None when the measurement stated none (NaN)."""
+    return uncertainty if math.isfinite(uncertainty) else None
 
 
 #: The topics the replay reads (the first pass over the bag).

@@ -22,7 +22,6 @@ keeps the current target.
 from __future__ import annotations
 
 import json
-import math
 import time
 from typing import Any
 
@@ -41,7 +40,7 @@ from positioning_cell.accuracy import (
     move_ended,
     stamp_seconds,
 )
-from positioning_cell.accuracy.verdicts import Verdict
+from positioning_cell.accuracy.verdicts import DECISION_LEVELS, Verdict, verdict_values
 from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recording, recording
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.parameters import NodeParameters
@@ -105,7 +104,8 @@ class AccuracyMonitorNode(Node):
             self._verdict(visit, verdict, msg.header.stamp)
 
     def _on_measured(self, msg: PoseWithCovarianceStamped) -> None:
-        result = self.monitor.measurement(*_pose(msg.header, msg.pose.pose))
+        result = self.monitor.measurement(*_pose(msg.header, msg.pose.pose),
+                                          covariance=msg.pose.covariance)
         if isinstance(result, Ignored):
             self._ignored(result, msg.header.stamp)
             return
@@ -124,15 +124,15 @@ class AccuracyMonitorNode(Node):
 
     def _verdict(self, visit: Visit, verdict: Verdict, stamp: Any) -> None:
         values = {'pose_key': visit.key, 'cycle': visit.cycle,
-                  'position_error_um': f'{verdict.position_error * 1e6:.1f}',
-                  'orientation_error_deg': f'{math.degrees(verdict.orientation_error):.4f}',
-                  **self.monitor.figures_of(visit)}
+                  **verdict_values(verdict), **self.monitor.figures_of(visit)}
         message = f'pose {visit.key} cycle {visit.cycle}: {verdict.message()}'
-        self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_VERDICT,
-                                           'ok' if verdict.ok else 'error', message, values,
-                                           stamp))
-        if verdict.ok:  # rclpy ties one severity to each logging call site
+        level = DECISION_LEVELS[verdict.decision]
+        self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_VERDICT, level, message,
+                                           values, stamp))
+        if level == 'ok':  # rclpy ties one severity to each logging call site
             self.get_logger().info(message)
+        elif level == 'warn':
+            self.get_logger().warning(message)
         else:
             self.get_logger().error(message)
 

@@ -33,6 +33,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
+from positioning_cell.accuracy.verdicts import summary_of_values
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.polling import backoff, wait_until
 from positioning_cell.ros.messages import pose_stamped, status_values
@@ -384,16 +385,9 @@ class GoalClient:
         self.close()
 
 
-def status_ok(status: DiagnosticStatus) -> bool:
-    """A status of level OK."""
-    return status.level in (b'\x00', 0)
-
-
 def verdict_text(status: DiagnosticStatus) -> str:
-    """A monitor verdict (status ``accuracy_monitor: settled pose``) in a few words."""
-    values = status_values(status)
-    ok = 'OK' if status_ok(status) else 'OUT OF TOLERANCE'
-    return (f'|Δp| {values.get("position_error_um", "?")} µm, '
-            f'{values.get("orientation_error_deg", "?")}°: {ok}')
+    """A monitor verdict (status ``accuracy_monitor: settled pose``) in a few words, as
+    :meth:`positioning_cell.accuracy.verdicts.Verdict.short` gives it."""
+    return summary_of_values(status_values(status))
 
 

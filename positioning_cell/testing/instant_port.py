@@ -17,14 +17,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from positioning_cell import names
-from positioning_cell.accuracy.verdicts import Tolerances, judge
+from positioning_cell.accuracy.verdicts import Tolerances, judge_poses
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
-from positioning_cell.core.poses import pose_error
 from positioning_cell.errors import ConfigError, PositioningError
 from positioning_cell.motion.controller import Controller, MoveCommand
 from positioning_cell.motion.mover import Mover
 from positioning_cell.motion.settings import PositionerSettings
-from positioning_cell.moves.correction import mean_pose
+from positioning_cell.moves.correction import mean_reading
 from positioning_cell.moves.machine import Machine
 from positioning_cell.moves.outcomes import MoveAbortedError
 from positioning_cell.parameters import parse
@@ -234,7 +233,8 @@ class InstantPort:
         if self._goal is None:
             return None
         r = self.readings(10, timeout)
-        e_p, e_r = pose_error(*mean_pose(r.position, r.quaternion), *self._goal)
-        verdict = judge(float(np.linalg.norm(e_p)), float(np.linalg.norm(e_r)), self.tolerances)
+        p, q, cov = mean_reading(r.position, r.quaternion, r.covariance)
+        verdict = judge_poses(p[None], q[None], self._goal[0][None], self._goal[1][None],
+                              self.tolerances, cov[None])[0]
         self._verdicts.append(verdict.short())
         return self._verdicts[before.verdicts] if len(self._verdicts) > before.verdicts else None

@@ -70,6 +70,9 @@ class SyntheticRun:
     true_position: FloatArray
     true_quaternion: FloatArray
     end_time: FloatArray
+    #: The covariance (6, 6) each measurement states (x, y, z, rot-x, rot-y, rot-z: m², rad²;
+    #: the noise it carries, isotropic); None: zeros, an exact tracker.
+    covariance: FloatArray | None = None
 
 
 def synthetic_run(position: ArrayLike, quaternion: ArrayLike,
@@ -125,7 +128,8 @@ def synthetic_run(position: ArrayLike, quaternion: ArrayLike,
     meas_r = true_r * Rotation.from_rotvec(rng.normal(0.0, angle_noise, true_p.shape))
     return SyntheticRun(tt, cp[index], cq[index], tuple(steps), ts, meas_p,
                         meas_r.as_quat(canonical=True), true_p, true_r.as_quat(canonical=True),
-                        tt + move_time + held)
+                        tt + move_time + held,
+                        np.diag([noise**2] * 3 + [angle_noise**2] * 3))
 
 
 def _stamp(t: float) -> tuple[int, int]:
@@ -147,7 +151,8 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
     status at each target and, with ``move_ends``, a ``settled`` one at each move's end) and
     filler
     /legs/joint_states at ``joint_state_rate`` Hz (same bytes, stamps patched). Log time =
-    stamp + ``latency``. ``writer``: ``cell`` (BagWriter, chunks of ``chunk_bytes``, CRCs) or
+    stamp + ``latency``; each measurement states the run's ``covariance``. ``writer``:
+    ``cell`` (BagWriter, chunks of ``chunk_bytes``, CRCs) or
     ``rosbags`` (rosbags' writer, no CRCs); ``compression``: ``none`` or ``zstd`` chunks.
     ``latched_target_age`` > 0: the bag starts with the /positioner/target of an earlier move
     (the first target's pose, where the platform already is), stamped that many seconds
@@ -190,10 +195,11 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
         events.append((t, TARGET, stamped, T[stamped](
             header(t), pose(run.target_position[i], run.target_quaternion[i]))))
     cov = 'geometry_msgs/msg/PoseWithCovarianceStamped'
+    stated = np.zeros(36) if run.covariance is None else np.asarray(run.covariance).ravel()
     for i, t in enumerate(run.time):
         events.append((t, MEASURED_POSE, cov, T[cov](header(t), T[
             'geometry_msgs/msg/PoseWithCovariance'](pose(run.position[i], run.quaternion[i]),
-                                                     np.zeros(36)))))
+                                                     stated))))
         if truth:
             events.append((t, TRUE_POSE, stamped, T[stamped](
                 header(t), pose(run.true_position[i], run.true_quaternion[i]))))

@@ -32,7 +32,8 @@ from positioning_cell.tools.interruption import Interrupted, interruptible
 
 def _same_figures(live: dict[str, Any], offline: dict[str, Any]) -> bool:
     a, b = live['measured']['poses'], offline['measured']['poses']
-    if len(a) != len(b) or live['verdicts'] != offline['verdicts']:
+    if (len(a) != len(b) or live['verdicts'] != offline['verdicts']
+            or live['decisions'] != offline['decisions']):
         return False
     keys = ('ap_p', 'ap_a', 'ap_b', 'ap_c', 'n')
     return all(np.allclose([x[k] for k in keys], [y[k] for k in keys], rtol=1e-9, atol=1e-12)
