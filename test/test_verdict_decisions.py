@@ -202,3 +202,28 @@ def test_the_stated_uncertainty_covers_the_truth_as_often_as_it_says() -> None:
         v = monitor.verdicts[0]
         covered.append(abs(v.position_error - offset) <= v.position_uncertainty)
     assert 0.88 <= np.mean(covered) <= 1.0, np.mean(covered)
+
+
+@pytest.mark.parametrize('bad', ['asymmetric', 'negative', 'nan'])
+def test_a_covariance_that_is_not_one_leaves_u_unknown_and_raises_nothing(bad: str) -> None:
+    """A reading stating a covariance that is not one (from a faulty tracker or a corrupt
+    bag): the visit's U is unknown (``± ?``, indeterminate), the errors as before."""
+    stated = np.diag([(4e-6) ** 2] * 3 + [1e-14] * 3)
+    if bad == 'asymmetric':
+        stated[0, 1] = 1e-12
+    elif bad == 'negative':
+        stated[2, 2] = -(4e-6) ** 2
+    else:
+        stated[4, 4] = math.nan
+    monitor = acc.Monitor()
+    monitor.target(0.0, 'base', [0.0, 0.0, 0.2], [0.0, 0.0, 0.0, 1.0])
+    monitor.move_end(0.4)
+    k = 0
+    while not monitor.verdicts:
+        k += 1
+        monitor.measurement(0.05 * k, 'base', [10e-6, 0.0, 0.2], [0.0, 0.0, 0.0, 1.0],
+                            stated.ravel())
+    verdict = monitor.verdicts[0]
+    assert verdict.position_error == pytest.approx(10e-6)
+    assert math.isnan(verdict.position_uncertainty) and '± ?' in verdict.message()
+    assert verdict.decision is Decision.INDETERMINATE

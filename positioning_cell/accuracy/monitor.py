@@ -257,6 +257,22 @@ _NOTHING_CHECKED = CheckedSamples(np.empty(0), _EMPTY, np.empty((0, 4)), np.zero
                                   {})
 
 
+def usable_covariances(covariance: FloatArray) -> NDArray[np.bool_]:
+    """Which of the covariances (n, 6, 6) are covariances: finite, symmetric (to 1e-9 of
+    their largest entry) and positive semi-definite (no eigenvalue below −1e-9 of it)."""
+    cov = np.asarray(covariance, dtype=float)
+    finite: NDArray[np.bool_] = np.all(np.isfinite(cov), axis=(1, 2))
+    ok = finite.copy()
+    if np.any(finite):
+        c = cov[finite]
+        scale = np.maximum(np.abs(c).max(axis=(1, 2)), np.finfo(float).tiny)
+        symmetric = np.all(np.abs(c - np.swapaxes(c, 1, 2)) <= 1e-9 * scale[:, None, None],
+                           axis=(1, 2))
+        lowest = np.linalg.eigvalsh(0.5 * (c + np.swapaxes(c, 1, 2)))[:, 0]
+        ok[finite] = symmetric & (lowest >= -1e-9 * scale)
+    return ok
+
+
 class Readings:
     """The measurements the monitor took that a visit still to come may be settled on: times
     (n,) s, positions (n, 3) m, quaternions (n, 4) and stated covariances (n, 6, 6) (NaN: not
@@ -273,9 +289,12 @@ class Readings:
     def add(self, time: FloatArray, position: FloatArray, quaternion: FloatArray,
             covariance: FloatArray | None) -> None:
         """Readings taken (time-ordered, after those held); ``covariance`` None: not
-        stated."""
+        stated. A covariance that is not one (a NaN or infinite entry, not symmetric, not
+        positive semi-definite) is held as not stated: the visit it falls in gets no U (its
+        verdict says ``± ?``), and nothing raises on what a tracker or a bag sent."""
         cov = (np.full((time.size, 6, 6), math.nan) if covariance is None
-               else np.asarray(covariance, dtype=float))
+               else np.array(covariance, dtype=float))
+        cov[~usable_covariances(cov)] = math.nan
         self.time = np.concatenate([self.time, time])
         self.position = np.concatenate([self.position, position])
         self.quaternion = np.concatenate([self.quaternion, quaternion])
