@@ -34,19 +34,27 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list
     return [row(header), '|' + '---|' * len(header), *(row(r) for r in rows)]
 
 
-COMPARISON_HEADER = ('mode', 'visits', 'in tol.', 'max |Δp| µm', 'RMS |Δp| µm',
+COMPARISON_HEADER = ('mode', 'visits', 'in tol.', 'C/I/N', 'max |Δp| µm', 'RMS |Δp| µm',
                      'max angle °', 'RMS angle °', 'worst AP_p µm', 'worst RP_l µm',
                      'worst AP_abc °', 'worst RP_abc °', 'settle s (mean/max)')
 
 
 def comparison_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
-    """One row per mode: the comparison table (µm, degrees, s)."""
+    """One row per mode: the comparison table (µm, degrees, s; ``in tol.`` the errors as
+    measured, ``C/I/N`` the visits that conform, are indeterminate, do not conform by the
+    monitor's decision rule: docs/howto/verdicts.md)."""
     return [[m.mode, str(m.extremes.n), f'{m.extremes.within_tolerance}/{m.extremes.n}',
-             um(m.extremes.position_error_max), um(m.extremes.position_error_rms),
+             _decided(m.extremes.decisions), um(m.extremes.position_error_max),
+             um(m.extremes.position_error_rms),
              deg(m.extremes.orientation_error_max), deg(m.extremes.orientation_error_rms),
              um(m.ap_p_max), um(m.rp_l_max), deg(m.ap_angle_max), deg(m.rp_angle_max),
              f'{m.extremes.settle_time_mean:.2f}/{m.extremes.settle_time_max:.2f}']
             for m in modes]
+
+
+def _decided(counts: dict[str, int]) -> str:
+    """``conforms/indeterminate/does not conform`` counts as ``C/I/N``."""
+    return f'{counts["conforms"]}/{counts["indeterminate"]}/{counts["does_not_conform"]}'
 
 
 def comparison_table(modes: Sequence[ModeSummary]) -> str:
