@@ -1119,3 +1119,44 @@ def test_readings_stamped_while_the_axes_stood_still_count_from_the_dwell_on(
     measuring = next(n for reason, n in world.looks_at if reason.startswith('measuring'))
     after = world.looks_at[-1][1] - measuring
     assert (after < m.settings.compensation.samples) is stamped, after
+
+
+class _HeldWorld(World):
+    """A world whose encoder reading, taken by the thread named ``held``, is handed back only
+    once ``release`` is set (after ``taken`` says it was read)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.taken, self.release = threading.Event(), threading.Event()
+
+    def latest(self) -> JointReading | None:
+        reading = super().latest()
+        if threading.current_thread().name == 'held':
+            self.taken.set()
+            assert self.release.wait(10.0)
+        return reading
+
+
+def test_a_refresh_never_stores_an_older_reading_over_a_newer_one() -> None:
+    """Two threads refresh at once (the pose timer and a move's wait): one takes the reading
+    from before the axes moved and is held up; the other takes the newer one. The mover ends
+    with the newer reading, whichever stores last: one refresh at a time. (Before, the held
+    thread stored the older reading last: homing found itself 2 mm off after the axes had
+    arrived.)"""
+    world = _HeldWorld()
+    m = mover(world)
+    old = world.position.copy()
+    held = threading.Thread(target=m._refresh, name='held')
+    held.start()
+    assert world.taken.wait(10.0)
+    with world.lock:
+        world.position = old + np.array([2e-3, 0.0, 0.0, 0.0, 0.0, 0.0])
+    fresh = threading.Thread(target=m._refresh, name='fresh')
+    fresh.start()
+    fresh.join(0.5)  # done already (the race) or waiting for the held refresh (one at a time)
+    world.release.set()
+    held.join(10.0)
+    fresh.join(10.0)
+    assert not held.is_alive() and not fresh.is_alive()
+    assert m.joints is not None
+    np.testing.assert_array_equal(m.joints.position, world.position)

@@ -143,6 +143,7 @@ class Mover:
         self.compensation = Compensation(settings.compensation.temperature)
         self.machine = machine
         self.cond = threading.Condition()
+        self._intake = threading.Lock()  # one refresh at a time (_refresh)
         self._busy = threading.Lock()
         self.joints: JointReading | None = None
         self.joints_time = -math.inf
@@ -221,7 +222,18 @@ class Mover:
 
     def _refresh(self) -> None:
         """Take what came in: the newest joint state, tracker readings and registration, the
-        drives' answers."""
+        drives' answers. One thread at a time takes and stores (``_intake``, never taken
+        while holding ``cond``): two threads refreshing at once (the pose timer and a move's
+        wait) split the inputs between them, and the one that took the older joint state
+        could store it after the other stored the newer one. A move then judged a stale
+        reading: homing settled 'outside tolerance, estimated error 2000 um' when the axes
+        had arrived (test_operator_node, CI), and the standstill watch could take the older
+        reading after the newer one for motion nobody commanded."""
+        with self._intake:
+            self._take_inputs()
+
+    def _take_inputs(self) -> None:
+        """:meth:`_refresh`'s work (under ``_intake``)."""
         joints = self.machine.latest_joints()
         taken = self.machine.new_measurements()
         registration = self.machine.registration()
