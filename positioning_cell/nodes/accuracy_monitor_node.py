@@ -1,7 +1,10 @@
 """accuracy_monitor_node (node ``accuracy_monitor``): commanded vs measured platform pose, ISO
-9283 figures per commanded pose, a tolerance verdict on /diagnostics for each settled pose; with
-the simulation truth published, the true pose against the target and the tracker against the
-truth, reported apart. The rules: :class:`positioning_cell.accuracy.monitor.Monitor`.
+9283 figures per commanded pose, a tolerance verdict on /diagnostics for each settled pose (its
+errors with their expanded uncertainty U from the covariances the tracker's readings state, and
+the decision of ``tolerance.decision_rule``: OK conforms, WARN indeterminate, ERROR does not
+conform; docs/howto/verdicts.md); with the simulation truth published, the true pose against
+the target and the tracker against the truth, reported apart. The rules:
+:class:`positioning_cell.accuracy.monitor.Monitor`.
 
 It reads the positioner's ``positioner: state`` statuses on /diagnostics: a move end
 (:func:`positioning_cell.accuracy.move_ended`) goes to the monitor, so that each visit is judged
