@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from enum import Enum
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -116,6 +117,35 @@ def decision(value: float, expanded_uncertainty: float, upper: float,
     return DECISION_CODES[int(code)]
 
 
+class CovarianceChecks(NamedTuple):
+    """Per covariance (N,): every entry ``finite``; ``symmetric`` to 1e-9 of its largest
+    entry; ``semidefinite``: no eigenvalue below −1e-9 of it (rows not finite: False)."""
+
+    finite: NDArray[np.bool_]
+    symmetric: NDArray[np.bool_]
+    semidefinite: NDArray[np.bool_]
+
+    @property
+    def usable(self) -> NDArray[np.bool_]:
+        """A covariance: finite, symmetric and positive semi-definite."""
+        return self.finite & self.symmetric & self.semidefinite
+
+
+def covariance_checks(covariance: ArrayLike) -> CovarianceChecks:
+    """:class:`CovarianceChecks` of N square covariances (N, n, n), each to its own scale."""
+    cov = np.asarray(covariance, dtype=float)
+    finite: NDArray[np.bool_] = np.all(np.isfinite(cov), axis=(1, 2))
+    symmetric, semidefinite = np.zeros_like(finite), np.zeros_like(finite)
+    if np.any(finite):
+        c = cov[finite]
+        scale = np.maximum(np.abs(c).max(axis=(1, 2)), np.finfo(float).tiny)
+        symmetric[finite] = np.all(
+            np.abs(c - np.swapaxes(c, 1, 2)) <= 1e-9 * scale[:, None, None], axis=(1, 2))
+        lowest = np.linalg.eigvalsh(0.5 * (c + np.swapaxes(c, 1, 2)))[:, 0]
+        semidefinite[finite] = lowest >= -1e-9 * scale
+    return CovarianceChecks(finite, symmetric, semidefinite)
+
+
 def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
                               k: float = COVERAGE_FACTOR,
                               rng: np.random.Generator | None = None) -> FloatArray:
@@ -146,13 +176,13 @@ def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
     if not (math.isfinite(k) and k > 0.0):
         raise InputError(f'norm_expanded_uncertainty: the coverage factor k must be > 0, '
                          f'got {k}')
-    scale = np.abs(cov).max(axis=(1, 2), initial=0.0)
-    if not np.allclose(cov, np.swapaxes(cov, 1, 2), rtol=0.0, atol=1e-12 * scale.max(initial=0.0)):
+    checks = covariance_checks(cov)
+    if not np.all(checks.symmetric):
         raise InputError('norm_expanded_uncertainty: a covariance is not symmetric')
-    eigen = np.linalg.eigvalsh(cov)  # (N, 3), ascending
-    if np.any(eigen[:, 0] < -1e-9 * np.maximum(scale, np.finfo(float).tiny)):
+    if not np.all(checks.semidefinite):
         raise InputError('norm_expanded_uncertainty: a covariance is not positive '
                          'semi-definite')
+    eigen = np.linalg.eigvalsh(cov)  # (N, 3), ascending
     norms = np.sqrt((d * d).sum(axis=1))
     # (|Δp| = 0 with an exact measurement: the Monte Carlo, whose draws all give 0)
     linear = (norms >= LINEAR_FROM_SIGMAS * np.sqrt(np.maximum(eigen[:, 2], 0.0))) & (norms > 0)
@@ -214,5 +244,5 @@ def _monte_carlo(d: FloatArray, cov: FloatArray, k: float,
     return out
 
 
-__all__ = ['COVERAGE_FACTOR', 'DECISION_CODES', 'Decision', 'DecisionRule', 'decision',
-           'decisions', 'norm_expanded_uncertainty']
+__all__ = ['COVERAGE_FACTOR', 'DECISION_CODES', 'CovarianceChecks', 'Decision', 'DecisionRule',
+           'covariance_checks', 'decision', 'decisions', 'norm_expanded_uncertainty']

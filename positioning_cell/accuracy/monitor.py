@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from positioning_cell.accuracy.decisions import covariance_checks
 from positioning_cell.accuracy.settle import (
     AccuracyAccumulator,
     CheckedSamples,
@@ -257,22 +258,6 @@ _NOTHING_CHECKED = CheckedSamples(np.empty(0), _EMPTY, np.empty((0, 4)), np.zero
                                   {})
 
 
-def usable_covariances(covariance: FloatArray) -> NDArray[np.bool_]:
-    """Which of the covariances (n, 6, 6) are covariances: finite, symmetric (to 1e-9 of
-    their largest entry) and positive semi-definite (no eigenvalue below −1e-9 of it)."""
-    cov = np.asarray(covariance, dtype=float)
-    finite: NDArray[np.bool_] = np.all(np.isfinite(cov), axis=(1, 2))
-    ok = finite.copy()
-    if np.any(finite):
-        c = cov[finite]
-        scale = np.maximum(np.abs(c).max(axis=(1, 2)), np.finfo(float).tiny)
-        symmetric = np.all(np.abs(c - np.swapaxes(c, 1, 2)) <= 1e-9 * scale[:, None, None],
-                           axis=(1, 2))
-        lowest = np.linalg.eigvalsh(0.5 * (c + np.swapaxes(c, 1, 2)))[:, 0]
-        ok[finite] = symmetric & (lowest >= -1e-9 * scale)
-    return ok
-
-
 class Readings:
     """The measurements the monitor took that a visit still to come may be settled on: times
     (n,) s, positions (n, 3) m, quaternions (n, 4) and stated covariances (n, 6, 6) (NaN: not
@@ -294,7 +279,7 @@ class Readings:
         verdict says ``± ?``), and nothing raises on what a tracker or a bag sent."""
         cov = (np.full((time.size, 6, 6), math.nan) if covariance is None
                else np.array(covariance, dtype=float))
-        cov[~usable_covariances(cov)] = math.nan
+        cov[~covariance_checks(cov).usable] = math.nan
         self.time = np.concatenate([self.time, time])
         self.position = np.concatenate([self.position, position])
         self.quaternion = np.concatenate([self.quaternion, quaternion])
