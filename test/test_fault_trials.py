@@ -48,7 +48,9 @@ def test_fault_gets_its_reaction_in_process(port: InstantFaultPort, name: str) -
     codes, words = IN_PROCESS[name]
     assert trial.code in codes, trial
     assert words in trial.reason, trial
-    assert trial.ok, trial
+    # the reaction as expected; its time is test_faults' (the timing tier, alone on the
+    # machine): here, beside the parallel tier's load, 0.305 s against 0.3 s was seen once
+    assert not trial.problems, trial
     assert trial.within_limits
 
 
