@@ -1153,7 +1153,7 @@ def test_a_refresh_never_stores_an_older_reading_over_a_newer_one() -> None:
         world.position = old + np.array([2e-3, 0.0, 0.0, 0.0, 0.0, 0.0])
     fresh = threading.Thread(target=m._refresh, name='fresh')
     fresh.start()
-    fresh.join(0.5)  # done already (the race) or waiting for the held refresh (one at a time)
+    fresh.join(10.0)  # it stored the newer reading; the held one then takes its older one
     world.release.set()
     held.join(10.0)
     fresh.join(10.0)
