@@ -34,6 +34,7 @@ from positioning_cell.motion.mover import (
     ResultCode,
     State,
     joints_arrived,
+    readings_since,
     validate_goal,
 )
 from positioning_cell.motion.settings import COMPENSATION_MODE, GoalTolerance
@@ -1160,3 +1161,71 @@ def test_a_refresh_never_stores_an_older_reading_over_a_newer_one() -> None:
     assert not held.is_alive() and not fresh.is_alive()
     assert m.joints is not None
     np.testing.assert_array_equal(m.joints.position, world.position)
+
+
+class LaggingWorld(World):
+    """A :class:`World` whose encoder readings are stamped with the time they are taken and
+    whose tracker lags: each look gives one reading of where the platform stood ``lag`` s
+    ago, stamped then (a tracker process held up on a loaded machine)."""
+
+    def __init__(self, truth: cl.ClearanceModel, lag: float) -> None:
+        super().__init__(truth, samples=1)
+        self.lag = lag
+        self.poses = [(-math.inf, *self.attained())]  # (since when, position, quaternion)
+
+    def send(self, traj: Trajectory) -> None:
+        super().send(traj)
+        self.poses.append((time.monotonic(), *self.attained()))
+
+    def latest(self) -> JointReading | None:
+        reading = super().latest()
+        return None if reading is None else reading._replace(stamp=time.monotonic())
+
+    def measurements(self) -> list[Measurement]:
+        taken = time.monotonic() - self.lag
+        _, p, q = next(pose for pose in reversed(self.poses) if pose[0] <= taken)
+        return [Measurement(p, q, TRACKER_COVARIANCE, taken)]
+
+
+def test_a_lagging_tracker_is_read_only_for_the_pose_the_axes_came_to_rest_at() -> None:
+    """Readings of the platform before a correction that come in after it (stamped before
+    the axes stood still again) are not averaged: the closed loop reaches the tolerance with
+    the corrections a tracker without lag needs. Taken by the order they came in, they
+    measured the old pose."""
+    truth = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(3))
+    prompt = World(truth)
+    mover(prompt, 'measured').move('base', GOAL, GOAL_Q)
+    world = LaggingWorld(truth, lag=0.2)
+    m = mover(world, 'measured', measurement_timeout=2.0,
+              **{'arrival.settle_window': 0.02, 'compensation.min_samples': 10})
+    result = m.move('base', GOAL, GOAL_Q)
+    assert result.reason.startswith('settled within tolerance'), result.reason
+    assert len(world.trajectories) == len(prompt.trajectories), result.reason
+    e_p, e_r = deviation(*world.attained(), GOAL, GOAL_Q)
+    tol = m.settings.goal_tolerance
+    assert np.linalg.norm(e_p) <= tol.position and np.linalg.norm(e_r) <= tol.orientation
+
+
+def test_readings_since_a_stamp_are_those_stamped_from_it_or_new_and_unstamped() -> None:
+    def reading(stamp: float) -> Measurement:
+        return Measurement(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]), TRACKER_COVARIANCE,
+                           stamp)
+    kept = [reading(s) for s in (1.0, 5.0, math.nan, 2.0, 6.0, math.nan)]  # last 3 new
+    assert [r.stamp for r in readings_since(kept, 3, 5.0)][:2] == [5.0, 6.0]
+    assert len(readings_since(kept, 3, 5.0)) == 3  # and the new unstamped one
+    assert len(readings_since(kept, 3, math.nan)) == 3  # no stamp: every new one
+    assert readings_since(kept, 0, 7.0) == []
+
+
+def test_a_lagging_tracker_is_not_motion_at_standstill() -> None:
+    """After a move ends, a lagging tracker still sends readings of the platform before the
+    move (stamped then): the standstill watch does not take them for the rest pose, so the
+    readings of where it stands are not motion."""
+    world = LaggingWorld(None, lag=0.3)
+    m = mover(world)
+    m.move('base', GOAL, GOAL_Q)
+    ended = time.monotonic()
+    while time.monotonic() < ended + 3 * world.lag:
+        m.estimate_pose()
+        time.sleep(0.01)
+    assert m.state is State.SETTLED, m.reason

@@ -14,8 +14,11 @@ by more than the tolerances. Readings that disagree among themselves are a track
 judged, so neither one stray reading nor a burst of them is motion, nor shifts the rest pose as
 a mean would. A platform pushed through the joints' clearance comes to rest again and is then
 found. Axes that do not come to rest within ``rest_timeout`` of the command's end are motion
-too. Positions in m and rad (JOINT_NAMES order), poses in the base frame (m, unit quaternions
-x, y, z, w), times in s on one monotonic clock.
+too. Tracker readings stamped before the encoder reading the watch was armed at (on the
+drives' clock the readings share) measured the platform while it still moved and are not
+judged: a tracker that lags delivers them after the command ended. Positions in m and rad
+(JOINT_NAMES order), poses in the base frame (m, unit quaternions x, y, z, w), times in s on
+one monotonic clock.
 """
 
 from __future__ import annotations
@@ -90,6 +93,7 @@ class StandstillWatch:
     def __init__(self, settings: StandstillSettings) -> None:
         self.settings = settings
         self._armed_at: float | None = None
+        self._armed_stamp = math.nan
         self._rest: FloatArray | None = None
         self._window: deque[tuple[float, FloatArray]] = deque()
         self._tracker_rest: tuple[FloatArray, FloatArray] | None = None
@@ -105,10 +109,10 @@ class StandstillWatch:
         """The encoders' rest position is known."""
         return self._rest is not None
 
-    def arm(self, now: float) -> None:
-        """Motion ended (or the watch starts) at ``now``: watch from here, the rest positions
-        taken anew."""
-        self._armed_at = now
+    def arm(self, now: float, stamp: float = math.nan) -> None:
+        """Motion ended (or the watch starts) at ``now``, ``stamp`` that of the newest encoder
+        reading then (NaN: not known): watch from here, the rest positions taken anew."""
+        self._armed_at, self._armed_stamp = now, float(stamp)
         self._rest, self._tracker_rest = None, None
         self._window.clear()
         self._tracker.clear()
@@ -143,10 +147,12 @@ class StandstillWatch:
                       f'{_amount(axis, float(moved[axis]))} from where it came to rest '
                       f'(tolerance {_amount(axis, tolerance)})')
 
-    def tracker(self, position: FloatArray, quaternion: FloatArray) -> Motion | None:
-        """A tracker reading of the platform (base frame). Returns the motion it reveals; the
-        tracker is judged only once the encoders are at rest."""
-        if self._armed_at is None or self._rest is None:
+    def tracker(self, position: FloatArray, quaternion: FloatArray,
+                stamp: float = math.nan) -> Motion | None:
+        """A tracker reading of the platform (base frame) of the pose at ``stamp`` (NaN: not
+        known). Returns the motion it reveals; the tracker is judged only once the encoders
+        are at rest, on readings not stamped before the watch was armed."""
+        if self._armed_at is None or self._rest is None or stamp < self._armed_stamp:
             return None
         self._tracker.append((np.array(position, dtype=float), np.array(quaternion, dtype=float)))
         if len(self._tracker) < TRACKER_READINGS:
