@@ -22,7 +22,11 @@ from rcl_interfaces.srv import ListParameters
 from rclpy.action.client import ActionClient
 from rclpy.action.graph import get_action_server_names_and_types_by_node
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import (
+    ExternalShutdownException,
+    ShutdownException,
+    SingleThreadedExecutor,
+)
 from rclpy.node import Node
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
@@ -48,6 +52,10 @@ PARAMETER_TIMEOUT = 30.0
 #: a first wait of 2 s put 2 s on a tool's first call (or the benchmarked cell's homing) when
 #: the first answer was lost.
 HANDSHAKE_WAIT, HANDSHAKE_WAIT_MAX = 0.25, 2.0
+#: The spin thread's wait per slice (s): how soon it sees :meth:`CellClient.close`.
+SPIN_SLICE_S = 0.1
+#: Executor errors a client keeps for the message of a call that timed out.
+SPIN_ERRORS_KEPT = 10
 
 
 class CellClient:
@@ -78,13 +86,31 @@ class CellClient:
         self._in_flight: list[Future] = []
         self._statuses: dict[str, list[DiagnosticStatus]] | None = None
         self._program: Any = None
+        #: What raised in the spin thread (kept; each also logged), for a call that times out.
+        self.spin_errors: list[str] = []
+        self._closing = False
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
-        # Shutdown races (the context shut down while spinning) end the spin thread quietly.
-        with contextlib.suppress(Exception):
-            self.executor.spin()
+        """Run the client's callbacks until :meth:`close`. What raises meanwhile (a callback,
+        or rclpy itself when entities are created and destroyed from other threads while it
+        waits: ros2/rclpy#1355, #1385) is logged and kept in :attr:`spin_errors`, and the
+        spinning goes on; a shutdown ends it. (The first such exception used to end this
+        thread without a word: every later call then waited out its timeout.)"""
+        while not self._closing and self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=SPIN_SLICE_S)
+            except (ExternalShutdownException, ShutdownException):
+                return
+            except Exception as err:  # kept and logged: the spin goes on
+                if self._closing or not self.context.ok():
+                    return
+                self.spin_errors.append(f'{type(err).__name__}: {err}')
+                del self.spin_errors[:-SPIN_ERRORS_KEPT]
+                with contextlib.suppress(Exception):
+                    self.node.get_logger().error(f'the client\'s executor: '
+                                                 f'{self.spin_errors[-1]}; spinning on')
 
     # -- generic --------------------------------------------------------------------------------
     def collect(self, msg_type: Any, topic: str, qos: QoSProfile | int = 100) -> list[Any]:
@@ -149,9 +175,24 @@ class CellClient:
         """The result of a request's ``future`` within ``timeout`` s (TimeoutError naming
         ``what``); counted in flight meanwhile (:meth:`answered`)."""
         self._in_flight.append(future)
-        wait_until(future.done, timeout, what)
-        self._in_flight.remove(future)
+        try:
+            wait_until(future.done, timeout, what)
+        except TimeoutError as err:
+            raise TimeoutError(f'{err}{self._spin_state()}') from None
+        finally:
+            self._in_flight.remove(future)
         return future.result()
+
+    def _spin_state(self) -> str:
+        """What a timed-out call adds about this client's own executor: '' when it spins
+        and nothing raised in it."""
+        said = []
+        if not self._thread.is_alive():
+            said.append('its spin thread has ended')
+        if self.spin_errors:
+            said.append(f'{len(self.spin_errors)} errors in its executor, the last: '
+                        f'{self.spin_errors[-1]}')
+        return f' (this client: {"; ".join(said)})' if said else ''
 
     def parameters(self, node: str, wait: float = 30.0) -> AsyncParameterClient:
         """rclpy's parameter client of node ``node`` (one per node, queue sized as
@@ -278,6 +319,7 @@ class CellClient:
 
     def close(self) -> None:
         """Stop spinning and shut the context down."""
+        self._closing = True
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
         if self._owns_context:

@@ -61,6 +61,8 @@ from positioning_cell.sim.drives import DriverSettings
 
 #: What is kept of each stream (receipt time first).
 KEPT_STATUSES, KEPT_TRUTH, KEPT_POSES = 5000, 20_000, 5000
+#: The characters of a node's log an unanswered parameter set shows.
+LOG_TAIL = 3000
 
 
 def _node(name: str) -> names.CellNode:
@@ -249,7 +251,12 @@ class FaultCell(RosCellPort):
 
     # -- injections -----------------------------------------------------------------------------
     def set_parameter(self, node: str, name: str, value: ParameterValue) -> None:
-        result = self.client.set_parameter(node, name, value)
+        try:
+            result = self.client.set_parameter(node, name, value)
+        except TimeoutError as err:  # a node gone, hung, or this client: what its log says
+            label = _node(node).executable
+            raise TimeoutError(f'{err}; exited: {self.procs.dead() or "none"}; the end of '
+                               f'{label}\'s log:\n{self.procs.log(label)[-LOG_TAIL:]}') from None
         if not result.successful:
             raise ProcedureError(f'{node} refused {name} = {value!r}: {result.reason}')
 

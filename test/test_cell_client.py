@@ -1,0 +1,37 @@
+"""The cell client's own executor (positioning_cell.ros.client): what raises in its spin thread
+(a callback, or rclpy racing a create or destroy from another thread) is logged and kept, the
+client goes on answering, and a call that times out says so."""
+
+from __future__ import annotations
+
+import pytest
+from cell_harness import Client, isolated_domain
+from rcl_interfaces.srv import ListParameters
+from rclpy.task import Future
+from std_msgs.msg import String
+
+from positioning_cell.polling import wait_until
+
+pytestmark = pytest.mark.nodes
+
+
+def test_a_callback_that_raises_does_not_stop_the_client() -> None:
+    with isolated_domain() as domain, Client(domain, 'client_under_test') as client:
+        def broken(msg: String) -> None:
+            raise RuntimeError(f'a broken callback got {msg.data!r}')
+
+        node = client.node
+        node.create_subscription(String, '/client_test/broken', broken, 10)
+        publisher = node.create_publisher(String, '/client_test/broken', 10)
+        wait_until(lambda: publisher.get_subscription_count() > 0, 10.0, 'the match')
+        publisher.publish(String(data='first'))
+        wait_until(lambda: client.spin_errors, 10.0, 'the callback\'s error')
+        assert "a broken callback got 'first'" in client.spin_errors[-1]
+        # Still spinning: its own node's parameter service answers through the same executor.
+        answer = client.call(ListParameters, f'/{node.get_name()}/list_parameters',
+                             ListParameters.Request(), timeout=10.0)
+        assert 'use_sim_time' in answer.result.names
+        with pytest.raises(TimeoutError, match="errors in its executor, the last: "
+                                               "RuntimeError: a broken callback"):
+            client._answer(Future(), 0.1, 'an answer that never comes')
+    assert not client._thread.is_alive()  # close() ended the spinning
