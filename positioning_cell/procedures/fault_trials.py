@@ -68,8 +68,11 @@ BEYOND = {0: 0.240, 1: 0.150, 3: 1.2}
 #: A spoofed input: how far it is off, how many messages at what period.
 SPOOF_OFFSET = 1.7e-3
 SPOOF_MESSAGES, SPOOF_PERIOD = 50, 0.01
-#: The motion nobody commands: [axis index, distance m] (fault.uncommanded_motion).
-UNCOMMANDED = (0.0, 2e-3)
+#: The motion nobody commands: [axis index, distance m] (fault.uncommanded_motion). At a fifth
+#: of the leg's speed limit it lasts 0.7 s: longer than its leaving the standstill tolerance
+#: (~0.04 s in) plus the reaction bound (0.5 s), so a reaction in time stops it short of its
+#: end. (2 mm lasted 0.3 s: on a loaded machine a reaction in time came after 1.8 mm of it.)
+UNCOMMANDED = (0.0, 6e-3)
 #: Attempts of a trial whose fault landed after the motion.
 ATTEMPTS = 3
 #: The faults every trial starts without: (node, parameter, value).
@@ -504,9 +507,9 @@ def _standstill_trial(port: FaultPort, fault: Fault, trial: Trial) -> None:
     judge(trial, fault)
     _judge_stop(port, trial, beyond, received)
     moved = float(np.max(np.abs(port.true_states(injected).positions - rest), initial=0.0))
-    if moved > 0.9 * abs(UNCOMMANDED[1]):
-        trial.problems.append(f'the axis moved {moved * 1e3:.3f} mm: the drives were not '
-                              'stopped short of the motion')
+    if moved > 0.9 * abs(UNCOMMANDED[1]):  # a late reaction explains it; one in time not
+        (trial.late or trial.problems).append(f'the axis moved {moved * 1e3:.3f} mm: the '
+                                              'drives were not stopped short of the motion')
     _next_move_succeeds(port, trial, 'the next move')
 
 
