@@ -149,6 +149,10 @@ def test_analyze_writes_report_summary_and_plots(bag: Path, tmp_path: Path,
     summary = json.loads((out / 'summary.json').read_text())
     assert [m['mode'] for m in summary['modes']] == ['none', 'model', 'measured']
     assert summary['modes'][0]['poses'][1]['iso9283']['n'] == 2
+    # AP_p and RP_l with their U from the tracker's stated covariances (issue 25)
+    stated = summary['modes'][0]['poses'][1]['iso9283_u']
+    assert 0.0 < stated['ap_p'] < 1e-4 and 0.0 < stated['rp_l'] < 1e-4, stated
+    assert 'AP_p ± U µm' in text and f'{stated["rp_l"] * 1e6:.1f} |' in text
     assert summary['tracker']['samples'] > 0
     pngs = {'error_over_time.png', 'axis_errors.png', 'clusters.png', 'error_distribution.png'}
     assert set(summary['plots']) == pngs

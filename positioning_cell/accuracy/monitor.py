@@ -330,6 +330,9 @@ class Monitor:
         self.segments = 0
         self.truth_seen = False
         self.verdicts: list[Verdict] = []
+        #: The covariance (6, 6) of each verdict's attained pose as measured (NaN: not stated;
+        #: :meth:`Readings.covariance_of`), in step with :attr:`verdicts`.
+        self.covariances: list[FloatArray] = []
         self.ignored: list[Ignored] = []
         self.readings = Readings()
         # The latest stamp taken per source: an older sample is ignored (kept over reset).
@@ -451,9 +454,11 @@ class Monitor:
                           m_checked.quaternion[ok_m],
                           None if measured.covariance is None else measured.covariance[m_rows])
         new = self.measured.visits[before:]
-        judged = judge_visits(new, self.tolerances, self.readings.covariance_of(new))
+        covariances = self.readings.covariance_of(new)
+        judged = judge_visits(new, self.tolerances, covariances)
         self.readings.drop_before(self.measured.kept_since())
         self.verdicts.extend(judged)
+        self.covariances.extend(covariances)
         verdict_of = {id(v): j for v, j in zip(new, judged, strict=True)}
         verdicts = tuple((r, verdict_of[id(v)]) for r, v in m_batch.samples.visits)
         closed = tuple((int(valid[k]), v, verdict_of[id(v)]) for k, v in m_batch.samples.closed)
@@ -508,9 +513,11 @@ class Monitor:
         visit = self.measured.finish()
         if visit is None:
             return ()
-        verdict = judge_visits([visit], self.tolerances, self.readings.covariance_of([visit]))[0]
+        covariance = self.readings.covariance_of([visit])
+        verdict = judge_visits([visit], self.tolerances, covariance)[0]
         self.readings.drop_before(math.inf)
         self.verdicts.append(verdict)
+        self.covariances.append(covariance[0])
         return ((visit, verdict),)
 
     def figures_of(self, visit: Visit) -> dict[str, str]:
@@ -523,7 +530,7 @@ class Monitor:
         self.truth_accumulator.reset(keep_target=True)
         self.tracker.reset()
         self.truth_seen = False
-        self.verdicts = []
+        self.verdicts, self.covariances = [], []
         self.readings = Readings()
 
     def report(self) -> dict[str, Any]:

@@ -149,6 +149,10 @@ class LabelledVisit:
     pose: str
     verdict: accuracy.Verdict
     start: float
+    #: The covariance (6, 6) of the attained pose as measured (NaN: not stated; zeros: the
+    #: simulation's truth, exact).
+    covariance: FloatArray = field(default_factory=lambda: np.full((6, 6), math.nan),
+                                   compare=False)
 
     @property
     def settle_duration(self) -> float:
@@ -282,17 +286,19 @@ class Replayer:
         measured, truth = self._measured.result(), self._truth.result()
         visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
                                      segments[by_time[v.target_time]].pose, verdict,
-                                     measured.start(v.target_time))
-                       for v, verdict in zip(monitor.measured.visits, monitor.verdicts,
-                                             strict=True))
+                                     measured.start(v.target_time), covariance)
+                       for v, verdict, covariance in zip(monitor.measured.visits,
+                                                         monitor.verdicts, monitor.covariances,
+                                                         strict=True))
         true = monitor.truth_accumulator.visits
         exact = np.zeros((len(true), 6, 6))  # the simulation's truth: U = 0
         truth_visits = tuple(
             LabelledVisit(v, segments[by_truth_time[v.target_time]].mode,
                           segments[by_truth_time[v.target_time]].pose, verdict,
-                          truth.start(v.target_time))
-            for v, verdict in zip(true, accuracy.judge_visits(true, monitor.tolerances, exact),
-                                  strict=True))
+                          truth.start(v.target_time), covariance)
+            for v, verdict, covariance in zip(
+                true, accuracy.judge_visits(true, monitor.tolerances, exact), exact,
+                strict=True))
         notes = tuple(dict.fromkeys(s.note for s in self._steps if s.note))
         return Replay(monitor, segments, visits, truth_visits, measured, truth,
                       tuple(self._steps), notes, (*self._problems, *self.context.problems))

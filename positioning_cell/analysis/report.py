@@ -21,6 +21,13 @@ def um(value: float | None) -> str:
     return 'n/a' if value is None else f'{value * 1e6:.1f}'
 
 
+def um_u(value: float | None, uncertainty: float) -> str:
+    """A length in m with its expanded uncertainty as µm for people: ``12.3 ± 4.1`` (``± ?``
+    when not stated)."""
+    u = f'{uncertainty * 1e6:.1f}' if math.isfinite(uncertainty) else '?'
+    return 'n/a' if value is None else f'{value * 1e6:.1f} ± {u}'
+
+
 def deg(value: float | None) -> str:
     """An angle in rad as degrees for people, four decimals ('n/a' for None)."""
     return 'n/a' if value is None else f'{math.degrees(value):.4f}'
@@ -70,10 +77,11 @@ def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     rows = []
     for m in modes:
         for p in m.poses:
-            f, e = p.figures, p.extremes
+            f, e, u = p.figures, p.extremes, p.uncertainty
             rows.append([m.mode, p.pose, str(f.n),
                          ', '.join(f'{v * 1e3:.3f}' for v in f.commanded_position),
-                         um(f.ap_p), um(f.ap_x), um(f.ap_y), um(f.ap_z), um(f.rp_l),
+                         um_u(f.ap_p, u.ap_p), um(f.ap_x), um(f.ap_y), um(f.ap_z),
+                         um_u(f.rp_l, u.rp_l),
                          deg(f.ap_a), deg(f.ap_b), deg(f.ap_c), deg(f.rp_a), deg(f.rp_b),
                          deg(f.rp_c), um(e.position_error_max), um(e.position_error_rms),
                          deg(e.orientation_error_max), deg(e.orientation_error_rms),
@@ -82,8 +90,10 @@ def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     return rows
 
 
-POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p µm', 'AP_x', 'AP_y', 'AP_z',
-               'RP_l µm', 'AP_a °', 'AP_b °', 'AP_c °', 'RP_a ±°', 'RP_b ±°', 'RP_c ±°',
+#: AP_p and RP_l with their U (k = 2) from the measurement (analysis.summary.PoseSummary).
+POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p ± U µm', 'AP_x', 'AP_y',
+               'AP_z', 'RP_l ± U µm', 'AP_a °', 'AP_b °', 'AP_c °', 'RP_a ±°', 'RP_b ±°',
+               'RP_c ±°',
                'max |Δp| µm', 'RMS |Δp| µm', 'max angle °', 'RMS angle °', 'settle s',
                'in tol.')
 

@@ -29,6 +29,10 @@ import scipy.special  # noqa: F401
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
+from positioning_cell.accuracy.figure_uncertainty import (
+    FigureUncertainty,
+    pose_figure_uncertainty,
+)
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
 from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
 from positioning_cell.analysis.axis_test import runs as axis_runs
@@ -88,16 +92,22 @@ class Extremes:
 
 @dataclass(frozen=True)
 class PoseSummary:
-    """One commanded pose under one mode: its ISO 9283 figures and extremes."""
+    """One commanded pose under one mode: its ISO 9283 figures, the expanded uncertainty
+    (k = 2) of AP_p and RP_l from the measurement's stated covariances
+    (:func:`~positioning_cell.accuracy.figure_uncertainty.pose_figure_uncertainty`; NaN: not
+    stated), and extremes."""
 
     mode: str
     pose: str
     figures: accuracy.PoseFigures
     extremes: Extremes
+    uncertainty: FigureUncertainty
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able (SI)."""
+        """JSON-able (SI; an uncertainty not stated is null)."""
         return {'mode': self.mode, 'pose': self.pose, 'iso9283': self.figures.to_dict(),
+                'iso9283_u': {name: (u if math.isfinite(u) else None)
+                              for name, u in self.uncertainty._asdict().items()},
                 **self.extremes.to_dict()}
 
 
@@ -145,7 +155,10 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
             figures = accuracy.iso9283(first.commanded_position, first.commanded_quaternion,
                                        [v.visit.position for v in group],
                                        [v.visit.quaternion for v in group], first.key)
-            poses.append(PoseSummary(mode, pose, figures, Extremes.of(group)))
+            uncertainty = pose_figure_uncertainty(
+                first.commanded_position, [v.visit.position for v in group],
+                np.array([v.covariance[:3, :3] for v in group]))
+            poses.append(PoseSummary(mode, pose, figures, Extremes.of(group), uncertainty))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),

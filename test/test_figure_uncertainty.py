@@ -1,0 +1,97 @@
+"""U (k = 2) of the ISO 9283 position figures AP_p and RP_l from the measurement's stated
+covariances (positioning_cell.accuracy.figure_uncertainty): hand-worked limits, bad input, and
+coverage on seeded simulated machines (issue 25's target: the figure from the true poses lies
+within U of the figure from the measurements in ≥ 95 % of runs)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from positioning_cell.accuracy.figure_uncertainty import pose_figure_uncertainty, rp_l_of
+from positioning_cell.accuracy.iso9283 import iso9283
+from positioning_cell.errors import InputError
+
+Q = np.array([0.0, 0.0, 0.0, 1.0])
+C = np.array([0.1, -0.2, 0.9])
+
+
+def test_rp_l_is_iso9283s() -> None:
+    x = C + np.random.default_rng(1).normal(0.0, 5e-6, (7, 3))
+    figures = iso9283(C, Q, x, np.tile(Q, (7, 1)))
+    assert figures.rp_l is not None
+    assert float(rp_l_of(x)) == pytest.approx(figures.rp_l, rel=1e-12)
+
+
+def test_far_from_zero_ap_p_has_the_linear_u_of_the_mean_covariance() -> None:
+    """AP 50 µm along x, every visit measured with σ 3 µm along x only: the barycentre's σ
+    is taken as 3 µm (the visits' errors fully correlated), so U = 2 · 3 µm (the norm's
+    second-order term is zero: no variance across AP)."""
+    n = 5
+    x = np.tile(C + [50e-6, 0.0, 0.0], (n, 1))
+    cov = np.tile(np.diag([9e-12, 0.0, 0.0]), (n, 1, 1))
+    u = pose_figure_uncertainty(C, x, cov)
+    assert u.ap_p == pytest.approx(6e-6, rel=1e-9)
+
+
+def test_rp_l_of_exact_measurements_has_no_uncertainty_and_one_visit_none() -> None:
+    x = C + np.random.default_rng(2).normal(0.0, 5e-6, (6, 3))
+    u = pose_figure_uncertainty(C, x, np.zeros((6, 3, 3)))
+    assert u.rp_l == pytest.approx(0.0, abs=1e-15) and u.ap_p == pytest.approx(0.0, abs=1e-15)
+    single = pose_figure_uncertainty(C, x[:1], np.tile(np.eye(3) * 1e-12, (1, 1, 1)))
+    assert math.isfinite(single.ap_p) and math.isnan(single.rp_l)
+
+
+def test_rp_l_u_grows_with_the_stated_noise() -> None:
+    x = C + np.random.default_rng(3).normal(0.0, 3e-6, (10, 3))
+    small, large = (pose_figure_uncertainty(C, x, np.tile(np.eye(3) * s**2, (10, 1, 1))).rp_l
+                    for s in (1e-6, 4e-6))
+    assert 0.0 < small < large
+
+
+def test_a_visit_without_a_covariance_states_none() -> None:
+    cov = np.tile(np.eye(3) * 1e-12, (3, 1, 1))
+    cov[1, 0, 0] = math.nan
+    u = pose_figure_uncertainty(C, np.tile(C, (3, 1)), cov)
+    assert math.isnan(u.ap_p) and math.isnan(u.rp_l)
+
+
+@pytest.mark.parametrize(('position', 'covariance', 'k', 'words'), [
+    (np.zeros((3, 3)), np.zeros((2, 3, 3)), 2.0, 'expected shape'),
+    (np.full((2, 3), math.nan), np.zeros((2, 3, 3)), 2.0, 'finite'),
+    (np.zeros((2, 3)), np.tile(np.diag([1.0, -1.0, 1.0]), (2, 1, 1)), 2.0, 'semi-definite'),
+    (np.zeros((2, 3)), np.zeros((2, 3, 3)), 0.0, 'k must be > 0'),
+])
+def test_bad_input_is_refused(position: np.ndarray, covariance: np.ndarray, k: float,
+                              words: str) -> None:
+    with pytest.raises(InputError, match=words):
+        pose_figure_uncertainty(C, position, covariance, k)
+
+
+@pytest.mark.parametrize(('repeatability', 'common', 'noise'), [
+    (2e-6, 4e-6, 3e-6),  # a registration error shared by every visit
+    (2e-6, 0.0, 5e-6),  # the readings' noise only, larger than the machine's scatter
+    (0.5e-6, 3e-6, 3e-6),  # a machine far more repeatable than its measurement
+])
+def test_the_true_figures_lie_within_u_of_the_measured_ones_in_95_percent_of_runs(
+        repeatability: float, common: float, noise: float) -> None:
+    """200 seeded machines: AP drawn ~30 µm per axis, each of 10 visits scattered by
+    ``repeatability`` (σ per axis); measured with an error ``common`` to the run and
+    ``noise`` per visit, each visit stated with covariance (common² + noise²)·I."""
+    runs, n = 200, 10
+    covered = np.zeros((runs, 2), dtype=bool)
+    for seed in range(runs):
+        rng = np.random.default_rng(seed)
+        true = C + rng.normal(0.0, 30e-6, 3) + rng.normal(0.0, repeatability, (n, 3))
+        measured = true + rng.normal(0.0, common, 3) + rng.normal(0.0, noise, (n, 3))
+        cov = np.tile(np.eye(3) * (common**2 + noise**2), (n, 1, 1))
+        u = pose_figure_uncertainty(C, measured, cov, rng=np.random.default_rng(10_000 + seed))
+        ap_true, ap_measured = (float(np.linalg.norm(x.mean(axis=0) - C))
+                                for x in (true, measured))
+        covered[seed] = (abs(ap_measured - ap_true) <= u.ap_p,
+                         abs(float(rp_l_of(measured)) - float(rp_l_of(true))) <= u.rp_l)
+    share = covered.mean(axis=0)
+    print(f"AP_p, RP_l covered in {share[0]:.1%}, {share[1]:.1%} of {runs} runs")
+    assert share[0] >= 0.95 and share[1] >= 0.95, share
