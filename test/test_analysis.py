@@ -153,6 +153,11 @@ def test_analyze_writes_report_summary_and_plots(bag: Path, tmp_path: Path,
     stated = summary['modes'][0]['poses'][1]['iso9283_u']
     assert 0.0 < stated['ap_p'] < 1e-4 and 0.0 < stated['rp_l'] < 1e-4, stated
     assert 'AP_p ± U µm' in text and f'{stated["rp_l"] * 1e6:.1f} |' in text
+    # ISO 9283 §7.3 between P2 and P4, one pair a cycle, with U
+    distance = summary['modes'][0]['distance']
+    assert distance['poses'] == ['P2', 'P4'] and distance['iso9283']['n'] == 2
+    assert 0.0 < distance['iso9283_u']['ad_p'] < 1e-4, distance
+    assert '## Distance accuracy and repeatability' in text and '| none | P2 - P4 | 2 |' in text
     assert summary['tracker']['samples'] > 0
     pngs = {'error_over_time.png', 'axis_errors.png', 'clusters.png', 'error_distribution.png'}
     assert set(summary['plots']) == pngs

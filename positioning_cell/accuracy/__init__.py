@@ -3,7 +3,8 @@ tolerance verdicts, the tracker against the truth, and the monitor that applies 
 Pure numpy/scipy over arrays of samples; no ROS.
 
 - :mod:`.settle`: settle windows, visits, the batch and streaming accumulators;
-- :mod:`.iso9283`: ISO 9283:1998 AP and RP of a commanded pose;
+- :mod:`.iso9283`: ISO 9283:1998 AP and RP of a commanded pose, AD and RD between two;
+- :mod:`.figure_uncertainty`: the expanded uncertainty of those figures;
 - :mod:`.verdicts`: tolerances and verdicts;
 - :mod:`.decisions`: ISO 14253-1 decisions with the measurement's expanded uncertainty;
 - :mod:`.tracker_errors`: measured minus true pose over paired stamps;
@@ -19,7 +20,9 @@ from positioning_cell.accuracy.decisions import (
 )
 from positioning_cell.accuracy.iso230_2 import AxisFigures, iso230_2
 from positioning_cell.accuracy.iso9283 import (
+    DistanceFigures,
     PoseFigures,
+    distance_figures,
     iso9283,
     orientation_angles,
     wrap_angle,
@@ -87,6 +90,7 @@ __all__ = [
     'CheckedSamples',
     'Decision',
     'DecisionRule',
+    'DistanceFigures',
     'Ends',
     'ErrorStatistics',
     'ErrorSums',
@@ -116,6 +120,7 @@ __all__ = [
     'decision',
     'decision_counts',
     'decisions',
+    'distance_figures',
     'error_statistics',
     'figures_by_pose',
     'iso230_2',

@@ -1,6 +1,8 @@
-"""The expanded uncertainty U (k = 2) of a commanded pose's ISO 9283 position figures, pose
-accuracy AP_p (§7.2.1) and repeatability RP_l (§7.2.2), from the covariances the measurement
-states for each attained position (issue 25; the pattern of ISO/TR 230-9 for ISO 230-2).
+"""The expanded uncertainty U (k = 2) of ISO 9283 position figures from the covariances the
+measurement states for each attained position (issue 25; the pattern of ISO/TR 230-9 for
+ISO 230-2): a commanded pose's pose accuracy AP_p (§7.2.1) and repeatability RP_l (§7.2.2)
+below, the distance accuracy and repeatability AD_p, RD_p (§7.3) between two poses in
+:func:`distance_figure_uncertainty`.
 
 Each attained position x_j (n visits) was measured with covariance Σ_j (3, 3) m², the mean of
 its settle window's readings (:meth:`positioning_cell.accuracy.monitor.Readings.covariance_of`):
@@ -88,21 +90,89 @@ def pose_figure_uncertainty(commanded_position: ArrayLike, attained_position: Ar
     if cov.shape != (n, 3, 3):
         raise InputError(f'covariance: expected shape ({n}, 3, 3) for the {n} attained '
                          f'positions, got {cov.shape}')
-    if not (math.isfinite(k) and k > 0.0):
-        raise InputError(f'the coverage factor k must be > 0, got {k}')
+    _check_k(k)
     if not np.all(np.isfinite(cov)):
         return FigureUncertainty(math.nan, math.nan)
-    checks = covariance_checks(cov)
-    if not np.all(checks.symmetric & checks.semidefinite):
-        raise InputError('covariance: each must be symmetric positive semi-definite')
+    _check_covariances(cov)
     ap = x.mean(axis=0) - commanded[0]
     u_ap = float(norm_expanded_uncertainty(ap[None], cov.mean(axis=0)[None], k)[0])
     if n < 2:
         return FigureUncertainty(u_ap, math.nan)
-    w, v = np.linalg.eigh(cov)
-    root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (n, 3, 3): root @ rootᵀ = Σ_j
     rng = rng if rng is not None else np.random.default_rng(0)
-    errors = np.einsum('nij,mnj->mni', root, rng.standard_normal((DRAWS, n, 3)))
+    errors = _drawn_errors(cov, rng)
     distance = np.sqrt(((errors - errors.mean(axis=1, keepdims=True)) ** 2).sum(axis=2))
     bound = distance.mean(axis=1) + 3.0 * np.sqrt((distance ** 2).sum(axis=1) / (n - 1))
-    return FigureUncertainty(u_ap, float(np.quantile(bound, math.erf(k / math.sqrt(2.0)))))
+    return FigureUncertainty(u_ap, _coverage_quantile(bound, k))
+
+
+class DistanceUncertainty(NamedTuple):
+    """U (k as asked, m) of AD_p and of RD_p (ISO 9283 §7.3); NaN where not stated."""
+
+    ad_p: float
+    rd_p: float
+
+
+def distance_figure_uncertainty(attained_first: ArrayLike, attained_second: ArrayLike,
+                                covariance_first: ArrayLike, covariance_second: ArrayLike,
+                                k: float = COVERAGE_FACTOR,
+                                rng: np.random.Generator | None = None) -> DistanceUncertainty:
+    """U of AD_p and RD_p (:func:`~positioning_cell.accuracy.iso9283.distance_figures`) from
+    the n pairs of attained positions (n, 3) m and the covariance (n, 3, 3) m² each was
+    measured with. A part common to both positions of a pair (the registration) cancels in
+    their distance, so the errors are taken as independent: the side that cannot understate.
+
+    - AD_p = D̄ − D_c, D_j = |P_1j − P_2j| of millimetres against errors of micrometres: the
+      law of propagation (JCGM 100 eq. 10), D_j's sensitivity the unit vector u_j along
+      P_1j − P_2j: u(D̄)² = Σ u_jᵀ(Σ_1j + Σ_2j)u_j / n².
+    - RD_p = 3·S_D: as RP_l's bound (module docstring), |δD_j| ≤ |e_1j − e_2j|, so
+      |RD_p(measured) − RD_p(machine)| ≤ 3·√(Σ|e_1j − e_2j|²/(n − 1)), its quantile over
+      :data:`DRAWS` draws (NaN below two pairs).
+
+    InputError as :func:`pose_figure_uncertainty`'s."""
+    first = as_vectors(attained_first, 3, 'attained_first')
+    second = as_vectors(attained_second, 3, 'attained_second')
+    n = first.shape[0]
+    cov = [np.asarray(c, dtype=float) for c in (covariance_first, covariance_second)]
+    if second.shape != first.shape or any(c.shape != (n, 3, 3) for c in cov):
+        raise InputError(f'expected {n} pairs of positions (n, 3) and covariances (n, 3, 3), '
+                         f'got {second.shape}, {cov[0].shape} and {cov[1].shape}')
+    _check_k(k)
+    if not all(np.all(np.isfinite(c)) for c in cov):
+        return DistanceUncertainty(math.nan, math.nan)
+    _check_covariances(np.concatenate(cov))
+    along = first - second
+    along /= np.maximum(np.linalg.norm(along, axis=1, keepdims=True), np.finfo(float).tiny)
+    variance = np.einsum('ni,nij,nj->', along, cov[0] + cov[1], along) / n**2
+    u_ad = k * math.sqrt(max(float(variance), 0.0))
+    if n < 2:
+        return DistanceUncertainty(u_ad, math.nan)
+    rng = rng if rng is not None else np.random.default_rng(0)
+    difference = _drawn_errors(cov[0], rng) - _drawn_errors(cov[1], rng)
+    bound = 3.0 * np.sqrt((difference ** 2).sum(axis=(1, 2)) / (n - 1))
+    return DistanceUncertainty(u_ad, _coverage_quantile(bound, k))
+
+
+def _check_k(k: float) -> None:
+    if not (math.isfinite(k) and k > 0.0):
+        raise InputError(f'the coverage factor k must be > 0, got {k}')
+
+
+def _check_covariances(cov: FloatArray) -> None:
+    checks = covariance_checks(cov)
+    if not np.all(checks.symmetric & checks.semidefinite):
+        raise InputError('covariance: each must be symmetric positive semi-definite')
+
+
+def _drawn_errors(cov: FloatArray, rng: np.random.Generator) -> FloatArray:
+    """:data:`DRAWS` draws (DRAWS, n, 3) of independent errors, row j ~ N(0, cov[j])."""
+    w, v = np.linalg.eigh(cov)
+    root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (n, 3, 3): root @ rootᵀ = cov[j]
+    errors: FloatArray = np.einsum('nij,mnj->mni', root,
+                                   rng.standard_normal((DRAWS, cov.shape[0], 3)))
+    return errors
+
+
+def _coverage_quantile(bound: FloatArray, k: float) -> float:
+    """The quantile of the drawn bounds at the coverage probability of k for a normal
+    distribution (95.45 % for k = 2)."""
+    return float(np.quantile(bound, math.erf(k / math.sqrt(2.0))))

@@ -1,5 +1,6 @@
 """ISO 9283:1998 pose accuracy (§7.2.1) and repeatability (§7.2.2) of a commanded pose from its
-attained poses, and the orientation angles the standard uses. SI: m and rad."""
+attained poses, distance accuracy and repeatability (§7.3) between two commanded poses, and
+the orientation angles the standard uses. SI: m and rad."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from positioning_cell.core.poses import (
     Triple,
     as_pose_batch,
     as_unit_quaternions,
+    as_vectors,
     quad,
     scipy_rotation,
     triple,
@@ -135,3 +137,47 @@ def iso9283(commanded_position: ArrayLike, commanded_quaternion: ArrayLike,
         rp_l=None if s_l is None else float(l_j.mean()) + 3.0 * s_l,
         s_a=s_abc[0], s_b=s_abc[1], s_c=s_abc[2], rp_a=rp_abc[0], rp_b=rp_abc[1],
         rp_c=rp_abc[2])
+
+
+@dataclass(frozen=True)
+class DistanceFigures:
+    """ISO 9283:1998 distance accuracy AD (§7.3.1) and distance repeatability RD (§7.3.2) of
+    the position between two commanded poses, from n pairs of attained positions (cycle j
+    reached the first pose at P_1j and the second at P_2j). SI: m.
+
+    D_c = |P_c1 − P_c2|, D_j = |P_1j − P_2j|, D̄ their mean; AD_p = D̄ − D_c;
+    S_D = √(Σ(D_j − D̄)²/(n − 1)), RD_p = ±3·S_D (the half-width is stored; None when
+    n < 2)."""
+
+    n: int
+    commanded_distance: float
+    mean_distance: float
+    ad_p: float
+    s_d: float | None
+    rd_p: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict (None for undefined terms)."""
+        return plain_fields(self)
+
+
+def distance_figures(commanded_first: ArrayLike, commanded_second: ArrayLike,
+                     attained_first: ArrayLike, attained_second: ArrayLike) -> DistanceFigures:
+    """ISO 9283 §7.3 AD_p and RD_p (:class:`DistanceFigures`) between two commanded positions
+    (3,) m from the n pairs of attained positions (n, 3), (n, 3) m, pair j of cycle j.
+    InputError: not finite, or not as many of each."""
+    c = as_vectors(np.vstack([np.reshape(np.asarray(commanded_first, dtype=float), (-1, 3)),
+                              np.reshape(np.asarray(commanded_second, dtype=float), (-1, 3))]),
+                   3, 'commanded positions')
+    first = as_vectors(attained_first, 3, 'attained_first')
+    second = as_vectors(attained_second, 3, 'attained_second')
+    if c.shape[0] != 2 or first.shape != second.shape:
+        raise InputError(f'distance figures take two commanded positions and as many attained '
+                         f'of each; got {c.shape[0]}, {first.shape[0]} and {second.shape[0]}')
+    n = first.shape[0]
+    distance = np.sqrt(((first - second) ** 2).sum(axis=1))
+    commanded = float(np.linalg.norm(c[0] - c[1]))
+    s_d = float(distance.std(ddof=1)) if n >= 2 else None
+    return DistanceFigures(n, commanded, float(distance.mean()),
+                           float(distance.mean()) - commanded, s_d,
+                           None if s_d is None else 3.0 * s_d)

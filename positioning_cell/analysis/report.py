@@ -90,6 +90,20 @@ def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     return rows
 
 
+DISTANCE_HEADER = ('mode', 'poses', 'cycles', 'commanded D mm', 'AD_p ± U µm', 'RD_p ± U µm')
+
+
+def _distance_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
+    rows = []
+    for m in modes:
+        if m.distance is None:
+            continue
+        d, f, u = m.distance, m.distance.figures, m.distance.uncertainty
+        rows.append([m.mode, ' - '.join(d.poses), str(f.n), f'{f.commanded_distance * 1e3:.3f}',
+                     um_u(f.ad_p, u.ad_p), um_u(f.rd_p, u.rd_p)])
+    return rows
+
+
 #: AP_p and RP_l with their U (k = 2) from the measurement (analysis.summary.PoseSummary).
 POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p ± U µm', 'AP_x', 'AP_y',
                'AP_z', 'RP_l ± U µm', 'AP_a °', 'AP_b °', 'AP_c °', 'RP_a ±°', 'RP_b ±°',
@@ -157,7 +171,15 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
             'mean) minus commanded pose; settle: target (or the bag\'s first sample, if the '
             'target is older) to end of the settle window.', '']
     if a.modes:
-        out += ['## Per commanded pose', '', *markdown_table(POSE_HEADER, _pose_rows(a.modes)), '']
+        out += ['## Per commanded pose', '', *markdown_table(POSE_HEADER, _pose_rows(a.modes)),
+                '', 'U: expanded uncertainty (k = 2) from the covariance each visit was '
+                'measured with; it cannot understate (docs/howto/verdicts.md).', '']
+    distances = [m for m in a.modes if m.distance is not None]
+    if distances:
+        out += ['## Distance accuracy and repeatability', '',
+                *markdown_table(DISTANCE_HEADER, _distance_rows(distances)), '',
+                'ISO 9283:1998 §7.3: D the distance between the attained positions of the two '
+                'poses in one cycle, AD_p = mean D − commanded D, RD_p = ±3·S_D.', '']
     if a.truth_modes:
         out += ['## Simulation truth', '', 'The true platform pose against the target (what '
                 'the tracker measures, without its error):', '',

@@ -30,7 +30,9 @@ from numpy.typing import NDArray
 
 from positioning_cell import accuracy
 from positioning_cell.accuracy.figure_uncertainty import (
+    DistanceUncertainty,
     FigureUncertainty,
+    distance_figure_uncertainty,
     pose_figure_uncertainty,
 )
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
@@ -111,6 +113,45 @@ class PoseSummary:
                 **self.extremes.to_dict()}
 
 
+#: The program's poses between which ISO 9283 §7.3's distance accuracy and repeatability are
+#: taken (the test cube's opposite corners P2 and P4, config/program.yaml).
+DISTANCE_POSES = ('P2', 'P4')
+
+
+@dataclass(frozen=True)
+class DistanceSummary:
+    """ISO 9283 §7.3 between two of a mode's poses (:data:`DISTANCE_POSES`): AD_p and RD_p
+    over the cycles that reached both, and their U (k = 2) from the measurement."""
+
+    poses: tuple[str, str]
+    figures: accuracy.DistanceFigures
+    uncertainty: DistanceUncertainty
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (SI; an uncertainty not stated is null)."""
+        return {'poses': list(self.poses), 'iso9283': self.figures.to_dict(),
+                'iso9283_u': {name: (u if math.isfinite(u) else None)
+                              for name, u in self.uncertainty._asdict().items()}}
+
+
+def distance_summary(visits: Sequence[LabelledVisit],
+                     poses: tuple[str, str] = DISTANCE_POSES) -> DistanceSummary | None:
+    """AD_p and RD_p of one mode's visits between ``poses``: the k-th visit of the first
+    paired with the k-th of the second (a cycle), as many pairs as both have; None when
+    either pose was not reached."""
+    first, second = ([v for v in visits if v.pose == name] for name in poses)
+    n = min(len(first), len(second))
+    if n == 0:
+        return None
+    first, second = first[:n], second[:n]
+    p1, p2 = ([v.visit.position for v in group] for group in (first, second))
+    cov1, cov2 = (np.array([v.covariance[:3, :3] for v in group]) for group in (first, second))
+    return DistanceSummary(
+        poses, accuracy.distance_figures(first[0].visit.commanded_position,
+                                         second[0].visit.commanded_position, p1, p2),
+        distance_figure_uncertainty(p1, p2, cov1, cov2))
+
+
 @dataclass(frozen=True)
 class ModeSummary:
     """One compensation mode: every visit's extremes, the worst pose accuracy AP_p (m) and
@@ -125,6 +166,7 @@ class ModeSummary:
     rp_angle_max: float | None
     poses: tuple[PoseSummary, ...]
     tracker: accuracy.ErrorStatistics | None = None
+    distance: DistanceSummary | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI)."""
@@ -132,7 +174,8 @@ class ModeSummary:
                 'rp_l_max': self.rp_l_max, 'ap_angle_max': self.ap_angle_max,
                 'rp_angle_max': self.rp_angle_max,
                 'tracker': None if self.tracker is None else self.tracker.to_dict(),
-                'poses': [p.to_dict() for p in self.poses]}
+                'poses': [p.to_dict() for p in self.poses],
+                'distance': None if self.distance is None else self.distance.to_dict()}
 
 
 def _worst(values: Sequence[float | None]) -> float | None:
@@ -166,7 +209,7 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
                 for p in poses),
             _worst([_worst([p.figures.rp_a, p.figures.rp_b, p.figures.rp_c])
                     for p in poses]),
-            tuple(poses)))
+            tuple(poses), distance=distance_summary(mine)))
     return tuple(out)
 
 
