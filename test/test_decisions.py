@@ -125,6 +125,11 @@ def test_at_zero_the_monte_carlo_gives_the_maxwell_interval() -> None:
     expected = (maxwell.ppf((1 + p) / 2, scale=SIGMA) - maxwell.ppf((1 - p) / 2, scale=SIGMA)) / 2
     u = norm_expanded_uncertainty([[0.0, 0.0, 0.0]], [np.eye(3) * SIGMA**2])
     np.testing.assert_allclose(u, [expected], rtol=0.01)
+    # the watch's 4 000 draws (a live display): within a few per cent
+    few = norm_expanded_uncertainty([[0.0, 0.0, 0.0]], [np.eye(3) * SIGMA**2], draws=4_000)
+    np.testing.assert_allclose(few, [expected], rtol=0.05)
+    with pytest.raises(InputError, match='draws must be >= 2'):
+        norm_expanded_uncertainty([[0.0, 0.0, 0.0]], [np.eye(3) * SIGMA**2], draws=1)
 
 
 def test_a_covariance_exact_along_two_axes_is_taken() -> None:

@@ -107,6 +107,9 @@ def test_deviation_scene_and_transforms_match_the_published_poses(ros: InProcess
     assert dev['position_error_um'] == pytest.approx(np.linalg.norm(OFFSET) * 1e6, abs=1e-6)
     assert dev['position_tolerance_um'] == pytest.approx(50.0)  # the defaults: no monitor
     assert dev['in_tolerance'] is True and all(dev['axis_in_tolerance'])
+    # U (k = 2) of |Δp| with σ 5 µm per axis: about 2σ; 37.4 + U within 50 µm: conforms
+    assert dev['position_uncertainty_um'] == pytest.approx(2 * SIGMA * 1e6, rel=0.1)
+    assert dev['decision'] == 'conforms' and dev['decision_rule'] == 'iso_14253_1'
     assert dev['uncertainty'][:3] == pytest.approx([SIGMA] * 3, rel=1e-9)
     # the scene: base, legs, platform, the commanded ghost, and the magnified error arrow
     arrow = entities['error']['arrows'][0]
@@ -149,6 +152,7 @@ def test_it_follows_the_monitor_tolerance_and_the_user_frame(ros: InProcess) -> 
                      lambda d: d['position_tolerance_um'] == pytest.approx(30.0)).message
         assert dev['in_tolerance'] is False
         assert dev['axis_in_tolerance'][:3] == [True, True, True]
+        assert dev['decision'] == 'indeterminate'  # 37.4 µm lies within U of 30 µm
         # the user frame: turned 90° about z, 10 mm along x; the object 50 mm up
         cell.coordinate_systems(([0.01, 0.0, 0.0],
                                  Rotation.from_euler('z', 90, degrees=True).as_quat()),

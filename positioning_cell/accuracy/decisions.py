@@ -148,7 +148,8 @@ def covariance_checks(covariance: ArrayLike) -> CovarianceChecks:
 
 def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
                               k: float = COVERAGE_FACTOR,
-                              rng: np.random.Generator | None = None) -> FloatArray:
+                              rng: np.random.Generator | None = None,
+                              draws: int = MONTE_CARLO_DRAWS) -> FloatArray:
     """The expanded uncertainty U (N,) of the norms |Δp| of N measured vectors ``delta``
     (N, 3), each with the covariance (N, 3, 3) of its measurement (same unit squared), for
     coverage factor ``k``.
@@ -162,7 +163,7 @@ def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
     :data:`MONTE_CARLO_DRAWS` times, and U the half-width of the probabilistically symmetric
     coverage interval of |Δp| with the coverage probability k gives for a normal
     distribution (95.45 % for k = 2). ``rng``: the draws' generator (default: seeded, so a
-    figure is the same on every run).
+    figure is the same on every run); ``draws``: their number (fewer for a live display).
 
     InputError: wrong shapes, NaN or infinite entries, a covariance that is not symmetric
     positive semi-definite, k ≤ 0."""
@@ -176,6 +177,8 @@ def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
     if not (math.isfinite(k) and k > 0.0):
         raise InputError(f'norm_expanded_uncertainty: the coverage factor k must be > 0, '
                          f'got {k}')
+    if draws < 2:
+        raise InputError(f'norm_expanded_uncertainty: draws must be >= 2, got {draws}')
     checks = covariance_checks(cov)
     if not np.all(checks.symmetric):
         raise InputError('norm_expanded_uncertainty: a covariance is not symmetric')
@@ -199,16 +202,16 @@ def norm_expanded_uncertainty(delta: ArrayLike, covariance: ArrayLike,
     out[linear] = k * np.sqrt(np.maximum(first + second, 0.0))
     if np.any(~linear):
         out[~linear] = _monte_carlo(d[~linear], cov[~linear], k,
-                                    rng if rng is not None else np.random.default_rng(0))
+                                    rng if rng is not None else np.random.default_rng(0), draws)
     return out
 
 
-def _monte_carlo(d: FloatArray, cov: FloatArray, k: float,
-                 rng: np.random.Generator) -> FloatArray:
+def _monte_carlo(d: FloatArray, cov: FloatArray, k: float, rng: np.random.Generator,
+                 draws: int = MONTE_CARLO_DRAWS) -> FloatArray:
     """JCGM 101:2008 §7 for Y = |X|, X ~ N(d, cov), rows at once: the half-width of the
     probabilistically symmetric coverage interval for probability erf(k / √2).
 
-    One set of :data:`MONTE_CARLO_DRAWS` standard normal draws z (M, 3) serves every row (a
+    One set of ``draws`` standard normal draws z (M, 3) serves every row (a
     valid sample of each row's X = d + L z, L Lᵀ = cov; the rows' figures are then
     correlated, never biased), and |X|² = dᵀd + 2 (Lᵀd)·z + zᵀ(LᵀL)z is one matrix product
     of the draws' nine monomials with each row's nine coefficients: ~20 times faster than a
@@ -218,7 +221,7 @@ def _monte_carlo(d: FloatArray, cov: FloatArray, k: float,
     # Cholesky factor needs it definite: a reading may be exact along an axis).
     w, v = np.linalg.eigh(cov)
     root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (N, 3, 3): root @ rootᵀ = cov
-    z = rng.standard_normal((MONTE_CARLO_DRAWS, 3))
+    z = rng.standard_normal((draws, 3))
     monomials = np.vstack([z.T, (z * z).T, z[:, 0] * z[:, 1], z[:, 0] * z[:, 2],
                            z[:, 1] * z[:, 2]])  # (9, M)
     linear = 2.0 * np.einsum('nji,nj->ni', root, d)  # 2 Lᵀd (N, 3)
@@ -229,7 +232,7 @@ def _monte_carlo(d: FloatArray, cov: FloatArray, k: float,
     constant = (d * d).sum(axis=1)
     # np.quantile's linear interpolation between the order statistics around (M - 1)·p, taken
     # from |X|² (the same order) and their roots only: no root of every draw.
-    at = (MONTE_CARLO_DRAWS - 1) * np.array([(1.0 - p) / 2.0, (1.0 + p) / 2.0])
+    at = (draws - 1) * np.array([(1.0 - p) / 2.0, (1.0 + p) / 2.0])
     below = np.floor(at).astype(np.intp)
     share = at - below
     ranks = np.concatenate([below, below + 1])

@@ -118,7 +118,7 @@ class Verdict:
                 f'{math.degrees(self.orientation_error):.4f}° '
                 f'{_plus_minus(math.degrees(self.orientation_uncertainty), ".4f")}° (tolerance '
                 f'{math.degrees(self.tolerances.orientation):.4f}°): '
-                f'{self.decision.value.upper()} ({_RULE_NAMES[self.tolerances.rule]})')
+                f'{self.decision.value.upper()} ({RULE_NAMES[self.tolerances.rule]})')
 
     def short(self) -> str:
         """In a few words, as a run prints it: ``|Δp| 3.2 ± 4.1 µm, 0.0004°: conforms``
@@ -127,7 +127,7 @@ class Verdict:
 
 
 #: How each rule is named in a verdict's message.
-_RULE_NAMES = {DecisionRule.ISO_14253_1: 'ISO 14253-1, U at k = 2',
+RULE_NAMES = {DecisionRule.ISO_14253_1: 'ISO 14253-1, U at k = 2',
                DecisionRule.SIMPLE_ACCEPTANCE: 'simple acceptance, U not used'}
 
 #: The level of the monitor's ``settled pose`` status for each decision.

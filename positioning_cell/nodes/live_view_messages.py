@@ -31,6 +31,7 @@ from foxglove.messages import (
 from numpy.typing import ArrayLike
 
 from positioning_cell import names
+from positioning_cell.accuracy.decisions import Decision, DecisionRule
 from positioning_cell.frames.systems import OBJECT_FRAME, USER_FRAME
 from positioning_cell.watch.deviation import AXES, Deviation
 from positioning_cell.watch.scene import Scene, arrow_quaternion
@@ -154,8 +155,9 @@ def frame_transforms(snapshot: Snapshot, stamp: float) -> FrameTransforms:
 def deviation_document(dev: Deviation, stamp: float) -> dict[str, Any]:
     """The /live/deviation message: SI arrays (``commanded``, ``measured``, ``deviation``,
     ``uncertainty``: x, y, z m, rx, ry, rz rad), per-axis display values (``x_um`` …
-    ``rz_deg``), |Δp| µm, |Δθ| deg, the tolerances, the in/out verdict, and ``stamp`` (s) of
-    the measurement."""
+    ``rz_deg``), |Δp| µm, |Δθ| deg with their U (k = 2), the tolerances, the in/out verdict
+    as measured, the decision by the monitor's rule (``decision``: conforms, indeterminate,
+    does not conform; ``decision_rule``), and ``stamp`` (s) of the measurement."""
     doc: dict[str, Any] = {
         'stamp': stamp, 'frame': dev.frame,
         'commanded': dev.commanded.tolist(), 'measured': dev.measured.tolist(),
@@ -164,7 +166,11 @@ def deviation_document(dev: Deviation, stamp: float) -> dict[str, Any]:
         'orientation_error_deg': math.degrees(dev.orientation_error),
         'position_tolerance_um': dev.tolerances.position * 1e6,
         'orientation_tolerance_deg': math.degrees(dev.tolerances.orientation),
-        'in_tolerance': dev.ok, 'axis_in_tolerance': [bool(b) for b in dev.axis_ok]}
+        'position_uncertainty_um': dev.verdict.position_uncertainty * 1e6,
+        'orientation_uncertainty_deg': math.degrees(dev.verdict.orientation_uncertainty),
+        'in_tolerance': dev.ok, 'axis_in_tolerance': [bool(b) for b in dev.axis_ok],
+        'decision': dev.verdict.decision.value,
+        'decision_rule': dev.tolerances.decision_rule}
     for i, axis in enumerate(AXES):
         if i < 3:
             doc[f'{axis}_um'] = float(dev.deviation[i]) * 1e6
@@ -198,8 +204,11 @@ def deviation_schema() -> dict[str, Any]:
         'stamp': number, 'frame': {'type': 'string'}, 'commanded': six, 'measured': six,
         'deviation': six, 'uncertainty': six, 'position_error_um': number,
         'orientation_error_deg': number, 'position_tolerance_um': number,
-        'orientation_tolerance_deg': number, 'in_tolerance': {'type': 'boolean'},
-        'axis_in_tolerance': {'type': 'array', 'items': {'type': 'boolean'}}}
+        'orientation_tolerance_deg': number, 'position_uncertainty_um': number,
+        'orientation_uncertainty_deg': number, 'in_tolerance': {'type': 'boolean'},
+        'axis_in_tolerance': {'type': 'array', 'items': {'type': 'boolean'}},
+        'decision': {'type': 'string', 'enum': [d.value for d in Decision]},
+        'decision_rule': {'type': 'string', 'enum': [r.value for r in DecisionRule]}}
     props.update({f'{a}_um': number for a in AXES[:3]})
     props.update({f'{a}_deg': number for a in AXES[3:]})
     return {'type': 'object', 'properties': props}

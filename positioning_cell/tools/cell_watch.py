@@ -26,8 +26,9 @@ from rich.table import Table
 from rich.text import Text
 
 from positioning_cell import names
+from positioning_cell.accuracy.verdicts import DECISION_LEVELS, RULE_NAMES
 from positioning_cell.watch.state import Snapshot, Status
-from positioning_cell.watch.table import HEADERS, rows
+from positioning_cell.watch.table import DECISION_MARKERS, HEADERS, rows
 
 #: Keys that quit.
 QUIT_KEYS = frozenset('qQ')
@@ -36,6 +37,8 @@ FIRST_PERIOD = 0.05
 #: A measurement older than this is shown as stale, s.
 STALE_AFTER = 1.0
 _LEVEL_STYLES = {0: 'green', 1: 'yellow', 2: 'bold red', 3: 'magenta'}
+#: The colour of a table marker by its level (watch.table.Row.level).
+LEVEL_STYLES = {'ok': 'bold green', 'warn': 'bold yellow', 'error': 'bold red'}
 _LEVEL_NAMES = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 
 
@@ -107,10 +110,13 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
                       caption_style='yellow' if stale else 'dim')
         for row in rows(dev):
             cells = list(row.cells())
-            style = 'bold green' if row.ok else 'bold red'
-            table.add_row(*cells[:5], Text(cells[5], style=style), cells[6])
-        parts += [table, Text.assemble(('pose: ', 'bold'), ('IN TOLERANCE', 'bold green')
-                                       if dev.ok else ('OUT OF TOLERANCE', 'bold red'))]
+            table.add_row(*cells[:5], Text(cells[5], style=LEVEL_STYLES[row.level]), cells[6])
+        decision = dev.verdict.decision
+        parts += [table, Text.assemble(
+            ('pose: ', 'bold'), (DECISION_MARKERS[decision],
+                                 LEVEL_STYLES[DECISION_LEVELS[decision]]),
+            (f' ({RULE_NAMES[dev.tolerances.rule]}; as measured: '
+             f'{"in" if dev.ok else "out of"} tolerance)', 'dim'))]
     parts.append(Text('q or Ctrl-C quits', style='dim'))
     return Group(*parts)
 
