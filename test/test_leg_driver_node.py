@@ -99,6 +99,21 @@ def cell(ros: InProcess) -> Iterator[Cell]:
     yield Cell(ros.client)
 
 
+@pytest.mark.timing
+def test_publishes_the_encoders_at_its_rate(cell: Cell) -> None:
+    """The publication rate from the header stamps, in the timing tier: a timer's rate is
+    what a loaded machine changes (the parallel tier's load held this in-process driver to a
+    median interval of 28 ms in CI). This VM's timers jitter, and a stall of the shared VM can
+    hold up this test's subscriber: the median interval is the rate, not the mean over a gap;
+    benchmarks/idle_cpu.py measures the rate itself."""
+    wait_until(lambda: len(cell.states) > SETTINGS.publish_rate, 10.0,
+               'a second of joint states')
+    stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+                       for m in list(cell.states)])
+    assert stamps[-1] - stamps[0] > 0.5
+    assert np.median(np.diff(stamps)) < 1.5 / SETTINGS.publish_rate
+
+
 def values(status: DiagnosticStatus) -> dict[str, str]:
     return {kv.key: kv.value for kv in status.values}
 
@@ -135,13 +150,6 @@ def test_follows_a_trajectory_and_publishes_encoders_and_truth(cell: Cell) -> No
     # It moved through intermediate positions (a trajectory, not a jump).
     path = np.array([m.position for m in list(cell.truth)])
     assert ((path[:, 0] > goal[0] - 0.9 * MOVE[0]) & (path[:, 0] < goal[0] - 0.1 * MOVE[0])).any()
-    # Publication rate from the header stamps (this VM's timers jitter, and a stall of the
-    # shared VM can hold up this test's subscriber: the median interval is the rate, not the
-    # mean over a gap; benchmarks/idle_cpu.py measures the rate itself).
-    stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
-                       for m in list(cell.states)])
-    assert stamps[-1] - stamps[0] > 0.5
-    assert np.median(np.diff(stamps)) < 1.5 / SETTINGS.publish_rate
     cell.status(lambda s: s.level == DiagnosticStatus.OK and values(s)['state'] == 'holding',
                 'diagnostics: holding')
 
