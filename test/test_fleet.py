@@ -314,6 +314,10 @@ def test_the_command_line_on_a_local_cluster(tmp_path: Path,
             assert_allclose(s['ap'][k], [f.ap_x, f.ap_y, f.ap_z], rtol=1e-12, atol=1e-15)
             assert_allclose(s['barycentre'][k], f.barycentre, rtol=1e-12, atol=1e-15)
             assert s['n'][k] == f.n
+            # with the U of AP_p and RP_l and each visit's decision (issue 25)
+            u = next(p.uncertainty for p in mode.poses if p.pose == s['pose'])
+            assert s['ap_p_u'][k] == pytest.approx(u.ap_p, rel=1e-12) and u.ap_p > 0.0
+            assert sum(s['decisions'][k]) == f.n
             compared += 1
     assert compared == sum(len(p.poses) for a in alone.values() for p in a.modes) >= 12
     # Epochs: cal_A, then the recalibration of the third run (its calibration run first,
@@ -336,7 +340,9 @@ def test_the_command_line_on_a_local_cluster(tmp_path: Path,
     assert {p.name for p in out.glob('*.png')} == {
         'trend_accuracy.png', 'trend_repeatability.png', 'trend_drift.png',
         'trend_registrations.png'}
-    assert 'garbage.mcap' in (out / 'trends.md').read_text()
+    report = (out / 'trends.md').read_text()
+    assert 'garbage.mcap' in report and '### none: AP_p ± U µm per run' in report
+    assert '### none: visits that conform / are indeterminate / do not conform per run' in report
     # The whole report's figures are those of the serial loop in this process.
     results = [digest_bag(b) for b in find_bags([tmp_path / 'plant'])]
     serial = analyze_bags.report_fleet([r for r in results if isinstance(r, RunDigest)],

@@ -247,10 +247,16 @@ def judge_poses(position: FloatArray, quaternion: FloatArray, commanded_position
                                     u_position.tolist(), u_angle.tolist(), strict=True)]
 
 
+def decision_key(decision: Decision) -> str:
+    """A decision as a key of counts: its value with underscores (``conforms``,
+    ``indeterminate``, ``does_not_conform``)."""
+    return decision.value.replace(' ', '_')
+
+
 def decision_counts(verdicts: Sequence[Verdict]) -> dict[str, int]:
-    """How many of ``verdicts`` drew each decision, keyed by its value with underscores
-    (``conforms``, ``indeterminate``, ``does_not_conform``)."""
-    counts = {d.value.replace(' ', '_'): 0 for d in Decision}
+    """How many of ``verdicts`` drew each decision, keyed by :func:`decision_key` (every
+    decision, in :class:`Decision`'s order)."""
+    counts = {decision_key(d): 0 for d in Decision}
     for v in verdicts:
-        counts[v.decision.value.replace(' ', '_')] += 1
+        counts[decision_key(v.decision)] += 1
     return counts

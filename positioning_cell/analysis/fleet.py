@@ -23,8 +23,8 @@ from __future__ import annotations
 import math
 import os
 import traceback
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -33,8 +33,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
+from positioning_cell.accuracy.figure_uncertainty import FigureUncertainty
 from positioning_cell.accuracy.iso9283 import wrap_angle
 from positioning_cell.accuracy.monitor import MonitorSettings
+from positioning_cell.accuracy.verdicts import decision_key
 from positioning_cell.analysis.context import CalibrationInForce, CalibrationRun, Registration
 from positioning_cell.analysis.summary import RunAnalysis, analyse_bag
 from positioning_cell.bag import BagError
@@ -51,6 +53,10 @@ POSITION_TOLERANCE = 1e-5
 ANGLE_TOLERANCE = 2e-5
 #: The suffix of a storage file that is a bag by itself.
 MCAP_SUFFIX = '.mcap'
+#: A pose digest's uncertainty when its analysis stated none.
+NOT_STATED = FigureUncertainty(math.nan, math.nan)
+#: The decisions a series counts per run, in its columns' order (decision_counts' keys).
+DECISION_KEYS = tuple(decision_key(d) for d in accuracy.Decision)
 
 
 # -- one run ---------------------------------------------------------------------------------
@@ -65,6 +71,11 @@ class PoseDigest:
     pose: str
     time: float
     figures: accuracy.PoseFigures
+    #: U (k = 2) of AP_p and RP_l from the measurement (None, or NaN in it: not stated).
+    uncertainty: FigureUncertainty | None = None
+    #: How many of its visits drew each decision by the monitor's rule
+    #: (:func:`positioning_cell.accuracy.verdicts.decision_counts`; empty: not known).
+    decisions: Mapping[str, int] = field(default_factory=dict)
 
     @property
     def visits(self) -> int:
@@ -72,9 +83,13 @@ class PoseDigest:
         return self.figures.n
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able (SI)."""
+        """JSON-able (SI; an uncertainty not stated is null)."""
         return {'mode': self.mode, 'pose': self.pose, 'time': self.time,
-                'visits': self.visits, 'iso9283': self.figures.to_dict()}
+                'visits': self.visits, 'iso9283': self.figures.to_dict(),
+                'iso9283_u': None if self.uncertainty is None else {
+                    k: (v if math.isfinite(v) else None)
+                    for k, v in self.uncertainty._asdict().items()},
+                'decisions': dict(self.decisions)}
 
 
 @dataclass(frozen=True)
@@ -117,11 +132,15 @@ def digest(analysis: RunAnalysis) -> RunDigest:
     during the program is the one at the earliest of them (at the bag's start without any)."""
     context = analysis.context
     first: dict[tuple[str, str], float] = {}
-    for v in analysis.replay.visits:
+    verdicts: dict[tuple[str, str], list[accuracy.Verdict]] = {}
+    for v in analysis.replay.visits:  # over visits, not samples
         settled = v.visit.settle_time
         first[v.mode, v.pose] = min(first.get((v.mode, v.pose), math.inf), settled)
+        verdicts.setdefault((v.mode, v.pose), []).append(v.verdict)
     poses = tuple(PoseDigest(p.mode, p.pose, first.get((p.mode, p.pose), context.start),
-                             p.figures) for m in analysis.modes for p in m.poses)
+                             p.figures, p.uncertainty,
+                             accuracy.decision_counts(verdicts.get((p.mode, p.pose), [])))
+                  for m in analysis.modes for p in m.poses)
     program = min((p.time for p in poses), default=context.start)
     return RunDigest(str(analysis.bag), context.start, context.end, analysis.message_count,
                      poses, context.calibration_at(program), context.calibrations,
@@ -235,7 +254,9 @@ class PoseSeries:
     ``barycentre`` (R, 3) m; its calibration ``epoch`` (R,) (:attr:`Epoch.index`) and the
     drift since its first observation in that epoch: ``drift`` (R, 3) m (barycentre minus
     that one's), ``drift_distance`` (R,) m, ``drift_angles`` (R, 3) rad (mean attained
-    angles a, b, c minus that one's, wrapped into [−π, π))."""
+    angles a, b, c minus that one's, wrapped into [−π, π)); ``ap_p_u``, ``rp_l_u`` (R,) m
+    the U (k = 2) of AP_p and RP_l (NaN: not stated) and ``decisions`` (R, 3) how many of
+    each run's visits conformed, were indeterminate, did not conform."""
 
     mode: str
     pose: CommandedPose
@@ -252,6 +273,9 @@ class PoseSeries:
     drift: FloatArray
     drift_distance: FloatArray
     drift_angles: FloatArray
+    ap_p_u: FloatArray
+    rp_l_u: FloatArray
+    decisions: IntArray
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI; NaN as null)."""
@@ -425,6 +449,11 @@ class _Observations:
         self.rp_angles = np.array([tuple(map(_number, (x.rp_a, x.rp_b, x.rp_c))) for x in f],
                                   dtype=float).reshape(-1, 3)
         self.barycentre = np.array([x.barycentre for x in f], dtype=float).reshape(-1, 3)
+        stated = [p.uncertainty or NOT_STATED for p in digests]
+        self.ap_p_u = np.array([u.ap_p for u in stated], dtype=float)
+        self.rp_l_u = np.array([u.rp_l for u in stated], dtype=float)
+        self.decisions = np.array([[p.decisions.get(name, 0) for name in DECISION_KEYS]
+                                   for p in digests], dtype=np.intp).reshape(-1, 3)
         commanded = np.array([x.commanded_angles for x in f], dtype=float).reshape(-1, 3)
         self.angles = commanded + self.ap_angles  # mean attained a, b, c (ISO 9283's ā)
 
@@ -487,7 +516,8 @@ def trends(digests: Iterable[RunDigest], position_tolerance: float = POSITION_TO
             tuple(runs[int(i)].bag for i in obs.run[rows]), obs.time[rows], obs.n[rows],
             obs.ap_p[rows], obs.ap[rows], obs.rp_l[rows], obs.ap_angles[rows],
             obs.rp_angles[rows], obs.barycentre[rows], epoch[rows], drift[a:b],
-            np.sqrt((drift[a:b] ** 2).sum(axis=1)), drift_angles[a:b]))
+            np.sqrt((drift[a:b] ** 2).sum(axis=1)), drift_angles[a:b], obs.ap_p_u[rows],
+            obs.rp_l_u[rows], obs.decisions[rows]))
     epochs = []
     for k in np.unique(epoch):
         bags = tuple(dict.fromkeys(runs[int(i)].bag for i in obs.run[epoch == k]))

@@ -14,9 +14,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from positioning_cell.analysis.fleet import BagFailure, Epoch, PoseSeries, Trends
+from positioning_cell.analysis.fleet import (
+    DECISION_KEYS,
+    BagFailure,
+    Epoch,
+    PoseSeries,
+    Trends,
+)
 from positioning_cell.analysis.plots import DEG, UM
-from positioning_cell.analysis.report import deg, markdown_table, um
+from positioning_cell.analysis.report import decided, deg, markdown_table, um, um_u
 from positioning_cell.bag.verify import utc
 from positioning_cell.plotting import colours, figure, save
 
@@ -170,10 +176,16 @@ def markdown(trends: Trends, failures: Sequence[BagFailure] = (),
         out += ['## Accuracy and repeatability per mode and pose', '',
                 *_pose_summary(trends.series), '']
         for mode in trends.modes:
-            out += [f'### {mode}: AP_p µm per run', '',
-                    *_per_run(trends, mode, label, lambda s, k: um(float(s.ap_p[k]))), '',
-                    f'### {mode}: RP_l µm per run', '',
-                    *_per_run(trends, mode, label, lambda s, k: um(_value(s.rp_l[k]))), '',
+            out += [f'### {mode}: AP_p ± U µm per run', '',
+                    *_per_run(trends, mode, label,
+                              lambda s, k: um_u(float(s.ap_p[k]), float(s.ap_p_u[k]))), '',
+                    f'### {mode}: RP_l ± U µm per run', '',
+                    *_per_run(trends, mode, label,
+                              lambda s, k: um_u(_value(s.rp_l[k]), float(s.rp_l_u[k]))), '',
+                    f'### {mode}: visits that conform / are indeterminate / do not conform '
+                    'per run', '',
+                    *_per_run(trends, mode, label, lambda s, k: decided(
+                        dict(zip(DECISION_KEYS, s.decisions[k].tolist(), strict=True)))), '',
                     f'### {mode}: drift |Δ| µm since calibration (epoch)', '',
                     *_per_run(trends, mode, label, _drift_cell), '']
         out += ['## Drift since calibration', '',

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from positioning_cell.accuracy import ErrorStatistics
@@ -51,7 +51,7 @@ def comparison_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     measured, ``C/I/N`` the visits that conform, are indeterminate, do not conform by the
     monitor's decision rule: docs/howto/verdicts.md)."""
     return [[m.mode, str(m.extremes.n), f'{m.extremes.within_tolerance}/{m.extremes.n}',
-             _decided(m.extremes.decisions), um(m.extremes.position_error_max),
+             decided(m.extremes.decisions), um(m.extremes.position_error_max),
              um(m.extremes.position_error_rms),
              deg(m.extremes.orientation_error_max), deg(m.extremes.orientation_error_rms),
              um(m.ap_p_max), um(m.rp_l_max), deg(m.ap_angle_max), deg(m.rp_angle_max),
@@ -59,7 +59,7 @@ def comparison_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
             for m in modes]
 
 
-def _decided(counts: dict[str, int]) -> str:
+def decided(counts: Mapping[str, int]) -> str:
     """``conforms/indeterminate/does not conform`` counts as ``C/I/N``."""
     return f'{counts["conforms"]}/{counts["indeterminate"]}/{counts["does_not_conform"]}'
 
@@ -205,14 +205,14 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 'accuracy, R repeatability, B reversal, E systematic deviation (over the '
                 'means of both directions), M range of the bidirectional means.', '',
                 *test.markdown(level=3)]
-    monitor, decided = a.monitor['verdicts'], a.monitor['decisions']
+    monitor, counts = a.monitor['verdicts'], a.monitor['decisions']
     rule = a.monitor['tolerances']['decision_rule']
     out += ['## Monitor', '', f'Replaying the bag through the accuracy monitor\'s rules gives '
             f'{monitor["ok"] + monitor["error"]} verdicts: {monitor["ok"]} within tolerance, '
             f'{monitor["error"]} out of tolerance as measured. Accounting for each '
             f'measurement\'s expanded uncertainty U (k = 2, rule {rule}): '
-            f'{decided["conforms"]} conform, {decided["indeterminate"]} indeterminate (within '
-            f'U of a tolerance), {decided["does_not_conform"]} do not conform (the JSON '
+            f'{counts["conforms"]} conform, {counts["indeterminate"]} indeterminate (within '
+            f'U of a tolerance), {counts["does_not_conform"]} do not conform (the JSON '
             f'summary holds the monitor\'s report).', '']
     if plots:
         out += ['## Plots', '', *(f'![{p.stem}]({p.name})' for p in plots), '']
