@@ -28,7 +28,6 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.ros.messages import diagnostic
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS
-from positioning_cell.watch.table import DECISION_MARKERS
 
 pytestmark = [pytest.mark.nodes,
               pytest.mark.skipif(shutil.which('tmux') is None, reason='needs tmux')]
@@ -80,8 +79,8 @@ def test_the_watch_shows_the_known_deviation_in_colour_and_q_quits(
         def full_table() -> str | None:  # the last row's verdict drawn too (a whole frame)
             s = pane.screen(escapes=True)
             last = rows(s).get('|Δp|', '')
-            return s if '-60.0 µm' in s and '-20.0 µm' in s and any(
-                marker in last for marker in DECISION_MARKERS.values()) else None
+            return s if '-60.0 µm' in s and '-20.0 µm' in s and ('IN' in last
+                                                                 or 'OUT' in last) else None
 
         start = time.monotonic()
         shown = wait_until(full_table, 90.0, 'the deviation in the watch window')
@@ -91,8 +90,10 @@ def test_the_watch_shows_the_known_deviation_in_colour_and_q_quits(
         assert '-20.0 µm' in lines['x'] and '\x1b[32mIN' in lines['x'], lines['x']
         assert '-60.0 µm' in lines['y'] and '\x1b[31mOUT' in lines['y'], lines['y']
         assert '+10.0 µm' in lines['z'] and '5.0 µm' in lines['z']
-        assert '64.0 µm' in lines['|Δp|'] and 'DOES NOT CONFORM' in lines['|Δp|']
-        assert 'frame user' in shown and 'as measured: out of tolerance' in shown
+        # |Δp| 64 µm against 50 µm, U 10 µm: out, and it does not conform (red)
+        assert '64.0 µm' in lines['|Δp|'] and '\x1b[31mOUT' in lines['|Δp|']
+        assert 'frame user' in shown and 'DOES NOT CONFORM' in shown
+        assert 'as measured: out of tolerance' in shown
         assert 'recording: no recorder seen' in pane.screen()
         # A recorder that fails: the watch shows that recording stopped, with the reason.
         failure = 'recording stopped: ENOSPC (No space left on device) on write of /b/b_0.mcap'

@@ -17,7 +17,7 @@ from rich.console import Console
 from scipy.spatial.transform import Rotation
 from workspace import MECH, poses
 
-from positioning_cell.accuracy.decisions import norm_expanded_uncertainty
+from positioning_cell.accuracy.decisions import Decision, norm_expanded_uncertainty
 from positioning_cell.accuracy.verdicts import Tolerances
 from positioning_cell.core import kinematics
 from positioning_cell.core.poses import pose_error
@@ -109,19 +109,19 @@ def test_verdict_and_axis_markers_follow_the_tolerances() -> None:
     assert table[0].deviation == '+60.0 µm' and table[0].tolerance == '±50.0 µm'
     # |Δp| 63.2 µm, U (k = 2) along it 2·√(0.9²·4 + 0.3²·9) µm = 4.2 µm: beyond 50 + U
     u = norm_expanded_uncertainty(np.array([[60e-6, -20e-6, 0.0]]), COV[None, :3, :3])[0]
-    assert table[6].axis == '|Δp|' and table[6].marker == 'DOES NOT CONFORM'
+    assert table[6].axis == '|Δp|' and table[6].marker == OUT
     assert table[6].uncertainty == f'U {u * 1e6:.1f} µm' and table[6].level == 'error'
     assert table[6].deviation == f'{math.hypot(60, 20):.1f} µm'
     loose = deviation(HOME, meas, COV, 'base', SYSTEMS, MECH, Tolerances(position=70e-6))
     assert loose.ok and loose.axis_ok.all()  # 63.2 µm within 70 µm, and 70 − U
-    assert rows(loose)[6].marker == 'CONFORMS' and rows(loose)[6].level == 'ok'
+    assert rows(loose)[6].marker == IN and rows(loose)[6].level == 'ok'  # conforms
     # 62 µm: 63.2 is out as measured, but within U of the tolerance: indeterminate
     near = deviation(HOME, meas, COV, 'base', SYSTEMS, MECH, Tolerances(position=62e-6))
-    assert not near.ok and rows(near)[6].marker == 'INDETERMINATE'
-    assert rows(near)[6].level == 'warn'
+    assert not near.ok and rows(near)[6].marker == OUT and rows(near)[6].level == 'warn'
+    assert near.verdict.decision is Decision.INDETERMINATE
     simple = deviation(HOME, meas, COV, 'base', SYSTEMS, MECH,
                        Tolerances(position=62e-6, decision_rule='simple_acceptance'))
-    assert rows(simple)[6].marker == 'DOES NOT CONFORM'
+    assert rows(simple)[6].level == 'error'  # U not used: out is out
     edge = deviation(HOME, _moved(HOME, np.array([50e-6, 0, 0]), np.zeros(3)), COV, 'base',
                      SYSTEMS, MECH, Tolerances(position=50e-6))
     assert edge.axis_ok[0]  # equal to the tolerance passes, as the monitor's verdict

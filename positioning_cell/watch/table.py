@@ -1,8 +1,10 @@
 """The watch window's table as text (the terminal watch draws it with rich; a test reads it
 back): one row per axis with the commanded and measured value, the deviation, the tolerance,
 an in/out marker and the measurement's standard uncertainty, then |Δp| and |Δθ| with their
-decision by the monitor's rule (conforms, indeterminate, does not conform) and their expanded
-uncertainty U (k = 2). Positions: values in mm, deviations in µm; rotations in degrees."""
+in/out marker as measured, coloured by their decision by the monitor's rule (conforms: green,
+indeterminate: yellow, does not conform: red; :attr:`Row.level`), and their expanded
+uncertainty U (k = 2). It fits 80 columns. Positions: values in mm, deviations in µm;
+rotations in degrees."""
 
 from __future__ import annotations
 
@@ -17,8 +19,8 @@ from positioning_cell.watch.deviation import AXES, Deviation
 #: The in/out markers (plain ASCII: they survive any terminal, SSH and tmux).
 IN, OUT = 'IN', 'OUT'
 #: Column headers of :func:`rows` (the |Δp|, |Δθ| rows give U, k = 2, in the last).
-HEADERS = ('axis', 'commanded', 'measured', 'deviation', 'tolerance', '', 'u (k=1) / U')
-#: The marker of each decision (plain ASCII, as IN and OUT).
+HEADERS = ('axis', 'commanded', 'measured', 'deviation', 'tolerance', '', 'u (k=1)/U')
+#: Each decision in words (the pose line).
 DECISION_MARKERS = {Decision.CONFORMS: 'CONFORMS', Decision.INDETERMINATE: 'INDETERMINATE',
                     Decision.DOES_NOT_CONFORM: 'DOES NOT CONFORM'}
 UM_PER_M = 1e6
@@ -71,12 +73,13 @@ def rows(dev: Deviation) -> list[Row]:
     verdict = dev.verdict
     position, orientation = verdict.position_decision, verdict.orientation_decision
     out.append(Row('|Δp|', '', '', f'{dev.position_error * UM_PER_M:.1f} µm',
-                   f'≤{dev.tolerances.position * UM_PER_M:.1f} µm', DECISION_MARKERS[position],
+                   f'≤{dev.tolerances.position * UM_PER_M:.1f} µm',
+                   _marker(verdict.position_ok),
                    f'U {verdict.position_uncertainty * UM_PER_M:.1f} µm',
                    position is Decision.CONFORMS, DECISION_LEVELS[position]))
     out.append(Row('|Δθ|', '', '', f'{math.degrees(dev.orientation_error):.5f}°',
                    f'≤{math.degrees(dev.tolerances.orientation):.5f}°',
-                   DECISION_MARKERS[orientation],
-                   f'U {math.degrees(verdict.orientation_uncertainty):.5f}°',
+                   _marker(verdict.orientation_ok),
+                   f'U {math.degrees(verdict.orientation_uncertainty):.4f}°',
                    orientation is Decision.CONFORMS, DECISION_LEVELS[orientation]))
     return out
