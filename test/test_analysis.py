@@ -152,6 +152,8 @@ def test_analyze_writes_report_summary_and_plots(bag: Path, tmp_path: Path,
     # AP_p and RP_l with their U from the tracker's stated covariances (issue 25)
     stated = summary['modes'][0]['poses'][1]['iso9283_u']
     assert 0.0 < stated['ap_p'] < 1e-4 and 0.0 < stated['rp_l'] < 1e-4, stated
+    assert all(0.0 < stated[k] < 1e-3 for k in ('ap_a', 'ap_b', 'ap_c', 'rp_a', 'rp_b',
+                                                 'rp_c')), stated
     assert 'AP_p ± U µm' in text and f'{stated["rp_l"] * 1e6:.1f} |' in text
     # ISO 9283 §7.3 between P2 and P4, one pair a cycle, with U
     distance = summary['modes'][0]['distance']

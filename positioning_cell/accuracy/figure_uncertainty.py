@@ -45,7 +45,8 @@ from positioning_cell.accuracy.decisions import (
     covariance_checks,
     norm_expanded_uncertainty,
 )
-from positioning_cell.core.poses import as_vectors
+from positioning_cell.accuracy.iso9283 import orientation_angles
+from positioning_cell.core.poses import as_unit_quaternions, as_vectors
 from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -176,3 +177,67 @@ def _coverage_quantile(bound: FloatArray, k: float) -> float:
     """The quantile of the drawn bounds at the coverage probability of k for a normal
     distribution (95.45 % for k = 2)."""
     return float(np.quantile(bound, math.erf(k / math.sqrt(2.0))))
+
+
+class OrientationUncertainty(NamedTuple):
+    """U (k as asked, rad) of AP_a, AP_b, AP_c and of the half-widths RP_a, RP_b, RP_c (ISO
+    9283 §7.2.1, §7.2.2); NaN where not stated (RP below two visits)."""
+
+    ap_a: float
+    ap_b: float
+    ap_c: float
+    rp_a: float
+    rp_b: float
+    rp_c: float
+
+
+def euler_rates_from_rotation(quaternion: ArrayLike) -> FloatArray:
+    """The matrices (n, 3, 3) taking a small rotation δθ about the base axes, R' =
+    exp([δθ]×)·R, to the change of ISO 9283's angles (a, b, c) of R = Rz(c)·Ry(b)·Rx(a): the
+    inverse of J = [Rz(c)·Ry(b)·e_x, Rz(c)·e_y, e_z] (the base-frame rotation of each angle's
+    change; singular at b = ±π/2, where a and c are not separable)."""
+    angles = orientation_angles(quaternion)
+    b, c = angles[:, 1], angles[:, 2]
+    cb, sb, cc, sc = np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    jac = np.zeros((angles.shape[0], 3, 3))
+    jac[:, :, 0] = np.stack([cc * cb, sc * cb, -sb], axis=1)  # Rz(c)·Ry(b)·e_x
+    jac[:, :, 1] = np.stack([-sc, cc, np.zeros_like(c)], axis=1)  # Rz(c)·e_y
+    jac[:, 2, 2] = 1.0  # e_z
+    out: FloatArray = np.asarray(np.linalg.inv(jac), dtype=float)
+    return out
+
+
+def orientation_figure_uncertainty(attained_quaternion: ArrayLike, covariance: ArrayLike,
+                                   k: float = COVERAGE_FACTOR,
+                                   rng: np.random.Generator | None = None
+                                   ) -> OrientationUncertainty:
+    """U of AP_a, AP_b, AP_c and RP_a, RP_b, RP_c of one commanded pose from its n attained
+    orientations (n, 4) and the covariance (n, 3, 3) rad² each was measured with (small
+    rotations about the base axes, R' = exp([δθ]×)·R), taken to the angles by
+    :func:`euler_rates_from_rotation`: C_j = M_j Σ_j M_jᵀ. As for the positions (module
+    docstring): U of AP from the mean of the C_j (errors fully correlated, the linear law of
+    propagation: the angles' means are linear in the errors); U of RP_x = 3·S_x the quantile
+    of 3·‖e − ē‖/√(n − 1) over :data:`DRAWS` draws of independent errors e_j ~ N(0, C_j)
+    (|S(t + e) − S(t)| ≤ that, centring being a projection). InputError as
+    :func:`pose_figure_uncertainty`'s."""
+    _check_k(k)
+    q = as_unit_quaternions(attained_quaternion)
+    cov = np.asarray(covariance, dtype=float)
+    n = q.shape[0]
+    if cov.shape != (n, 3, 3):
+        raise InputError(f'covariance: expected shape ({n}, 3, 3) for the {n} attained '
+                         f'orientations, got {cov.shape}')
+    if not np.all(np.isfinite(cov)):
+        return OrientationUncertainty(*[math.nan] * 6)
+    _check_covariances(cov)
+    m = euler_rates_from_rotation(q)
+    angles = m @ cov @ np.swapaxes(m, 1, 2)  # (n, 3, 3) of a, b, c
+    u_ap = k * np.sqrt(np.maximum(np.diagonal(angles.mean(axis=0)), 0.0))
+    if n < 2:
+        return OrientationUncertainty(*u_ap.tolist(), *[math.nan] * 3)
+    rng = rng if rng is not None else np.random.default_rng(0)
+    errors = _drawn_errors(angles, rng)  # (DRAWS, n, 3)
+    centred = errors - errors.mean(axis=1, keepdims=True)
+    bound = 3.0 * np.sqrt((centred ** 2).sum(axis=1) / (n - 1))  # (DRAWS, 3)
+    u_rp = [_coverage_quantile(bound[:, i], k) for i in range(3)]
+    return OrientationUncertainty(*u_ap.tolist(), *u_rp)

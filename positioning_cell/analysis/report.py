@@ -28,6 +28,13 @@ def um_u(value: float | None, uncertainty: float) -> str:
     return 'n/a' if value is None else f'{value * 1e6:.1f} ± {u}'
 
 
+def deg_u(value: float | None, uncertainty: float) -> str:
+    """An angle in rad with its expanded uncertainty as degrees for people: ``0.1234 ±
+    0.0021`` (``± ?`` when not stated)."""
+    u = f'{math.degrees(uncertainty):.4f}' if math.isfinite(uncertainty) else '?'
+    return 'n/a' if value is None else f'{math.degrees(value):.4f} ± {u}'
+
+
 def deg(value: float | None) -> str:
     """An angle in rad as degrees for people, four decimals ('n/a' for None)."""
     return 'n/a' if value is None else f'{math.degrees(value):.4f}'
@@ -77,13 +84,14 @@ def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     rows = []
     for m in modes:
         for p in m.poses:
-            f, e, u = p.figures, p.extremes, p.uncertainty
+            f, e, u, o = p.figures, p.extremes, p.uncertainty, p.orientation_uncertainty
             rows.append([m.mode, p.pose, str(f.n),
                          ', '.join(f'{v * 1e3:.3f}' for v in f.commanded_position),
                          um_u(f.ap_p, u.ap_p), um(f.ap_x), um(f.ap_y), um(f.ap_z),
                          um_u(f.rp_l, u.rp_l),
-                         deg(f.ap_a), deg(f.ap_b), deg(f.ap_c), deg(f.rp_a), deg(f.rp_b),
-                         deg(f.rp_c), um(e.position_error_max), um(e.position_error_rms),
+                         deg_u(f.ap_a, o.ap_a), deg_u(f.ap_b, o.ap_b), deg_u(f.ap_c, o.ap_c),
+                         deg_u(f.rp_a, o.rp_a), deg_u(f.rp_b, o.rp_b), deg_u(f.rp_c, o.rp_c),
+                         um(e.position_error_max), um(e.position_error_rms),
                          deg(e.orientation_error_max), deg(e.orientation_error_rms),
                          f'{e.settle_time_mean:.2f}/{e.settle_time_max:.2f}',
                          f'{e.within_tolerance}/{e.n}'])
@@ -104,10 +112,10 @@ def _distance_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     return rows
 
 
-#: AP_p and RP_l with their U (k = 2) from the measurement (analysis.summary.PoseSummary).
+#: AP and RP with their U (k = 2) from the measurement (analysis.summary.PoseSummary).
 POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p ± U µm', 'AP_x', 'AP_y',
-               'AP_z', 'RP_l ± U µm', 'AP_a °', 'AP_b °', 'AP_c °', 'RP_a ±°', 'RP_b ±°',
-               'RP_c ±°',
+               'AP_z', 'RP_l ± U µm', 'AP_a ± U °', 'AP_b ± U °', 'AP_c ± U °',
+               'RP_a ± U (±°)', 'RP_b ± U (±°)', 'RP_c ± U (±°)',
                'max |Δp| µm', 'RMS |Δp| µm', 'max angle °', 'RMS angle °', 'settle s',
                'in tol.')
 

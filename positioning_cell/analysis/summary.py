@@ -32,7 +32,9 @@ from positioning_cell import accuracy
 from positioning_cell.accuracy.figure_uncertainty import (
     DistanceUncertainty,
     FigureUncertainty,
+    OrientationUncertainty,
     distance_figure_uncertainty,
+    orientation_figure_uncertainty,
     pose_figure_uncertainty,
 )
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
@@ -95,21 +97,23 @@ class Extremes:
 @dataclass(frozen=True)
 class PoseSummary:
     """One commanded pose under one mode: its ISO 9283 figures, the expanded uncertainty
-    (k = 2) of AP_p and RP_l from the measurement's stated covariances
-    (:func:`~positioning_cell.accuracy.figure_uncertainty.pose_figure_uncertainty`; NaN: not
-    stated), and extremes."""
+    (k = 2) of AP_p and RP_l and of the angles' AP and RP from the measurement's stated
+    covariances (:mod:`positioning_cell.accuracy.figure_uncertainty`; NaN: not stated), and
+    extremes."""
 
     mode: str
     pose: str
     figures: accuracy.PoseFigures
     extremes: Extremes
     uncertainty: FigureUncertainty
+    orientation_uncertainty: OrientationUncertainty
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI; an uncertainty not stated is null)."""
+        stated = {**self.uncertainty._asdict(), **self.orientation_uncertainty._asdict()}
         return {'mode': self.mode, 'pose': self.pose, 'iso9283': self.figures.to_dict(),
                 'iso9283_u': {name: (u if math.isfinite(u) else None)
-                              for name, u in self.uncertainty._asdict().items()},
+                              for name, u in stated.items()},
                 **self.extremes.to_dict()}
 
 
@@ -198,10 +202,14 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
             figures = accuracy.iso9283(first.commanded_position, first.commanded_quaternion,
                                        [v.visit.position for v in group],
                                        [v.visit.quaternion for v in group], first.key)
+            covariance = np.array([v.covariance for v in group])
             uncertainty = pose_figure_uncertainty(
                 first.commanded_position, [v.visit.position for v in group],
-                np.array([v.covariance[:3, :3] for v in group]))
-            poses.append(PoseSummary(mode, pose, figures, Extremes.of(group), uncertainty))
+                covariance[:, :3, :3])
+            orientation = orientation_figure_uncertainty(
+                [v.visit.quaternion for v in group], covariance[:, 3:, 3:])
+            poses.append(PoseSummary(mode, pose, figures, Extremes.of(group), uncertainty,
+                                     orientation))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),
