@@ -498,3 +498,35 @@ def test_an_axis_test_in_the_bag_gets_its_iso230_2_tables(tmp_path: Path) -> Non
     text = markdown(analysis)
     assert '## Axis test (ISO 230-2), run run1' in text and 'leg2_length' in text
     assert analysis.to_dict()['axis_tests'][0]['results'][0]['axis'] == 'leg2_length'
+
+
+def test_a_pose_approached_from_three_directions_gets_its_vap(tmp_path: Path) -> None:
+    """ISO 9283 §7.2.3 from a recorded run: P1 is commanded between excursions 4 mm along +x,
+    +y and +z, so after the first cycle's first visit it is approached from −x, −y and −z;
+    vAP is that of its attained poses grouped so (the library's function on the replayed
+    visits), and the report has its table."""
+    centre = POSITIONS[0]
+    positions = np.array([centre, centre + [0.004, 0, 0], centre, centre + [0, 0.004, 0],
+                          centre, centre + [0, 0, 0.004]])
+    run = synthetic_run(positions, np.tile([0.0, 0.0, 0.0, 1.0], (6, 1)), modes=('none',),
+                        cycles=2, dwell_time=1.5, seed=3)
+    names = ('P1', 'X', 'P1', 'Y', 'P1', 'Z')
+    run = dataclasses.replace(run, steps=tuple(
+        dataclasses.replace(s, pose=names[k % 6]) for k, s in enumerate(run.steps)))
+    write_run_bag(tmp_path / 'run', run, joint_state_rate=50.0)
+    analysis = analyse_bag(tmp_path / 'run')
+    p1 = next(p for p in analysis.modes[0].poses if p.pose == 'P1')
+    v = p1.multidirectional
+    assert v is not None and v.directions == 3 and v.n == 5  # the first visit: no approach
+    visits = [lv.visit for lv in analysis.replay.visits if lv.pose == 'P1'][1:]
+    approach = [(-1, 0, 0), (0, -1, 0), (0, 0, -1)] * 2
+    expected = accuracy.multidirectional_figures(
+        [0, 0, 0, 1], [x.position for x in visits], [x.quaternion for x in visits],
+        approach[:len(visits)])
+    assert expected is not None
+    assert v.vap_p == pytest.approx(expected.vap_p, rel=1e-9) and 0.0 < v.vap_p < 50e-6
+    assert sorted(v.approaches) == sorted([(-1.0, 0.0, 0.0), (0.0, -1.0, 0.0),
+                                           (0.0, 0.0, -1.0)])
+    text = markdown(analysis)
+    assert '## Multi-directional pose accuracy variation' in text
+    assert f'| none | P1 | 3 | 5 | {v.vap_p * 1e6:.1f} |' in text

@@ -18,7 +18,13 @@ from positioning_cell.accuracy.figure_uncertainty import (
     pose_figure_uncertainty,
     rp_l_of,
 )
-from positioning_cell.accuracy.iso9283 import distance_figures, iso9283, orientation_angles
+from positioning_cell.accuracy.iso9283 import (
+    approach_groups,
+    distance_figures,
+    iso9283,
+    multidirectional_figures,
+    orientation_angles,
+)
 from positioning_cell.errors import InputError
 
 Q = np.array([0.0, 0.0, 0.0, 1.0])
@@ -199,3 +205,21 @@ def test_the_true_orientation_figures_lie_within_u_in_95_percent_of_runs() -> No
     print('AP_a, AP_b, AP_c, RP_a, RP_b, RP_c covered in '
           + ', '.join(f'{v:.1%}' for v in share) + f' of {runs} runs')
     assert np.all(share >= 0.95), share
+
+
+def test_multidirectional_figures_of_a_hand_worked_example() -> None:
+    """Approached along +x twice (attained 10 and 12 µm along x) and along +y twice (10, 12
+    µm along y, turned 20 µrad about z): barycentres (11, 0, 0) and (0, 11, 0) µm, vAP_p
+    11·√2 µm, vAP_c 20 µrad; one direction: none."""
+    position = C + 1e-6 * np.array([[10.0, 0, 0], [12.0, 0, 0], [0, 10.0, 0], [0, 12.0, 0]])
+    turned = Rotation.from_rotvec([0.0, 0.0, 2e-5]).as_quat()
+    quaternion = np.array([Q, Q, turned, turned])
+    approach = np.array([[1.0, 0, 0], [2.0, 0.1, 0], [0, 1.0, 0], [0.1, 1.0, 0]])
+    v = multidirectional_figures(Q, position, quaternion, approach)
+    assert v is not None and v.directions == 2 and v.n == 4
+    assert v.vap_p == pytest.approx(11e-6 * math.sqrt(2), rel=1e-9)
+    assert v.vap_c == pytest.approx(2e-5, rel=1e-6) and v.vap_a == pytest.approx(0, abs=1e-12)
+    assert v.approaches[1] == pytest.approx((0.0, 1.0, 0.0))
+    assert multidirectional_figures(Q, position[:2], quaternion[:2], approach[:2]) is None
+    with pytest.raises(InputError, match='zero vector'):
+        approach_groups([[0.0, 0.0, 0.0]])

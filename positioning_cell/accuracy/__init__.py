@@ -3,7 +3,7 @@ tolerance verdicts, the tracker against the truth, and the monitor that applies 
 Pure numpy/scipy over arrays of samples; no ROS.
 
 - :mod:`.settle`: settle windows, visits, the batch and streaming accumulators;
-- :mod:`.iso9283`: ISO 9283:1998 AP and RP of a commanded pose, AD and RD between two;
+- :mod:`.iso9283`: ISO 9283:1998 AP, RP and vAP of a commanded pose, AD and RD between two;
 - :mod:`.figure_uncertainty`: the expanded uncertainty of those figures;
 - :mod:`.verdicts`: tolerances and verdicts;
 - :mod:`.decisions`: ISO 14253-1 decisions with the measurement's expanded uncertainty;
@@ -21,9 +21,11 @@ from positioning_cell.accuracy.decisions import (
 from positioning_cell.accuracy.iso230_2 import AxisFigures, iso230_2
 from positioning_cell.accuracy.iso9283 import (
     DistanceFigures,
+    MultiDirectionalFigures,
     PoseFigures,
     distance_figures,
     iso9283,
+    multidirectional_figures,
     orientation_angles,
     wrap_angle,
 )
@@ -100,6 +102,7 @@ __all__ = [
     'Monitor',
     'MonitorSettings',
     'MoveEnds',
+    'MultiDirectionalFigures',
     'NewSegment',
     'PoseBatch',
     'PoseFigures',
@@ -131,6 +134,7 @@ __all__ = [
     'judge_visits',
     'measurement_error',
     'move_ended',
+    'multidirectional_figures',
     'norm_expanded_uncertainty',
     'orientation_angles',
     'pair_by_stamp',

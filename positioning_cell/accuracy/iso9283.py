@@ -181,3 +181,77 @@ def distance_figures(commanded_first: ArrayLike, commanded_second: ArrayLike,
     return DistanceFigures(n, commanded, float(distance.mean()),
                            float(distance.mean()) - commanded, s_d,
                            None if s_d is None else 3.0 * s_d)
+
+
+#: Approach directions closer than this angle (rad) are one direction of ISO 9283 §7.2.3.
+APPROACH_ANGLE = math.radians(30.0)
+
+
+@dataclass(frozen=True)
+class MultiDirectionalFigures:
+    """ISO 9283:1998 multi-directional pose accuracy variation (§7.2.3) of one commanded pose
+    approached from ``directions`` directions (h = 1 … ``directions``; n visits with a known
+    approach): the largest distance between the barycentres of the attained positions of two
+    directions, vAP_p = max |x̄_h − x̄_k| (m), and of their mean angles, vAP_a = max
+    |ā_h − ā_k| (rad; b, c likewise). ``approaches`` (directions, 3) the unit direction of
+    each (the first visit's of it), base frame. SI."""
+
+    n: int
+    directions: int
+    approaches: tuple[Triple, ...]
+    vap_p: float
+    vap_a: float
+    vap_b: float
+    vap_c: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict."""
+        return plain_fields(self)
+
+
+def approach_groups(approach: ArrayLike, angle: float = APPROACH_ANGLE) -> NDArray[np.intp]:
+    """The direction index (n,) of each approach vector (n, 3) (any length > 0): the first
+    earlier direction within ``angle`` rad of it, else a new one (numbered in order of first
+    appearance). InputError: a zero or non-finite vector."""
+    v = as_vectors(approach, 3, 'approach')
+    length = np.linalg.norm(v, axis=1)
+    if np.any(length <= 0.0):
+        raise InputError('approach: a zero vector has no direction')
+    unit = v / length[:, None]
+    group = np.empty(len(unit), dtype=np.intp)
+    representative: list[FloatArray] = []
+    for i, u in enumerate(unit):  # over visits of one pose, not samples
+        close = [k for k, r in enumerate(representative) if float(u @ r) >= math.cos(angle)]
+        if close:
+            group[i] = close[0]
+        else:
+            group[i] = len(representative)
+            representative.append(u)
+    return group
+
+
+def multidirectional_figures(commanded_quaternion: ArrayLike, attained_position: ArrayLike,
+                             attained_quaternion: ArrayLike, approach: ArrayLike,
+                             angle: float = APPROACH_ANGLE) -> MultiDirectionalFigures | None:
+    """ISO 9283 §7.2.3 vAP (:class:`MultiDirectionalFigures`) of one commanded pose from its n
+    attained poses (n, 3) m, (n, 4) and the direction (n, 3) each was approached from (the
+    motion that reached it, base frame), grouped by :func:`approach_groups`; angles as
+    :func:`iso9283`'s (each a_j taken as a_c + wrap(a_j − a_c)). None below two directions."""
+    _, qc = as_pose_batch(np.zeros(3), commanded_quaternion)
+    pa, qa = as_pose_batch(attained_position, attained_quaternion)
+    group = approach_groups(approach, angle)
+    if pa.shape[0] != group.size:
+        raise InputError(f'{pa.shape[0]} attained poses for {group.size} approach directions')
+    count = int(group.max()) + 1 if group.size else 0
+    if count < 2:
+        return None
+    angles = wrap_angle(orientation_angles(qa) - orientation_angles(qc)[0])
+    barycentres = np.array([pa[group == h].mean(axis=0) for h in range(count)])
+    means = np.array([angles[group == h].mean(axis=0) for h in range(count)])
+    span_p = np.sqrt(((barycentres[:, None] - barycentres[None]) ** 2).sum(axis=2)).max()
+    span_abc = np.abs(means[:, None] - means[None]).max(axis=(0, 1))
+    v = as_vectors(approach, 3, 'approach')
+    first = [int(np.flatnonzero(group == h)[0]) for h in range(count)]
+    unit = v[first] / np.linalg.norm(v[first], axis=1)[:, None]
+    return MultiDirectionalFigures(int(pa.shape[0]), count, tuple(triple(u) for u in unit),
+                                   float(span_p), *(float(x) for x in span_abc))

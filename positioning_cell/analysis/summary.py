@@ -15,6 +15,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -107,6 +108,9 @@ class PoseSummary:
     extremes: Extremes
     uncertainty: FigureUncertainty
     orientation_uncertainty: OrientationUncertainty
+    #: ISO 9283 §7.2.3 over the directions its visits were approached from (None: fewer
+    #: than two: :func:`approaches`).
+    multidirectional: accuracy.MultiDirectionalFigures | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI; an uncertainty not stated is null)."""
@@ -114,6 +118,8 @@ class PoseSummary:
         return {'mode': self.mode, 'pose': self.pose, 'iso9283': self.figures.to_dict(),
                 'iso9283_u': {name: (u if math.isfinite(u) else None)
                               for name, u in stated.items()},
+                'multidirectional': None if self.multidirectional is None
+                else self.multidirectional.to_dict(),
                 **self.extremes.to_dict()}
 
 
@@ -187,10 +193,30 @@ def _worst(values: Sequence[float | None]) -> float | None:
     return max(known) if known else None
 
 
+#: A commanded position closer than this (m) to the one before it was not approached from a
+#: direction (a pose commanded again, or only turned).
+APPROACH_LEAST = 1e-4
+
+
+def approaches(visits: Sequence[LabelledVisit]) -> dict[int, FloatArray]:
+    """The direction (3,) (not normalised, base frame) each visit's commanded position was
+    approached from: from the commanded position of the visit before it (visits in time
+    order, any mode), keyed by ``id`` of the visit; the first visit, and one commanded within
+    :data:`APPROACH_LEAST` of the one before, have none."""
+    out: dict[int, FloatArray] = {}
+    for before, visit in pairwise(visits):  # over visits, not samples
+        step = (np.asarray(visit.visit.commanded_position)
+                - np.asarray(before.visit.commanded_position))
+        if float(np.linalg.norm(step)) >= APPROACH_LEAST:
+            out[id(visit)] = step
+    return out
+
+
 def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
     """Group labelled visits by mode (order of first appearance) and pose (order of the pose
     key), with the ISO 9283 figures of each group (:func:`accuracy.iso9283`; the commanded
     pose of a group is that of its first visit)."""
+    approach = approaches(visits)
     out = []
     for mode in dict.fromkeys(v.mode for v in visits):
         mine = [v for v in visits if v.mode == mode]
@@ -208,8 +234,13 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
                 covariance[:, :3, :3])
             orientation = orientation_figure_uncertainty(
                 [v.visit.quaternion for v in group], covariance[:, 3:, 3:])
+            known = [v for v in group if id(v) in approach]
+            multidirectional = accuracy.multidirectional_figures(
+                first.commanded_quaternion, [v.visit.position for v in known],
+                [v.visit.quaternion for v in known],
+                [approach[id(v)] for v in known]) if known else None
             poses.append(PoseSummary(mode, pose, figures, Extremes.of(group), uncertainty,
-                                     orientation))
+                                     orientation, multidirectional))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),
