@@ -241,3 +241,39 @@ def orientation_figure_uncertainty(attained_quaternion: ArrayLike, covariance: A
     bound = 3.0 * np.sqrt((centred ** 2).sum(axis=1) / (n - 1))  # (DRAWS, 3)
     u_rp = [_coverage_quantile(bound[:, i], k) for i in range(3)]
     return OrientationUncertainty(*u_ap.tolist(), *u_rp)
+
+
+def multidirectional_uncertainty(attained_position: ArrayLike, covariance: ArrayLike,
+                                 direction: ArrayLike, k: float = COVERAGE_FACTOR) -> float:
+    """U (m) of vAP_p (ISO 9283 §7.2.3) from the n attained positions (n, 3) m, the covariance
+    (n, 3, 3) m² each was measured with and the approach direction (n,) each belongs to
+    (:func:`~positioning_cell.accuracy.iso9283.approach_groups`); NaN when a covariance is not
+    stated or below two directions.
+
+    Each direction's barycentre x̄_h is taken with the mean of its visits' covariances Σ̄_h (its
+    errors fully correlated); the difference of two barycentres, whatever the correlation
+    between them, has a covariance below 2(Σ̄_h + Σ̄_k) (Var(a − b) ≤ 2 Var a + 2 Var b), and
+    U_hk of its norm follows (:func:`norm_expanded_uncertainty`). vAP_p is the largest |d_hk|:
+    the machine's lies between the largest |d_hk| − U_hk and the largest |d_hk| + U_hk, and U
+    is the larger distance from the measured vAP_p to either."""
+    _check_k(k)
+    x = as_vectors(attained_position, 3, 'attained_position')
+    cov = np.asarray(covariance, dtype=float)
+    group = np.asarray(direction, dtype=np.intp)
+    n = x.shape[0]
+    if cov.shape != (n, 3, 3) or group.shape != (n,):
+        raise InputError(f'expected {n} covariances (n, 3, 3) and directions (n,), got '
+                         f'{cov.shape} and {group.shape}')
+    count = int(group.max()) + 1 if n else 0
+    if count < 2 or not np.all(np.isfinite(cov)):
+        return math.nan
+    _check_covariances(cov)
+    centre = np.array([x[group == h].mean(axis=0) for h in range(count)])
+    spread = np.array([cov[group == h].mean(axis=0) for h in range(count)])
+    h, j = np.triu_indices(count, 1)
+    d = centre[h] - centre[j]
+    u = norm_expanded_uncertainty(d, 2.0 * (spread[h] + spread[j]), k)
+    norm = np.linalg.norm(d, axis=1)
+    measured = float(norm.max())
+    return float(max(float((norm + u).max()) - measured,
+                     measured - float((norm - u).max())))

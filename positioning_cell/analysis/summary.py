@@ -35,6 +35,7 @@ from positioning_cell.accuracy.figure_uncertainty import (
     FigureUncertainty,
     OrientationUncertainty,
     distance_figure_uncertainty,
+    multidirectional_uncertainty,
     orientation_figure_uncertainty,
     pose_figure_uncertainty,
 )
@@ -111,10 +112,13 @@ class PoseSummary:
     #: ISO 9283 §7.2.3 over the directions its visits were approached from (None: fewer
     #: than two: :func:`approaches`).
     multidirectional: accuracy.MultiDirectionalFigures | None = None
+    #: U (k = 2) of its vAP_p, m (NaN: not stated, or no vAP).
+    multidirectional_u: float = math.nan
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI; an uncertainty not stated is null)."""
-        stated = {**self.uncertainty._asdict(), **self.orientation_uncertainty._asdict()}
+        stated = {**self.uncertainty._asdict(), **self.orientation_uncertainty._asdict(),
+                  'vap_p': self.multidirectional_u}
         return {'mode': self.mode, 'pose': self.pose, 'iso9283': self.figures.to_dict(),
                 'iso9283_u': {name: (u if math.isfinite(u) else None)
                               for name, u in stated.items()},
@@ -239,8 +243,13 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
                 first.commanded_quaternion, [v.visit.position for v in known],
                 [v.visit.quaternion for v in known],
                 [approach[id(v)] for v in known]) if known else None
+            multidirectional_u = math.nan if multidirectional is None else \
+                multidirectional_uncertainty(
+                    [v.visit.position for v in known],
+                    np.array([v.covariance[:3, :3] for v in known]),
+                    accuracy.approach_groups([approach[id(v)] for v in known]))
             poses.append(PoseSummary(mode, pose, figures, Extremes.of(group), uncertainty,
-                                     orientation, multidirectional))
+                                     orientation, multidirectional, multidirectional_u))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),
