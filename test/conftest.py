@@ -52,9 +52,26 @@ def module_marks(path: Path) -> set[str]:
     return set()
 
 
+def decorated_marks(path: Path) -> list[set[str]]:
+    """The marks each test function or class of a module adds with a ``@pytest.mark.X``
+    decorator (those with none left out), read from its source."""
+    found = []
+    for node in ast.parse(path.read_text(encoding='utf-8'), str(path)).body:
+        if isinstance(node, ast.FunctionDef | ast.ClassDef):
+            marks = {n.attr for d in node.decorator_list for n in ast.walk(d)
+                     if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Attribute)
+                     and n.value.attr == 'mark'}
+            if marks:
+                found.append(marks)
+    return found
+
+
 def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
-    """Leave out a module whose own marks the ``-m`` expression rejects (its imports, rclpy
-    among them, are never run); anything else is collected as usual."""
+    """Leave out a module none of whose tests the ``-m`` expression can select (its imports,
+    rclpy among them, are never run): neither with the module's own marks, nor with those
+    plus a test's own decorator marks (a ``@pytest.mark.timing`` test in a module marked
+    ``nodes`` runs in the timing tier; it used to be left out of both tiers). Anything else is
+    collected as usual."""
     expression = config.getoption('markexpr')
     if not expression or collection_path.suffix != '.py' \
             or not collection_path.name.startswith('test_'):
@@ -64,8 +81,10 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
         return None
     from _pytest.mark.expression import Expression
 
-    if Expression.compile(expression).evaluate(lambda name, **_: name in marks):
-        return None
+    compiled = Expression.compile(expression)
+    for possible in [marks, *(marks | own for own in decorated_marks(collection_path))]:
+        if compiled.evaluate(lambda name, _marks=possible, **_: name in _marks):
+            return None
     return True
 
 
