@@ -295,3 +295,32 @@ def test_nodes_stay_thin() -> None:
         lines = len(path.read_text().splitlines())
         assert lines <= 200, f'{path.name}: {lines} lines'
     assert positioning_cell.__version__
+
+
+class _MarkExpression:
+    """The part of pytest's config that conftest.pytest_ignore_collect reads: ``-m``."""
+
+    def __init__(self, expression: str) -> None:
+        self.expression = expression
+
+    def getoption(self, name: str) -> str:
+        assert name == 'markexpr'
+        return self.expression
+
+
+def test_every_timing_test_is_collected_by_the_timing_tier() -> None:
+    """make test's second tier runs ``-m timing``: a module holding a test marked timing,
+    at module level or on the test alone, must not be left out of its collection (one
+    marked on the test alone in a module marked nodes was left out of both tiers)."""
+    from conftest import decorated_marks, module_marks, pytest_ignore_collect
+
+    timing = [path for path in sorted((REPO / 'test').glob('test_*.py'))
+              if 'timing' in module_marks(path)
+              or any('timing' in marks for marks in decorated_marks(path))]
+    assert REPO / 'test' / 'test_recorder_node.py' in timing  # marked on one test only
+    left_out = [path.name for path in timing
+                if pytest_ignore_collect(path, _MarkExpression('timing')) is not None]  # type: ignore[arg-type]
+    assert not left_out, left_out
+    library = _MarkExpression('not nodes and not slow')  # make test-library: none of these
+    assert all(pytest_ignore_collect(path, library) for path in timing  # type: ignore[arg-type]
+               if 'nodes' in module_marks(path))
