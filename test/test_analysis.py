@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import gzip
+import itertools
 import json
 import math
 from pathlib import Path
@@ -351,6 +352,26 @@ def test_the_shipped_program_is_an_iso_cube_inside_the_workspace(tmp_path: Path)
     bad.write_text(yaml.safe_dump({'program': {'cycles': 1, 'poses': {
         'P1': {'position': [0.0, 0.0, 0.196]}, 'far': {'position': [0.0, 0.0, 0.30]}}}}))
     with pytest.raises(ConfigError, match='far is outside the workspace'):
+        load_program(bad, mech)
+
+
+def test_the_acceptance_program_approaches_p1_from_three_directions(tmp_path: Path) -> None:
+    """config/acceptance.yaml: P1 reached three times a cycle, along −x, −y and −z (ISO 9283
+    §7.2.3), P2..P5 once; a sequence naming an unknown pose is refused."""
+    mech = Mechanism.default()
+    program = load_program(config_path('acceptance.yaml'), mech)
+    order = [program.names[k] for k in program.order]
+    assert order == ['P2', 'P3', 'P4', 'P5', 'AX', 'P1', 'AY', 'P1', 'AZ', 'P1']
+    assert program.moves == len(program.modes) * program.cycles * 10
+    steps = [k for _, _, k in program.steps()]
+    p1 = program.names.index('P1')
+    approaches = {tuple(np.sign(program.position[k] - program.position[before]))
+                  for before, k in itertools.pairwise(steps) if k == p1}
+    assert approaches == {(-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0)}
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(yaml.safe_dump({'program': {'sequence': ['P1', 'P9'], 'poses': {
+        'P1': {'position': [0.0, 0.0, 0.196]}}}}))
+    with pytest.raises(ConfigError, match='sequence names P9, not in program'):
         load_program(bad, mech)
 
 

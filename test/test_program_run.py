@@ -7,6 +7,7 @@ truth table, the axis test between the calibration and the modes."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import re
 from dataclasses import replace
@@ -162,6 +163,26 @@ def test_failed_moves_are_counted_and_a_refused_mode_is_left_out(port: Port,
     # nothing of the refused mode was marked or moved; the measured mode still ran
     assert [s.mode for s in _steps(port)] == ['none'] * 4 + ['measured'] * 4
     assert port.move_modes == ['none'] * 4 + ['measured'] * 4
+
+
+def test_a_sequence_visits_its_poses_in_its_order_repeats_included(port: Port,
+                                                                    tmp_path: Path) -> None:
+    """A program's ``sequence`` (config/acceptance.yaml): each cycle visits P2, P1, P3, P1;
+    a refused mode leaves out the sequence's moves of every cycle."""
+    port.refuse = {'model'}
+    program = dataclasses.replace(_program(cycles=2), sequence=(1, 0, 2, 0))
+    lines: list[str] = []
+    outcome = run_program(port, program, config_path(), tmp_path, lines.append,
+                          calibrator=_never)
+    assert outcome.driven.skipped == 8 and outcome.driven.failed == 0
+    assert ('compensation mode: model refused: the positioner refused compensation.mode = '
+            'model: the tracker is silent; its 8 moves left out') in lines
+    order = ['P2', 'P1', 'P3', 'P1'] * 2
+    assert [(s.mode, s.pose) for s in _steps(port)] == [(m, name) for m in ('none', 'measured')
+                                                         for name in order]
+    moves = [what for kind, what, _ in port.commands if kind == 'move']
+    for name, (p, _) in zip(order * 2, moves, strict=True):  # type: ignore[misc]
+        np.testing.assert_array_equal(p, POSES[name])
 
 
 def test_a_move_without_an_answer_ends_the_run(port: Port) -> None:

@@ -1,6 +1,7 @@
 """The run program of ``make run`` (``config/program.yaml``): named commanded poses, visited in
-order for a number of cycles, once per compensation mode; checked against the mechanism's
-limits before anything moves."""
+order (or in a ``sequence`` of their names, repeats allowed: a pose approached from several
+directions, config/acceptance.yaml) for a number of cycles, once per compensation mode;
+checked against the mechanism's limits before anything moves."""
 
 from __future__ import annotations
 
@@ -38,10 +39,11 @@ class Calibrating:
 @dataclass(frozen=True)
 class Program:
     """``names`` of the poses, their positions (K, 3) m and quaternions (K, 4) x, y, z, w in
-    the base frame; ``cycles`` passes over them per mode in ``modes``; ``tolerance`` the settle
-    tolerance of a move, m (0: the positioner's configured one); ``settle_timeout`` how long to
-    wait for the monitor to see a move settle, s; ``calibration``, if given, the calibration run
-    before the modes."""
+    the base frame; ``cycles`` passes over them per mode in ``modes``, each pass visiting the
+    poses in ``sequence`` (indices into ``names``, repeats allowed; empty: each pose once, in
+    order); ``tolerance`` the settle tolerance of a move, m (0: the positioner's configured
+    one); ``settle_timeout`` how long to wait for the monitor to see a move settle, s;
+    ``calibration``, if given, the calibration run before the modes."""
 
     names: tuple[str, ...]
     position: FloatArray
@@ -51,17 +53,23 @@ class Program:
     tolerance: float = 0.0
     settle_timeout: float = 5.0
     calibration: Calibrating | None = None
+    sequence: tuple[int, ...] = ()
+
+    @property
+    def order(self) -> tuple[int, ...]:
+        """The pose indices one cycle visits, in order."""
+        return self.sequence or tuple(range(len(self.names)))
 
     @property
     def moves(self) -> int:
         """Moves in the whole program."""
-        return len(self.modes) * self.cycles * len(self.names)
+        return len(self.modes) * self.cycles * len(self.order)
 
     def steps(self) -> Iterator[tuple[str, int, int]]:
         """(mode, cycle from 1, pose index) of every move, in order."""
         for mode in self.modes:
             for cycle in range(1, self.cycles + 1):
-                for k in range(len(self.names)):
+                for k in self.order:
                     yield mode, cycle, k
 
 
@@ -110,7 +118,24 @@ def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
                           f'{report.message()}')
     return Program(tuple(names), p, q, cycles, tuple(modes),
                    _number(block, 'tolerance', 0.0, 0.0),
-                   _number(block, 'settle_timeout', 5.0, 0.1), _calibrating(block))
+                   _number(block, 'settle_timeout', 5.0, 0.1), _calibrating(block),
+                   _sequence(block, names))
+
+
+def _sequence(block: Mapping[str, Any], names: list[str]) -> tuple[int, ...]:
+    """The ``program.sequence`` block: pose names (repeats allowed) as indices into
+    ``names``; () when not given."""
+    sequence = block.get('sequence')
+    if sequence is None:
+        return ()
+    if not isinstance(sequence, list) or not sequence:
+        raise ConfigError(f'program.sequence = {excerpt(sequence)}: a non-empty list of pose '
+                          f'names')
+    unknown = [str(n) for n in sequence if str(n) not in names]
+    if unknown:
+        raise ConfigError(f'program.sequence names {", ".join(unknown)}, not in program.poses '
+                          f'({", ".join(names)})')
+    return tuple(names.index(str(n)) for n in sequence)
 
 
 def _calibrating(block: Mapping[str, Any]) -> Calibrating | None:

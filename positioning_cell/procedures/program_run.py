@@ -143,15 +143,16 @@ def drive(port: CellPort, program: Program, note: str, say: Say) -> Driven:
     refused: list[tuple[str, str]] = []
     width = len(str(program.moves))
     begin = port.now()
-    mode_taken = True
+    mode_taken, current = True, None
     try:
         for n, (mode, cycle, k) in enumerate(program.steps(), start=1):
-            if cycle == 1 and k == 0:
+            if mode != current:
+                current = mode
                 try:
                     port.set_mode(mode)
                 except ProcedureError as err:
                     refused.append((mode, str(err)))
-                    left = program.cycles * len(program.names)
+                    left = program.cycles * len(program.order)
                     say(f'compensation mode: {mode} refused: {err}; its {left} moves left out')
                     mode_taken = False
                 else:
