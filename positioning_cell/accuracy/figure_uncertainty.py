@@ -1,7 +1,9 @@
 """The expanded uncertainty U (k = 2) of ISO 9283 position figures from the covariances the
 measurement states for each attained position (issue 25; the pattern of ISO/TR 230-9 for
 ISO 230-2): a commanded pose's pose accuracy AP_p (§7.2.1) and repeatability RP_l (§7.2.2)
-below, the distance accuracy and repeatability AD_p, RD_p (§7.3) between two poses in
+below, the angles' AP_a..c and RP_a..c in :func:`orientation_figure_uncertainty`, the
+multi-directional variation vAP_p (§7.2.3) in :func:`multidirectional_uncertainty`, the
+distance accuracy and repeatability AD_p, RD_p (§7.3) between two poses in
 :func:`distance_figure_uncertainty`.
 
 Each attained position x_j (n visits) was measured with covariance Σ_j (3, 3) m², the mean of
@@ -62,16 +64,6 @@ class FigureUncertainty(NamedTuple):
 
     ap_p: float
     rp_l: float
-
-
-def rp_l_of(position: FloatArray) -> FloatArray:
-    """RP_l (...,) m of attained positions (..., n, 3), n ≥ 2: l̄ + 3·S_l with l_j the
-    distances to their barycentre (ISO 9283 §7.2.2, as
-    :func:`~positioning_cell.accuracy.iso9283.iso9283`)."""
-    barycentre = position.mean(axis=-2, keepdims=True)
-    distance = np.sqrt(((position - barycentre) ** 2).sum(axis=-1))
-    out: FloatArray = distance.mean(axis=-1) + 3.0 * distance.std(axis=-1, ddof=1)
-    return out
 
 
 def pose_figure_uncertainty(commanded_position: ArrayLike, attained_position: ArrayLike,
