@@ -707,9 +707,10 @@ FAULTS: tuple[Fault, ...] = (
     Fault('uncommanded motion',
           f'fault.uncommanded_motion: the drives move leg1 by {UNCOMMANDED[1] * 1e3:g} mm on '
           'their own while the cell stands still',
-          'the positioner\'s standstill monitoring: a fault naming the axis, the drives stopped '
+          'the positioner\'s standstill monitoring: a fault naming the axis (or the tracker\'s '
+          'measure, when it sees the platform leave its rest pose first), the drives stopped '
           'short, the position unconfirmed; the next move succeeds, planned from the encoders',
-          (R.UNCOMMANDED_MOTION.value,), 'uncommanded motion at standstill: leg1_length', 0.5,
+          (R.UNCOMMANDED_MOTION.value,), 'uncommanded motion at standstill: ', 0.5,
           _driver('fault.uncommanded_motion', list(UNCOMMANDED)), kind='standstill'),
     Fault('spoofed encoders',
           f'a second node publishes /legs/joint_states with leg1 {SPOOF_OFFSET * 1e3:g} mm off '
