@@ -70,11 +70,15 @@ def test_the_live_monitor_fed_by_the_player_reports_the_offline_figures(tmp_path
         pairs = offline['tracker']['samples']
         latest: dict[str, Any] = {}
 
-        def all_paired() -> bool:
-            latest.update(report())
-            return bool(latest['tracker']) and latest['tracker']['samples'] >= pairs
+        verdicts = sum(offline['verdicts'].values())
 
-        wait_until(all_paired, 30.0, f'the monitor to have paired all {pairs} tracker samples')
+        def all_paired() -> bool:  # the move ends (/diagnostics) may come after the poses
+            latest.update(report())
+            return (bool(latest['tracker']) and latest['tracker']['samples'] >= pairs
+                    and sum(latest['verdicts'].values()) >= verdicts)
+
+        wait_until(all_paired, 30.0, f'the monitor to have paired all {pairs} tracker samples '
+                   f'and judged {verdicts} visits')
         live = latest
 
     assert live['verdicts'] == offline['verdicts']
