@@ -22,6 +22,7 @@ from rcl_interfaces.srv import ListParameters
 from rclpy.action.client import ActionClient
 from rclpy.action.graph import get_action_server_names_and_types_by_node
 from rclpy.context import Context
+from rclpy.duration import Duration
 from rclpy.executors import (
     ExternalShutdownException,
     ShutdownException,
@@ -52,6 +53,8 @@ PARAMETER_TIMEOUT = 30.0
 #: a first wait of 2 s put 2 s on a tool's first call (or the benchmarked cell's homing) when
 #: the first answer was lost.
 HANDSHAKE_WAIT, HANDSHAKE_WAIT_MAX = 0.25, 2.0
+#: How long a run-program step waits for its readers' acknowledgement (s).
+PROGRAM_ACK_S = 2.0
 #: The spin thread's wait per slice (s): how soon it sees :meth:`CellClient.close`.
 SPIN_SLICE_S = 0.1
 #: Executor errors a client keeps for the message of a call that timed out.
@@ -313,9 +316,13 @@ class CellClient:
             self._program = self.node.create_publisher(String, names.PROGRAM, LATCHED_QOS)
 
     def publish_program(self, text: str) -> None:
-        """Publish a run-program step on /cell/program."""
+        """Publish a run-program step on /cell/program and wait (up to
+        :data:`PROGRAM_ACK_S`) until every matched reader, the recorder among them, has
+        acknowledged it: the step is in the bag before its move, and the end-of-program
+        marker before run_cell stops the recorder (a bag once lacked it: 4 markers of 5)."""
         self.advertise_program()
         self._program.publish(String(data=text))
+        self._program.wait_for_all_acked(Duration(seconds=PROGRAM_ACK_S))
 
     def close(self) -> None:
         """Stop spinning and shut the context down."""
