@@ -316,6 +316,36 @@ def test_file_round_trip_and_the_positioner_loads_it(tmp_path: Path, calibrated:
     assert 'truth' not in text  # the file holds what was identified, nothing of the simulator
 
 
+def test_the_load_bound_is_on_the_read_not_on_a_busy_processor(
+        tmp_path: Path, calibrated: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A parse stretched past the bound (a loaded machine: CI refused a good file so) still
+    loads; a read that takes longer than the bound (a stalled file system) is refused."""
+    import time
+
+    from positioning_cell.calibration import calibrated as calibrated_module
+    _, result = calibrated
+    path = calfile.write(tmp_path / 'calibration.yaml',
+                         calfile.document(result, MECH, 1.0, {'poses': 60}))
+    settings = parse(PositionerSettings, {'compensation.calibration_file': str(path)})
+    bound = 0.05
+    real_parse, real_read = calfile.parse, calfile.read
+
+    def slow_parse(*args: Any) -> Any:
+        time.sleep(3 * bound)
+        return real_parse(*args)
+
+    monkeypatch.setattr(calibrated_module, 'parse', slow_parse)
+    assert calibrated_machine(settings, timeout=bound) is not None
+
+    def slow_read(*args: Any) -> Any:
+        time.sleep(3 * bound)
+        return real_read(*args)
+
+    monkeypatch.setattr(calibrated_module, 'read', slow_read)
+    with pytest.raises(calfile.CalibrationFileError, match=f'not loaded within {bound:g} s'):
+        calibrated_machine(settings, timeout=bound)
+
+
 @pytest.mark.parametrize(('edit', 'words'), [
     (lambda d: d['calibration'].update(mechanism_fingerprint='0123456789abcdef'),
      'belongs to mechanism'),

@@ -149,14 +149,29 @@ def write(path: str | Path, content: dict[str, Any]) -> Path:
     return out
 
 
-def load(path: str | Path, nominal: Mechanism) -> Calibration:
-    """Read and check a calibration file for the nominal machine ``nominal``;
-    CalibrationFileError naming what is wrong otherwise (in a short message: the file is read
-    by :func:`positioning_cell.files.load_yaml`, at most
-    :data:`~positioning_cell.files.CALIBRATION_FILE`'s size, its values quoted in excerpts)."""
-    data = files.load_yaml(path, files.CALIBRATION_FILE, CalibrationFileError)
+def read(path: str | Path) -> str:
+    """The text of the calibration file ``path`` (:func:`positioning_cell.files.read_text`:
+    checked, at most :data:`~positioning_cell.files.CALIBRATION_FILE`'s size): the part of a
+    load that waits on the file system. CalibrationFileError naming what is wrong otherwise."""
+    text = files.read_text(path, files.CALIBRATION_FILE, CalibrationFileError)
+    assert isinstance(text, str)  # (not missing_ok)
+    return text
+
+
+def parse(text: str, path: str | Path, nominal: Mechanism) -> Calibration:
+    """The calibration in ``text``, read from ``path``, checked for the nominal machine
+    ``nominal``: the part of a load that only computes. CalibrationFileError naming what is
+    wrong otherwise (in a short message, its values quoted in excerpts)."""
+    where = files.describe(files.CALIBRATION_FILE, path)
+    data = files.parse_yaml(text, where, CalibrationFileError)
     with files.brief_errors():
-        return _calibration(data, nominal, files.describe(files.CALIBRATION_FILE, path))
+        return _calibration(data, nominal, where)
+
+
+def load(path: str | Path, nominal: Mechanism) -> Calibration:
+    """Read and check a calibration file for the nominal machine ``nominal``
+    (:func:`read`, then :func:`parse`)."""
+    return parse(read(path), path, nominal)
 
 
 def _number(value: Any, where: str, name: str, low: float = -math.inf,
