@@ -25,7 +25,7 @@ from positioning_cell.ros.processes import Processes, cell_environment, executab
 
 __all__ = ['CELL_YAML', 'FAST_MOTION', 'LOADED_LIVENESS', 'REPO', 'Client', 'InProcess',
            'ProcessGroup', 'executable', 'in_process', 'isolated_domain', 'processes_naming',
-           'wait_until']
+           'stop_cleanly', 'wait_until']
 
 REPO = Path(__file__).resolve().parent.parent
 CELL_YAML = REPO / 'config' / 'cell.yaml'
@@ -53,6 +53,16 @@ def processes_naming(marker: Path) -> list[int]:
             if str(marker).encode() in (proc / 'cmdline').read_bytes():
                 found.append(int(proc.name))
     return found
+
+
+def stop_cleanly(procs: Processes, log_chars: int = 2000) -> None:
+    """Stop every process of ``procs`` (:meth:`Processes.stop`) and assert that each exited 0:
+    the message names first which did not and with what code (a short summary line shows its
+    start), then the end of their logs."""
+    codes = procs.stop()
+    failed = {label: code for label, code in codes.items() if code != 0}
+    assert not failed, ', '.join(f'{label} exited {code}' for label, code in failed.items()) \
+        + ''.join(f'\n--- {label}:\n{procs.log(label)[-log_chars:]}' for label in failed)
 
 
 class ProcessGroup(Processes):

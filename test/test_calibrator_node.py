@@ -21,6 +21,7 @@ from cell_harness import (
     Client,
     ProcessGroup,
     isolated_domain,
+    stop_cleanly,
 )
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import Calibrate
@@ -97,8 +98,7 @@ def cell(tmp_path: Path) -> Iterator[Cell]:
             yield cell
         finally:
             cell.close()
-        codes = procs.stop()
-        assert all(c == 0 for c in codes.values()), {k: procs.log(k)[-2000:] for k in codes}
+        stop_cleanly(procs)
 
 
 def state(status: Any) -> str:

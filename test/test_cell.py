@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from cell_harness import CELL_YAML, Client, ProcessGroup, isolated_domain, wait_until
+from cell_harness import CELL_YAML, Client, ProcessGroup, isolated_domain, stop_cleanly, wait_until
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
@@ -95,8 +95,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Any:
         homed, message = client.trigger('/positioner/home')  # references the drives
         assert homed, message
         yield client, streams, diagnostics, procs
-        codes = procs.stop()
-        assert all(c == 0 for c in codes.values()), {k: procs.log(k)[-1500:] for k in codes}
+        stop_cleanly(procs)
 
 
 @pytest.fixture(scope='module')

@@ -14,7 +14,14 @@ from typing import Any
 
 import numpy as np
 import pytest
-from cell_harness import Client, ProcessGroup, executable, isolated_domain, wait_until
+from cell_harness import (
+    Client,
+    ProcessGroup,
+    executable,
+    isolated_domain,
+    stop_cleanly,
+    wait_until,
+)
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from sensor_msgs.msg import JointState
 
@@ -78,8 +85,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
         cell = Cell(domain, procs, client)
         _home(cell)  # once for the module: each test then runs alone too (in any order)
         yield cell
-        codes = procs.stop()
-        assert all(c == 0 for c in codes.values()), {k: procs.log(k)[-1500:] for k in codes}
+        stop_cleanly(procs)
 
 
 def _home(cell: Cell) -> None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
+from cell_harness import stop_cleanly
 from fault_expectations import EXPECTED
 
 from positioning_cell.procedures.fault_trials import FAULTS, fault, run_trial
@@ -28,9 +29,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultCell]:
     with FaultCell(tmp_path_factory.mktemp('faults')) as cell:
         cell.start()
         yield cell
-        codes = cell.procs.stop()
-        assert all(c == 0 for c in codes.values()), {k: cell.procs.log(k)[-2000:]
-                                                     for k in codes}
+        stop_cleanly(cell.procs)
 
 
 def test_every_fault_has_its_expectation_here() -> None:
