@@ -8,16 +8,20 @@ from typing import Any
 
 
 def wait_until(condition: Callable[[], Any], timeout: float, what: str,
-               poll: float = 0.02) -> Any:
+               poll: float = 0.02, cutoff: Callable[[], float] | None = None) -> Any:
     """Poll ``condition`` every ``poll`` s until it returns something truthy and return that;
-    TimeoutError naming ``what`` after ``timeout`` s."""
+    TimeoutError naming ``what`` after ``timeout`` s, or once the monotonic time passes
+    ``cutoff()`` (read at each poll; e.g. a short grace after a stop: inf, none)."""
     deadline = time.monotonic() + timeout
     while True:
         value = condition()
         if value:
             return value
-        if time.monotonic() > deadline:
+        now = time.monotonic()
+        if now > deadline:
             raise TimeoutError(f'timed out after {timeout:.1f} s waiting for {what}')
+        if cutoff is not None and now > cutoff():
+            raise TimeoutError(f'gave up waiting for {what}: stopping')
         time.sleep(poll)
 
 

@@ -93,7 +93,7 @@ class CalibratorNode(Node):
               feedback: Callable[[Any], None]) -> Outcome:
         """The calibration, in the goal's worker thread, through a client node of its own
         in this node's context (spun in the client's thread)."""
-        with CellClient(name=f'{self.NAME}_client', context=self.context) as client:
+        with CellClient(name=f'{self.NAME}_client', context=self.context, stop=stop) as client:
             return calibrate(
                 RosCellPort(client), self.machine, settings.program,
                 settings.samples, Path(settings.out_dir), self._say, load=settings.load,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import json
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -60,6 +61,12 @@ SPIN_SLICE_S = 0.1
 #: Executor errors a client keeps for the message of a call that timed out.
 SPIN_ERRORS_KEPT = 10
 
+#: Longest a client's waits go on once its ``stop`` is set (s): long enough for a living node
+#: to answer the last calls of a stop (the positioner's mode put back takes milliseconds), short
+#: enough that a node stopping at the same time cannot hold the stop past its deadline
+#: (:data:`positioning_cell.ros.entry.STOP_DEADLINE_S`, 10 s; the parameter waits are 30 s).
+STOPPED_WAIT_S = 2.0
+
 
 class CellClient:
     """An rclpy node spun in a background thread: what a tool or a test needs of the running
@@ -67,11 +74,12 @@ class CellClient:
     a tool that handles signals itself passes False), or in the given ``context`` (which its
     owner shuts down), or on the given ``node`` (a node started already, its context taken and
     shut down with this client: :func:`positioning_cell.ros.early.start_node`; ``domain``,
-    ``name`` and ``signals`` are then the node's own)."""
+    ``name`` and ``signals`` are then the node's own). Once ``stop`` is set (a goal's stop),
+    every wait of the client ends within :data:`STOPPED_WAIT_S` s (TimeoutError)."""
 
     def __init__(self, domain: int | None = None, name: str = 'cell_client', *,
                  signals: bool = True, context: Context | None = None,
-                 node: Node | None = None) -> None:
+                 node: Node | None = None, stop: threading.Event | None = None) -> None:
         if node is not None:
             context = node.context
         self._owns_context = context is None or node is not None
@@ -92,6 +100,8 @@ class CellClient:
         #: What raised in the spin thread (kept; each also logged), for a call that times out.
         self.spin_errors: list[str] = []
         self._closing = False
+        self._stop = stop
+        self._stopped_at = math.inf
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -115,6 +125,17 @@ class CellClient:
                     self.node.get_logger().error(f'the client\'s executor: '
                                                  f'{self.spin_errors[-1]}; spinning on')
 
+    def _cutoff(self) -> float:
+        """The monotonic time the client's waits end by: :data:`STOPPED_WAIT_S` after its
+        ``stop`` was first seen set (inf: not set)."""
+        if self._stop is not None and self._stop.is_set() and self._stopped_at == math.inf:
+            self._stopped_at = time.monotonic()
+        return self._stopped_at + STOPPED_WAIT_S
+
+    def _wait(self, condition: Any, timeout: float, what: str) -> Any:
+        """:func:`positioning_cell.polling.wait_until`, cut short by the client's ``stop``."""
+        return wait_until(condition, timeout, what, cutoff=self._cutoff)
+
     # -- generic --------------------------------------------------------------------------------
     def collect(self, msg_type: Any, topic: str, qos: QoSProfile | int = 100) -> list[Any]:
         """Subscribe and return the list the messages are appended to."""
@@ -129,7 +150,7 @@ class CellClient:
         if client is None:
             client = self._clients[name] = self.node.create_client(srv_type, name,
                                                                    qos_profile=SERVICE_QOS)
-        wait_until(client.service_is_ready, wait, f'service {name}')
+        self._wait(client.service_is_ready, wait, f'service {name}')
         if name not in self._known:  # the server has matched this new client: :meth:`handshake`
             self.handshake(serving_node(name), wait)
             self._known.add(name)
@@ -153,15 +174,17 @@ class CellClient:
         ping = self.node.create_client(ListParameters, service, qos_profile=SERVICE_QOS)
         deadline = time.monotonic() + timeout
         try:
-            wait_until(ping.service_is_ready, timeout, f'service {service}')
+            self._wait(ping.service_is_ready, timeout, f'service {service}')
             for attempt in itertools.count():
                 future = ping.call_async(ListParameters.Request())
                 left = deadline - time.monotonic()
                 wait = backoff(attempt, HANDSHAKE_WAIT, HANDSHAKE_WAIT_MAX)
                 try:
-                    wait_until(future.done, max(min(wait, left), 0.0), 'an answer')
+                    self._wait(future.done, max(min(wait, left), 0.0), 'an answer')
                     return
                 except TimeoutError:
+                    if time.monotonic() > self._cutoff():
+                        raise
                     if time.monotonic() >= deadline:
                         raise TimeoutError(f'timed out after {timeout:.1f} s waiting for '
                                            f'{node} to answer {service}') from None
@@ -179,7 +202,7 @@ class CellClient:
         ``what``); counted in flight meanwhile (:meth:`answered`)."""
         self._in_flight.append(future)
         try:
-            wait_until(future.done, timeout, what)
+            self._wait(future.done, timeout, what)
         except TimeoutError as err:
             raise TimeoutError(f'{err}{self._spin_state()}') from None
         finally:
@@ -205,7 +228,7 @@ class CellClient:
         if client is None:
             client = self._parameter_clients[node] = AsyncParameterClient(
                 self.node, node, qos_profile=SERVICE_QOS)
-        wait_until(client.services_are_ready, wait, f'the parameter services of /{node}')
+        self._wait(client.services_are_ready, wait, f'the parameter services of /{node}')
         key = f'/{node}/parameters'  # forgotten with the node (:meth:`forget`)
         if key not in self._known:
             self.handshake(node, wait)
@@ -235,7 +258,7 @@ class CellClient:
             done, message = self.trigger(names.HOME)
             return None if not done and message.startswith(not_yet) else (done, message)
 
-        result: tuple[bool, str] = wait_until(attempt, timeout, 'the positioner to home')
+        result: tuple[bool, str] = self._wait(attempt, timeout, 'the positioner to home')
         return result
 
     def spinning(self, node: str, timeout: float = 2.0) -> bool:
