@@ -19,7 +19,7 @@ from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
 from positioning_cell.polling import wait_until
-from positioning_cell.ros.client import CellClient as Client
+from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import free_domain as isolated_domain
 from positioning_cell.ros.processes import Processes, cell_environment, executable
 
@@ -41,6 +41,16 @@ FAST_MOTION = {'linear_speed': 0.03, 'linear_acceleration': 0.15, 'angular_speed
 #: 100 Hz joint states past the default 0.2 s, and the tracker's 20 Hz readings past the
 #: default 0.5 s (0.51 s, a homing aborted in CI): a stalled process, not a lost input.
 LOADED_LIVENESS = {'joint_silence': 1.0, 'tracker_silence': 1.5}
+
+
+class Client(CellClient):
+    """The tests' :class:`CellClient`: rclpy's signal handlers left out unless asked for, so
+    that a SIGINT or SIGTERM to pytest ends the run with every fixture's teardown (conftest:
+    every process a test started stopped), not only the client's context."""
+
+    def __init__(self, domain: int | None = None, name: str = 'cell_client', *,
+                 signals: bool = False, **kwargs: Any) -> None:
+        super().__init__(domain, name, signals=signals, **kwargs)
 
 
 def processes_naming(marker: Path) -> list[int]:

@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import ast
 import os
+import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -39,6 +41,18 @@ os.environ.pop('RMW_IMPLEMENTATION', None)
 settings.register_profile('ci', derandomize=True, deadline=None, max_examples=150,
                           suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile('ci')
+
+
+def _interrupted(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f'{signal.Signals(signum).name} received')
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """A SIGTERM (a runner's time limit, a kill) ends the run as Ctrl-C does: pytest unwinds,
+    each fixture's teardown stops the processes its test started (they run in sessions of
+    their own, which no signal to pytest's group reaches)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _interrupted)
 
 
 def module_marks(path: Path) -> set[str]:

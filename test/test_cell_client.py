@@ -4,6 +4,9 @@ client goes on answering, and a call that times out says so."""
 
 from __future__ import annotations
 
+import threading
+import time
+
 import pytest
 from cell_harness import Client, isolated_domain
 from rcl_interfaces.srv import ListParameters
@@ -11,6 +14,7 @@ from rclpy.task import Future
 from std_msgs.msg import String
 
 from positioning_cell.polling import wait_until
+from positioning_cell.ros.client import PARAMETER_TIMEOUT, STOPPED_WAIT_S
 
 pytestmark = pytest.mark.nodes
 
@@ -35,3 +39,27 @@ def test_a_callback_that_raises_does_not_stop_the_client() -> None:
                                                "RuntimeError: a broken callback"):
             client._answer(Future(), 0.1, 'an answer that never comes')
     assert not client._thread.is_alive()  # close() ended the spinning
+
+
+def test_a_stop_cuts_every_wait_short() -> None:
+    """A client whose ``stop`` is set (a goal's stop: the calibrator stopped while it waits
+    for the positioner) ends its waits within STOPPED_WAIT_S, not their 30 s: a calibrator
+    stopped together with the positioner hung in its parameter set past the stop deadline
+    (exit 1 with its threads' stacks)."""
+    stop = threading.Event()
+    with isolated_domain() as domain, Client(domain, 'client_under_test', stop=stop) as client:
+        timer = threading.Timer(0.2, stop.set)
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError, match='stopping'):
+            client.set_parameter('a_node_that_is_not_there', 'x', 1.0)
+        took = time.monotonic() - t0
+        timer.join()
+        assert took < PARAMETER_TIMEOUT / 2, took
+        # and at once for a wait that begins once the grace has run out
+        t0 = time.monotonic()
+        with pytest.raises(TimeoutError, match='stopping'):
+            client.get_parameter('a_node_that_is_not_there', 'x')
+        assert time.monotonic() - t0 < 1.0
+    print(f'the set gave up {took:.2f} s after it began, the stop after 0.2 s '
+          f'(grace {STOPPED_WAIT_S} s)')
