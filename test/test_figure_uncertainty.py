@@ -12,6 +12,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.accuracy.figure_uncertainty import (
+    BATCH,
+    MAX_BATCHES,
+    adaptive_quantiles,
     distance_figure_uncertainty,
     euler_rates_from_rotation,
     multidirectional_uncertainty,
@@ -245,3 +248,28 @@ def test_the_true_vap_lies_within_u_in_95_percent_of_runs() -> None:
     print(f'vAP_p covered in {covered.mean():.1%} of {runs} runs')
     assert covered.mean() >= 0.95
     assert math.isnan(multidirectional_uncertainty(C[None], cov[:1], [0]))
+
+
+def test_the_adaptive_monte_carlo_stops_once_the_quantile_is_settled() -> None:
+    """JCGM 101 §7.9: a narrow bound (many visits) settles after the least two batches, a
+    wide one runs the most; either gives the quantile of all its draws (N(1, 1) at 95.45 %,
+    the coverage probability of k = 2: 1 + Φ⁻¹(0.9545) = 2.69, within the Monte Carlo's own
+    error)."""
+    rng = np.random.default_rng(7)
+    asked: list[int] = []
+
+    def narrow(m: int) -> np.ndarray:
+        asked.append(m)
+        return rng.normal(10.0, 0.01, (m, 1))
+
+    assert adaptive_quantiles(narrow, 2.0)[0] == pytest.approx(10.0, abs=0.05)
+    assert asked == [BATCH, BATCH]
+    asked.clear()
+
+    def wide(m: int) -> np.ndarray:
+        asked.append(m)
+        return rng.normal(1.0, 1.0, (m, 2))
+
+    q = adaptive_quantiles(wide, 2.0)
+    assert len(asked) == MAX_BATCHES and q.shape == (2,)
+    np.testing.assert_allclose(q, 1.0 + 1.6906, atol=0.1)
