@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+from dataclasses import astuple
 
 import numpy as np
 import pytest
@@ -736,6 +737,13 @@ def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
     assert np.all(np.isfinite(uncertainties)) and np.all(np.array(uncertainties) > 0.0)
     assert uncertainties == [(v.position_uncertainty, v.orientation_uncertainty)
                              for v in grouped.verdicts]
+    # each visit's stabilisation from its segment's readings: the same, however grouped
+    stabilised = np.array([astuple(s) for s in live.stabilisations], dtype=float)
+    assert stabilised.shape[0] == 4 and np.isfinite(stabilised[:, :2]).any(axis=0).all()
+    np.testing.assert_array_equal(stabilised, [astuple(s) for s in grouped.stabilisations])
+    values = live.visit_values(live.measured.visits[0])
+    assert float(values['stabilisation_time']) == pytest.approx(live.stabilisations[0].time,
+                                                                abs=5e-4)
     tracker_a, tracker_b = a.pop('tracker'), b.pop('tracker')
     assert a == b
     assert tracker_a['samples'] == tracker_b['samples'] > 200

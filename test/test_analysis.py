@@ -161,6 +161,12 @@ def test_analyze_writes_report_summary_and_plots(bag: Path, tmp_path: Path,
     assert distance['poses'] == ['P2', 'P4'] and distance['iso9283']['n'] == 2
     assert 0.0 < distance['iso9283_u']['ad_p'] < 1e-4, distance
     assert '## Distance accuracy and repeatability' in text and '| none | P2 - P4 | 2 |' in text
+    # ISO 9283 §7.4, §7.5 per visit and per pose, from the same readings as the live monitor
+    stabilised = summary['modes'][0]['poses'][1]['stabilisation']
+    assert stabilised['cycles'] == 2 and stabilised['time_mean'] >= 0.0, stabilised
+    assert all(v['stabilisation']['readings'] > 0 for v in summary['visits'])
+    assert '## Pose stabilisation time and overshoot' in text and '| none | P2 | 2 |' in text
+    assert summary['settings']['stabilisation_band'] == SETTINGS.stabilisation.band
     assert summary['tracker']['samples'] > 0
     pngs = {'error_over_time.png', 'axis_errors.png', 'clusters.png', 'error_distribution.png'}
     assert set(summary['plots']) == pngs
@@ -399,6 +405,7 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
         before.pop(key, None)
         now.pop(key, None)
     assert now['settings']['tolerances'].pop('decision_rule') == 'iso_14253_1'  # issue 25
+    assert now['settings'].pop('stabilisation_band') == 50e-6  # ISO 9283 §7.4, §7.5
     judged = ('modes', 'truth_modes', 'visits', 'monitor')
     assert differences({k: v for k, v in before.items() if k not in judged},
                        {k: v for k, v in now.items() if k not in judged}) == []

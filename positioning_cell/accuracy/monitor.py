@@ -11,8 +11,10 @@ clamped to just after the last sample (``add_target(..., clamp=True)``) and goes
 measured and the truth accumulators at its place among the samples; measurements go to the
 measured accumulator and to the tracker pairing; true poses to the truth accumulator and to the
 tracker pairing. Each settled measured visit gets a verdict against the tolerances in force
-when it settled. However the messages are grouped into feeds, the figures are the same (the
-accumulators' batch form: :meth:`positioning_cell.accuracy.settle.AccuracyAccumulator.add`).
+when it settled, and its stabilisation time and overshoot from the readings of its segment
+(:mod:`positioning_cell.accuracy.stabilisation`). However the messages are grouped into
+feeds, the figures are the same (the accumulators' batch form:
+:meth:`positioning_cell.accuracy.settle.AccuracyAccumulator.add`).
 """
 
 from __future__ import annotations
@@ -38,6 +40,12 @@ from positioning_cell.accuracy.settle import (
     Visit,
     as_time,
     check_samples,
+)
+from positioning_cell.accuracy.stabilisation import (
+    Stabilisation,
+    StabilisationSettings,
+    stabilisation,
+    stabilisation_values,
 )
 from positioning_cell.accuracy.tracker_errors import TrackerErrorAccumulator
 from positioning_cell.accuracy.verdicts import (
@@ -85,6 +93,8 @@ class MonitorSettings:
     settle: SettleSettings = group(SettleSettings, 'settle detection and pose grouping')
     tracker_error: TrackerErrorSettings = group(TrackerErrorSettings,
                                                 'the tracker against the simulation truth')
+    stabilisation: StabilisationSettings = group(
+        StabilisationSettings, 'pose stabilisation time and overshoot (ISO 9283 7.4, 7.5)')
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -95,7 +105,8 @@ class MonitorSettings:
         the monitor does not declare (the shared mechanism block) are left out."""
         params = node_parameters(load_parameter_file(path), NODE_MONITOR)
         return parse(cls, {k: v for k, v in params.items()
-                           if k in ('tolerance', 'settle', 'tracker_error')})
+                           if k in ('tolerance', 'settle', 'tracker_error',
+                                    'stabilisation')})
 
 #: The monitor's tolerances as parameters (``tolerance.position``, ...): the prefix the watch
 #: windows read and follow them by (:mod:`positioning_cell.ros.watch_inputs`).
@@ -258,18 +269,29 @@ _NOTHING_CHECKED = CheckedSamples(np.empty(0), _EMPTY, np.empty((0, 4)), np.zero
                                   {})
 
 
+#: Most readings the monitor holds (a segment that never settles, e.g. a pose held without
+#: a move end for hours): some 10 min at the tracker's 20 Hz, about 4 MB. What is dropped
+#: beyond it leaves a visit of that segment without a stabilisation figure.
+READINGS_KEPT = 12_000
+
+
 class Readings:
-    """The measurements the monitor took that a visit still to come may be settled on: times
-    (n,) s, positions (n, 3) m, quaternions (n, 4) and stated covariances (n, 6, 6) (NaN: not
+    """The measurements the monitor took that a visit still to come may need: times (n,) s,
+    positions (n, 3) m, quaternions (n, 4) and stated covariances (n, 6, 6) (NaN: not
     stated), so that a settled visit's attained pose gets the covariance of the mean of its
-    window's readings. Bounded: what precedes the accumulator's
-    :meth:`~positioning_cell.accuracy.settle.AccuracyAccumulator.kept_since` is dropped."""
+    window's readings and its stabilisation is taken over its segment's readings. Bounded:
+    what precedes the accumulator's
+    :meth:`~positioning_cell.accuracy.settle.AccuracyAccumulator.open_since` is dropped, and
+    at most :data:`READINGS_KEPT` are held."""
 
     def __init__(self) -> None:
         self.time = np.empty(0)
         self.position = np.empty((0, 3))
         self.quaternion = np.empty((0, 4))
         self.covariance = np.empty((0, 6, 6))
+        #: The latest time (s) of a reading dropped while it could still be needed (−inf:
+        #: none): a visit whose segment began before it lacks readings.
+        self.dropped_until = -math.inf
 
     def add(self, time: FloatArray, position: FloatArray, quaternion: FloatArray,
             covariance: FloatArray | None) -> None:
@@ -286,11 +308,33 @@ class Readings:
         self.covariance = np.concatenate([self.covariance, cov])
 
     def drop_before(self, time: float) -> None:
-        """Forget the readings older than ``time`` s (all of them for inf)."""
+        """Forget the readings older than ``time`` s (all of them for inf), and the oldest
+        beyond :data:`READINGS_KEPT` (remembered in :attr:`dropped_until`)."""
         keep = int(np.searchsorted(self.time, time, side='left'))
+        if self.time.size - keep > READINGS_KEPT:
+            keep = self.time.size - READINGS_KEPT
+            self.dropped_until = float(self.time[keep - 1])
         if keep:
             self.time, self.position = self.time[keep:], self.position[keep:]
             self.quaternion, self.covariance = self.quaternion[keep:], self.covariance[keep:]
+
+    def stabilisation_of(self, visits: Sequence[Visit], covariances: FloatArray,
+                         settings: StabilisationSettings) -> list[Stabilisation]:
+        """Each visit's :class:`~positioning_cell.accuracy.stabilisation.Stabilisation` over
+        the readings of its segment (target_time..settle_time) against its attained position
+        of covariance ``covariances`` (N, 6, 6); none when readings of the segment were
+        dropped (:attr:`dropped_until`)."""
+        out = []
+        for visit, cov in zip(visits, covariances, strict=True):  # over visits
+            if self.dropped_until >= visit.target_time:
+                out.append(Stabilisation.none())
+                continue
+            rows = slice(int(np.searchsorted(self.time, visit.target_time, side='left')),
+                         int(np.searchsorted(self.time, visit.settle_time, side='right')))
+            out.append(stabilisation(self.time[rows], self.position[rows],
+                                     self.covariance[rows, :3, :3], visit.position,
+                                     cov[:3, :3], settings.band))
+        return out
 
     def covariance_of(self, visits: Sequence[Visit]) -> FloatArray:
         """The covariance (N, 6, 6) of each visit's attained pose, the mean of the readings
@@ -333,6 +377,10 @@ class Monitor:
         #: The covariance (6, 6) of each verdict's attained pose as measured (NaN: not stated;
         #: :meth:`Readings.covariance_of`), in step with :attr:`verdicts`.
         self.covariances: list[FloatArray] = []
+        #: Each verdict's visit's stabilisation time and overshoot, in step with
+        #: :attr:`verdicts`.
+        self.stabilisations: list[Stabilisation] = []
+        self._stabilised: dict[Visit, Stabilisation] = {}
         self.ignored: list[Ignored] = []
         self.readings = Readings()
         # The latest stamp taken per source: an older sample is ignored (kept over reset).
@@ -456,7 +504,8 @@ class Monitor:
         new = self.measured.visits[before:]
         covariances = self.readings.covariance_of(new)
         judged = judge_visits(new, self.tolerances, covariances)
-        self.readings.drop_before(self.measured.kept_since())
+        self._stabilise(new, covariances)
+        self.readings.drop_before(self.measured.open_since())
         self.verdicts.extend(judged)
         self.covariances.extend(covariances)
         verdict_of = {id(v): j for v, j in zip(new, judged, strict=True)}
@@ -515,10 +564,25 @@ class Monitor:
             return ()
         covariance = self.readings.covariance_of([visit])
         verdict = judge_visits([visit], self.tolerances, covariance)[0]
+        self._stabilise([visit], covariance)
         self.readings.drop_before(math.inf)
         self.verdicts.append(verdict)
         self.covariances.append(covariance[0])
         return ((visit, verdict),)
+
+    def _stabilise(self, visits: Sequence[Visit], covariances: FloatArray) -> None:
+        """The stabilisation of newly settled ``visits`` (:attr:`stabilisations`)."""
+        found = self.readings.stabilisation_of(visits, covariances,
+                                                self.settings.stabilisation)
+        self.stabilisations.extend(found)
+        self._stabilised.update(zip(visits, found, strict=True))
+
+    def visit_values(self, visit: Visit) -> dict[str, str]:
+        """What a verdict's status says of ``visit`` beside the verdict (for people): the ISO
+        9283 figures of its pose (:meth:`figures_of`) and its own stabilisation time and
+        overshoot (:func:`~positioning_cell.accuracy.stabilisation.stabilisation_values`)."""
+        figure = self._stabilised.get(visit, Stabilisation.none())
+        return {**self.figures_of(visit), **stabilisation_values(figure)}
 
     def figures_of(self, visit: Visit) -> dict[str, str]:
         """The ISO 9283 figures (for people) of the pose that ``visit`` is a visit of."""
@@ -530,7 +594,8 @@ class Monitor:
         self.truth_accumulator.reset(keep_target=True)
         self.tracker.reset()
         self.truth_seen = False
-        self.verdicts, self.covariances = [], []
+        self.verdicts, self.covariances, self.stabilisations = [], [], []
+        self._stabilised = {}
         self.readings = Readings()
 
     def report(self) -> dict[str, Any]:

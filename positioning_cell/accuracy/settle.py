@@ -524,6 +524,14 @@ class AccuracyAccumulator:
             times.append(float(self._window[0][0]))
         return min(times, default=math.inf)
 
+    def open_since(self) -> float:
+        """The time (s) from which the open segment's readings are still needed: its start
+        while no visit settled it (its stabilisation is taken over all of them:
+        :mod:`positioning_cell.accuracy.stabilisation`), else :meth:`kept_since`."""
+        if self._target is not None and not self._settled:
+            return min(self._target[0], self.kept_since())
+        return self.kept_since()
+
     def reset(self, *, keep_target: bool = False) -> None:
         """Forget every sample, visit and pose key; with ``keep_target`` the current target
         stays, as if it had just been given (key 0, its time, no samples yet)."""

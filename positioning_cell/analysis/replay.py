@@ -54,6 +54,7 @@ from positioning_cell.accuracy.monitor import (
     PoseBatch,
     PoseMessages,
 )
+from positioning_cell.accuracy.stabilisation import Stabilisation
 from positioning_cell.analysis.context import ContextCollector
 from positioning_cell.analysis.program import ProgramStep
 from positioning_cell.analysis.trace import Envelope, ErrorTrace
@@ -153,6 +154,9 @@ class LabelledVisit:
     #: simulation's truth, exact).
     covariance: FloatArray = field(default_factory=lambda: np.full((6, 6), math.nan),
                                    compare=False)
+    #: Its stabilisation time and overshoot (ISO 9283 §7.4, §7.5) from its segment's readings
+    #: (none: not taken, e.g. of the truth).
+    stabilisation: Stabilisation = field(default_factory=Stabilisation.none, compare=False)
 
     @property
     def settle_duration(self) -> float:
@@ -286,10 +290,10 @@ class Replayer:
         measured, truth = self._measured.result(), self._truth.result()
         visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
                                      segments[by_time[v.target_time]].pose, verdict,
-                                     measured.start(v.target_time), covariance)
-                       for v, verdict, covariance in zip(monitor.measured.visits,
-                                                         monitor.verdicts, monitor.covariances,
-                                                         strict=True))
+                                     measured.start(v.target_time), covariance, stabilised)
+                       for v, verdict, covariance, stabilised in zip(
+                           monitor.measured.visits, monitor.verdicts, monitor.covariances,
+                           monitor.stabilisations, strict=True))
         true = monitor.truth_accumulator.visits
         exact = np.zeros((len(true), 6, 6))  # the simulation's truth: U = 0
         truth_visits = tuple(

@@ -28,6 +28,13 @@ def um_u(value: float | None, uncertainty: float) -> str:
     return 'n/a' if value is None else f'{value * 1e6:.1f} ± {u}'
 
 
+def s_u(value: float, uncertainty: float) -> str:
+    """A time in s with its expanded uncertainty for people: ``0.25 ± 0.04`` (``± ?`` when
+    not stated, 'n/a' for NaN)."""
+    u = f'{uncertainty:.2f}' if math.isfinite(uncertainty) else '?'
+    return 'n/a' if not math.isfinite(value) else f'{value:.2f} ± {u}'
+
+
 def deg_u(value: float | None, uncertainty: float) -> str:
     """An angle in rad with its expanded uncertainty as degrees for people: ``0.1234 ±
     0.0021`` (``± ?`` when not stated)."""
@@ -101,6 +108,24 @@ def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
 MULTIDIRECTIONAL_HEADER = ('mode', 'pose', 'directions', 'visits', 'vAP_p ± U µm', 'vAP_a °',
                            'vAP_b °', 'vAP_c °')
 DISTANCE_HEADER = ('mode', 'poses', 'cycles', 'commanded D mm', 'AD_p ± U µm', 'RD_p ± U µm')
+
+
+STABILISATION_HEADER = ('mode', 'pose', 'cycles', 'unresolved', 't mean ± U s', 't max s',
+                        'OV mean ± U µm', 'OV max µm')
+
+
+def _stabilisation_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
+    rows = []
+    for m in modes:
+        for p in m.poses:
+            if (f := p.stabilisation) is None:
+                continue
+            rows.append([m.mode, p.pose, str(f.cycles), str(f.unresolved),
+                         s_u(f.time_mean, f.time_u), f'{f.time_max:.2f}',
+                         um_u(f.overshoot_mean if math.isfinite(f.overshoot_mean) else None,
+                              f.overshoot_u),
+                         um(f.overshoot_max if math.isfinite(f.overshoot_max) else None)])
+    return rows
 
 
 def _distance_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
@@ -203,6 +228,17 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 *markdown_table(DISTANCE_HEADER, _distance_rows(distances)), '',
                 'ISO 9283:1998 §7.3: D the distance between the attained positions of the two '
                 'poses in one cycle, AD_p = mean D − commanded D, RD_p = ±3·S_D.', '']
+    stabilised = _stabilisation_rows(a.modes)
+    if stabilised:
+        out += ['## Pose stabilisation time and overshoot', '',
+                *markdown_table(STABILISATION_HEADER, stabilised), '',
+                f'ISO 9283:1998 §7.4, §7.5 from the tracker\'s readings of each visit, with a '
+                f'limit band of {um(s.stabilisation.band)} µm about the attained position: t '
+                'from the first entry into the band until the readings stay in it, OV how far '
+                'the position went past the attained one in the direction of approach; U '
+                '(k = 2) of the means from the readings\' covariances and their spacing '
+                '(unresolved: the position moved more than the band between two readings, no U '
+                'stated; docs/howto/verdicts.md).', '']
     if a.truth_modes:
         out += ['## Simulation truth', '', 'The true platform pose against the target (what '
                 'the tracker measures, without its error):', '',

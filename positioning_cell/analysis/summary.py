@@ -40,6 +40,7 @@ from positioning_cell.accuracy.figure_uncertainty import (
     pose_figure_uncertainty,
 )
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
+from positioning_cell.accuracy.stabilisation import StabilisationFigures, stabilisation_figures_of
 from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
 from positioning_cell.analysis.axis_test import runs as axis_runs
 from positioning_cell.analysis.budget_pass import BUDGET_TOPICS, gather
@@ -114,6 +115,8 @@ class PoseSummary:
     multidirectional: accuracy.MultiDirectionalFigures | None = None
     #: U (k = 2) of its vAP_p, m (NaN: not stated, or no vAP).
     multidirectional_u: float = math.nan
+    #: ISO 9283 §7.4, §7.5 over its visits (None: no visit gave a stabilisation time).
+    stabilisation: StabilisationFigures | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI; an uncertainty not stated is null)."""
@@ -124,6 +127,8 @@ class PoseSummary:
                               for name, u in stated.items()},
                 'multidirectional': None if self.multidirectional is None
                 else self.multidirectional.to_dict(),
+                'stabilisation': None if self.stabilisation is None
+                else self.stabilisation.to_dict(),
                 **self.extremes.to_dict()}
 
 
@@ -248,8 +253,10 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
                     [v.visit.position for v in known],
                     np.array([v.covariance[:3, :3] for v in known]),
                     accuracy.approach_groups([approach[id(v)] for v in known]))
-            poses.append(PoseSummary(mode, pose, figures, Extremes.of(group), uncertainty,
-                                     orientation, multidirectional, multidirectional_u))
+            poses.append(PoseSummary(
+                mode, pose, figures, Extremes.of(group), uncertainty, orientation,
+                multidirectional, multidirectional_u,
+                stabilisation_figures_of([v.stabilisation for v in group])))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),
@@ -318,7 +325,8 @@ class RunAnalysis:
                          'tolerances': {'position': s.tolerance.position,
                                         'orientation': s.tolerance.orientation,
                                         'decision_rule': s.tolerance.decision_rule},
-                         'max_stamp_difference': s.tracker_error.max_stamp_difference},
+                         'max_stamp_difference': s.tracker_error.max_stamp_difference,
+                         'stabilisation_band': s.stabilisation.band},
             'modes': [m.to_dict() for m in self.modes],
             'truth_modes': [m.to_dict() for m in self.truth_modes],
             'tracker': None if tracker is None else tracker.to_dict(),
@@ -329,6 +337,7 @@ class RunAnalysis:
                         'orientation_uncertainty': _stated(v.verdict.orientation_uncertainty),
                         'decision': v.verdict.decision.value,
                         'segment_start': v.start, 'settle_duration': v.settle_duration,
+                        'stabilisation': v.stabilisation.to_dict(),
                         **v.visit.to_dict()} for v in self.replay.visits],
             'ignored': [i.__dict__ for i in self.ignored],
             'context': self.context.to_dict(),

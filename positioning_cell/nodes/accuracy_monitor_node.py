@@ -127,7 +127,7 @@ class AccuracyMonitorNode(Node):
 
     def _verdict(self, visit: Visit, verdict: Verdict, stamp: Any) -> None:
         values = {'pose_key': visit.key, 'cycle': visit.cycle,
-                  **verdict_values(verdict), **self.monitor.figures_of(visit)}
+                  **verdict_values(verdict), **self.monitor.visit_values(visit)}
         message = f'pose {visit.key} cycle {visit.cycle}: {verdict.message()}'
         level = DECISION_LEVELS[verdict.decision]
         self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_VERDICT, level, message,
