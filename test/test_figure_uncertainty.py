@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from positioning_cell.accuracy.figure_uncertainty import (
     BATCH,
+    BATCH_ERRORS,
     MAX_BATCHES,
     adaptive_quantiles,
     distance_figure_uncertainty,
@@ -273,3 +274,7 @@ def test_the_adaptive_monte_carlo_stops_once_the_quantile_is_settled() -> None:
     q = adaptive_quantiles(wide, 2.0)
     assert len(asked) == MAX_BATCHES and q.shape == (2,)
     np.testing.assert_allclose(q, 1.0 + 1.6906, atol=0.1)
+    # many visits a draw: smaller batches (the memory of one bounded), the same rule
+    asked.clear()
+    adaptive_quantiles(narrow, 2.0, visits=4 * BATCH_ERRORS // BATCH)
+    assert asked == [BATCH // 4, BATCH // 4]

@@ -56,14 +56,16 @@ from positioning_cell.errors import InputError
 FloatArray = NDArray[np.float64]
 
 #: The Monte Carlo of a bound (U of RP_l, RP_a..c, RD_p) draws the visits' errors in batches
-#: of this many draws (JCGM 101:2008 §7.9's adaptive procedure), at most :data:`MAX_BATCHES`
-#: of them: 10⁴ draws, §7.2's figure for a 95 % interval to about two significant digits.
-#: In batches, a pose visited hundreds of times (a long recording: 700 visits of one pose in a
-#: tiled `make run` bag) draws 17 MB at a time, not 168 MB, and stops once the quantile is
-#: settled (the bound narrows as the visits grow): 10⁴ draws of all 700 visits took 1.7 s and
-#: 335 MiB of peak memory for one pose.
+#: (JCGM 101:2008 §7.9's adaptive procedure) of at most this many draws, at most
+#: :data:`MAX_BATCHES` of them: 10⁴ draws, §7.2's figure for a 95 % interval to about two
+#: significant digits. A batch holds at most :data:`BATCH_ERRORS` visits' errors (fewer draws
+#: for more visits: the bound narrows as they grow, and the procedure's stopping rule still
+#: holds the quantile to :data:`RELATIVE_TOLERANCE`): a pose visited 700 times in a tiled
+#: `make run` bag of 250 k messages took 1.7 s and 335 MiB of peak memory when 10⁴ draws of
+#: all its visits were taken at once.
 BATCH = 1_000
 MAX_BATCHES = 10
+BATCH_ERRORS = 200_000
 #: The adaptive procedure stops once twice the standard deviation of the mean of the batches'
 #: quantiles is at most this share of it (after two batches at least).
 RELATIVE_TOLERANCE = 0.01
@@ -114,7 +116,7 @@ def pose_figure_uncertainty(commanded_position: ArrayLike, attained_position: Ar
             (distance ** 2).sum(axis=1) / (n - 1))
         return bound[:, None]
 
-    return FigureUncertainty(u_ap, float(adaptive_quantiles(bounds, k)[0]))
+    return FigureUncertainty(u_ap, float(adaptive_quantiles(bounds, k, n)[0]))
 
 
 class DistanceUncertainty(NamedTuple):
@@ -165,7 +167,7 @@ def distance_figure_uncertainty(attained_first: ArrayLike, attained_second: Arra
         bound: FloatArray = 3.0 * np.sqrt((difference ** 2).sum(axis=(1, 2)) / (n - 1))
         return bound[:, None]
 
-    return DistanceUncertainty(u_ad, float(adaptive_quantiles(bounds, k)[0]))
+    return DistanceUncertainty(u_ad, float(adaptive_quantiles(bounds, k, 2 * n)[0]))
 
 
 def _check_k(k: float) -> None:
@@ -188,17 +190,20 @@ def _drawn_errors(cov: FloatArray, rng: np.random.Generator, draws: int) -> Floa
     return errors
 
 
-def adaptive_quantiles(bounds_of: Callable[[int], FloatArray], k: float) -> FloatArray:
+def adaptive_quantiles(bounds_of: Callable[[int], FloatArray], k: float,
+                       visits: int = 1) -> FloatArray:
     """The quantiles (q,) at the coverage probability of k for a normal distribution (95.45 %
-    for k = 2) of q bounds drawn by ``bounds_of(m)`` (m draws, (m, q)), by JCGM 101:2008
-    §7.9's adaptive procedure: batches of :data:`BATCH` draws until twice the standard
+    for k = 2) of q bounds drawn by ``bounds_of(m)`` (m draws, (m, q)) of ``visits`` visits'
+    errors each, by JCGM 101:2008 §7.9's adaptive procedure: batches of :data:`BATCH` draws
+    (fewer for many visits: :data:`BATCH_ERRORS`; 100 at least) until twice the standard
     deviation of the mean of the batches' quantiles is at most :data:`RELATIVE_TOLERANCE` of
     it (two batches at least, :data:`MAX_BATCHES` at most); the quantiles of all the draws."""
     p = math.erf(k / math.sqrt(2.0))
+    size = max(100, min(BATCH, BATCH_ERRORS // max(visits, 1)))
     drawn: list[FloatArray] = []
     quantiles: list[FloatArray] = []
     for batch in range(1, MAX_BATCHES + 1):
-        drawn.append(bounds_of(BATCH))
+        drawn.append(bounds_of(size))
         quantiles.append(np.quantile(drawn[-1], p, axis=0))
         if batch >= 2:
             q = np.array(quantiles)
@@ -273,7 +278,7 @@ def orientation_figure_uncertainty(attained_quaternion: ArrayLike, covariance: A
         bound: FloatArray = 3.0 * np.sqrt((centred ** 2).sum(axis=1) / (n - 1))
         return bound  # (draws, 3)
 
-    return OrientationUncertainty(*u_ap.tolist(), *adaptive_quantiles(bounds, k).tolist())
+    return OrientationUncertainty(*u_ap.tolist(), *adaptive_quantiles(bounds, k, n).tolist())
 
 
 def multidirectional_uncertainty(attained_position: ArrayLike, covariance: ArrayLike,

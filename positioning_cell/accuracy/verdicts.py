@@ -6,6 +6,7 @@ to its tolerance passes."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -101,10 +102,10 @@ class Verdict:
         return decide(self.orientation_error, self.orientation_uncertainty,
                       self.tolerances.orientation, self.tolerances.rule)
 
-    @property
+    @functools.cached_property
     def decision(self) -> Decision:
         """The pose's: it conforms when both do, does not when either does not, else
-        indeterminate."""
+        indeterminate (computed once: a replay's summaries ask each verdict many times)."""
         both = {self.position_decision, self.orientation_decision}
         if Decision.DOES_NOT_CONFORM in both:
             return Decision.DOES_NOT_CONFORM
