@@ -150,3 +150,26 @@ def test_bad_input_is_refused(args: tuple[object, ...], words: str) -> None:
 def test_a_band_out_of_range_is_refused() -> None:
     with pytest.raises(ConfigError, match='band'):
         StabilisationSettings(band=-1.0)
+
+
+def test_the_monitor_holds_a_bounded_number_of_readings() -> None:
+    """A segment that does not settle holds at most READINGS_KEPT readings; a visit whose
+    segment lost some states no stabilisation rather than one from part of its readings."""
+    from positioning_cell.accuracy.monitor import READINGS_KEPT, Readings
+    from positioning_cell.accuracy.settle import Visit
+
+    readings = Readings()
+    n = READINGS_KEPT + 100
+    t = 0.05 * np.arange(n)
+    readings.add(t, np.tile(X, (n, 1)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
+                 np.tile(np.eye(6) * 1e-12, (n, 1, 1)))
+    readings.drop_before(0.0)
+    assert readings.time.size == READINGS_KEPT and readings.dropped_until == t[99]
+    visit = Visit(key=0, cycle=1, target_time=0.0, window_start=t[-10], settle_time=t[-1],
+                  samples=10, commanded_position=tuple(X), commanded_quaternion=(0, 0, 0, 1),
+                  position=tuple(X), quaternion=(0.0, 0.0, 0.0, 1.0))
+    later = Visit(**{**visit.__dict__, 'target_time': t[100]})
+    lost, kept = readings.stabilisation_of([visit, later], np.zeros((2, 6, 6)),
+                                           StabilisationSettings())
+    assert math.isnan(lost.time) and lost.readings == 0
+    assert kept.time == 0.0 and kept.readings == n - 100

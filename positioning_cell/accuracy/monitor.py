@@ -269,10 +269,12 @@ _NOTHING_CHECKED = CheckedSamples(np.empty(0), _EMPTY, np.empty((0, 4)), np.zero
                                   {})
 
 
-#: Most readings the monitor holds (a segment that never settles, e.g. a pose held without
-#: a move end for hours): some 10 min at the tracker's 20 Hz, about 4 MB. What is dropped
-#: beyond it leaves a visit of that segment without a stabilisation figure.
-READINGS_KEPT = 12_000
+#: Most readings the monitor holds (a segment that does not settle: a pose held oscillating
+#: past the settle threshold, with no next target): 2 min at the tracker's 20 Hz, 0.8 MB,
+#: which the live node copies once per reading while it lasts (a move and its settling take
+#: seconds). What is dropped beyond it leaves a visit of that segment without a stabilisation
+#: figure.
+READINGS_KEPT = 2_400
 
 
 class Readings:
