@@ -23,9 +23,9 @@ from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import free_domain as isolated_domain
 from positioning_cell.ros.processes import Processes, cell_environment, executable
 
-__all__ = ['CELL_YAML', 'FAST_MOTION', 'LOADED_LIVENESS', 'REPO', 'Client', 'InProcess',
-           'ProcessGroup', 'executable', 'in_process', 'isolated_domain', 'processes_naming',
-           'stop_cleanly', 'wait_until']
+__all__ = ['CELL_YAML', 'FAST_MOTION', 'LOADED_COMMAND', 'LOADED_LIVENESS', 'REPO', 'Client',
+           'InProcess', 'ProcessGroup', 'executable', 'in_process', 'isolated_domain',
+           'processes_naming', 'stop_cleanly', 'wait_until']
 
 REPO = Path(__file__).resolve().parent.parent
 CELL_YAML = REPO / 'config' / 'cell.yaml'
@@ -41,6 +41,11 @@ FAST_MOTION = {'linear_speed': 0.03, 'linear_acceleration': 0.15, 'angular_speed
 #: 100 Hz joint states past the default 0.2 s, and the tracker's 20 Hz readings past the
 #: default 0.5 s (0.51 s, a homing aborted in CI): a stalled process, not a lost input.
 LOADED_LIVENESS = {'joint_silence': 1.0, 'tracker_silence': 1.5}
+
+#: The leg driver's ``command`` for the same tests: a positioner stalled 0.52 s on a loaded
+#: CI runner went without a heartbeat past the default 0.5 s, and the drives stopped a
+#: calibration move under control (test_run_cell, correctly so): its liveness is test_faults'.
+LOADED_COMMAND = {'heartbeat_timeout': 1.5}
 
 
 class Client(CellClient):

@@ -17,6 +17,7 @@ from action_msgs.msg import GoalStatus
 from cell_harness import (
     CELL_YAML,
     FAST_MOTION,
+    LOADED_COMMAND,
     LOADED_LIVENESS,
     Client,
     ProcessGroup,
@@ -84,9 +85,11 @@ def cell(tmp_path: Path) -> Iterator[Cell]:
         measured = client.collect(PoseWithCovarianceStamped, names.MEASURED_POSE, STREAM_QOS)
         for exe in CELL:
             # the test is of the action, not of the motion nor of liveness
-            procs.start(exe, overrides={names.NODE_POSITIONER: {
-                'liveness': LOADED_LIVENESS, 'motion': FAST_MOTION}}
-                if exe == 'kinematics_node' else None)
+            procs.start(exe, overrides={
+                'kinematics_node': {names.NODE_POSITIONER: {'liveness': LOADED_LIVENESS,
+                                                            'motion': FAST_MOTION}},
+                'leg_driver_node': {names.NODE_DRIVER: {'command': LOADED_COMMAND}},
+            }.get(exe))
         procs.start(names.CALIBRATOR.executable,
                     # no approach moves: half the moves per pose (the approach is run_cell's)
                     overrides={names.NODE_CALIBRATOR: {'out_dir': str(out),

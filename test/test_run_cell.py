@@ -19,6 +19,7 @@ import yaml
 from cell_harness import (
     CELL_YAML,
     FAST_MOTION,
+    LOADED_COMMAND,
     LOADED_LIVENESS,
     executable,
     processes_naming,
@@ -66,11 +67,14 @@ def program(tmp_path: Path) -> Path:
 #: is of the run, not of the motion.
 def _fast_config(folder: Path) -> Path:
     """config/cell.yaml with :data:`~cell_harness.FAST_MOTION` and
-    :data:`~cell_harness.LOADED_LIVENESS` for the positioner (a calibration move aborted by a
-    stalled driver would leave the run without its calibration, as it should)."""
+    :data:`~cell_harness.LOADED_LIVENESS` for the positioner and
+    :data:`~cell_harness.LOADED_COMMAND` for the driver (a calibration move aborted by a
+    stalled driver or positioner would leave the run without its calibration, as it
+    should)."""
     doc = yaml.safe_load(CELL_YAML.read_text())
     doc['positioner']['ros__parameters']['motion'].update(FAST_MOTION)
     doc['positioner']['ros__parameters']['liveness'].update(LOADED_LIVENESS)
+    doc['leg_driver']['ros__parameters']['command'].update(LOADED_COMMAND)
     path = folder / 'cell_fast.yaml'
     path.write_text(yaml.safe_dump(doc))
     return path
