@@ -161,6 +161,7 @@ def test_analyze_writes_report_summary_and_plots(bag: Path, tmp_path: Path,
     assert distance['poses'] == ['P2', 'P4'] and distance['iso9283']['n'] == 2
     assert 0.0 < distance['iso9283_u']['ad_p'] < 1e-4, distance
     assert '## Distance accuracy and repeatability' in text and '| none | P2 - P4 | 2 |' in text
+    assert {v['program_cycle'] for v in summary['visits'] if v['mode'] == 'none'} == {1, 2}
     # ISO 9283 §7.4, §7.5 per visit and per pose, from the same readings as the live monitor
     stabilised = summary['modes'][0]['poses'][1]['stabilisation']
     assert stabilised['cycles'] == 2 and stabilised['time_mean'] >= 0.0, stabilised
@@ -559,3 +560,22 @@ def test_a_pose_approached_from_three_directions_gets_its_vap(tmp_path: Path) ->
     assert '## Multi-directional pose accuracy variation' in text
     assert f'| none | P1 | 3 | 5 | {v.vap_p * 1e6:.1f} ± ' in text
     assert 0.0 < p1.multidirectional_u < 50e-6  # from the readings' stated covariances
+
+
+def test_distance_pairs_are_one_cycle_each_even_when_a_cycle_missed_a_pose() -> None:
+    """ISO 9283 §7.3 pairs the two poses of one cycle: P4 missed in cycle 2 leaves cycles 1
+    and 3, not (1, 1), (2, 3); a retried pose's last visit counts; without program cycles the
+    visits pair in order."""
+    from positioning_cell.analysis.replay import LabelledVisit
+    from positioning_cell.analysis.summary import cycle_pairs
+
+    def visits(pose: str, cycles: list[int | None]) -> list[LabelledVisit]:
+        return [LabelledVisit(object(), 'model', pose, object(), 0.0, cycle=c)  # type: ignore[arg-type]
+                for c in cycles]
+
+    p2 = visits('P2', [1, 2, 3, 3])
+    first, second = cycle_pairs(p2, visits('P4', [1, 3]))
+    assert [v.cycle for v in first] == [1, 3] == [v.cycle for v in second]
+    assert first[1] is p2[3]  # the retry's
+    first, second = cycle_pairs(visits('P2', [None, None, None]), visits('P4', [None, None]))
+    assert len(first) == len(second) == 2

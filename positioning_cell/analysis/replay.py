@@ -130,7 +130,8 @@ class MessageBatch:
 @dataclass(frozen=True)
 class Segment:
     """A commanded pose taking effect: ``time`` (s, as the monitor clamped it), pose ``key``,
-    commanded position (3,) m / quaternion (4,), and its ``mode`` and ``pose`` labels."""
+    commanded position (3,) m / quaternion (4,), and its ``mode``, ``pose`` and ``cycle``
+    labels."""
 
     time: float
     key: int
@@ -138,6 +139,9 @@ class Segment:
     quaternion: tuple[float, ...]
     mode: str
     pose: str
+    #: The program's cycle the segment's move belongs to (1-based; None: no program step
+    #: names one).
+    cycle: int | None = None
 
 
 @dataclass(frozen=True)
@@ -157,6 +161,8 @@ class LabelledVisit:
     #: Its stabilisation time and overshoot (ISO 9283 §7.4, §7.5) from its segment's readings
     #: (none: not taken, e.g. of the truth).
     stabilisation: Stabilisation = field(default_factory=Stabilisation.none, compare=False)
+    #: The program's cycle it was commanded in (None: not known, e.g. no program markers).
+    cycle: int | None = None
 
     @property
     def settle_duration(self) -> float:
@@ -290,7 +296,8 @@ class Replayer:
         measured, truth = self._measured.result(), self._truth.result()
         visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
                                      segments[by_time[v.target_time]].pose, verdict,
-                                     measured.start(v.target_time), covariance, stabilised)
+                                     measured.start(v.target_time), covariance, stabilised,
+                                     segments[by_time[v.target_time]].cycle)
                        for v, verdict, covariance, stabilised in zip(
                            monitor.measured.visits, monitor.verdicts, monitor.covariances,
                            monitor.stabilisations, strict=True))
@@ -299,7 +306,8 @@ class Replayer:
         truth_visits = tuple(
             LabelledVisit(v, segments[by_truth_time[v.target_time]].mode,
                           segments[by_truth_time[v.target_time]].pose, verdict,
-                          truth.start(v.target_time), covariance)
+                          truth.start(v.target_time), covariance,
+                          cycle=segments[by_truth_time[v.target_time]].cycle)
             for v, verdict, covariance in zip(
                 true, accuracy.judge_visits(true, monitor.tolerances, exact), exact,
                 strict=True))
@@ -320,7 +328,7 @@ def replay(batches: Iterable[MessageBatch], settings: MonitorSettings | None = N
 def _label(raw: Sequence[tuple[float, float, int, Any, Any, float]],
            steps: Sequence[ProgramStep], modes: Sequence[tuple[float, str]]
            ) -> tuple[Segment, ...]:
-    """Mode and pose labels of each segment (module docstring)."""
+    """Mode, pose and program-cycle labels of each segment (module docstring)."""
     step_times = np.array([s.stamp for s in steps])
     order = np.argsort(step_times, kind='stable')
     mode_times = np.array([m[0] for m in modes])
@@ -328,17 +336,17 @@ def _label(raw: Sequence[tuple[float, float, int, Any, Any, float]],
     out = []
     shared: dict[tuple[float, ...], tuple[float, ...]] = {}  # each commanded pose once
     for time, _, key, p, q, stamp in raw:
-        mode, pose = UNKNOWN_MODE, f'P{key + 1}'
+        mode, pose, cycle = UNKNOWN_MODE, f'P{key + 1}', None
         i = int(np.searchsorted(step_times[order], stamp, side='right')) - 1
         if steps:
             step = steps[int(order[i])] if i >= 0 else None
-            mode, pose = ((step.mode, step.pose or pose) if step and not step.end
-                          else (OUTSIDE_PROGRAM, pose))
+            mode, pose, cycle = ((step.mode, step.pose or pose, step.cycle)
+                                 if step and not step.end else (OUTSIDE_PROGRAM, pose, None))
         elif modes:
             j = min(int(np.searchsorted(mode_times[mode_order], stamp, side='left')),
                     len(modes) - 1)
             mode = modes[int(mode_order[j])][1]
         position, quaternion = tuple(float(v) for v in p), tuple(float(v) for v in q)
         out.append(Segment(time, key, shared.setdefault(position, position),
-                           shared.setdefault(quaternion, quaternion), mode, pose))
+                           shared.setdefault(quaternion, quaternion), mode, pose, cycle))
     return tuple(out)

@@ -155,20 +155,35 @@ class DistanceSummary:
 
 def distance_summary(visits: Sequence[LabelledVisit],
                      poses: tuple[str, str] = DISTANCE_POSES) -> DistanceSummary | None:
-    """AD_p and RD_p of one mode's visits between ``poses``: the k-th visit of the first
-    paired with the k-th of the second (a cycle), as many pairs as both have; None when
-    either pose was not reached."""
-    first, second = ([v for v in visits if v.pose == name] for name in poses)
-    n = min(len(first), len(second))
-    if n == 0:
+    """AD_p and RD_p of one mode's visits between ``poses``, one pair per cycle of the
+    program (:func:`cycle_pairs`); None when no cycle reached both."""
+    first, second = cycle_pairs([v for v in visits if v.pose == poses[0]],
+                                [v for v in visits if v.pose == poses[1]])
+    if not first:
         return None
-    first, second = first[:n], second[:n]
     p1, p2 = ([v.visit.position for v in group] for group in (first, second))
     cov1, cov2 = (np.array([v.covariance[:3, :3] for v in group]) for group in (first, second))
     return DistanceSummary(
         poses, accuracy.distance_figures(first[0].visit.commanded_position,
                                          second[0].visit.commanded_position, p1, p2),
         distance_figure_uncertainty(p1, p2, cov1, cov2))
+
+
+def cycle_pairs(first: Sequence[LabelledVisit], second: Sequence[LabelledVisit]
+                ) -> tuple[list[LabelledVisit], list[LabelledVisit]]:
+    """The visits of two poses paired by the program's cycle they were commanded in (the
+    last visit of a pose in a cycle: a retried move's), the cycles that reached both in
+    order; when a visit has no cycle (a bag without program markers), the k-th of one with
+    the k-th of the other, as many as both have. ISO 9283 §7.3 takes the distance between
+    the two poses of one cycle: a cycle that missed a pose must not shift the pairs after
+    it."""
+    if any(v.cycle is None for v in (*first, *second)):
+        n = min(len(first), len(second))
+        return list(first[:n]), list(second[:n])
+    one = {v.cycle: v for v in first if v.cycle is not None}
+    other = {v.cycle: v for v in second if v.cycle is not None}
+    both = sorted(set(one) & set(other))
+    return [one[c] for c in both], [other[c] for c in both]
 
 
 @dataclass(frozen=True)
@@ -330,7 +345,8 @@ class RunAnalysis:
             'modes': [m.to_dict() for m in self.modes],
             'truth_modes': [m.to_dict() for m in self.truth_modes],
             'tracker': None if tracker is None else tracker.to_dict(),
-            'visits': [{'mode': v.mode, 'pose': v.pose, 'ok': v.verdict.ok,
+            'visits': [{'mode': v.mode, 'pose': v.pose, 'program_cycle': v.cycle,
+                        'ok': v.verdict.ok,
                         'position_error': v.verdict.position_error,
                         'orientation_error': v.verdict.orientation_error,
                         'position_uncertainty': _stated(v.verdict.position_uncertainty),
