@@ -560,6 +560,8 @@ def test_a_pose_approached_from_three_directions_gets_its_vap(tmp_path: Path) ->
     assert '## Multi-directional pose accuracy variation' in text
     assert f'| none | P1 | 3 | 5 | {v.vap_p * 1e6:.1f} ± ' in text
     assert 0.0 < p1.multidirectional_u < 50e-6  # from the readings' stated covariances
+    assert all(0.0 < u < 1e-3 for u in p1.multidirectional_angles_u)  # rad, and stated
+    assert 'vAP_a ± U °' in text
 
 
 def test_distance_pairs_are_one_cycle_each_even_when_a_cycle_missed_a_pose() -> None:

@@ -315,3 +315,47 @@ def multidirectional_uncertainty(attained_position: ArrayLike, covariance: Array
     measured = float(norm.max())
     return float(max(float((norm + u).max()) - measured,
                      measured - float((norm - u).max())))
+
+
+
+def multidirectional_angle_uncertainty(attained_quaternion: ArrayLike, covariance: ArrayLike,
+                                       direction: ArrayLike,
+                                       k: float = COVERAGE_FACTOR) -> tuple[float, float, float]:
+    """U (rad) of vAP_a, vAP_b, vAP_c (ISO 9283 §7.2.3) from the n attained orientations
+    (n, 4), the covariance (n, 3, 3) rad² each was measured with (small rotations about the
+    base axes, as :func:`orientation_figure_uncertainty` takes them) and the approach
+    direction (n,) each belongs to; NaN when a covariance is not stated or below two
+    directions.
+
+    Each angle's direction mean ā_h is taken with the mean of its visits' variances (errors
+    fully correlated, as for AP); the difference of two means, whatever their correlation,
+    has a variance below 2(σ̄_h² + σ̄_k²). |·| moves by at most the error, so the machine's
+    |ā_h − ā_k| lies within k·σ_hk of the measured one (the linear law of propagation, which
+    near zero only widens the interval), and U is the larger distance from the measured vAP
+    to the largest bound above or below, as for vAP_p (:func:`multidirectional_uncertainty`)."""
+    _check_k(k)
+    q = as_unit_quaternions(attained_quaternion)
+    cov = np.asarray(covariance, dtype=float)
+    group = np.asarray(direction, dtype=np.intp)
+    n = q.shape[0]
+    if cov.shape != (n, 3, 3) or group.shape != (n,):
+        raise InputError(f'expected {n} covariances (n, 3, 3) and directions (n,), got '
+                         f'{cov.shape} and {group.shape}')
+    count = int(group.max()) + 1 if n else 0
+    if count < 2 or not np.all(np.isfinite(cov)):
+        return (math.nan, math.nan, math.nan)
+    _check_covariances(cov)
+    m = euler_rates_from_rotation(q)
+    variance = np.diagonal(m @ cov @ np.swapaxes(m, 1, 2), axis1=1, axis2=2)  # (n, 3)
+    angles = orientation_angles(q)
+    # each angle about the first visit's (no wrap across ±π between the directions' means)
+    angles = angles[0] + np.angle(np.exp(1j * (angles - angles[0])))
+    means = np.array([angles[group == h].mean(axis=0) for h in range(count)])
+    spread = np.array([variance[group == h].mean(axis=0) for h in range(count)])
+    h, j = np.triu_indices(count, 1)
+    gap = np.abs(means[h] - means[j])  # (pairs, 3)
+    u = k * np.sqrt(np.maximum(2.0 * (spread[h] + spread[j]), 0.0))
+    measured = gap.max(axis=0)
+    out = np.maximum((gap + u).max(axis=0) - measured,
+                     measured - np.maximum(gap - u, 0.0).max(axis=0))
+    return (float(out[0]), float(out[1]), float(out[2]))

@@ -105,8 +105,8 @@ def _pose_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     return rows
 
 
-MULTIDIRECTIONAL_HEADER = ('mode', 'pose', 'directions', 'visits', 'vAP_p ± U µm', 'vAP_a °',
-                           'vAP_b °', 'vAP_c °')
+MULTIDIRECTIONAL_HEADER = ('mode', 'pose', 'directions', 'visits', 'vAP_p ± U µm',
+                           'vAP_a ± U °', 'vAP_b ± U °', 'vAP_c ± U °')
 DISTANCE_HEADER = ('mode', 'poses', 'cycles', 'commanded D mm', 'AD_p ± U µm', 'RD_p ± U µm')
 
 
@@ -214,14 +214,15 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
         out += ['## Multi-directional pose accuracy variation', '',
                 *markdown_table(MULTIDIRECTIONAL_HEADER, [
                     [mode, p.pose, str(v.directions), str(v.n),
-                     um_u(v.vap_p, p.multidirectional_u), deg(v.vap_a), deg(v.vap_b),
-                     deg(v.vap_c)]
+                     um_u(v.vap_p, p.multidirectional_u),
+                     *(deg_u(value, u) for value, u in zip(
+                         (v.vap_a, v.vap_b, v.vap_c), p.multidirectional_angles_u,
+                         strict=True))]
                     for mode, p in varied if (v := p.multidirectional) is not None]), '',
                 'ISO 9283:1998 §7.2.3: each visit grouped by the direction it was approached '
                 'from (the move from the pose commanded before it; within 30° one direction), '
                 'vAP the largest distance between two directions\' barycentres (angles: their '
-                'mean angles); U of vAP_p from the visits\' covariances (the angles\' not stated '
-                'yet).', '']
+                'mean angles); U from the visits\' covariances.', '']
     distances = [m for m in a.modes if m.distance is not None]
     if distances:
         out += ['## Distance accuracy and repeatability', '',

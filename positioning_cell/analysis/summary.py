@@ -35,6 +35,7 @@ from positioning_cell.accuracy.figure_uncertainty import (
     FigureUncertainty,
     OrientationUncertainty,
     distance_figure_uncertainty,
+    multidirectional_angle_uncertainty,
     multidirectional_uncertainty,
     orientation_figure_uncertainty,
     pose_figure_uncertainty,
@@ -117,11 +118,15 @@ class PoseSummary:
     multidirectional_u: float = math.nan
     #: ISO 9283 §7.4, §7.5 over its visits (None: no visit gave a stabilisation time).
     stabilisation: StabilisationFigures | None = None
+    #: U (k = 2) of its vAP_a, vAP_b, vAP_c, rad (NaN: not stated, or no vAP).
+    multidirectional_angles_u: tuple[float, float, float] = (math.nan,) * 3
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI; an uncertainty not stated is null)."""
         stated = {**self.uncertainty._asdict(), **self.orientation_uncertainty._asdict(),
-                  'vap_p': self.multidirectional_u}
+                  'vap_p': self.multidirectional_u,
+                  **dict(zip(('vap_a', 'vap_b', 'vap_c'), self.multidirectional_angles_u,
+                             strict=True))}
         return {'mode': self.mode, 'pose': self.pose, 'iso9283': self.figures.to_dict(),
                 'iso9283_u': {name: (u if math.isfinite(u) else None)
                               for name, u in stated.items()},
@@ -263,15 +268,19 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
                 first.commanded_quaternion, [v.visit.position for v in known],
                 [v.visit.quaternion for v in known],
                 [approach[id(v)] for v in known]) if known else None
-            multidirectional_u = math.nan if multidirectional is None else \
-                multidirectional_uncertainty(
-                    [v.visit.position for v in known],
-                    np.array([v.covariance[:3, :3] for v in known]),
-                    accuracy.approach_groups([approach[id(v)] for v in known]))
+            multidirectional_u, multidirectional_angles_u = math.nan, (math.nan,) * 3
+            if multidirectional is not None:
+                directions = accuracy.approach_groups([approach[id(v)] for v in known])
+                known_cov = np.array([v.covariance for v in known])
+                multidirectional_u = multidirectional_uncertainty(
+                    [v.visit.position for v in known], known_cov[:, :3, :3], directions)
+                multidirectional_angles_u = multidirectional_angle_uncertainty(
+                    [v.visit.quaternion for v in known], known_cov[:, 3:, 3:], directions)
             poses.append(PoseSummary(
                 mode, pose, figures, Extremes.of(group), uncertainty, orientation,
                 multidirectional, multidirectional_u,
-                stabilisation_figures_of([v.stabilisation for v in group])))
+                stabilisation_figures_of([v.stabilisation for v in group]),
+                multidirectional_angles_u))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),
