@@ -281,6 +281,23 @@ def orientation_figure_uncertainty(attained_quaternion: ArrayLike, covariance: A
     return OrientationUncertainty(*u_ap.tolist(), *adaptive_quantiles(bounds, k, n).tolist())
 
 
+def _by_direction(n: int, covariance: ArrayLike, direction: ArrayLike
+                  ) -> tuple[FloatArray, NDArray[np.intp], int] | None:
+    """The covariances (n, 3, 3) and approach directions (n,) of n visits, and how many
+    directions; None below two directions or with a covariance not stated (NaN). InputError:
+    wrong shapes, a covariance not symmetric positive semi-definite."""
+    cov = np.asarray(covariance, dtype=float)
+    group = np.asarray(direction, dtype=np.intp)
+    if cov.shape != (n, 3, 3) or group.shape != (n,):
+        raise InputError(f'expected {n} covariances (n, 3, 3) and directions (n,), got '
+                         f'{cov.shape} and {group.shape}')
+    count = int(group.max()) + 1 if n else 0
+    if count < 2 or not np.all(np.isfinite(cov)):
+        return None
+    _check_covariances(cov)
+    return cov, group, count
+
+
 def multidirectional_uncertainty(attained_position: ArrayLike, covariance: ArrayLike,
                                  direction: ArrayLike, k: float = COVERAGE_FACTOR) -> float:
     """U (m) of vAP_p (ISO 9283 §7.2.3) from the n attained positions (n, 3) m, the covariance
@@ -296,16 +313,10 @@ def multidirectional_uncertainty(attained_position: ArrayLike, covariance: Array
     is the larger distance from the measured vAP_p to either."""
     _check_k(k)
     x = as_vectors(attained_position, 3, 'attained_position')
-    cov = np.asarray(covariance, dtype=float)
-    group = np.asarray(direction, dtype=np.intp)
-    n = x.shape[0]
-    if cov.shape != (n, 3, 3) or group.shape != (n,):
-        raise InputError(f'expected {n} covariances (n, 3, 3) and directions (n,), got '
-                         f'{cov.shape} and {group.shape}')
-    count = int(group.max()) + 1 if n else 0
-    if count < 2 or not np.all(np.isfinite(cov)):
+    grouped = _by_direction(x.shape[0], covariance, direction)
+    if grouped is None:
         return math.nan
-    _check_covariances(cov)
+    cov, group, count = grouped
     centre = np.array([x[group == h].mean(axis=0) for h in range(count)])
     spread = np.array([cov[group == h].mean(axis=0) for h in range(count)])
     h, j = np.triu_indices(count, 1)
@@ -335,16 +346,10 @@ def multidirectional_angle_uncertainty(attained_quaternion: ArrayLike, covarianc
     to the largest bound above or below, as for vAP_p (:func:`multidirectional_uncertainty`)."""
     _check_k(k)
     q = as_unit_quaternions(attained_quaternion)
-    cov = np.asarray(covariance, dtype=float)
-    group = np.asarray(direction, dtype=np.intp)
-    n = q.shape[0]
-    if cov.shape != (n, 3, 3) or group.shape != (n,):
-        raise InputError(f'expected {n} covariances (n, 3, 3) and directions (n,), got '
-                         f'{cov.shape} and {group.shape}')
-    count = int(group.max()) + 1 if n else 0
-    if count < 2 or not np.all(np.isfinite(cov)):
+    grouped = _by_direction(q.shape[0], covariance, direction)
+    if grouped is None:
         return (math.nan, math.nan, math.nan)
-    _check_covariances(cov)
+    cov, group, count = grouped
     m = euler_rates_from_rotation(q)
     variance = np.diagonal(m @ cov @ np.swapaxes(m, 1, 2), axis1=1, axis2=2)  # (n, 3)
     angles = orientation_angles(q)
