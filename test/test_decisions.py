@@ -15,11 +15,13 @@ from hypothesis import strategies as st
 from positioning_cell.accuracy.decisions import (
     DECISION_CODES,
     LINEAR_FROM_SIGMAS,
+    PILOT,
     Decision,
     DecisionRule,
     decision,
     decisions,
     norm_expanded_uncertainty,
+    order_statistics,
 )
 from positioning_cell.errors import InputError
 
@@ -167,6 +169,30 @@ def test_propagation_agrees_with_the_monte_carlo_from_the_switch_on(seed: int) -
     linear = norm_expanded_uncertainty(d[None], cov[None])
     monte_carlo = _monte_carlo(d[None], cov[None], 2.0, np.random.default_rng(seed))
     assert -0.01 <= float(linear[0] / monte_carlo[0]) - 1.0 <= 0.03, (linear, monte_carlo)
+
+
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3), st.sampled_from(['normal', 'ties',
+                                                                        'sorted', 'reversed']))
+def test_order_statistics_are_np_partitions(seed: int, rows: int, kind: str) -> None:
+    """The tail selection gives exactly np.partition's order statistics: any ranks in the
+    tails and the middle, ties, and values whose first PILOT are not representative (sorted
+    either way: the threshold misses and the row is partitioned whole)."""
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(4 * PILOT, 6 * PILOT))
+    values = rng.normal(size=(rows, m))
+    if kind == 'ties':
+        values = np.round(values, 1)
+    elif kind == 'sorted':
+        values = np.sort(values, axis=1)
+    elif kind == 'reversed':
+        values = np.sort(values, axis=1)[:, ::-1].copy()
+    tail = int(rng.integers(0, m // 16))
+    ranks = np.array([tail, m - 1 - tail, min(tail + 1, m - 1), int(rng.integers(0, m))])
+    expected = np.partition(values, ranks, axis=1)[:, ranks]
+    np.testing.assert_array_equal(order_statistics(values, ranks), expected)
+    ranks = ranks[:3]  # the tails alone: the threshold path
+    np.testing.assert_array_equal(order_statistics(values, ranks),
+                                  np.partition(values, ranks, axis=1)[:, ranks])
 
 
 def test_the_monte_carlo_covers_the_true_norm_as_stated() -> None:
