@@ -185,8 +185,11 @@ def _drawn_errors(cov: FloatArray, rng: np.random.Generator, draws: int) -> Floa
     """``draws`` draws (draws, n, 3) of independent errors, row j ~ N(0, cov[j])."""
     w, v = np.linalg.eigh(cov)
     root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (n, 3, 3): root @ rootᵀ = cov[j]
-    errors: FloatArray = np.einsum('nij,mnj->mni', root,
-                                   rng.standard_normal((draws, cov.shape[0], 3)))
+    z = rng.standard_normal((draws, cov.shape[0], 3))
+    # errors[m, j] = root[j] @ z[m, j]: one batched matmul per visit (a tenth of einsum's
+    # time), then laid out (draws, n, 3) for the callers' sums over visits
+    errors: FloatArray = np.ascontiguousarray(
+        np.matmul(z.transpose(1, 0, 2), root.transpose(0, 2, 1)).transpose(1, 0, 2))
     return errors
 
 
