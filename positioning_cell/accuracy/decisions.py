@@ -220,9 +220,10 @@ def _monte_carlo(d: FloatArray, cov: FloatArray, k: float, rng: np.random.Genera
     draw per row (19 ms a row before), so that a replay of thousands of visits affords it.
     With the draws drawn once and only the tails partitioned (:func:`order_statistics`):
     0.52 ms a row of 10^5 draws, against 1.6-2.0 ms before (the largest share of a long replay,
-    issue 24; the same half-widths). Double precision throughout: in single precision
-    (0.42 ms a row) the product's rounding depended on the rows beside a row, and the
-    monitor's figures on how its visits were grouped."""
+    issue 24; the same half-widths). Double precision throughout, and the product always of
+    a full chunk: a row's rounding must not depend on the rows beside it (in single
+    precision, 0.42 ms a row, and with chunks of fewer rows on some processors it did, and
+    the monitor's figures then on how its visits were grouped)."""
     p = math.erf(k / math.sqrt(2.0))
     # A symmetric positive semi-definite covariance's square root by its eigenvectors (a
     # Cholesky factor needs it definite: a reading may be exact along an axis).
@@ -245,7 +246,13 @@ def _monte_carlo(d: FloatArray, cov: FloatArray, k: float, rng: np.random.Genera
     out = np.empty(d.shape[0])
     for start in range(0, d.shape[0], MONTE_CARLO_ROWS):  # chunks of rows, not samples
         rows = slice(start, start + MONTE_CARLO_ROWS)
-        squared = coefficients[rows] @ monomials + constant[rows, None]  # (rows, M)
+        # the product of a full chunk always (padded with zero rows): BLAS picks its kernel
+        # by the shape, and a row's last bits must not depend on how many rows come with it
+        # (the monitor's figures are the same however its visits are grouped)
+        count = min(MONTE_CARLO_ROWS, d.shape[0] - start)
+        chunk = np.zeros((MONTE_CARLO_ROWS, 9))
+        chunk[:count] = coefficients[rows]
+        squared = (chunk @ monomials)[:count] + constant[rows, None]  # (rows, M)
         y = np.sqrt(np.maximum(order_statistics(squared, ranks), 0.0))  # low, high, +1, +1
         low_high = y[:, :2] + share * (y[:, 2:] - y[:, :2])
         out[rows] = (low_high[:, 1] - low_high[:, 0]) / 2.0
@@ -276,10 +283,11 @@ def order_statistics(values: FloatArray, ranks: NDArray[np.intp]) -> FloatArray:
     """The order statistics (rows, r) of each row of ``values`` (rows, M) at ``ranks`` (r,),
     0-based: exactly ``np.partition(values, ranks, axis=1)[:, ranks]``, in about a quarter of
     its time when the ranks lie in the tails (the Monte Carlo's 2.3 % and 97.7 %: 2.7 ms for
-    8 rows of 10^5 values, 9.9 ms partitioned whole). A threshold per row and tail, taken from the first
-    :data:`PILOT` values with a margin, leaves only the values beyond it to partition; a row
-    whose threshold did not leave enough of them (the pilot not representative: values in
-    drawn order are) is partitioned whole, so the result never depends on the pilot."""
+    8 rows of 10^5 values, 9.9 ms partitioned whole). A threshold per row and tail, taken
+    from the first :data:`PILOT` values with a margin, leaves only the values beyond it to
+    partition; a row whose threshold did not leave enough of them (the pilot not
+    representative: values in drawn order are) is partitioned whole, so the result never
+    depends on the pilot."""
     rows, m = values.shape
     ranks = np.asarray(ranks, dtype=np.intp)
     low, high = ranks[ranks < m // 2], ranks[ranks >= m // 2]
