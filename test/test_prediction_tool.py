@@ -131,13 +131,27 @@ def test_the_prediction_through_the_general_engine_gives_the_figures_it_gave_bef
     _close(r.linearisation.closure, before['closure'], 'closure')
     for key, value in before['comparison'].items():
         _close(getattr(r.comparison, key), value, key)
-    for worst, doc in ((r.worst_position, before['worst_position']),
-                       (r.worst_orientation, before['worst_orientation'])):
+    matrix = np.asarray(r.linearisation.matrix)[0]
+    spec = load_tolerance_spec(shipped_config('tolerances.yaml'), MECH)
+    for worst, doc, rows in ((r.worst_position, before['worst_position'], slice(0, 3)),
+                             (r.worst_orientation, before['worst_orientation'], slice(3, 6))):
         for key in ('attained', 'bound', 'simple_bound'):
             _close(getattr(worst, key), doc[key], key)
-        # ‖T·x‖ = ‖T·(−x)‖: the worst combination and its mirror tie, and rounding picks either
-        sign = 1.0 if np.dot(worst.sources, doc['sources']) >= 0.0 else -1.0
-        _close(sign * np.asarray(worst.sources), doc['sources'], 'sources')
+        # The worst combination ties with its mirror (‖T·x‖ = ‖T·(−x)‖) and, where a source
+        # barely moves the error or the legs' symmetry allows it, with other combinations:
+        # rounding picks one of them, another
+        # on another machine (seen: two box signs flipped, two legs' ball sources swapped).
+        # Ours are admissible (each box source at ±its bound, each ball's on its sphere), and
+        # ours and the recorded ones reach the same worst norm through this run's matrix.
+        x = np.asarray(worst.sources)
+        members = np.array([range(a, b) for a, b in spec.balls], dtype=np.intp).reshape(-1, 3)
+        box = np.ones(x.size, dtype=bool)
+        box[members.ravel()] = False
+        _close(np.abs(x[box]), spec.bounds[box], 'box sources')
+        _close(np.linalg.norm(x[members], axis=1), spec.bounds[members[:, 0]], 'ball sources')
+        for sources in (x, np.asarray(doc['sources'])):
+            _close(float(np.linalg.norm(matrix[rows] @ sources)), worst.attained,
+                   "the sources' norm")
     for got, doc in ((r.yield_nonlinear, before['yield_nonlinear']),
                      (r.yield_linear, before['yield_linear'])):
         # the counts exactly; the probability, its interval and confidence (from a beta
@@ -154,14 +168,23 @@ def test_the_prediction_through_the_general_engine_gives_the_figures_it_gave_bef
 def _canonical(text: str) -> str:
     """``text`` with each printed negative zero ("-0.0000": a value of size 1e-17 either side
     of zero) written as a positive one, keeping the width, and each list of worst-case gap
-    directions written with its first component positive (the worst combination and its
-    mirror give the same norm; rounding picks either)."""
+    directions left out: they print the worst combination, which ties with its mirror and
+    with the legs' mirror images (rounding picks one, another on another machine; the test
+    checks the combination itself numerically), and a fitted Rice distribution's ν printed
+    as ``~0`` where it is below a hundredth of σ (the fit cannot tell such a ν from zero: its
+    optimum is flat there and lands at 0.0008 or 0.0020 mrad for σ = 1.07 mrad depending on
+    the machine's rounding; D and p, printed beside it, are the same)."""
+    def rice(m: re.Match[str]) -> str:
+        nu, unit, sigma = m.groups()
+        return (f'Rice(nu = {"~0" if float(nu) < 0.01 * float(sigma) else nu}{unit}, '
+                f'sigma = {sigma}')
+
+    text = re.sub(r'Rice\(nu = (\d+\.\d+)( \w+), sigma = (\d+\.\d+)', rice, text)
     lines = []
     for line in re.sub(r'-(0\.0+)\b', r' \1', text).splitlines(keepends=True):
         head, colon, tail = line.partition(':')
-        sign = re.search(r'[-+]', tail)
-        if 'gap directions' in head and sign is not None and sign.group() == '-':
-            tail = tail.translate(str.maketrans('+-', '-+'))
+        if 'gap directions' in head:
+            tail = ' (tie-dependent)\n'
         lines.append(head + colon + tail)
     return ''.join(lines)
 
