@@ -668,12 +668,21 @@ def _stream(seed: int) -> list[tuple[str, float, str, Arr, Arr]]:
     events.insert(120, ('measured', events[119][1], 'base', HOME, 2 * ID))
     events.insert(160, ('measured', events[150][1] - 0.2, 'base', HOME, ID))
     events.insert(200, ('target', events[199][1], 'tracker', HOME, ID))
+    # the tracker located (its registration, shared by the readings after it), then a
+    # registration in the wrong frame (ignored)
+    events.insert(20, ('registration', events[19][1], 'base', TRACKER_AT, ID))
+    events.insert(230, ('registration', events[229][1], 'tracker', TRACKER_AT, ID))
     return events
+
+
+#: Where the stream's tracker located itself (m, base) and its registration's covariance.
+TRACKER_AT = np.array([2.0, 0.3, 0.5])
+REGISTRATION_COVARIANCE = np.diag([(3e-6) ** 2] * 3 + [(2e-6) ** 2] * 3)
 
 
 def _fed(events: list[tuple[str, float, str, Arr, Arr]], start: int) -> dict[str, object]:
     rows: dict[str, list[tuple[int, float, str, Arr, Arr]]] = {
-        'target': [], 'measured': [], 'truth': [], 'end': []}
+        'target': [], 'measured': [], 'truth': [], 'end': [], 'registration': []}
     for k, (topic, t, frame, p, q) in enumerate(events):
         rows[topic].append((start + k, t, frame, p, q))
 
@@ -685,12 +694,15 @@ def _fed(events: list[tuple[str, float, str, Arr, Arr]], start: int) -> dict[str
                                 np.array([r[2] for r in mine], dtype=object),
                                 np.array([r[3] for r in mine]), np.array([r[4] for r in mine]),
                                 np.array([_stated(r[1]) for r in mine])
-                                if kind == 'measured' else None)
+                                if kind == 'measured' else
+                                np.array([REGISTRATION_COVARIANCE for _ in mine])
+                                if kind == 'registration' else None)
 
     ends = acc.MoveEnds(np.array([r[0] for r in rows['end']], dtype=np.intp),
                         np.array([r[1] for r in rows['end']], dtype=float))
     return {'targets': messages('target'), 'measured': messages('measured'),
-            'truth': messages('truth'), 'ends': ends}
+            'truth': messages('truth'), 'ends': ends,
+            'registrations': messages('registration')}
 
 
 def _stated(t: float) -> Arr:
@@ -710,6 +722,8 @@ def _one_by_one(seed: int) -> acc.Monitor:
             monitor.move_end(t)
         elif topic == 'measured':
             monitor.measurement(t, frame, p, q, _stated(t).ravel())
+        elif topic == 'registration':
+            monitor.registration(t, frame, p, q, REGISTRATION_COVARIANCE.ravel())
         else:
             {'target': monitor.target, 'truth': monitor.truth}[topic](t, frame, p, q)
     return monitor
@@ -749,8 +763,11 @@ def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
     assert tracker_a['samples'] == tracker_b['samples'] > 200
     np.testing.assert_allclose(_numbers_of(tracker_a), _numbers_of(tracker_b), rtol=1e-12,
                                atol=1e-20)
-    assert live.ignored == grouped.ignored and len(live.ignored) == 5
+    assert live.ignored == grouped.ignored and len(live.ignored) == 6
     assert [i.topic for i in live.ignored].count('/metrology/pose') == 4
+    assert [i.topic for i in live.ignored].count('/metrology/registration') == 1
+    # the visits after the registration took it as the readings' common part
+    assert len(live.registrations) == len(grouped.registrations) == 1
 
 
 def _numbers_of(doc: dict[str, object]) -> list[float]:

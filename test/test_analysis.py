@@ -29,6 +29,8 @@ from positioning_cell.bag import BagReader
 from positioning_cell.config import config_path
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
+from positioning_cell.metrology.instrument import Registration, averaged_covariance
+from positioning_cell.moves.correction import mean_reading
 from positioning_cell.names import MEASURED_POSE, TARGET
 from positioning_cell.testing.synthetic_run import SyntheticRun, synthetic_run, write_run_bag
 from positioning_cell.tools.analyze_bag import analyze, main
@@ -185,7 +187,36 @@ def test_without_program_topic_the_modes_come_from_the_positioner_diagnostics(
     assert [m.mode for m in analysis.modes] == ['none', 'model', 'measured']
     assert [p.pose for p in analysis.modes[0].poses] == ['P1', 'P2', 'P3', 'P4', 'P5']
     assert analysis.truth_modes == () and analysis.tracker is None
-    assert set(analysis.missing_optional) == {'/sim/platform/true_pose', '/cell/program'}
+    assert set(analysis.missing_optional) == {'/sim/platform/true_pose', '/cell/program',
+                                              '/metrology/registration'}
+
+
+def test_the_replay_takes_the_recorded_registration_as_the_readings_common_part(
+        run: SyntheticRun, tmp_path: Path) -> None:
+    """A bag with the tracker's registration (/metrology/registration): each visit's
+    covariance is the closed loop's mean with the registration's covariance at the window's
+    mean position as the part every reading shares (common + (C̄ − common)/k), as the live
+    monitor takes it; the same bag without it splits the readings by their scatter."""
+    origin = np.array([2.0, 0.3, 0.5])
+    located = np.diag([(2e-6) ** 2] * 3 + [(1e-6) ** 2] * 3)
+    with_it, without = tmp_path / 'with', tmp_path / 'without'
+    write_run_bag(with_it, run, tracker_registration=(origin, located))
+    write_run_bag(without, run)
+    a, b = analyse_bag(with_it, SETTINGS), analyse_bag(without, SETTINGS)
+    assert '/metrology/registration' not in a.missing_optional
+    assert len(a.replay.visits) == len(b.replay.visits) > 10
+    stated = np.asarray(run.covariance)
+    registration = Registration(origin, located)
+    for va, vb in zip(a.replay.visits, b.replay.visits, strict=True):
+        window = (run.time >= va.visit.window_start) & (run.time <= va.visit.settle_time)
+        assert window.sum() == va.visit.samples
+        common = registration.covariance_at(run.position[window].mean(axis=0))[0]
+        np.testing.assert_allclose(va.covariance, averaged_covariance(
+            stated, common, int(window.sum())), rtol=1e-9)
+        q = run.quaternion[window]
+        np.testing.assert_allclose(vb.covariance, mean_reading(
+            run.position[window], q, np.broadcast_to(stated, (q.shape[0], 6, 6)))[2],
+            rtol=1e-9)
 
 
 def test_a_truncated_bag_is_analysed_as_far_as_it_is_readable(
@@ -407,6 +438,10 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
         now.pop(key, None)
     assert now['settings']['tolerances'].pop('decision_rule') == 'iso_14253_1'  # issue 25
     assert now['settings'].pop('stabilisation_band') == 50e-6  # ISO 9283 §7.4, §7.5
+    # the bag was cut to the topics analysed then, without the tracker's registration (whose
+    # covariance the visits' U has used since)
+    assert now.pop('missing_optional_topics') == [
+        *before.pop('missing_optional_topics'), '/metrology/registration']
     judged = ('modes', 'truth_modes', 'visits', 'monitor')
     assert differences({k: v for k, v in before.items() if k not in judged},
                        {k: v for k, v in now.items() if k not in judged}) == []

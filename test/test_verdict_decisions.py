@@ -17,6 +17,7 @@ from positioning_cell import accuracy as acc
 from positioning_cell.accuracy.decisions import Decision, DecisionRule
 from positioning_cell.accuracy.verdicts import decide, summary_of_values, verdict_values
 from positioning_cell.errors import InputError
+from positioning_cell.metrology.instrument import Registration, averaged_covariance
 from positioning_cell.moves.correction import mean_reading
 from positioning_cell.parameters import parse
 
@@ -126,17 +127,25 @@ def test_unstated_rows_stay_unknown_and_exact_rows_have_no_uncertainty() -> None
         acc.judge_visits(visits, ISO, np.zeros((2, 6, 6)))
 
 
-def _settling_run(offset: float, sigma: float, stated: float, seed: int = 1
+def _settling_run(offset: float, sigma: float, stated: float, seed: int = 1,
+                  registration: Registration | None = None
                   ) -> tuple[acc.Monitor, np.ndarray, np.ndarray, np.ndarray]:
     """A target, a move end, then 20 Hz readings at ``offset`` m off along x with Gaussian
     noise ``sigma`` m per axis stating ``stated`` m (σ, isotropic, no rotation noise) until
-    a visit settles: the monitor and the readings (times, positions, covariances)."""
+    a visit settles: the monitor and the readings (times, positions, covariances). With a
+    ``registration``, the monitor receives it first and the readings state its covariance at
+    the target on top (as the tracker does)."""
     rng = np.random.default_rng(seed)
     monitor = acc.Monitor()
+    if registration is not None:
+        assert monitor.registration(-1.0, 'base', registration.position, [0, 0, 0, 1],
+                                    registration.covariance.ravel()) is None
     target_p, q = np.array([0.0, 0.0, 0.2]), np.array([0.0, 0.0, 0.0, 1.0])
     assert monitor.target(0.0, 'base', target_p, q) is None
     assert monitor.move_end(0.4) is None
     cov = np.diag([stated**2] * 3 + [1e-14] * 3)
+    if registration is not None:
+        cov = cov + registration.covariance_at(target_p)[0]
     times, positions = [], []
     t = 0.0
     while not monitor.verdicts:
@@ -168,6 +177,87 @@ def test_a_settled_visit_gets_the_uncertainty_of_its_windows_mean() -> None:
     report = monitor.report()
     assert report['decisions'] == {'conforms': 1, 'indeterminate': 0, 'does_not_conform': 0}
     assert report['tolerances']['decision_rule'] == 'iso_14253_1'
+
+
+#: A tracker located 2 m away, to 3 µm and 2 µrad (σ): its registration's part of a
+#: reading's covariance at the platform (lever arm 2 m: about 5 µm in all).
+REGISTRATION = Registration(np.array([2.0, 0.3, 0.5]),
+                            np.diag([(3e-6) ** 2] * 3 + [(2e-6) ** 2] * 3))
+
+
+def test_the_registration_is_the_part_of_the_readings_that_does_not_average_down() -> None:
+    """With the tracker's registration received, a settled visit's covariance is the closed
+    loop's with it: common + (C̄ − common)/k, common the registration's covariance at the
+    window's mean position (not the readings' scatter split); the same readings without a
+    registration give the scatter split."""
+    with_it, t, p, cov = _settling_run(20e-6, 6e-6, 6e-6, registration=REGISTRATION)
+    visit = with_it.measured.visits[0]
+    window = (t >= visit.window_start) & (t <= visit.settle_time)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (window.sum(), 1))
+    common = REGISTRATION.covariance_at(p[window].mean(axis=0))[0]
+    expected = averaged_covariance(cov[window].mean(axis=0), common, int(window.sum()))
+    np.testing.assert_allclose(with_it.covariances[0], expected, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(with_it.covariances[0],
+                               mean_reading(p[window], q, cov[window], common)[2], rtol=1e-12)
+    without = acc.Monitor()
+    without.target(0.0, 'base', [0.0, 0.0, 0.2], q[0])
+    without.move_end(0.4)
+    for k in range(t.size):
+        without.measurement(t[k], 'base', p[k], q[0], cov[k].ravel())
+    assert without.measured.visits[0] == visit
+    np.testing.assert_allclose(without.covariances[0],
+                               mean_reading(p[window], q, cov[window])[2], rtol=1e-12)
+    assert not np.allclose(without.covariances[0], with_it.covariances[0], rtol=1e-3, atol=0)
+    assert len(with_it.registrations) == 1
+    np.testing.assert_array_equal(with_it.registrations[0].covariance, REGISTRATION.covariance)
+
+
+def test_a_reading_keeps_the_registration_in_force_when_it_arrived() -> None:
+    """A re-location of the tracker within a settle window: the window's readings do not
+    share one registration, so the monitor falls back on their scatter; readings after it
+    use the new one."""
+    monitor = acc.Monitor()
+    target_p, q = np.array([0.0, 0.0, 0.2]), np.array([0.0, 0.0, 0.0, 1.0])
+    monitor.registration(-1.0, 'base', REGISTRATION.position, q,
+                         REGISTRATION.covariance.ravel())
+    monitor.target(0.0, 'base', target_p, q)
+    monitor.move_end(0.1)
+    cov = np.diag([(8e-6) ** 2] * 3 + [1e-14] * 3)
+    rng = np.random.default_rng(3)
+    times, positions = [], []
+    for k in range(1, 200):
+        if k == 15:  # within the first window (0.55-1.0 s)
+            monitor.registration(0.74, 'base', [2.1, 0.3, 0.5], q,
+                                 (4 * REGISTRATION.covariance).ravel())
+        times.append(0.05 * k)
+        positions.append(target_p + rng.normal(0, 6e-6, 3))
+        monitor.measurement(times[-1], 'base', positions[-1], q, cov.ravel())
+        if monitor.verdicts:
+            break
+    assert len(monitor.registrations) == 2
+    assert monitor.readings.registration.size == 0  # dropped once judged
+    visit = monitor.measured.visits[0]
+    assert visit.window_start < 0.75 <= visit.settle_time  # the window spans the re-location
+    t, p = np.array(times), np.array(positions)
+    window = (t >= visit.window_start) & (t <= visit.settle_time)
+    scatter_split = mean_reading(p[window], np.tile(q, (window.sum(), 1)),
+                                 np.broadcast_to(cov, (window.sum(), 6, 6)))[2]
+    np.testing.assert_allclose(monitor.covariances[0], scatter_split, rtol=1e-12)
+
+
+@pytest.mark.parametrize(('frame', 'covariance', 'words'), [
+    ('tracker', REGISTRATION.covariance, 'frame_id'),
+    ('base', np.full((6, 6), math.nan), 'finite'),
+    ('base', 1e-12 * (np.eye(6) + 2.0 * (np.eye(6, k=1) + np.eye(6, k=-1))), 'semi-definite'),
+])
+def test_a_bad_registration_is_ignored_with_its_reason(frame: str, covariance: np.ndarray,
+                                                       words: str) -> None:
+    monitor = acc.Monitor()
+    ignored = monitor.registration(1.0, frame, REGISTRATION.position, [0, 0, 0, 1],
+                                   np.asarray(covariance).ravel())
+    assert ignored is not None and ignored.topic == '/metrology/registration'
+    assert words in ignored.reason
+    assert monitor.registrations == [] and monitor.ignored == [ignored]
 
 
 def test_near_the_tolerance_the_monitor_says_indeterminate_not_in() -> None:

@@ -12,7 +12,11 @@ measured and the truth accumulators at its place among the samples; measurements
 measured accumulator and to the tracker pairing; true poses to the truth accumulator and to the
 tracker pairing. Each settled measured visit gets a verdict against the tolerances in force
 when it settled, and its stabilisation time and overshoot from the readings of its segment
-(:mod:`positioning_cell.accuracy.stabilisation`). However the messages are grouped into
+(:mod:`positioning_cell.accuracy.stabilisation`). The tracker's registration
+(/metrology/registration: where the tracker located itself, with its covariance) is the part
+of every reading's stated covariance that averaging a settle window does not reduce; each
+reading keeps the registration in force when it arrived (:class:`Readings`). However the
+messages are grouped into
 feeds, the figures are the same (the accumulators' batch form:
 :meth:`positioning_cell.accuracy.settle.AccuracyAccumulator.add`).
 """
@@ -57,6 +61,7 @@ from positioning_cell.accuracy.verdicts import (
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import InputError
+from positioning_cell.metrology.instrument import Registration
 from positioning_cell.moves.correction import mean_reading
 from positioning_cell.moves.outcomes import ResultCode, State
 from positioning_cell.names import (
@@ -65,6 +70,7 @@ from positioning_cell.names import (
     MEASURED_POSE,
     NODE_MONITOR,
     TARGET,
+    TRACKER_REGISTRATION,
     TRUE_POSE,
 )
 from positioning_cell.parameters import check_fields, group, parse, setting
@@ -279,9 +285,11 @@ READINGS_KEPT = 2_400
 
 class Readings:
     """The measurements the monitor took that a visit still to come may need: times (n,) s,
-    positions (n, 3) m, quaternions (n, 4) and stated covariances (n, 6, 6) (NaN: not
-    stated), so that a settled visit's attained pose gets the covariance of the mean of its
-    window's readings and its stabilisation is taken over its segment's readings. Bounded:
+    positions (n, 3) m, quaternions (n, 4), stated covariances (n, 6, 6) (NaN: not
+    stated) and the registration in force when each arrived (n,) (an index into the
+    monitor's :attr:`Monitor.registrations`, −1: none yet), so that a settled visit's
+    attained pose gets the covariance of the mean of its window's readings and its
+    stabilisation is taken over its segment's readings. Bounded:
     what precedes the accumulator's
     :meth:`~positioning_cell.accuracy.settle.AccuracyAccumulator.open_since` is dropped, and
     at most :data:`READINGS_KEPT` are held."""
@@ -291,16 +299,19 @@ class Readings:
         self.position = np.empty((0, 3))
         self.quaternion = np.empty((0, 4))
         self.covariance = np.empty((0, 6, 6))
+        self.registration = np.empty(0, dtype=np.intp)
         #: The latest time (s) of a reading dropped while it could still be needed (−inf:
         #: none): a visit whose segment began before it lacks readings.
         self.dropped_until = -math.inf
 
     def add(self, time: FloatArray, position: FloatArray, quaternion: FloatArray,
-            covariance: FloatArray | None) -> None:
+            covariance: FloatArray | None, registration: NDArray[np.intp] | None = None
+            ) -> None:
         """Readings taken (time-ordered, after those held); ``covariance`` None: not
-        stated. A covariance that is not one (a NaN or infinite entry, not symmetric, not
-        positive semi-definite) is held as not stated: the visit it falls in gets no U (its
-        verdict says ``± ?``), and nothing raises on what a tracker or a bag sent."""
+        stated; ``registration`` (n,): the registration in force at each (None: none). A
+        covariance that is not one (a NaN or infinite entry, not symmetric, not positive
+        semi-definite) is held as not stated: the visit it falls in gets no U (its verdict
+        says ``± ?``), and nothing raises on what a tracker or a bag sent."""
         cov = (np.full((time.size, 6, 6), math.nan) if covariance is None
                else np.array(covariance, dtype=float))
         cov[~covariance_checks(cov).usable] = math.nan
@@ -308,6 +319,9 @@ class Readings:
         self.position = np.concatenate([self.position, position])
         self.quaternion = np.concatenate([self.quaternion, quaternion])
         self.covariance = np.concatenate([self.covariance, cov])
+        self.registration = np.concatenate([
+            self.registration, np.full(time.size, -1, dtype=np.intp) if registration is None
+            else np.asarray(registration, dtype=np.intp)])
 
     def drop_before(self, time: float) -> None:
         """Forget the readings older than ``time`` s (all of them for inf), and the oldest
@@ -319,6 +333,7 @@ class Readings:
         if keep:
             self.time, self.position = self.time[keep:], self.position[keep:]
             self.quaternion, self.covariance = self.quaternion[keep:], self.covariance[keep:]
+            self.registration = self.registration[keep:]
 
     def stabilisation_of(self, visits: Sequence[Visit], covariances: FloatArray,
                          settings: StabilisationSettings) -> list[Stabilisation]:
@@ -338,20 +353,29 @@ class Readings:
                                      cov[:3, :3], settings.band))
         return out
 
-    def covariance_of(self, visits: Sequence[Visit]) -> FloatArray:
+    def covariance_of(self, visits: Sequence[Visit],
+                      registrations: Sequence[Registration] = ()) -> FloatArray:
         """The covariance (N, 6, 6) of each visit's attained pose, the mean of the readings
         of its settle window (window_start..settle_time), by
         :func:`positioning_cell.moves.correction.mean_reading` (the closed loop's mean of a
-        pose's readings): the readings' own noise averaged down by their scatter, the rest
-        (the registration, which every reading shares) not. NaN rows: no reading of the
-        window held, or one stated no covariance."""
+        pose's readings): the readings' own noise averaged down, the part every reading
+        shares (the tracker's registration) not. That part is the registration's covariance
+        at the readings' mean position when one registration was in force for all of them
+        (``registrations``: the monitor's, indexed by :attr:`registration`), as the closed
+        loop takes it; else (none received, or the tracker re-located within the window) the
+        readings' scatter tells the two apart. NaN rows: no reading of the window held, or
+        one stated no covariance."""
         out = np.full((len(visits), 6, 6), math.nan)
         for i, visit in enumerate(visits):  # over visits, not samples
             rows = slice(int(np.searchsorted(self.time, visit.window_start, side='left')),
                          int(np.searchsorted(self.time, visit.settle_time, side='right')))
             cov = self.covariance[rows]
-            if cov.shape[0] and np.all(np.isfinite(cov)):
-                out[i] = mean_reading(self.position[rows], self.quaternion[rows], cov)[2]
+            if not (cov.shape[0] and np.all(np.isfinite(cov))):
+                continue
+            position, index = self.position[rows], self.registration[rows]
+            common = (registrations[int(index[0])].covariance_at(position.mean(axis=0))[0]
+                      if index[0] >= 0 and np.all(index == index[0]) else None)
+            out[i] = mean_reading(position, self.quaternion[rows], cov, common)[2]
         return out
 
 
@@ -385,6 +409,9 @@ class Monitor:
         self._stabilised: dict[Visit, Stabilisation] = {}
         self.ignored: list[Ignored] = []
         self.readings = Readings()
+        #: The tracker's registrations taken, in arrival order (the last is in force; kept
+        #: over reset: it is the instrument's state, not a figure).
+        self.registrations: list[Registration] = []
         # The latest stamp taken per source: an older sample is ignored (kept over reset).
         self._latest = {MEASURED_POSE: -math.inf, TRUE_POSE: -math.inf}
 
@@ -452,6 +479,32 @@ class Monitor:
                         for i in sorted(reasons))
         return PoseBatch(samples, segment, ignored), rows, checked
 
+    def _registrations(self, messages: PoseMessages
+                       ) -> tuple[NDArray[np.intp], list[tuple[int, Ignored]]]:
+        """Take the valid registrations (frame ``base``, finite, covariance symmetric
+        positive semi-definite: :meth:`Registration.checked`); the ranks of those taken and
+        the others (rank, ignored with the reason)."""
+        taken: list[int] = []
+        ignored: list[tuple[int, Ignored]] = []
+        for k in range(messages.count):  # registrations: one per tracker location
+            stamp, frame = float(messages.stamp[k]), str(messages.frame[k])
+            try:
+                if frame != BASE_FRAME:
+                    raise InputError(f'frame_id {frame!r}: expected {BASE_FRAME!r}')
+                if messages.covariance is None:
+                    raise InputError('a registration states its covariance')
+                registration = Registration.checked(messages.position[k],
+                                                    messages.covariance[k])
+                if not covariance_checks(registration.covariance[None]).usable[0]:
+                    raise InputError('the registration\'s covariance is not positive '
+                                     'semi-definite')
+                self.registrations.append(registration)
+                taken.append(int(messages.rank[k]))
+            except InputError as err:
+                ignored.append((int(messages.rank[k]),
+                                Ignored(TRACKER_REGISTRATION, stamp, str(err))))
+        return np.array(taken, dtype=np.intp), ignored
+
     def _ends(self, ends: MoveEnds) -> tuple[MoveEnds, list[tuple[int, Ignored]]]:
         """The move ends with a finite stamp, and the others (rank, ignored with the reason)."""
         finite = np.isfinite(ends.stamp)
@@ -465,18 +518,24 @@ class Monitor:
         return MoveEnds(ends.rank[finite], ends.stamp[finite]), ignored
 
     def feed(self, targets: PoseMessages | None = None, measured: PoseMessages | None = None,
-             truth: PoseMessages | None = None, ends: MoveEnds | None = None) -> Fed:
+             truth: PoseMessages | None = None, ends: MoveEnds | None = None,
+             registrations: PoseMessages | None = None) -> Fed:
         """Targets (/positioner/target), measurements (/metrology/pose), true poses
-        (/sim/platform/true_pose) and the positioner's move ends (/diagnostics) that arrived
-        together, each in arrival order and all interleaved by their ``rank``. A message is
-        ignored with its reason when not in ``base``, not finite, with a quaternion off unit
-        length, or (a pose) older than the latest taken from its topic; every target and move
-        end goes to both accumulators at its place. Each measured visit settled (by a
-        measurement after a move end, or closed by the next target) gets a verdict against the
-        tolerances in force."""
+        (/sim/platform/true_pose), the positioner's move ends (/diagnostics) and the
+        tracker's registrations (/metrology/registration) that arrived together, each in
+        arrival order and all interleaved by their ``rank``. A message is ignored with its
+        reason when not in ``base``, not finite, with a quaternion off unit length, or (a
+        pose) older than the latest taken from its topic, a registration whose covariance is
+        not one; every target and move end goes to both accumulators at its place, and each
+        measurement keeps the registration in force at its place. Each measured visit settled
+        (by a measurement after a move end, or closed by the next target) gets a verdict
+        against the tolerances in force."""
         targets = targets or PoseMessages.empty()
         measured = measured or PoseMessages.empty()
         truth = truth or PoseMessages.empty()
+        in_force = len(self.registrations) - 1
+        registered, registrations_ignored = self._registrations(
+            registrations or PoseMessages.empty())
         ends, ends_ignored = self._ends(ends or MoveEnds.empty())
         valid, values, targets_ignored = self._targets(targets)
         rank = targets.rank[valid]
@@ -502,9 +561,10 @@ class Monitor:
         self.truth_seen = self.truth_seen or bool(t_rows.size)
         self.readings.add(m_checked.time[ok_m], m_checked.position[ok_m],
                           m_checked.quaternion[ok_m],
-                          None if measured.covariance is None else measured.covariance[m_rows])
+                          None if measured.covariance is None else measured.covariance[m_rows],
+                          in_force + np.searchsorted(registered, measured.rank[m_rows]))
         new = self.measured.visits[before:]
-        covariances = self.readings.covariance_of(new)
+        covariances = self.readings.covariance_of(new, self.registrations)
         judged = judge_visits(new, self.tolerances, covariances)
         self._stabilise(new, covariances)
         self.readings.drop_before(self.measured.open_since())
@@ -517,7 +577,7 @@ class Monitor:
         ranked = sorted([(int(targets.rank[i]), x) for i, x in targets_ignored]
                         + [(int(measured.rank[i]), x) for i, x in m_batch.ignored]
                         + [(int(truth.rank[i]), x) for i, x in t_batch.ignored]
-                        + ends_ignored,
+                        + ends_ignored + registrations_ignored,
                         key=lambda item: item[0])
         self.ignored.extend(x for _, x in ranked)
         return Fed(tuple(targets_ignored), segments, m_batch, t_batch, closed)
@@ -549,6 +609,15 @@ class Monitor:
             return batch.ignored[0][1]
         return batch.samples.update(0)
 
+    def registration(self, stamp: float, frame: str, position: ArrayLike,
+                     quaternion: ArrayLike, covariance: ArrayLike) -> Ignored | None:
+        """One /metrology/registration message (the tracker's origin in ``base``, its
+        orientation, the 36 values of its covariance); None when it was taken."""
+        count = len(self.ignored)
+        self.feed(registrations=PoseMessages.one(stamp, frame, position, quaternion,
+                                                 covariance))
+        return self.ignored[-1] if len(self.ignored) > count else None
+
     def move_end(self, stamp: float) -> Ignored | None:
         """One move end (the stamp of a ``positioner: state`` status :func:`move_ended`
         accepts); None when it was taken."""
@@ -564,7 +633,7 @@ class Monitor:
         visit = self.measured.finish()
         if visit is None:
             return ()
-        covariance = self.readings.covariance_of([visit])
+        covariance = self.readings.covariance_of([visit], self.registrations)
         verdict = judge_visits([visit], self.tolerances, covariance)[0]
         self._stabilise([visit], covariance)
         self.readings.drop_before(math.inf)

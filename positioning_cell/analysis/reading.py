@@ -73,6 +73,7 @@ from positioning_cell.names import (
     STATUS_MEASUREMENT,
     STATUS_POSITIONER,
     TARGET,
+    TRACKER_REGISTRATION,
     TRUE_POSE,
 )
 
@@ -80,7 +81,8 @@ T = TypeVar('T')
 FloatArray = NDArray[np.float64]
 
 #: The pose topics and the MessageBatch field each fills.
-POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth'}
+POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth',
+               TRACKER_REGISTRATION: 'registrations'}
 #: The text topics (std_msgs/String) and their MessageBatch field.
 TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test'}
 #: A /diagnostics message is decoded only when it holds one of these statuses: their names
@@ -276,7 +278,8 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
             np.array([m.pose.covariance for _, m in found], dtype=float).reshape(-1, 6, 6)
             if found and hasattr(found[0][1].pose, 'covariance') else None)
     return MessageBatch(targets=rows[TARGET], measured=rows[MEASURED_POSE],
-                        truth=rows[TRUE_POSE], program=tuple(texts[PROGRAM]),
+                        truth=rows[TRUE_POSE], registrations=rows[TRACKER_REGISTRATION],
+                        program=tuple(texts[PROGRAM]),
                         diagnostics=tuple(diagnostics), calibration=tuple(texts[CALIBRATION]),
                         axis_test=tuple(texts[AXIS_TEST]),
                         diagnostic_ranks=tuple(diagnostic_ranks),

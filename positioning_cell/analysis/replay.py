@@ -67,6 +67,7 @@ from positioning_cell.names import (
     PROGRAM,
     STATUS_POSITIONER,
     TARGET,
+    TRACKER_REGISTRATION,
     TRUE_POSE,
 )
 
@@ -76,8 +77,9 @@ IntArray = NDArray[np.intp]
 #: Without these there is nothing to analyse.
 REQUIRED_TOPICS = (TARGET, MEASURED_POSE)
 #: Used when present (the report names those missing): the simulation truth, the program
-#: labels, the positioner's mode (and calibration, the tracker's registration).
-OPTIONAL_TOPICS = (TRUE_POSE, PROGRAM, DIAGNOSTICS)
+#: labels, the positioner's mode (and calibration, the tracker's registration), the
+#: registration's covariance (the part of the readings' that averaging does not reduce).
+OPTIONAL_TOPICS = (TRUE_POSE, PROGRAM, DIAGNOSTICS, TRACKER_REGISTRATION)
 #: Read when present: the calibration runs recorded in the run, its axis tests.
 CONTEXT_TOPICS = (CALIBRATION, AXIS_TEST)
 UNKNOWN_MODE = 'unknown'
@@ -112,6 +114,9 @@ class MessageBatch:
     targets: PoseMessages = field(default_factory=PoseMessages.empty)
     measured: PoseMessages = field(default_factory=PoseMessages.empty)
     truth: PoseMessages = field(default_factory=PoseMessages.empty)
+    #: /metrology/registration: the tracker's location and its covariance, which each
+    #: measurement after it shares (the monitor's U of a settled pose).
+    registrations: PoseMessages = field(default_factory=PoseMessages.empty)
     program: tuple[tuple[int, str], ...] = ()
     diagnostics: tuple[tuple[int, Any], ...] = ()
     calibration: tuple[tuple[int, str], ...] = ()
@@ -278,7 +283,8 @@ class Replayer:
         ranked = (tuple(zip(batch.diagnostic_ranks, (m for _, m in batch.diagnostics),
                             strict=True))
                   if len(batch.diagnostic_ranks) == len(batch.diagnostics) else ())
-        fed = self.monitor.feed(batch.targets, batch.measured, batch.truth, move_ends(ranked))
+        fed = self.monitor.feed(batch.targets, batch.measured, batch.truth, move_ends(ranked),
+                                batch.registrations)
         for seg in fed.segments:
             self._segments.append((seg.time, seg.truth_time, seg.key, seg.position,
                                    seg.quaternion, float(batch.targets.stamp[seg.target])))

@@ -80,7 +80,11 @@ class AccuracyMonitorNode(Node):
             names.MEASURED_POSE: self.create_subscription(
                 PoseWithCovarianceStamped, names.MEASURED_POSE, self._on_measured, STREAM_QOS),
             names.TRUE_POSE: self.create_subscription(PoseStamped, names.TRUE_POSE,
-                                                      self._on_truth, STREAM_QOS)}
+                                                      self._on_truth, STREAM_QOS),
+            # latched: the tracker publishes where it located itself once, at its start
+            names.TRACKER_REGISTRATION: self.create_subscription(
+                PoseWithCovarianceStamped, names.TRACKER_REGISTRATION, self._on_registration,
+                LATCHED_QOS)}
         self.create_service(Trigger, names.MONITOR_REPORT, self._report, qos_profile=SERVICE_QOS)
         self.create_service(Trigger, names.MONITOR_RESET, self._reset, qos_profile=SERVICE_QOS)
         # The recorder's latest status (received on the wall clock, s) and what was told of it.
@@ -119,6 +123,12 @@ class AccuracyMonitorNode(Node):
         self.pub_orientation.publish(m.vector3_stamped(update.orientation_error, stamp))
         if update.visit is not None and result.verdict is not None:
             self._verdict(update.visit, result.verdict, stamp)
+
+    def _on_registration(self, msg: PoseWithCovarianceStamped) -> None:
+        ignored = self.monitor.registration(*_pose(msg.header, msg.pose.pose),
+                                            covariance=msg.pose.covariance)
+        if ignored is not None:
+            self._ignored(ignored, msg.header.stamp)
 
     def _on_truth(self, msg: PoseStamped) -> None:
         result = self.monitor.truth(*_pose(msg.header, msg.pose))

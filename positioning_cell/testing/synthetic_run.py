@@ -39,6 +39,7 @@ from positioning_cell.names import (
     STATUS_MEASUREMENT,
     STATUS_POSITIONER,
     TARGET,
+    TRACKER_REGISTRATION,
     TRUE_POSE,
 )
 
@@ -51,7 +52,7 @@ DEFAULT_BIAS: dict[str, tuple[tuple[float, float, float], tuple[float, float, fl
     'measured': ((6e-6, -4e-6, 3e-6), (1e-5, -1e-5, 5e-6)),
 }
 #: Topics whose publishers are latched (transient-local) in the cell; the rest are streams.
-LATCHED_TOPICS = (TARGET, PROGRAM)
+LATCHED_TOPICS = (TARGET, PROGRAM, TRACKER_REGISTRATION)
 
 
 @dataclass(frozen=True)
@@ -145,7 +146,8 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
                   latched_target_age: float = 0.0, calibration: str | None = None,
                   calibration_run: str | None = None,
                   registration_um: Sequence[float] | None = None,
-                  variance_factor: float = 1.0, move_ends: bool = True) -> int:
+                  variance_factor: float = 1.0, move_ends: bool = True,
+                  tracker_registration: tuple[ArrayLike, ArrayLike] | None = None) -> int:
     """Write ``run`` as a bag at ``path`` (must not exist): targets, measurements, and as
     asked the truth, the program steps, the positioner's mode diagnostics (a ``moving``
     status at each target and, with ``move_ends``, a ``settled`` one at each move's end) and
@@ -164,7 +166,9 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
     run of that name, three poses at the first target's pose just after the first
     measurement; ``registration_um``: a tracker registration (residual of each base target,
     µm; their RMS and max, ``variance_factor``) in the pose_measurement diagnostics at the
-    first and the last measurement. Returns the messages written."""
+    first and the last measurement; ``tracker_registration``: (origin (3,) m, covariance
+    (6, 6)) on /metrology/registration (latched) just before the first measurement, as the
+    tracker publishes where it located itself. Returns the messages written."""
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -203,6 +207,11 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
         if truth:
             events.append((t, TRUE_POSE, stamped, T[stamped](
                 header(t), pose(run.true_position[i], run.true_quaternion[i]))))
+    if tracker_registration is not None:
+        origin, spread = (np.asarray(a, dtype=float) for a in tracker_registration)
+        events.append((float(run.time[0]) - 0.01, TRACKER_REGISTRATION, cov, T[cov](
+            header(float(run.time[0]) - 0.01), T['geometry_msgs/msg/PoseWithCovariance'](
+                pose(origin, np.array([0.0, 0.0, 0.0, 1.0])), spread.ravel()))))
     string, diag = T['std_msgs/msg/String'], 'diagnostic_msgs/msg/DiagnosticArray'
     if program:
         events += [(s.stamp, PROGRAM, 'std_msgs/msg/String', string(s.to_json()))
