@@ -4,7 +4,8 @@ replayed through the accuracy monitor's rules (:mod:`positioning_cell.accuracy.m
 :mod:`.replay`) with the error over time kept as a bounded trace (:mod:`.trace`) and the run's
 context (calibration, tracker registrations: :mod:`.context`), summarised per compensation
 mode and commanded pose (:mod:`.summary`), written as a Markdown report and a JSON summary
-(:mod:`.report`) and plotted (:mod:`.plots`)."""
+(:mod:`.report`), as an acceptance record of every ISO 9283 characteristic with its U and
+decision (:mod:`.acceptance`) and plotted (:mod:`.plots`)."""
 
 from positioning_cell.analysis.program import Program, ProgramStep, load_program
 from positioning_cell.analysis.reading import Recording, message_batches, with_recording

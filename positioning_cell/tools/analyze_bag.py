@@ -31,12 +31,14 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class AnalysisOutput:
-    """The analysis and the files written: report, JSON summary, plots."""
+    """The analysis and the files written: report, JSON summary, plots, acceptance record
+    (Markdown; its JSON beside it)."""
 
     analysis: RunAnalysis
     report: Path
     summary: Path
     plots: tuple[Path, ...]
+    acceptance: Path | None = None
 
 
 def default_out_dir(bag: Path) -> Path:
@@ -46,13 +48,16 @@ def default_out_dir(bag: Path) -> Path:
 
 
 def analyze(bag: str | Path, out_dir: str | Path | None = None,
-            config: str | Path | None = None, *, plots: bool = True) -> AnalysisOutput:
-    """Analyse the bag and write the report, summary and (unless ``plots`` is False) the
-    plots into ``out_dir``. Raises PositioningError (BagError, ConfigError) when nothing can
-    be analysed."""
+            config: str | Path | None = None, *, plots: bool = True,
+            program: str | Path | None = None) -> AnalysisOutput:
+    """Analyse the bag and write the report, summary, acceptance record (its limits from the
+    ``acceptance:`` block of the ``program`` file, else the defaults) and (unless ``plots``
+    is False) the plots into ``out_dir``. Raises PositioningError (BagError, ConfigError)
+    when nothing can be analysed."""
     # The analysis (numpy, scipy, matplotlib, the bag reader) loads here, not with the command
     # line: --help and a usage error answer at once.
     from positioning_cell.accuracy.monitor import MonitorSettings
+    from positioning_cell.analysis.acceptance import AcceptanceLimits, write_acceptance
     from positioning_cell.analysis.heap import map_large_allocations
     from positioning_cell.analysis.plot_workers import PlotWorkers
     from positioning_cell.analysis.report import write_report
@@ -62,11 +67,13 @@ def analyze(bag: str | Path, out_dir: str | Path | None = None,
     map_large_allocations()  # the batches' buffers freed back to the system (heap)
     bag = Path(bag)
     settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
+    limits = AcceptanceLimits.from_program(program)  # a bad block stops before the read
     out = Path(out_dir) if out_dir is not None else default_out_dir(bag)
     if not plots:
         analysis = analyse_bag(bag, settings)
         report, summary = write_report(analysis, out)
-        return AnalysisOutput(analysis, report, summary, ())
+        return AnalysisOutput(analysis, report, summary, (),
+                              write_acceptance(analysis, out, limits)[0])
     # The plots are drawn in workers (warmed up while the bag is read) from the replay on,
     # while the error budget and the report are done here (plot_workers).
     with PlotWorkers() as workers:
@@ -74,8 +81,9 @@ def analyze(bag: str | Path, out_dir: str | Path | None = None,
         analysis = analyse_bag(
             bag, settings, replayed=lambda a: planned.extend(workers.start(a, out)))
         report, summary = write_report(analysis, out, planned)
+        acceptance = write_acceptance(analysis, out, limits)[0]
         pngs = workers.paths()
-    return AnalysisOutput(analysis, report, summary, tuple(pngs))
+    return AnalysisOutput(analysis, report, summary, tuple(pngs), acceptance)
 
 
 def describe(output: AnalysisOutput) -> str:
@@ -89,6 +97,8 @@ def describe(output: AnalysisOutput) -> str:
     else:
         lines.append('analyze_bag: no commanded pose settled in this bag')
     lines += [f'report:  {output.report}', f'summary: {output.summary}']
+    if output.acceptance is not None:
+        lines.append(f'acceptance record: {output.acceptance}')
     if output.plots:
         lines.append('plots:   ' + ', '.join(str(p) for p in output.plots))
     return '\n'.join(lines) + '\n'
@@ -105,12 +115,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, help='output folder (default: <bag>_analysis)')
     parser.add_argument('--config', type=Path, help='ROS 2 parameter file with the monitor\'s '
                         'settings (default: the shipped config/cell.yaml)')
+    parser.add_argument('--program', type=Path, help='the run\'s program file: its '
+                        'acceptance: block sets the acceptance record\'s limits (default: '
+                        'the built-in ones; config/acceptance.yaml has the block)')
     parser.add_argument('--no-plots', action='store_true',
                         help='write the report and the JSON summary only (the plots take '
                         'about 2 s whatever the bag\'s length)')
     args = parser.parse_args(argv)
     try:
-        output = analyze(args.bag, args.out, args.config, plots=not args.no_plots)
+        output = analyze(args.bag, args.out, args.config, plots=not args.no_plots,
+                         program=args.program)
     except PositioningError as err:
         print(f'analyze_bag: error: {err}', file=sys.stderr)
         return Exit.USAGE

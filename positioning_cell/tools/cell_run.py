@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from positioning_cell import names
+from positioning_cell.analysis.acceptance import AcceptanceLimits
 from positioning_cell.analysis.axis_test import load_axis_test
 from positioning_cell.analysis.program import load_program
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
@@ -52,6 +53,7 @@ def run(program_path: Path | None = None, config: Path | None = None,
         mech = Mechanism.from_params(node_parameters(params, names.NODE_POSITIONER)
                                      .get('mechanism', {}))
         program = load_program(program_path, mech)
+        AcceptanceLimits.from_program(program_path)  # checked now, not after the run
         axes = None if axis_test_path is None else load_axis_test(axis_test_path, mech)
     except PositioningError as err:
         say(f'run_cell: error: {err}')
@@ -105,20 +107,21 @@ def run(program_path: Path | None = None, config: Path | None = None,
         (run_dir / 'monitor_report.json').write_text(json.dumps(live, indent=1))
     try:
         with interruptible():  # the analysis of what was recorded, also after an interrupt
-            return _analyse(bag, run_dir, config, live, status, outcome, say)
+            return _analyse(bag, run_dir, config, live, status, outcome, say, program_path)
     except Interrupted:
         say('run_cell: interrupted')
         return Exit.INTERRUPTED
 
 
 def _analyse(bag: Path, run_dir: Path, config: Path, live: dict[str, Any] | None,
-             status: int, outcome: RunOutcome | None, say: Callable[[str], None]) -> int:
+             status: int, outcome: RunOutcome | None, say: Callable[[str], None],
+             program_path: Path) -> int:
     if not bag.exists():
         say(f'run_cell: no bag was recorded (logs in {run_dir / "logs"})')
         return status or Exit.NOT_THERE
     say(f'analysing {bag}')
     try:
-        output = analyze(bag, run_dir, config)
+        output = analyze(bag, run_dir, config, program=program_path)
     except PositioningError as err:
         say(f'run_cell: analysis failed: {err}')
         return status or Exit.NOT_ACHIEVED

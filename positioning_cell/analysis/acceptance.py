@@ -1,0 +1,308 @@
+"""The acceptance record of a run (issue 25): every ISO 9283:1998 characteristic the run
+measured, per compensation mode and commanded pose, with its expanded uncertainty U (k = 2)
+and the decision against its acceptance limit (ISO 14253-1:2017 by default: conforms, does
+not conform, indeterminate; simple acceptance selectable), the clause of the standard for
+each; the characteristics of the standard the run did not measure, named; and the conditions
+the figures hold under (the run's span, the calibration in force, the tracker's locations,
+the decision rule). Written beside the report as ``acceptance.md`` and ``acceptance.json``.
+
+The figures are those of the report (:mod:`positioning_cell.analysis.summary`): AP_p, AP_a..c
+(§7.2.1), RP_l, RP_a..c (§7.2.2), vAP_p, vAP_a..c (§7.2.3), AD_p, RD_p (§7.3), the pose
+stabilisation time (§7.4) and overshoot (§7.5), each with its U
+(:mod:`positioning_cell.accuracy.figure_uncertainty`,
+:mod:`positioning_cell.accuracy.stabilisation`). A signed figure (AP_a, AD_p) is judged by its
+magnitude; a figure whose U is unknown decides nothing under ISO 14253-1 (indeterminate, as a
+verdict: :func:`positioning_cell.accuracy.verdicts.decide`). A mode conforms when every
+characteristic it measured conforms, does not when one does not, and is indeterminate
+otherwise; the record says as well that the standard's other characteristics were not
+measured, so that it is never read as a complete acceptance when it is not.
+
+The limits are the ``acceptance:`` block of the run's program file
+(:meth:`AcceptanceLimits.from_program`; config/acceptance.yaml), else the defaults here."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from positioning_cell.accuracy.decisions import Decision, DecisionRule
+from positioning_cell.accuracy.verdicts import decide
+from positioning_cell.analysis.report import markdown_table
+from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
+from positioning_cell.config import load_parameter_file
+from positioning_cell.errors import ConfigError
+from positioning_cell.parameters import check_fields, parse, setting
+
+ACCEPTANCE_FILE = 'acceptance.md'
+ACCEPTANCE_JSON = 'acceptance.json'
+
+#: The program file's block that holds the limits.
+BLOCK = 'acceptance'
+
+
+@dataclass(frozen=True)
+class AcceptanceLimits:
+    """The acceptance limits of the ISO 9283 characteristics (upper limits on each figure's
+    magnitude; SI: m, rad, s) and the decision rule. The defaults suit the cell's 50 µm /
+    0.01° pose tolerance: what a buyer of a precision positioner writes into its
+    specification, to be set to the purchase's own."""
+
+    ap_p: float = setting(50e-6, 'pose accuracy AP_p (ISO 9283 7.2.1)', 'm', low=0.0,
+                          low_open=True, high=0.01)
+    ap_angle: float = setting(math.radians(0.01), 'pose accuracy AP_a, AP_b, AP_c, each '
+                              '(7.2.1)', 'rad', low=0.0, low_open=True, high=0.1)
+    rp_l: float = setting(20e-6, 'pose repeatability RP_l (7.2.2)', 'm', low=0.0,
+                          low_open=True, high=0.01)
+    rp_angle: float = setting(math.radians(0.005), 'pose repeatability RP_a, RP_b, RP_c, '
+                              'each (7.2.2)', 'rad', low=0.0, low_open=True, high=0.1)
+    vap_p: float = setting(30e-6, 'multi-directional pose accuracy variation vAP_p (7.2.3)',
+                           'm', low=0.0, low_open=True, high=0.01)
+    vap_angle: float = setting(math.radians(0.01), 'multi-directional variation vAP_a, '
+                               'vAP_b, vAP_c, each (7.2.3)', 'rad', low=0.0, low_open=True,
+                               high=0.1)
+    ad_p: float = setting(50e-6, 'distance accuracy AD_p (7.3.1)', 'm', low=0.0,
+                          low_open=True, high=0.01)
+    rd_p: float = setting(20e-6, 'distance repeatability RD_p (7.3.2)', 'm', low=0.0,
+                          low_open=True, high=0.01)
+    stabilisation_time: float = setting(2.0, 'pose stabilisation time, mean over the cycles '
+                                        '(7.4)', 's', low=0.0, low_open=True, high=60.0)
+    overshoot: float = setting(50e-6, 'pose overshoot, mean over the cycles (7.5)', 'm',
+                               low=0.0, low_open=True, high=0.01)
+    decision_rule: str = setting(DecisionRule.ISO_14253_1.value, 'how a figure\'s U enters '
+                                 'its decision: iso_14253_1 (guard bands of U) or '
+                                 'simple_acceptance (U ignored)',
+                                 choices=tuple(r.value for r in DecisionRule))
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+    @classmethod
+    def from_program(cls, path: str | Path | None) -> AcceptanceLimits:
+        """The limits of the ``acceptance:`` block of the program file at ``path`` (None, or
+        a file without the block: the defaults). ConfigError naming the key for a bad
+        block."""
+        if path is None:
+            return cls()
+        block = load_parameter_file(Path(path)).get(BLOCK) or {}
+        if not isinstance(block, dict):
+            raise ConfigError(f'{path}: {BLOCK}: expected a mapping')
+        try:
+            return parse(cls, block, f'{BLOCK}.')
+        except ValueError as err:  # ParameterError is one
+            raise ConfigError(f'{path}: {err}') from err
+
+
+@dataclass(frozen=True)
+class Characteristic:
+    """One figure of the record: of compensation ``mode`` and ``subject`` (a pose, or the
+    pair of a distance), ISO 9283 ``name`` and ``clause``; its ``value`` as judged (a
+    magnitude), its expanded uncertainty U (NaN: unknown) and ``limit`` in ``unit`` (SI),
+    and the ``decision`` the rule drew."""
+
+    mode: str
+    subject: str
+    name: str
+    clause: str
+    value: float
+    uncertainty: float
+    limit: float
+    unit: str
+    decision: Decision
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (SI; NaN as null; the decision as its words)."""
+        out = asdict(self)
+        out['decision'] = self.decision.value
+        for key in ('value', 'uncertainty', 'limit'):
+            out[key] = out[key] if math.isfinite(out[key]) else None
+        return out
+
+
+#: The characteristics of ISO 9283:1998 that apply to the positioner and that no run of the
+#: cell measures yet (clause, what).
+NOT_MEASURED = (
+    ('7.6', 'drift of pose accuracy and repeatability dAP, dRP'),
+    ('8.2', 'path accuracy and repeatability AT, RT'),
+    ('8.6', 'path velocity characteristics AV, RV, FV'),
+    ('9', 'minimum positioning time'),
+    ('10', 'static compliance'),
+)
+
+
+def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
+                    ) -> tuple[Characteristic, ...]:
+    """Every characteristic the run measured (module docstring), mode by mode in the
+    analysis' order, pose by pose, then the mode's distance pair."""
+    rule = DecisionRule(limits.decision_rule)
+
+    def judged(mode: str, subject: str, name: str, clause: str, value: float | None,
+               u: float, limit: float, unit: str) -> list[Characteristic]:
+        if value is None or not math.isfinite(value):
+            return []  # not defined for this run (RP of a single visit, no approach)
+        magnitude = abs(float(value))
+        return [Characteristic(mode, subject, name, clause, magnitude, float(u), limit, unit,
+                               decide(magnitude, float(u), limit, rule))]
+
+    out: list[Characteristic] = []
+    for m in analysis.modes:
+        for p in m.poses:
+            out += _pose_characteristics(m, p, limits, judged)
+        if m.distance is not None:
+            pair = ' - '.join(m.distance.poses)
+            f, u = m.distance.figures, m.distance.uncertainty
+            out += judged(m.mode, pair, 'AD_p', '7.3.1', f.ad_p, u.ad_p, limits.ad_p, 'm')
+            out += judged(m.mode, pair, 'RD_p', '7.3.2', f.rd_p, u.rd_p, limits.rd_p, 'm')
+    return tuple(out)
+
+
+def _pose_characteristics(m: ModeSummary, p: PoseSummary, limits: AcceptanceLimits,
+                          judged: Any) -> list[Characteristic]:
+    """The characteristics of one commanded pose."""
+    f, u, o = p.figures, p.uncertainty, p.orientation_uncertainty
+    out: list[Characteristic] = judged(m.mode, p.pose, 'AP_p', '7.2.1', f.ap_p, u.ap_p,
+                                       limits.ap_p, 'm')
+    for axis in 'abc':
+        out += judged(m.mode, p.pose, f'AP_{axis}', '7.2.1', getattr(f, f'ap_{axis}'),
+                      getattr(o, f'ap_{axis}'), limits.ap_angle, 'rad')
+    out += judged(m.mode, p.pose, 'RP_l', '7.2.2', f.rp_l, u.rp_l, limits.rp_l, 'm')
+    for axis in 'abc':
+        out += judged(m.mode, p.pose, f'RP_{axis}', '7.2.2', getattr(f, f'rp_{axis}'),
+                      getattr(o, f'rp_{axis}'), limits.rp_angle, 'rad')
+    if p.multidirectional is not None:
+        v = p.multidirectional
+        out += judged(m.mode, p.pose, 'vAP_p', '7.2.3', v.vap_p, p.multidirectional_u,
+                      limits.vap_p, 'm')
+        for axis, u_angle in zip('abc', p.multidirectional_angles_u, strict=True):
+            out += judged(m.mode, p.pose, f'vAP_{axis}', '7.2.3', getattr(v, f'vap_{axis}'),
+                          u_angle, limits.vap_angle, 'rad')
+    if p.stabilisation is not None:
+        s = p.stabilisation
+        out += judged(m.mode, p.pose, 't_stab', '7.4', s.time_mean, s.time_u,
+                      limits.stabilisation_time, 's')
+        out += judged(m.mode, p.pose, 'overshoot', '7.5', s.overshoot_mean, s.overshoot_u,
+                      limits.overshoot, 'm')
+    return out
+
+
+def overall(found: Sequence[Characteristic]) -> Decision:
+    """The decision on a set of characteristics: conforms when every one does, does not
+    conform when one does not, else (or with none) indeterminate."""
+    decided = {c.decision for c in found}
+    if Decision.DOES_NOT_CONFORM in decided:
+        return Decision.DOES_NOT_CONFORM
+    return Decision.CONFORMS if decided == {Decision.CONFORMS} else Decision.INDETERMINATE
+
+
+@dataclass(frozen=True)
+class AcceptanceRecord:
+    """The record of one run: its characteristics, the decision per mode, the limits and the
+    conditions (:func:`acceptance_record`)."""
+
+    bag: str
+    start: float
+    end: float
+    limits: AcceptanceLimits
+    characteristics: tuple[Characteristic, ...]
+    modes: dict[str, Decision]
+    cycles: dict[str, int]
+    calibrations: tuple[str, ...]
+    registrations: tuple[str, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (SI)."""
+        return {'bag': self.bag, 'start': self.start, 'end': self.end,
+                'limits': asdict(self.limits),
+                'modes': {k: v.value for k, v in self.modes.items()}, 'cycles': self.cycles,
+                'calibrations': list(self.calibrations),
+                'registrations': list(self.registrations),
+                'characteristics': [c.to_dict() for c in self.characteristics],
+                'not_measured': [{'clause': c, 'characteristic': w} for c, w in NOT_MEASURED]}
+
+
+def acceptance_record(analysis: RunAnalysis, limits: AcceptanceLimits) -> AcceptanceRecord:
+    """The :class:`AcceptanceRecord` of an analysed run against ``limits``."""
+    found = characteristics(analysis, limits)
+    context = analysis.context
+    return AcceptanceRecord(
+        str(analysis.bag), context.start, context.end, limits, found,
+        {m.mode: overall([c for c in found if c.mode == m.mode]) for m in analysis.modes},
+        {m.mode: max((p.figures.n for p in m.poses), default=0) for m in analysis.modes},
+        tuple(f'{_utc(c.time)}: {c.file or "none (the nominal machine)"}'
+              for c in context.calibrations),
+        tuple(f'{_utc(r.time)}: location {r.locations}, residual RMS {r.residual_rms_um:.1f} '
+              f'µm (max {r.residual_max_um:.1f}), σ '
+              f'{", ".join(f"{s:.1f}" for s in r.sigma_position_um)} µm, '
+              f'{", ".join(f"{s:.1f}" for s in r.sigma_rotation_urad)} µrad'
+              for r in context.registrations))
+
+
+def _utc(stamp: float) -> str:
+    """A stamp (s since the epoch) as UTC ISO 8601 to the second ('n/a' if not finite)."""
+    if not math.isfinite(stamp):
+        return 'n/a'
+    return datetime.fromtimestamp(stamp, UTC).strftime('%Y-%m-%d %H:%M:%S UTC')
+
+
+#: How each unit is printed: the factor from SI and the unit's name.
+UNITS = {'m': (1e6, 'µm', '.1f'), 'rad': (180.0 / math.pi, '°', '.4f'), 's': (1.0, 's', '.2f')}
+
+
+def _shown(value: float, unit: str) -> str:
+    factor, _, spec = UNITS[unit]
+    return f'{value * factor:{spec}}' if math.isfinite(value) else '?'
+
+
+def markdown(record: AcceptanceRecord) -> str:
+    """The record for people (µm, degrees, s)."""
+    rule = DecisionRule(record.limits.decision_rule)
+    lines = ['# Acceptance record: ISO 9283:1998 pose characteristics', '',
+             f'- Recording: `{record.bag}`, {_utc(record.start)} to {_utc(record.end)}',
+             f'- Decision rule: {rule.value} (ISO 14253-1:2017 guard bands of U, k = 2'
+             if rule is DecisionRule.ISO_14253_1 else
+             f'- Decision rule: {rule.value} (U not used',
+             ]
+    lines[-1] += '); a figure whose U is unknown is indeterminate'
+    lines.append('- Calibration in force: ' + ('; '.join(record.calibrations) or 'not recorded'))
+    lines.append('- Tracker located: ' + ('; '.join(record.registrations) or 'not recorded'))
+    lines.append('- Payload and temperature: not recorded by the cell')
+    lines += ['', '## Decision per compensation mode', '']
+    lines += markdown_table(('mode', 'cycles', 'characteristics', 'C/I/N', 'decision'), [
+        [mode, str(record.cycles[mode]), str(sum(c.mode == mode for c in record.characteristics)),
+         '/'.join(str(sum(c.mode == mode and c.decision is d for c in record.characteristics))
+                  for d in (Decision.CONFORMS, Decision.INDETERMINATE,
+                            Decision.DOES_NOT_CONFORM)),
+         decision.value.upper()] for mode, decision in record.modes.items()])
+    lines += ['', 'C/I/N: characteristics that conform, are indeterminate, do not conform. The '
+              'decision covers the characteristics below only; the standard\'s others were '
+              'not measured (last section).', '', '## Characteristics', '']
+    lines += markdown_table(
+        ('mode', 'pose', 'characteristic', 'ISO 9283', 'value ± U', 'limit', 'unit',
+         'decision'),
+        [[c.mode, c.subject, c.name, f'§{c.clause}',
+          f'{_shown(c.value, c.unit)} ± {_shown(c.uncertainty, c.unit)}',
+          _shown(c.limit, c.unit), UNITS[c.unit][1], c.decision.value]
+         for c in record.characteristics])
+    lines += ['', '## Not measured by this run', '']
+    lines += [f'- §{clause}: {what}' for clause, what in NOT_MEASURED]
+    return '\n'.join(lines) + '\n'
+
+
+def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLimits
+                     ) -> tuple[Path, Path]:
+    """Write ``acceptance.md`` and ``acceptance.json`` into ``out_dir``; their paths."""
+    record = acceptance_record(analysis, limits)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    text, doc = out_dir / ACCEPTANCE_FILE, out_dir / ACCEPTANCE_JSON
+    text.write_text(markdown(record))
+    doc.write_text(json.dumps(record.to_dict(), indent=1, allow_nan=False) + '\n')
+    return text, doc
+
+
+__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'NOT_MEASURED', 'AcceptanceLimits',
+           'AcceptanceRecord', 'Characteristic', 'acceptance_record', 'characteristics',
+           'markdown', 'overall', 'write_acceptance']

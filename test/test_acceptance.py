@@ -1,0 +1,169 @@
+"""The acceptance record (positioning_cell.analysis.acceptance): every characteristic the
+report computed, with its U, limit, clause and the decision the rule draws; the decision per
+mode; the limits from a program file; what the run did not measure; the files analyze
+writes."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from positioning_cell.accuracy import MonitorSettings
+from positioning_cell.accuracy.decisions import Decision
+from positioning_cell.analysis import analyse_bag
+from positioning_cell.analysis.acceptance import (
+    NOT_MEASURED,
+    AcceptanceLimits,
+    Characteristic,
+    acceptance_record,
+    characteristics,
+    markdown,
+    overall,
+)
+from positioning_cell.config import config_path
+from positioning_cell.errors import ConfigError
+from positioning_cell.parameters import parse
+from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
+from positioning_cell.tools.analyze_bag import analyze
+
+SETTINGS = MonitorSettings.from_file(config_path('cell.yaml'))
+POSITIONS = np.array([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2], [-0.004, -0.004, 0.2],
+                      [-0.004, -0.004, 0.192], [0.004, 0.004, 0.192]])
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    run = synthetic_run(POSITIONS, np.tile([0.0, 0.0, 0.0, 1.0], (5, 1)), cycles=3,
+                        dwell_time=1.5, seed=3)
+    path = tmp_path_factory.mktemp('acceptance') / 'bag'
+    write_run_bag(path, run)
+    return path
+
+
+def test_each_characteristic_is_the_reports_figure_with_its_u_and_decision(bag: Path) -> None:
+    """The record's figures are the summary's, by name and clause: AP_p and RP_l with the
+    report's U, each angle's magnitude, AD_p and RD_p of the distance pair, the
+    stabilisation figures' means; each decided against its limit by ISO 14253-1 (conforms
+    within limit − U, does not beyond limit + U, else indeterminate)."""
+    analysis = analyse_bag(bag, SETTINGS)
+    limits = AcceptanceLimits()
+    found = characteristics(analysis, limits)
+    by = {(c.mode, c.subject, c.name): c for c in found}
+    assert {m.mode for m in analysis.modes} == {c.mode for c in found} == {
+        'none', 'model', 'measured'}
+    for m in analysis.modes:
+        for p in m.poses:
+            ap = by[(m.mode, p.pose, 'AP_p')]
+            assert (ap.value, ap.uncertainty, ap.clause) == (p.figures.ap_p, p.uncertainty.ap_p,
+                                                              '7.2.1')
+            rp = by[(m.mode, p.pose, 'RP_l')]
+            assert (rp.value, rp.uncertainty, rp.limit) == (p.figures.rp_l, p.uncertainty.rp_l,
+                                                             limits.rp_l)
+            b = by[(m.mode, p.pose, 'AP_b')]
+            assert b.value == abs(p.figures.ap_b) and b.unit == 'rad'
+            assert b.uncertainty == p.orientation_uncertainty.ap_b
+            assert p.stabilisation is not None
+            assert by[(m.mode, p.pose, 't_stab')].value == p.stabilisation.time_mean
+        assert m.distance is not None
+        ad = by[(m.mode, ' - '.join(m.distance.poses), 'AD_p')]
+        assert ad.value == abs(m.distance.figures.ad_p) and ad.clause == '7.3.1'
+    for c in found:
+        if not math.isfinite(c.uncertainty):
+            assert c.decision is Decision.INDETERMINATE
+        elif c.value <= c.limit - c.uncertainty:
+            assert c.decision is Decision.CONFORMS
+        elif c.value > c.limit + c.uncertainty:
+            assert c.decision is Decision.DOES_NOT_CONFORM
+        else:
+            assert c.decision is Decision.INDETERMINATE
+    # the synthetic biases: mode none is 450 µm off, the others within 50 µm
+    record = acceptance_record(analysis, limits)
+    assert record.modes['none'] is Decision.DOES_NOT_CONFORM
+    assert by[('none', 'P1', 'AP_p')].decision is Decision.DOES_NOT_CONFORM
+    assert by[('measured', 'P1', 'AP_p')].decision is Decision.CONFORMS
+    assert record.cycles == {'none': 3, 'model': 3, 'measured': 3}
+
+
+def test_a_limit_within_u_of_the_figure_is_indeterminate_and_simple_acceptance_decides(
+        bag: Path) -> None:
+    """The limit of AP_p put just above one pose's figure, closer than its U: indeterminate
+    by ISO 14253-1, conforms by simple acceptance (U ignored); just below: does not conform
+    by simple acceptance, indeterminate by ISO 14253-1."""
+    analysis = analyse_bag(bag, SETTINGS)
+    ap = next(c for c in characteristics(analysis, AcceptanceLimits())
+              if (c.mode, c.subject, c.name) == ('model', 'P2', 'AP_p'))
+    assert ap.uncertainty > 0.0
+    for shift, iso, simple in ((0.5, Decision.INDETERMINATE, Decision.CONFORMS),
+                               (-0.5, Decision.INDETERMINATE, Decision.DOES_NOT_CONFORM)):
+        limit = ap.value + shift * ap.uncertainty
+        for rule, expected in (('iso_14253_1', iso), ('simple_acceptance', simple)):
+            limits = parse(AcceptanceLimits, {'ap_p': limit, 'decision_rule': rule})
+            got = next(c for c in characteristics(analysis, limits)
+                       if (c.mode, c.subject, c.name) == ('model', 'P2', 'AP_p'))
+            assert got.decision is expected, (shift, rule)
+
+
+def _characteristic(decision: Decision) -> Characteristic:
+    return Characteristic('model', 'P1', 'AP_p', '7.2.1', 1e-5, 1e-6, 5e-5, 'm', decision)
+
+
+@pytest.mark.parametrize(('decisions', 'expected'), [
+    ((Decision.CONFORMS, Decision.CONFORMS), Decision.CONFORMS),
+    ((Decision.CONFORMS, Decision.INDETERMINATE), Decision.INDETERMINATE),
+    ((Decision.INDETERMINATE, Decision.DOES_NOT_CONFORM), Decision.DOES_NOT_CONFORM),
+    ((), Decision.INDETERMINATE),
+])
+def test_a_mode_conforms_only_when_every_characteristic_does(
+        decisions: tuple[Decision, ...], expected: Decision) -> None:
+    assert overall([_characteristic(d) for d in decisions]) is expected
+
+
+def test_the_limits_come_from_the_program_files_block(tmp_path: Path) -> None:
+    """config/acceptance.yaml's block (the defaults, written out); a file without the block:
+    the defaults; a bad value or key: ConfigError naming it."""
+    shipped = AcceptanceLimits.from_program(config_path('acceptance.yaml'))
+    defaults = AcceptanceLimits()
+    for name in ('ap_p', 'rp_l', 'vap_p', 'ad_p', 'rd_p', 'stabilisation_time', 'overshoot'):
+        assert getattr(shipped, name) == getattr(defaults, name)
+    for name in ('ap_angle', 'rp_angle', 'vap_angle'):
+        assert getattr(shipped, name) == pytest.approx(getattr(defaults, name), rel=1e-3)
+    assert AcceptanceLimits.from_program(config_path('program.yaml')) == defaults
+    assert AcceptanceLimits.from_program(None) == defaults
+    bad = tmp_path / 'program.yaml'
+    for block, words in (('acceptance: {ap_p: -1.0}', 'ap_p'),
+                         ('acceptance: {rp_q: 1.0e-5}', 'rp_q'),
+                         ('acceptance: {decision_rule: lenient}', 'decision_rule'),
+                         ('acceptance: [1, 2]', 'mapping')):
+        bad.write_text(block + '\n')
+        with pytest.raises(ConfigError, match=words):
+            AcceptanceLimits.from_program(bad)
+
+
+def test_the_record_names_what_it_did_not_measure_and_writes_no_nan(bag: Path,
+                                                                    tmp_path: Path) -> None:
+    """analyze writes acceptance.md and acceptance.json beside the report: the decision per
+    mode, each characteristic with its clause, the standard's characteristics not measured;
+    an unknown U is null in the JSON, '?' in the text."""
+    output = analyze(bag, tmp_path / 'out', plots=False,
+                     program=config_path('acceptance.yaml'))
+    assert output.acceptance == tmp_path / 'out' / 'acceptance.md'
+    text = output.acceptance.read_text()
+    doc = json.loads((tmp_path / 'out' / 'acceptance.json').read_text())
+    assert set(doc['modes']) == {'none', 'model', 'measured'}
+    assert doc['modes']['none'] == 'does not conform'
+    assert len(doc['characteristics']) == len(characteristics(
+        output.analysis, AcceptanceLimits()))
+    assert [n['clause'] for n in doc['not_measured']] == [c for c, _ in NOT_MEASURED]
+    for clause, what in NOT_MEASURED:
+        assert f'§{clause}: {what}' in text
+    assert '| none | P1 | AP_p | §7.2.1 |' in text and 'DOES NOT CONFORM' in text
+    record = acceptance_record(output.analysis, AcceptanceLimits())
+    unknown = replace(record, characteristics=(replace(
+        record.characteristics[0], uncertainty=math.nan, decision=Decision.INDETERMINATE),))
+    assert unknown.to_dict()['characteristics'][0]['uncertainty'] is None
+    assert ' ± ? |' in markdown(unknown)
