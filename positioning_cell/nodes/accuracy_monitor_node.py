@@ -3,19 +3,19 @@
 errors with their expanded uncertainty U from the covariances the tracker's readings state, and
 the decision of ``tolerance.decision_rule``: OK conforms, WARN indeterminate, ERROR does not
 conform; docs/howto/verdicts.md); with the simulation truth published, the true pose against
-the target and the tracker against the truth, reported apart. The rules:
-:class:`positioning_cell.accuracy.monitor.Monitor`.
+the target and the tracker against the truth, reported apart. The tracker's registration
+(/metrology/registration, latched) is the part of the readings' covariance averaging does not
+reduce. The rules: :class:`positioning_cell.accuracy.monitor.Monitor`.
 
 It reads the positioner's ``positioner: state`` statuses on /diagnostics: a move end
 (:func:`positioning_cell.accuracy.move_ended`) goes to the monitor, so that each visit is judged
 on its final settled window (a visit whose move reports no end is judged when the next target
 arrives, on its last stable window).
 
-It also watches the recorder's status on /diagnostics and tells when recording stopped (the
-rule: :func:`positioning_cell.recording.recording`): its own status ``accuracy_monitor:
-recording`` every second once a recorder was heard of, and at once on a change (ERROR
-``recording stopped: <reason>`` when the recorder failed or went silent, WARN when it was
-stopped; logged once), and ``recording`` in the report.
+It watches the recorder's status on /diagnostics and tells when recording stopped
+(:func:`positioning_cell.recording.recording`): ``accuracy_monitor: recording`` every second
+once a recorder was heard of and at once on a change (ERROR ``recording stopped: <reason>``
+when the recorder failed or went silent, WARN when stopped; logged once), in the report too.
 
 /accuracy_monitor/report returns its JSON (:meth:`Monitor.report`, plus the publishers each
 input matched and the recording's state); /accuracy_monitor/reset clears the statistics but
@@ -97,7 +97,9 @@ class AccuracyMonitorNode(Node):
     def _on_change(self, settings: MonitorSettings, changed: frozenset[str]) -> None:
         self.monitor.tolerances = settings.tolerance
 
-    def _ignored(self, item: Ignored, stamp: Any) -> None:
+    def _ignored(self, item: object, stamp: Any) -> None:  # warns of an Ignored, else nothing
+        if not isinstance(item, Ignored):
+            return
         reason = f'{item.topic} message ignored: {item.reason}'
         self.get_logger().warning(reason, throttle_duration_sec=2.0)
         self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_INPUT, 'warn', reason, {},
@@ -125,15 +127,11 @@ class AccuracyMonitorNode(Node):
             self._verdict(update.visit, result.verdict, stamp)
 
     def _on_registration(self, msg: PoseWithCovarianceStamped) -> None:
-        ignored = self.monitor.registration(*_pose(msg.header, msg.pose.pose),
-                                            covariance=msg.pose.covariance)
-        if ignored is not None:
-            self._ignored(ignored, msg.header.stamp)
+        self._ignored(self.monitor.registration(*_pose(msg.header, msg.pose.pose),
+                                                covariance=msg.pose.covariance), msg.header.stamp)
 
     def _on_truth(self, msg: PoseStamped) -> None:
-        result = self.monitor.truth(*_pose(msg.header, msg.pose))
-        if isinstance(result, Ignored):
-            self._ignored(result, msg.header.stamp)
+        self._ignored(self.monitor.truth(*_pose(msg.header, msg.pose)), msg.header.stamp)
 
     def _verdict(self, visit: Visit, verdict: Verdict, stamp: Any) -> None:
         values = {'pose_key': visit.key, 'cycle': visit.cycle,
@@ -152,10 +150,8 @@ class AccuracyMonitorNode(Node):
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name == names.STATUS_POSITIONER and move_ended(m.status_values(status)):
-                ignored = self.monitor.move_end(stamp_seconds(msg.header.stamp.sec,
-                                                              msg.header.stamp.nanosec))
-                if ignored is not None:
-                    self._ignored(ignored, msg.header.stamp)
+                self._ignored(self.monitor.move_end(stamp_seconds(
+                    msg.header.stamp.sec, msg.header.stamp.nanosec)), msg.header.stamp)
             if status.name == names.STATUS_RECORDER:
                 self.recorder = RecorderReport(m.status_level(status), status.message,
                                                m.status_values(status), time.time())

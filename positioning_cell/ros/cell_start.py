@@ -28,7 +28,7 @@ STARTED = (names.RECORDER, *names.CELL_NODES)
 RECORDED = (names.TARGET, names.MEASURED_POSE, names.TRACKER_REGISTRATION, names.TRUE_POSE,
             names.DIAGNOSTICS, names.PROGRAM)
 MONITORED = (names.TARGET, names.MEASURED_POSE)
-MONITOR_INPUTS = (*MONITORED, names.TRUE_POSE)
+MONITOR_INPUTS = (*MONITORED, names.TRUE_POSE, names.TRACKER_REGISTRATION)
 #: How long each stage of the start may take, s.
 START_TIMEOUT = 60.0
 
@@ -91,7 +91,7 @@ def start_cell(procs: Processes, client: CellClient, config: Path, overrides: Pa
     # offline analysis of the bag.
     _wait(up(lambda: all(_call(client.monitor_report)['publishers'].get(t, 0) > 0
                          for t in MONITOR_INPUTS)), START_TIMEOUT,
-          'the monitor to match the target, tracker and truth publishers')
+          'the monitor to match the target, tracker, truth and registration publishers')
 
     def ready() -> bool:
         return _call(partial(client.plan, names.CHECK_POSE, *first_pose, 0.0, 30.0))
