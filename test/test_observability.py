@@ -21,6 +21,7 @@ from positioning_cell.calibration import observability as obs
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration import program as prog
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.pose_grid import PoseGrid, grid_poses
 from positioning_cell.errors import ConfigError
 from positioning_cell.parameters import ParameterError, parse
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
@@ -179,7 +180,7 @@ def test_the_shipped_production_poses_are_the_iso_cube_grid() -> None:
     assert_allclose(p.mean(axis=0), (0.0, 0.0, 0.196), atol=1e-12)
     assert_allclose(np.ptp(p, axis=0), (0.01, 0.01, 0.01))
     assert_allclose(q, np.tile((0.0, 0.0, 0.0, 1.0), (27, 1)))
-    tilted = prog.production_grid(MECH, prog.ProductionSettings(points=1, tilt=0.05))
+    tilted = grid_poses(MECH, PoseGrid(points=1, tilt=0.05))
     assert tilted[0].shape == (5, 3)
 
 
@@ -196,7 +197,7 @@ def test_a_bad_criterion_is_refused_naming_the_key() -> None:
     ('{points: 0}', 'production.points'),
     ('{size: 3}', 'production.size'),
     ('{half_widths: [0.01, -0.01, 0.0]}', 'production.half_widths'),
-    ('{centre: [0.0, 0.0, 0.5]}', 'production: no production pose'),
+    ('{centre: [0.0, 0.0, 0.5]}', 'production: no pose of the grid'),
 ])
 def test_a_bad_production_block_is_refused_naming_the_key(tmp_path: Path, block: str,
                                                           key: str) -> None:

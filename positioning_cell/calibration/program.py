@@ -24,7 +24,6 @@ The production poses are where the cell is used: the ``production:`` block of a 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
@@ -41,30 +40,14 @@ from positioning_cell.calibration.program_settings import (
 from positioning_cell.config import config_path, load_parameter_file
 from positioning_cell.core.limits import within_limits
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import Triple, scipy_rotation
+from positioning_cell.core.pose_grid import PoseGrid, grid_poses
+from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.errors import ConfigError
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.moves.trajectory import MotionLimits, plan_profile
-from positioning_cell.parameters import ParameterError, check_fields, parse, setting
+from positioning_cell.parameters import parse
 
 FloatArray = NDArray[np.float64]
-@dataclass(frozen=True)
-class ProductionSettings:
-    """The ``production:`` block of a program file: the poses the cell is used at, a grid of
-    ``points`` per axis over a box (base frame), each at the home orientation and, with
-    ``tilt`` > 0, also tilted by ±``tilt`` about base x and about base y."""
-
-    centre: Triple = setting((0.0, 0.0, 0.196), 'centre of the production box', 'm')
-    half_widths: Triple = setting((0.005, 0.005, 0.005), 'half-widths of the production box',
-                                  'm')
-    points: int = setting(3, 'grid points per axis (1: the centre only)', low=1, high=9)
-    tilt: float = setting(0.0, 'also these tilts about base x and y at every point (0: home '
-                          'orientation only)', 'rad', low=0.0, high=0.5)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-        if min(self.half_widths) < 0.0:
-            raise ParameterError('half_widths', self.half_widths, 'must be >= 0')
 
 
 class Program(NamedTuple):
@@ -91,37 +74,18 @@ def production_poses(mech: Mechanism, settings: ProgramSettings
                      ) -> tuple[FloatArray, FloatArray]:
     """The production poses (Q, 3) m, (Q, 4) of the ``production:`` block of the program file
     ``settings.production`` (default: the shipped config/program.yaml; a file without the
-    block: :class:`ProductionSettings` defaults), kept within every limit of the mechanism.
+    block: :class:`~positioning_cell.core.pose_grid.PoseGrid` defaults), kept within every
+    limit of the mechanism.
     ConfigError naming the key for a bad block, or when no pose is within limits."""
     path = Path(settings.production) if settings.production else config_path('program.yaml')
     block = load_parameter_file(path).get('production') or {}
     if not isinstance(block, dict):
         raise ConfigError(f'{path}: production: expected a mapping')
     try:
-        production = parse(ProductionSettings, block, 'production.')
+        production = parse(PoseGrid, block, 'production.')
     except ValueError as err:  # ParameterError is one
         raise ConfigError(f'{path}: {err}') from err
-    return production_grid(mech, production)
-
-
-def production_grid(mech: Mechanism, production: ProductionSettings
-                    ) -> tuple[FloatArray, FloatArray]:
-    """The poses (Q, 3) m, (Q, 4) of ``production`` (:class:`ProductionSettings`) within every
-    limit of the mechanism (ConfigError when none is)."""
-    axes = [c + np.linspace(-h, h, production.points)
-            for c, h in zip(production.centre, production.half_widths, strict=True)]
-    grid = np.stack(np.meshgrid(*axes, indexing='ij'), axis=-1).reshape(-1, 3)
-    rotvecs = [np.zeros(3)]
-    if production.tilt > 0.0:
-        rotvecs += [sign * production.tilt * axis for axis in np.eye(3)[:2] for sign in (1, -1)]
-    quats = scipy_rotation().from_rotvec(np.asarray(rotvecs)).as_quat()
-    p = np.repeat(grid, len(quats), axis=0)
-    q = np.tile(quats, (grid.shape[0], 1))
-    ok = within_limits(mech, p, q)
-    if not ok.any():
-        raise ConfigError('production: no production pose is within the limits of the '
-                          'mechanism')
-    return p[ok], q[ok]
+    return grid_poses(mech, production, 'production')
 
 
 def candidates(mech: Mechanism, settings: ProgramSettings) -> tuple[FloatArray, FloatArray]:
