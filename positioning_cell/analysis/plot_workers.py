@@ -32,6 +32,7 @@ from types import TracebackType
 
 from positioning_cell.accuracy.monitor import Monitor
 from positioning_cell.analysis.plots import (
+    ACCURACY_MAP,
     AXIS_ERRORS,
     CLUSTERS,
     ERROR_DISTRIBUTION,
@@ -43,8 +44,9 @@ from positioning_cell.analysis.summary import RunAnalysis
 from positioning_cell.plotting import warm_up
 
 #: The plots from the costliest to draw to the cheapest (measured on a tiled `make run` bag:
-#: the clusters have two axes per pose, the axis errors two per mode).
-COST_ORDER = (CLUSTERS, AXIS_ERRORS, ERROR_OVER_TIME, ERROR_DISTRIBUTION)
+#: the clusters have two axes per pose, the axis errors two per mode; the accuracy map six
+#: axes, drawn instead of those two).
+COST_ORDER = (CLUSTERS, AXIS_ERRORS, ACCURACY_MAP, ERROR_OVER_TIME, ERROR_DISTRIBUTION)
 
 
 def shares(names: list[str], workers: int) -> list[list[str]]:

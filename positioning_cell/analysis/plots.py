@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
+from positioning_cell.analysis.accuracy_map import mapped
 from positioning_cell.analysis.replay import LabelledVisit
 from positioning_cell.analysis.summary import RunAnalysis
 from positioning_cell.plotting import colours, figure, log_scale, save
@@ -214,17 +215,59 @@ def plot_error_distribution(analysis: RunAnalysis, path: Path) -> Path:
     return save(fig, path)
 
 
+def plot_accuracy_map(analysis: RunAnalysis, path: Path) -> Path:
+    """The accuracy map (:mod:`positioning_cell.analysis.accuracy_map`): AP_p (top) and RP_l
+    (bottom) of each commanded pose of the mapped modes (µm, whiskers: U, k = 2) against its
+    commanded x, y and z (mm, one column per axis), one colour per mode."""
+    modes = mapped(analysis.modes)
+    mode_colour = colours([m.mode for m in modes])
+    fig, axes = figure(12, 6.5, 2, 3, margins=(0.06, 0.99, 0.9, 0.08), space=(0.25, 0.3),
+                       sharey='row')
+    for m in modes:
+        at = np.array([p.figures.commanded_position for p in m.poses]) * 1e3
+        ap = np.array([p.figures.ap_p for p in m.poses]) * UM
+        u_ap = np.array([p.uncertainty.ap_p for p in m.poses]) * UM
+        rp = np.array([np.nan if p.figures.rp_l is None else p.figures.rp_l
+                       for p in m.poses]) * UM
+        u_rp = np.array([p.uncertainty.rp_l for p in m.poses]) * UM
+        for axis in range(3):
+            for row, (values, u) in enumerate(((ap, u_ap), (rp, u_rp))):
+                axes[row, axis].errorbar(at[:, axis], values, yerr=np.nan_to_num(u), fmt='o',
+                                         ms=3, elinewidth=0.6, capsize=0, alpha=0.7,
+                                         color=mode_colour[m.mode], label=m.mode)
+    for axis in range(3):
+        axes[1, axis].set_xlabel(f'commanded {"xyz"[axis]} mm')
+        for row in range(2):
+            axes[row, axis].grid(True, alpha=0.3)
+    axes[0, 0].set_ylabel('AP_p µm')
+    axes[1, 0].set_ylabel('RP_l µm')
+    if modes:
+        axes[0, 0].legend(fontsize=7)
+    fig.suptitle('Accuracy map: ISO 9283 AP_p and RP_l of each pose against each axis '
+                 '(whiskers: U, k = 2)', fontsize=10)
+    return save(fig, path)
+
+
 #: File name of each plot, in the order the report lists them.
-ERROR_OVER_TIME, AXIS_ERRORS, CLUSTERS, ERROR_DISTRIBUTION = (
-    'error_over_time.png', 'axis_errors.png', 'clusters.png', 'error_distribution.png')
+ERROR_OVER_TIME, AXIS_ERRORS, CLUSTERS, ACCURACY_MAP, ERROR_DISTRIBUTION = (
+    'error_over_time.png', 'axis_errors.png', 'clusters.png', 'accuracy_map.png',
+    'error_distribution.png')
 _DRAW = {ERROR_OVER_TIME: plot_error_over_time, AXIS_ERRORS: plot_axis_errors,
-         CLUSTERS: plot_clusters, ERROR_DISTRIBUTION: plot_error_distribution}
+         CLUSTERS: plot_clusters, ACCURACY_MAP: plot_accuracy_map,
+         ERROR_DISTRIBUTION: plot_error_distribution}
 
 
 def plot_names(analysis: RunAnalysis) -> list[str]:
     """The file names of the plots of ``analysis``, in report order: without a settled visit
-    only the error over time."""
-    return list(_DRAW) if analysis.replay.visits else [ERROR_OVER_TIME]
+    only the error over time; with a mapped mode
+    (:data:`~positioning_cell.analysis.accuracy_map.MAP_LEAST` poses or more) the accuracy
+    map instead of the per-pose plots (a subplot or a bar group per pose does not scale to a
+    hundred poses); else the per-pose plots."""
+    if not analysis.replay.visits:
+        return [ERROR_OVER_TIME]
+    if mapped(analysis.modes):
+        return [ERROR_OVER_TIME, ACCURACY_MAP, ERROR_DISTRIBUTION]
+    return [ERROR_OVER_TIME, AXIS_ERRORS, CLUSTERS, ERROR_DISTRIBUTION]
 
 
 def draw_plots(analysis: RunAnalysis, out_dir: Path, names: Sequence[str]) -> list[Path]:

@@ -1,7 +1,8 @@
-"""The run program of ``make run`` (``config/program.yaml``): named commanded poses, visited in
-order (or in a ``sequence`` of their names, repeats allowed: a pose approached from several
-directions, config/acceptance.yaml) for a number of cycles, once per compensation mode;
-checked against the mechanism's limits before anything moves."""
+"""The run program of ``make run`` (``config/program.yaml``): named commanded poses (or a grid
+of poses over a box: an accuracy map, config/accuracy_map.yaml), visited in order (or in a
+``sequence`` of their names, repeats allowed: a pose approached from several directions,
+config/acceptance.yaml) for a number of cycles, once per compensation mode; checked against
+the mechanism's limits before anything moves."""
 
 from __future__ import annotations
 
@@ -18,9 +19,11 @@ from numpy.typing import NDArray
 from positioning_cell.config import load_parameter_file
 from positioning_cell.core.limits import check_poses
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.pose_grid import PoseGrid, grid_poses
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.files import brief_errors, excerpt
+from positioning_cell.parameters import parse
 
 FloatArray = NDArray[np.float64]
 MODES = ('none', 'model', 'measured')
@@ -88,9 +91,7 @@ def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
     block = data.get('program')
     if not isinstance(block, Mapping):
         raise ConfigError('program file: no "program:" mapping')
-    poses = block.get('poses')
-    if not isinstance(poses, Mapping) or not poses:
-        raise ConfigError('program.poses: expected a mapping of pose names to poses')
+    names, p, q = _poses(block, mech)
     cycles = block.get('cycles', 1)
     if isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 1:
         raise ConfigError(f'program.cycles = {excerpt(cycles)}: must be an integer >= 1')
@@ -99,27 +100,55 @@ def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
             or any(m not in MODES for m in modes) or len(set(modes)) != len(modes)):
         raise ConfigError(f'program.modes = {excerpt(modes)}: a list of distinct modes from '
                           f'{MODES}')
-    names, positions, quaternions = [], [], []
-    for name, pose in poses.items():
-        if not isinstance(pose, Mapping) or 'position' not in pose:
-            raise ConfigError(f'program.poses.{name}: expected {{position: [x, y, z], '
-                              f'orientation: [x, y, z, w]}}')
-        names.append(str(name))
-        positions.append(pose['position'])
-        quaternions.append(pose.get('orientation', [0.0, 0.0, 0.0, 1.0]))
-    try:
-        p, q = as_pose_batch(positions, quaternions)
-    except InputError as err:
-        raise ConfigError(f'program.poses: {err}') from err
+    return Program(tuple(names), p, q, cycles, tuple(modes),
+                   _number(block, 'tolerance', 0.0, 0.0),
+                   _number(block, 'settle_timeout', 5.0, 0.1), _calibrating(block),
+                   _sequence(block, names))
+
+
+#: How the poses of a ``program.grid`` are named: G001, G002, … in grid order.
+GRID_NAME = 'G{:03d}'
+
+
+def _poses(block: Mapping[str, Any], mech: Mechanism
+           ) -> tuple[list[str], FloatArray, FloatArray]:
+    """The named poses of the ``program.poses`` mapping, or of a ``program.grid`` (a
+    :class:`~positioning_cell.core.pose_grid.PoseGrid` over a box: an accuracy map, its
+    poses outside the mechanism's limits left out, named :data:`GRID_NAME`), every pose
+    checked with :func:`positioning_cell.core.limits.check_poses`."""
+    poses, grid = block.get('poses'), block.get('grid')
+    if grid is not None:
+        if poses is not None:
+            raise ConfigError('program: give poses or grid, not both')
+        if not isinstance(grid, Mapping):
+            raise ConfigError('program.grid: expected {centre, half_widths, points, tilt}')
+        try:
+            p, q = grid_poses(mech, parse(PoseGrid, dict(grid), 'program.grid.'),
+                              'program.grid')
+        except ValueError as err:  # ParameterError is one
+            raise ConfigError(str(err)) from err
+        names = [GRID_NAME.format(k + 1) for k in range(p.shape[0])]
+    else:
+        if not isinstance(poses, Mapping) or not poses:
+            raise ConfigError('program.poses: expected a mapping of pose names to poses')
+        names, positions, quaternions = [], [], []
+        for name, pose in poses.items():
+            if not isinstance(pose, Mapping) or 'position' not in pose:
+                raise ConfigError(f'program.poses.{name}: expected {{position: [x, y, z], '
+                                  f'orientation: [x, y, z, w]}}')
+            names.append(str(name))
+            positions.append(pose['position'])
+            quaternions.append(pose.get('orientation', [0.0, 0.0, 0.0, 1.0]))
+        try:
+            p, q = as_pose_batch(positions, quaternions)
+        except InputError as err:
+            raise ConfigError(f'program.poses: {err}') from err
     report = check_poses(mech, p, q)
     if not report.ok:
         bad = report.first_bad_sample
         raise ConfigError(f'program.poses.{names[bad or 0]} is outside the workspace: '
                           f'{report.message()}')
-    return Program(tuple(names), p, q, cycles, tuple(modes),
-                   _number(block, 'tolerance', 0.0, 0.0),
-                   _number(block, 'settle_timeout', 5.0, 0.1), _calibrating(block),
-                   _sequence(block, names))
+    return names, p, q
 
 
 def _sequence(block: Mapping[str, Any], names: list[str]) -> tuple[int, ...]:

@@ -8,9 +8,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from positioning_cell.accuracy import ErrorStatistics
+from positioning_cell.analysis.accuracy_map import MAP_LEAST, map_summary, mapped, pose_at
 from positioning_cell.analysis.error_budget import CONTRIBUTIONS, Contribution, ErrorBudget
 from positioning_cell.analysis.replay import OUTSIDE_PROGRAM
-from positioning_cell.analysis.summary import ModeSummary, RunAnalysis
+from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
 
 REPORT_FILE = 'report.md'
 SUMMARY_FILE = 'summary.json'
@@ -112,6 +113,34 @@ DISTANCE_HEADER = ('mode', 'poses', 'cycles', 'commanded D mm', 'AD_p ± U µm',
 
 STABILISATION_HEADER = ('mode', 'pose', 'cycles', 'unresolved', 't mean ± U s', 't max s',
                         'OV mean ± U µm', 'OV max µm')
+
+
+MAP_HEADER = ('mode', 'poses', 'x mm', 'y mm', 'z mm', 'AP_p mean µm', 'worst AP_p ± U µm',
+              'at', 'RP_l mean µm', 'worst RP_l ± U µm', 'at')
+
+
+def _map_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
+    """The accuracy map's row of each mapped mode: the box of its poses, AP_p and RP_l mean
+    and worst, with the worst pose's U and position."""
+    rows = []
+    for m in mapped(modes):
+        s = map_summary(m)
+        box = [f'{lo * 1e3:.1f} … {hi * 1e3:.1f}' for lo, hi in zip(s.low, s.high,
+                                                                     strict=True)]
+        worst_ap = pose_at(m, s.ap_p_worst)
+        worst_rp = pose_at(m, s.rp_l_worst) if s.rp_l_worst else None
+        rows.append([m.mode, str(s.poses), *box, um(s.ap_p_mean),
+                     um_u(s.ap_p_max, worst_ap.uncertainty.ap_p),
+                     _at(worst_ap), um(s.rp_l_mean) if math.isfinite(s.rp_l_mean) else 'n/a',
+                     um_u(s.rp_l_max, worst_rp.uncertainty.rp_l) if worst_rp else 'n/a',
+                     _at(worst_rp) if worst_rp else ''])
+    return rows
+
+
+def _at(pose: PoseSummary) -> str:
+    """A pose's name and commanded position in mm."""
+    x, y, z = (v * 1e3 for v in pose.figures.commanded_position)
+    return f'{pose.pose} ({x:.1f}, {y:.1f}, {z:.1f})'
 
 
 def _stabilisation_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
@@ -229,6 +258,13 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 *markdown_table(DISTANCE_HEADER, _distance_rows(distances)), '',
                 'ISO 9283:1998 §7.3: D the distance between the attained positions of the two '
                 'poses in one cycle, AD_p = mean D − commanded D, RD_p = ±3·S_D.', '']
+    if mapped(a.modes):
+        out += ['## Accuracy map', '', *markdown_table(MAP_HEADER, _map_rows(a.modes)), '',
+                f'ISO 9283:1998 AP_p and RP_l over the workspace, for each mode with '
+                f'{MAP_LEAST} commanded poses or more (config/accuracy_map.yaml: a grid over a '
+                f'box); each pose\'s figures with U are in the per-pose table and '
+                f'`summary.json`, and the plot `accuracy_map.png` shows them against each '
+                f'axis.', '']
     stabilised = _stabilisation_rows(a.modes)
     if stabilised:
         out += ['## Pose stabilisation time and overshoot', '',
