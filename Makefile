@@ -72,10 +72,12 @@ test-library: $(STAMP)
 	env $(RUN_ENV) PYTHONPATH=$(NO_ROS) $(PY) -m pytest -m 'not nodes and not slow'
 
 # The cell's main job: start the nodes, record, drive config/program.yaml once per compensation
-# mode, stop, analyse; results in runs/<timestamp>/.
+# mode, stop, analyse; results in runs/<timestamp>/. Another program: make run
+# PROGRAM=config/acceptance.yaml (or config/accuracy_map.yaml).
+PROGRAM ?=
 run: $(STAMP)
 	mkdir -p $(TMP)
-	env $(RUN_ENV) $(PY) -m positioning_cell.tools.run_cell
+	env $(RUN_ENV) $(PY) -m positioning_cell.tools.run_cell $(if $(PROGRAM),--program $(PROGRAM))
 
 bench: $(STAMP)
 	mkdir -p $(TMP)
