@@ -235,6 +235,10 @@ def test_a_reading_keeps_the_registration_in_force_when_it_arrived() -> None:
         if monitor.verdicts:
             break
     assert len(monitor.registrations) == 2
+    # the same registration delivered again (latched, to a reconnected subscriber): nothing
+    assert monitor.registration(2.0, 'base', [2.1, 0.3, 0.5], q,
+                                (4 * REGISTRATION.covariance).ravel()) is None
+    assert len(monitor.registrations) == 2
     assert monitor.readings.registration.size == 0  # dropped once judged
     visit = monitor.measured.visits[0]
     assert visit.window_start < 0.75 <= visit.settle_time  # the window spans the re-location

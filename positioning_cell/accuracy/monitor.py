@@ -482,8 +482,8 @@ class Monitor:
     def _registrations(self, messages: PoseMessages
                        ) -> tuple[NDArray[np.intp], list[tuple[int, Ignored]]]:
         """Take the valid registrations (frame ``base``, finite, covariance symmetric
-        positive semi-definite: :meth:`Registration.checked`); the ranks of those taken and
-        the others (rank, ignored with the reason)."""
+        positive semi-definite: :meth:`Registration.checked`) that differ from the one in
+        force; the ranks of those taken and the others (rank, ignored with the reason)."""
         taken: list[int] = []
         ignored: list[tuple[int, Ignored]] = []
         for k in range(messages.count):  # registrations: one per tracker location
@@ -498,8 +498,14 @@ class Monitor:
                 if not covariance_checks(registration.covariance[None]).usable[0]:
                     raise InputError('the registration\'s covariance is not positive '
                                      'semi-definite')
-                self.registrations.append(registration)
-                taken.append(int(messages.rank[k]))
+                # the same one again (latched: delivered anew to a late or reconnected
+                # subscriber) changes nothing
+                last = self.registrations[-1] if self.registrations else None
+                if last is None or not (np.array_equal(last.position, registration.position)
+                                        and np.array_equal(last.covariance,
+                                                           registration.covariance)):
+                    self.registrations.append(registration)
+                    taken.append(int(messages.rank[k]))
             except InputError as err:
                 ignored.append((int(messages.rank[k]),
                                 Ignored(TRACKER_REGISTRATION, stamp, str(err))))
