@@ -167,3 +167,7 @@ def test_the_record_names_what_it_did_not_measure_and_writes_no_nan(bag: Path,
         record.characteristics[0], uncertainty=math.nan, decision=Decision.INDETERMINATE),))
     assert unknown.to_dict()['characteristics'][0]['uncertainty'] is None
     assert ' ± ? |' in markdown(unknown)
+    simple = acceptance_record(output.analysis, parse(AcceptanceLimits,
+                                                      {'decision_rule': 'simple_acceptance'}))
+    assert 'Decision rule: simple_acceptance (U not used)' in markdown(simple)
+    assert 'Decision rule: iso_14253_1' in text and 'unknown is indeterminate' in text

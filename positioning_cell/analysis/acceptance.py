@@ -200,8 +200,8 @@ def overall(found: Sequence[Characteristic]) -> Decision:
 
 @dataclass(frozen=True)
 class AcceptanceRecord:
-    """The record of one run: its characteristics, the decision per mode, the limits and the
-    conditions (:func:`acceptance_record`)."""
+    """The record of one run: its characteristics, the decision per mode, the program
+    ``cycles`` each mode ran, the limits and the conditions (:func:`acceptance_record`)."""
 
     bag: str
     start: float
@@ -231,7 +231,8 @@ def acceptance_record(analysis: RunAnalysis, limits: AcceptanceLimits) -> Accept
     return AcceptanceRecord(
         str(analysis.bag), context.start, context.end, limits, found,
         {m.mode: overall([c for c in found if c.mode == m.mode]) for m in analysis.modes},
-        {m.mode: max((p.figures.n for p in m.poses), default=0) for m in analysis.modes},
+        {m.mode: max((v.cycle or 0 for v in analysis.replay.visits if v.mode == m.mode),
+                     default=0) for m in analysis.modes},
         tuple(f'{_utc(c.time)}: {c.file or "none (the nominal machine)"}'
               for c in context.calibrations),
         tuple(f'{_utc(r.time)}: location {r.locations}, residual RMS {r.residual_rms_um:.1f} '
@@ -262,11 +263,9 @@ def markdown(record: AcceptanceRecord) -> str:
     rule = DecisionRule(record.limits.decision_rule)
     lines = ['# Acceptance record: ISO 9283:1998 pose characteristics', '',
              f'- Recording: `{record.bag}`, {_utc(record.start)} to {_utc(record.end)}',
-             f'- Decision rule: {rule.value} (ISO 14253-1:2017 guard bands of U, k = 2'
-             if rule is DecisionRule.ISO_14253_1 else
-             f'- Decision rule: {rule.value} (U not used',
-             ]
-    lines[-1] += '); a figure whose U is unknown is indeterminate'
+             f'- Decision rule: {rule.value} (ISO 14253-1:2017 guard bands of U, k = 2; a '
+             f'figure whose U is unknown is indeterminate)' if rule is DecisionRule.ISO_14253_1
+             else f'- Decision rule: {rule.value} (U not used)']
     lines.append('- Calibration in force: ' + ('; '.join(record.calibrations) or 'not recorded'))
     lines.append('- Tracker located: ' + ('; '.join(record.registrations) or 'not recorded'))
     lines.append('- Payload and temperature: not recorded by the cell')
