@@ -94,11 +94,15 @@ def test_plays_every_message_in_order_with_its_timing(tmp_path: Path, rate: floa
     assert [s for _, s in joints] == list(range(20))
     assert [s for _, s in poses] == list(range(10))
     assert [s for _, s in target] == [99]
-    expected = 19 * JOINTS_PERIOD_NS * 1e-9 / rate
-    span = joints[-1][0] - joints[0][0]
-    # Loose: a message is never published before its due time, so the span cannot shrink
-    # much (the first one may be a little late); the upper bound leaves room for VM jitter.
-    assert 0.8 * expected <= span <= 1.5 * expected + 0.3
+    period = JOINTS_PERIOD_NS * 1e-9 / rate
+    arrivals = np.diff([t for t, _ in joints])
+    # Paced at the rate, not dumped at once: the median interval between arrivals is the
+    # period. The median, not the span: the first samples of a reliable stream may arrive
+    # late together (seen in CI: 0.70 s for 0.95 s of messages, the first ones held until
+    # the writer's heartbeat), which a span of all twenty counts against the player. The
+    # upper bound leaves room for VM jitter.
+    assert 0.7 * period <= float(np.median(arrivals)) <= 1.5 * period, arrivals
+    assert joints[-1][0] - joints[0][0] <= 1.5 * 19 * period + 0.3
 
 
 def test_refuses_a_missing_bag(tmp_path: Path) -> None:
