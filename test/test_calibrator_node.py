@@ -76,9 +76,20 @@ class Cell:
         self.goals.close()
 
 
+#: Motion ten times slower than FAST_MOTION, for the tests that stop a move while it runs:
+#: at FAST_MOTION a move to the next pose lasts ~0.3 s, and on a loaded machine the stop (a
+#: signal to the calibrator, its handler, the positioner's stop) reached the positioner after
+#: the move had ended (seen in CI: no aborted_stop within 10 s).
+SLOW_MOTION = {'linear_speed': 0.003, 'linear_acceleration': 0.015, 'angular_speed': 0.03,
+               'angular_acceleration': 0.15}
+
+
 @pytest.fixture
-def cell(tmp_path: Path) -> Iterator[Cell]:
+def cell(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Cell]:
+    """The cell and the calibrator; the positioner's motion FAST_MOTION, or the fixture's
+    parameter (indirect parametrization: SLOW_MOTION)."""
     out = tmp_path / 'calibration'
+    motion = getattr(request, 'param', FAST_MOTION)
     with isolated_domain() as domain, ProcessGroup(domain, tmp_path) as procs, \
             Client(domain, 'calibrator_test') as client:
         poses = client.collect(PoseStamped, names.ESTIMATED_POSE, STREAM_QOS)
@@ -87,7 +98,7 @@ def cell(tmp_path: Path) -> Iterator[Cell]:
             # the test is of the action, not of the motion nor of liveness
             procs.start(exe, overrides={
                 'kinematics_node': {names.NODE_POSITIONER: {'liveness': LOADED_LIVENESS,
-                                                            'motion': FAST_MOTION}},
+                                                            'motion': motion}},
                 'leg_driver_node': {names.NODE_DRIVER: {'command': LOADED_COMMAND}},
             }.get(exe))
         procs.start(names.CALIBRATOR.executable,
@@ -158,6 +169,7 @@ def _moving_to_the_second_pose(cell: Cell) -> tuple[list[Any], list[Any], Any, A
     return statuses, feedback, handle, result
 
 
+@pytest.mark.parametrize('cell', [SLOW_MOTION], indirect=True)
 def test_cancel_stops_the_move_and_writes_nothing(cell: Cell) -> None:
     client = cell.client
     statuses, feedback, handle, result = _moving_to_the_second_pose(cell)
@@ -194,6 +206,7 @@ def test_cancel_stops_the_move_and_writes_nothing(cell: Cell) -> None:
     print(f'canceled after {len(feedback)} poses; result {stopped_in:.2f} s after the cancel')
 
 
+@pytest.mark.parametrize('cell', [SLOW_MOTION], indirect=True)
 def test_a_shutdown_mid_calibration_stops_the_move_and_puts_the_mode_back_at_once(
         cell: Cell) -> None:
     """SIGINT to the calibrator while the positioner moves to a pose: the goal's stop event
