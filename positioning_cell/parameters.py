@@ -26,11 +26,12 @@ import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import MISSING, Field, dataclass, field, fields, is_dataclass
 from enum import Enum
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
 
-from positioning_cell.config import flatten
+from positioning_cell.config import flatten, load_parameter_file
 from positioning_cell.errors import ConfigError
 
 T = TypeVar('T')
@@ -367,6 +368,20 @@ def parse(cls: type[T], params: Mapping[str, Any], prefix: str = '') -> T:
     except ParameterError as err:
         raise err.within(prefix) from None
 
+
+
+def parse_block(cls: type[T], path: str | Path, name: str) -> T:
+    """The ``name:`` block of the YAML file at ``path`` (a program file's ``production:``,
+    ``acceptance:``) as a ``cls`` (:func:`parse`; a file without the block: the defaults).
+    ConfigError naming the file and the key for a block that is not a mapping or a bad
+    value."""
+    block = load_parameter_file(path).get(name) or {}
+    if not isinstance(block, Mapping):
+        raise ConfigError(f'{path}: {name}: expected a mapping')
+    try:
+        return parse(cls, block, f'{name}.')
+    except ValueError as err:  # ParameterError is one
+        raise ConfigError(f'{path}: {err}') from err
 
 def _build(cls: type[T], flat: Mapping[str, Any], path: str, base: Any = None) -> T:
     """A ``cls`` from the dotted values under ``path``; the values not given are those of

@@ -34,9 +34,7 @@ from positioning_cell.accuracy.decisions import Decision, DecisionRule
 from positioning_cell.accuracy.verdicts import decide
 from positioning_cell.analysis.report import markdown_table
 from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
-from positioning_cell.config import load_parameter_file
-from positioning_cell.errors import ConfigError
-from positioning_cell.parameters import check_fields, parse, setting
+from positioning_cell.parameters import check_fields, parse_block, setting
 
 ACCEPTANCE_FILE = 'acceptance.md'
 ACCEPTANCE_JSON = 'acceptance.json'
@@ -86,15 +84,7 @@ class AcceptanceLimits:
         """The limits of the ``acceptance:`` block of the program file at ``path`` (None, or
         a file without the block: the defaults). ConfigError naming the key for a bad
         block."""
-        if path is None:
-            return cls()
-        block = load_parameter_file(Path(path)).get(BLOCK) or {}
-        if not isinstance(block, dict):
-            raise ConfigError(f'{path}: {BLOCK}: expected a mapping')
-        try:
-            return parse(cls, block, f'{BLOCK}.')
-        except ValueError as err:  # ParameterError is one
-            raise ConfigError(f'{path}: {err}') from err
+        return cls() if path is None else parse_block(cls, path, BLOCK)
 
 
 @dataclass(frozen=True)

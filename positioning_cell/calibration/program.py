@@ -37,15 +37,14 @@ from positioning_cell.calibration.program_settings import (
     CRITERIA,
     ProgramSettings,
 )
-from positioning_cell.config import config_path, load_parameter_file
+from positioning_cell.config import config_path
 from positioning_cell.core.limits import within_limits
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.pose_grid import PoseGrid, grid_poses
 from positioning_cell.core.poses import scipy_rotation
-from positioning_cell.errors import ConfigError
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.moves.trajectory import MotionLimits, plan_profile
-from positioning_cell.parameters import parse
+from positioning_cell.parameters import parse_block
 
 FloatArray = NDArray[np.float64]
 
@@ -78,14 +77,7 @@ def production_poses(mech: Mechanism, settings: ProgramSettings
     limit of the mechanism.
     ConfigError naming the key for a bad block, or when no pose is within limits."""
     path = Path(settings.production) if settings.production else config_path('program.yaml')
-    block = load_parameter_file(path).get('production') or {}
-    if not isinstance(block, dict):
-        raise ConfigError(f'{path}: production: expected a mapping')
-    try:
-        production = parse(PoseGrid, block, 'production.')
-    except ValueError as err:  # ParameterError is one
-        raise ConfigError(f'{path}: {err}') from err
-    return grid_poses(mech, production, 'production')
+    return grid_poses(mech, parse_block(PoseGrid, path, 'production'), 'production')
 
 
 def candidates(mech: Mechanism, settings: ProgramSettings) -> tuple[FloatArray, FloatArray]:
