@@ -15,8 +15,11 @@ import pytest
 
 from positioning_cell.accuracy import MonitorSettings
 from positioning_cell.accuracy.decisions import Decision
+from positioning_cell.accuracy.drift import FIGURES as DRIFT_FIGURES
+from positioning_cell.accuracy.drift import LEAST_VISITS
 from positioning_cell.analysis import analyse_bag
 from positioning_cell.analysis.acceptance import (
+    DRIFT,
     NOT_MEASURED,
     AcceptanceLimits,
     Characteristic,
@@ -128,9 +131,10 @@ def test_the_limits_come_from_the_program_files_block(tmp_path: Path) -> None:
     the defaults; a bad value or key: ConfigError naming it."""
     shipped = AcceptanceLimits.from_program(config_path('acceptance.yaml'))
     defaults = AcceptanceLimits()
-    for name in ('ap_p', 'rp_l', 'vap_p', 'ad_p', 'rd_p', 'stabilisation_time', 'overshoot'):
+    for name in ('ap_p', 'rp_l', 'vap_p', 'ad_p', 'rd_p', 'stabilisation_time', 'overshoot',
+                 'dap_p', 'drp_l'):
         assert getattr(shipped, name) == getattr(defaults, name)
-    for name in ('ap_angle', 'rp_angle', 'vap_angle'):
+    for name in ('ap_angle', 'rp_angle', 'vap_angle', 'dap_angle', 'drp_angle'):
         assert getattr(shipped, name) == pytest.approx(getattr(defaults, name), rel=1e-3)
     assert AcceptanceLimits.from_program(config_path('program.yaml')) == defaults
     assert AcceptanceLimits.from_program(None) == defaults
@@ -158,8 +162,9 @@ def test_the_record_names_what_it_did_not_measure_and_writes_no_nan(bag: Path,
     assert doc['modes']['none'] == 'does not conform'
     assert len(doc['characteristics']) == len(characteristics(
         output.analysis, AcceptanceLimits()))
-    assert [n['clause'] for n in doc['not_measured']] == [c for c, _ in NOT_MEASURED]
-    for clause, what in NOT_MEASURED:
+    # three cycles: no pose is visited often enough for a drift
+    assert [n['clause'] for n in doc['not_measured']] == [c for c, _ in (DRIFT, *NOT_MEASURED)]
+    for clause, what in (DRIFT, *NOT_MEASURED):
         assert f'§{clause}: {what}' in text
     assert '| none | P1 | AP_p | §7.2.1 |' in text and 'DOES NOT CONFORM' in text
     record = acceptance_record(output.analysis, AcceptanceLimits())
@@ -171,3 +176,31 @@ def test_the_record_names_what_it_did_not_measure_and_writes_no_nan(bag: Path,
                                                       {'decision_rule': 'simple_acceptance'}))
     assert 'Decision rule: simple_acceptance (U not used)' in markdown(simple)
     assert 'Decision rule: iso_14253_1' in text and 'unknown is indeterminate' in text
+
+
+def test_a_pose_visited_often_enough_gets_its_drift_judged_and_reported(
+        tmp_path: Path) -> None:
+    """Six cycles: every pose of every mode has its eight drift figures (§7.6) in the record,
+    each the summary's with its U and judged against its limit; the report shows them and the
+    record no longer lists §7.6 as not measured."""
+    run = synthetic_run(POSITIONS, np.tile([0.0, 0.0, 0.0, 1.0], (5, 1)), cycles=LEAST_VISITS,
+                        dwell_time=1.5, seed=4)
+    write_run_bag(tmp_path / 'bag', run)
+    output = analyze(tmp_path / 'bag', tmp_path / 'out', plots=False)
+    limits = AcceptanceLimits()
+    found = [c for c in characteristics(output.analysis, limits) if c.clause == DRIFT[0]]
+    poses = [(m, p) for m in output.analysis.modes for p in m.poses]
+    assert len(found) == len(DRIFT_FIGURES) * len(poses) > 0
+    by = {(c.mode, c.subject, c.name): c for c in found}
+    for m, p in poses:
+        assert p.drift is not None and p.drift.cycles == LEAST_VISITS // 3
+        value, u = p.drift.figure('ap_p')
+        c = by[(m.mode, p.pose, 'dAP_p')]
+        assert (c.value, c.uncertainty, c.limit) == (value, u, limits.dap_p)
+        assert by[(m.mode, p.pose, 'dRP_c')].limit == limits.drp_angle
+    doc = json.loads((tmp_path / 'out' / 'acceptance.json').read_text())
+    assert DRIFT[0] not in [n['clause'] for n in doc['not_measured']]
+    report = output.report.read_text()
+    assert '## Drift of pose characteristics' in report
+    summary = json.loads((tmp_path / 'out' / 'summary.json').read_text())
+    assert summary['modes'][0]['poses'][0]['drift']['first']['n'] == LEAST_VISITS // 3

@@ -6,6 +6,7 @@ Pure numpy/scipy over arrays of samples; no ROS.
 - :mod:`.iso9283`: ISO 9283:1998 AP, RP and vAP of a commanded pose, AD and RD between two;
 - :mod:`.figure_uncertainty`: the expanded uncertainty of those figures;
 - :mod:`.stabilisation`: ISO 9283 pose stabilisation time and overshoot of a visit, with U;
+- :mod:`.drift`: ISO 9283 drift of a pose's accuracy and repeatability over a run, with U;
 - :mod:`.verdicts`: tolerances and verdicts;
 - :mod:`.decisions`: ISO 14253-1 decisions with the measurement's expanded uncertainty;
 - :mod:`.tracker_errors`: measured minus true pose over paired stamps;

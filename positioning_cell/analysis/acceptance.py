@@ -8,11 +8,13 @@ the decision rule). Written beside the report as ``acceptance.md`` and ``accepta
 
 The figures are those of the report (:mod:`positioning_cell.analysis.summary`): AP_p, AP_a..c
 (§7.2.1), RP_l, RP_a..c (§7.2.2), vAP_p, vAP_a..c (§7.2.3), AD_p, RD_p (§7.3), the pose
-stabilisation time (§7.4) and overshoot (§7.5), each with its U
+stabilisation time (§7.4) and overshoot (§7.5), the drifts dAP_p, dAP_a..c, dRP_l, dRP_a..c
+(§7.6, of a pose visited often enough), each with its U
 (:mod:`positioning_cell.accuracy.figure_uncertainty`,
-:mod:`positioning_cell.accuracy.stabilisation`). A signed figure (AP_a, AD_p) is judged by its
-magnitude; a figure whose U is unknown decides nothing under ISO 14253-1 (indeterminate, as a
-verdict: :func:`positioning_cell.accuracy.verdicts.decide`). A mode conforms when every
+:mod:`positioning_cell.accuracy.stabilisation`, :mod:`positioning_cell.accuracy.drift`). A
+signed figure (AP_a, AD_p) is judged by its magnitude; a figure whose U is unknown decides
+nothing under ISO 14253-1 (indeterminate, as a verdict:
+:func:`positioning_cell.accuracy.verdicts.decide`). A mode conforms when every
 characteristic it measured conforms, does not when one does not, and is indeterminate
 otherwise; the record says as well that the standard's other characteristics were not
 measured, so that it is never read as a complete acceptance when it is not.
@@ -31,6 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from positioning_cell.accuracy.decisions import Decision, DecisionRule
+from positioning_cell.accuracy.drift import FIGURES as DRIFT_FIGURES
+from positioning_cell.accuracy.drift import LEAST_VISITS as DRIFT_LEAST_VISITS
 from positioning_cell.accuracy.verdicts import decide
 from positioning_cell.analysis.report import markdown_table
 from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
@@ -71,6 +75,15 @@ class AcceptanceLimits:
                                         '(7.4)', 's', low=0.0, low_open=True, high=60.0)
     overshoot: float = setting(50e-6, 'pose overshoot, mean over the cycles (7.5)', 'm',
                                low=0.0, low_open=True, high=0.01)
+    dap_p: float = setting(20e-6, 'drift of pose accuracy dAP_p (7.6)', 'm', low=0.0,
+                           low_open=True, high=0.01)
+    dap_angle: float = setting(math.radians(0.005), 'drift of pose accuracy dAP_a, dAP_b, '
+                               'dAP_c, each (7.6)', 'rad', low=0.0, low_open=True, high=0.1)
+    drp_l: float = setting(10e-6, 'drift of pose repeatability dRP_l (7.6)', 'm', low=0.0,
+                           low_open=True, high=0.01)
+    drp_angle: float = setting(math.radians(0.0025), 'drift of pose repeatability dRP_a, '
+                               'dRP_b, dRP_c, each (7.6)', 'rad', low=0.0, low_open=True,
+                               high=0.1)
     decision_rule: str = setting(DecisionRule.ISO_14253_1.value, 'how a figure\'s U enters '
                                  'its decision: iso_14253_1 (guard bands of U) or '
                                  'simple_acceptance (U ignored)',
@@ -113,15 +126,24 @@ class Characteristic:
         return out
 
 
+#: The drift (clause, what): measured by a run that visits a pose often enough.
+DRIFT = ('7.6', f'drift of pose accuracy and repeatability dAP, dRP (a pose visited at least '
+                f'{DRIFT_LEAST_VISITS} times in a mode)')
+
 #: The characteristics of ISO 9283:1998 that apply to the positioner and that no run of the
 #: cell measures yet (clause, what).
 NOT_MEASURED = (
-    ('7.6', 'drift of pose accuracy and repeatability dAP, dRP'),
     ('8.2', 'path accuracy and repeatability AT, RT'),
     ('8.6', 'path velocity characteristics AV, RV, FV'),
     ('9', 'minimum positioning time'),
     ('10', 'static compliance'),
 )
+
+
+def not_measured(found: Sequence[Characteristic]) -> tuple[tuple[str, str], ...]:
+    """The characteristics of the standard that apply and that ``found`` lacks (clause,
+    what): :data:`NOT_MEASURED`, and the drift when no pose gave it."""
+    return ((DRIFT,) if all(c.clause != DRIFT[0] for c in found) else ()) + NOT_MEASURED
 
 
 def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
@@ -176,6 +198,12 @@ def _pose_characteristics(m: ModeSummary, p: PoseSummary, limits: AcceptanceLimi
                       limits.stabilisation_time, 's')
         out += judged(m.mode, p.pose, 'overshoot', '7.5', s.overshoot_mean, s.overshoot_u,
                       limits.overshoot, 'm')
+    if (d := p.drift) is not None:
+        for name in DRIFT_FIGURES:
+            limit = getattr(limits, f'd{name}' if name in ('ap_p', 'rp_l')
+                            else f'd{name[:2]}_angle')
+            out += judged(m.mode, p.pose, f'd{name[:2].upper()}{name[2:]}', DRIFT[0],
+                          *d.figure(name), limit, 'm' if name in ('ap_p', 'rp_l') else 'rad')
     return out
 
 
@@ -211,7 +239,8 @@ class AcceptanceRecord:
                 'calibrations': list(self.calibrations),
                 'registrations': list(self.registrations),
                 'characteristics': [c.to_dict() for c in self.characteristics],
-                'not_measured': [{'clause': c, 'characteristic': w} for c, w in NOT_MEASURED]}
+                'not_measured': [{'clause': c, 'characteristic': w}
+                                 for c, w in not_measured(self.characteristics)]}
 
 
 def acceptance_record(analysis: RunAnalysis, limits: AcceptanceLimits) -> AcceptanceRecord:
@@ -277,7 +306,7 @@ def markdown(record: AcceptanceRecord) -> str:
           _shown(c.limit, c.unit), UNITS[c.unit][1], c.decision.value]
          for c in record.characteristics])
     lines += ['', '## Not measured by this run', '']
-    lines += [f'- §{clause}: {what}' for clause, what in NOT_MEASURED]
+    lines += [f'- §{clause}: {what}' for clause, what in not_measured(record.characteristics)]
     return '\n'.join(lines) + '\n'
 
 
@@ -292,6 +321,6 @@ def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLim
     return text, doc
 
 
-__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'NOT_MEASURED', 'AcceptanceLimits',
+__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'DRIFT', 'NOT_MEASURED', 'AcceptanceLimits',
            'AcceptanceRecord', 'Characteristic', 'acceptance_record', 'characteristics',
-           'markdown', 'overall', 'write_acceptance']
+           'markdown', 'not_measured', 'overall', 'write_acceptance']

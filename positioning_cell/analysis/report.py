@@ -157,6 +157,19 @@ def _stabilisation_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     return rows
 
 
+def _drift_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
+    rows = []
+    for m in modes:
+        for p in m.poses:
+            if (d := p.drift) is None:
+                continue
+            rows.append([m.mode, p.pose, str(d.cycles), f'{d.span:.0f}',
+                         um_u(d.dap_p, d.u_dap_p), um_u(d.drp_l, d.u_drp_l),
+                         *(deg_u(*d.figure(name)) for name in ('ap_a', 'ap_b', 'ap_c')),
+                         *(deg_u(*d.figure(name)) for name in ('rp_a', 'rp_b', 'rp_c'))])
+    return rows
+
+
 def _distance_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     rows = []
     for m in modes:
@@ -174,6 +187,10 @@ POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p ± U µm', 'AP
                'RP_a ± U (±°)', 'RP_b ± U (±°)', 'RP_c ± U (±°)',
                'max |Δp| µm', 'RMS |Δp| µm', 'max angle °', 'RMS angle °', 'settle s',
                'in tol.')
+
+
+DRIFT_HEADER = ('mode', 'pose', 'n', 'T s', 'dAP_p ± U µm', 'dRP_l ± U µm', 'dAP_a ± U °',
+                'dAP_b ± U °', 'dAP_c ± U °', 'dRP_a ± U °', 'dRP_b ± U °', 'dRP_c ± U °')
 
 
 BUDGET_HEADER = ('mode', 'visits', 'truth RMS µm', *CONTRIBUTIONS)
@@ -276,6 +293,14 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 '(k = 2) of the means from the readings\' covariances and their spacing '
                 '(unresolved: the position moved more than the band between two readings, no U '
                 'stated; docs/howto/verdicts.md).', '']
+    drifted = _drift_rows(a.modes)
+    if drifted:
+        out += ['## Drift of pose characteristics', '',
+                *markdown_table(DRIFT_HEADER, drifted), '',
+                'ISO 9283:1998 §7.6: dAP = |AP(end) − AP(start)|, dRP = |RP(end) − RP(start)|, '
+                "the start and the end the first and the last third of the pose's visits "
+                '(n each, T s apart: the mean times of the two); U (k = 2) from the two '
+                "epochs' (positioning_cell.accuracy.drift).", '']
     if a.truth_modes:
         out += ['## Simulation truth', '', 'The true platform pose against the target (what '
                 'the tracker measures, without its error):', '',

@@ -30,6 +30,8 @@ import scipy.special  # noqa: F401
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
+from positioning_cell.accuracy.drift import LEAST_VISITS as DRIFT_LEAST_VISITS
+from positioning_cell.accuracy.drift import DriftFigures, drift_figures
 from positioning_cell.accuracy.figure_uncertainty import (
     DistanceUncertainty,
     FigureUncertainty,
@@ -120,6 +122,9 @@ class PoseSummary:
     stabilisation: StabilisationFigures | None = None
     #: U (k = 2) of its vAP_a, vAP_b, vAP_c, rad (NaN: not stated, or no vAP).
     multidirectional_angles_u: tuple[float, float, float] = (math.nan,) * 3
+    #: ISO 9283 §7.6 between its first and last visits (None: too few visits,
+    #: :data:`positioning_cell.accuracy.drift.LEAST_VISITS`).
+    drift: DriftFigures | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI; an uncertainty not stated is null)."""
@@ -134,6 +139,7 @@ class PoseSummary:
                 else self.multidirectional.to_dict(),
                 'stabilisation': None if self.stabilisation is None
                 else self.stabilisation.to_dict(),
+                'drift': None if self.drift is None else self.drift.to_dict(),
                 **self.extremes.to_dict()}
 
 
@@ -276,11 +282,16 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
                     [v.visit.position for v in known], known_cov[:, :3, :3], directions)
                 multidirectional_angles_u = multidirectional_angle_uncertainty(
                     [v.visit.quaternion for v in known], known_cov[:, 3:, 3:], directions)
+            drift = drift_figures(
+                first.commanded_position, first.commanded_quaternion,
+                [v.visit.position for v in group], [v.visit.quaternion for v in group],
+                [v.visit.settle_time for v in group], covariance
+            ) if len(group) >= DRIFT_LEAST_VISITS else None
             poses.append(PoseSummary(
                 mode, pose, figures, Extremes.of(group), uncertainty, orientation,
                 multidirectional, multidirectional_u,
                 stabilisation_figures_of([v.stabilisation for v in group]),
-                multidirectional_angles_u))
+                multidirectional_angles_u, drift))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),
