@@ -49,7 +49,8 @@ def test_a_hand_worked_example() -> None:
 
 def test_u_combines_the_epochs_us_and_the_record_is_json() -> None:
     """dAP's U the quadrature of the epochs' (their errors' correlation is ≥ 0), dRP's the
-    sum (bounds); a U not stated is null in JSON."""
+    sum (bounds; both epochs from one Monte Carlo, each within its 1 % tolerance of the
+    epoch's own); a U not stated is null in JSON."""
     sigma = 3e-6
     x = np.array([C, C, C, C, C + [0.0, 5e-6, 0.0], C + [0.0, 5e-6, 0.0]])
     cov = np.tile(np.diag([sigma**2] * 3 + [1e-10] * 3), (6, 1, 1))
@@ -57,7 +58,7 @@ def test_u_combines_the_epochs_us_and_the_record_is_json() -> None:
     assert d.dap_p == pytest.approx(5e-6, abs=1e-12) and d.drp_l == pytest.approx(0.0)
     one, two = (pose_figure_uncertainty(C, x[i], cov[i, :3, :3]) for i in ([0, 1], [4, 5]))
     assert d.u_dap_p == pytest.approx(math.hypot(one.ap_p, two.ap_p), rel=1e-12)
-    assert d.u_drp_l == pytest.approx(one.rp_l + two.rp_l, rel=1e-12)
+    assert d.u_drp_l == pytest.approx(one.rp_l + two.rp_l, rel=0.03)
     cov[0, 0, 0] = math.nan
     blind = json.loads(json.dumps(drift_figures(C, Q, x, np.tile(Q, (6, 1)), np.arange(6.0),
                                                 cov).to_dict()))

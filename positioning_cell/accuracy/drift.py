@@ -35,10 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from positioning_cell.accuracy.figure_uncertainty import (
-    orientation_figure_uncertainty,
-    pose_figure_uncertainty,
-)
+from positioning_cell.accuracy.figure_uncertainty import pose_uncertainties
 from positioning_cell.accuracy.iso9283 import PoseFigures, iso9283
 from positioning_cell.core.poses import as_pose_batch
 from positioning_cell.errors import InputError
@@ -132,8 +129,11 @@ def drift_figures(commanded_position: ArrayLike, commanded_quaternion: ArrayLike
     epochs = (order[:m], order[n - m:])
     figures = [iso9283(commanded_position, commanded_quaternion, position[i], quaternion[i])
                for i in epochs]
-    stated = [_uncertainties(commanded_position, position[i], quaternion[i], cov[i])
-              for i in epochs]
+    both = np.stack(epochs)  # (2, m): the epochs' U from one Monte Carlo
+    stated = [{'ap_p': pose.ap_p, 'rp_l': pose.rp_l, **angles._asdict()}
+              for pose, angles in pose_uncertainties(
+                  np.tile(np.reshape(commanded_position, (1, 3)), (2, 1)), position[both],
+                  quaternion[both], cov[both])]
     values: dict[str, Any] = {}
     for name in FIGURES:
         first, last = (getattr(f, name) for f in figures)
@@ -144,15 +144,6 @@ def drift_figures(commanded_position: ArrayLike, commanded_quaternion: ArrayLike
     return DriftFigures(cycles=m, time_first=float(t[epochs[0]].mean()),
                         time_last=float(t[epochs[1]].mean()), first=figures[0],
                         last=figures[1], **values)
-
-
-def _uncertainties(commanded_position: ArrayLike, position: ArrayLike, quaternion: ArrayLike,
-                   covariance: ArrayLike) -> dict[str, float]:
-    """U (k = 2) of one epoch's figures, by name (:data:`FIGURES`; NaN: not stated)."""
-    cov = np.asarray(covariance, dtype=float)
-    pose = pose_figure_uncertainty(commanded_position, position, cov[:, :3, :3])
-    angles = orientation_figure_uncertainty(quaternion, cov[:, 3:, 3:])
-    return {'ap_p': pose.ap_p, 'rp_l': pose.rp_l, **angles._asdict()}
 
 
 __all__ = ['FIGURES', 'LEAST_VISITS', 'DriftFigures', 'drift_figures', 'epoch_size']

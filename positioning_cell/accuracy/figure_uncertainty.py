@@ -38,8 +38,9 @@ true poses lie within U of those from their measurements in ≥ 95 % of runs).""
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -107,16 +108,8 @@ def pose_figure_uncertainty(commanded_position: ArrayLike, attained_position: Ar
     u_ap = float(norm_expanded_uncertainty(ap[None], cov.mean(axis=0)[None], k)[0])
     if n < 2:
         return FigureUncertainty(u_ap, math.nan)
-    rng = rng if rng is not None else np.random.default_rng(0)
-
-    def bounds(draws: int) -> FloatArray:
-        errors = _drawn_errors(cov, rng, draws)
-        distance = np.sqrt(((errors - errors.mean(axis=1, keepdims=True)) ** 2).sum(axis=2))
-        bound: FloatArray = distance.mean(axis=1) + 3.0 * np.sqrt(
-            (distance ** 2).sum(axis=1) / (n - 1))
-        return bound[:, None]
-
-    return FigureUncertainty(u_ap, float(adaptive_quantiles(bounds, k, n)[0]))
+    spread = spread_uncertainty(cov[None], np.zeros((1, n, 3, 3)), k, rng)
+    return FigureUncertainty(u_ap, float(spread[0, 0]))
 
 
 class DistanceUncertainty(NamedTuple):
@@ -160,10 +153,10 @@ def distance_figure_uncertainty(attained_first: ArrayLike, attained_second: Arra
     u_ad = k * math.sqrt(max(float(variance), 0.0))
     if n < 2:
         return DistanceUncertainty(u_ad, math.nan)
-    rng = rng if rng is not None else np.random.default_rng(0)
+    source: NormalSource = rng if rng is not None else SeededDraws()
 
     def bounds(draws: int) -> FloatArray:
-        difference = _drawn_errors(cov[0], rng, draws) - _drawn_errors(cov[1], rng, draws)
+        difference = drawn_errors(cov[0], source, draws) - drawn_errors(cov[1], source, draws)
         bound: FloatArray = 3.0 * np.sqrt((difference ** 2).sum(axis=(1, 2)) / (n - 1))
         return bound[:, None]
 
@@ -181,13 +174,61 @@ def _check_covariances(cov: FloatArray) -> None:
         raise InputError('covariance: each must be symmetric positive semi-definite')
 
 
-def _drawn_errors(cov: FloatArray, rng: np.random.Generator, draws: int) -> FloatArray:
-    """``draws`` draws (draws, n, 3) of independent errors, row j ~ N(0, cov[j])."""
+class NormalSource(Protocol):
+    """What the Monte Carlos draw from: a numpy Generator, or :class:`SeededDraws`."""
+
+    def standard_normal(self, size: tuple[int, ...]) -> Any:
+        """Standard normal numbers of shape ``size``."""
+
+
+#: The seed of the Monte Carlos when the caller gives no generator.
+SEED = 0
+#: The blocks of :class:`SeededDraws` kept once drawn, at most this many bytes in all (the
+#: least recently used dropped first).
+KEPT_BYTES = 48 * 2**20
+
+
+class SeededDraws:
+    """The generator of a Monte Carlo whose caller gives none: its b-th block of shape s is
+    the same standard normals in every call and process (seeded by ``(SEED, b, *s)``), so
+    the same inputs give the same U. The analysis of a recording draws the same shapes for
+    every pose, path and mode of the same cycles, and drawing them was half of each Monte
+    Carlo's time: blocks are kept once drawn (:data:`KEPT_BYTES`), read-only."""
+
+    #: (shape, block) → block, least recently used first.
+    _kept: ClassVar[OrderedDict[tuple[tuple[int, ...], int], FloatArray]] = OrderedDict()
+    _kept_bytes: ClassVar[int] = 0
+
+    def __init__(self) -> None:
+        self._block = 0
+
+    def standard_normal(self, size: tuple[int, ...]) -> FloatArray:
+        """The next block of standard normals of shape ``size`` (read-only)."""
+        key = (tuple(size), self._block)
+        self._block += 1
+        kept = SeededDraws._kept
+        if key in kept:
+            kept.move_to_end(key)
+            return kept[key]
+        out: FloatArray = np.random.default_rng((SEED, key[1], *key[0])).standard_normal(size)
+        out.setflags(write=False)
+        if out.nbytes <= KEPT_BYTES // 4:
+            kept[key] = out
+            SeededDraws._kept_bytes += out.nbytes
+            while SeededDraws._kept_bytes > KEPT_BYTES:
+                SeededDraws._kept_bytes -= kept.popitem(last=False)[1].nbytes
+        return out
+
+
+def drawn_errors(cov: FloatArray, rng: NormalSource, draws: int) -> FloatArray:
+    """``draws`` draws (draws, n, d) of independent errors, row j ~ N(0, cov[j]) (cov
+    (n, d, d))."""
+    d = cov.shape[-1]
     w, v = np.linalg.eigh(cov)
-    root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (n, 3, 3): root @ rootᵀ = cov[j]
-    z = rng.standard_normal((draws, cov.shape[0], 3))
+    root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (n, d, d): root @ rootᵀ = cov[j]
+    z = rng.standard_normal((draws, cov.shape[0], d))
     # errors[m, j] = root[j] @ z[m, j]: one batched matmul per visit (a tenth of einsum's
-    # time), then laid out (draws, n, 3) for the callers' sums over visits
+    # time), then laid out (draws, n, d) for the callers' sums over visits
     errors: FloatArray = np.ascontiguousarray(
         np.matmul(z.transpose(1, 0, 2), root.transpose(0, 2, 1)).transpose(1, 0, 2))
     return errors
@@ -273,15 +314,93 @@ def orientation_figure_uncertainty(attained_quaternion: ArrayLike, covariance: A
     u_ap = k * np.sqrt(np.maximum(np.diagonal(angles.mean(axis=0)), 0.0))
     if n < 2:
         return OrientationUncertainty(*u_ap.tolist(), *[math.nan] * 3)
-    rng = rng if rng is not None else np.random.default_rng(0)
+    spread = spread_uncertainty(np.zeros((1, n, 3, 3)), angles[None], k, rng)
+    return OrientationUncertainty(*u_ap.tolist(), *spread[0, 1:].tolist())
+
+
+def spread_uncertainty(position_covariance: FloatArray, angle_covariance: FloatArray,
+                       k: float = COVERAGE_FACTOR, rng: NormalSource | None = None
+                       ) -> FloatArray:
+    """U (g, 4) of RP_l and of RP_a, RP_b, RP_c (the module docstring's bounds; the angles'
+    3·‖e − ē‖/√(n − 1)) of g commanded poses of n ≥ 2 visits each, from the covariances
+    (g, n, 3, 3) of their positions (m²) and of their angles a, b, c (rad²,
+    :func:`orientation_figure_uncertainty`'s C_j): one adaptive Monte Carlo for all of them
+    (:func:`adaptive_quantiles`), each visit's position and angle errors drawn together,
+    independent. ``rng``: default seeded (:class:`SeededDraws`). Covariances are taken as
+    given (the callers check them); a pose whose covariances are all zero (exact: the
+    simulation's truth) has U 0 without a draw."""
+    exact = ~(np.any(position_covariance != 0.0, axis=(1, 2, 3))
+              | np.any(angle_covariance != 0.0, axis=(1, 2, 3)))
+    out = np.zeros((position_covariance.shape[0], 4))
+    if not exact.all():
+        out[~exact] = _spread_quantiles(position_covariance[~exact],
+                                        angle_covariance[~exact], k, rng)
+    return out
+
+
+def _spread_quantiles(position_covariance: FloatArray, angle_covariance: FloatArray,
+                      k: float, rng: NormalSource | None) -> FloatArray:
+    """:func:`spread_uncertainty`'s Monte Carlo."""
+    g, n = position_covariance.shape[:2]
+    cov = np.zeros((g * n, 6, 6))
+    cov[:, :3, :3] = position_covariance.reshape(g * n, 3, 3)
+    cov[:, 3:, 3:] = angle_covariance.reshape(g * n, 3, 3)
+    source: NormalSource = rng if rng is not None else SeededDraws()
 
     def bounds(draws: int) -> FloatArray:
-        errors = _drawn_errors(angles, rng, draws)  # (draws, n, 3)
-        centred = errors - errors.mean(axis=1, keepdims=True)
-        bound: FloatArray = 3.0 * np.sqrt((centred ** 2).sum(axis=1) / (n - 1))
-        return bound  # (draws, 3)
+        errors = drawn_errors(cov, source, draws).reshape(draws, g, n, 6)
+        centred = errors - errors.mean(axis=2, keepdims=True)
+        squared = centred ** 2
+        distance2 = squared[..., :3].sum(axis=3)  # (draws, g, n)
+        out = np.empty((draws, g, 4))
+        out[..., 0] = np.sqrt(distance2).mean(axis=2) + 3.0 * np.sqrt(
+            distance2.sum(axis=2) / (n - 1))
+        out[..., 1:] = 3.0 * np.sqrt(squared[..., 3:].sum(axis=2) / (n - 1))
+        return out.reshape(draws, g * 4)
 
-    return OrientationUncertainty(*u_ap.tolist(), *adaptive_quantiles(bounds, k, n).tolist())
+    return adaptive_quantiles(bounds, k, g * n).reshape(g, 4)
+
+
+def pose_uncertainties(commanded_position: ArrayLike, attained_position: ArrayLike,
+                       attained_quaternion: ArrayLike, covariance: ArrayLike,
+                       k: float = COVERAGE_FACTOR, rng: NormalSource | None = None
+                       ) -> list[tuple[FigureUncertainty, OrientationUncertainty]]:
+    """:func:`pose_figure_uncertainty` and :func:`orientation_figure_uncertainty` of g
+    commanded poses (g, 3) m of n visits each, attained at (g, n, 3) m, (g, n, 4), measured
+    with covariances (g, n, 6, 6) (position m², then small rotations about the base axes
+    rad²; a NaN: that pose's U not stated): the same figures, the RP parts of every pose
+    from one Monte Carlo (:func:`spread_uncertainty`), as the analysis of a long recording
+    takes them for each mode's poses. InputError as theirs."""
+    _check_k(k)
+    commanded = as_vectors(commanded_position, 3, 'commanded_position')
+    x = np.asarray(attained_position, dtype=float)
+    cov = np.asarray(covariance, dtype=float)
+    g = commanded.shape[0]
+    if x.ndim != 3 or x.shape[0] != g or x.shape[2] != 3:
+        raise InputError(f'attained_position: expected shape ({g}, n, 3), got {x.shape}')
+    n = x.shape[1]
+    q = as_unit_quaternions(np.reshape(attained_quaternion, (-1, 4)))
+    if q.shape[0] != g * n or cov.shape != (g, n, 6, 6):
+        raise InputError(f'attained_quaternion, covariance: expected ({g}, {n}, 4) and '
+                         f'({g}, {n}, 6, 6), got {np.shape(attained_quaternion)} and '
+                         f'{cov.shape}')
+    as_vectors(x.reshape(-1, 3), 3, 'attained_position')  # finite
+    stated = np.all(np.isfinite(cov), axis=(1, 2, 3))
+    m = euler_rates_from_rotation(q).reshape(g, n, 3, 3)
+    angles = m @ cov[..., 3:, 3:] @ np.swapaxes(m, 2, 3)  # (g, n, 3, 3) of a, b, c
+    u_ap = np.full(g, math.nan)
+    u_rp = np.full((g, 4), math.nan)
+    if stated.any():
+        _check_covariances(cov[stated].reshape(-1, 6, 6))
+        u_ap[stated] = norm_expanded_uncertainty(
+            x[stated].mean(axis=1) - commanded[stated], cov[stated, :, :3, :3].mean(axis=1),
+            k)
+        if n >= 2:
+            u_rp[stated] = spread_uncertainty(cov[stated, :, :3, :3], angles[stated], k, rng)
+    u_angles = k * np.sqrt(np.maximum(np.diagonal(angles.mean(axis=1), axis1=1, axis2=2), 0.0))
+    return [(FigureUncertainty(float(u_ap[i]), float(u_rp[i, 0])),
+             OrientationUncertainty(*u_angles[i].tolist(), *u_rp[i, 1:].tolist()))
+            for i in range(g)]
 
 
 def _by_direction(n: int, covariance: ArrayLike, direction: ArrayLike
