@@ -21,11 +21,13 @@ from positioning_cell.analysis import analyse_bag
 from positioning_cell.analysis.acceptance import (
     DRIFT,
     NOT_MEASURED,
+    PATH,
     AcceptanceLimits,
     Characteristic,
     acceptance_record,
     characteristics,
     markdown,
+    not_measured,
     overall,
 )
 from positioning_cell.config import config_path
@@ -132,7 +134,7 @@ def test_the_limits_come_from_the_program_files_block(tmp_path: Path) -> None:
     shipped = AcceptanceLimits.from_program(config_path('acceptance.yaml'))
     defaults = AcceptanceLimits()
     for name in ('ap_p', 'rp_l', 'vap_p', 'ad_p', 'rd_p', 'stabilisation_time', 'overshoot',
-                 'dap_p', 'drp_l'):
+                 'dap_p', 'drp_l', 'at_p', 'rt_l'):
         assert getattr(shipped, name) == getattr(defaults, name)
     for name in ('ap_angle', 'rp_angle', 'vap_angle', 'dap_angle', 'drp_angle'):
         assert getattr(shipped, name) == pytest.approx(getattr(defaults, name), rel=1e-3)
@@ -162,7 +164,7 @@ def test_the_record_names_what_it_did_not_measure_and_writes_no_nan(bag: Path,
     assert doc['modes']['none'] == 'does not conform'
     assert len(doc['characteristics']) == len(characteristics(
         output.analysis, AcceptanceLimits()))
-    # three cycles: no pose is visited often enough for a drift
+    # three cycles: no pose is visited often enough for a drift; every move has a path
     assert [n['clause'] for n in doc['not_measured']] == [c for c, _ in (DRIFT, *NOT_MEASURED)]
     for clause, what in (DRIFT, *NOT_MEASURED):
         assert f'§{clause}: {what}' in text
@@ -204,3 +206,25 @@ def test_a_pose_visited_often_enough_gets_its_drift_judged_and_reported(
     assert '## Drift of pose characteristics' in report
     summary = json.loads((tmp_path / 'out' / 'summary.json').read_text())
     assert summary['modes'][0]['poses'][0]['drift']['first']['n'] == LEAST_VISITS // 3
+
+
+def test_each_commanded_path_gets_its_path_figures_judged(bag: Path) -> None:
+    """Every move between two program poses of one mode is a path (ISO 9283 §8.2): P1 → P2 …
+    P5 → P1 in each mode, each with the cycles that moved along it; the first move of a mode
+    (planned from where the mode before left the platform) and the run's first move are
+    none of them. Each path's AT_p and RT_l are in the record with their U and limits."""
+    analysis = analyse_bag(bag, SETTINGS)
+    limits = AcceptanceLimits()
+    by = {(c.mode, c.subject, c.name): c for c in characteristics(analysis, limits)
+          if c.clause == PATH[0]}
+    names = ['P1 → P2', 'P2 → P3', 'P3 → P4', 'P4 → P5', 'P5 → P1']
+    for m in analysis.modes:
+        assert [p.name for p in m.paths] == names
+        assert [p.figures.n for p in m.paths] == [3, 3, 3, 3, 2]  # 3 cycles
+        for p in m.paths:
+            f = p.figures
+            assert f.planes and math.isfinite(f.u_at_p) and math.isfinite(f.u_rt_l)
+            at, rt = by[(m.mode, p.name, 'AT_p')], by[(m.mode, p.name, 'RT_l')]
+            assert (at.value, at.uncertainty, at.limit) == (f.at_p, f.u_at_p, limits.at_p)
+            assert (rt.value, rt.uncertainty, rt.limit) == (f.rt_l, f.u_rt_l, limits.rt_l)
+    assert PATH not in not_measured(characteristics(analysis, limits))

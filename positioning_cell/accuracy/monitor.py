@@ -11,8 +11,10 @@ clamped to just after the last sample (``add_target(..., clamp=True)``) and goes
 measured and the truth accumulators at its place among the samples; measurements go to the
 measured accumulator and to the tracker pairing; true poses to the truth accumulator and to the
 tracker pairing. Each settled measured visit gets a verdict against the tolerances in force
-when it settled, and its stabilisation time and overshoot from the readings of its segment
-(:mod:`positioning_cell.accuracy.stabilisation`). The tracker's registration
+when it settled, its stabilisation time and overshoot from the readings of its segment
+(:mod:`positioning_cell.accuracy.stabilisation`), and its attained path in the normal planes
+of its commanded path from the pose visited before it (:mod:`positioning_cell.accuracy.path`;
+the path figures are those of a path's cycles together, offline). The tracker's registration
 (/metrology/registration: where the tracker located itself, with its covariance) is the part
 of every reading's stated covariance that averaging a settle window does not reduce; each
 reading keeps the registration in force when it arrived (:class:`Readings`). However the
@@ -33,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.accuracy.decisions import covariance_checks
+from positioning_cell.accuracy.path import PathCrossings, path_crossings
 from positioning_cell.accuracy.settle import (
     AccuracyAccumulator,
     CheckedSamples,
@@ -59,7 +62,7 @@ from positioning_cell.accuracy.verdicts import (
     judge_visits,
 )
 from positioning_cell.config import load_parameter_file, node_parameters
-from positioning_cell.core.poses import as_pose_batch
+from positioning_cell.core.poses import Triple, as_pose_batch
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import Registration
 from positioning_cell.moves.correction import mean_reading
@@ -353,6 +356,24 @@ class Readings:
                                      cov[:3, :3], settings.band))
         return out
 
+    def paths_of(self, visits: Sequence[Visit], starts: Sequence[Triple | None]
+                 ) -> list[PathCrossings | None]:
+        """Each visit's attained path in the normal planes of its commanded path from
+        ``starts`` (the commanded position it was moved from; None: not known) over the
+        readings of its segment (:func:`~positioning_cell.accuracy.path.path_crossings`);
+        none without a start, for a short path, or when readings of the segment were
+        dropped."""
+        out: list[PathCrossings | None] = []
+        for visit, start in zip(visits, starts, strict=True):  # over visits
+            if start is None or self.dropped_until >= visit.target_time:
+                out.append(None)
+                continue
+            rows = slice(int(np.searchsorted(self.time, visit.target_time, side='left')),
+                         int(np.searchsorted(self.time, visit.settle_time, side='right')))
+            out.append(path_crossings(start, visit.commanded_position, self.time[rows],
+                                      self.position[rows], self.covariance[rows, :3, :3]))
+        return out
+
     def covariance_of(self, visits: Sequence[Visit],
                       registrations: Sequence[Registration] = ()) -> FloatArray:
         """The covariance (N, 6, 6) of each visit's attained pose, the mean of the readings
@@ -407,6 +428,12 @@ class Monitor:
         #: :attr:`verdicts`.
         self.stabilisations: list[Stabilisation] = []
         self._stabilised: dict[Visit, Stabilisation] = {}
+        #: Each verdict's visit's attained path in its commanded path's normal planes (None:
+        #: not taken, :meth:`Readings.paths_of`), in step with :attr:`verdicts`.
+        self.paths: list[PathCrossings | None] = []
+        #: The commanded position of the latest visit settled (the next one's path starts
+        #: there; kept over reset: it is where the machine was sent).
+        self._moved_from: Triple | None = None
         self.ignored: list[Ignored] = []
         self.readings = Readings()
         #: The tracker's registrations taken, in arrival order (the last is in force; kept
@@ -648,11 +675,17 @@ class Monitor:
         return ((visit, verdict),)
 
     def _stabilise(self, visits: Sequence[Visit], covariances: FloatArray) -> None:
-        """The stabilisation of newly settled ``visits`` (:attr:`stabilisations`)."""
+        """The stabilisation and path of newly settled ``visits`` (:attr:`stabilisations`,
+        :attr:`paths`)."""
         found = self.readings.stabilisation_of(visits, covariances,
                                                 self.settings.stabilisation)
         self.stabilisations.extend(found)
         self._stabilised.update(zip(visits, found, strict=True))
+        if not visits:
+            return
+        starts = [self._moved_from, *(v.commanded_position for v in visits[:-1])]
+        self.paths.extend(self.readings.paths_of(visits, starts))
+        self._moved_from = visits[-1].commanded_position
 
     def visit_values(self, visit: Visit) -> dict[str, str]:
         """What a verdict's status says of ``visit`` beside the verdict (for people): the ISO
@@ -672,7 +705,7 @@ class Monitor:
         self.tracker.reset()
         self.truth_seen = False
         self.verdicts, self.covariances, self.stabilisations = [], [], []
-        self._stabilised = {}
+        self._stabilised, self.paths = {}, []
         self.readings = Readings()
 
     def report(self) -> dict[str, Any]:

@@ -9,9 +9,11 @@ the decision rule). Written beside the report as ``acceptance.md`` and ``accepta
 The figures are those of the report (:mod:`positioning_cell.analysis.summary`): AP_p, AP_a..c
 (§7.2.1), RP_l, RP_a..c (§7.2.2), vAP_p, vAP_a..c (§7.2.3), AD_p, RD_p (§7.3), the pose
 stabilisation time (§7.4) and overshoot (§7.5), the drifts dAP_p, dAP_a..c, dRP_l, dRP_a..c
-(§7.6, of a pose visited often enough), each with its U
+(§7.6, of a pose visited often enough), the path accuracy and repeatability AT_p, RT_l
+(§8.2, of each commanded path), each with its U
 (:mod:`positioning_cell.accuracy.figure_uncertainty`,
-:mod:`positioning_cell.accuracy.stabilisation`, :mod:`positioning_cell.accuracy.drift`). A
+:mod:`positioning_cell.accuracy.stabilisation`, :mod:`positioning_cell.accuracy.drift`,
+:mod:`positioning_cell.accuracy.path`). A
 signed figure (AP_a, AD_p) is judged by its magnitude; a figure whose U is unknown decides
 nothing under ISO 14253-1 (indeterminate, as a verdict:
 :func:`positioning_cell.accuracy.verdicts.decide`). A mode conforms when every
@@ -35,6 +37,7 @@ from typing import Any
 from positioning_cell.accuracy.decisions import Decision, DecisionRule
 from positioning_cell.accuracy.drift import FIGURES as DRIFT_FIGURES
 from positioning_cell.accuracy.drift import LEAST_VISITS as DRIFT_LEAST_VISITS
+from positioning_cell.accuracy.path import PATH_LEAST
 from positioning_cell.accuracy.verdicts import decide
 from positioning_cell.analysis.report import markdown_table
 from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
@@ -84,6 +87,10 @@ class AcceptanceLimits:
     drp_angle: float = setting(math.radians(0.0025), 'drift of pose repeatability dRP_a, '
                                'dRP_b, dRP_c, each (7.6)', 'rad', low=0.0, low_open=True,
                                high=0.1)
+    at_p: float = setting(50e-6, 'path accuracy AT_p (8.2)', 'm', low=0.0, low_open=True,
+                          high=0.01)
+    rt_l: float = setting(20e-6, 'path repeatability RT_l (8.2)', 'm', low=0.0,
+                          low_open=True, high=0.01)
     decision_rule: str = setting(DecisionRule.ISO_14253_1.value, 'how a figure\'s U enters '
                                  'its decision: iso_14253_1 (guard bands of U) or '
                                  'simple_acceptance (U ignored)',
@@ -130,10 +137,13 @@ class Characteristic:
 DRIFT = ('7.6', f'drift of pose accuracy and repeatability dAP, dRP (a pose visited at least '
                 f'{DRIFT_LEAST_VISITS} times in a mode)')
 
+#: The path figures (clause, what): measured by a run whose moves the tracker read.
+PATH = ('8.2', f'path accuracy and repeatability AT, RT (a move of at least '
+               f'{PATH_LEAST * 1e3:.0f} mm whose readings crossed its normal planes)')
+
 #: The characteristics of ISO 9283:1998 that apply to the positioner and that no run of the
 #: cell measures yet (clause, what).
 NOT_MEASURED = (
-    ('8.2', 'path accuracy and repeatability AT, RT'),
     ('8.6', 'path velocity characteristics AV, RV, FV'),
     ('9', 'minimum positioning time'),
     ('10', 'static compliance'),
@@ -142,14 +152,16 @@ NOT_MEASURED = (
 
 def not_measured(found: Sequence[Characteristic]) -> tuple[tuple[str, str], ...]:
     """The characteristics of the standard that apply and that ``found`` lacks (clause,
-    what): :data:`NOT_MEASURED`, and the drift when no pose gave it."""
-    return ((DRIFT,) if all(c.clause != DRIFT[0] for c in found) else ()) + NOT_MEASURED
+    what): the drift and the path figures when no pose or path gave them, and
+    :data:`NOT_MEASURED`."""
+    clauses = {c.clause for c in found}
+    return tuple(c for c in (DRIFT, PATH) if c[0] not in clauses) + NOT_MEASURED
 
 
 def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
                     ) -> tuple[Characteristic, ...]:
     """Every characteristic the run measured (module docstring), mode by mode in the
-    analysis' order, pose by pose, then the mode's distance pair."""
+    analysis' order, pose by pose, then the mode's distance pair and its paths."""
     rule = DecisionRule(limits.decision_rule)
 
     def judged(mode: str, subject: str, name: str, clause: str, value: float | None,
@@ -169,6 +181,12 @@ def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
             f, u = m.distance.figures, m.distance.uncertainty
             out += judged(m.mode, pair, 'AD_p', '7.3.1', f.ad_p, u.ad_p, limits.ad_p, 'm')
             out += judged(m.mode, pair, 'RD_p', '7.3.2', f.rd_p, u.rd_p, limits.rd_p, 'm')
+        for path in m.paths:
+            t = path.figures
+            out += judged(m.mode, path.name, 'AT_p', PATH[0], t.at_p, t.u_at_p, limits.at_p,
+                          'm')
+            out += judged(m.mode, path.name, 'RT_l', PATH[0], t.rt_l, t.u_rt_l, limits.rt_l,
+                          'm')
     return tuple(out)
 
 
@@ -321,6 +339,7 @@ def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLim
     return text, doc
 
 
-__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'DRIFT', 'NOT_MEASURED', 'AcceptanceLimits',
+__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'DRIFT', 'NOT_MEASURED', 'PATH',
+           'AcceptanceLimits',
            'AcceptanceRecord', 'Characteristic', 'acceptance_record', 'characteristics',
            'markdown', 'not_measured', 'overall', 'write_acceptance']

@@ -54,6 +54,7 @@ from positioning_cell.accuracy.monitor import (
     PoseBatch,
     PoseMessages,
 )
+from positioning_cell.accuracy.path import PathCrossings
 from positioning_cell.accuracy.stabilisation import Stabilisation
 from positioning_cell.analysis.context import ContextCollector
 from positioning_cell.analysis.program import ProgramStep
@@ -168,6 +169,9 @@ class LabelledVisit:
     stabilisation: Stabilisation = field(default_factory=Stabilisation.none, compare=False)
     #: The program's cycle it was commanded in (None: not known, e.g. no program markers).
     cycle: int | None = None
+    #: Its attained path in the normal planes of its commanded path (ISO 9283 §8.2; None:
+    #: not taken, e.g. of the truth, a first visit or a short move).
+    path: PathCrossings | None = field(default=None, compare=False)
 
     @property
     def settle_duration(self) -> float:
@@ -303,10 +307,10 @@ class Replayer:
         visits = tuple(LabelledVisit(v, segments[by_time[v.target_time]].mode,
                                      segments[by_time[v.target_time]].pose, verdict,
                                      measured.start(v.target_time), covariance, stabilised,
-                                     segments[by_time[v.target_time]].cycle)
-                       for v, verdict, covariance, stabilised in zip(
+                                     segments[by_time[v.target_time]].cycle, path)
+                       for v, verdict, covariance, stabilised, path in zip(
                            monitor.measured.visits, monitor.verdicts, monitor.covariances,
-                           monitor.stabilisations, strict=True))
+                           monitor.stabilisations, monitor.paths, strict=True))
         true = monitor.truth_accumulator.visits
         exact = np.zeros((len(true), 6, 6))  # the simulation's truth: U = 0
         truth_visits = tuple(

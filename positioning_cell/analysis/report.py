@@ -170,6 +170,12 @@ def _drift_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     return rows
 
 
+def _path_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
+    return [[m.mode, p.name, str(f.n), f'{f.length * 1e3:.1f}', str(len(f.planes)),
+             um_u(f.at_p, f.u_at_p), um_u(f.rt_l, f.u_rt_l)]
+            for m in modes for p in m.paths for f in (p.figures,)]
+
+
 def _distance_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     rows = []
     for m in modes:
@@ -187,6 +193,9 @@ POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p ± U µm', 'AP
                'RP_a ± U (±°)', 'RP_b ± U (±°)', 'RP_c ± U (±°)',
                'max |Δp| µm', 'RMS |Δp| µm', 'max angle °', 'RMS angle °', 'settle s',
                'in tol.')
+
+
+PATH_HEADER = ('mode', 'path', 'cycles', 'length mm', 'planes', 'AT_p ± U µm', 'RT_l ± U µm')
 
 
 DRIFT_HEADER = ('mode', 'pose', 'n', 'T s', 'dAP_p ± U µm', 'dRP_l ± U µm', 'dAP_a ± U °',
@@ -293,6 +302,17 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 '(k = 2) of the means from the readings\' covariances and their spacing '
                 '(unresolved: the position moved more than the band between two readings, no U '
                 'stated; docs/howto/verdicts.md).', '']
+    paths = _path_rows(a.modes)
+    if paths:
+        out += ['## Path accuracy and repeatability', '',
+                *markdown_table(PATH_HEADER, paths), '',
+                'ISO 9283:1998 §8.2 of each commanded straight-line path (from the pose '
+                'visited before): the attained path\'s points in the planes normal to it at '
+                '10 %, 20 % … 90 % of its length (where the tracker\'s readings first crossed '
+                'each; planes some cycle did not cross are left out), AT_p the largest '
+                'distance of a plane\'s barycentre from the commanded point, RT_l the '
+                'largest l̄ + 3·S_l about it; U (k = 2) from the readings\' covariances, for '
+                'all planes together (positioning_cell.accuracy.path).', '']
     drifted = _drift_rows(a.modes)
     if drifted:
         out += ['## Drift of pose characteristics', '',

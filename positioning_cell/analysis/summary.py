@@ -12,7 +12,7 @@ its settle window, so it never exceeds what the bag covers.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
 from itertools import pairwise
@@ -39,10 +39,10 @@ from positioning_cell.accuracy.figure_uncertainty import (
     distance_figure_uncertainty,
     multidirectional_angle_uncertainty,
     multidirectional_uncertainty,
-    orientation_figure_uncertainty,
-    pose_figure_uncertainty,
+    pose_uncertainties,
 )
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
+from positioning_cell.accuracy.path import PathFigures, path_figures
 from positioning_cell.accuracy.stabilisation import StabilisationFigures, stabilisation_figures_of
 from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
 from positioning_cell.analysis.axis_test import runs as axis_runs
@@ -198,6 +198,60 @@ def cycle_pairs(first: Sequence[LabelledVisit], second: Sequence[LabelledVisit]
 
 
 @dataclass(frozen=True)
+class PathSummary:
+    """ISO 9283 §8.2 of one commanded path of a mode: from the pose ``start`` to the pose
+    ``end`` (their names), over the visits that moved along it."""
+
+    start: str
+    end: str
+    figures: PathFigures
+
+    @property
+    def name(self) -> str:
+        """'P2 → P3'."""
+        return f'{self.start} → {self.end}'
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (SI)."""
+        return {'start': self.start, 'end': self.end, 'iso9283': self.figures.to_dict()}
+
+
+#: Commanded positions closer than this (m) are the same point of a path.
+SAME_POINT = 1e-7
+
+
+def path_summaries(visits: Sequence[LabelledVisit], before: Mapping[int, LabelledVisit]
+                   ) -> tuple[PathSummary, ...]:
+    """The path figures (:func:`~positioning_cell.accuracy.path.path_figures`) of one mode's
+    visits, grouped by commanded path (start and end), in the order of each path's first
+    visit. A visit's path counts when the visit before it (``before``, by ``id``: the run's
+    visits in time order, :func:`visits_before`) was of the same mode and commanded at the
+    path's start: the first move after a mode switch, or after a visit outside the program,
+    was planned from where the other mode left the platform, not along the commanded path.
+    A path none of whose planes every visit crossed is left out."""
+    groups: dict[tuple[str, tuple[float, ...]], list[LabelledVisit]] = {}
+    for v in visits:  # over visits, not samples
+        previous = before.get(id(v))
+        if (v.path is None or previous is None or previous.mode != v.mode
+                or not np.allclose(previous.visit.commanded_position, v.path.start, rtol=0.0,
+                                   atol=SAME_POINT)):
+            continue
+        start = tuple(round(x / SAME_POINT) * SAME_POINT for x in v.path.start)
+        groups.setdefault((v.pose, start), []).append(v)
+    out = []
+    for (pose, _), group in groups.items():
+        figures = path_figures([v.path for v in group if v.path is not None])
+        if figures is not None:
+            out.append(PathSummary(before[id(group[0])].pose, pose, figures))
+    return tuple(out)
+
+
+def visits_before(visits: Sequence[LabelledVisit]) -> dict[int, LabelledVisit]:
+    """The visit before each of ``visits`` (time order), keyed by ``id`` of the visit."""
+    return {id(v): previous for previous, v in pairwise(visits)}  # over visits
+
+
+@dataclass(frozen=True)
 class ModeSummary:
     """One compensation mode: every visit's extremes, the worst pose accuracy AP_p (m) and
     repeatability RP_l (m; None below two cycles), the worst orientation AP (largest |AP_a|,
@@ -212,6 +266,8 @@ class ModeSummary:
     poses: tuple[PoseSummary, ...]
     tracker: accuracy.ErrorStatistics | None = None
     distance: DistanceSummary | None = None
+    #: ISO 9283 §8.2 of each commanded path its visits moved along (:func:`path_summaries`).
+    paths: tuple[PathSummary, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI)."""
@@ -220,7 +276,8 @@ class ModeSummary:
                 'rp_angle_max': self.rp_angle_max,
                 'tracker': None if self.tracker is None else self.tracker.to_dict(),
                 'poses': [p.to_dict() for p in self.poses],
-                'distance': None if self.distance is None else self.distance.to_dict()}
+                'distance': None if self.distance is None else self.distance.to_dict(),
+                'paths': [p.to_dict() for p in self.paths]}
 
 
 def _worst(values: Sequence[float | None]) -> float | None:
@@ -247,28 +304,28 @@ def approaches(visits: Sequence[LabelledVisit]) -> dict[int, FloatArray]:
     return out
 
 
-def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
+def summarise(visits: Sequence[LabelledVisit], *, over_run: bool = True
+              ) -> tuple[ModeSummary, ...]:
     """Group labelled visits by mode (order of first appearance) and pose (order of the pose
     key), with the ISO 9283 figures of each group (:func:`accuracy.iso9283`; the commanded
-    pose of a group is that of its first visit)."""
+    pose of a group is that of its first visit); with ``over_run``, also each pose's drift
+    and each mode's paths (:func:`with_drift_and_paths`, which the analysis of a bag runs
+    while the plots, which need neither, are drawn)."""
     approach = approaches(visits)
     out = []
     for mode in dict.fromkeys(v.mode for v in visits):
         mine = [v for v in visits if v.mode == mode]
         poses = []
-        for pose in sorted(dict.fromkeys(v.pose for v in mine),
-                           key=lambda name: min(v.visit.key for v in mine if v.pose == name)):
-            group = [v for v in mine if v.pose == pose]
-            first = group[0].visit
+        groups = [[v for v in mine if v.pose == pose] for pose in sorted(
+            dict.fromkeys(v.pose for v in mine),
+            key=lambda name: min(v.visit.key for v in mine if v.pose == name))]
+        stated = _pose_uncertainties(groups)
+        for group in groups:
+            pose, first = group[0].pose, group[0].visit
             figures = accuracy.iso9283(first.commanded_position, first.commanded_quaternion,
                                        [v.visit.position for v in group],
                                        [v.visit.quaternion for v in group], first.key)
-            covariance = np.array([v.covariance for v in group])
-            uncertainty = pose_figure_uncertainty(
-                first.commanded_position, [v.visit.position for v in group],
-                covariance[:, :3, :3])
-            orientation = orientation_figure_uncertainty(
-                [v.visit.quaternion for v in group], covariance[:, 3:, 3:])
+            uncertainty, orientation = stated[id(group[0])]
             known = [v for v in group if id(v) in approach]
             multidirectional = accuracy.multidirectional_figures(
                 first.commanded_quaternion, [v.visit.position for v in known],
@@ -282,16 +339,11 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
                     [v.visit.position for v in known], known_cov[:, :3, :3], directions)
                 multidirectional_angles_u = multidirectional_angle_uncertainty(
                     [v.visit.quaternion for v in known], known_cov[:, 3:, 3:], directions)
-            drift = drift_figures(
-                first.commanded_position, first.commanded_quaternion,
-                [v.visit.position for v in group], [v.visit.quaternion for v in group],
-                [v.visit.settle_time for v in group], covariance
-            ) if len(group) >= DRIFT_LEAST_VISITS else None
             poses.append(PoseSummary(
                 mode, pose, figures, Extremes.of(group), uncertainty, orientation,
                 multidirectional, multidirectional_u,
                 stabilisation_figures_of([v.stabilisation for v in group]),
-                multidirectional_angles_u, drift))
+                multidirectional_angles_u))
         out.append(ModeSummary(
             mode, Extremes.of(mine), max(p.figures.ap_p for p in poses),
             _worst([p.figures.rp_l for p in poses]),
@@ -300,6 +352,38 @@ def summarise(visits: Sequence[LabelledVisit]) -> tuple[ModeSummary, ...]:
             _worst([_worst([p.figures.rp_a, p.figures.rp_b, p.figures.rp_c])
                     for p in poses]),
             tuple(poses), distance=distance_summary(mine)))
+    return with_drift_and_paths(tuple(out), visits) if over_run else tuple(out)
+
+
+def _pose_uncertainties(groups: Sequence[Sequence[LabelledVisit]]
+                        ) -> dict[int, tuple[FigureUncertainty, OrientationUncertainty]]:
+    """The U of each pose's figures (:func:`pose_uncertainties`, its position and angles
+    from one Monte Carlo), keyed by ``id`` of the pose's first visit. One pose at a time:
+    a Monte Carlo of several poses together must draw until the slowest to converge has,
+    and took twice as long on a tiled `make run` bag."""
+    return {id(g[0]): pose_uncertainties(
+        [g[0].visit.commanded_position], [[v.visit.position for v in g]],
+        [[v.visit.quaternion for v in g]], [[v.covariance for v in g]])[0] for g in groups}
+
+
+def with_drift_and_paths(modes: tuple[ModeSummary, ...], visits: Sequence[LabelledVisit]
+                         ) -> tuple[ModeSummary, ...]:
+    """``modes`` (:func:`summarise` of ``visits``) with each pose's drift
+    (:func:`~positioning_cell.accuracy.drift.drift_figures`, of a pose visited often enough)
+    and each mode's paths (:func:`path_summaries`)."""
+    before = visits_before(visits)
+    out = []
+    for m in modes:
+        mine = [v for v in visits if v.mode == m.mode]
+        poses = []
+        for p in m.poses:
+            group = [v for v in mine if v.pose == p.pose]
+            poses.append(replace(p, drift=drift_figures(
+                p.figures.commanded_position, p.figures.commanded_quaternion,
+                [v.visit.position for v in group], [v.visit.quaternion for v in group],
+                [v.visit.settle_time for v in group], np.array([v.covariance for v in group])
+            ) if len(group) >= DRIFT_LEAST_VISITS else None))
+        out.append(replace(m, poses=tuple(poses), paths=path_summaries(mine, before)))
     return tuple(out)
 
 
@@ -394,6 +478,11 @@ ANALYSED_TOPICS = (*REQUIRED_TOPICS, *OPTIONAL_TOPICS, *CONTEXT_TOPICS)
 READ_TOPICS = tuple(dict.fromkeys((*ANALYSED_TOPICS, *BUDGET_TOPICS)))
 
 
+def in_program(visits: Sequence[LabelledVisit]) -> list[LabelledVisit]:
+    """The visits commanded by the run's program (not those outside it)."""
+    return [v for v in visits if v.mode != OUTSIDE_PROGRAM]
+
+
 def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
     """The analysis of an open recording (:func:`analyse_bag`)."""
     missing = [t for t in REQUIRED_TOPICS if t not in recording.topics]
@@ -407,16 +496,14 @@ def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
     result = replayer.finish()
     truth = bool(result.truth.count)
 
-    def in_program(visits: Sequence[LabelledVisit]) -> list[LabelledVisit]:
-        return [v for v in visits if v.mode != OUTSIDE_PROGRAM]
-
     markers, bad_markers = parse_markers(replayer.axis_test)
 
     return RunAnalysis(
         bag=recording.path, message_count=recording.message_count, topics=recording.topics,
         settings=settings, replay=result,
-        modes=_with_tracker(summarise(in_program(result.visits)), result),
-        truth_modes=summarise(in_program(result.truth_visits)) if truth else (),
+        modes=_with_tracker(summarise(in_program(result.visits), over_run=False), result),
+        truth_modes=summarise(in_program(result.truth_visits), over_run=False)
+        if truth else (),
         context=replayer.context.result(recording.start_ns * 1e-9, recording.end_ns * 1e-9),
         axis_tests=tuple(axis_test_figures(markers, run) for run in axis_runs(markers)),
         problems=(*recording.problems, *result.problems, *bad_markers),
@@ -445,12 +532,17 @@ def analyse_bag(path: str | Path, settings: MonitorSettings | None = None,
     of :data:`REQUIRED_TOPICS`; a truncated or damaged bag is analysed as far as it is
     readable: its sound chunks (``problems`` names each corrupt chunk and the time range and
     messages lost; :mod:`positioning_cell.analysis.reading`). ``replayed`` is called with
-    the analysis before the error budget's pass (its ``budgets`` still empty), e.g. to start
-    drawing the plots, which need no budget."""
+    the analysis before the error budget's pass and the figures over the run (its
+    ``budgets`` still empty, no pose's drift, no mode's paths: :func:`with_drift_and_paths`),
+    e.g. to start drawing the plots, which need neither."""
     settings = settings or MonitorSettings()
     analysis = with_recording(path, ANALYSED_TOPICS, partial(_analyse, settings=settings))
     if replayed is not None:
         replayed(analysis)
+    analysis = replace(
+        analysis, modes=with_drift_and_paths(analysis.modes, in_program(analysis.replay.visits)),
+        truth_modes=with_drift_and_paths(analysis.truth_modes,
+                                         in_program(analysis.replay.truth_visits)))
     mech, resolution = budget_settings(config or config_path('cell.yaml'))
     budgets = with_recording(path, BUDGET_TOPICS, partial(
         gather, visits=analysis.replay.visits, mech=mech, resolution=resolution))
