@@ -7,6 +7,7 @@ jog on drives that arrive at once, the simulated tracker), a machine with known 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 import yaml
 from exact_calibration import exact_calibration
+from scipy.spatial.transform import Rotation
 
 from positioning_cell import names
 from positioning_cell.accuracy.iso230_2 import iso230_2
@@ -26,6 +28,7 @@ from positioning_cell.analysis.axis_test import (
     AxisPlan,
     AxisTest,
     AxisTestMarker,
+    actuator_uncertainty,
     axis_test_figures,
     axis_test_from,
     home_joints,
@@ -34,6 +37,7 @@ from positioning_cell.analysis.axis_test import (
 )
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.kinematics import inverse_jacobian
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.motion.settings import machine_settings
@@ -165,10 +169,15 @@ def _marker(**kw: Any) -> AxisTestMarker:
 
 
 def test_a_marker_round_trips_through_json() -> None:
-    for marker in (_marker(), _marker(true=None, reference='nominal', direction=DOWN)):
+    for marker in (_marker(), _marker(true=None, reference='nominal', direction=DOWN),
+                   _marker(tracker_u=2.5e-6)):
         text = marker.to_json()
         assert AxisTestMarker.from_json(text) == marker
         assert json.loads(text)['true'] == marker.true
+    # a marker recorded before the uncertainty was: none stated
+    old = json.loads(_marker().to_json())
+    del old['tracker_u']
+    assert AxisTestMarker.from_json(json.dumps(old)).tracker_u is None
     assert _marker().deviation(TRACKER) == pytest.approx(5e-5)
     assert _marker().deviation(TRUTH) == pytest.approx(4e-5)
     assert _marker(true=None).deviation(TRUTH) is None
@@ -182,6 +191,7 @@ def test_a_marker_round_trips_through_json() -> None:
     (_marker(cycle=0).to_json(), r'\(index, cycle or samples out of range\)'),
     (_marker(reference='guessed').to_json(), r'\(reference not calibrated or nominal\)'),
     (_marker(tracker=float('nan')).to_json(), r'\(a value is not finite\)'),
+    (_marker(tracker_u=-1e-6).to_json(), r'\(tracker_u negative or not finite\)'),
 ])
 def test_a_bad_marker_is_refused(text: str, message: str) -> None:
     with pytest.raises(InputError, match=message):
@@ -247,6 +257,25 @@ def test_the_figures_from_markers_are_those_of_iso230_2_on_the_same_numbers() ->
     assert any('deviations in µrad, targets in mrad' in line for line in lines)
     assert sum(1 for line in lines if line.startswith('| A (')) == 3
     assert len(results.summary()) == 3
+
+
+def test_the_actuator_uncertainty_is_the_inverse_jacobian_applied_to_the_covariance() -> None:
+    """Finite differences of the nominal machine's actuator values against the analytic
+    inverse Jacobian (core.kinematics.inverse_jacobian: twist (v, ω in base) to rates): for a
+    covariance σ² in one direction of the pose, u = σ·|J[:, d]|; a NaN covariance: NaN."""
+    mech = Mechanism.default()
+    model = MachineModel(mech)
+    p, q = np.array([0.002, -0.001, 0.197]), Rotation.from_rotvec([0.01, -0.02, 0.005]).as_quat()
+    jac = inverse_jacobian(mech, p, q)[0]
+    for d, sigma in ((0, 3e-6), (2, 5e-6), (3, 2e-5), (5, 1e-5)):
+        cov = np.zeros((6, 6))
+        cov[d, d] = sigma**2
+        np.testing.assert_allclose(actuator_uncertainty(model, p, q, cov),
+                                   sigma * np.abs(jac[:, d]), rtol=1e-5, atol=1e-15)
+    full = np.diag([9e-12, 9e-12, 16e-12, 1e-10, 1e-10, 4e-10])
+    np.testing.assert_allclose(actuator_uncertainty(model, p, q, full),
+                               np.sqrt(np.diagonal(jac @ full @ jac.T)), rtol=1e-5)
+    assert np.isnan(actuator_uncertainty(model, p, q, np.full((6, 6), math.nan))).all()
 
 
 def test_incomplete_cycles_and_runs_are_handled_with_a_note() -> None:
@@ -373,6 +402,7 @@ def test_the_procedure_on_a_simulated_machine_shows_its_zero_offsets(
         assert m.commanded == pytest.approx(home[k] + m.target, abs=1e-12)
         assert m.encoder == pytest.approx(m.commanded, abs=1e-12)
         assert m.reference == 'calibrated' and m.run == 'test-run' and m.samples == 10
+        assert m.tracker_u is not None and m.tracker_u > 0.0
     # homed before and after; the axes went back to their home values before that
     assert port.homed == 2
     back = [j for j in port.jogs if j[0] == 'leg2_length']
@@ -395,6 +425,13 @@ def test_the_procedure_on_a_simulated_machine_shows_its_zero_offsets(
         noise = 5e-6 if k < 3 else 6e-5
         assert abs(float(np.mean(tracker.x_mean)) - offsets[k]) < noise
         assert tracker.R > 0.0
+        # each axis figure from the tracker within its U of the truth's (measurement only:
+        # the reference is the true machine)
+        u = results.by_axis()[axis][TRACKER].uncertainty
+        assert u is not None and results.by_axis()[axis][TRUTH].uncertainty is None
+        for name in ('A', 'A_up', 'A_down', 'R', 'R_up', 'R_down', 'B', 'B_mean', 'E',
+                     'E_up', 'E_down', 'M'):
+            assert abs(getattr(tracker, name) - getattr(by_truth, name)) <= u[name], name
     # the tracker through the nominal machine sees the geometry too: not the offset
     port.marks.clear()
     nominal = run_procedure(port, SMALL, Reference(MachineModel(settings.mechanism), 'nominal'),

@@ -5,6 +5,7 @@ Pure numpy/scipy over arrays of samples; no ROS.
 - :mod:`.settle`: settle windows, visits, the batch and streaming accumulators;
 - :mod:`.iso9283`: ISO 9283:1998 AP, RP and vAP of a commanded pose, AD and RD between two;
 - :mod:`.figure_uncertainty`: the expanded uncertainty of those figures;
+- :mod:`.iso230_2_uncertainty`: the expanded uncertainty of the ISO 230-2 axis figures;
 - :mod:`.stabilisation`: ISO 9283 pose stabilisation time and overshoot of a visit, with U;
 - :mod:`.drift`: ISO 9283 drift of a pose's accuracy and repeatability over a run, with U;
 - :mod:`.path`: ISO 9283 path accuracy and repeatability of straight-line moves, with U;

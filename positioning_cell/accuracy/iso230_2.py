@@ -263,21 +263,38 @@ def iso230_2(targets: ArrayLike, forward: ArrayLike, backward: ArrayLike) -> Axi
     s_up, s_down = x_up.std(axis=0, ddof=1), x_down.std(axis=0, ddof=1)  # §3.15
     r_up, r_down = 4.0 * s_up, 4.0 * s_down                          # §3.16
     r_i = np.maximum(2.0 * s_up + 2.0 * s_down + np.abs(b_i), np.maximum(r_up, r_down))  # §3.17
-    high_up, low_up = mean_up + 2.0 * s_up, mean_up - 2.0 * s_up
-    high_down, low_down = mean_down + 2.0 * s_down, mean_down - 2.0 * s_down
-    means = np.concatenate([mean_up, mean_down])
+    axis = dict(zip((name for name, _ in AXIS_FIGURES), axis_figures(x_up, x_down).tolist(),
+                    strict=True))
     return AxisFigures(
         targets=_readonly(p), x_up=_readonly(x_up), x_down=_readonly(x_down),
         x_mean_up=_readonly(mean_up), x_mean_down=_readonly(mean_down),
         x_mean=_readonly(mean), s_up=_readonly(s_up), s_down=_readonly(s_down),
         R_i_up=_readonly(r_up), R_i_down=_readonly(r_down), R_i=_readonly(r_i),
-        B_i=_readonly(b_i),
-        A=float(max(high_up.max(), high_down.max()) - min(low_up.min(), low_down.min())),
-        A_up=float(high_up.max() - low_up.min()),                   # §3.23
-        A_down=float(high_down.max() - low_down.min()),
-        R=float(r_i.max()), R_up=float(r_up.max()), R_down=float(r_down.max()),  # §3.18, 3.19
-        B=float(np.abs(b_i).max()), B_mean=float(b_i.mean()),       # §3.13, 3.14
-        E=float(means.max() - means.min()),                          # §3.21
-        E_up=float(mean_up.max() - mean_up.min()),                  # §3.20
-        E_down=float(mean_down.max() - mean_down.min()),
-        M=float(mean.max() - mean.min()))                            # §3.22
+        B_i=_readonly(b_i), **axis)
+
+
+def axis_figures(x_up: ArrayLike, x_down: ArrayLike) -> FloatArray:
+    """The axis figures (..., 12) in :data:`AXIS_FIGURES` order (A, A↑, A↓, R, R↑, R↓, B, B̄,
+    E, E↑, E↓, M; module docstring) of the positional deviations x_ij↑, x_ij↓ (..., n, m),
+    batched over the leading axes (the Monte Carlo of :func:`axis_figure_uncertainty`).
+    Inputs as :func:`validated` leaves them."""
+    up, down = np.asarray(x_up, dtype=float), np.asarray(x_down, dtype=float)
+    mean_up, mean_down = up.mean(axis=-2), down.mean(axis=-2)        # §3.10
+    mean = (mean_up + mean_down) / 2.0                               # §3.11
+    b_i = mean_up - mean_down                                        # §3.12
+    s_up, s_down = up.std(axis=-2, ddof=1), down.std(axis=-2, ddof=1)  # §3.15
+    r_up, r_down = 4.0 * s_up, 4.0 * s_down                          # §3.16
+    r_i = np.maximum(2.0 * s_up + 2.0 * s_down + np.abs(b_i), np.maximum(r_up, r_down))  # §3.17
+    high_up, low_up = (mean_up + 2.0 * s_up).max(-1), (mean_up - 2.0 * s_up).min(-1)
+    high_down, low_down = (mean_down + 2.0 * s_down).max(-1), (mean_down - 2.0 * s_down).min(-1)
+    means_high = np.maximum(mean_up.max(-1), mean_down.max(-1))
+    means_low = np.minimum(mean_up.min(-1), mean_down.min(-1))
+    out: FloatArray = np.stack([
+        np.maximum(high_up, high_down) - np.minimum(low_up, low_down),  # §3.24
+        high_up - low_up, high_down - low_down,                      # §3.23
+        r_i.max(-1), r_up.max(-1), r_down.max(-1),                   # §3.19, 3.18
+        np.abs(b_i).max(-1), b_i.mean(-1),                           # §3.13, 3.14
+        means_high - means_low,                                      # §3.21
+        mean_up.max(-1) - mean_up.min(-1), mean_down.max(-1) - mean_down.min(-1),  # §3.20
+        mean.max(-1) - mean.min(-1)], axis=-1)                       # §3.22
+    return out

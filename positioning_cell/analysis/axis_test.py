@@ -32,12 +32,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from positioning_cell.accuracy.iso230_2 import STANDARD, AxisFigures, iso230_2
+from positioning_cell.accuracy.iso230_2 import (
+    AXIS_FIGURES,
+    STANDARD,
+    UNITS,
+    AxisFigures,
+    iso230_2,
+)
+from positioning_cell.accuracy.iso230_2_uncertainty import axis_figure_uncertainty
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.config import load_parameter_file
 from positioning_cell.core.kinematics import forward, inverse
 from positioning_cell.core.limits import check_poses
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
+from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.files import brief_errors, excerpt
 from positioning_cell.limits.jog import LINEAR_AXES, axis_range
@@ -304,6 +312,35 @@ def actuator_values(model: MachineModel, position: ArrayLike, quaternion: ArrayL
                            commands.thetas[0] + model.theta_offsets])
 
 
+#: The steps (m, rad) of the finite differences of :func:`actuator_uncertainty`.
+POSE_STEPS = (1e-6, 1e-6)
+
+
+def actuator_uncertainty(model: MachineModel, position: ArrayLike, quaternion: ArrayLike,
+                         covariance: ArrayLike) -> FloatArray:
+    """The standard uncertainty (6,) (m, rad; JOINT_NAMES order) of :func:`actuator_values`
+    of a pose (3,) m, (4,) measured with covariance (6, 6) (x, y, z, then small rotations
+    about the base axes, R' = exp([δθ]×)·R; m², rad²): √diag(J Σ Jᵀ), J the central finite
+    differences (:data:`POSE_STEPS`) of the actuator values over the pose's six directions
+    (the law of propagation, JCGM 100 eq. 13: the errors are µm, the kinematics smooth over
+    them). NaN where the covariance is not stated (a NaN in it)."""
+    cov = np.asarray(covariance, dtype=float)
+    if not np.all(np.isfinite(cov)):
+        return np.full(6, math.nan)
+    p = np.asarray(position, dtype=float)
+    rotation = scipy_rotation().from_quat(quaternion)
+    jac = np.empty((6, 6))
+    for d in range(6):  # the pose's six directions, not samples
+        step = np.zeros(6)
+        step[d] = POSE_STEPS[d // 3]
+        values = [actuator_values(model, p + sign * step[:3],
+                                  (scipy_rotation().from_rotvec(sign * step[3:]) * rotation
+                                   ).as_quat()) for sign in (1.0, -1.0)]
+        jac[:, d] = (values[0] - values[1]) / (2.0 * step[d])
+    out: FloatArray = np.sqrt(np.maximum(np.diagonal(jac @ cov @ jac.T), 0.0))
+    return out
+
+
 @dataclass(frozen=True)
 class AxisTestMarker:
     """One measured stop of an axis test, as published on ``/cell/axis_test`` (JSON): the
@@ -315,7 +352,9 @@ class AxisTestMarker:
     averaged tracker pose through the ``reference`` model, calibrated or nominal) and ``true``
     (simulation only, judging: the true axis position plus the truth's zero offset; None
     elsewhere); the window of tracker readings used, ``start`` … ``end`` (s, the cell's clock),
-    and their number ``samples``."""
+    and their number ``samples``; ``tracker_u`` the standard uncertainty of ``tracker`` from
+    the averaged pose's covariance (:func:`actuator_uncertainty`; None: not stated, e.g. a
+    bag recorded before it was)."""
 
     run: str
     axis: str
@@ -331,6 +370,7 @@ class AxisTestMarker:
     end: float
     samples: int
     reference: str = NOMINAL
+    tracker_u: float | None = None
 
     def to_json(self) -> str:
         """The JSON text published on /cell/axis_test."""
@@ -341,15 +381,17 @@ class AxisTestMarker:
         """A marker from its JSON (InputError naming what is wrong)."""
         try:
             d = json.loads(text)
-            missing = [f.name for f in fields(cls) if f.name not in d and f.name != 'reference']
+            missing = [f.name for f in fields(cls)
+                       if f.name not in d and f.name not in ('reference', 'tracker_u')]
             if missing:
                 raise KeyError(', '.join(missing))
-            true = d['true']
+            true, tracker_u = d['true'], d.get('tracker_u')
             marker = cls(str(d['run']), str(d['axis']), int(d['index']), float(d['target']),
                          str(d['direction']), int(d['cycle']), float(d['commanded']),
                          float(d['encoder']), float(d['tracker']),
                          None if true is None else float(true), float(d['start']),
-                         float(d['end']), int(d['samples']), str(d.get('reference', NOMINAL)))
+                         float(d['end']), int(d['samples']), str(d.get('reference', NOMINAL)),
+                         None if tracker_u is None else float(tracker_u))
         except (ValueError, KeyError, TypeError) as err:
             raise InputError(f'not an axis-test marker: {text[:80]!r} ({err})') from None
         values = [marker.target, marker.commanded, marker.encoder, marker.tracker,
@@ -361,6 +403,8 @@ class AxisTestMarker:
                else 'reference not calibrated or nominal' if marker.reference not in (
                    CALIBRATED, NOMINAL)
                else 'a value is not finite' if not all(map(math.isfinite, values))
+               else 'tracker_u negative or not finite' if marker.tracker_u is not None and not (
+                   math.isfinite(marker.tracker_u) and marker.tracker_u >= 0.0)
                else '')
         if why:
             raise InputError(f'not an axis-test marker ({why}): {text[:80]!r}')
@@ -400,6 +444,10 @@ class AxisResult:
     figures: AxisFigures
     cycles: tuple[int, ...]
     reference: str
+    #: U (k = 2) of each axis figure from the stops' stated uncertainties, by its name
+    #: (:func:`~positioning_cell.accuracy.iso230_2_uncertainty.axis_figure_uncertainty`);
+    #: None: not stated (the truth, or a stop without ``tracker_u``).
+    uncertainty: dict[str, float] | None = None
 
     @property
     def units(self) -> tuple[str, str]:
@@ -410,7 +458,7 @@ class AxisResult:
         """JSON-able: axis, source, reference, unit (m or rad), cycles and the figures."""
         return {'axis': self.axis, 'source': self.source, 'reference': self.reference,
                 'unit': 'm' if is_linear(self.axis) else 'rad', 'cycles': list(self.cycles),
-                **self.figures.to_dict()}
+                **self.figures.to_dict(), 'U': self.uncertainty}
 
     def title(self) -> str:
         """Which axis, from which source, in which unit."""
@@ -467,6 +515,14 @@ class AxisTestResults:
             unit, target = r.units
             lines += ['#' * level + ' ' + r.title(), '']
             lines += r.figures.markdown(unit, target_unit=target)
+            if r.uncertainty is not None:
+                factor, decimals = UNITS[unit][0], UNITS[unit][3]
+                lines.append('| ' + ' | '.join(
+                    f'± {r.uncertainty[name] * factor:.{decimals}f}' for name, _ in AXIS_FIGURES)
+                    + ' |')
+                lines += ['', 'Second row: U (k = 2) of each axis figure from the tracker\'s '
+                          'stated uncertainty of each stop (a bound whatever the truth; '
+                          'positioning_cell.accuracy.iso230_2_uncertainty).']
             lines.append('')
         if not self.results:
             lines += ['No axis-test figures.', '']
@@ -524,8 +580,14 @@ def axis_test_figures(markers: Sequence[AxisTestMarker], run: str | None = None,
             p = np.array([targets[i] for i in indexes])
             up, down = (_actual(stops, complete, p, direction, source)
                         for direction in (UP, DOWN))
-            results.append(AxisResult(axis, source, iso230_2(p, up, down), tuple(complete),
-                                      reference))
+            figures = iso230_2(p, up, down)
+            u = [[[stops[c, d, i].tracker_u for i in indexes] for c in complete]
+                 for d in (UP, DOWN)]
+            stated = source == TRACKER and all(v is not None for d in u for c in d for v in c)
+            results.append(AxisResult(
+                axis, source, figures, tuple(complete), reference,
+                axis_figure_uncertainty(figures, *np.array(u, dtype=float)) if stated
+                else None))
     return AxisTestResults(run, tuple(results), tuple(notes))
 
 

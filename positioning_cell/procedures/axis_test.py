@@ -35,6 +35,7 @@ from positioning_cell.analysis.axis_test import (
     AxisTest,
     AxisTestMarker,
     AxisTestResults,
+    actuator_uncertainty,
     actuator_values,
     axis_test_figures,
     is_linear,
@@ -43,7 +44,7 @@ from positioning_cell.calibration import file as calfile
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.motion.settings import CompensationMode, PositionerSettings, machine_settings
-from positioning_cell.moves.correction import mean_pose
+from positioning_cell.moves.correction import mean_reading
 from positioning_cell.procedures.judging import simulation_truth
 from positioning_cell.procedures.port import CellPort, ProcedureError, Say, moved_or_raise
 
@@ -159,14 +160,18 @@ def run_procedure(port: CellPort, test: AxisTest, reference: Reference,
                     continue
                 port.rest(test.dwell)
                 r = port.readings(test.samples, timeout)
-                p, q = mean_pose(r.position, r.quaternion)
+                p, q, cov = mean_reading(
+                    r.position, r.quaternion, r.covariance, None if r.registration is None
+                    else r.registration.covariance_at(r.position.mean(axis=0))[0])
                 tracker = float(actuator_values(reference.model, p, q)[k])
+                tracker_u = float(actuator_uncertainty(reference.model, p, q, cov)[k])
                 true = (None if r.true is None or offsets is None
                         else float(r.true[k] + offsets[k]))
                 marker = AxisTestMarker(run, plan.axis, stop.index, plan.targets[stop.index],
                                         stop.direction, stop.cycle, goal, float(r.encoder[k]),
                                         tracker, true, r.start, r.end, len(r.position),
-                                        reference.name)
+                                        reference.name,
+                                        tracker_u if math.isfinite(tracker_u) else None)
                 port.mark(names.AXIS_TEST, marker.to_json())
                 markers.append(marker)
                 arrow = '↑' if stop.direction == UP else '↓'
