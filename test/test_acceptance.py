@@ -228,3 +228,69 @@ def test_each_commanded_path_gets_its_path_figures_judged(bag: Path) -> None:
             assert (at.value, at.uncertainty, at.limit) == (f.at_p, f.u_at_p, limits.at_p)
             assert (rt.value, rt.uncertainty, rt.limit) == (f.rt_l, f.u_rt_l, limits.rt_l)
     assert PATH not in not_measured(characteristics(analysis, limits))
+
+
+_PROGRAM = '''program:
+  cycles: {cycles}
+  modes: [model]
+  {sequence}
+  poses:
+    P1: {{position: [0.000, 0.000, 0.196], orientation: [0.0, 0.0, 0.0, 1.0]}}
+    P2: {{position: [0.004, 0.004, 0.200], orientation: [0.0, 0.0, 0.0, 1.0]}}
+    P4: {{position: [{p4x}, -0.004, 0.192], orientation: [0.0, 0.0, 0.0, 1.0]}}
+acceptance: {{{keys}}}
+'''
+
+
+@pytest.mark.parametrize(('cycles', 'sequence', 'p4x', 'keys', 'clauses'), [
+    (1, '', -0.004, 'rp_l: 2.0e-5', ['7.2.2']),
+    (2, '', -0.004, 'vap_p: 3.0e-5', ['7.2.3']),
+    (2, 'sequence: [P1, P2, P1, P4]', -0.004, 'vap_p: 3.0e-5', []),
+    (5, '', -0.004, 'dap_p: 2.0e-5', ['7.6']),
+    (6, '', -0.004, 'dap_p: 2.0e-5, drp_angle: 4.0e-5', []),
+    (3, 'sequence: [P2, P1, P2, P1]', -0.004, 'drp_l: 1.0e-5', []),  # P2 twice a cycle
+    (2, '', -0.004, 'at_p: 5.0e-5, ad_p: 5.0e-5', []),
+    (1, '', -0.004, 'rt_l: 2.0e-5, ap_p: 5.0e-5', ['8.2']),
+])
+def test_an_acceptance_block_the_program_cannot_measure_is_refused_before_motion(
+        tmp_path: Path, cycles: int, sequence: str, p4x: float, keys: str,
+        clauses: list[str]) -> None:
+    """A limit the program cannot give a figure for is named with its clause, before the cell
+    starts (run_cell exits with a usage error and makes no run folder); a program whose
+    block it can measure, and one without a block, pass."""
+    from positioning_cell.analysis.acceptance import check_program, program_gaps
+    from positioning_cell.analysis.program import load_program
+    from positioning_cell.core.mechanism import Mechanism
+    from positioning_cell.tools import cell_run
+    from positioning_cell.tools.exits import Exit
+    path = tmp_path / 'program.yaml'
+    path.write_text(_PROGRAM.format(cycles=cycles, sequence=sequence, p4x=p4x, keys=keys))
+    program = load_program(path, Mechanism.default())
+    gaps = program_gaps(program, [k.split(':')[0].strip() for k in keys.split(',')])
+    assert [g.split('(ISO 9283 ')[1].split(')')[0] for g in gaps] == clauses
+    if not clauses:
+        check_program(path, program)
+        return
+    said: list[str] = []
+    assert cell_run.run(path, runs_dir=tmp_path / 'runs', say=said.append) == Exit.USAGE
+    assert not (tmp_path / 'runs').exists()
+    assert 'cannot measure' in said[0] and all(f'ISO 9283 {c}' in said[0] for c in clauses)
+
+
+def test_the_shipped_programs_pass_their_acceptance_check() -> None:
+    from positioning_cell.analysis.acceptance import check_program
+    from positioning_cell.analysis.program import load_program
+    from positioning_cell.core.mechanism import Mechanism
+    for name in ('acceptance.yaml', 'program.yaml', 'accuracy_map.yaml'):
+        check_program(config_path(name), load_program(config_path(name), Mechanism.default()))
+
+
+def test_missing_distance_poses_and_short_moves_are_named(tmp_path: Path) -> None:
+    from positioning_cell.analysis.acceptance import program_gaps
+    from positioning_cell.analysis.program import load_program
+    from positioning_cell.core.mechanism import Mechanism
+    path = tmp_path / 'program.yaml'
+    path.write_text(_PROGRAM.format(cycles=2, sequence='sequence: [P1]', p4x=-0.004,
+                                    keys='').replace('P2:', 'P3:'))
+    gaps = program_gaps(load_program(path, Mechanism.default()), ['ad_p', 'at_p'])
+    assert len(gaps) == 2 and 'lacks P2' in gaps[0] and '1 mm or longer' in gaps[1]

@@ -28,19 +28,29 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from positioning_cell.accuracy.decisions import Decision, DecisionRule
 from positioning_cell.accuracy.drift import FIGURES as DRIFT_FIGURES
 from positioning_cell.accuracy.drift import LEAST_VISITS as DRIFT_LEAST_VISITS
 from positioning_cell.accuracy.path import PATH_LEAST
 from positioning_cell.accuracy.verdicts import decide
+from positioning_cell.analysis.program import Program
 from positioning_cell.analysis.report import markdown_table
-from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
+from positioning_cell.analysis.summary import (
+    DISTANCE_POSES,
+    ModeSummary,
+    PoseSummary,
+    RunAnalysis,
+)
+from positioning_cell.config import load_parameter_file
+from positioning_cell.errors import ConfigError
 from positioning_cell.parameters import check_fields, parse_block, setting
 
 ACCEPTANCE_FILE = 'acceptance.md'
@@ -148,6 +158,53 @@ NOT_MEASURED = (
     ('9', 'minimum positioning time'),
     ('10', 'static compliance'),
 )
+
+
+def program_gaps(program: Program, given: Collection[str]) -> list[str]:
+    """What ``program`` cannot measure of the characteristics whose limits ``given`` (the
+    keys its ``acceptance:`` block sets) names, one sentence each with the clause: the
+    repeatabilities need two cycles; vAP a pose approached from two other poses; AD and RD
+    the distance pair's poses; the drift a pose visited :data:`DRIFT_LEAST_VISITS` times a
+    mode; the path figures a move of :data:`PATH_LEAST` or more between two poses."""
+    order = program.order
+    gaps = []
+    repeatabilities = {'rp_l': '7.2.2', 'rp_angle': '7.2.2', 'rd_p': '7.3.2', 'rt_l': '8.2'}
+    needs_cycles = sorted(set(given) & set(repeatabilities))
+    if needs_cycles and program.cycles < 2:
+        clauses = ', '.join(sorted({repeatabilities[k] for k in needs_cycles}))
+        gaps.append(f'{", ".join(needs_cycles)} (ISO 9283 {clauses}): a repeatability needs '
+                    f'at least 2 cycles, the program has {program.cycles}')
+    before = {k: {order[i - 1] for i in range(len(order)) if order[i] == k
+                  and order[i - 1] != k} for k in set(order)}
+    if {'vap_p', 'vap_angle'} & set(given) and max(map(len, before.values())) < 2:
+        gaps.append('vap_p, vap_angle (ISO 9283 7.2.3): no pose is approached from two other '
+                    'poses (a sequence such as config/acceptance.yaml\'s)')
+    if {'ad_p', 'rd_p'} & set(given) and not set(DISTANCE_POSES) <= set(program.names):
+        gaps.append(f'ad_p, rd_p (ISO 9283 7.3): the program lacks '
+                    f'{" and ".join(p for p in DISTANCE_POSES if p not in program.names)}, '
+                    'the distance pair')
+    most = program.cycles * max(order.count(k) for k in set(order))
+    if {'dap_p', 'dap_angle', 'drp_l', 'drp_angle'} & set(given) and most < DRIFT_LEAST_VISITS:
+        gaps.append(f'dap_p, dap_angle, drp_l, drp_angle (ISO 9283 7.6): a drift needs a pose '
+                    f'visited {DRIFT_LEAST_VISITS} times a mode, the program visits one at most '
+                    f'{most} times')
+    steps = [float(np.linalg.norm(program.position[order[i]] - program.position[order[i - 1]]))
+             for i in range(len(order))]
+    if {'at_p', 'rt_l'} & set(given) and max(steps) < PATH_LEAST:
+        gaps.append(f'at_p, rt_l (ISO 9283 8.2): no move between two poses is '
+                    f'{PATH_LEAST * 1e3:.0f} mm or longer')
+    return gaps
+
+
+def check_program(path: str | Path, program: Program) -> None:
+    """ConfigError naming each characteristic the ``acceptance:`` block of the program file
+    at ``path`` sets a limit for and the program cannot measure (:func:`program_gaps`),
+    before anything moves; nothing without the block."""
+    block = load_parameter_file(path).get(BLOCK) or {}
+    gaps = program_gaps(program, list(block) if isinstance(block, Mapping) else [])
+    if gaps:
+        raise ConfigError(f'{path}: the acceptance: block judges what the program cannot '
+                          'measure: ' + '; '.join(gaps))
 
 
 def not_measured(found: Sequence[Characteristic]) -> tuple[tuple[str, str], ...]:
@@ -342,4 +399,5 @@ def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLim
 __all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'DRIFT', 'NOT_MEASURED', 'PATH',
            'AcceptanceLimits',
            'AcceptanceRecord', 'Characteristic', 'acceptance_record', 'characteristics',
-           'markdown', 'not_measured', 'overall', 'write_acceptance']
+           'check_program', 'markdown', 'not_measured', 'overall', 'program_gaps',
+           'write_acceptance']

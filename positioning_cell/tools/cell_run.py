@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from positioning_cell import names
-from positioning_cell.analysis.acceptance import AcceptanceLimits
+from positioning_cell.analysis.acceptance import AcceptanceLimits, check_program
 from positioning_cell.analysis.axis_test import load_axis_test
 from positioning_cell.analysis.program import load_program
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
@@ -54,6 +54,7 @@ def run(program_path: Path | None = None, config: Path | None = None,
                                      .get('mechanism', {}))
         program = load_program(program_path, mech)
         AcceptanceLimits.from_program(program_path)  # checked now, not after the run
+        check_program(program_path, program)  # what it judges, the program can measure
         axes = None if axis_test_path is None else load_axis_test(axis_test_path, mech)
     except PositioningError as err:
         say(f'run_cell: error: {err}')
