@@ -22,6 +22,7 @@ from positioning_cell.analysis.acceptance import (
     DRIFT,
     NOT_MEASURED,
     PATH,
+    VELOCITY,
     AcceptanceLimits,
     Characteristic,
     acceptance_record,
@@ -134,7 +135,7 @@ def test_the_limits_come_from_the_program_files_block(tmp_path: Path) -> None:
     shipped = AcceptanceLimits.from_program(config_path('acceptance.yaml'))
     defaults = AcceptanceLimits()
     for name in ('ap_p', 'rp_l', 'vap_p', 'ad_p', 'rd_p', 'stabilisation_time', 'overshoot',
-                 'dap_p', 'drp_l', 'at_p', 'rt_l'):
+                 'dap_p', 'drp_l', 'at_p', 'rt_l', 'av', 'rv', 'fv'):
         assert getattr(shipped, name) == getattr(defaults, name)
     for name in ('ap_angle', 'rp_angle', 'vap_angle', 'dap_angle', 'drp_angle'):
         assert getattr(shipped, name) == pytest.approx(getattr(defaults, name), rel=1e-3)
@@ -212,7 +213,8 @@ def test_each_commanded_path_gets_its_path_figures_judged(bag: Path) -> None:
     """Every move between two program poses of one mode is a path (ISO 9283 §8.2): P1 → P2 …
     P5 → P1 in each mode, each with the cycles that moved along it; the first move of a mode
     (planned from where the mode before left the platform) and the run's first move are
-    none of them. Each path's AT_p and RT_l are in the record with their U and limits."""
+    none of them. Each path's AT_p and RT_l are in the record with their U and limits, and
+    its AV, RV and FV (§8.6; the synthetic run's moves keep to no plan: AV is far from 0)."""
     analysis = analyse_bag(bag, SETTINGS)
     limits = AcceptanceLimits()
     by = {(c.mode, c.subject, c.name): c for c in characteristics(analysis, limits)
@@ -227,7 +229,17 @@ def test_each_commanded_path_gets_its_path_figures_judged(bag: Path) -> None:
             at, rt = by[(m.mode, p.name, 'AT_p')], by[(m.mode, p.name, 'RT_l')]
             assert (at.value, at.uncertainty, at.limit) == (f.at_p, f.u_at_p, limits.at_p)
             assert (rt.value, rt.uncertainty, rt.limit) == (f.rt_l, f.u_rt_l, limits.rt_l)
-    assert PATH not in not_measured(characteristics(analysis, limits))
+    # the commanded speed: the plan's with the cell configuration's motion limits
+    found = characteristics(analysis, limits)
+    for m in analysis.modes:
+        for p in m.paths:
+            v = p.velocity
+            assert v is not None and v.commanded == pytest.approx(0.01)  # config/cell.yaml
+            by_v = {c.name: c for c in found if c.subject == p.name and c.mode == m.mode
+                    and c.clause == VELOCITY[0]}
+            assert by_v['AV'].value == pytest.approx(abs(v.av))
+            assert (by_v['FV'].uncertainty, by_v['FV'].limit) == (v.u_fv, limits.fv)
+    assert {PATH, VELOCITY}.isdisjoint(not_measured(found))
 
 
 _PROGRAM = '''program:

@@ -9,6 +9,7 @@ Pure numpy/scipy over arrays of samples; no ROS.
 - :mod:`.stabilisation`: ISO 9283 pose stabilisation time and overshoot of a visit, with U;
 - :mod:`.drift`: ISO 9283 drift of a pose's accuracy and repeatability over a run, with U;
 - :mod:`.path`: ISO 9283 path accuracy and repeatability of straight-line moves, with U;
+- :mod:`.path_velocity`: ISO 9283 path velocity accuracy, repeatability, fluctuation, with U;
 - :mod:`.verdicts`: tolerances and verdicts;
 - :mod:`.decisions`: ISO 14253-1 decisions with the measurement's expanded uncertainty;
 - :mod:`.tracker_errors`: measured minus true pose over paired stamps;

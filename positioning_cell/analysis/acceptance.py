@@ -10,10 +10,11 @@ The figures are those of the report (:mod:`positioning_cell.analysis.summary`): 
 (§7.2.1), RP_l, RP_a..c (§7.2.2), vAP_p, vAP_a..c (§7.2.3), AD_p, RD_p (§7.3), the pose
 stabilisation time (§7.4) and overshoot (§7.5), the drifts dAP_p, dAP_a..c, dRP_l, dRP_a..c
 (§7.6, of a pose visited often enough), the path accuracy and repeatability AT_p, RT_l
-(§8.2, of each commanded path), each with its U
+(§8.2, of each commanded path), the path velocity accuracy, repeatability and fluctuation
+AV, RV, FV (§8.6, of a path whose plan cruises between two of its planes), each with its U
 (:mod:`positioning_cell.accuracy.figure_uncertainty`,
 :mod:`positioning_cell.accuracy.stabilisation`, :mod:`positioning_cell.accuracy.drift`,
-:mod:`positioning_cell.accuracy.path`). A
+:mod:`positioning_cell.accuracy.path`, :mod:`positioning_cell.accuracy.path_velocity`). A
 signed figure (AP_a, AD_p) is judged by its magnitude; a figure whose U is unknown decides
 nothing under ISO 14253-1 (indeterminate, as a verdict:
 :func:`positioning_cell.accuracy.verdicts.decide`). A mode conforms when every
@@ -101,6 +102,12 @@ class AcceptanceLimits:
                           high=0.01)
     rt_l: float = setting(20e-6, 'path repeatability RT_l (8.2)', 'm', low=0.0,
                           low_open=True, high=0.01)
+    av: float = setting(0.05, 'path velocity accuracy AV, share of the commanded velocity '
+                        '(8.6)', '1', low=0.0, low_open=True, high=1.0)
+    rv: float = setting(0.05, 'path velocity repeatability RV, share of the commanded '
+                        'velocity (8.6)', '1', low=0.0, low_open=True, high=1.0)
+    fv: float = setting(0.10, 'path velocity fluctuation FV, share of the commanded velocity '
+                        '(8.6)', '1', low=0.0, low_open=True, high=1.0)
     decision_rule: str = setting(DecisionRule.ISO_14253_1.value, 'how a figure\'s U enters '
                                  'its decision: iso_14253_1 (guard bands of U) or '
                                  'simple_acceptance (U ignored)',
@@ -151,10 +158,14 @@ DRIFT = ('7.6', f'drift of pose accuracy and repeatability dAP, dRP (a pose visi
 PATH = ('8.2', f'path accuracy and repeatability AT, RT (a move of at least '
                f'{PATH_LEAST * 1e3:.0f} mm whose readings crossed its normal planes)')
 
+#: The path velocity figures (clause, what): measured along a path that cruises between two
+#: of its planes.
+VELOCITY = ('8.6', 'path velocity characteristics AV, RV, FV (a path whose plan cruises '
+                   'between two of its normal planes)')
+
 #: The characteristics of ISO 9283:1998 that apply to the positioner and that no run of the
 #: cell measures yet (clause, what).
 NOT_MEASURED = (
-    ('8.6', 'path velocity characteristics AV, RV, FV'),
     ('9', 'minimum positioning time'),
     ('10', 'static compliance'),
 )
@@ -168,7 +179,8 @@ def program_gaps(program: Program, given: Collection[str]) -> list[str]:
     mode; the path figures a move of :data:`PATH_LEAST` or more between two poses."""
     order = program.order
     gaps = []
-    repeatabilities = {'rp_l': '7.2.2', 'rp_angle': '7.2.2', 'rd_p': '7.3.2', 'rt_l': '8.2'}
+    repeatabilities = {'rp_l': '7.2.2', 'rp_angle': '7.2.2', 'rd_p': '7.3.2', 'rt_l': '8.2',
+                       'rv': '8.6'}
     needs_cycles = sorted(set(given) & set(repeatabilities))
     if needs_cycles and program.cycles < 2:
         clauses = ', '.join(sorted({repeatabilities[k] for k in needs_cycles}))
@@ -190,8 +202,9 @@ def program_gaps(program: Program, given: Collection[str]) -> list[str]:
                     f'{most} times')
     steps = [float(np.linalg.norm(program.position[order[i]] - program.position[order[i - 1]]))
              for i in range(len(order))]
-    if {'at_p', 'rt_l'} & set(given) and max(steps) < PATH_LEAST:
-        gaps.append(f'at_p, rt_l (ISO 9283 8.2): no move between two poses is '
+    if {'at_p', 'rt_l', 'av', 'rv', 'fv'} & set(given) and max(steps) < PATH_LEAST:
+        gaps.append(f'{", ".join(sorted({"at_p", "rt_l", "av", "rv", "fv"} & set(given)))} '
+                    f'(ISO 9283 8.2, 8.6): no move between two poses is '
                     f'{PATH_LEAST * 1e3:.0f} mm or longer')
     return gaps
 
@@ -209,10 +222,11 @@ def check_program(path: str | Path, program: Program) -> None:
 
 def not_measured(found: Sequence[Characteristic]) -> tuple[tuple[str, str], ...]:
     """The characteristics of the standard that apply and that ``found`` lacks (clause,
-    what): the drift and the path figures when no pose or path gave them, and
+    what): the drift, the path and the path velocity figures when no pose or path gave
+    them, and
     :data:`NOT_MEASURED`."""
     clauses = {c.clause for c in found}
-    return tuple(c for c in (DRIFT, PATH) if c[0] not in clauses) + NOT_MEASURED
+    return tuple(c for c in (DRIFT, PATH, VELOCITY) if c[0] not in clauses) + NOT_MEASURED
 
 
 def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
@@ -244,6 +258,11 @@ def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
                           'm')
             out += judged(m.mode, path.name, 'RT_l', PATH[0], t.rt_l, t.u_rt_l, limits.rt_l,
                           'm')
+            if (v := path.velocity) is not None:
+                for name in ('av', 'rv', 'fv'):
+                    out += judged(m.mode, path.name, name.upper(), VELOCITY[0],
+                                  getattr(v, name), getattr(v, f'u_{name}'),
+                                  getattr(limits, name), '1')
     return tuple(out)
 
 
@@ -344,7 +363,8 @@ def _utc(stamp: float) -> str:
 
 
 #: How each unit is printed: the factor from SI and the unit's name.
-UNITS = {'m': (1e6, 'µm', '.1f'), 'rad': (180.0 / math.pi, '°', '.4f'), 's': (1.0, 's', '.2f')}
+UNITS = {'m': (1e6, 'µm', '.1f'), 'rad': (180.0 / math.pi, '°', '.4f'), 's': (1.0, 's', '.2f'),
+         '1': (100.0, '%', '.2f')}
 
 
 def _shown(value: float, unit: str) -> str:
@@ -396,7 +416,7 @@ def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLim
     return text, doc
 
 
-__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'DRIFT', 'NOT_MEASURED', 'PATH',
+__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'DRIFT', 'NOT_MEASURED', 'PATH', 'VELOCITY',
            'AcceptanceLimits',
            'AcceptanceRecord', 'Characteristic', 'acceptance_record', 'characteristics',
            'check_program', 'markdown', 'not_measured', 'overall', 'program_gaps',

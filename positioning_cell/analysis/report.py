@@ -170,10 +170,23 @@ def _drift_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
     return rows
 
 
+def _percent_u(value: float | None, uncertainty: float) -> str:
+    """A share (a fraction) with its U as percent for people ('n/a', '± ?')."""
+    u = f'{uncertainty * 100:.2f}' if math.isfinite(uncertainty) else '?'
+    return 'n/a' if value is None else f'{value * 100:+.2f} ± {u}'
+
+
 def _path_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
-    return [[m.mode, p.name, str(f.n), f'{f.length * 1e3:.1f}', str(len(f.planes)),
-             um_u(f.at_p, f.u_at_p), um_u(f.rt_l, f.u_rt_l)]
-            for m in modes for p in m.paths for f in (p.figures,)]
+    rows = []
+    for m in modes:
+        for p in m.paths:
+            f, v = p.figures, p.velocity
+            speed = ['n/a'] * 4 if v is None else [
+                f'{v.commanded * 1e3:.2f}', _percent_u(v.av, v.u_av), _percent_u(v.rv, v.u_rv),
+                _percent_u(v.fv, v.u_fv)]
+            rows.append([m.mode, p.name, str(f.n), f'{f.length * 1e3:.1f}', str(len(f.planes)),
+                         um_u(f.at_p, f.u_at_p), um_u(f.rt_l, f.u_rt_l), *speed])
+    return rows
 
 
 def _distance_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
@@ -195,7 +208,8 @@ POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p ± U µm', 'AP
                'in tol.')
 
 
-PATH_HEADER = ('mode', 'path', 'cycles', 'length mm', 'planes', 'AT_p ± U µm', 'RT_l ± U µm')
+PATH_HEADER = ('mode', 'path', 'cycles', 'length mm', 'planes', 'AT_p ± U µm', 'RT_l ± U µm',
+               'v_c mm/s', 'AV ± U %', 'RV ± U %', 'FV ± U %')
 
 
 DRIFT_HEADER = ('mode', 'pose', 'n', 'T s', 'dAP_p ± U µm', 'dRP_l ± U µm', 'dAP_a ± U °',
@@ -312,7 +326,12 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 'each; planes some cycle did not cross are left out), AT_p the largest '
                 'distance of a plane\'s barycentre from the commanded point, RT_l the '
                 'largest l̄ + 3·S_l about it; U (k = 2) from the readings\' covariances, for '
-                'all planes together (positioning_cell.accuracy.path).', '']
+                'all planes together (positioning_cell.accuracy.path). §8.6 between the planes '
+                'within the plan\'s cruise: v_c the commanded speed (the positioner\'s motion '
+                'limits in the cell configuration), AV the mean attained speed\'s departure '
+                'from it, RV three standard deviations of the cycles\' means, FV the largest '
+                'range of speed within a cycle, all in % of v_c (n/a: no two planes within '
+                'the cruise; positioning_cell.accuracy.path_velocity).', '']
     drifted = _drift_rows(a.modes)
     if drifted:
         out += ['## Drift of pose characteristics', '',

@@ -26,7 +26,7 @@ import numpy as np
 # so that an analysis's time is its own and the plot workers forked from it inherit them.
 import scipy.linalg
 import scipy.spatial.transform
-import scipy.special  # noqa: F401
+import scipy.special
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
@@ -43,6 +43,7 @@ from positioning_cell.accuracy.figure_uncertainty import (
 )
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
 from positioning_cell.accuracy.path import PathFigures, path_figures
+from positioning_cell.accuracy.path_velocity import PathVelocityFigures, path_velocity_figures
 from positioning_cell.accuracy.stabilisation import StabilisationFigures, stabilisation_figures_of
 from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
 from positioning_cell.analysis.axis_test import runs as axis_runs
@@ -62,6 +63,8 @@ from positioning_cell.analysis.replay import (
 from positioning_cell.bag import BagError
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.motion.settings import machine_settings
+from positioning_cell.moves.trajectory import MotionLimits, cruise
 from positioning_cell.names import NODE_DRIVER, NODE_POSITIONER
 from positioning_cell.parameters import parse
 from positioning_cell.sim.encoders import EncoderSettings
@@ -205,6 +208,9 @@ class PathSummary:
     start: str
     end: str
     figures: PathFigures
+    #: ISO 9283 §8.6 along it (None: no motion limits given, or no plane interval within
+    #: the plan's cruise that every cycle crossed).
+    velocity: PathVelocityFigures | None = None
 
     @property
     def name(self) -> str:
@@ -213,22 +219,25 @@ class PathSummary:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI)."""
-        return {'start': self.start, 'end': self.end, 'iso9283': self.figures.to_dict()}
+        return {'start': self.start, 'end': self.end, 'iso9283': self.figures.to_dict(),
+                'velocity': None if self.velocity is None else self.velocity.to_dict()}
 
 
 #: Commanded positions closer than this (m) are the same point of a path.
 SAME_POINT = 1e-7
 
 
-def path_summaries(visits: Sequence[LabelledVisit], before: Mapping[int, LabelledVisit]
-                   ) -> tuple[PathSummary, ...]:
+def path_summaries(visits: Sequence[LabelledVisit], before: Mapping[int, LabelledVisit],
+                   motion: MotionLimits | None = None) -> tuple[PathSummary, ...]:
     """The path figures (:func:`~positioning_cell.accuracy.path.path_figures`) of one mode's
     visits, grouped by commanded path (start and end), in the order of each path's first
     visit. A visit's path counts when the visit before it (``before``, by ``id``: the run's
     visits in time order, :func:`visits_before`) was of the same mode and commanded at the
     path's start: the first move after a mode switch, or after a visit outside the program,
     was planned from where the other mode left the platform, not along the commanded path.
-    A path none of whose planes every visit crossed is left out."""
+    A path none of whose planes every visit crossed is left out. With the positioner's
+    ``motion`` limits, each path's velocity figures too (the commanded speed and cruise of
+    its plan: :func:`~positioning_cell.moves.trajectory.cruise`)."""
     groups: dict[tuple[str, tuple[float, ...]], list[LabelledVisit]] = {}
     for v in visits:  # over visits, not samples
         previous = before.get(id(v))
@@ -236,13 +245,24 @@ def path_summaries(visits: Sequence[LabelledVisit], before: Mapping[int, Labelle
                 or not np.allclose(previous.visit.commanded_position, v.path.start, rtol=0.0,
                                    atol=SAME_POINT)):
             continue
-        start = tuple(round(x / SAME_POINT) * SAME_POINT for x in v.path.start)
-        groups.setdefault((v.pose, start), []).append(v)
+        point = tuple(round(x / SAME_POINT) * SAME_POINT for x in v.path.start)
+        groups.setdefault((v.pose, point), []).append(v)
     out = []
     for (pose, _), group in groups.items():
-        figures = path_figures([v.path for v in group if v.path is not None])
-        if figures is not None:
-            out.append(PathSummary(before[id(group[0])].pose, pose, figures))
+        crossings = [v.path for v in group if v.path is not None]
+        figures = path_figures(crossings)
+        if figures is None:
+            continue
+        start = before[id(group[0])]
+        velocity = None
+        if motion is not None:
+            rotation = scipy.spatial.transform.Rotation
+            turn = (rotation.from_quat(start.visit.commanded_quaternion).inv()
+                    * rotation.from_quat(group[0].visit.commanded_quaternion)).as_rotvec()
+            speed, begins, ends = cruise(figures.length, float(np.linalg.norm(turn)), motion)
+            if speed > 0.0:
+                velocity = path_velocity_figures(crossings, speed, (begins, ends))
+        out.append(PathSummary(start.pose, pose, figures, velocity))
     return tuple(out)
 
 
@@ -366,11 +386,11 @@ def _pose_uncertainties(groups: Sequence[Sequence[LabelledVisit]]
         [[v.visit.quaternion for v in g]], [[v.covariance for v in g]])[0] for g in groups}
 
 
-def with_drift_and_paths(modes: tuple[ModeSummary, ...], visits: Sequence[LabelledVisit]
-                         ) -> tuple[ModeSummary, ...]:
+def with_drift_and_paths(modes: tuple[ModeSummary, ...], visits: Sequence[LabelledVisit],
+                         motion: MotionLimits | None = None) -> tuple[ModeSummary, ...]:
     """``modes`` (:func:`summarise` of ``visits``) with each pose's drift
     (:func:`~positioning_cell.accuracy.drift.drift_figures`, of a pose visited often enough)
-    and each mode's paths (:func:`path_summaries`)."""
+    and each mode's paths (:func:`path_summaries`; their velocity with ``motion``)."""
     before = visits_before(visits)
     out = []
     for m in modes:
@@ -383,7 +403,7 @@ def with_drift_and_paths(modes: tuple[ModeSummary, ...], visits: Sequence[Labell
                 [v.visit.position for v in group], [v.visit.quaternion for v in group],
                 [v.visit.settle_time for v in group], np.array([v.covariance for v in group])
             ) if len(group) >= DRIFT_LEAST_VISITS else None))
-        out.append(replace(m, poses=tuple(poses), paths=path_summaries(mine, before)))
+        out.append(replace(m, poses=tuple(poses), paths=path_summaries(mine, before, motion)))
     return tuple(out)
 
 
@@ -539,11 +559,13 @@ def analyse_bag(path: str | Path, settings: MonitorSettings | None = None,
     analysis = with_recording(path, ANALYSED_TOPICS, partial(_analyse, settings=settings))
     if replayed is not None:
         replayed(analysis)
+    config = config or config_path('cell.yaml')
     analysis = replace(
-        analysis, modes=with_drift_and_paths(analysis.modes, in_program(analysis.replay.visits)),
+        analysis, modes=with_drift_and_paths(analysis.modes, in_program(analysis.replay.visits),
+                                             machine_settings(config).motion),
         truth_modes=with_drift_and_paths(analysis.truth_modes,
                                          in_program(analysis.replay.truth_visits)))
-    mech, resolution = budget_settings(config or config_path('cell.yaml'))
+    mech, resolution = budget_settings(config)
     budgets = with_recording(path, BUDGET_TOPICS, partial(
         gather, visits=analysis.replay.visits, mech=mech, resolution=resolution))
     return replace(analysis, budgets=budgets)

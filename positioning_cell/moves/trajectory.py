@@ -110,6 +110,17 @@ def plan_profile(distance: float, angle: float,
     return ta, v, total
 
 
+def cruise(distance: float, angle: float, limits: MotionLimits) -> tuple[float, float, float]:
+    """The cruise of a move of ``distance`` m and ``angle`` rad as :func:`plan_move` plans it
+    (:func:`plan_profile`): its linear speed (m/s) and the distances (m) along the path where
+    the speed reaches its peak and leaves it (equal: the ramps meet, no cruise)."""
+    ta, peak, total = plan_profile(distance, angle, limits)
+    if total == 0.0:
+        return 0.0, 0.0, 0.0
+    ramp = min(0.5, 0.5 * peak * ta)  # the share of the path one ramp covers: s(ta) = v·ta/2
+    return peak * distance, ramp * distance, (1.0 - ramp) * distance
+
+
 def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: ArrayLike,
               goal_position: ArrayLike, goal_quaternion: ArrayLike, *, period: float,
               limits: MotionLimits | None = None,
