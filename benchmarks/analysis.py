@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import shutil
 import subprocess
@@ -48,6 +49,7 @@ import numpy as np
 from positioning_cell.analysis.summary import ANALYSED_TOPICS, analyse_bag
 from positioning_cell.names import MEASURED_POSE, TARGET, TRUE_POSE
 from positioning_cell.testing.synthetic_run import long_run, write_run_bag
+from positioning_cell.tools.analyze_bag import ANALYSIS_ENVIRONMENT
 
 MODES = ['none', 'model', 'measured']
 
@@ -160,7 +162,8 @@ def child(bag: Path, out: Path, plots: bool) -> None:
 def in_fresh_process(bag: Path, out: Path, plots: bool = True) -> dict[str, Any]:
     command = [sys.executable, __file__, '--child', str(bag), str(out)]
     result = subprocess.run(command + ([] if plots else ['--no-plots']), capture_output=True,
-                            text=True, check=True)
+                            text=True, check=True,  # the analyze_bag command's environment
+                            env={**os.environ, **ANALYSIS_ENVIRONMENT})
     doc: dict[str, Any] = json.loads(result.stdout.strip().splitlines()[-1])
     return doc
 

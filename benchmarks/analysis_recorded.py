@@ -53,6 +53,7 @@ from analysis import child, peak_rss_mib, rosbags_decoded
 from positioning_cell.analysis.summary import ANALYSED_TOPICS, READ_TOPICS, analyse_bag
 from positioning_cell.config import config_path
 from positioning_cell.testing.tiled_bag import tile_bag
+from positioning_cell.tools.analyze_bag import ANALYSIS_ENVIRONMENT
 
 ROOT = Path(__file__).resolve().parents[1]
 RSS_TARGET_MIB = 300.0
@@ -109,12 +110,13 @@ def baseline_child(bag: Path, which: str) -> None:
 
 
 def fresh(*args: str) -> dict[str, Any]:
-    """This script with ``--child *args`` in a new process: its JSON line."""
+    """This script with ``--child *args`` in a new process, in the environment the
+    analyze_bag command gives its own (``ANALYSIS_ENVIRONMENT``): its JSON line."""
     flags = [a for a in args if a.startswith('--')]
     rest = [a for a in args if not a.startswith('--')]
     result = subprocess.run([sys.executable, __file__, *flags, '--child', *rest],
-                            capture_output=True,
-                            text=True, check=True)
+                            capture_output=True, text=True, check=True,
+                            env={**os.environ, **ANALYSIS_ENVIRONMENT})
     doc: dict[str, Any] = json.loads(result.stdout.strip().splitlines()[-1])
     return doc
 

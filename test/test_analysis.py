@@ -10,6 +10,9 @@ import gzip
 import itertools
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -616,3 +619,22 @@ def test_distance_pairs_are_one_cycle_each_even_when_a_cycle_missed_a_pose() -> 
     assert first[1] is p2[3]  # the retry's
     first, second = cycle_pairs(visits('P2', [None, None, None]), visits('P4', [None, None]))
     assert len(first) == len(second) == 2
+
+
+def test_the_command_runs_its_analysis_on_one_blas_thread(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """analyze_bag sets its process's environment (ANALYSIS_ENVIRONMENT: one OpenBLAS thread,
+    so that the plot workers keep the other core) before numpy would load, keeping a value the
+    user gave; in a fresh process numpy is not loaded by the command's module."""
+    from positioning_cell.tools.analyze_bag import ANALYSIS_ENVIRONMENT
+    monkeypatch.delenv('OPENBLAS_NUM_THREADS', raising=False)
+    assert main([str(tmp_path / 'missing')]) == Exit.USAGE
+    assert ANALYSIS_ENVIRONMENT == {'OPENBLAS_NUM_THREADS': '1'}
+    assert os.environ['OPENBLAS_NUM_THREADS'] == '1'
+    monkeypatch.setenv('OPENBLAS_NUM_THREADS', '2')
+    main([str(tmp_path / 'missing')])
+    assert os.environ['OPENBLAS_NUM_THREADS'] == '2'
+    loaded = subprocess.run(
+        [sys.executable, '-c', 'import sys, positioning_cell.tools.analyze_bag; '
+         'print("numpy" in sys.modules)'], capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == 'False'
