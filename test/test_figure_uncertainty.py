@@ -322,3 +322,40 @@ def test_the_adaptive_monte_carlo_stops_once_the_quantile_is_settled() -> None:
     asked.clear()
     adaptive_quantiles(narrow, 2.0, visits=4 * BATCH_ERRORS // BATCH)
     assert asked == [BATCH // 4, BATCH // 4]
+
+
+def test_seeded_draws_are_the_same_in_every_call_read_only_bounded_and_thread_safe(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """SeededDraws: block b of shape s is the same standard normals in every call (the same
+    inputs give the same U), whether kept or drawn again; kept blocks are read-only and their
+    bytes stay within KEPT_BYTES (the least recently used dropped); threads drawing at once
+    get the same blocks and leave the cache consistent."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from positioning_cell.accuracy import figure_uncertainty as fu
+    monkeypatch.setattr(fu.SeededDraws, '_kept', fu.OrderedDict())
+    monkeypatch.setattr(fu.SeededDraws, '_kept_bytes', 0)
+    monkeypatch.setattr(fu, 'KEPT_BYTES', 4 * 8 * 1000)  # four blocks of 1000 numbers
+    first = fu.SeededDraws()
+    blocks = [first.standard_normal((100, 10)) for _ in range(6)]
+    assert not blocks[0].flags.writeable
+    assert fu.SeededDraws._kept_bytes <= fu.KEPT_BYTES and len(fu.SeededDraws._kept) == 4
+    again = fu.SeededDraws()  # blocks 0 and 1 were dropped: drawn again, the same numbers
+    for b in blocks:
+        np.testing.assert_array_equal(again.standard_normal((100, 10)), b)
+    assert not np.array_equal(blocks[0], blocks[1])
+    np.testing.assert_array_equal(  # another shape: other numbers
+        fu.SeededDraws().standard_normal((10, 100)).ravel()[:5] == blocks[0].ravel()[:5],
+        np.zeros(5, dtype=bool))
+
+    def draw(_: int) -> list[np.ndarray]:
+        source = fu.SeededDraws()
+        return [source.standard_normal((50, 20)) for _ in range(8)]
+
+    with ThreadPoolExecutor(8) as pool:
+        results = list(pool.map(draw, range(32)))
+    for r in results[1:]:
+        for a, b in zip(r, results[0], strict=True):
+            np.testing.assert_array_equal(a, b)
+    kept = fu.SeededDraws._kept
+    assert fu.SeededDraws._kept_bytes == sum(v.nbytes for v in kept.values()) <= fu.KEPT_BYTES

@@ -38,6 +38,7 @@ true poses lie within U of those from their measurements in ≥ 95 % of runs).""
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any, ClassVar, NamedTuple, Protocol
@@ -195,9 +196,11 @@ class SeededDraws:
     every pose, path and mode of the same cycles, and drawing them was half of each Monte
     Carlo's time: blocks are kept once drawn (:data:`KEPT_BYTES`), read-only."""
 
-    #: (shape, block) → block, least recently used first.
+    #: (shape, block) → block, least recently used first; shared by the process's threads
+    #: (a Dask worker may run several analyses at once), under :attr:`_lock`.
     _kept: ClassVar[OrderedDict[tuple[tuple[int, ...], int], FloatArray]] = OrderedDict()
     _kept_bytes: ClassVar[int] = 0
+    _lock: ClassVar[threading.Lock] = threading.Lock()
 
     def __init__(self) -> None:
         self._block = 0
@@ -207,16 +210,19 @@ class SeededDraws:
         key = (tuple(size), self._block)
         self._block += 1
         kept = SeededDraws._kept
-        if key in kept:
-            kept.move_to_end(key)
-            return kept[key]
+        with SeededDraws._lock:
+            if key in kept:
+                kept.move_to_end(key)
+                return kept[key]
         out: FloatArray = np.random.default_rng((SEED, key[1], *key[0])).standard_normal(size)
         out.setflags(write=False)
         if out.nbytes <= KEPT_BYTES // 4:
-            kept[key] = out
-            SeededDraws._kept_bytes += out.nbytes
-            while SeededDraws._kept_bytes > KEPT_BYTES:
-                SeededDraws._kept_bytes -= kept.popitem(last=False)[1].nbytes
+            with SeededDraws._lock:
+                if key not in kept:
+                    kept[key] = out
+                    SeededDraws._kept_bytes += out.nbytes
+                while SeededDraws._kept_bytes > KEPT_BYTES:
+                    SeededDraws._kept_bytes -= kept.popitem(last=False)[1].nbytes
         return out
 
 
