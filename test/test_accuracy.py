@@ -758,6 +758,18 @@ def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
     values = live.visit_values(live.measured.visits[0])
     assert float(values['stabilisation_time']) == pytest.approx(live.stabilisations[0].time,
                                                                 abs=5e-4)
+    # each visit's path crossings (ISO 9283 8.2) from its segment's readings: the same
+    assert len(live.paths) == len(grouped.paths) == 4
+    assert live.paths[0] is None and all(p is not None for p in live.paths[1:])  # from nothing
+    for one, other in zip(live.paths, grouped.paths, strict=True):
+        assert (one is None) == (other is None)
+        if one is not None and other is not None:
+            np.testing.assert_array_equal(one.points, other.points)
+            np.testing.assert_array_equal(one.time, other.time)
+    for visit, path in zip(live.measured.visits, live.paths, strict=True):
+        shown = float(live.visit_values(visit)['path_deviation'])
+        expected = math.nan if path is None else path.deviation()
+        assert shown == pytest.approx(expected, abs=1e-7, nan_ok=True)
     tracker_a, tracker_b = a.pop('tracker'), b.pop('tracker')
     assert a == b
     assert tracker_a['samples'] == tracker_b['samples'] > 200

@@ -218,8 +218,8 @@ def test_one_verdict_per_settled_pose(visited: Cell) -> None:
     # one reading's 3 µm per axis, averaged down over the window: under 2 x 3 µm x sqrt(3)
     assert all(0.0 < float(d['position_uncertainty_um']) < 10.4 for d in decided)
     # each visit's own stabilisation time and overshoot (ISO 9283 7.4, 7.5) beside its figures
-    assert all({'stabilisation_time', 'overshoot', 'stabilisation_resolved'} <= d.keys()
-               for d in decided)
+    assert all({'stabilisation_time', 'overshoot', 'stabilisation_resolved',
+                'path_deviation'} <= d.keys() for d in decided)
 
 
 def test_the_report_is_the_librarys_batch_computation(visited: Cell) -> None:

@@ -87,6 +87,9 @@ def test_a_hand_worked_path() -> None:
     assert figures.u_rt_l > 0.0
     doc = json.loads(json.dumps(figures.to_dict()))
     assert doc['at_p'] == pytest.approx(6e-6) and len(doc['rt_planes']) == P
+    # one cycle's own largest deviation (the live monitor's path_deviation)
+    assert cycles[0].deviation() == pytest.approx(2e-6, abs=1e-12)  # type: ignore[union-attr]
+    assert cycles[1].deviation() == pytest.approx(10e-6, abs=1e-12)  # type: ignore[union-attr]
     single = path_figures([cycles[0]])  # type: ignore[list-item]
     assert single is not None and single.rt_l is None and math.isnan(single.u_rt_l)
     assert single.to_dict()['u_rt_l'] is None
@@ -102,7 +105,7 @@ def test_a_plane_one_cycle_missed_is_left_out() -> None:
     never = PathCrossings(cycles[0].start, cycles[0].end,  # type: ignore[union-attr]
                           np.full((P, 3), math.nan), np.full((P, 3, 3), math.nan),
                           np.full(P, math.nan))
-    assert path_figures([never]) is None
+    assert path_figures([never]) is None and math.isnan(never.deviation())
 
 
 def test_bad_input_is_refused() -> None:

@@ -431,6 +431,7 @@ class Monitor:
         #: Each verdict's visit's attained path in its commanded path's normal planes (None:
         #: not taken, :meth:`Readings.paths_of`), in step with :attr:`verdicts`.
         self.paths: list[PathCrossings | None] = []
+        self._paths: dict[Visit, PathCrossings | None] = {}
         #: The commanded position of the latest visit settled (the next one's path starts
         #: there; kept over reset: it is where the machine was sent).
         self._moved_from: Triple | None = None
@@ -684,15 +685,22 @@ class Monitor:
         if not visits:
             return
         starts = [self._moved_from, *(v.commanded_position for v in visits[:-1])]
-        self.paths.extend(self.readings.paths_of(visits, starts))
+        paths = self.readings.paths_of(visits, starts)
+        self.paths.extend(paths)
+        self._paths.update(zip(visits, paths, strict=True))
         self._moved_from = visits[-1].commanded_position
 
     def visit_values(self, visit: Visit) -> dict[str, str]:
         """What a verdict's status says of ``visit`` beside the verdict (for people): the ISO
-        9283 figures of its pose (:meth:`figures_of`) and its own stabilisation time and
-        overshoot (:func:`~positioning_cell.accuracy.stabilisation.stabilisation_values`)."""
+        9283 figures of its pose (:meth:`figures_of`), its own stabilisation time and
+        overshoot (:func:`~positioning_cell.accuracy.stabilisation.stabilisation_values`) and
+        its path's largest deviation from the commanded line, m (``path_deviation``:
+        :meth:`~positioning_cell.accuracy.path.PathCrossings.deviation`; nan: no path)."""
         figure = self._stabilised.get(visit, Stabilisation.none())
-        return {**self.figures_of(visit), **stabilisation_values(figure)}
+        path = self._paths.get(visit)
+        deviation = math.nan if path is None else path.deviation()
+        return {**self.figures_of(visit), **stabilisation_values(figure),
+                'path_deviation': f'{deviation:.7f}'}
 
     def figures_of(self, visit: Visit) -> dict[str, str]:
         """The ISO 9283 figures (for people) of the pose that ``visit`` is a visit of."""
@@ -705,7 +713,7 @@ class Monitor:
         self.tracker.reset()
         self.truth_seen = False
         self.verdicts, self.covariances, self.stabilisations = [], [], []
-        self._stabilised, self.paths = {}, []
+        self._stabilised, self.paths, self._paths = {}, [], {}
         self.readings = Readings()
 
     def report(self) -> dict[str, Any]:

@@ -90,6 +90,16 @@ class PathCrossings:
         """Which planes (P,) the readings crossed."""
         return np.asarray(np.all(np.isfinite(self.points), axis=1))
 
+    def deviation(self) -> float:
+        """The largest distance (m) of a crossing from the commanded point of its plane: this
+        one cycle's AT_p (NaN: no plane crossed), what the live monitor says of a visit."""
+        a, b = np.asarray(self.start), np.asarray(self.end)
+        commanded = a + np.outer(PLANE_FRACTIONS, b - a)
+        crossed = self.crossed
+        if not crossed.any():
+            return math.nan
+        return float(np.linalg.norm(self.points[crossed] - commanded[crossed], axis=1).max())
+
 
 def path_crossings(start: ArrayLike, end: ArrayLike, time: ArrayLike, position: ArrayLike,
                    covariance: ArrayLike | None = None) -> PathCrossings | None:
