@@ -257,34 +257,38 @@ def iso230_2(targets: ArrayLike, forward: ArrayLike, backward: ArrayLike) -> Axi
     target given twice."""
     p, up, down = validated(targets, forward, backward)
     x_up, x_down = up - p, down - p                                  # §3.5
-    mean_up, mean_down = x_up.mean(axis=0), x_down.mean(axis=0)      # §3.10
-    mean = (mean_up + mean_down) / 2.0                               # §3.11
+    figures: dict[str, Any] = {name: _readonly(v)
+                               for name, v in target_figures(x_up, x_down).items()}
+    figures.update(zip((name for name, _ in AXIS_FIGURES), axis_figures(x_up, x_down).tolist(),
+                       strict=True))
+    return AxisFigures(targets=_readonly(p), x_up=_readonly(x_up), x_down=_readonly(x_down),
+                       **figures)
+
+
+def target_figures(x_up: ArrayLike, x_down: ArrayLike) -> dict[str, FloatArray]:
+    """The per-target figures (..., m) by their names in :data:`TARGET_FIGURES` (x̄↑, x̄↓, x̄,
+    s↑, s↓, R_i↑, R_i↓, R_i, B_i; module docstring) of the positional deviations x_ij↑, x_ij↓
+    (..., n, m), batched over the leading axes."""
+    up, down = np.asarray(x_up, dtype=float), np.asarray(x_down, dtype=float)
+    mean_up, mean_down = up.mean(axis=-2), down.mean(axis=-2)        # §3.10
     b_i = mean_up - mean_down                                        # §3.12
-    s_up, s_down = x_up.std(axis=0, ddof=1), x_down.std(axis=0, ddof=1)  # §3.15
+    s_up, s_down = up.std(axis=-2, ddof=1), down.std(axis=-2, ddof=1)  # §3.15
     r_up, r_down = 4.0 * s_up, 4.0 * s_down                          # §3.16
-    r_i = np.maximum(2.0 * s_up + 2.0 * s_down + np.abs(b_i), np.maximum(r_up, r_down))  # §3.17
-    axis = dict(zip((name for name, _ in AXIS_FIGURES), axis_figures(x_up, x_down).tolist(),
-                    strict=True))
-    return AxisFigures(
-        targets=_readonly(p), x_up=_readonly(x_up), x_down=_readonly(x_down),
-        x_mean_up=_readonly(mean_up), x_mean_down=_readonly(mean_down),
-        x_mean=_readonly(mean), s_up=_readonly(s_up), s_down=_readonly(s_down),
-        R_i_up=_readonly(r_up), R_i_down=_readonly(r_down), R_i=_readonly(r_i),
-        B_i=_readonly(b_i), **axis)
+    return {'x_mean_up': mean_up, 'x_mean_down': mean_down,
+            'x_mean': (mean_up + mean_down) / 2.0,                   # §3.11
+            's_up': s_up, 's_down': s_down, 'R_i_up': r_up, 'R_i_down': r_down,
+            'R_i': np.maximum(2.0 * s_up + 2.0 * s_down + np.abs(b_i),
+                              np.maximum(r_up, r_down)),             # §3.17
+            'B_i': b_i}
 
 
 def axis_figures(x_up: ArrayLike, x_down: ArrayLike) -> FloatArray:
     """The axis figures (..., 12) in :data:`AXIS_FIGURES` order (A, A↑, A↓, R, R↑, R↓, B, B̄,
     E, E↑, E↓, M; module docstring) of the positional deviations x_ij↑, x_ij↓ (..., n, m),
-    batched over the leading axes (the Monte Carlo of :func:`axis_figure_uncertainty`).
-    Inputs as :func:`validated` leaves them."""
-    up, down = np.asarray(x_up, dtype=float), np.asarray(x_down, dtype=float)
-    mean_up, mean_down = up.mean(axis=-2), down.mean(axis=-2)        # §3.10
-    mean = (mean_up + mean_down) / 2.0                               # §3.11
-    b_i = mean_up - mean_down                                        # §3.12
-    s_up, s_down = up.std(axis=-2, ddof=1), down.std(axis=-2, ddof=1)  # §3.15
-    r_up, r_down = 4.0 * s_up, 4.0 * s_down                          # §3.16
-    r_i = np.maximum(2.0 * s_up + 2.0 * s_down + np.abs(b_i), np.maximum(r_up, r_down))  # §3.17
+    batched over the leading axes (from :func:`target_figures`)."""
+    t = target_figures(x_up, x_down)
+    mean_up, mean_down, s_up, s_down = t['x_mean_up'], t['x_mean_down'], t['s_up'], t['s_down']
+    b_i, mean = t['B_i'], t['x_mean']
     high_up, low_up = (mean_up + 2.0 * s_up).max(-1), (mean_up - 2.0 * s_up).min(-1)
     high_down, low_down = (mean_down + 2.0 * s_down).max(-1), (mean_down - 2.0 * s_down).min(-1)
     means_high = np.maximum(mean_up.max(-1), mean_down.max(-1))
@@ -292,7 +296,7 @@ def axis_figures(x_up: ArrayLike, x_down: ArrayLike) -> FloatArray:
     out: FloatArray = np.stack([
         np.maximum(high_up, high_down) - np.minimum(low_up, low_down),  # §3.24
         high_up - low_up, high_down - low_down,                      # §3.23
-        r_i.max(-1), r_up.max(-1), r_down.max(-1),                   # §3.19, 3.18
+        t['R_i'].max(-1), t['R_i_up'].max(-1), t['R_i_down'].max(-1),  # §3.19, 3.18
         np.abs(b_i).max(-1), b_i.mean(-1),                           # §3.13, 3.14
         means_high - means_low,                                      # §3.21
         mean_up.max(-1) - mean_up.min(-1), mean_down.max(-1) - mean_down.min(-1),  # §3.20

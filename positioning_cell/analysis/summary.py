@@ -26,7 +26,7 @@ import numpy as np
 # so that an analysis's time is its own and the plot workers forked from it inherit them.
 import scipy.linalg
 import scipy.spatial.transform
-import scipy.special
+import scipy.special  # noqa: F401
 from numpy.typing import NDArray
 
 from positioning_cell import accuracy
@@ -63,6 +63,7 @@ from positioning_cell.analysis.replay import (
 from positioning_cell.bag import BagError
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import pose_error
 from positioning_cell.motion.settings import machine_settings
 from positioning_cell.moves.trajectory import MotionLimits, cruise
 from positioning_cell.names import NODE_DRIVER, NODE_POSITIONER
@@ -256,9 +257,8 @@ def path_summaries(visits: Sequence[LabelledVisit], before: Mapping[int, Labelle
         start = before[id(group[0])]
         velocity = None
         if motion is not None:
-            rotation = scipy.spatial.transform.Rotation
-            turn = (rotation.from_quat(start.visit.commanded_quaternion).inv()
-                    * rotation.from_quat(group[0].visit.commanded_quaternion)).as_rotvec()
+            _, turn = pose_error(np.zeros(3), np.asarray(group[0].visit.commanded_quaternion),
+                                 np.zeros(3), np.asarray(start.visit.commanded_quaternion))
             speed, begins, ends = cruise(figures.length, float(np.linalg.norm(turn)), motion)
             if speed > 0.0:
                 velocity = path_velocity_figures(crossings, speed, (begins, ends))
