@@ -43,13 +43,13 @@ from positioning_cell.accuracy.drift import LEAST_VISITS as DRIFT_LEAST_VISITS
 from positioning_cell.accuracy.path import PATH_LEAST
 from positioning_cell.accuracy.verdicts import decide
 from positioning_cell.analysis.program import Program
-from positioning_cell.analysis.report import markdown_table
 from positioning_cell.analysis.summary import (
     DISTANCE_POSES,
     ModeSummary,
     PoseSummary,
     RunAnalysis,
 )
+from positioning_cell.analysis.tables import markdown_table
 from positioning_cell.config import load_parameter_file
 from positioning_cell.errors import ConfigError
 from positioning_cell.parameters import check_fields, parse_block, setting

@@ -22,7 +22,8 @@ from positioning_cell.analysis.fleet import (
     Trends,
 )
 from positioning_cell.analysis.plots import DEG, UM
-from positioning_cell.analysis.report import decided, deg, markdown_table, um, um_u
+from positioning_cell.analysis.report import decided, deg, um, um_u
+from positioning_cell.analysis.tables import markdown_table
 from positioning_cell.bag.verify import utc
 from positioning_cell.plotting import colours, figure, save
 

@@ -12,6 +12,7 @@ from positioning_cell.analysis.accuracy_map import MAP_LEAST, map_summary, mappe
 from positioning_cell.analysis.error_budget import CONTRIBUTIONS, Contribution, ErrorBudget
 from positioning_cell.analysis.replay import OUTSIDE_PROGRAM
 from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
+from positioning_cell.analysis.tables import markdown_table
 
 REPORT_FILE = 'report.md'
 SUMMARY_FILE = 'summary.json'
@@ -46,14 +47,6 @@ def deg_u(value: float | None, uncertainty: float) -> str:
 def deg(value: float | None) -> str:
     """An angle in rad as degrees for people, four decimals ('n/a' for None)."""
     return 'n/a' if value is None else f'{math.degrees(value):.4f}'
-
-
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    """A Markdown table (a ``|`` inside a cell is escaped)."""
-    def row(cells: Sequence[str]) -> str:
-        return '| ' + ' | '.join(c.replace('|', r'\|') for c in cells) + ' |'
-
-    return [row(header), '|' + '---|' * len(header), *(row(r) for r in rows)]
 
 
 COMPARISON_HEADER = ('mode', 'visits', 'in tol.', 'C/I/N', 'max |Δp| µm', 'RMS |Δp| µm',
