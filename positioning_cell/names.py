@@ -102,9 +102,19 @@ CALIBRATION = '/cell/calibration'
 #: An axis test's measured stops (run_cell --axis-test): axis, target, direction, cycle,
 #: commanded, tracker and true values (JSON in std_msgs/String).
 AXIS_TEST = '/cell/axis_test'
+#: A static compliance test's load steps (run_cell with a program's compliance: block, ISO
+#: 9283 §10): direction, load, averaged tracker position and its covariance (JSON in
+#: std_msgs/String).
+COMPLIANCE_TEST = '/cell/compliance_test'
 #: The topics procedures send their markers on (the program steps, the calibration poses, the
-#: axis-test stops): JSON text, kept for a recorder that joins late.
-MARKER_TOPICS = (PROGRAM, CALIBRATION, AXIS_TEST)
+#: axis-test stops, the compliance-test steps): JSON text, kept for a recorder that joins late.
+MARKER_TOPICS = (PROGRAM, CALIBRATION, AXIS_TEST, COMPLIANCE_TEST)
+#: The static load rig of the compliance test (a force actuator on the platform origin, with
+#: its own load cell; simulated by the pose_measurement node): the force it is commanded to
+#: apply and its load cell's reading of the force it applies (geometry_msgs/WrenchStamped,
+#: frame ``base``, N; latched).
+LOAD_COMMAND = '/load_rig/command'
+LOAD_FORCE = '/load_rig/force'
 
 #: Every topic of the cell, in the order of the docs' topic table: what the recorder takes by
 #: default (not COORDINATE_SYSTEMS: its type, of positioning_cell_interfaces, is not in the bags'
@@ -113,6 +123,7 @@ CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
     ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRACKER_REGISTRATION, TRUE_POSE, AIR_TEMPERATURE,
     POSITION_ERROR, ORIENTATION_ERROR, DIAGNOSTICS, PROGRAM, CALIBRATION, AXIS_TEST,
+    COMPLIANCE_TEST, LOAD_COMMAND, LOAD_FORCE,
 )
 
 #: Parameter changes of every node (rcl_interfaces ParameterEvent, ROS's own topic): the watch

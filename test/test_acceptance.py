@@ -19,6 +19,7 @@ from positioning_cell.accuracy.drift import FIGURES as DRIFT_FIGURES
 from positioning_cell.accuracy.drift import LEAST_VISITS
 from positioning_cell.analysis import analyse_bag
 from positioning_cell.analysis.acceptance import (
+    COMPLIANCE,
     DRIFT,
     NOT_MEASURED,
     PATH,
@@ -166,8 +167,9 @@ def test_the_record_names_what_it_did_not_measure_and_writes_no_nan(bag: Path,
     assert len(doc['characteristics']) == len(characteristics(
         output.analysis, AcceptanceLimits()))
     # three cycles: no pose is visited often enough for a drift; every move has a path
-    assert [n['clause'] for n in doc['not_measured']] == [c for c, _ in (DRIFT, *NOT_MEASURED)]
-    for clause, what in (DRIFT, *NOT_MEASURED):
+    assert [n['clause'] for n in doc['not_measured']] == [c for c, _ in (DRIFT, COMPLIANCE,
+                                                                     *NOT_MEASURED)]
+    for clause, what in (DRIFT, COMPLIANCE, *NOT_MEASURED):
         assert f'§{clause}: {what}' in text
     assert '| none | P1 | AP_p | §7.2.1 |' in text and 'DOES NOT CONFORM' in text
     record = acceptance_record(output.analysis, AcceptanceLimits())

@@ -14,7 +14,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from cell_harness import CELL_YAML, Client, InProcess, in_process, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, WrenchStamped
 from rcl_interfaces.srv import GetParameters
 from scipy import stats
 from scipy.spatial.transform import Rotation
@@ -27,6 +27,7 @@ from positioning_cell.core.kinematics import inverse
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
 from positioning_cell.parameters import parse
+from positioning_cell.ros import messages as m
 from positioning_cell.ros.messages import joint_state, pose_arrays, registration
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
 from positioning_cell.sim.pose_measurement import TARGETS_PREFIX, PoseMeasurementSettings
@@ -218,3 +219,34 @@ def test_a_good_parameter_is_taken(run: Run) -> None:
     ok, reason = set_parameter(run.ros.client, 'fault.outlier_probability', 0.25)
     assert ok, reason
     assert get_double(run.ros.client, 'fault.outlier_probability') == 0.25
+
+
+def test_the_load_rig_applies_its_command_and_refuses_a_bad_one(run: Run) -> None:
+    """/load_rig/force reads zero at start (latched); a command in base is applied and read
+    back, and the true pose of the same joints, stamped anew, yields to it; a command in
+    another frame or with a torque is refused and changes nothing."""
+    client = run.ros.client
+    forces = client.collect(WrenchStamped, names.LOAD_FORCE, LATCHED_QOS)
+    wait_until(lambda: forces, 15, 'the rig\'s reading at start')
+    assert m.force_of(forces[0]).tolist() == [0.0, 0.0, 0.0]
+    command = client.node.create_publisher(WrenchStamped, names.LOAD_COMMAND, LATCHED_QOS)
+    joints = client.node.create_publisher(JointState, names.TRUE_JOINT_STATES, STREAM_QOS)
+    home = inverse(run.mech, run.mech.home_position, run.mech.home_quaternion)
+    before = pose_arrays(run.true_poses[-1].pose)[0]
+    command.publish(m.force_stamped([0.0, 40.0, 0.0], Time()))
+    wait_until(lambda: m.force_of(forces[-1]).tolist() == [0.0, 40.0, 0.0], 15, 'the load read')
+    stamp = Time(sec=2000)
+    wait_until(lambda: joints.get_subscription_count() > 0, 15, 'the node subscribing')
+    joints.publish(joint_state(JOINT_NAMES, stamp, [*home.lengths[0], *home.thetas[0]]))
+    wait_until(lambda: run.true_poses[-1].header.stamp == stamp, 15, 'the loaded true pose')
+    moved = pose_arrays(run.true_poses[-1].pose)[0] - before
+    assert 20e-6 < moved[1] < 100e-6  # this machine yields ~1 µm/N across its axis
+    count = len(forces)
+    bad = m.force_stamped([0.0, 10.0, 0.0], Time(), frame='platform')
+    torque = m.force_stamped([0.0, 10.0, 0.0], Time())
+    torque.wrench.torque.x = 1.0
+    for msg in (bad, torque):
+        command.publish(msg)
+    command.publish(m.force_stamped([0.0, 0.0, 0.0], Time()))
+    wait_until(lambda: len(forces) > count, 15, 'the unload read')
+    assert [m.force_of(f).tolist() for f in list(forces)[count:]] == [[0.0, 0.0, 0.0]]

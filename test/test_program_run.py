@@ -19,6 +19,7 @@ from exact_calibration import exact_calibration
 
 from positioning_cell import names
 from positioning_cell.analysis.axis_test import AxisPlan, AxisTest, AxisTestMarker
+from positioning_cell.analysis.compliance_test import ComplianceTest
 from positioning_cell.analysis.program import Calibrating, Program, ProgramStep
 from positioning_cell.calibration import parameters as cp
 from positioning_cell.calibration.program import ProgramSettings
@@ -276,3 +277,28 @@ def test_the_axis_test_runs_after_the_calibration_and_before_the_modes(
                         'the tracker is silent')
     assert port.commands[-7][0] == 'home'  # homed after it, before the program
     assert [s.mode for s in _steps(port)] == ['model'] * 3 + ['measured'] * 3
+
+
+def test_the_compliance_test_runs_after_the_modes_and_its_failure_counts(
+        port: Port, tmp_path: Path) -> None:
+    """A program's compliance: block runs after the end-of-program marker, its markers on
+    /cell/compliance_test; a load the rig refuses fails it (said) and the run is not
+    achieved."""
+    program = dataclasses.replace(_program(), modes=('model',), compliance=ComplianceTest(
+        pose='P1', load=20.0, steps=2, directions=('+x', '-z'), samples=3))
+    lines: list[str] = []
+    outcome = run_program(port, program, config_path(), tmp_path, lines.append,
+                          calibrator=_never)
+    assert outcome.achieved and not outcome.compliance_failed
+    topics = [topic for topic, _ in port.marks]
+    end = max(i for i, t in enumerate(topics) if t == names.PROGRAM)
+    assert topics[end + 1:] == [names.COMPLIANCE_TEST] * 6
+    assert ProgramStep.from_json(port.marks[end][1], 0.0).end
+    assert sum(line.startswith('compliance ') for line in lines) == 2
+    refused = dataclasses.replace(program, compliance=ComplianceTest(load=5000.0))
+    lines.clear()
+    outcome = run_program(port, refused, config_path(), tmp_path, lines.append,
+                          calibrator=_never)
+    assert outcome.compliance_failed and not outcome.achieved
+    assert any(line.startswith('compliance test failed: load rig: 1500.0 N is beyond')
+               for line in lines), lines

@@ -11,8 +11,10 @@ The figures are those of the report (:mod:`positioning_cell.analysis.summary`): 
 stabilisation time (§7.4) and overshoot (§7.5), the drifts dAP_p, dAP_a..c, dRP_l, dRP_a..c
 (§7.6, of a pose visited often enough), the path accuracy and repeatability AT_p, RT_l
 (§8.2, of each commanded path), the path velocity accuracy, repeatability and fluctuation
-AV, RV, FV (§8.6, of a path whose plan cruises between two of its planes), each with its U
-(:mod:`positioning_cell.accuracy.figure_uncertainty`,
+AV, RV, FV (§8.6, of a path whose plan cruises between two of its planes), the static
+compliance of each load direction (§10, of a run with a compliance test: a property of the
+machine, which enters the decision of every mode), each with its U
+(:mod:`positioning_cell.accuracy.figure_uncertainty`, :mod:`positioning_cell.accuracy.compliance`,
 :mod:`positioning_cell.accuracy.stabilisation`, :mod:`positioning_cell.accuracy.drift`,
 :mod:`positioning_cell.accuracy.path`, :mod:`positioning_cell.accuracy.path_velocity`). A
 signed figure (AP_a, AD_p) is judged by its magnitude; a figure whose U is unknown decides
@@ -42,6 +44,7 @@ from positioning_cell.accuracy.drift import FIGURES as DRIFT_FIGURES
 from positioning_cell.accuracy.drift import LEAST_VISITS as DRIFT_LEAST_VISITS
 from positioning_cell.accuracy.path import PATH_LEAST
 from positioning_cell.accuracy.verdicts import decide
+from positioning_cell.analysis.compliance_test import CLAUSE
 from positioning_cell.analysis.program import Program
 from positioning_cell.analysis.summary import (
     DISTANCE_POSES,
@@ -108,6 +111,8 @@ class AcceptanceLimits:
                         'velocity (8.6)', '1', low=0.0, low_open=True, high=1.0)
     fv: float = setting(0.10, 'path velocity fluctuation FV, share of the commanded velocity '
                         '(8.6)', '1', low=0.0, low_open=True, high=1.0)
+    compliance: float = setting(1.5e-6, 'static compliance, each load direction (10)', 'm/N',
+                                low=0.0, low_open=True, high=1e-3)
     decision_rule: str = setting(DecisionRule.ISO_14253_1.value, 'how a figure\'s U enters '
                                  'its decision: iso_14253_1 (guard bands of U) or '
                                  'simple_acceptance (U ignored)',
@@ -163,12 +168,20 @@ PATH = ('8.2', f'path accuracy and repeatability AT, RT (a move of at least '
 VELOCITY = ('8.6', 'path velocity characteristics AV, RV, FV (a path whose plan cruises '
                    'between two of its normal planes)')
 
+#: The static compliance (clause, what): measured by a run whose program has a compliance
+#: test.
+COMPLIANCE = (CLAUSE, 'static compliance (a program with a compliance: block: load steps '
+                      'along each direction)')
+
 #: The characteristics of ISO 9283:1998 that apply to the positioner and that no run of the
 #: cell measures yet (clause, what).
 NOT_MEASURED = (
     ('9', 'minimum positioning time'),
-    ('10', 'static compliance'),
 )
+
+#: The mode of a characteristic of the machine itself (the static compliance): it enters the
+#: decision of every compensation mode.
+MACHINE = 'machine'
 
 
 def program_gaps(program: Program, given: Collection[str]) -> list[str]:
@@ -202,6 +215,9 @@ def program_gaps(program: Program, given: Collection[str]) -> list[str]:
                     f'{most} times')
     steps = [float(np.linalg.norm(program.position[order[i]] - program.position[order[i - 1]]))
              for i in range(len(order))]
+    if 'compliance' in given and program.compliance is None:
+        gaps.append('compliance (ISO 9283 10): the program has no compliance: block, no load '
+                    'steps to measure it')
     if {'at_p', 'rt_l', 'av', 'rv', 'fv'} & set(given) and max(steps) < PATH_LEAST:
         gaps.append(f'{", ".join(sorted({"at_p", "rt_l", "av", "rv", "fv"} & set(given)))} '
                     f'(ISO 9283 8.2, 8.6): no move between two poses is '
@@ -223,16 +239,18 @@ def check_program(path: str | Path, program: Program) -> None:
 def not_measured(found: Sequence[Characteristic]) -> tuple[tuple[str, str], ...]:
     """The characteristics of the standard that apply and that ``found`` lacks (clause,
     what): the drift, the path and the path velocity figures when no pose or path gave
-    them, and
+    them, the static compliance when the run had no compliance test, and
     :data:`NOT_MEASURED`."""
     clauses = {c.clause for c in found}
-    return tuple(c for c in (DRIFT, PATH, VELOCITY) if c[0] not in clauses) + NOT_MEASURED
+    return (tuple(c for c in (DRIFT, PATH, VELOCITY, COMPLIANCE) if c[0] not in clauses)
+            + NOT_MEASURED)
 
 
 def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
                     ) -> tuple[Characteristic, ...]:
     """Every characteristic the run measured (module docstring), mode by mode in the
-    analysis' order, pose by pose, then the mode's distance pair and its paths."""
+    analysis' order, pose by pose, then the mode's distance pair and its paths; then the
+    machine's (:data:`MACHINE`): its static compliance."""
     rule = DecisionRule(limits.decision_rule)
 
     def judged(mode: str, subject: str, name: str, clause: str, value: float | None,
@@ -263,6 +281,9 @@ def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
                     out += judged(m.mode, path.name, name.upper(), VELOCITY[0],
                                   getattr(v, name), getattr(v, f'u_{name}'),
                                   getattr(limits, name), '1')
+    for r in analysis.compliance:
+        out += judged(MACHINE, f'{r.pose} {r.direction}', 'compliance', CLAUSE,
+                      r.figures.compliance, r.figures.u_compliance, limits.compliance, 'm/N')
     return tuple(out)
 
 
@@ -299,6 +320,11 @@ def _pose_characteristics(m: ModeSummary, p: PoseSummary, limits: AcceptanceLimi
             out += judged(m.mode, p.pose, f'd{name[:2].upper()}{name[2:]}', DRIFT[0],
                           *d.figure(name), limit, 'm' if name in ('ap_p', 'rp_l') else 'rad')
     return out
+
+
+def of_mode(found: Sequence[Characteristic], mode: str) -> list[Characteristic]:
+    """The characteristics that decide ``mode``: its own and the machine's."""
+    return [c for c in found if c.mode in (mode, MACHINE)]
 
 
 def overall(found: Sequence[Characteristic]) -> Decision:
@@ -343,7 +369,7 @@ def acceptance_record(analysis: RunAnalysis, limits: AcceptanceLimits) -> Accept
     context = analysis.context
     return AcceptanceRecord(
         str(analysis.bag), context.start, context.end, limits, found,
-        {m.mode: overall([c for c in found if c.mode == m.mode]) for m in analysis.modes},
+        {m.mode: overall(of_mode(found, m.mode)) for m in analysis.modes},
         {m.mode: max((v.cycle or 0 for v in analysis.replay.visits if v.mode == m.mode),
                      default=0) for m in analysis.modes},
         tuple(f'{_utc(c.time)}: {c.file or "none (the nominal machine)"}'
@@ -364,7 +390,7 @@ def _utc(stamp: float) -> str:
 
 #: How each unit is printed: the factor from SI and the unit's name.
 UNITS = {'m': (1e6, 'µm', '.1f'), 'rad': (180.0 / math.pi, '°', '.4f'), 's': (1.0, 's', '.2f'),
-         '1': (100.0, '%', '.2f')}
+         '1': (100.0, '%', '.2f'), 'm/N': (1e6, 'µm/N', '.3f')}
 
 
 def _shown(value: float, unit: str) -> str:
@@ -385,14 +411,15 @@ def markdown(record: AcceptanceRecord) -> str:
     lines.append('- Payload and temperature: not recorded by the cell')
     lines += ['', '## Decision per compensation mode', '']
     lines += markdown_table(('mode', 'cycles', 'characteristics', 'C/I/N', 'decision'), [
-        [mode, str(record.cycles[mode]), str(sum(c.mode == mode for c in record.characteristics)),
-         '/'.join(str(sum(c.mode == mode and c.decision is d for c in record.characteristics))
+        [mode, str(record.cycles[mode]), str(len(of_mode(record.characteristics, mode))),
+         '/'.join(str(sum(c.decision is d for c in of_mode(record.characteristics, mode)))
                   for d in (Decision.CONFORMS, Decision.INDETERMINATE,
                             Decision.DOES_NOT_CONFORM)),
          decision.value.upper()] for mode, decision in record.modes.items()])
     lines += ['', 'C/I/N: characteristics that conform, are indeterminate, do not conform. The '
-              'decision covers the characteristics below only; the standard\'s others were '
-              'not measured (last section).', '', '## Characteristics', '']
+              'decision covers the characteristics below only (those of mode '
+              f'"{MACHINE}", the machine\'s own, in every mode\'s); the standard\'s others '
+              'were not measured (last section).', '', '## Characteristics', '']
     lines += markdown_table(
         ('mode', 'pose', 'characteristic', 'ISO 9283', 'value ± U', 'limit', 'unit',
          'decision'),
@@ -416,8 +443,9 @@ def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLim
     return text, doc
 
 
-__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'DRIFT', 'NOT_MEASURED', 'PATH', 'VELOCITY',
+__all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'COMPLIANCE', 'DRIFT', 'MACHINE',
+           'NOT_MEASURED', 'PATH', 'VELOCITY',
            'AcceptanceLimits',
            'AcceptanceRecord', 'Characteristic', 'acceptance_record', 'characteristics',
-           'check_program', 'markdown', 'not_measured', 'overall', 'program_gaps',
+           'check_program', 'markdown', 'not_measured', 'of_mode', 'overall', 'program_gaps',
            'write_acceptance']

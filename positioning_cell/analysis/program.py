@@ -2,7 +2,8 @@
 of poses over a box: an accuracy map, config/accuracy_map.yaml), visited in order (or in a
 ``sequence`` of their names, repeats allowed: a pose approached from several directions,
 config/acceptance.yaml) for a number of cycles, once per compensation mode; checked against
-the mechanism's limits before anything moves."""
+the mechanism's limits before anything moves. A ``compliance:`` block adds the static
+compliance test at one of its poses (:mod:`positioning_cell.analysis.compliance_test`)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from positioning_cell.analysis.compliance_test import ComplianceTest
 from positioning_cell.config import load_parameter_file
 from positioning_cell.core.limits import check_poses
 from positioning_cell.core.mechanism import Mechanism
@@ -46,7 +48,8 @@ class Program:
     poses in ``sequence`` (indices into ``names``, repeats allowed; empty: each pose once, in
     order); ``tolerance`` the settle tolerance of a move, m (0: the positioner's configured
     one); ``settle_timeout`` how long to wait for the monitor to see a move settle, s;
-    ``calibration``, if given, the calibration run before the modes."""
+    ``calibration``, if given, the calibration run before the modes; ``compliance``, if
+    given, the static compliance test after them."""
 
     names: tuple[str, ...]
     position: FloatArray
@@ -57,6 +60,7 @@ class Program:
     settle_timeout: float = 5.0
     calibration: Calibrating | None = None
     sequence: tuple[int, ...] = ()
+    compliance: ComplianceTest | None = None
 
     @property
     def order(self) -> tuple[int, ...]:
@@ -103,7 +107,7 @@ def program_from(data: Mapping[str, Any], mech: Mechanism) -> Program:
     return Program(tuple(names), p, q, cycles, tuple(modes),
                    _number(block, 'tolerance', 0.0, 0.0),
                    _number(block, 'settle_timeout', 5.0, 0.1), _calibrating(block),
-                   _sequence(block, names))
+                   _sequence(block, names), _compliance(block, names))
 
 
 #: How the poses of a ``program.grid`` are named: G001, G002, … in grid order.
@@ -184,6 +188,23 @@ def _calibrating(block: Mapping[str, Any]) -> Calibrating | None:
     if unknown:
         raise ConfigError(f'program.calibration.{sorted(unknown)[0]}: unknown key')
     return Calibrating(*values)
+
+
+def _compliance(block: Mapping[str, Any], names: list[str]) -> ComplianceTest | None:
+    """The ``program.compliance`` block (None: not given); its pose one of ``names``."""
+    given = block.get('compliance')
+    if given is None:
+        return None
+    if not isinstance(given, Mapping):
+        raise ConfigError('program.compliance: expected a mapping (see config/acceptance.yaml)')
+    try:
+        test = parse(ComplianceTest, dict(given), 'program.compliance.')
+    except ValueError as err:  # ParameterError is one
+        raise ConfigError(str(err)) from err
+    if test.pose not in names:
+        raise ConfigError(f'program.compliance.pose = {test.pose}: not in program.poses '
+                          f'({", ".join(names)})')
+    return test
 
 
 def load_program(path: str | Path, mech: Mechanism) -> Program:

@@ -65,6 +65,7 @@ from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.names import (
     AXIS_TEST,
     CALIBRATION,
+    COMPLIANCE_TEST,
     DIAGNOSTICS,
     JOINT_STATES,
     JOINT_TRAJECTORY,
@@ -84,7 +85,8 @@ FloatArray = NDArray[np.float64]
 POSE_TOPICS = {TARGET: 'targets', MEASURED_POSE: 'measured', TRUE_POSE: 'truth',
                TRACKER_REGISTRATION: 'registrations'}
 #: The text topics (std_msgs/String) and their MessageBatch field.
-TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test'}
+TEXT_TOPICS = {PROGRAM: 'program', CALIBRATION: 'calibration', AXIS_TEST: 'axis_test',
+               COMPLIANCE_TEST: 'compliance_test'}
 #: A /diagnostics message is decoded only when it holds one of these statuses: their names
 #: as CDR strings (length, bytes, NUL), so that a text that only mentions a name (the
 #: positioner's inputs status names /pose_measurement) does not count (either byte order).
@@ -282,6 +284,7 @@ def _message_batch(messages: Sequence[BagMessage], offset: int) -> MessageBatch:
                         program=tuple(texts[PROGRAM]),
                         diagnostics=tuple(diagnostics), calibration=tuple(texts[CALIBRATION]),
                         axis_test=tuple(texts[AXIS_TEST]),
+                        compliance_test=tuple(texts[COMPLIANCE_TEST]),
                         diagnostic_ranks=tuple(diagnostic_ranks),
                         joint_states=joint_samples(joints),
                         trajectories=tuple(trajectories))

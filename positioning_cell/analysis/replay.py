@@ -63,6 +63,7 @@ from positioning_cell.errors import InputError
 from positioning_cell.names import (
     AXIS_TEST,
     CALIBRATION,
+    COMPLIANCE_TEST,
     DIAGNOSTICS,
     MEASURED_POSE,
     PROGRAM,
@@ -81,8 +82,9 @@ REQUIRED_TOPICS = (TARGET, MEASURED_POSE)
 #: labels, the positioner's mode (and calibration, the tracker's registration), the
 #: registration's covariance (the part of the readings' that averaging does not reduce).
 OPTIONAL_TOPICS = (TRUE_POSE, PROGRAM, DIAGNOSTICS, TRACKER_REGISTRATION)
-#: Read when present: the calibration runs recorded in the run, its axis tests.
-CONTEXT_TOPICS = (CALIBRATION, AXIS_TEST)
+#: Read when present: the calibration runs recorded in the run, its axis tests and compliance
+#: tests.
+CONTEXT_TOPICS = (CALIBRATION, AXIS_TEST, COMPLIANCE_TEST)
 UNKNOWN_MODE = 'unknown'
 #: The label of a segment outside every program of a run that has steps (before its first step:
 #: the homing move of run_cell; after a program's end marker: the homing and calibration moves
@@ -109,8 +111,9 @@ class JointSamples:
 class MessageBatch:
     """Consecutive messages of a recording, as the analysis needs them: the pose topics as
     :class:`PoseMessages`, the other topics as (log time ns, message) pairs in recorded order
-    (program steps, calibration and axis-test markers as their JSON text, diagnostics as decoded
-    DiagnosticArray messages: those with the positioner's or the tracker's status suffice)."""
+    (program steps, calibration, axis-test and compliance-test markers as their JSON text,
+    diagnostics as decoded DiagnosticArray messages: those with the positioner's or the
+    tracker's status suffice)."""
 
     targets: PoseMessages = field(default_factory=PoseMessages.empty)
     measured: PoseMessages = field(default_factory=PoseMessages.empty)
@@ -122,6 +125,7 @@ class MessageBatch:
     diagnostics: tuple[tuple[int, Any], ...] = ()
     calibration: tuple[tuple[int, str], ...] = ()
     axis_test: tuple[tuple[int, str], ...] = ()
+    compliance_test: tuple[tuple[int, str], ...] = ()
     #: The place of each of ``diagnostics`` in the recorded order (as the pose messages'
     #: ``rank``): where the positioner's move ends go to the monitor. Empty: not known (the
     #: move ends are not used; the monitor falls back on the last stable window of a visit).
@@ -268,6 +272,8 @@ class Replayer:
         self.context = ContextCollector()
         #: The /cell/axis_test markers (JSON), one per measured stop of an axis test.
         self.axis_test: list[str] = []
+        #: The /cell/compliance_test markers (JSON), one per load step of a compliance test.
+        self.compliance_test: list[str] = []
 
     def feed(self, batch: MessageBatch) -> None:
         """The batch's messages, through the monitor in their recorded order."""
@@ -284,6 +290,7 @@ class Replayer:
         for log_ns, text in batch.calibration:
             self.context.calibration_marker(log_ns * 1e-9, text)
         self.axis_test.extend(text for _, text in batch.axis_test)
+        self.compliance_test.extend(text for _, text in batch.compliance_test)
         ranked = (tuple(zip(batch.diagnostic_ranks, (m for _, m in batch.diagnostics),
                             strict=True))
                   if len(batch.diagnostic_ranks) == len(batch.diagnostics) else ())

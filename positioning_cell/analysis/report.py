@@ -9,6 +9,7 @@ from pathlib import Path
 
 from positioning_cell.accuracy import ErrorStatistics
 from positioning_cell.analysis.accuracy_map import MAP_LEAST, map_summary, mapped, pose_at
+from positioning_cell.analysis.compliance_test import markdown as compliance_table
 from positioning_cell.analysis.error_budget import CONTRIBUTIONS, Contribution, ErrorBudget
 from positioning_cell.analysis.replay import OUTSIDE_PROGRAM
 from positioning_cell.analysis.summary import ModeSummary, PoseSummary, RunAnalysis
@@ -358,6 +359,14 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 'accuracy, R repeatability, B reversal, E systematic deviation (over the '
                 'means of both directions), M range of the bidirectional means.', '',
                 *test.markdown(level=3)]
+    if a.compliance:
+        out += ['## Static compliance (ISO 9283 §10)', '', 'The load rig pushed the platform '
+                'origin along each direction in equal steps while the drives held the pose; '
+                'the compliance is the slope of the averaged tracker position against the '
+                'load (its magnitude, and its part along the load), U (k = 2) from the '
+                'readings\' noise and the rig\'s stated accuracy '
+                '(positioning_cell.accuracy.compliance). "Off the line": the largest distance '
+                'of a step from the fitted line.', '', *compliance_table(a.compliance), '']
     monitor, counts = a.monitor['verdicts'], a.monitor['decisions']
     rule = a.monitor['tolerances']['decision_rule']
     out += ['## Monitor', '', f'Replaying the bag through the accuracy monitor\'s rules gives '

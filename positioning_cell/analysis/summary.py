@@ -48,6 +48,8 @@ from positioning_cell.accuracy.stabilisation import StabilisationFigures, stabil
 from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
 from positioning_cell.analysis.axis_test import runs as axis_runs
 from positioning_cell.analysis.budget_pass import BUDGET_TOPICS, gather
+from positioning_cell.analysis.compliance_test import ComplianceResult, compliance_results
+from positioning_cell.analysis.compliance_test import parse_markers as compliance_markers
 from positioning_cell.analysis.context import RunContext
 from positioning_cell.analysis.error_budget import ErrorBudget
 from positioning_cell.analysis.reading import Recording, with_recording
@@ -432,6 +434,8 @@ class RunAnalysis:
     truth_modes: tuple[ModeSummary, ...]
     context: RunContext
     axis_tests: tuple[AxisTestResults, ...] = ()
+    #: The static compliance of each direction of the run's compliance tests (ISO 9283 §10).
+    compliance: tuple[ComplianceResult, ...] = ()
     problems: tuple[str, ...] = ()
     missing_optional: tuple[str, ...] = ()
     ignored: tuple[Ignored, ...] = field(default_factory=tuple)
@@ -482,6 +486,7 @@ class RunAnalysis:
             'ignored': [i.__dict__ for i in self.ignored],
             'context': self.context.to_dict(),
             'axis_tests': [a.to_dict() for a in self.axis_tests],
+            'compliance': [c.to_dict() for c in self.compliance],
             'error_budget': [b.to_dict() for b in self.budgets],
             'monitor': self.monitor,
         }
@@ -517,6 +522,8 @@ def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
     truth = bool(result.truth.count)
 
     markers, bad_markers = parse_markers(replayer.axis_test)
+    loads, bad_loads = compliance_markers(replayer.compliance_test)
+    compliance, no_compliance = compliance_results(loads)
 
     return RunAnalysis(
         bag=recording.path, message_count=recording.message_count, topics=recording.topics,
@@ -526,7 +533,9 @@ def _analyse(recording: Recording, settings: MonitorSettings) -> RunAnalysis:
         if truth else (),
         context=replayer.context.result(recording.start_ns * 1e-9, recording.end_ns * 1e-9),
         axis_tests=tuple(axis_test_figures(markers, run) for run in axis_runs(markers)),
-        problems=(*recording.problems, *result.problems, *bad_markers),
+        compliance=compliance,
+        problems=(*recording.problems, *result.problems, *bad_markers, *bad_loads,
+                  *no_compliance),
         missing_optional=tuple(t for t in OPTIONAL_TOPICS if t not in recording.topics),
         ignored=tuple(result.monitor.ignored))
 

@@ -9,7 +9,10 @@ At start the tracker locates itself on the base reference targets (``locate.*``;
 of the SMRs, converted to ``base`` with the located registration, the fitted pose and the
 cell's own covariance of it (datasheet noise and registration uncertainty) on /metrology/pose,
 stamped with the time of the truth it measured. At ``air_sensor.rate_hz`` the air-temperature
-sensor's reading on /cell/air_temperature (its variance the sensor's own error).
+sensor's reading on /cell/air_temperature (its variance the sensor's own error). The
+compliance test's load rig: a force on /load_rig/command (latched, frame ``base``) is applied
+to the machine and its load cell's reading published, latched, on /load_rig/force (at start:
+no load); a command it cannot take is logged and changes nothing.
 """
 
 from __future__ import annotations
@@ -17,13 +20,14 @@ from __future__ import annotations
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, WrenchStamped
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, Temperature
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
 from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.errors import InputError
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.latest import Reader
 from positioning_cell.ros.parameters import NodeParameters
@@ -62,6 +66,21 @@ class PoseMeasurementNode(Node):
         self.create_timer(1.0, self._diagnostics)
         self.create_timer(1.0 / settings.air_sensor.rate_hz, self._air_temperature)
         self.create_service(Trigger, names.LOCATE_TRACKER, self._locate, qos_profile=SERVICE_QOS)
+        self._force_pub = self.create_publisher(WrenchStamped, names.LOAD_FORCE, LATCHED_QOS)
+        self._publish_force()
+        self.create_subscription(WrenchStamped, names.LOAD_COMMAND, self._load, LATCHED_QOS)
+
+    def _load(self, msg: WrenchStamped) -> None:
+        try:
+            self.sim.apply_load(m.force_of(msg))
+        except InputError as err:
+            self.get_logger().error(f'{names.LOAD_COMMAND}: {err}; the load stays '
+                                    f'{self.sim.load.tolist()} N')
+            return
+        self._publish_force()
+
+    def _publish_force(self) -> None:
+        self._force_pub.publish(m.force_stamped(self.sim.load, self.get_clock().now().to_msg()))
 
     def _log_location(self) -> None:
         """Log the located registration and publish it (latched) on

@@ -46,7 +46,14 @@ from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.motion.settings import CompensationMode, PositionerSettings, machine_settings
 from positioning_cell.moves.correction import mean_reading
 from positioning_cell.procedures.judging import simulation_truth
-from positioning_cell.procedures.port import CellPort, ProcedureError, Say, moved_or_raise
+from positioning_cell.procedures.port import (
+    CellPort,
+    ProcedureError,
+    Say,
+    in_mode,
+    moved_or_raise,
+    say_recorded,
+)
 
 #: Per-call overhead of a jog on the live cell (service call, arrival detection), s: for the
 #: estimate of the test's duration only.
@@ -212,27 +219,11 @@ def run_axis_test(port: CellPort, test: AxisTest, config: Path, say: Say, *,
     # Mode none while it runs, as the calibration measures: the home pose is the nominal
     # machine's (the home values the program was checked at) and a jog, outside the
     # kinematics anyway, does not depend on the tracker's liveness.
-    previous = port.mode()
-    try:
-        port.set_mode(CompensationMode.NONE.value)
-    except ProcedureError as err:
-        raise ModeRefusedError(str(err)) from err
-    try:
+    with in_mode(port, CompensationMode.NONE.value, 'axis test', say, ModeRefusedError):
         markers = run_procedure(port, test, reference,
                                 (op.jog_largest_length_step, op.jog_largest_theta_step), say,
                                 truth=truth, timeout=timeout)
-    except ProcedureError:
-        raise
-    except BaseException:
-        port.stop()
-        raise
-    finally:
-        try:
-            port.set_mode(previous)
-        except ProcedureError as err:
-            say(f'axis test: the mode was not put back: {err}')
-    say(f'the recorder took the markers ({names.AXIS_TEST})' if port.recorded(names.AXIS_TEST)
-        else f'no recorder took the markers ({names.AXIS_TEST}): not in a bag')
+    say_recorded(port, names.AXIS_TEST, say)
     return AxisTestRun(markers, axis_test_figures(markers))
 
 

@@ -5,7 +5,8 @@ the cell's clock (:meth:`CellPort.now`)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -116,6 +117,11 @@ class CellPort(Protocol):
         true air) stamped from ``since`` s on: stamps (K,) s ascending and values (K,) °C
         (empty: none came)."""
 
+    def apply_load(self, force: ArrayLike) -> None:
+        """Have the load rig push the platform origin with ``force`` (3,) N, base frame
+        (zeros: unloaded); returns once the rig's load cell reads it (ProcedureError naming
+        what went wrong: the rig refused it, or did not report it in time)."""
+
     def mark(self, topic: str, text: str) -> None:
         """Send a marker (JSON text) on one of the cell's marker topics
         (:data:`positioning_cell.names.MARKER_TOPICS`), kept for a recorder that joins late."""
@@ -143,6 +149,38 @@ def moved_or_raise(moved: Moved, what: str) -> None:
     """ProcedureError naming ``what`` and the outcome when ``moved`` did not succeed."""
     if not moved.success:
         raise ProcedureError(f'{what}: {moved.code or "no answer"}: {moved.reason}', moved.code)
+
+
+@contextmanager
+def in_mode(port: CellPort, mode: str, what: str, say: Say,
+            refused: type[ProcedureError] = ProcedureError) -> Iterator[None]:
+    """The block run with the positioner in compensation ``mode`` (its refusal raised as
+    ``refused``, nothing run), then the previous mode put back (a refusal then said, naming
+    ``what``). The drives are stopped when anything but the cell's refusal or abort (a
+    ProcedureError: an interrupt, say) ends the block."""
+    previous = port.mode()
+    try:
+        port.set_mode(mode)
+    except ProcedureError as err:
+        raise refused(str(err)) from err
+    try:
+        yield
+    except ProcedureError:
+        raise
+    except BaseException:
+        port.stop()
+        raise
+    finally:
+        try:
+            port.set_mode(previous)
+        except ProcedureError as err:
+            say(f'{what}: the mode was not put back: {err}')
+
+
+def say_recorded(port: CellPort, topic: str, say: Say) -> None:
+    """Say whether a recorder took the markers of ``topic``."""
+    say(f'the recorder took the markers ({topic})' if port.recorded(topic)
+        else f'no recorder took the markers ({topic}): not in a bag')
 
 
 def as_pose(position: ArrayLike, quaternion: ArrayLike) -> tuple[FloatArray, FloatArray]:

@@ -6,8 +6,9 @@ truth of the parameter file, :mod:`.judging`), the axis test if asked
 per compensation mode, the mode set on the positioner; per move, the step published on
 ``/cell/program`` (JSON of :class:`~positioning_cell.analysis.program.ProgramStep`, kept for a
 recorder, so the analysis knows the mode and pose of every move), the move, the accuracy
-monitor's verdict on it, and a line to the caller. Starting the cell and analysing the
-recording are the caller's."""
+monitor's verdict on it, and a line to the caller; then the program's static compliance
+test if it has one (:mod:`positioning_cell.procedures.compliance_test`). Starting the cell and
+analysing the recording are the caller's."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from positioning_cell.errors import PositioningError
 from positioning_cell.motion.settings import CompensationMode, PositionerSettings, machine_settings
 from positioning_cell.procedures import calibration
 from positioning_cell.procedures.axis_test import run_axis_test, write
+from positioning_cell.procedures.compliance_test import run_compliance_test
 from positioning_cell.procedures.judging import judge_calibration
 from positioning_cell.procedures.port import CellPort, ProcedureError, Say, moved_or_raise
 
@@ -69,20 +71,24 @@ class Driven(NamedTuple):
 class RunOutcome(NamedTuple):
     """A completed run: the program's moves (:class:`Driven`); the report's ``note`` on the
     compensated modes; the calibration file the run made (None: none made or it failed);
-    the axis test's figures (None: not asked, or ``axis_test_failed``)."""
+    the axis test's figures (None: not asked, or ``axis_test_failed``); whether the
+    program's compliance test failed."""
 
     driven: Driven
     note: str
     calibration: Path | None
     axis_test: AxisTestResults | None
     axis_test_failed: bool
+    compliance_failed: bool = False
 
     @property
     def achieved(self) -> bool:
-        """Every move done, every mode taken, the axis test (if asked) completed (a move the
-        monitor gave no verdict on counts as done: its figures are the analysis's)."""
+        """Every move done, every mode taken, the axis test and the compliance test (if asked)
+        completed (a move the monitor gave no verdict on counts as done: its figures are the
+        analysis's)."""
         d = self.driven
-        return not (d.failed or d.skipped or d.refused_modes or self.axis_test_failed)
+        return not (d.failed or d.skipped or d.refused_modes or self.axis_test_failed
+                    or self.compliance_failed)
 
 
 def calibrate(port: CellPort, program: Program, config: Path, run_dir: Path, say: Say,
@@ -186,15 +192,31 @@ def drive(port: CellPort, program: Program, note: str, say: Say) -> Driven:
     return Driven(failed, skipped, tuple(refused), unjudged)
 
 
+def compliance(port: CellPort, program: Program, say: Say) -> bool:
+    """The program's compliance test at its pose, if it has one: False when it failed (said,
+    with the reason)."""
+    test = program.compliance
+    if test is None:
+        return True
+    k = program.names.index(test.pose)
+    try:
+        run_compliance_test(port, test, program.position[k], program.quaternion[k], say)
+    except PositioningError as err:  # ProcedureError included
+        say(f'compliance test failed: {err}')
+        return False
+    return True
+
+
 def run_program(port: CellPort, program: Program, config: Path, run_dir: Path, say: Say, *,
                 calibrator: Calibrator, axis_test_plan: AxisTest | None = None) -> RunOutcome:
     """The run (module docstring) on the cell of ``port`` configured by ``config``: the
     calibration (through ``calibrator``), the axis test ``axis_test_plan`` (None: none), the
-    program; what it writes goes to ``run_dir``. ProcedureError when the cell stops
-    answering."""
+    program and its compliance test; what it writes goes to ``run_dir``. ProcedureError when
+    the cell stops answering."""
     note, calibration = calibrate(port, program, config, run_dir, say, calibrator)
     results = (None if axis_test_plan is None
                else axis_test(port, axis_test_plan, config, run_dir, say))
     driven = drive(port, program, note, say)
     return RunOutcome(driven, note, calibration, results,
-                      axis_test_plan is not None and results is None)
+                      axis_test_plan is not None and results is None,
+                      not compliance(port, program, say))

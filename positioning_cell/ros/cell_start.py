@@ -56,7 +56,8 @@ def run_overrides(run_dir: Path) -> Path:
     """The run's parameter overrides, ``run_dir/run_overrides.yaml``: the recorder writes
     ``run_dir/bag`` and also records the run driver's marker topics."""
     path = run_dir / 'run_overrides.yaml'
-    pattern = '|'.join(re.escape(t) for t in (names.PROGRAM, names.AXIS_TEST))
+    pattern = '|'.join(re.escape(t) for t in (names.PROGRAM, names.AXIS_TEST,
+                                              names.COMPLIANCE_TEST))
     path.write_text(yaml.safe_dump({names.NODE_RECORDER: {'ros__parameters': {
         'output': str(run_dir / 'bag'), 'topic_pattern': pattern}}}))
     return path

@@ -12,7 +12,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from builtin_interfaces.msg import Duration, Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovarianceStamped, Vector3Stamped
+from geometry_msgs.msg import (
+    Point,
+    Pose,
+    PoseStamped,
+    PoseWithCovarianceStamped,
+    Vector3Stamped,
+    WrenchStamped,
+)
 from numpy.typing import ArrayLike
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
@@ -63,6 +70,29 @@ def vector3_stamped(vector: ArrayLike, stamp: Time,
     msg.header.frame_id = frame
     msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in np.ravel(vector))
     return msg
+
+
+def force_stamped(force: ArrayLike, stamp: Time, frame: str = BASE_FRAME) -> WrenchStamped:
+    """geometry_msgs/WrenchStamped of a force (3,) N in ``frame`` (no torque)."""
+    msg = WrenchStamped()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame
+    msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = (float(v)
+                                                                 for v in np.ravel(force))
+    return msg
+
+
+def force_of(msg: WrenchStamped) -> np.ndarray:
+    """The force (3,) N of a geometry_msgs/WrenchStamped in ``base``; InputError naming what
+    is wrong for another frame or a torque (the load rig pushes at the platform origin)."""
+    if msg.header.frame_id != BASE_FRAME:
+        raise InputError(f'a force in frame {msg.header.frame_id!r}: the load rig takes '
+                         f'{BASE_FRAME!r} only')
+    t = msg.wrench.torque
+    if any(v != 0.0 for v in (t.x, t.y, t.z)):
+        raise InputError('a torque: the load rig pushes at the platform origin, force only')
+    f = msg.wrench.force
+    return np.array([f.x, f.y, f.z])
 
 
 def joint_state(names: Sequence[str], stamp: Time, position: ArrayLike,

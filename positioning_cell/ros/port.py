@@ -1,7 +1,8 @@
 """The ROS port: :class:`~positioning_cell.procedures.port.CellPort` on the running cell,
 through a :class:`~positioning_cell.ros.client.CellClient` (its services, its parameters, its
 own subscriptions to the encoders, the tracker, the air-temperature sensor, the simulator's
-true axis positions and the monitor's verdicts, and the marker publishers)."""
+true axis positions, the load rig's load cell and the monitor's verdicts, and the marker and
+load-rig publishers)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from collections import deque
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import PoseWithCovarianceStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, WrenchStamped
 from numpy.typing import ArrayLike
 from positioning_cell_interfaces.msg import MoveCommand
 from positioning_cell_interfaces.srv import Jog, MoveToPose
@@ -30,6 +31,8 @@ from positioning_cell.polling import wait_until
 from positioning_cell.procedures.port import FloatArray, Moved, ProcedureError, Readings, Seen
 from positioning_cell.ros.client import CellClient, verdict_text
 from positioning_cell.ros.messages import (
+    force_of,
+    force_stamped,
     joint_values,
     measurement,
     pose_stamped,
@@ -76,6 +79,11 @@ class RosCellPort:
         node.create_subscription(PoseWithCovarianceStamped, names.TRACKER_REGISTRATION,
                                  self._on_registration, LATCHED_QOS)
         self._markers: dict[str, Any] = {}
+        self._load_cell: FloatArray | None = None  # the rig's latest reading
+        node.create_subscription(WrenchStamped, names.LOAD_FORCE, self._on_load_cell,
+                                 LATCHED_QOS)
+        self._load_command = node.create_publisher(WrenchStamped, names.LOAD_COMMAND,
+                                                   LATCHED_QOS)
         self._verdicts = client.statuses(names.STATUS_MONITOR_VERDICT)
         # its own client of /positioner/stop: stop() may be called from any thread, while the
         # procedure's thread waits for a move on the shared client
@@ -100,6 +108,14 @@ class RosCellPort:
             return
         with self._lock:
             self._registration = found
+
+    def _on_load_cell(self, msg: Any) -> None:
+        try:
+            force = force_of(msg)
+        except InputError:
+            return  # not the rig's reading in base: none
+        with self._lock:
+            self._load_cell = force
 
     def _on_air(self, msg: Any) -> None:
         with self._lock:
@@ -229,6 +245,22 @@ class RosCellPort:
             kept = sorted((e for e in self._air if e[0] >= since), key=lambda e: e[0])
         return (np.array([t for t, _ in kept], dtype=float),
                 np.array([v for _, v in kept], dtype=float))
+
+    def apply_load(self, force: ArrayLike) -> None:
+        wanted = np.asarray(force, dtype=float).reshape(3)
+        self._load_command.publish(force_stamped(wanted, self.client.node.get_clock().now()
+                                                 .to_msg()))
+
+        def reads_it() -> bool:
+            with self._lock:
+                return self._load_cell is not None and bool(np.allclose(
+                    self._load_cell, wanted, rtol=1e-9, atol=1e-9))
+        try:
+            wait_until(reads_it, self.timeout, f'the load rig\'s reading of {wanted.tolist()} N '
+                       f'on {names.LOAD_FORCE} (a command it refuses is in the '
+                       f'{names.NODE_MEASUREMENT} log)')
+        except TimeoutError as err:
+            raise ProcedureError(str(err)) from err
 
     # -- markers and the monitor ----------------------------------------------------------------
     def mark(self, topic: str, text: str) -> None:

@@ -19,6 +19,10 @@ keeps each axis's approach direction and the legs' heating, the air drifts with 
 cell's air-temperature sensor (``air_sensor.*``) reads the air with its own error; the
 tracker's weather correction uses that reading (``air_sensor.feeds_tracker``) or 20 °C, and
 its ranges scale with the difference from the true air (refraction).
+
+The compliance test's load rig (:mod:`positioning_cell.sim.load_rig`) pushes on the platform
+with the force it is commanded (:meth:`PoseMeasurementSimulator.apply_load`): the machine is
+rebuilt with that load among its payload's, and the next true pose is computed anew.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from positioning_cell.metrology.locate import LocateSettings, Location, locate
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.parameters import check_fields, group, setting
 from positioning_cell.sim.effects.thermal import REFERENCE_TEMPERATURE
+from positioning_cell.sim.load_rig import LoadRig, LoadRigTruth, checked_force, loaded_payload
 from positioning_cell.sim.tracker import SimulatedTracker, TrackerFaults, TrackerTruth, observe
 from positioning_cell.sim.truth import Truth, TruthParameters
 
@@ -54,6 +59,7 @@ class SimulationTruth(TruthParameters):
     (:class:`TruthParameters`) and the tracker as it really is (``truth.tracker.*``)."""
 
     tracker: TrackerTruth = group(TrackerTruth, 'the tracker\'s true pose and systematic errors')
+    load_rig: LoadRigTruth = group(LoadRigTruth, 'the load rig\'s real force')
 
 
 @dataclass(frozen=True)
@@ -84,6 +90,7 @@ class PoseMeasurementSettings:
     fault: TrackerFaults = group(TrackerFaults, 'injected measurement faults')
     fit: FitSettings = group(FitSettings, 'the pose fit')
     air_sensor: AirSensor = group(AirSensor, 'the cell\'s air-temperature sensor')
+    load_rig: LoadRig = group(LoadRig, 'the compliance test\'s load rig')
     rate_hz: float = setting(20.0, 'tracker measurement rate', 'Hz', low=0.1, high=200.0)
     truth_rate_hz: float = setting(50.0, 'largest true-pose update rate', 'Hz', low=1.0,
                                    high=500.0)
@@ -92,9 +99,12 @@ class PoseMeasurementSettings:
     def __post_init__(self) -> None:
         check_fields(self)
 
-    def true_machine(self) -> Truth:
-        """The truth these settings describe (ConfigError naming a bad ``truth.*`` key)."""
-        return Truth.from_parameters(self.truth, self.mechanism, self.payload, self.structure)
+    def true_machine(self, load: FloatArray | None = None) -> Truth:
+        """The truth these settings describe (ConfigError naming a bad ``truth.*`` key), with
+        the load rig's load cell reading ``load`` (3,) N, base frame (None: no load)."""
+        payload = (self.payload if load is None
+                   else loaded_payload(self.payload, self.truth.load_rig, load))
+        return Truth.from_parameters(self.truth, self.mechanism, payload, self.structure)
 
 
 #: The tracker's target layout as parameters (``targets.platform``, ...): the prefix the watch
@@ -147,6 +157,9 @@ class PoseMeasurementSimulator:
         self._joints = np.full(6, np.nan)  # joints of the current true pose (NaN: none)
         self._phis: FloatArray | None = None
         self.true_pose: TruePose | None = None
+        #: The load rig's load cell reading (3,) N, base frame (what it was last commanded).
+        self.load: FloatArray = np.zeros(3)
+        self._loaded = False  # a new load: the next true pose is computed anew
         self.status = ('warn', 'waiting for the true joint states')
         self.stats: dict[str, Any] = {
             'targets_visible': 0, 'targets_used': 0, 'outliers_rejected': 0,
@@ -213,6 +226,16 @@ class PoseMeasurementSimulator:
             'locate_variance_factor': round(loc.variance_factor, 3),
         }
 
+    def apply_load(self, force: ArrayLike) -> FloatArray:
+        """The load rig pushes the platform origin with ``force`` (3,) N, base frame (zeros:
+        unloaded): the machine is rebuilt with it (module docstring). Returns the rig's load
+        cell reading, the force commanded; InputError (nothing changed) for a force that is
+        not finite or beyond ``load_rig.max_force``."""
+        f = checked_force(self.settings.load_rig, force)
+        self.truth = self.settings.true_machine(f if np.any(f) else None)
+        self.load, self._loaded = f, True  # the drives' next joint state gets the new pose
+        return f.copy()
+
     def _since_start(self, time: float) -> float:
         if self._start is None:
             self._start = time
@@ -240,7 +263,7 @@ class PoseMeasurementSimulator:
         drifting = self.truth.effects.thermal is not None \
             and time - self._computed_at >= RECOMPUTE_PERIOD
         if self.true_pose is not None and np.array_equal(joints, self._joints) \
-                and not drifting:
+                and not drifting and not self._loaded:
             self.true_pose = self.true_pose._replace(stamp=stamp)  # the machine has not moved
         else:
             try:
@@ -253,6 +276,7 @@ class PoseMeasurementSimulator:
                 self.status = ('error', f'no true pose for joints {joints.tolist()}: {err}')
                 return None
             self._joints, self._phis, self._computed_at = joints, result.phis[0], time
+            self._loaded = False
             self.true_pose = TruePose(result.position[0], result.quaternion[0], stamp)
         self.stats['truth_updates'] += 1
         return self.true_pose
@@ -311,4 +335,5 @@ class PoseMeasurementSimulator:
         if locate_level != 'ok':
             level = max(level, locate_level, key=_LEVELS.index)
             message = f'{message}; {locate_message}'
-        return level, message, {**self.stats, **self.location_values()}
+        return level, message, {**self.stats, 'load_rig_force_n': self.load.tolist(),
+                                **self.location_values()}

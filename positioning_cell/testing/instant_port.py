@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from positioning_cell import names
 from positioning_cell.accuracy.verdicts import Tolerances, judge_poses
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
-from positioning_cell.errors import ConfigError, PositioningError
+from positioning_cell.errors import ConfigError, InputError, PositioningError
 from positioning_cell.motion.controller import Controller, MoveCommand
 from positioning_cell.motion.mover import Mover
 from positioning_cell.motion.settings import PositionerSettings
@@ -214,6 +214,13 @@ class InstantPort:
         self._sense_air()
         stamps, values = _since(self._air, since, ())
         return stamps, values
+
+    def apply_load(self, force: ArrayLike) -> None:
+        try:
+            self.sim.apply_load(force)
+        except InputError as err:
+            raise ProcedureError(str(err)) from err
+        self.cell.truth = self.sim.truth  # the machine under its new load
 
     # -- markers and the monitor ----------------------------------------------------------------
     def mark(self, topic: str, text: str) -> None:

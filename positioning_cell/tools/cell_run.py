@@ -140,6 +140,8 @@ def _analyse(bag: Path, run_dir: Path, config: Path, live: dict[str, Any] | None
             say(f'run_cell: mode {mode} refused, its moves left out: {reason}')
         if outcome.axis_test_failed:
             say('run_cell: the axis test failed')
+        if outcome.compliance_failed:
+            say('run_cell: the compliance test failed')
     if status == Exit.OK and ((outcome is not None and not outcome.achieved)
                               or output.analysis.problems):
         status = Exit.NOT_ACHIEVED
