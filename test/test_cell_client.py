@@ -9,12 +9,17 @@ import time
 
 import pytest
 from cell_harness import Client, isolated_domain
+from positioning_cell_interfaces.action import Home
 from rcl_interfaces.srv import ListParameters
+from rclpy.action import ActionServer
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import String
 
 from positioning_cell.polling import wait_until
-from positioning_cell.ros.client import PARAMETER_TIMEOUT, STOPPED_WAIT_S
+from positioning_cell.ros import client as client_module
+from positioning_cell.ros.client import PARAMETER_TIMEOUT, STOPPED_WAIT_S, GoalClient
 
 pytestmark = pytest.mark.nodes
 
@@ -63,3 +68,41 @@ def test_a_stop_cuts_every_wait_short() -> None:
         assert time.monotonic() - t0 < 1.0
     print(f'the set gave up {took:.2f} s after it began, the stop after 0.2 s '
           f'(grace {STOPPED_WAIT_S} s)')
+
+
+def test_a_goal_client_builds_itself_anew_once_when_its_server_does_not_show(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """GoalClient.ready: each client's node has a name of its own; without the server after
+    REBUILD_AFTER the action client is built anew once, which then finds a server that came
+    meanwhile; none at all times out saying so."""
+    monkeypatch.setattr(client_module, 'REBUILD_AFTER', 0.3)
+    with isolated_domain() as domain, Client(domain, 'goal_test') as client:
+        with GoalClient(client, Home, '/nobody/homing') as goals:
+            first = goals.node.get_name()
+            with pytest.raises(TimeoutError, match='built twice'):
+                goals.ready(1.0)
+            assert goals.node.get_name() not in (first, 'goal_test_goals')
+        late = Node('late', context=client.context)
+        executor = SingleThreadedExecutor(context=client.context)
+        with GoalClient(client, Home, '/late/homing') as goals:
+            built = goals.node
+            done: list[BaseException | None] = []
+
+            def wait() -> None:
+                try:
+                    goals.ready(30.0)
+                    done.append(None)
+                except BaseException as err:
+                    done.append(err)
+
+            waiter = threading.Thread(target=wait)
+            waiter.start()
+            wait_until(lambda: goals.node is not built, 10.0, 'the client built anew')
+            ActionServer(late, Home, '/late/homing', lambda handle: Home.Result())
+            executor.add_node(late)
+            spinner = threading.Thread(target=executor.spin, daemon=True)
+            spinner.start()
+            waiter.join(30.0)
+            assert done == [None]
+        executor.shutdown(timeout_sec=1.0)
+        late.destroy_node()

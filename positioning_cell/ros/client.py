@@ -372,20 +372,39 @@ def serving_node(name: str) -> str:
     return parts[0]
 
 
+#: Numbers the nodes of the GoalClients of a process: each its own name.
+_GOAL_NODES = itertools.count(1)
+#: How long (s) :meth:`GoalClient.ready` waits for the server before it builds its action
+#: client anew, once.
+REBUILD_AFTER = 10.0
+
+
 class GoalClient:
     """An action client on a node of its own in ``client``'s context, spun only by the thread
     that uses it (:meth:`spin_once`, :meth:`until`). rclpy's ActionClient registers a goal,
     cancel or result request only after sending it (no lock, Jazzy): an answer that another
     thread's executor takes in between is dropped ("Ignoring unexpected goal response") and
     the caller waits forever. Spun by its caller alone, the answer is taken after it is
-    registered."""
+    registered.
+
+    Each GoalClient's node has a name of its own (``<client>_goals_<n>``): action clients
+    made and destroyed in quick succession under one name have been seen to stay unmatched
+    with a server DDS announces (once in the suite, 30 s; eProsima/Fast-DDS#5359 reports
+    the like), and :meth:`ready` builds its client anew once when the server does not show
+    within :data:`REBUILD_AFTER`."""
 
     def __init__(self, client: CellClient, action_type: Any, name: str) -> None:
-        self.cell, self.name = client, name
-        self.node = Node(f'{client.node.get_name()}_goals', context=client.context)
+        self.cell, self.name, self._type = client, name, action_type
+        self._build()
+
+    def _build(self) -> None:
+        """The node, its executor and the action client."""
+        client = self.cell
+        self.node = Node(f'{client.node.get_name()}_goals_{next(_GOAL_NODES)}',
+                         context=client.context)
         self.executor = SingleThreadedExecutor(context=client.context)
         self.executor.add_node(self.node)
-        self.action = ActionClient(self.node, action_type, name)
+        self.action = ActionClient(self.node, self._type, self.name)
 
     def spin_once(self, timeout: float) -> None:
         """Take what came for the action (feedback, answers), waiting up to ``timeout`` s."""
@@ -402,11 +421,24 @@ class GoalClient:
 
     def ready(self, timeout: float) -> None:
         """Wait for the server, then for its node to know this client
-        (:meth:`CellClient.handshake`: its answers would be lost otherwise)."""
+        (:meth:`CellClient.handshake`: its answers would be lost otherwise); after
+        :data:`REBUILD_AFTER` s without it, the action client is built anew (class
+        docstring) and waits the rest of ``timeout``."""
+        deadline = time.monotonic() + timeout
+        what = f'the action server {self.name}'
         try:
-            wait_until(self.action.server_is_ready, timeout, f'the action server {self.name}')
+            wait_until(self.action.server_is_ready, min(REBUILD_AFTER, timeout), what)
         except TimeoutError as err:
-            raise TimeoutError(f'{err} ({self._graph_view()})') from None
+            left = deadline - time.monotonic()
+            if left <= 0.0:
+                raise TimeoutError(f'{err} ({self._graph_view()})') from None
+            self.close()
+            self._build()
+            try:
+                wait_until(self.action.server_is_ready, left, what)
+            except TimeoutError as again:
+                raise TimeoutError(f'{again} after {timeout:.0f} s in all, the client built '
+                                   f'twice ({self._graph_view()})') from None
         self.cell.handshake(serving_node(self.name), timeout)
 
     def _graph_view(self) -> str:
