@@ -758,6 +758,11 @@ def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
     values = live.visit_values(live.measured.visits[0])
     assert float(values['stabilisation_time']) == pytest.approx(live.stabilisations[0].time,
                                                                 abs=5e-4)
+    # and its positioning time (ISO 9283 §9): from the segment's start to the final entry
+    visit, first = live.measured.visits[0], live.stabilisations[0]
+    assert float(values['positioning_time']) == pytest.approx(first.positioning_time, abs=5e-4)
+    assert first.positioning_time > first.time and visit.target_time + first.positioning_time \
+        <= visit.settle_time + 1e-9
     # each visit's path crossings (ISO 9283 8.2) from its segment's readings: the same
     assert len(live.paths) == len(grouped.paths) == 4
     assert live.paths[0] is None and all(p is not None for p in live.paths[1:])  # from nothing

@@ -6,12 +6,15 @@ approaches measured at the tracker's rate and noise against the same motions sam
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
 
+from positioning_cell.accuracy.positioning_time import positioning_time_of
 from positioning_cell.accuracy.stabilisation import (
+    Stabilisation,
     StabilisationSettings,
     stabilisation,
     stabilisation_figures,
@@ -104,7 +107,7 @@ def test_the_true_figures_lie_within_u_of_the_measured_ones_in_95_percent_of_run
     about 5 µm), the attained position their last 0.5 s's mean. Runs the readings do not
     resolve state no U and are counted apart; most are resolved. A run at rest has no
     overshoot (no approach), nor one whose first reading came once it was within the band."""
-    runs, covered, resolved, moved = 300, np.zeros(2), 0, 0
+    runs, covered, resolved, moved = 300, np.zeros(3), 0, 0
     for seed in range(runs):
         rng = np.random.default_rng(seed)
         amplitude = 0.0 if seed % 10 == 0 else rng.uniform(60e-6, 300e-6)
@@ -112,14 +115,16 @@ def test_the_true_figures_lie_within_u_of_the_measured_ones_in_95_percent_of_run
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
         fine = np.arange(0.0, 6.0, 1e-3)
-        true = stabilisation_figures(fine, _damped(fine, amplitude, tau, hz, direction), X,
-                                     BAND)
+        motion = _damped(fine, amplitude, tau, hz, direction)
+        true = stabilisation_figures(fine, motion, X, BAND)
+        outside = np.flatnonzero(np.linalg.norm(motion - X, axis=1) > BAND)
+        reached = fine[outside[-1] + 1] if outside.size else 0.0  # the final entry (§9)
         t = np.arange(rng.uniform(0.0, 0.05), 6.0, 0.05)
         p = _damped(t, amplitude, tau, hz, direction) + rng.normal(0.0, sigma, (t.size, 3))
         window = t > t[-1] - 0.5
         cov = np.tile(np.eye(3) * sigma**2, (t.size, 1, 1))
         result = stabilisation(t, p, cov, p[window].mean(axis=0),
-                               np.eye(3) * sigma**2 / window.sum(), BAND)
+                               np.eye(3) * sigma**2 / window.sum(), BAND, start=0.0)
         if amplitude == 0.0:
             assert math.isnan(result.overshoot) and math.isnan(true[1])
         if not result.resolved:
@@ -128,12 +133,14 @@ def test_the_true_figures_lie_within_u_of_the_measured_ones_in_95_percent_of_run
         overshot = math.isfinite(true[1]) and math.isfinite(result.overshoot)
         moved += overshot
         covered += (abs(result.time - true[0]) <= result.time_u,
-                    overshot and abs(result.overshoot - true[1]) <= result.overshoot_u)
-    share = covered / (resolved, moved)
+                    overshot and abs(result.overshoot - true[1]) <= result.overshoot_u,
+                    abs(result.positioning_time - reached) <= result.positioning_time_u)
+    share = covered / (resolved, moved, resolved)
     print(f'sigma {sigma * 1e6:.0f} um: {resolved} of {runs} runs resolved; t covered in '
-          f'{share[0]:.1%}, OV in {share[1]:.1%} (of the {moved} that moved)')
+          f'{share[0]:.1%}, OV in {share[1]:.1%} (of the {moved} that moved), the '
+          f'positioning time in {share[2]:.1%}')
     assert resolved >= runs / 2
-    assert share[0] >= 0.95 and share[1] >= 0.95, share
+    assert share[0] >= 0.95 and share[1] >= 0.95 and share[2] >= 0.95, share
 
 
 @pytest.mark.parametrize(('args', 'words'), [
@@ -173,3 +180,35 @@ def test_the_monitor_holds_a_bounded_number_of_readings() -> None:
                                            StabilisationSettings())
     assert math.isnan(lost.time) and lost.readings == 0
     assert kept.time == 0.0 and kept.readings == n - 100
+
+
+def test_the_positioning_time_runs_from_the_start_to_the_final_entry() -> None:
+    """Exact readings 0.05 s apart from a move begun at −0.35 s: in at 0.05 s (45 µm), out
+    at 0.2 s (52 µm), in for good at 0.25 s: 0.6 s, U one interval (the entry happened after
+    the reading before it). No start: no positioning time. A path's figure: the mean, the
+    largest, the mean U over its visits that have it (ISO 9283 §9)."""
+    t, p = _readings([500, 45, 20, -10, -52, -40, -10, 5, 1, 0], dt=0.05)
+    zero = np.zeros((t.size, 3, 3))
+    result = stabilisation(t, p, zero, X, np.zeros((3, 3)), BAND, start=-0.35)
+    assert result.resolved and result.positioning_time == pytest.approx(0.6)
+    assert result.positioning_time_u == pytest.approx(0.05)
+    assert math.isnan(stabilisation(t, p, zero, X, np.zeros((3, 3)), BAND).positioning_time)
+    other = stabilisation(t[2:], p[2:], zero[2:], X, np.zeros((3, 3)), BAND, start=0.0)
+    assert other.positioning_time == pytest.approx(0.25)
+    figure = positioning_time_of(0.004, [result, other, Stabilisation.none(3)])
+    assert figure is not None and figure.cycles == 2 and figure.distance == 0.004
+    assert figure.mean == pytest.approx((0.6 + 0.25) / 2)
+    assert figure.longest == pytest.approx(0.6)
+    assert figure.u == pytest.approx((0.05 + other.positioning_time_u) / 2)
+    assert positioning_time_of(0.004, [Stabilisation.none(3)]) is None
+    assert json.loads(json.dumps(figure.to_dict()))['cycles'] == 2
+
+
+def test_readings_in_the_band_from_the_first_may_have_entered_since_the_start() -> None:
+    """A platform already within the band at its first reading (0.3 s after the start):
+    the positioning time is that reading's time, uncertain back to the start."""
+    t, p = _readings([10, 5, 0, 2])
+    result = stabilisation(t + 0.3, p, np.zeros((4, 3, 3)), X, np.zeros((3, 3)), BAND,
+                           start=0.0)
+    assert result.positioning_time == pytest.approx(0.3)
+    assert result.positioning_time_u == pytest.approx(0.3)

@@ -353,7 +353,7 @@ class Readings:
                          int(np.searchsorted(self.time, visit.settle_time, side='right')))
             out.append(stabilisation(self.time[rows], self.position[rows],
                                      self.covariance[rows, :3, :3], visit.position,
-                                     cov[:3, :3], settings.band))
+                                     cov[:3, :3], settings.band, visit.target_time))
         return out
 
     def paths_of(self, visits: Sequence[Visit], starts: Sequence[Triple | None]

@@ -19,6 +19,10 @@ d_j = |p_j − x| and a limit band b (the manufacturer's limit; the monitor's
 A visit whose readings never entered the band, or left it at the last reading, has neither
 (NaN); one whose first reading lay within the band already (no move) has no overshoot.
 
+Given the segment's start (the target took effect: the move began), the visit's positioning
+time (ISO 9283 §9, :mod:`positioning_cell.accuracy.positioning_time`) is t(final entry) −
+start: the time to the stabilised state.
+
 U (k = 2): the figures are not linear in the readings (thresholds, a maximum), so each U is
 a bound that holds, with at least the coverage probability p of k (95.45 %), whatever the
 motion, from the readings' stated covariances Σ_j, the attained position's Σ_x and the
@@ -33,7 +37,8 @@ of every visit, 2.8 ms a visit, and was the analysis's largest cost on a long re
   latest first and final entries those intervals allow, each entry anywhere in the interval
   before the reading that sees it (the readings sample the motion), bound the true time; U
   is its larger departure from the estimate. None (NaN) when the readings might not stay in
-  the band.
+  the band. The positioning time's U likewise from the earliest and latest final entries
+  (the start is the target's stamp, taken as exact).
 - The overshoot: with e_j the readings' errors and e_x the attained position's,
   |max_j (p_j − x)·a − max_j (p_j,true − x_true)·a| ≤ max_j |e_j·a| + |e_x·a| (each term
   moves by at most that; the clamp at 0 too), within c·(max_j σ_j,a + σ_x,a) over the
@@ -95,6 +100,10 @@ class Stabilisation:
     #: False: the position moved more than the band between two readings after the first
     #: entry, so the readings may have missed an excursion out of the band; no U is stated.
     resolved: bool = True
+    #: The positioning time (s, ISO 9283 §9): from the segment's start to the final entry,
+    #: and its U (k = 2); NaN without a start, or without an entry that stayed.
+    positioning_time: float = math.nan
+    positioning_time_u: float = math.nan
 
     @staticmethod
     def none(readings: int = 0) -> Stabilisation:
@@ -103,20 +112,20 @@ class Stabilisation:
 
     def to_dict(self) -> dict[str, float | int | bool | None]:
         """JSON-able (SI; NaN as null)."""
-        return _plain(self.__dict__)
+        return plain(self.__dict__)
 
 
-def _plain(values: dict[str, float | int | bool]) -> dict[str, float | int | bool | None]:
+def plain(values: dict[str, float | int | bool]) -> dict[str, float | int | bool | None]:
     """``values`` with NaN as None (JSON has no NaN)."""
     return {name: (None if isinstance(value, float) and not math.isfinite(value) else value)
             for name, value in values.items()}
 
 
 def _entries(time: FloatArray, distance: FloatArray,
-             band: float) -> tuple[FloatArray, NDArray[np.intp]]:
+             band: float) -> tuple[FloatArray, NDArray[np.intp], NDArray[np.intp]]:
     """Stabilisation times (D,) of D rows of distances (D, n) at ``time`` (n,) (NaN where a
-    row never entered the band or did not stay) and the index (D,) of each row's first
-    entry."""
+    row never entered the band or did not stay) and the indices (D,) of each row's first and
+    final entries."""
     n = distance.shape[1]
     inside = distance <= band
     first = np.argmax(inside, axis=1)
@@ -125,7 +134,7 @@ def _entries(time: FloatArray, distance: FloatArray,
     final = np.minimum(final, n - 1)
     t_first, t_final = time[first], time[final]
     stays = final > first  # entered, left and came back: else it stayed from the first entry
-    return np.where(ok, np.where(stays, t_final - t_first, 0.0), math.nan), first
+    return np.where(ok, np.where(stays, t_final - t_first, 0.0), math.nan), first, final
 
 
 def stabilisation_values(figure: Stabilisation) -> dict[str, str]:
@@ -133,7 +142,9 @@ def stabilisation_values(figure: Stabilisation) -> dict[str, str]:
     return {'stabilisation_time': f'{figure.time:.3f}',
             'stabilisation_time_u': f'{figure.time_u:.3f}',
             'overshoot': f'{figure.overshoot:.7f}', 'overshoot_u': f'{figure.overshoot_u:.7f}',
-            'stabilisation_resolved': str(figure.resolved).lower()}
+            'stabilisation_resolved': str(figure.resolved).lower(),
+            'positioning_time': f'{figure.positioning_time:.3f}',
+            'positioning_time_u': f'{figure.positioning_time_u:.3f}'}
 
 
 def _approach(position: FloatArray, attained: FloatArray, band: float) -> FloatArray | None:
@@ -153,7 +164,7 @@ def stabilisation_figures(time: ArrayLike, position: ArrayLike, attained: ArrayL
     t, p, x = _checked(time, position, attained, band)
     if t.size == 0:
         return math.nan, math.nan
-    s, first = _entries(t, np.linalg.norm(p - x, axis=1)[None], band)
+    s, first, _ = _entries(t, np.linalg.norm(p - x, axis=1)[None], band)
     approach = _approach(p, x, band)
     if math.isnan(s[0]) or approach is None:
         return float(s[0]), math.nan
@@ -189,11 +200,12 @@ def within_all(count: int, k: float = COVERAGE_FACTOR) -> float:
 
 def stabilisation(time: ArrayLike, position: ArrayLike, covariance: ArrayLike,
                   attained: ArrayLike, attained_covariance: ArrayLike,
-                  band: float) -> Stabilisation:
+                  band: float, start: float = math.nan) -> Stabilisation:
     """The :class:`Stabilisation` of one visit: readings at ``time`` (n,) s, positions (n, 3)
     m in base, each with its stated position covariance ``covariance`` (n, 3, 3) m² (NaN: not
     stated), against its ``attained`` position (3,) m of covariance ``attained_covariance``
-    (3, 3) m², with the limit ``band`` (m); U as the module docstring says."""
+    (3, 3) m², with the limit ``band`` (m); the positioning time from ``start`` s (the
+    segment's start; NaN: none); U as the module docstring says."""
     t, p, x = _checked(time, position, attained, band)
     cov = np.asarray(covariance, dtype=float)
     cov_x = np.asarray(attained_covariance, dtype=float)
@@ -204,27 +216,32 @@ def stabilisation(time: ArrayLike, position: ArrayLike, covariance: ArrayLike,
         return Stabilisation.none()
     offset = p - x
     distance = np.linalg.norm(offset, axis=1)
-    times, firsts = _entries(t, distance[None], band)
+    times, firsts, finals = _entries(t, distance[None], band)
     s, first = float(times[0]), int(firsts[0])
     if math.isnan(s):
         return Stabilisation.none(t.size)
+    reached = float(t[finals[0]])  # the final entry
+    positioning = reached - start
     approach = _approach(p, x, band)
     past = offset @ approach if approach is not None else np.full(t.size, math.nan)
     ov = max(0.0, float(np.max(past[first:]))) if approach is not None else math.nan
     step = np.linalg.norm(np.diff(p, axis=0), axis=1)  # step[j]: reading j to j + 1
     if np.any(step[first:] > band):
-        return Stabilisation(s, ov, math.nan, math.nan, t.size, resolved=False)
+        return Stabilisation(s, ov, math.nan, math.nan, t.size, False, positioning)
     if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(cov_x))):
-        return Stabilisation(s, ov, math.nan, math.nan, t.size)
+        return Stabilisation(s, ov, math.nan, math.nan, t.size, True, positioning)
     # each reading's distance moves by its error along its own direction from x (first
     # order: an entry happens some 50 µm out, errors are µm), the attained position's error
     # with it; all n within c of their sigma together
     radial = offset / np.maximum(distance, np.finfo(float).tiny)[:, None]
     sigma = np.sqrt(np.maximum(np.einsum('ni,nij,nj->n', radial, cov + cov_x, radial), 0.0))
     c = within_all(t.size)
-    u_time = _time_bound(t, distance - c * sigma, distance + c * sigma, band, s)
+    low, high = distance - c * sigma, distance + c * sigma
+    u_time = _time_bound(t, low, high, band, s)
+    u_positioning = (_final_bound(t, low, high, band, reached, start)
+                     if math.isfinite(positioning) else math.nan)
     if approach is None:
-        return Stabilisation(s, ov, u_time, math.nan, t.size)
+        return Stabilisation(s, ov, u_time, math.nan, t.size, True, positioning, u_positioning)
     # |max_j (p_j - x)·a - max_j (p_j,true - x_true)·a| <= max_j |e_j·a| + |e_x·a| whatever
     # the motion (the clamp at 0 keeps it): all within c' of their sigma, from the reading
     # before the first entry on (an error may enter there)
@@ -237,7 +254,7 @@ def stabilisation(time: ArrayLike, position: ArrayLike, covariance: ArrayLike,
     top = first + int(np.argmax(past[first:]))
     beside = np.abs(np.diff(past))[max(top - 1, first):top + 1]  # (none before the entry)
     return Stabilisation(s, ov, u_time, u_noise + 0.5 * float(beside.max(initial=0.0)),
-                         t.size)
+                         t.size, True, positioning, u_positioning)
 
 
 def _time_bound(time: FloatArray, low: FloatArray, high: FloatArray, band: float,
@@ -248,17 +265,8 @@ def _time_bound(time: FloatArray, low: FloatArray, high: FloatArray, band: float
     docstring)."""
     n = time.size
     interval = np.diff(time, prepend=time[0])
-
-    def first_in(d: FloatArray) -> int:
-        inside = np.flatnonzero(d <= band)
-        return int(inside[0]) if inside.size else n - 1
-
-    def final_in(d: FloatArray) -> int:
-        outside = np.flatnonzero(d > band)
-        return int(outside[-1]) + 1 if outside.size else 0
-
-    first_early, first_late = first_in(low), first_in(high)
-    final_early, final_late = final_in(low), final_in(high)
+    first_early, first_late = _first_in(low, band), _first_in(high, band)
+    final_early, final_late = _final_in(low, band), _final_in(high, band)
     if final_late >= n:  # the readings may not stay in the band: no bound
         return math.nan
     longest = (time[final_late] - (time[first_early] - interval[first_early])
@@ -266,6 +274,32 @@ def _time_bound(time: FloatArray, low: FloatArray, high: FloatArray, band: float
     shortest = (time[final_early] - interval[final_early] - time[first_late]
                 if final_early > first_late else 0.0)
     return float(max(longest - estimate, estimate - max(shortest, 0.0), 0.0))
+
+
+def _first_in(distance: FloatArray, band: float) -> int:
+    """The first reading within the band (the last reading when none is)."""
+    inside = np.flatnonzero(distance <= band)
+    return int(inside[0]) if inside.size else distance.size - 1
+
+
+def _final_in(distance: FloatArray, band: float) -> int:
+    """The first reading of the run within the band that lasts to the end (the number of
+    readings when the last is outside)."""
+    outside = np.flatnonzero(distance > band)
+    return int(outside[-1]) + 1 if outside.size else 0
+
+
+def _final_bound(time: FloatArray, low: FloatArray, high: FloatArray, band: float,
+                 estimate: float, start: float) -> float:
+    """U of the time ``estimate`` (s) of the final entry when each reading's true distance
+    lies in [``low``, ``high``] (m) and the entry somewhere in the interval before the reading
+    that sees it, or since ``start`` (s) when that is the first reading (NaN when the readings
+    may not stay in the band)."""
+    early, late = _final_in(low, band), _final_in(high, band)
+    if late >= time.size:
+        return math.nan
+    earliest = time[early - 1] if early > 0 else min(start, float(time[0]))
+    return float(max(time[late] - estimate, estimate - earliest, 0.0))
 
 
 @dataclass(frozen=True)
@@ -287,7 +321,7 @@ class StabilisationFigures:
 
     def to_dict(self) -> dict[str, float | int | bool | None]:
         """JSON-able (SI; NaN as null)."""
-        return _plain(self.__dict__)
+        return plain(self.__dict__)
 
 
 def stabilisation_figures_of(visits: list[Stabilisation]) -> StabilisationFigures | None:

@@ -11,7 +11,8 @@ The figures are those of the report (:mod:`positioning_cell.analysis.summary`): 
 stabilisation time (§7.4) and overshoot (§7.5), the drifts dAP_p, dAP_a..c, dRP_l, dRP_a..c
 (§7.6, of a pose visited often enough), the path accuracy and repeatability AT_p, RT_l
 (§8.2, of each commanded path), the path velocity accuracy, repeatability and fluctuation
-AV, RV, FV (§8.6, of a path whose plan cruises between two of its planes), the static
+AV, RV, FV (§8.6, of a path whose plan cruises between two of its planes), the positioning
+time of each path (§9, :mod:`positioning_cell.accuracy.positioning_time`), the static
 compliance of each load direction (§10, of a run with a compliance test: a property of the
 machine, which enters the decision of every mode), each with its U
 (:mod:`positioning_cell.accuracy.figure_uncertainty`, :mod:`positioning_cell.accuracy.compliance`,
@@ -111,6 +112,8 @@ class AcceptanceLimits:
                         'velocity (8.6)', '1', low=0.0, low_open=True, high=1.0)
     fv: float = setting(0.10, 'path velocity fluctuation FV, share of the commanded velocity '
                         '(8.6)', '1', low=0.0, low_open=True, high=1.0)
+    positioning_time: float = setting(4.0, 'positioning time of each path, mean over its '
+                                      'cycles (9)', 's', low=0.0, low_open=True, high=600.0)
     compliance: float = setting(1.5e-6, 'static compliance, each load direction (10)', 'm/N',
                                 low=0.0, low_open=True, high=1e-3)
     decision_rule: str = setting(DecisionRule.ISO_14253_1.value, 'how a figure\'s U enters '
@@ -168,16 +171,14 @@ PATH = ('8.2', f'path accuracy and repeatability AT, RT (a move of at least '
 VELOCITY = ('8.6', 'path velocity characteristics AV, RV, FV (a path whose plan cruises '
                    'between two of its normal planes)')
 
+#: The positioning time (clause, what): measured along a path whose visits stabilised.
+POSITIONING = ('9', 'positioning time (a path whose readings entered the stabilisation band '
+                    'and stayed)')
+
 #: The static compliance (clause, what): measured by a run whose program has a compliance
 #: test.
 COMPLIANCE = (CLAUSE, 'static compliance (a program with a compliance: block: load steps '
                       'along each direction)')
-
-#: The characteristics of ISO 9283:1998 that apply to the positioner and that no run of the
-#: cell measures yet (clause, what).
-NOT_MEASURED = (
-    ('9', 'minimum positioning time'),
-)
 
 #: The mode of a characteristic of the machine itself (the static compliance): it enters the
 #: decision of every compensation mode.
@@ -239,11 +240,11 @@ def check_program(path: str | Path, program: Program) -> None:
 def not_measured(found: Sequence[Characteristic]) -> tuple[tuple[str, str], ...]:
     """The characteristics of the standard that apply and that ``found`` lacks (clause,
     what): the drift, the path and the path velocity figures when no pose or path gave
-    them, the static compliance when the run had no compliance test, and
-    :data:`NOT_MEASURED`."""
+    them, the positioning time when no path's visits stabilised, and the static compliance
+    when the run had no compliance test."""
     clauses = {c.clause for c in found}
-    return (tuple(c for c in (DRIFT, PATH, VELOCITY, COMPLIANCE) if c[0] not in clauses)
-            + NOT_MEASURED)
+    return tuple(c for c in (DRIFT, PATH, VELOCITY, POSITIONING, COMPLIANCE)
+                 if c[0] not in clauses)
 
 
 def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
@@ -276,6 +277,9 @@ def characteristics(analysis: RunAnalysis, limits: AcceptanceLimits
                           'm')
             out += judged(m.mode, path.name, 'RT_l', PATH[0], t.rt_l, t.u_rt_l, limits.rt_l,
                           'm')
+            if (t_pos := path.positioning) is not None:
+                out += judged(m.mode, path.name, 't_pos', POSITIONING[0], t_pos.mean, t_pos.u,
+                              limits.positioning_time, 's')
             if (v := path.velocity) is not None:
                 for name in ('av', 'rv', 'fv'):
                     out += judged(m.mode, path.name, name.upper(), VELOCITY[0],
@@ -428,7 +432,9 @@ def markdown(record: AcceptanceRecord) -> str:
           _shown(c.limit, c.unit), UNITS[c.unit][1], c.decision.value]
          for c in record.characteristics])
     lines += ['', '## Not measured by this run', '']
-    lines += [f'- §{clause}: {what}' for clause, what in not_measured(record.characteristics)]
+    lines += [f'- §{clause}: {what}' for clause, what in not_measured(record.characteristics)
+              ] or ['- none: every characteristic of the standard that applies to the '
+                    'positioner has a figure above']
     return '\n'.join(lines) + '\n'
 
 
@@ -444,7 +450,7 @@ def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLim
 
 
 __all__ = ['ACCEPTANCE_FILE', 'ACCEPTANCE_JSON', 'COMPLIANCE', 'DRIFT', 'MACHINE',
-           'NOT_MEASURED', 'PATH', 'VELOCITY',
+           'PATH', 'POSITIONING', 'VELOCITY',
            'AcceptanceLimits',
            'AcceptanceRecord', 'Characteristic', 'acceptance_record', 'characteristics',
            'check_program', 'markdown', 'not_measured', 'of_mode', 'overall', 'program_gaps',

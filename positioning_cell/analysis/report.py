@@ -178,8 +178,10 @@ def _path_rows(modes: Sequence[ModeSummary]) -> list[list[str]]:
             speed = ['n/a'] * 4 if v is None else [
                 f'{v.commanded * 1e3:.2f}', _percent_u(v.av, v.u_av), _percent_u(v.rv, v.u_rv),
                 _percent_u(v.fv, v.u_fv)]
+            t = p.positioning
             rows.append([m.mode, p.name, str(f.n), f'{f.length * 1e3:.1f}', str(len(f.planes)),
-                         um_u(f.at_p, f.u_at_p), um_u(f.rt_l, f.u_rt_l), *speed])
+                         um_u(f.at_p, f.u_at_p), um_u(f.rt_l, f.u_rt_l), *speed,
+                         'n/a' if t is None else f'{t.mean:.2f} ± {t.u:.2f}'])
     return rows
 
 
@@ -203,7 +205,7 @@ POSE_HEADER = ('mode', 'pose', 'n', 'commanded x, y, z mm', 'AP_p ± U µm', 'AP
 
 
 PATH_HEADER = ('mode', 'path', 'cycles', 'length mm', 'planes', 'AT_p ± U µm', 'RT_l ± U µm',
-               'v_c mm/s', 'AV ± U %', 'RV ± U %', 'FV ± U %')
+               'v_c mm/s', 'AV ± U %', 'RV ± U %', 'FV ± U %', 't_pos ± U s')
 
 
 DRIFT_HEADER = ('mode', 'pose', 'n', 'T s', 'dAP_p ± U µm', 'dRP_l ± U µm', 'dAP_a ± U °',
@@ -325,7 +327,10 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
                 'limits in the cell configuration), AV the mean attained speed\'s departure '
                 'from it, RV three standard deviations of the cycles\' means, FV the largest '
                 'range of speed within a cycle, all in % of v_c (n/a: no two planes within '
-                'the cruise; positioning_cell.accuracy.path_velocity).', '']
+                'the cruise; positioning_cell.accuracy.path_velocity). §9: t_pos the '
+                'positioning time, from the move\'s start to the final entry into the '
+                'stabilisation band, mean over the cycles (at the configured motion limits: '
+                'the positioner\'s fastest; positioning_cell.accuracy.positioning_time).', '']
     drifted = _drift_rows(a.modes)
     if drifted:
         out += ['## Drift of pose characteristics', '',

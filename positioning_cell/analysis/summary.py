@@ -44,6 +44,7 @@ from positioning_cell.accuracy.figure_uncertainty import (
 from positioning_cell.accuracy.monitor import Ignored, MonitorSettings
 from positioning_cell.accuracy.path import PathFigures, path_figures
 from positioning_cell.accuracy.path_velocity import PathVelocityFigures, path_velocity_figures
+from positioning_cell.accuracy.positioning_time import PositioningTime, positioning_time_of
 from positioning_cell.accuracy.stabilisation import StabilisationFigures, stabilisation_figures_of
 from positioning_cell.analysis.axis_test import AxisTestResults, axis_test_figures, parse_markers
 from positioning_cell.analysis.axis_test import runs as axis_runs
@@ -214,6 +215,8 @@ class PathSummary:
     #: ISO 9283 §8.6 along it (None: no motion limits given, or no plane interval within
     #: the plan's cruise that every cycle crossed).
     velocity: PathVelocityFigures | None = None
+    #: ISO 9283 §9 along it (None: no visit's readings stabilised).
+    positioning: PositioningTime | None = None
 
     @property
     def name(self) -> str:
@@ -223,7 +226,9 @@ class PathSummary:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI)."""
         return {'start': self.start, 'end': self.end, 'iso9283': self.figures.to_dict(),
-                'velocity': None if self.velocity is None else self.velocity.to_dict()}
+                'velocity': None if self.velocity is None else self.velocity.to_dict(),
+                'positioning_time': None if self.positioning is None
+                else self.positioning.to_dict()}
 
 
 #: Commanded positions closer than this (m) are the same point of a path.
@@ -240,7 +245,9 @@ def path_summaries(visits: Sequence[LabelledVisit], before: Mapping[int, Labelle
     was planned from where the other mode left the platform, not along the commanded path.
     A path none of whose planes every visit crossed is left out. With the positioner's
     ``motion`` limits, each path's velocity figures too (the commanded speed and cruise of
-    its plan: :func:`~positioning_cell.moves.trajectory.cruise`)."""
+    its plan: :func:`~positioning_cell.moves.trajectory.cruise`). Each path's positioning
+    time from its visits' stabilisation records
+    (:func:`~positioning_cell.accuracy.positioning_time.positioning_time_of`)."""
     groups: dict[tuple[str, tuple[float, ...]], list[LabelledVisit]] = {}
     for v in visits:  # over visits, not samples
         previous = before.get(id(v))
@@ -264,7 +271,8 @@ def path_summaries(visits: Sequence[LabelledVisit], before: Mapping[int, Labelle
             speed, begins, ends = cruise(figures.length, float(np.linalg.norm(turn)), motion)
             if speed > 0.0:
                 velocity = path_velocity_figures(crossings, speed, (begins, ends))
-        out.append(PathSummary(start.pose, pose, figures, velocity))
+        out.append(PathSummary(start.pose, pose, figures, velocity, positioning_time_of(
+            figures.length, [v.stabilisation for v in group])))
     return tuple(out)
 
 
