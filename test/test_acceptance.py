@@ -9,6 +9,7 @@ import json
 import math
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -32,8 +33,10 @@ from positioning_cell.analysis.acceptance import (
     not_measured,
     overall,
 )
+from positioning_cell.analysis.context import AirTemperature, ContextCollector
 from positioning_cell.config import config_path
 from positioning_cell.errors import ConfigError
+from positioning_cell.names import STATUS_MEASUREMENT
 from positioning_cell.parameters import parse
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 from positioning_cell.tools.analyze_bag import analyze
@@ -171,6 +174,12 @@ def test_the_record_names_what_it_did_not_measure_and_writes_no_nan(bag: Path,
     for clause, what in (DRIFT, COMPLIANCE):
         assert f'§{clause}: {what}' in text
     assert '| none | P1 | AP_p | §7.2.1 |' in text and 'DOES NOT CONFORM' in text
+    # the conditions: the machine and payload of the configuration the analysis was given
+    assert f'- Machine: the positioner of `{config_path("cell.yaml")}`' in text
+    assert 'not recorded in the bag): 50 kg, centre of gravity (0, 0, 0.1) m' in text
+    assert '- Air temperature: not recorded' in text  # no tracker diagnostics in this bag
+    assert doc['conditions']['payload']['mass'] == 50.0
+    assert doc['conditions']['air_temperature'] is None
     record = acceptance_record(output.analysis, AcceptanceLimits())
     unknown = replace(record, characteristics=(replace(
         record.characteristics[0], uncertainty=math.nan, decision=Decision.INDETERMINATE),))
@@ -334,5 +343,20 @@ def test_missing_distance_poses_and_short_moves_are_named(tmp_path: Path) -> Non
     path = tmp_path / 'program.yaml'
     path.write_text(_PROGRAM.format(cycles=2, sequence='sequence: [P1]', p4x=-0.004,
                                     keys='').replace('P2:', 'P3:'))
-    gaps = program_gaps(load_program(path, Mechanism.default()), ['ad_p', 'at_p'])
+    gaps = program_gaps(load_program(path, Mechanism.default()),
+                        ['ad_p', 'at_p', 'positioning_time'])
     assert len(gaps) == 2 and 'lacks P2' in gaps[0] and '1 mm or longer' in gaps[1]
+    assert gaps[1].startswith('at_p, positioning_time (ISO 9283 8.2, 8.6, 9)')
+
+
+def test_the_air_temperature_of_the_run_comes_from_the_trackers_diagnostics() -> None:
+    """The tracker simulator's diagnostics carry the air sensor's reading: the record's
+    lowest, mean and highest over the run, 'nan' (before the first reading) left out."""
+    collector = ContextCollector()
+    for stamp, value in enumerate(['nan', '20.5', '20.75', '20.25']):
+        status = SimpleNamespace(name=STATUS_MEASUREMENT, values=[
+            SimpleNamespace(key='air_temperature_c', value=value)])
+        collector.diagnostics(float(stamp), [status])
+    air = collector.result(0.0, 4.0).air_temperature
+    assert air == AirTemperature(20.25, 20.5, 20.75, 3)
+    assert ContextCollector().result(0.0, 1.0).air_temperature is None

@@ -3,8 +3,10 @@ measured, per compensation mode and commanded pose, with its expanded uncertaint
 and the decision against its acceptance limit (ISO 14253-1:2017 by default: conforms, does
 not conform, indeterminate; simple acceptance selectable), the clause of the standard for
 each; the characteristics of the standard the run did not measure, named; and the conditions
-the figures hold under (the run's span, the calibration in force, the tracker's locations,
-the decision rule). Written beside the report as ``acceptance.md`` and ``acceptance.json``.
+the figures hold under (the run's span, the machine and its payload as the cell
+configuration given to the analysis states them, the calibration in force, the tracker's
+locations, the air temperature the cell's sensor read, the decision rule). Written beside the
+report as ``acceptance.md`` and ``acceptance.json``.
 
 The figures are those of the report (:mod:`positioning_cell.analysis.summary`): AP_p, AP_a..c
 (§7.2.1), RP_l, RP_a..c (§7.2.2), vAP_p, vAP_a..c (§7.2.3), AD_p, RD_p (§7.3), the pose
@@ -46,6 +48,7 @@ from positioning_cell.accuracy.drift import LEAST_VISITS as DRIFT_LEAST_VISITS
 from positioning_cell.accuracy.path import PATH_LEAST
 from positioning_cell.accuracy.verdicts import decide
 from positioning_cell.analysis.compliance_test import CLAUSE
+from positioning_cell.analysis.context import AirTemperature
 from positioning_cell.analysis.program import Program
 from positioning_cell.analysis.summary import (
     DISTANCE_POSES,
@@ -56,6 +59,8 @@ from positioning_cell.analysis.summary import (
 from positioning_cell.analysis.tables import markdown_table
 from positioning_cell.config import load_parameter_file
 from positioning_cell.errors import ConfigError
+from positioning_cell.mechanics.statics import Payload
+from positioning_cell.motion.settings import machine_settings
 from positioning_cell.parameters import check_fields, parse_block, setting
 
 ACCEPTANCE_FILE = 'acceptance.md'
@@ -190,7 +195,8 @@ def program_gaps(program: Program, given: Collection[str]) -> list[str]:
     keys its ``acceptance:`` block sets) names, one sentence each with the clause: the
     repeatabilities need two cycles; vAP a pose approached from two other poses; AD and RD
     the distance pair's poses; the drift a pose visited :data:`DRIFT_LEAST_VISITS` times a
-    mode; the path figures a move of :data:`PATH_LEAST` or more between two poses."""
+    mode; the path figures and the positioning time a move of :data:`PATH_LEAST` or more
+    between two poses; the static compliance a compliance: block."""
     order = program.order
     gaps = []
     repeatabilities = {'rp_l': '7.2.2', 'rp_angle': '7.2.2', 'rd_p': '7.3.2', 'rt_l': '8.2',
@@ -219,10 +225,10 @@ def program_gaps(program: Program, given: Collection[str]) -> list[str]:
     if 'compliance' in given and program.compliance is None:
         gaps.append('compliance (ISO 9283 10): the program has no compliance: block, no load '
                     'steps to measure it')
-    if {'at_p', 'rt_l', 'av', 'rv', 'fv'} & set(given) and max(steps) < PATH_LEAST:
-        gaps.append(f'{", ".join(sorted({"at_p", "rt_l", "av", "rv", "fv"} & set(given)))} '
-                    f'(ISO 9283 8.2, 8.6): no move between two poses is '
-                    f'{PATH_LEAST * 1e3:.0f} mm or longer')
+    along = {'at_p', 'rt_l', 'av', 'rv', 'fv', 'positioning_time'} & set(given)
+    if along and max(steps) < PATH_LEAST:
+        gaps.append(f'{", ".join(sorted(along))} (ISO 9283 8.2, 8.6, 9): no move between two '
+                    f'poses is {PATH_LEAST * 1e3:.0f} mm or longer')
     return gaps
 
 
@@ -354,10 +360,21 @@ class AcceptanceRecord:
     cycles: dict[str, int]
     calibrations: tuple[str, ...]
     registrations: tuple[str, ...]
+    #: The cell configuration the analysis was given (the machine, the payload) and the
+    #: payload it configures (None: no configuration given); not recorded in the bag.
+    config: str | None = None
+    payload: Payload | None = None
+    #: The air temperature the cell's sensor read over the run (None: not recorded).
+    air_temperature: AirTemperature | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (SI)."""
         return {'bag': self.bag, 'start': self.start, 'end': self.end,
+                'conditions': {
+                    'config': self.config,
+                    'payload': None if self.payload is None else asdict(self.payload),
+                    'air_temperature': None if self.air_temperature is None
+                    else asdict(self.air_temperature)},
                 'limits': asdict(self.limits),
                 'modes': {k: v.value for k, v in self.modes.items()}, 'cycles': self.cycles,
                 'calibrations': list(self.calibrations),
@@ -367,8 +384,10 @@ class AcceptanceRecord:
                                  for c, w in not_measured(self.characteristics)]}
 
 
-def acceptance_record(analysis: RunAnalysis, limits: AcceptanceLimits) -> AcceptanceRecord:
-    """The :class:`AcceptanceRecord` of an analysed run against ``limits``."""
+def acceptance_record(analysis: RunAnalysis, limits: AcceptanceLimits,
+                      config: str | Path | None = None) -> AcceptanceRecord:
+    """The :class:`AcceptanceRecord` of an analysed run against ``limits``; the machine and
+    its payload those of the cell parameter file ``config`` (None: not stated)."""
     found = characteristics(analysis, limits)
     context = analysis.context
     return AcceptanceRecord(
@@ -382,7 +401,10 @@ def acceptance_record(analysis: RunAnalysis, limits: AcceptanceLimits) -> Accept
               f'µm (max {r.residual_max_um:.1f}), σ '
               f'{", ".join(f"{s:.1f}" for s in r.sigma_position_um)} µm, '
               f'{", ".join(f"{s:.1f}" for s in r.sigma_rotation_urad)} µrad'
-              for r in context.registrations))
+              for r in context.registrations),
+        None if config is None else str(config),
+        None if config is None else machine_settings(config).payload,
+        context.air_temperature)
 
 
 def _utc(stamp: float) -> str:
@@ -412,7 +434,7 @@ def markdown(record: AcceptanceRecord) -> str:
              else f'- Decision rule: {rule.value} (U not used)']
     lines.append('- Calibration in force: ' + ('; '.join(record.calibrations) or 'not recorded'))
     lines.append('- Tracker located: ' + ('; '.join(record.registrations) or 'not recorded'))
-    lines.append('- Payload and temperature: not recorded by the cell')
+    lines += _conditions(record)
     lines += ['', '## Decision per compensation mode', '']
     lines += markdown_table(('mode', 'cycles', 'characteristics', 'C/I/N', 'decision'), [
         [mode, str(record.cycles[mode]), str(len(of_mode(record.characteristics, mode))),
@@ -438,10 +460,31 @@ def markdown(record: AcceptanceRecord) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLimits
-                     ) -> tuple[Path, Path]:
-    """Write ``acceptance.md`` and ``acceptance.json`` into ``out_dir``; their paths."""
-    record = acceptance_record(analysis, limits)
+def _conditions(record: AcceptanceRecord) -> list[str]:
+    """The record's lines on the machine, its payload and the air temperature."""
+    p, air = record.payload, record.air_temperature
+    if record.config is None or p is None:
+        lines = ['- Machine and payload: no cell configuration given to the analysis']
+    else:
+        force, moment = p.external_wrench[:3], p.external_wrench[3:]
+        lines = [f'- Machine: the positioner of `{record.config}` (its mechanism: block), '
+                 'calibrated as below',
+                 f'- Payload (configured in `{record.config}`, not recorded in the bag): '
+                 f'{p.mass:g} kg, centre of gravity '
+                 f'({", ".join(f"{v:g}" for v in p.centre_of_gravity)}) m in the platform '
+                 f'frame; external force ({", ".join(f"{v:g}" for v in force)}) N, moment '
+                 f'({", ".join(f"{v:g}" for v in moment)}) N·m']
+    lines.append('- Air temperature: not recorded' if air is None else
+                 f'- Air temperature (the cell\'s sensor): {air.low:.2f} to {air.high:.2f} °C, '
+                 f'mean {air.mean:.2f} °C over {air.readings} readings')
+    return lines
+
+
+def write_acceptance(analysis: RunAnalysis, out_dir: Path, limits: AcceptanceLimits,
+                     config: str | Path | None = None) -> tuple[Path, Path]:
+    """Write ``acceptance.md`` and ``acceptance.json`` into ``out_dir`` (the machine and
+    payload of ``config``: :func:`acceptance_record`); their paths."""
+    record = acceptance_record(analysis, limits, config)
     out_dir.mkdir(parents=True, exist_ok=True)
     text, doc = out_dir / ACCEPTANCE_FILE, out_dir / ACCEPTANCE_JSON
     text.write_text(markdown(record))

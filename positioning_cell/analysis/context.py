@@ -2,8 +2,9 @@
 it ran, the calibration the positioner had loaded (its ``positioner: state`` diagnostics,
 value ``calibration``), the calibration runs recorded in it (``/cell/calibration`` markers)
 and the tracker's registrations (its ``pose_measurement`` diagnostics: where it located itself
-on the base targets, with what residuals). Collected message by message in recorded order;
-memory is one entry per change, not per message."""
+on the base targets, with what residuals, and the air-temperature sensor's reading it was
+given). Collected message by message in recorded order; memory is one entry per change, not
+per message."""
 
 from __future__ import annotations
 
@@ -58,16 +59,30 @@ class Registration:
 
 
 @dataclass(frozen=True)
+class AirTemperature:
+    """The cell's air-temperature sensor over a run (°C): its ``low``est, ``mean`` and
+    ``high``est reading as the tracker's diagnostics gave them (about once a second), and
+    how many (``readings``)."""
+
+    low: float
+    mean: float
+    high: float
+    readings: int
+
+
+@dataclass(frozen=True)
 class RunContext:
     """The context of one run: ``start``/``end`` (s, log times of the bag's first and last
     message), the calibration in force over time, the calibration runs and the tracker's
-    registrations, each in time order."""
+    registrations, each in time order, and the air temperature over the run (None: not
+    recorded)."""
 
     start: float
     end: float
     calibrations: tuple[CalibrationInForce, ...] = ()
     calibration_runs: tuple[CalibrationRun, ...] = ()
     registrations: tuple[Registration, ...] = ()
+    air_temperature: AirTemperature | None = None
 
     def calibration_at(self, time: float) -> str | None:
         """The calibration file in force at ``time`` s (None: none known or none loaded)."""
@@ -104,6 +119,7 @@ class ContextCollector:
         self._calibrations: list[CalibrationInForce] = []
         self._runs: dict[str, CalibrationRun] = {}
         self._registrations: list[Registration] = []
+        self._air = [math.inf, 0.0, -math.inf, 0]  # lowest, sum, highest, count
         self.problems: list[str] = []
 
     def diagnostics(self, stamp: float, statuses: Sequence[Any]) -> None:
@@ -123,6 +139,10 @@ class ContextCollector:
             self._calibrations.append(CalibrationInForce(stamp, file))
 
     def _tracker(self, stamp: float, values: Mapping[str, str]) -> None:
+        air = _number(values.get('air_temperature_c', 'nan'))
+        if math.isfinite(air):
+            low, total, high, count = self._air
+            self._air = [min(low, air), total + air, max(high, air), int(count) + 1]
         if 'locations' not in values or 'locate_residuals_um' not in values:
             return
         try:
@@ -152,6 +172,9 @@ class ContextCollector:
 
     def result(self, start: float, end: float) -> RunContext:
         """The context of the run between log times ``start`` and ``end`` (s)."""
+        low, total, high, count = self._air
         return RunContext(start, end, tuple(self._calibrations),
                           tuple(sorted(self._runs.values(), key=lambda r: r.time)),
-                          tuple(self._registrations))
+                          tuple(self._registrations),
+                          AirTemperature(low, total / count, high, int(count)) if count
+                          else None)

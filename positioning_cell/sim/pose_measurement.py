@@ -27,6 +27,7 @@ rebuilt with that load among its payload's, and the next true pose is computed a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
@@ -151,6 +152,7 @@ class PoseMeasurementSimulator:
         self._time = 0.0  # s since the start of the joint state of the true pose
         self._computed_at = -np.inf
         self._air_used = REFERENCE_TEMPERATURE  # what the tracker's correction assumes
+        self._air_read = math.nan  # the sensor's latest reading, °C (for /diagnostics)
         self.location: Location | None = None
         self.locate_status = ('error', 'tracker not located')
         self._latest: tuple[FloatArray, Any, float] | None = None
@@ -323,6 +325,7 @@ class PoseMeasurementSimulator:
             float(thermal.sensor(np.array([self._since_start(time)]), self._sensor_rng)[0])
         if self.settings.air_sensor.feeds_tracker:
             self._air_used = value
+        self._air_read = value
         return AirReading(value, variance)
 
     def diagnostics(self) -> tuple[str, str, dict[str, Any]]:
@@ -336,4 +339,5 @@ class PoseMeasurementSimulator:
             level = max(level, locate_level, key=_LEVELS.index)
             message = f'{message}; {locate_message}'
         return level, message, {**self.stats, 'load_rig_force_n': self.load.tolist(),
+                                'air_temperature_c': round(self._air_read, 3),
                                 **self.location_values()}

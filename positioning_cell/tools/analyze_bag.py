@@ -75,22 +75,23 @@ def analyze(bag: str | Path, out_dir: str | Path | None = None,
 
     map_large_allocations()  # the batches' buffers freed back to the system (heap)
     bag = Path(bag)
-    settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
+    config = config or config_path('cell.yaml')
+    settings = MonitorSettings.from_file(config)
     limits = AcceptanceLimits.from_program(program)  # a bad block stops before the read
     out = Path(out_dir) if out_dir is not None else default_out_dir(bag)
     if not plots:
-        analysis = analyse_bag(bag, settings)
+        analysis = analyse_bag(bag, settings, config)
         report, summary = write_report(analysis, out)
         return AnalysisOutput(analysis, report, summary, (),
-                              write_acceptance(analysis, out, limits)[0])
+                              write_acceptance(analysis, out, limits, config)[0])
     # The plots are drawn in workers (warmed up while the bag is read) from the replay on,
     # while the error budget and the report are done here (plot_workers).
     with PlotWorkers() as workers:
         planned: list[Path] = []
         analysis = analyse_bag(
-            bag, settings, replayed=lambda a: planned.extend(workers.start(a, out)))
+            bag, settings, config, replayed=lambda a: planned.extend(workers.start(a, out)))
         report, summary = write_report(analysis, out, planned)
-        acceptance = write_acceptance(analysis, out, limits)[0]
+        acceptance = write_acceptance(analysis, out, limits, config)[0]
         pngs = workers.paths()
     return AnalysisOutput(analysis, report, summary, tuple(pngs), acceptance)
 
