@@ -448,6 +448,36 @@ def test_the_drives_refusing_the_trajectory_aborts_at_once() -> None:
     assert time.monotonic() - started < 1.0 and world.stops == 1
 
 
+def test_a_positioner_held_up_after_a_look_is_not_a_silent_driver() -> None:
+    """The positioner itself held up for 0.5 s right after a look that found a joint state
+    (another thread holding its lock, as one waiting on an import does): that silence is the
+    positioner's, not the driver's, and the move settles (motion.hearing). Judged by the clock
+    alone it aborted ("no /legs/joint_states for 0.50 s"), as a homing did on a loaded
+    machine. A driver that really falls silent still aborts in its bound (below)."""
+    world = World()
+    held, stalled = threading.Event(), []
+
+    def hold() -> None:
+        with m.cond:
+            held.set()
+            time.sleep(0.5)  # the hold-up itself is what is tested
+
+    def answers() -> list[Answer]:
+        out = World.answers(world)
+        if world.trajectories and not stalled:  # the first look after the trajectory went
+            stalled.append(threading.Thread(target=hold))
+            stalled[0].start()
+            assert held.wait(10.0)
+        return out
+    world.answers = answers  # type: ignore[method-assign]
+    # (the fake encoders jump to the end at once: no freeze watch over the hold-up)
+    m = mover(world, **{'arrival.timeout': 5.0, 'liveness.freeze_window': 10.0})
+    result = m.move('base', GOAL, GOAL_Q)
+    stalled[0].join()
+    assert result.reason.startswith('settled'), result.reason
+    assert world.stops == 0
+
+
 def test_a_driver_that_does_not_answer_aborts() -> None:
     world = World()
     world.answering = False

@@ -38,6 +38,7 @@ from positioning_cell.core.poses import as_pose_batch, as_vectors
 from positioning_cell.errors import InputError, PositioningError
 from positioning_cell.metrology.instrument import Registration
 from positioning_cell.motion.compensation import Compensation
+from positioning_cell.motion.hearing import Hearing
 from positioning_cell.motion.rest import RestWatch
 from positioning_cell.motion.settings import CompensationMode, GoalTolerance, PositionerSettings
 from positioning_cell.motion.standstill import Motion, StandstillWatch
@@ -147,10 +148,11 @@ class Mover:
         self._joints_ticket = 0  # the ticket of the refresh that stored self.joints
         self._busy = threading.Lock()
         self.joints: JointReading | None = None
-        self.joints_time = -math.inf
+        #: What the looks at the joint states and at the tracker's readings found: their
+        #: silence is judged from it (motion.hearing), not from the clock alone.
+        self.joints_heard, self.tracker_heard = Hearing(), Hearing()
         self.measurements: list[Measurement] = []
         self.measurement_count = 0
-        self.measurement_time = -math.inf
         #: The tracker's newest registration (the readings' common covariance); None: none yet.
         self.registration: Registration | None = None
         self.answers: list[Answer] = []
@@ -232,11 +234,14 @@ class Mover:
         arrived, test_operator_node in CI.) Taking and storing under one lock instead held
         every refresh up behind the slowest: the in-process fault matrix's uncommanded motion
         was stopped after 1.0-1.3 mm in 3 of 6 trials beside three busy loops (1.8 mm in CI),
-        against none of 6 over its bound without that lock."""
+        against none of 6 over its bound without that lock. Each take is timed as it begins,
+        and whether it found anything is recorded (:class:`Hearing`)."""
         with self.cond:
             self._tickets += 1
             ticket = self._tickets
+        joints_looked = self.machine.clock()
         joints = self.machine.latest_joints()
+        tracker_looked = self.machine.clock()
         taken = self.machine.new_measurements()
         registration = self.machine.registration()
         answers = self.machine.trajectory_answers()
@@ -244,17 +249,18 @@ class Mover:
         with self.cond:
             if registration is not None:
                 self.registration = registration
+            self.joints_heard.look(joints_looked, joints is not None)
+            self.tracker_heard.look(tracker_looked, bool(taken))
             if joints is not None and ticket < self._joints_ticket:
                 joints = None  # older than the joint state a later refresh stored
             if joints is not None:
                 self._joints_ticket = ticket
-                self.joints, self.joints_time = joints, now
+                self.joints = joints
                 if self._motion is not None:
                     self._motion[2].reading(joints.position, now)
             if taken:
                 self.measurements.extend(taken)
                 self.measurement_count += len(taken)
-                self.measurement_time = now
                 del self.measurements[:-MEASUREMENTS_KEPT]
             self.answers.extend(answers)
             if not self._commanding:
@@ -494,7 +500,7 @@ class Mover:
         live = self.settings.liveness
         self._await_fresh_inputs()
         with self.cond:
-            silence = self.machine.clock() - self.joints_time
+            silence = self.joints_heard.silence()
             driver, estimate = dict(self.driver), self.estimate
         if self.joints is None or silence > live.joint_silence:
             raise self.refusal(ResultCode.REFUSED_DRIVER_SILENT,
@@ -527,7 +533,7 @@ class Mover:
         if estimate is None and self.command is None:
             raise self.refusal(ResultCode.REFUSED_NO_ESTIMATE,
                                 'no pose estimate from the encoders yet')
-        tracker_silence = self.machine.clock() - self.measurement_time
+        tracker_silence = self.tracker_heard.silence()
         if self.mode is CompensationMode.MEASURED and tracker_silence > live.tracker_silence:
             raise self.refusal(ResultCode.REFUSED_TRACKER_SILENT,
                                 f'laser tracker not responding: no {MEASURED_POSE} for '
@@ -553,7 +559,7 @@ class Mover:
         return (self.joints is None or not driver or not self._driver_hears_me(driver)
                 or (self.estimate is None and self.command is None)
                 or (self.mode is CompensationMode.MEASURED
-                    and math.isinf(self.measurement_time))
+                    and math.isinf(self.tracker_heard.heard_at))
                 or not self.machine.drives_connected())
 
     def _await_fresh_inputs(self) -> None:
@@ -572,9 +578,9 @@ class Mover:
             self._refresh()
             with self.cond:
                 now = self.machine.clock()
-                fresh = (now - self.joints_time <= live.joint_silence
+                fresh = (self.joints_heard.silence() <= live.joint_silence
                          and (not measuring
-                              or now - self.measurement_time <= live.tracker_silence))
+                              or self.tracker_heard.silence() <= live.tracker_silence))
                 if fresh or now >= deadline:
                     return
                 self.cond.wait(min(deadline - now, POLL_PERIOD))
@@ -898,7 +904,7 @@ class Mover:
 
         def settled() -> bool:  # under the lock (_wait): at rest, or the longest dwell over
             reading = self.joints
-            if reading is not None and rest.reading(reading.position, self.joints_time,
+            if reading is not None and rest.reading(reading.position, self.joints_heard.heard_at,
                                                     reading.stamp):
                 self._still_from = rest.still_from
                 return True
@@ -1035,7 +1041,7 @@ class Mover:
             raise MoveAbortedError(ResultCode.ABORTED_DRIVER_LOST,
                                    'the drives stopped the move: they heard no heartbeat from '
                                    f'this positioner in time ({driver.get("last_event", "")})')
-        silence = now - self.joints_time
+        silence = self.joints_heard.silence()
         if silence > live.joint_silence:
             raise MoveAbortedError(ResultCode.ABORTED_DRIVER_LOST,
                                    f'leg driver not responding: no /legs/joint_states for '
@@ -1055,10 +1061,11 @@ class Mover:
                     ResultCode.ABORTED_ENCODER,
                     f'encoder of {name} frozen: no change for {watch.window:.2f} s while the '
                     f'axis was commanded to move {abs(amount) * scale:.3f} {unit}')
-        if measuring and now - self.measurement_time > live.tracker_silence:
+        tracker_silence = self.tracker_heard.silence()
+        if measuring and tracker_silence > live.tracker_silence:
             raise MoveAbortedError(ResultCode.ABORTED_TRACKER_LOST,
                                    f'laser tracker not responding: no {MEASURED_POSE} for '
-                                   f'{now - self.measurement_time:.2f} s')
+                                   f'{tracker_silence:.2f} s')
 
     # -- state ----------------------------------------------------------------------------------
     def _set_state(self, state: State, reason: str, code: ResultCode | None = None) -> None:
