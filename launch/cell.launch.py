@@ -2,7 +2,7 @@
 cell.launch.py [params_file:=...] [record:=true] [live_view:=false] [calibrator:=false]`, on
 loopback only unless your environment names its own Fast DDS profile (docs/howto/network.md).
 (Here,
-without ros2launch, `make run` starts the same processes.)"""
+without ros2launch, `cell up` starts the same processes: names.OPTIONAL_NODES.)"""
 
 import os
 from pathlib import Path
@@ -14,7 +14,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
-from positioning_cell.names import CALIBRATOR, CELL_NODES, LIVE_VIEW, RECORDER
+from positioning_cell.names import CELL_NODES, OPTIONAL_NODES
 from positioning_cell.ros.processes import loopback_only
 
 
@@ -26,9 +26,8 @@ def generate_launch_description() -> LaunchDescription:
                   parameters=[params]) for exe, name in CELL_NODES]
     nodes += [Node(package='positioning_cell', executable=node.executable, name=node.name,
                    output='screen', parameters=[params],
-                   condition=IfCondition(LaunchConfiguration(argument)))
-              for node, argument in ((RECORDER, 'record'), (LIVE_VIEW, 'live_view'),
-                                     (CALIBRATOR, 'calibrator'))]
+                   condition=IfCondition(LaunchConfiguration(switch)))
+              for node, switch, _ in OPTIONAL_NODES]
     env = dict(os.environ)
     loopback_only(env)
     network = [SetEnvironmentVariable(k, v) for k, v in env.items() if os.environ.get(k) != v]
@@ -37,11 +36,8 @@ def generate_launch_description() -> LaunchDescription:
         *network,
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='ROS 2 parameter file of the cell'),
-        DeclareLaunchArgument('record', default_value='true',
-                              description='record the run to an MCAP bag'),
-        DeclareLaunchArgument('live_view', default_value='false',
-                              description='the Foxglove live view on ws://127.0.0.1:8765'),
-        DeclareLaunchArgument('calibrator', default_value='false',
-                              description='the Calibrate action (calibrator_node)'),
+        *[DeclareLaunchArgument(switch, default_value=str(on).lower(),
+                                description=f'start {node.executable} (as cell up does)')
+          for node, switch, on in OPTIONAL_NODES],
         *nodes,
     ])

@@ -62,6 +62,11 @@ CALIBRATOR = CellNode('calibrator_node', NODE_CALIBRATOR)
 LIVE_VIEW = CellNode('live_view_node', NODE_LIVE_VIEW)
 #: Every node executable of the package.
 NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR, LIVE_VIEW)
+#: The nodes a cell brought up may add to CELL_NODES (``cell up``, ``launch/cell.launch.py``):
+#: each with its switch (``cell up --record``/``--no-record``, ``record:=true``) and whether
+#: it is on by default. The recorder first, as ``make run`` starts it.
+OPTIONAL_NODES = ((RECORDER, 'record', True), (LIVE_VIEW, 'live_view', False),
+                  (CALIBRATOR, 'calibrator', False))
 #: The executable that runs several of the nodes above in one process (ROS 2's composition:
 #: ``cell_container [node name ...] --ros-args ...``; by default the CELL_NODES).
 CONTAINER = 'cell_container'

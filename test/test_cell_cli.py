@@ -12,6 +12,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -156,7 +157,41 @@ def test_common_options_and_default_timeouts() -> None:
                                          ['frames', 'get'], ['frames', 'set'], ['home'],
                                          ['stop'], ['jog', 'leg1_theta', '1'], ['speed'],
                                          ['limits', 'get'], ['limits', 'set'], ['watch'])} == \
-        set(cp.COMMANDS) == set(cell.COMMANDS)
+        set(cp.CLIENT_COMMANDS) == set(cell.COMMANDS) == set(cp.COMMANDS) - {'up'}
+
+
+def test_up_options_and_the_nodes_they_start() -> None:
+    """`cell up` starts what make run and the launch file start: the recorder first unless
+    --no-record, the cell's nodes, the live view and the calibrator on request."""
+    from positioning_cell import names
+    from positioning_cell.tools.cell_up import chosen_nodes
+
+    args = parse('up')
+    assert (args.command, args.record, args.live_view, args.calibrator, args.params_file) == \
+        ('up', True, False, False, None)
+    default = chosen_nodes({'record': True, 'live_view': False, 'calibrator': False})
+    assert default == [names.RECORDER, *names.CELL_NODES] == chosen_nodes({})
+    args = parse('up', '--no-record', '--live-view', '--calibrator', '--domain', '7')
+    assert chosen_nodes({'record': args.record, 'live_view': args.live_view,
+                         'calibrator': args.calibrator}) == \
+        [*names.CELL_NODES, names.LIVE_VIEW, names.CALIBRATOR]
+    assert args.domain == 7
+
+
+def test_up_refuses_a_bad_parameter_file_or_domain_and_starts_nothing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from positioning_cell.tools.cell_up import up
+
+    said: list[str] = []
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('positioner: [unclosed\n')
+    assert up(parse('up', '--params-file', str(bad)), said.append, tmp_path / 'runs') == \
+        Exit.USAGE
+    assert said[-1].startswith('cell up: error:') and str(bad) in said[-1]
+    monkeypatch.setenv('ROS_DOMAIN_ID', 'seven')
+    assert up(parse('up'), said.append, tmp_path / 'runs') == Exit.USAGE
+    assert "ROS_DOMAIN_ID='seven' is not a domain id" in said[-1]
+    assert not (tmp_path / 'runs').exists()
 
 
 def test_watch_options_are_checked() -> None:
@@ -634,7 +669,7 @@ def test_output_one_json_line_or_text() -> None:
 # -- --help --------------------------------------------------------------------------------------
 HELPS = [[], ['status'], ['move'], ['check'], ['frames'], ['frames', 'get'], ['frames', 'set'],
          ['home'], ['stop'], ['jog'], ['speed'], ['limits'], ['limits', 'get'],
-         ['limits', 'set'], ['watch']]
+         ['limits', 'set'], ['watch'], ['up']]
 
 
 def test_help_of_cell_and_of_every_subcommand_exits_0(

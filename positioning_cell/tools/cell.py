@@ -5,6 +5,8 @@ wire everything is SI. Text for people by default; ``--json`` prints one JSON ob
 instead (:mod:`positioning_cell.tools.cell_format`: ``command``, ``exit_code``, ``exit_name``,
 ``error`` and every field of the answer, NaN and infinities as null)::
 
+    cell up [--live-view] [--calibrator]         the whole cell in the foreground (logs and
+            [--no-record] [--params-file YAML]   bag in runs/<UTC time>/); Ctrl-C stops it
     cell status                                  state, drives, user and machine positions
     cell move TX TY TZ RX RY RZ                  absolute, the object in the user CS
          [--relative-user | --relative-object | --frame base|machine|user]
@@ -75,6 +77,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line (module docstring). The commands (and numpy, rclpy, rich with them) are
     imported only once the line is parsed: ``--help`` and a usage error answer at once."""
     args = build_parser((__doc__ or '').split('\n\n')[0].replace('``', '')).parse_args(argv)
+    if args.command == 'up':  # starts the cell's processes, no client of it
+        from positioning_cell.tools.cell_up import up
+
+        return up(args)
     # The client's node first: its participant discovers the cell while the commands import.
     from positioning_cell.ros.early import start_node
 

@@ -22,9 +22,12 @@ MODE_RELATIVE_OBJECT = 2
 MODE_NAMES = {MODE_ABSOLUTE: 'absolute', MODE_RELATIVE_USER: 'relative_user',
               MODE_RELATIVE_OBJECT: 'relative_object'}
 
-#: Every subcommand (``command`` of the parsed arguments and of the JSON document).
-COMMANDS = ('status', 'move', 'check', 'frames get', 'frames set', 'home', 'stop', 'jog',
-            'speed', 'limits get', 'limits set', 'watch')
+#: The subcommands that are clients of a running cell (``command`` of the parsed arguments
+#: and of the JSON document; tools.cell_commands runs them).
+CLIENT_COMMANDS = ('status', 'move', 'check', 'frames get', 'frames set', 'home', 'stop', 'jog',
+                   'speed', 'limits get', 'limits set', 'watch')
+#: Every subcommand: the clients, and ``up``, which starts the cell (tools.cell_up).
+COMMANDS = (*CLIENT_COMMANDS, 'up')
 #: Default --timeout (s): moves and homing may take minutes; anything else is a quick answer.
 GOAL_TIMEOUT = 300.0
 QUICK_TIMEOUT = 20.0
@@ -159,6 +162,17 @@ def build_parser(description: str = '') -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest='subcommand', required=True, metavar='COMMAND')
 
+    cell_up = _leaf(sub, 'up', 'up', 'start the whole cell in the foreground (the nodes make '
+                    'run starts; logs and bag in runs/<UTC time>/); Ctrl-C stops it')
+    cell_up.add_argument('--params-file', metavar='YAML', default=None,
+                         help='the parameter file of every node (default: the shipped '
+                         'config/cell.yaml)')
+    cell_up.add_argument('--record', action=argparse.BooleanOptionalAction, default=True,
+                         help='record to an MCAP bag (default: on)')
+    cell_up.add_argument('--live-view', action='store_true',
+                         help='also the Foxglove live view (ws://127.0.0.1:8765)')
+    cell_up.add_argument('--calibrator', action='store_true',
+                         help='also the calibrator (the Calibrate action)')
     _leaf(sub, 'status', 'status', 'state, drives, and the user and machine positions '
           '(target and estimate)')
     move = _leaf(sub, 'move', 'move', f'move the platform ({_HUMAN_UNITS}; default: absolute, '

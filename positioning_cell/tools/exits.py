@@ -35,10 +35,12 @@ _LABELS = {Exit.OK: 'success', Exit.NOT_ACHIEVED: 'out_of_tolerance'}
 #: When each exit code is given.
 MEANINGS = {
     Exit.OK: 'done as asked: settled within the tolerance, a valid check, a query answered, a '
-             'setting taken, a file written, a run completed',
+             'setting taken, a file written, a run completed, a cell brought up (cell up) '
+             'stopped cleanly',
     Exit.NOT_ACHIEVED: 'done, but short of what was asked: settled out of the tolerance, a move '
                        'of a run failed, the data did not identify the machine, an analysis '
-                       'was partial, a fault trial missed its expectation',
+                       'was partial, a fault trial missed its expectation, a node of cell up '
+                       'did not stop cleanly',
     Exit.USAGE: 'the command line or a file it names cannot be used (argparse, a bad program, '
                 'configuration or bag); nothing was sent',
     Exit.REFUSED: 'the cell refused, nothing moved (any refused_* code, a goal rejected, an '
