@@ -321,8 +321,10 @@ def test_one_exit_code_table_documented_everywhere() -> None:
 
 # -- outcomes in JSON and text -------------------------------------------------------------------
 def outcome_msg(code: int = MoveOutcome.SUCCESS, name: str = 'success',
-                uncertainty: list[float] | None = None) -> MoveOutcome:
-    msg = MoveOutcome(code=code, code_name=name, reason='settled within 10 µm')
+                uncertainty: list[float] | None = None,
+                source: str = 'measured') -> MoveOutcome:
+    msg = MoveOutcome(code=code, code_name=name, reason='settled within 10 µm',
+                      attained_source=source)
     msg.attained.header.frame_id = BASE_FRAME
     msg.attained.pose.position.z = 0.19
     q = quaternion_deg(0, 0, 30)
@@ -346,8 +348,9 @@ def test_outcome_json_is_complete_si_and_human_with_nan_as_null() -> None:
         ('move', 0, 'success', None)
     o = doc['outcome']
     assert set(o) == {'code', 'code_name', 'reason', 'attained', 'attained_user',
-                      'position_error_m', 'orientation_error_rad', 'position_error_um',
-                      'orientation_error_deg', 'uncertainty'}
+                      'attained_source', 'position_error_m', 'orientation_error_rad',
+                      'position_error_um', 'orientation_error_deg', 'uncertainty'}
+    assert o['attained_source'] == 'measured'
     assert (o['code'], o['code_name'], o['reason']) == (0, 'success', 'settled within 10 µm')
     assert o['attained']['frame'] == BASE_FRAME
     assert o['attained']['position_m'] == [0.0, 0.0, 0.19]
@@ -383,17 +386,42 @@ def test_outcome_text() -> None:
     lines = text.splitlines()
     assert lines[0] == 'success (0): settled within 10 µm'
     assert 'user position' in lines[1] and '10.0000' in lines[1] and '-2.5000' in lines[1]
-    assert lines[1].rstrip().endswith('deg') and ' mm ' in lines[1]
+    assert lines[1].rstrip().endswith('deg  (measured)') and ' mm ' in lines[1]
     assert 'error' in lines[2] and '5.0 µm' in lines[2] and '0.00100 deg' in lines[2]
     assert 'uncertainty' in lines[3] and '1.0 1.0 1.0 µm' in lines[3]
     assert 'uncertainty' not in cm.outcome_of(outcome_msg()).text()  # NaN: not measured
 
 
-def test_a_refusal_says_only_why() -> None:
-    outcome = cm.outcome_of(outcome_msg(MoveOutcome.REFUSED_LIMITS, 'refused_limits'))
+def test_a_refusal_says_why_and_where_the_platform_stands() -> None:
+    outcome = cm.outcome_of(outcome_msg(MoveOutcome.REFUSED_LIMITS, 'refused_limits',
+                                        source='estimated'))
     assert not outcome.moved and outcome.exit_code == Exit.REFUSED
-    assert outcome.text() == 'refused_limits (11): settled within 10 µm'
-    assert list(cm.outcome_of(MoveOutcome()).document()['attained']['human']) == [0.0] * 6
+    lines = outcome.text().splitlines()
+    assert lines[0] == 'refused_limits (11): settled within 10 µm'
+    assert 'user position' in lines[1] and lines[1].endswith('(estimated, nothing moved)')
+    assert 'error' in lines[2] and '5.0 µm' in lines[2]  # how far the goal is from there
+
+
+def test_an_outcome_without_a_pose_says_so_and_shows_no_zeros() -> None:
+    """No pose estimate and no tracker reading (attained_source empty): not "user position
+    0.0000 ... error 0.0 µm", as a stopped move once printed."""
+    msg = MoveOutcome(code=MoveOutcome.ABORTED_STOP, code_name='aborted_stop', reason='stopped')
+    msg.position_error = [math.nan] * 3
+    msg.orientation_error = [math.nan] * 3
+    outcome = cm.outcome_of(msg)
+    assert outcome.text() == ('aborted_stop (30): stopped\n'
+                              '  ended at: not known (no pose estimate, no tracker reading)')
+    doc = json.loads(cf.json_text(outcome.document()))
+    assert doc['attained'] is None and doc['attained_user'] is None
+    assert doc['attained_source'] is None and doc['position_error_m'] == [None] * 3
+
+
+def test_a_stopped_move_shows_where_it_ended_and_its_error() -> None:
+    outcome = cm.outcome_of(outcome_msg(MoveOutcome.ABORTED_STOP, 'aborted_stop'))
+    assert outcome.exit_code == Exit.ABORTED
+    lines = outcome.text().splitlines()
+    assert lines[1].startswith('  user position') and lines[1].endswith('(measured)')
+    assert '10.0000' in lines[1] and '5.0 µm' in lines[2]
 
 
 def test_a_pose_that_is_not_a_rotation_has_no_human_numbers() -> None:

@@ -291,10 +291,29 @@ def test_out_of_tolerance_is_a_failure_with_the_attained_error() -> None:
     err, _ = abort(mover(world, 'measured', **{'compensation.max_iterations': 0}), world)
     assert err.code is ResultCode.OUT_OF_TOLERANCE
     assert 'settled outside tolerance: measured error' in str(err) and world.stops == 0
+    # the pose it was judged on goes with it: the tracker's, where the machine really is
+    assert err.attained is not None and err.attained.source == 'measured'
+    np.testing.assert_allclose(err.attained.position, world.attained()[0], atol=1e-12)
+    assert err.attained.uncertainty is not None
     biased = World()  # encoders arrive within their tolerance, 4 µm off the goal per leg
     biased.bias[:3] = 4e-6
     err, _ = abort(mover(biased), biased, tolerance=1e-6)
     assert err.code is ResultCode.OUT_OF_TOLERANCE and 'estimated error' in str(err)
+    assert err.attained is not None and err.attained.source == 'estimated'
+    assert np.linalg.norm(err.attained.position - GOAL) > 1e-6  # off by the bias
+
+
+def test_where_a_move_that_did_not_settle_ended_is_the_tracker_else_the_estimate() -> None:
+    world = World(samples=1)
+    m = mover(world)
+    where = m.attained_now()
+    assert where is not None and where.source == 'measured'
+    np.testing.assert_allclose(where.position, world.attained()[0], atol=1e-12)
+    np.testing.assert_allclose(where.uncertainty, np.sqrt(np.diag(TRACKER_COVARIANCE)))
+    world.samples = 0  # the tracker falls silent: past tracker_silence, the encoders' estimate
+    silent = mover(world, **{'liveness.tracker_silence': 0.05})
+    wait_until(lambda: silent.attained_now().source == 'estimated', 5.0,  # type: ignore[union-attr]
+               'the estimate once the tracker is silent')
 
 
 @pytest.mark.parametrize(('frame', 'p', 'q', 'code', 'words'), [

@@ -253,15 +253,42 @@ def _send(goals: GoalClient, goal: Any, feedback: list[Any]) -> Any:
 
 
 def test_the_move_action_gives_feedback_and_a_result(positioner: Positioner) -> None:
+    driver = positioner.driver
+    driver.follow = False  # the drives arrive when the test has seen the moving phase
     feedback: list[Any] = []
     goal = MoveAction.Goal(command=command(HOME_P + [0.004, 0.0, 0.0], HOME_Q))
     with GoalClient(positioner.client, MoveAction, '/positioner/move') as goals:
-        result = goals.result(_send(goals, goal, feedback), 30.0)
+        handle = _send(goals, goal, feedback)
+        goals.until(lambda: any(f.phase == MoveAction.Feedback.MOVING for f in feedback), 20.0,
+                    'feedback of the moving phase')
+        with driver.lock:
+            driver.position = np.array(driver.trajectories[-1].points[-1].positions)
+        result = goals.result(handle, 30.0)
     outcome = result.result.outcome
     assert outcome.code == MoveOutcome.SUCCESS, outcome.reason
     assert result.status == GoalStatus.STATUS_SUCCEEDED
-    assert feedback and {f.phase_name for f in feedback} <= {
-        'idle', 'moving', 'settling', 'settled', 'correcting'}
+    assert {f.phase_name for f in feedback} <= {'moving', 'settling', 'settled', 'correcting'}
+    assert outcome.attained_source == 'estimated'  # mode none: the encoders through the model
+
+
+def test_a_refused_goal_shows_no_progress_and_where_the_platform_stands(
+        positioner: Positioner) -> None:
+    """Refused before it moved: no feedback at all (the state is still the last move's: it
+    showed "settled 100%"), and the outcome says where the platform stands and how far the
+    goal is from there, not zeros."""
+    assert move(positioner, command(HOME_P + [0.002, 0.0, 0.0], HOME_Q)).code == 0
+    feedback: list[Any] = []
+    far = HOME_P + [0.5, 0.0, 0.0]  # far outside the workspace
+    with GoalClient(positioner.client, MoveAction, '/positioner/move') as goals:
+        result = goals.result(_send(goals, MoveAction.Goal(command=command(far, HOME_Q)),
+                                    feedback), 30.0)
+    outcome = result.result.outcome
+    assert outcome.code_name.startswith('refused'), outcome.reason
+    assert feedback == []
+    assert outcome.attained_source == 'estimated'
+    p, _ = pose_arrays(outcome.attained.pose)
+    np.testing.assert_allclose(p, HOME_P + [0.002, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(outcome.position_error, [-0.498, 0.0, 0.0], atol=1e-6)
 
 
 def test_cancel_stops_the_drives_and_ends_aborted_stop(positioner: Positioner) -> None:
@@ -275,8 +302,13 @@ def test_cancel_stops_the_drives_and_ends_aborted_stop(positioner: Positioner) -
                     'feedback of the moving phase')
         goals.cancel(handle)
         result = goals.result(handle, 30.0)
-    assert result.result.outcome.code == MoveOutcome.ABORTED_STOP
+    outcome = result.result.outcome
+    assert outcome.code == MoveOutcome.ABORTED_STOP
     assert result.status == GoalStatus.STATUS_CANCELED
+    # where it stopped (the drives never left home here), and how far from the goal that is
+    assert outcome.attained_source == 'estimated'
+    np.testing.assert_allclose(pose_arrays(outcome.attained.pose)[0], HOME_P, atol=1e-6)
+    np.testing.assert_allclose(outcome.position_error, [-0.004, 0.0, 0.0], atol=1e-6)
     assert len(driver.trajectories[-1].points) == 0  # the stop: an empty trajectory
     assert 0.0 <= min(f.progress for f in feedback) <= max(f.progress for f in feedback) <= 1.0
 

@@ -56,7 +56,15 @@ from positioning_cell.moves.correction import (
 )
 from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
-from positioning_cell.moves.outcomes import MoveAbortedError, MoveResult, ResultCode, State
+from positioning_cell.moves.outcomes import (
+    ESTIMATED,
+    MEASURED,
+    Attained,
+    MoveAbortedError,
+    MoveResult,
+    ResultCode,
+    State,
+)
 from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move
 from positioning_cell.names import (
     BASE_FRAME,
@@ -151,6 +159,9 @@ class Mover:
         #: What the looks at the joint states and at the tracker's readings found: their
         #: silence is judged from it (motion.hearing), not from the clock alone.
         self.joints_heard, self.tracker_heard = Hearing(), Hearing()
+        #: State changes reported so far: a command whose count has not moved since it began
+        #: has not started (a refusal changes no state), and shows no progress.
+        self.state_changes = 0
         self.measurements: list[Measurement] = []
         self.measurement_count = 0
         #: The tracker's newest registration (the readings' common covariance); None: none yet.
@@ -474,6 +485,25 @@ class Mover:
             return self.joints
 
     # -- refusals -------------------------------------------------------------------------------
+    def attained_now(self) -> Attained | None:
+        """Where the platform is, as well as the positioner knows it now: the tracker's newest
+        reading if it was heard within ``liveness.tracker_silence`` (:data:`MEASURED`, its
+        standard uncertainty), else the encoders' pose estimate through the model
+        (:data:`ESTIMATED`, uncertainty not known), else None (no estimate yet). For the
+        outcome of a move that did not settle (refused, stopped, aborted)."""
+        estimate = self.estimate_pose()  # also takes the newest readings
+        with self.cond:
+            live = self.settings.liveness
+            heard = self.machine.clock() - self.tracker_heard.heard_at <= live.tracker_silence
+            newest = self.measurements[-1] if self.measurements and heard else None
+        if newest is not None:
+            return Attained(np.asarray(newest.position, dtype=float),
+                            np.asarray(newest.quaternion, dtype=float), MEASURED,
+                            np.sqrt(np.diag(newest.covariance)))
+        if estimate is None:
+            return None
+        return Attained(estimate.position, estimate.quaternion, ESTIMATED)
+
     def refusal(self, code: ResultCode, reason: str) -> MoveAbortedError:
         """Report a refusal (every time; the state does not change) and make its error."""
         self.machine.refused(code, reason)
@@ -670,7 +700,8 @@ class Mover:
             moved = True
             self._go(*command, first)
             sigma: FloatArray | None = None
-            if self.mode is CompensationMode.MEASURED:
+            source = MEASURED if self.mode is CompensationMode.MEASURED else ESTIMATED
+            if source == MEASURED:
                 e_p, e_r, reason, sigma = self._correct(command, p, q, tol)
             else:
                 e_p, e_r, reason, sigma = self._check_estimate(p, q, tol)
@@ -691,7 +722,8 @@ class Mover:
         reason += self._warnings(p, q)
         self._set_state(State.SETTLED, reason, ResultCode.SUCCESS)
         return MoveResult(np.array([x[0] for x in path]).reshape(-1, 3),
-                          np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r, sigma)
+                          np.array([x[1] for x in path]).reshape(-1, 4), reason, e_p, e_r, sigma,
+                          source)
 
     def status_values(self, code: ResultCode | None) -> dict[str, object]:
         """The positioner's state for its diagnostics (``code``: of the move that just ended,
@@ -719,10 +751,10 @@ class Mover:
         return ''.join(f'; warning: {w}' for w in found)
 
     def _already_there(self, p: FloatArray, q: FloatArray, tol: GoalTolerance
-                       ) -> tuple[str, FloatArray, FloatArray, FloatArray | None] | None:
+                       ) -> tuple[str, FloatArray, FloatArray, FloatArray | None, str] | None:
         """When the machine is settled at its last command and the goal is within ``tol`` of
         where it is (the encoders' estimate; the tracker's in ``measured`` mode): (words,
-        Δp, rotation error, uncertainty) of a move that need not move; else None."""
+        Δp, rotation error, uncertainty, source) of a move that need not move; else None."""
         with self.cond:
             at_rest = self.state is State.SETTLED and self.command is not None
         if not at_rest:
@@ -753,7 +785,7 @@ class Mover:
         # self.command stays the command that got the machine here (in measured mode the
         # corrected one, not the goal): the next move starts where the axes are
         return (f'already within tolerance, not moved: {_error_text(e_p, e_r, what)}', e_p, e_r,
-                sigma)
+                sigma, MEASURED if what.startswith(MEASURED) else ESTIMATED)
 
     def _check_estimate(self, p: FloatArray, q: FloatArray, tol: GoalTolerance
                         ) -> tuple[FloatArray, FloatArray, str, FloatArray | None]:
@@ -773,7 +805,9 @@ class Mover:
             text += f' ± {_sigma_text(sigma)} (1 sigma, the calibration\'s)'
         if not tol.holds(e_p, e_r):
             raise MoveAbortedError(ResultCode.OUT_OF_TOLERANCE,
-                                   f'settled outside tolerance: {text}')
+                                   f'settled outside tolerance: {text}',
+                                   Attained(estimate.position, estimate.quaternion, ESTIMATED,
+                                            sigma))
         return e_p, e_r, f'settled within tolerance: {text}', sigma
 
     def _correct(self, command: tuple[FloatArray, FloatArray], p: FloatArray, q: FloatArray,
@@ -808,14 +842,15 @@ class Mover:
                     self._carry = [*self._carry[1 - CARRIED_MOVES:],
                                    (p, q, correction_offset(*command, m_p, m_q), sigma)]
                 return e_p, e_r, f'settled within tolerance: {text}', sigma
+            judged = Attained(m_p, m_q, MEASURED, sigma)
             if not significant:
                 raise MoveAbortedError(
                     ResultCode.OUT_OF_TOLERANCE, f'settled outside tolerance: {text}; the '
                     f'error is within {SIGNIFICANCE:g} sigma of the measurement, a correction '
-                    'would be noise')
+                    'would be noise', judged)
             if done == iterations:
                 raise MoveAbortedError(ResultCode.OUT_OF_TOLERANCE,
-                                       f'settled outside tolerance: {text}')
+                                       f'settled outside tolerance: {text}', judged)
             self._set_state(State.CORRECTING, f'{text}: correcting')
             command = corrected_command(*command, p, q, m_p, m_q)
             self._go(*command)
@@ -1072,6 +1107,7 @@ class Mover:
         changed = (state, reason) != (self.state, self.reason)
         self.state, self.reason = state, reason
         if changed or code is not None:
+            self.state_changes += 1
             self.machine.state_changed(state, reason, code)
 
 

@@ -63,13 +63,31 @@ class ResultCode(Enum):
         return self.value.startswith('refused')
 
 
+#: Where an attained pose comes from: the laser tracker, or the encoders through the model.
+MEASURED, ESTIMATED = 'measured', 'estimated'
+
+
+class Attained(NamedTuple):
+    """Where the platform is (or ended): position (3,) m and quaternion (4,) x, y, z, w in
+    base, ``source`` :data:`MEASURED` or :data:`ESTIMATED`, and the pose's standard
+    uncertainty (6,) (x, y, z m, rot-x, rot-y, rot-z rad; None: not known)."""
+
+    position: FloatArray
+    quaternion: FloatArray
+    source: str
+    uncertainty: FloatArray | None = None
+
+
 class MoveAbortedError(PositioningError):
     """A move was refused or ended before it settled within its tolerance: ``code`` names
-    the outcome, the message says why."""
+    the outcome, the message says why; ``attained``, where the platform ended when the move
+    knew it (an out-of-tolerance move: the pose it was judged on), else None."""
 
-    def __init__(self, code: ResultCode, message: str) -> None:
+    def __init__(self, code: ResultCode, message: str,
+                 attained: Attained | None = None) -> None:
         super().__init__(message)
         self.code = code
+        self.attained = attained
 
 
 class MoveResult(NamedTuple):
@@ -77,7 +95,8 @@ class MoveResult(NamedTuple):
     (M, 4); the words for how it ended; the attained error against the goal (Δp (3,) m and
     rotation vector (3,) rad: the tracker's in ``measured`` mode, else the encoders'); in
     ``measured`` mode its standard uncertainty (6,) (x, y, z m, rot-x, rot-y, rot-z rad; None
-    otherwise).
+    otherwise); ``source``, what the error was measured with (:data:`MEASURED`,
+    :data:`ESTIMATED`).
     """
 
     positions: FloatArray
@@ -86,6 +105,7 @@ class MoveResult(NamedTuple):
     position_error: FloatArray
     orientation_error: FloatArray
     uncertainty: FloatArray | None = None
+    source: str = ESTIMATED
 
     @property
     def path(self) -> tuple[FloatArray, FloatArray]:

@@ -22,6 +22,7 @@ from positioning_cell.limits.validity import factory_constraints
 from positioning_cell.motion.controller import Controller, MoveCommand
 from positioning_cell.motion.mover import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.moves.correction import deviation
+from positioning_cell.moves.outcomes import Attained
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.ros.goals import run_goal
@@ -78,13 +79,22 @@ class OperatorInterface:
             return op.resolve(command)
         except InputError as err:
             op.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err))
-            return om.outcome(ResultCode.REFUSED_INVALID_GOAL, str(err))
+            return self._not_settled(ResultCode.REFUSED_INVALID_GOAL, str(err), None, None)
+
+    def _not_settled(self, code: ResultCode, reason: str, goal: tuple[Any, Any] | None,
+                     where: Attained | None) -> Any:
+        """The MoveOutcome of a move that did not settle: where the platform is (``where``, else
+        as the positioner knows it now), and its error against ``goal`` if there is one."""
+        where = where or self.controller.mover.attained_now()
+        user = (None if where is None
+                else self.controller.user_position(where.position, where.quaternion))
+        return om.outcome(code, reason, goal=goal, user=user, stamp=self._now(), where=where)
 
     def _outcome(self, result: MoveResult | None, error: BaseException | None,
                  goal: tuple[Any, Any]) -> Any:
         """The MoveOutcome of a move that returned ``result`` or raised ``error``."""
         if isinstance(error, MoveAbortedError):
-            return om.outcome(error.code, str(error))
+            return self._not_settled(error.code, str(error), goal, error.attained)
         if error is not None:
             raise error
         assert result is not None
@@ -96,14 +106,20 @@ class OperatorInterface:
               goal: tuple[Any, Any]) -> Any:
         """Run a move for an action goal (:func:`run_goal`: feedback every period, a cancel
         stops the drives); its MoveOutcome."""
+        begun = self.controller.mover.state_changes
         ran = run_goal(goal_handle, lambda stop, feedback: run(),
                        on_stop=self.controller.mover.stop,
-                       tick=lambda: self._feedback(kind, goal))
+                       tick=lambda: self._feedback(kind, goal, begun))
         return self._outcome(ran.value, ran.error, goal)
 
-    def _feedback(self, kind: Any, goal: tuple[Any, Any]) -> Any:
-        """The action's feedback now: the phase, the deviation from ``goal``, the progress."""
+    def _feedback(self, kind: Any, goal: tuple[Any, Any], begun: int) -> Any:
+        """The action's feedback now: the phase, the deviation from ``goal``, the progress;
+        None (nothing published) while the positioner's state has not changed since the goal
+        came (``begun``): the state is still the last command's, and a goal refused before
+        it moved showed that one's "settled 100%"."""
         mover = self.controller.mover
+        if mover.state_changes == begun:
+            return None
         feedback = kind.Feedback()
         state = mover.state
         if hasattr(feedback, 'phase'):

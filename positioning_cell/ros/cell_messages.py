@@ -45,7 +45,8 @@ def outcome_of(msg: MoveOutcome) -> cf.Outcome:
                       str(msg.attained.header.frame_id), p, q, up, uq,
                       np.asarray(msg.position_error, dtype=float).reshape(3),
                       np.asarray(msg.orientation_error, dtype=float).reshape(3),
-                      np.asarray(msg.uncertainty, dtype=float).reshape(6))
+                      np.asarray(msg.uncertainty, dtype=float).reshape(6),
+                      str(msg.attained_source))
 
 
 def check_of(response: Any) -> cf.CheckReport:

@@ -31,7 +31,8 @@ from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.boxes import BoxLimits
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.limits.validity import CheckResult
-from positioning_cell.moves.outcomes import MoveResult, ResultCode
+from positioning_cell.moves.correction import deviation
+from positioning_cell.moves.outcomes import Attained, MoveResult, ResultCode
 from positioning_cell.ros.messages import pose_arrays, pose_msg
 
 if TYPE_CHECKING:
@@ -66,23 +67,33 @@ def attained(result: MoveResult, goal: tuple[Any, Any]) -> tuple[Any, Any]:
 
 def outcome(code: ResultCode, reason: str, result: MoveResult | None = None,
             goal: tuple[Any, Any] | None = None, user: Transform | None = None,
-            stamp: Any = None) -> MoveOutcome:
-    """A MoveOutcome: the code and its words; with a settled move's ``result`` and its
-    ``goal`` (p, q) in base, the attained pose (goal ⊕ the attained error), the error, its
-    uncertainty (NaN when unknown) and the attained user position ``user``."""
+            stamp: Any = None, where: Attained | None = None) -> MoveOutcome:
+    """A MoveOutcome: the code and its words, and where the platform ended: for a settled
+    move's ``result`` the goal (p, q in base) ⊕ its attained error; else ``where`` (a move
+    that did not settle: :meth:`Mover.attained_now`, or the pose it was judged on), its error
+    against ``goal`` when there is one (else NaN). With the pose's source, the error's standard
+    uncertainty (NaN when unknown) and the attained object frame in the user CS ``user``.
+    Neither: the pose fields stay zero, ``attained_source`` empty and the errors NaN."""
     out = MoveOutcome(code=CODES[code], code_name=code.value, reason=reason)
     out.uncertainty = [math.nan] * 6
+    out.position_error, out.orientation_error = [math.nan] * 3, [math.nan] * 3
+    errors: tuple[Any, Any] | None = None
     if result is not None and goal is not None:
-        e_p, e_r = np.asarray(result.position_error), np.asarray(result.orientation_error)
-        p, q = attained(result, goal)
+        where = Attained(*attained(result, goal), result.source, result.uncertainty)
+        errors = (result.position_error, result.orientation_error)
+    elif where is not None and goal is not None:
+        errors = deviation(where.position, where.quaternion, *goal)
+    if where is not None:
         out.attained.header.frame_id = 'base'
         if stamp is not None:
             out.attained.header.stamp = stamp
-        out.attained.pose = pose_msg(p, q)
-        out.position_error = [float(v) for v in e_p]
-        out.orientation_error = [float(v) for v in e_r]
-        if result.uncertainty is not None:
-            out.uncertainty = [float(v) for v in result.uncertainty]
+        out.attained.pose = pose_msg(where.position, where.quaternion)
+        out.attained_source = where.source
+        if where.uncertainty is not None:
+            out.uncertainty = [float(v) for v in where.uncertainty]
+    if errors is not None:
+        out.position_error = [float(v) for v in np.asarray(errors[0])]
+        out.orientation_error = [float(v) for v in np.asarray(errors[1])]
     if user is not None:
         out.attained_user = pose_msg(*user.to_pq())
     return out

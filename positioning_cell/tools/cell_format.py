@@ -321,10 +321,13 @@ def limits_request(args: argparse.Namespace) -> LimitBoxes:
 # -- outcomes of moves and homing -----------------------------------------------------------------
 @dataclass(frozen=True)
 class Outcome:
-    """A MoveOutcome in plain values: ``code`` and ``code_name``, ``reason``, the attained
-    platform pose (in ``attained_frame``) and object pose in the user CS (positions (3,) m,
-    quaternions (4,) x, y, z, w), the errors (Δp (3,) m, rotation vector (3,) rad) and their
-    standard uncertainty (6,) (NaN: unknown)."""
+    """A MoveOutcome in plain values: ``code`` and ``code_name``, ``reason``, where the
+    platform ended (whatever the code; a refusal: where it stands): the platform pose (in
+    ``attained_frame``) and object pose in the user CS (positions (3,) m, quaternions (4,) x,
+    y, z, w), the errors against the goal (Δp (3,) m, rotation vector (3,) rad; NaN: no valid
+    goal) and their standard uncertainty (6,) (NaN: unknown), and ``attained_source``:
+    ``measured`` (the tracker), ``estimated`` (the encoders through the model) or empty (not
+    known: the poses mean nothing)."""
 
     code: int
     code_name: str
@@ -337,6 +340,7 @@ class Outcome:
     position_error: FloatArray = field(default_factory=lambda: np.zeros(3))
     orientation_error: FloatArray = field(default_factory=lambda: np.zeros(3))
     uncertainty: FloatArray = field(default_factory=lambda: np.full(6, np.nan))
+    attained_source: str = ''
 
     @property
     def exit_code(self) -> Exit:
@@ -345,8 +349,13 @@ class Outcome:
 
     @property
     def moved(self) -> bool:
-        """Not refused: the attained poses mean something."""
+        """Not refused: the machine may have moved."""
         return self.exit_code != Exit.REFUSED
+
+    @property
+    def known(self) -> bool:
+        """The attained poses mean something (they have a source)."""
+        return bool(self.attained_source)
 
     @property
     def position_error_um(self) -> float:
@@ -361,9 +370,12 @@ class Outcome:
     def document(self) -> dict[str, Any]:
         """Every field for JSON (uncertainty: null where unknown)."""
         attained = pose_document(self.attained_position, self.attained_quaternion)
+        known = self.known
         return {'code': self.code, 'code_name': self.code_name, 'reason': self.reason,
-                'attained': {'frame': self.attained_frame, **attained},
-                'attained_user': pose_document(self.user_position, self.user_quaternion),
+                'attained_source': self.attained_source or None,
+                'attained': {'frame': self.attained_frame, **attained} if known else None,
+                'attained_user': (pose_document(self.user_position, self.user_quaternion)
+                                  if known else None),
                 'position_error_m': self.position_error,
                 'orientation_error_rad': self.orientation_error,
                 'position_error_um': self.position_error_um,
@@ -371,18 +383,24 @@ class Outcome:
                 'uncertainty': self.uncertainty}
 
     def text(self) -> str:
-        """For people: code and reason; if anything moved, the attained user position, the
-        error and its uncertainty (when known)."""
+        """For people: code and reason; where the platform ended (labelled measured or
+        estimated; "not known" without a source), the error against the goal (if there was a
+        valid one) and its uncertainty (when known). A refusal says nothing moved."""
         head = f'{self.code_name or "no outcome"} ({self.code})'
         lines = [f'{head}: {self.reason}' if self.reason else head]
-        if self.moved:
-            user = transform_of(self.user_position, self.user_quaternion)
-            lines.append(f'  user position  {transform_text(user)}')
+        where = 'standing at' if not self.moved else 'ended at'
+        if not self.known:
+            lines.append(f'  {where}: not known (no pose estimate, no tracker reading)')
+            return '\n'.join(lines)
+        user = transform_of(self.user_position, self.user_quaternion)
+        lines.append(f'  user position  {transform_text(user)}  ({self.attained_source}'
+                     + (', nothing moved)' if not self.moved else ')'))
+        if np.isfinite(self.position_error).all():
             lines.append(f'  error          {self.position_error_um:.1f} µm, '
                          f'{self.orientation_error_deg:.{DEG_DECIMALS}f} deg')
-            u = np.asarray(self.uncertainty, dtype=float)
-            if np.isfinite(u).any():
-                lines.append(f'  uncertainty    {_uncertainty_text(u)} (1σ)')
+        u = np.asarray(self.uncertainty, dtype=float)
+        if np.isfinite(u).any():
+            lines.append(f'  uncertainty    {_uncertainty_text(u)} (1σ)')
         return '\n'.join(lines)
 
 
