@@ -156,8 +156,25 @@ def test_common_options_and_default_timeouts() -> None:
     assert {parse(*a).command for a in (['status'], ['move', *'000000'], ['check', *'000000'],
                                          ['frames', 'get'], ['frames', 'set'], ['home'],
                                          ['stop'], ['jog', 'leg1_theta', '1'], ['speed'],
-                                         ['limits', 'get'], ['limits', 'set'], ['watch'])} == \
+                                         ['limits', 'get'], ['limits', 'set'],
+                                         ['limits', 'reset'], ['watch'])} == \
         set(cp.CLIENT_COMMANDS) == set(cell.COMMANDS) == set(cp.COMMANDS) - {'up'}
+
+
+def test_common_options_are_taken_before_or_after_the_command() -> None:
+    """`cell --json status` as well as `cell status --json`; given on both sides, the one
+    after the command wins; not given, the defaults."""
+    for line in (['--json', '--domain', '5', '--timeout', '3', 'status'],
+                 ['status', '--json', '--domain', '5', '--timeout', '3'],
+                 ['--json', 'status', '--domain', '5', '--timeout', '3']):
+        args = parse(*line)
+        assert (args.json, args.domain, args.timeout, args.command) == (True, 5, 3.0, 'status')
+    args = parse('--timeout', '3', 'move', *'000000', '--timeout', '4')
+    assert args.timeout == 4.0 and not args.json and args.domain is None
+    args = parse('frames', 'get')
+    assert (args.json, args.domain, args.timeout) == (False, None, None)
+    with pytest.raises(SystemExit):
+        parse('--domain', '500', 'status')
 
 
 def test_up_options_and_the_nodes_they_start() -> None:
@@ -213,6 +230,73 @@ def test_jog_lengths_in_mm_and_angles_in_degrees() -> None:
         else:
             assert delta == pytest.approx(math.radians(-1.5)) and cf.jog_unit(axis) == 'deg'
         assert cf.jog_human(axis, delta) == pytest.approx(-1.5)
+
+
+class JogClient:
+    """The operator client's jog, answering as the positioner does."""
+
+    def __init__(self, answer: tuple[bool, str, str, float]) -> None:
+        self.answer = answer
+
+    def jog(self, axis: str, delta: float) -> tuple[bool, str, str, float]:
+        return self.answer
+
+
+def _jog(answer: tuple[bool, str, str, float], *line: str) -> tuple[str, str, Any]:
+    from positioning_cell.tools import cell_commands
+
+    out, err = io.StringIO(), io.StringIO()
+    session = cell_commands.Session(JogClient(answer), Signals(),  # type: ignore[arg-type]
+                                    cell.Output(False, out, err))
+    report = cell_commands.cmd_jog(session, parse('jog', *line))
+    cell.Output(False, out, err).emit('jog', report)
+    return out.getvalue(), err.getvalue(), report
+
+
+def test_a_refused_jog_says_why_and_echoes_no_position() -> None:
+    """`cell jog leg1_length 500` printed "leg1_length: 0.0000 mm" before its refusal."""
+    out, err, report = _jog((False, 'refused_limits', 'leg1_length would leave its range',
+                             0.0), 'leg1_length', '500')
+    assert out == '' and err == 'cell: refused_limits: leg1_length would leave its range\n'
+    assert report.code == Exit.REFUSED and report.fields['position'] is None
+    out, err, report = _jog((True, 'success', 'jogged leg1_length', 0.2015), 'leg1_length',
+                            '1.5')
+    assert out == 'leg1_length: 201.5000 mm (jogged leg1_length)\n' and err == ''
+
+
+class LimitsClient:
+    """The operator client's GetLimits and SetLimits, with a machine and a user box set."""
+
+    def __init__(self) -> None:
+        from positioning_cell.ros.operator_client import Limits
+
+        self.factory = (np.full(6, -0.02), np.full(6, 0.02))
+        self.current = Limits(self.factory, (np.full(6, -0.01), np.full(6, 0.01)),
+                              (np.full(6, -0.005), np.full(6, 0.005)), [])
+        self.sent: list[tuple[Any, Any]] = []
+
+    def limits(self) -> Any:
+        return self.current
+
+    def set_limits(self, machine: Any, user: Any) -> tuple[bool, str]:
+        self.sent.append((machine, user))
+        self.current = self.current._replace(machine=machine, user=user)
+        return True, 'limits set'
+
+
+def test_limits_reset_sets_the_factory_box_and_no_user_box() -> None:
+    from positioning_cell.tools import cell_commands
+
+    client = LimitsClient()
+    out = io.StringIO()
+    session = cell_commands.Session(client, Signals(),  # type: ignore[arg-type]
+                                    cell.Output(True, out, io.StringIO()))
+    report = cell_commands.COMMANDS['limits reset'](session, parse('limits', 'reset'))
+    assert report.code == Exit.OK and len(client.sent) == 1
+    machine, user = client.sent[0]
+    np.testing.assert_array_equal(machine[0], client.factory[0])
+    np.testing.assert_array_equal(machine[1], client.factory[1])
+    assert np.all(user[0] == -np.inf) and np.all(user[1] == np.inf)
 
 
 def test_jog_exit_codes() -> None:
@@ -697,7 +781,7 @@ def test_output_one_json_line_or_text() -> None:
 # -- --help --------------------------------------------------------------------------------------
 HELPS = [[], ['status'], ['move'], ['check'], ['frames'], ['frames', 'get'], ['frames', 'set'],
          ['home'], ['stop'], ['jog'], ['speed'], ['limits'], ['limits', 'get'],
-         ['limits', 'set'], ['watch'], ['up']]
+         ['limits', 'set'], ['limits', 'reset'], ['watch'], ['up']]
 
 
 def test_help_of_cell_and_of_every_subcommand_exits_0(

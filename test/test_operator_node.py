@@ -193,6 +193,14 @@ def test_limit_layers_are_validated_checked_and_named(positioner: Positioner) ->
                        SetLimits.Request(machine=narrow, user=user)).success
     answer = check(positioner, command(HOME_P + [0.0008, 0.0, 0.0], HOME_Q))
     assert answer.validity.bits == Validity.USER_LIMITS, answer.validity.violations
+    # `cell limits reset`'s request: the factory box for the machine, no user box
+    assert client.call(SetLimits, '/positioner/set_limits',
+                       SetLimits.Request(machine=limits.factory, user=unlimited)).success
+    after = client.call(GetLimits, '/positioner/get_limits', GetLimits.Request())
+    assert list(after.machine.lower) == list(limits.factory.lower)
+    assert list(after.machine.upper) == list(limits.factory.upper)
+    assert all(math.isinf(v) for v in [*after.user.lower, *after.user.upper])
+    assert check(positioner, command(HOME_P + [0.0008, 0.0, 0.0], HOME_Q)).valid
 
 
 def test_speeds_within_the_factory_maxima_or_refused(positioner: Positioner) -> None:

@@ -22,11 +22,14 @@ instead (:mod:`positioning_cell.tools.cell_format`: ``command``, ``exit_code``, 
                [--angular-acceleration DEG_S2]   no option: query
     cell limits get
     cell limits set [--machine-lower 6] [--machine-upper 6] [--user-lower 6] [--user-upper 6]
+    cell limits reset                            the factory's: machine box = factory box,
+                                                 no user box
 
-Common options on every command: ``--json``, ``--timeout S`` (default 300 s for move and home,
-20 s otherwise; a goal still running then is cancelled), ``--domain ID`` (default:
-ROS_DOMAIN_ID of the environment). As the cell's own processes, the client keeps to the
-loopback (``loopback_only``) unless the environment names its own Fast DDS profile.
+Common options on every command, before or after it: ``--json``, ``--timeout S`` (default
+300 s for move and home, 20 s otherwise; a goal still running then is cancelled), ``--domain
+ID`` (default: ROS_DOMAIN_ID of the environment). As the cell's own processes, the client
+keeps to the loopback (``loopback_only``) unless the environment names its own Fast DDS
+profile.
 
 Ctrl-C (or SIGTERM) during a move or a homing cancels the goal (a controlled stop) and waits
 for its result, ``aborted_stop`` (exit 4); a second Ctrl-C stops waiting (exit 130). The

@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import IO, TYPE_CHECKING, Any
+
+import numpy as np
 
 from positioning_cell import names
 from positioning_cell.errors import PositioningError
@@ -218,6 +221,19 @@ def cmd_limits_get(session: Session, args: Any) -> Report:
 def cmd_limits_set(session: Session, args: Any) -> Report:
     current = session.client.limits()
     machine, user = cf.limits_request(args).merged(current.machine, current.user)
+    return _set_limits(session, current, machine, user)
+
+
+def cmd_limits_reset(session: Session, args: Any) -> Report:
+    """The factory's limits back: the machine box the factory's, no user box."""
+    current = session.client.limits()
+    unlimited = (np.full(6, -math.inf), np.full(6, math.inf))
+    return _set_limits(session, current, current.factory, unlimited)
+
+
+def _set_limits(session: Session, current: Limits, machine: cf.Box, user: cf.Box) -> Report:
+    """SetLimits with ``machine`` and ``user`` (SI), reported with the boxes in force after
+    it (``current`` before it, when refused)."""
     success, reason = session.client.set_limits(machine, user)
     fields: dict[str, Any] = {'success': success, 'reason': reason,
                               'requested': {'machine': cf.box_document(machine),
@@ -251,9 +267,10 @@ def cmd_jog(session: Session, args: Any) -> Report:
               'success': success, 'code_name': code_name, 'reason': reason,
               'position': position, 'position_human': cf.jog_human(axis, position)}
     code = cf.jog_exit_code(success, code_name)
+    if not success:  # the answer's position is no reading then: neither echoed nor given
+        fields |= {'position': None, 'position_human': None}
+        return Report(code, fields, '', f'{code_name or "refused"}: {reason}')
     text = f'{axis}: {cf.jog_human(axis, position):.4f} {unit}'
-    if not success:
-        return Report(code, fields, text, f'{code_name or "refused"}: {reason}')
     return Report(code, fields, text + (f' ({reason})' if reason else ''))
 
 
@@ -277,7 +294,7 @@ COMMANDS: dict[str, Callable[[Session, Any], Report]] = {
     'status': cmd_status, 'move': cmd_move, 'check': cmd_check,
     'frames get': cmd_frames_get, 'frames set': cmd_frames_set, 'home': cmd_home,
     'stop': cmd_stop, 'jog': cmd_jog, 'speed': cmd_speed, 'limits get': cmd_limits_get,
-    'limits set': cmd_limits_set, 'watch': cmd_watch,
+    'limits set': cmd_limits_set, 'limits reset': cmd_limits_reset, 'watch': cmd_watch,
 }
 
 

@@ -25,7 +25,7 @@ MODE_NAMES = {MODE_ABSOLUTE: 'absolute', MODE_RELATIVE_USER: 'relative_user',
 #: The subcommands that are clients of a running cell (``command`` of the parsed arguments
 #: and of the JSON document; tools.cell_commands runs them).
 CLIENT_COMMANDS = ('status', 'move', 'check', 'frames get', 'frames set', 'home', 'stop', 'jog',
-                   'speed', 'limits get', 'limits set', 'watch')
+                   'speed', 'limits get', 'limits set', 'limits reset', 'watch')
 #: Every subcommand: the clients, and ``up``, which starts the cell (tools.cell_up).
 COMMANDS = (*CLIENT_COMMANDS, 'up')
 #: Default --timeout (s): moves and homing may take minutes; anything else is a quick answer.
@@ -99,16 +99,20 @@ POSE_METAVAR = ('TX', 'TY', 'TZ', 'RX', 'RY', 'RZ')
 _HUMAN_UNITS = 'Tx Ty Tz mm, Rx Ry Rz deg, R = Rz·Ry·Rx'
 
 
-def _common(timeout_default: float) -> argparse.ArgumentParser:
+def _common(timeout_default: str, *, top: bool = False) -> argparse.ArgumentParser:
+    """The common options, before the subcommand (``top``: their defaults set there) or after
+    it (their defaults suppressed, so that one given before the subcommand is kept)."""
     common = argparse.ArgumentParser(add_help=False)
-    group = common.add_argument_group('common options')
+    group = common.add_argument_group('common options (before or after the command)')
+    unset: Any = {} if top else {'default': argparse.SUPPRESS}
     group.add_argument('--json', action='store_true',
-                       help='one JSON object on stdout instead of text')
-    group.add_argument('--timeout', type=_positive, default=None, metavar='S',
-                       help=f'give up after S seconds (default {timeout_default:g}); a goal '
-                       'still running then is cancelled')
-    group.add_argument('--domain', type=_domain, default=None, metavar='ID',
-                       help='ROS domain id (default: ROS_DOMAIN_ID of the environment)')
+                       help='one JSON object on stdout instead of text', **unset)
+    group.add_argument('--timeout', type=_positive, metavar='S',
+                       help=f'give up after S seconds (default {timeout_default}); a goal '
+                       'still running then is cancelled', **(unset or {'default': None}))
+    group.add_argument('--domain', type=_domain, metavar='ID',
+                       help='ROS domain id (default: ROS_DOMAIN_ID of the environment)',
+                       **(unset or {'default': None}))
     return common
 
 
@@ -137,7 +141,7 @@ def _pose_arguments(parser: argparse.ArgumentParser) -> None:
 def _leaf(subparsers: Any, name: str, command: str, help_text: str) -> argparse.ArgumentParser:
     parser: argparse.ArgumentParser = subparsers.add_parser(
         name, help=help_text, description=help_text,
-        parents=[_common(default_timeout(command))])
+        parents=[_common(f'{default_timeout(command):g}')])
     parser.set_defaults(command=command)
     return parser
 
@@ -159,7 +163,9 @@ def build_parser(description: str = '') -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='cell', description=description or 'The operator\'s client of the positioning '
         'cell.', epilog='exit codes:\n' + exit_table(),
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        parents=[_common(f'{GOAL_TIMEOUT:g} for move and home, {QUICK_TIMEOUT:g} otherwise',
+                         top=True)])
     sub = parser.add_subparsers(dest='subcommand', required=True, metavar='COMMAND')
 
     cell_up = _leaf(sub, 'up', 'up', 'start the whole cell in the foreground (the nodes make '
@@ -223,6 +229,8 @@ def build_parser(description: str = '') -> argparse.ArgumentParser:
                             description='the soft-limit boxes (machine CS, user CS)')
     limits_sub = limits.add_subparsers(dest='action', required=True, metavar='ACTION')
     _leaf(limits_sub, 'get', 'limits get', 'the factory, machine and user boxes')
+    _leaf(limits_sub, 'reset', 'limits reset', 'back to the factory: the machine box the '
+          'factory box, no user box')
     limits_set = _leaf(limits_sub, 'set', 'limits set',
                        f'set the machine and user boxes ({_HUMAN_UNITS}; a bound "{NO_LIMIT}": '
                        'no limit); a side left out stays as it is')
