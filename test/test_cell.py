@@ -175,7 +175,7 @@ def test_the_positioner_holds_the_trackers_registration(cell: Any) -> None:
 
 
 def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: Any) -> None:
-    client, _, diagnostics, _ = cell
+    client, _, diagnostics, procs = cell
     p, rv = MECH.home_position + [0.0, 0.0, 0.008], [0.0, 0.0, 0.0]
     result: dict[str, Any] = {}
     thread = threading.Thread(target=lambda: result.update(m=move(client, p, rv)))
@@ -190,6 +190,14 @@ def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: A
                            and 'leg2_length' in s.message
                            for d in diagnostics for s in d.status), 10.0,
                'the abort reason naming the axis')
+    # The state is on /diagnostics every second; its warning in the log once, not each time.
+    def aborted_statuses() -> int:
+        return sum(1 for d in list(diagnostics) for s in d.status
+                   if s.name == 'positioner: state' and 'drive fault' in s.message)
+    wait_until(lambda: aborted_statuses() >= 3, 10.0, 'the aborted state repeated')
+    warnings = [line for line in procs.log('kinematics_node').splitlines()
+                if 'drive fault' in line]
+    assert len(warnings) == 1, warnings
     assert set_param(client, 'leg_driver', 'fault.stuck_axis', '').successful
     for on in (False, True):
         assert client.call(SetBool, '/leg_driver/enable', SetBool.Request(data=on)).success

@@ -142,8 +142,9 @@ class PositionerNode(Node):
 
     def _status(self, level: str, message: str, code: ResultCode | None) -> None:
         op = getattr(self, 'controller', None)
-        if level != 'ok':
-            self.get_logger().warning(message)
+        if level != 'ok' and (code is not None or message != getattr(self, '_warned', '')):
+            self.get_logger().warning(message)  # once per state, not at every 1 Hz status
+        self._warned = message if level != 'ok' else ''
         values = {**self.mover.status_values(code), **(op.status_values() if op else {})}
         self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER, level, message, values,
                                            self._now()))
