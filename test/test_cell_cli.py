@@ -583,12 +583,41 @@ def test_status_positions_in_the_machine_and_user_cs() -> None:
     assert text.count('target') == 2 and text.count('estimated') == 2
 
 
+def test_status_shows_the_last_code_the_calibration_and_the_measured_pose() -> None:
+    """The last command's code and words however long ago it ended (the event's `code` is
+    empty in every later status: `cell status` showed "last code -" always), the calibration
+    in force, and the tracker's pose with its age and uncertainty."""
+    home = MECH.home_position
+    sigma = np.array([2e-6, 3e-6, 1.5e-6, 1e-5, 1e-5, 1e-5])
+    report = cf.StatusReport(
+        positioner={'state': 'idle', 'reason': 'ready', 'mode': 'model', 'code': '',
+                    'last_code': 'refused_limits', 'last_reason': 'machine limits: Tx 3 mm',
+                    'calibration': 'runs/x/calibration.yaml', 'referenced': 'True'},
+        estimate=(home, quaternion_deg(0, 0, 0)), mechanism=MECH,
+        measured=cf.MeasuredValues((home + [0.0002, 0, 0], quaternion_deg(0, 0, 0)), sigma,
+                                   1000.0), now=1000.25)
+    text = report.text()
+    assert 'last code   refused_limits: machine limits: Tx 3 mm' in text
+    assert 'calibration runs/x/calibration.yaml' in text
+    assert text.count(' measured   ') == 2  # user and machine CS
+    assert 'by the tracker, 0.25 s ago; uncertainty x y z 2.0 3.0 1.5 µm' in text
+    doc = json.loads(cf.json_text(report.document()))
+    assert (doc['last_code'], doc['calibration']) == ('refused_limits',
+                                                      'runs/x/calibration.yaml')
+    assert doc['measured_age_s'] == pytest.approx(0.25)
+    np.testing.assert_allclose(doc['positions']['machine']['measured']['human'],
+                               [0.2, 0, 0, 0, 0, 0], atol=1e-9)
+    np.testing.assert_allclose(doc['measured_uncertainty'], sigma)
+
+
 def test_status_without_the_mechanism_or_a_target() -> None:
     report = cf.StatusReport(positioner={'state': 'idle'}, estimate=(MECH.home_position,
                              [0, 0, 0, 1]), notes=['no target'])
     doc = report.document()
     assert doc['referenced'] is None and doc['drives_enabled'] is None
-    assert doc['positions']['machine'] == {'target': None, 'estimated': None}
+    assert doc['positions']['machine'] == {'target': None, 'estimated': None,
+                                           'measured': None}
+    assert doc['measured_age_s'] is None and 'note: no target' in report.text()
     assert doc['positions']['base']['estimated'] is not None
     assert 'unknown' in report.text() and 'note: no target' in report.text()
     assert json.loads(cf.json_text(doc))['coordinate_systems'] is None

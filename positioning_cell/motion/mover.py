@@ -162,6 +162,10 @@ class Mover:
         #: State changes reported so far: a command whose count has not moved since it began
         #: has not started (a refusal changes no state), and shows no progress.
         self.state_changes = 0
+        #: The code and words of the last command's end or refusal (None: none yet): kept, as
+        #: ``cell status`` shows them after the event has passed.
+        self.last_code: ResultCode | None = None
+        self.last_reason = ''
         self.measurements: list[Measurement] = []
         self.measurement_count = 0
         #: The tracker's newest registration (the readings' common covariance); None: none yet.
@@ -506,6 +510,7 @@ class Mover:
 
     def refusal(self, code: ResultCode, reason: str) -> MoveAbortedError:
         """Report a refusal (every time; the state does not change) and make its error."""
+        self.last_code, self.last_reason = code, reason
         self.machine.refused(code, reason)
         return MoveAbortedError(code, reason)
 
@@ -727,10 +732,13 @@ class Mover:
 
     def status_values(self, code: ResultCode | None) -> dict[str, object]:
         """The positioner's state for its diagnostics (``code``: of the move that just ended,
-        if any): state, reason, mode, code, referenced, position confirmed, calibration, and
-        whether the tracker's registration (the readings' common covariance) was received."""
+        if any), the last command's code and words however long ago it ended, referenced,
+        position confirmed, calibration, and whether the tracker's registration (the readings'
+        common covariance) was received."""
         return {'state': self.state.value, 'reason': self.reason, 'mode': self.mode.value,
-                'code': code.value if code else '', 'referenced': self.referenced,
+                'code': code.value if code else '',
+                'last_code': self.last_code.value if self.last_code else '',
+                'last_reason': self.last_reason, 'referenced': self.referenced,
                 'position_confirmed': self.position_confirmed,
                 'calibration': self.settings.compensation.calibration_file or 'none',
                 'tracker_registration': 'received' if self.registration is not None
@@ -1106,6 +1114,8 @@ class Mover:
     def _set_state(self, state: State, reason: str, code: ResultCode | None = None) -> None:
         changed = (state, reason) != (self.state, self.reason)
         self.state, self.reason = state, reason
+        if code is not None:
+            self.last_code, self.last_reason = code, reason
         if changed or code is not None:
             self.state_changes += 1
             self.machine.state_changed(state, reason, code)

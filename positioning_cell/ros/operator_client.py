@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import Home, MoveToPose
 from positioning_cell_interfaces.srv import (
     CheckPose,
@@ -33,9 +33,9 @@ from positioning_cell.limits.speed import Speeds
 from positioning_cell.ros import cell_messages as cm
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.ros.client import CellClient, GoalClient
-from positioning_cell.ros.messages import pose_arrays, status_level, status_values
+from positioning_cell.ros.messages import measurement, pose_arrays, status_level, status_values
 from positioning_cell.ros.parameters import parse_answer, requested_names
-from positioning_cell.ros.qos import LATCHED_QOS, LATEST_QOS
+from positioning_cell.ros.qos import LATCHED_QOS, LATEST_QOS, STREAM_QOS
 from positioning_cell.ros.watch_inputs import RemoteParameters, WatchInputs
 from positioning_cell.tools import cell_format as cf
 from positioning_cell.watch.state import Snapshot, WatchState
@@ -83,14 +83,16 @@ class StatusValues:
 
 class StatusFeed:
     """What ``cell status`` reads off the topics, subscribed at construction: the positioner's
-    and the driver's statuses, the target and the estimate; each method gives the newest
-    (None while none came)."""
+    and the driver's statuses, the target, the estimate and the tracker's reading; each method
+    gives the newest (None while none came)."""
 
     def __init__(self, cell: CellClient) -> None:
         self._positioner = cell.statuses(names.STATUS_POSITIONER)
         self._driver = cell.statuses(names.STATUS_DRIVER)
         self._targets = cell.collect(PoseStamped, names.TARGET, LATCHED_QOS)
         self._estimates = cell.collect(PoseStamped, names.ESTIMATED_POSE, LATEST_QOS)
+        self._measured = cell.collect(PoseWithCovarianceStamped, names.MEASURED_POSE,
+                                      STREAM_QOS)
 
     @staticmethod
     def _status(statuses: list[Any]) -> StatusValues | None:
@@ -118,6 +120,15 @@ class StatusFeed:
     def estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The newest estimated platform pose."""
         return self._pose(self._estimates)
+
+    def measured(self) -> cf.MeasuredValues | None:
+        """The tracker's newest reading of the platform pose: the pose, its standard
+        uncertainty (6,) and the time it measured (s, the cell's clock; NaN: not stamped)."""
+        if not self._measured:
+            return None
+        reading = measurement(self._measured[-1])
+        return cf.MeasuredValues((reading.position, reading.quaternion),
+                                 np.sqrt(np.diag(reading.covariance)), reading.stamp)
 
 
 # -- the client -----------------------------------------------------------------------------------

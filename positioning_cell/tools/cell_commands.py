@@ -167,9 +167,12 @@ def cmd_status(session: Session, args: Any) -> Report:
     status = wait_until(feed.positioner, max(deadline - time.monotonic(), 0.0),
                         f'the status "{names.STATUS_POSITIONER}" on {names.DIAGNOSTICS}')
     with contextlib.suppress(TimeoutError):
-        wait_until(lambda: feed.driver() and feed.target() and feed.estimate(),
-                   STATUS_EXTRA_WAIT, 'the rest')
+        wait_until(lambda: feed.driver() and feed.target() and feed.estimate()
+                   and feed.measured(), STATUS_EXTRA_WAIT, 'the rest')
     driver, target, estimate = feed.driver(), feed.target(), feed.estimate()
+    measured = feed.measured()
+    if measured is None:
+        notes.append(f'no tracker reading on {names.MEASURED_POSE}')
     if driver is None:
         notes.append(f'no status "{names.STATUS_DRIVER}" on {names.DIAGNOSTICS}')
     if target is None:
@@ -180,7 +183,7 @@ def cmd_status(session: Session, args: Any) -> Report:
         positioner=status.values, positioner_message=status.message,
         positioner_level=status.level, driver=None if driver is None else driver.values,
         target=target, estimate=estimate, systems=systems, systems_file=file,
-        mechanism=mechanism, notes=notes)
+        mechanism=mechanism, notes=notes, measured=measured, now=time.time())
     return Report(Exit.OK, report.document(), report.text())
 
 

@@ -22,7 +22,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -607,13 +607,24 @@ def parse_bool(text: str | None) -> bool | None:
 PoseValues = tuple[ArrayLike, ArrayLike]
 
 
+class MeasuredValues(NamedTuple):
+    """A tracker reading for ``status``: the platform pose in base, its standard uncertainty
+    (6,) (x, y, z m, rot-x, rot-y, rot-z rad) and the time it measured (s since the epoch, the
+    cell's clock; NaN: not stamped)."""
+
+    pose: PoseValues
+    uncertainty: FloatArray
+    stamp: float
+
+
 @dataclass(frozen=True)
 class StatusReport:
     """What ``status`` gathered: the positioner's diagnostic values (state, reason, mode, code,
     referenced) and message, the leg driver's (enabled, state; None if none came), the
-    target and the estimated platform pose in base (None if none came), the coordinate
-    systems and the mechanism (for the machine CS; None if unknown) and why something is
-    unknown."""
+    target and the estimated platform pose in base (None if none came), the tracker's newest
+    reading (None if none came) and ``now`` (s since the epoch) to tell its age, the
+    coordinate systems and the mechanism (for the machine CS; None if unknown) and why
+    something is unknown."""
 
     positioner: Mapping[str, str]
     positioner_message: str = ''
@@ -625,6 +636,15 @@ class StatusReport:
     systems_file: str = ''
     mechanism: Mechanism | None = None
     notes: Sequence[str] = ()
+    measured: MeasuredValues | None = None
+    now: float = math.nan
+
+    @property
+    def measured_age(self) -> float | None:
+        """How old the tracker's reading is, s (None: no reading, or not stamped)."""
+        if self.measured is None or not math.isfinite(self.measured.stamp):
+            return None
+        return self.now - self.measured.stamp
 
     @property
     def referenced(self) -> bool | None:
@@ -652,12 +672,20 @@ class StatusReport:
         frame (user, machine, base) and kind (target, estimated), the coordinate systems, the
         raw diagnostic values."""
         kinds = {'target': self.positions(self.target),
-                 'estimated': self.positions(self.estimate)}
+                 'estimated': self.positions(self.estimate),
+                 'measured': self.positions(None if self.measured is None
+                                            else self.measured.pose)}
         return {
             'state': self.positioner.get('state', ''),
             'reason': self.positioner.get('reason', ''),
             'mode': self.positioner.get('mode', ''),
             'code': self.positioner.get('code', ''),
+            'last_code': self.positioner.get('last_code', ''),
+            'last_reason': self.positioner.get('last_reason', ''),
+            'calibration': self.positioner.get('calibration', ''),
+            'measured_age_s': self.measured_age,
+            'measured_uncertainty': (None if self.measured is None
+                                     else self.measured.uncertainty),
             'referenced': self.referenced,
             'drives_enabled': self.drives_enabled,
             'driver_state': None if self.driver is None else self.driver.get('state'),
@@ -680,18 +708,31 @@ class StatusReport:
 
         v = self.positioner
         driver_state = '' if self.driver is None else self.driver.get('state', '')
+        last = v.get('last_code') or v.get('code') or '-'
+        last_reason = v.get('last_reason', '')
         lines = [f'state       {v.get("state", "?")}' + (f': {v["reason"]}'
                                                          if v.get('reason') else ''),
                  f'mode        {v.get("mode", "?")}',
-                 f'last code   {v.get("code") or "-"}',
+                 f'last code   {last}' + (f': {last_reason}'
+                                          if last_reason and last_reason != v.get('reason')
+                                          else ''),
+                 f'calibration {v.get("calibration") or "?"}',
                  f'referenced  {yes(self.referenced)}',
                  f'drives      enabled {yes(self.drives_enabled)}'
                  + (f' ({driver_state})' if driver_state else '')]
         target, estimate = self.positions(self.target), self.positions(self.estimate)
+        measured = self.positions(None if self.measured is None else self.measured.pose)
         lines.append('positions   (Tx Ty Tz mm, Rx Ry Rz deg)')
         for frame in ('user', 'machine'):
             lines.append(f'  {frame:<8} target     {transform_text(target[frame])}')
             lines.append(f'  {"":<8} estimated  {transform_text(estimate[frame])}')
+            lines.append(f'  {"":<8} measured   {transform_text(measured[frame])}')
+        if self.measured is not None:
+            age = self.measured_age
+            lines.append('measured    by the tracker, '
+                         + ('not stamped' if age is None else f'{age:.2f} s ago')
+                         + f'; uncertainty {_uncertainty_text(self.measured.uncertainty)} '
+                         '(1σ)')
         lines += [f'note: {n}' for n in self.notes]
         return '\n'.join(lines)
 

@@ -88,15 +88,18 @@ def up(args: argparse.Namespace, say: Callable[[str], None] = _say,
 
     overrides = run_overrides(run_dir)
     status: int = Exit.OK
+    stopped_by = ''
     with interruptible() as signals:
         procs = Processes(env, logs)
         try:
             status = _serve(procs, nodes, config, overrides, domain, run_dir,
                             args.timeout or UP_TIMEOUT, say)
         except Interrupted as err:
-            say(f'cell up: {err}: stopping the cell')
+            stopped_by = str(err)
         finally:
-            with signals.ignored():  # stopping is not interrupted
+            with signals.ignored():  # stopping is not interrupted (a second Ctrl-C neither)
+                if stopped_by:
+                    say(f'cell up: {stopped_by}: stopping the cell')
                 codes = procs.stop()
     say('cell up: stopped: ' + ', '.join(f'{k} (exit {v})' for k, v in codes.items()))
     if status == Exit.OK and any(code != 0 for code in codes.values()):
