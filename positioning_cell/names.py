@@ -81,6 +81,9 @@ TRUE_JOINT_STATES = '/sim/legs/true_joint_states'
 #: drives stop a move when it falls silent.
 HEARTBEAT = '/positioner/heartbeat'
 TARGET = '/positioner/target'
+#: Where the running trajectory commands the platform now (PoseStamped, base; only while one
+#: runs, at the pose rate): what `cell watch` judges the measured pose against while moving.
+SETPOINT = '/positioner/setpoint'
 ESTIMATED_POSE = '/positioner/pose'
 MARKERS = '/positioner/markers'
 #: The user and object coordinate systems in force (latched; positioning_cell_interfaces

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from action_msgs.msg import GoalStatus
 from cell_harness import InProcess
+from geometry_msgs.msg import PoseStamped
 from positioning_cell_interfaces.action import Home
 from positioning_cell_interfaces.action import MoveToPose as MoveAction
 from positioning_cell_interfaces.msg import (
@@ -46,7 +47,7 @@ from positioning_cell.frames.transforms import Transform
 from positioning_cell.polling import wait_until
 from positioning_cell.ros.client import GoalClient
 from positioning_cell.ros.messages import pose_arrays, pose_msg
-from positioning_cell.ros.qos import LATCHED_QOS
+from positioning_cell.ros.qos import LATCHED_QOS, STREAM_QOS
 
 pytestmark = pytest.mark.nodes
 
@@ -264,11 +265,18 @@ def test_the_move_action_gives_feedback_and_a_result(positioner: Positioner) -> 
     driver = positioner.driver
     driver.follow = False  # the drives arrive when the test has seen the moving phase
     feedback: list[Any] = []
+    setpoints = positioner.client.collect(PoseStamped, '/positioner/setpoint', STREAM_QOS)
     goal = MoveAction.Goal(command=command(HOME_P + [0.004, 0.0, 0.0], HOME_Q))
     with GoalClient(positioner.client, MoveAction, '/positioner/move') as goals:
         handle = _send(goals, goal, feedback)
         goals.until(lambda: any(f.phase == MoveAction.Feedback.MOVING for f in feedback), 20.0,
                     'feedback of the moving phase')
+        goals.until(lambda: len(setpoints) >= 3, 20.0, 'setpoints of the running trajectory')
+        # on the planned straight path from home to the goal, advancing
+        along = [pose_arrays(s.pose)[0] - HOME_P for s in list(setpoints)]
+        assert all(-1e-9 <= a[0] <= 0.004 + 1e-9 and abs(a[1]) < 1e-9 and abs(a[2]) < 1e-9
+                   for a in along), along
+        assert along[-1][0] >= along[0][0]
         with driver.lock:
             driver.position = np.array(driver.trajectories[-1].points[-1].positions)
         result = goals.result(handle, 30.0)

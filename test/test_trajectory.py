@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation, Slerp
 from workspace import MECH
 
 from positioning_cell import clearance as cl
 from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import ConfigError, InputError
-from positioning_cell.moves.trajectory import MotionLimits, plan_move
+from positioning_cell.moves.trajectory import MotionLimits, plan_move, pose_at
 from positioning_cell.parameters import parse
 from positioning_cell.sim.drives import DriverSettings, LegDriver
 
@@ -138,3 +140,26 @@ def test_path_near_a_singularity_is_refused_with_the_sample() -> None:
     first = traj.limits.violations[0]
     assert first.constraint == 'conditioning_min' and 0 < first.sample < len(traj.times) - 1
     assert 'conditioning' in traj.limits.message()
+
+
+@given(st.floats(0.0, 1.0))
+def test_the_pose_at_a_time_is_the_planned_path_between_its_samples(share: float) -> None:
+    """pose_at against the path's own samples (at them: exact) and between them against
+    scipy's slerp of the two around it (the setpoint `cell watch` judges against)."""
+    traj = plan_move(MECH, MECH.home_position, [0, 0, 0, 1],
+                     MECH.home_position + [0.004, -0.002, 0.001],
+                     Rotation.from_rotvec([0.02, 0.0, -0.01]).as_quat(), period=0.01)
+    t = share * traj.duration
+    p, q = pose_at(traj, t)
+    k = min(int(np.searchsorted(traj.times, t, side='right')) - 1, traj.times.size - 2)
+    w = (t - traj.times[k]) / (traj.times[k + 1] - traj.times[k])
+    np.testing.assert_allclose(p, traj.position[k] + w * (traj.position[k + 1]
+                                                          - traj.position[k]), atol=1e-12)
+    slerp = Slerp(traj.times[k:k + 2], Rotation.from_quat(traj.quaternion[k:k + 2]))
+    assert (Rotation.from_quat(q).inv() * slerp([t])[0]).magnitude() < 1e-9
+    for i in (0, traj.times.size // 2, traj.times.size - 1):
+        np.testing.assert_allclose(pose_at(traj, traj.times[i])[0], traj.position[i],
+                                   atol=1e-12)
+    np.testing.assert_allclose(pose_at(traj, -1.0)[0], traj.position[0], atol=1e-12)
+    np.testing.assert_allclose(pose_at(traj, traj.duration + 1.0)[0], traj.position[-1],
+                               atol=1e-12)

@@ -215,6 +215,43 @@ def test_render_shows_values_markers_and_colours() -> None:
     assert 'STALE' in stale.export_text()
 
 
+def _text(state: WatchState, now: float) -> str:
+    console = Console(record=True, width=120, file=io.StringIO())
+    console.print(render(state.snapshot(), 'base', now))
+    return console.export_text()
+
+
+def test_during_a_move_the_deviation_is_against_the_moving_setpoint() -> None:
+    """Moving: phase and progress, mode and drives shown, and the measured pose judged
+    against where the trajectory is now, not against its end (every axis was OUT during a
+    move). Settled: against the goal."""
+    state = WatchState(MECH)
+    goal = _moved(HOME, np.array([0.004, 0.0, 0.0]), np.zeros(3))
+    state.command(*goal, 100.0)
+    setpoint = _moved(HOME, np.array([0.0017, 0.0, 0.0]), np.zeros(3))
+    state.setpoint(*setpoint, 100.5)
+    state.measurement(*_moved(setpoint, np.array([3e-6, 0.0, 0.0]), np.zeros(3)), COV, 100.5)
+    state.positioner(Status(0, 'moving', 100.5, {'state': 'moving', 'progress': '0.42',
+                                                 'mode': 'measured'}))
+    state.driver(Status(0, 'following', 100.5, {'enabled': 'true', 'state': 'following'}))
+    text = _text(state, 100.6)
+    assert 'motion: moving 42%  mode measured  drives on (following)  vs the moving setpoint' \
+        in text
+    assert '+3.0 µm' in text and 'DOES NOT CONFORM' not in text
+    state.goal_progress('moving', 0.57, 100.55)  # the goal's feedback: finer than the status
+    assert 'motion: moving 57%' in _text(state, 100.7)
+    assert 'motion: moving 42%' in _text(state, 102.0)  # that feedback stale: the status's
+    state.positioner(Status(0, 'settled', 101.0, {'state': 'settled', 'progress': '1.0',
+                                                  'mode': 'measured'}))
+    text = _text(state, 101.1)
+    assert 'motion: settled  mode measured' in text and 'vs the goal' in text
+    assert '-2297.0 µm' in text  # the same reading against the goal, 4 mm away
+    # a setpoint older than the newest target is the last move's: the goal instead
+    state.positioner(Status(0, 'moving', 102.0, {'state': 'moving', 'progress': '0.1'}))
+    state.command(*goal, 102.0)
+    assert 'vs the goal' in _text(state, 102.1)
+
+
 def test_snapshot_defaults_to_the_default_tolerances() -> None:
     snap = Snapshot(mech=MECH)
     assert snap.judged_tolerances == Tolerances() and snap.tolerances is None

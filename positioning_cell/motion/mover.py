@@ -65,7 +65,7 @@ from positioning_cell.moves.outcomes import (
     ResultCode,
     State,
 )
-from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move
+from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move, pose_at
 from positioning_cell.names import (
     BASE_FRAME,
     DRIVER_ENABLE,
@@ -448,12 +448,24 @@ class Mover:
         """A command (move, homing, jog) is running."""
         return self._busy.locked()
 
+    def setpoint(self) -> tuple[FloatArray, FloatArray] | None:
+        """Where the running trajectory commands the platform now (position (3,) m,
+        quaternion (4,) in base; :func:`~positioning_cell.moves.trajectory.pose_at`); None
+        when none runs (the watch then judges against the goal)."""
+        with self.cond:
+            motion = self._motion
+        if motion is None:
+            return None
+        sent, traj, _ = motion
+        return pose_at(traj, self.machine.clock() - sent)
+
     def progress(self) -> float:
-        """0..1: the share of the running trajectory's duration elapsed (1 when none runs)."""
+        """0..1: the share of the running trajectory's duration elapsed (0 while a move is
+        about to send one, 1 when none runs)."""
         with self.cond:
             sent = self._sent
         if sent is None or sent[1] <= 0.0:
-            return 1.0
+            return 0.0 if sent is None and self.state is State.MOVING else 1.0
         return float(min(max((self.machine.clock() - sent[0]) / sent[1], 0.0), 1.0))
 
     def jog(self, times: FloatArray, joints: FloatArray) -> JointReading:
@@ -738,7 +750,8 @@ class Mover:
         return {'state': self.state.value, 'reason': self.reason, 'mode': self.mode.value,
                 'code': code.value if code else '',
                 'last_code': self.last_code.value if self.last_code else '',
-                'last_reason': self.last_reason, 'referenced': self.referenced,
+                'last_reason': self.last_reason, 'progress': round(self.progress(), 3),
+                'referenced': self.referenced,
                 'position_confirmed': self.position_confirmed,
                 'calibration': self.settings.compensation.calibration_file or 'none',
                 'tracker_registration': 'received' if self.registration is not None

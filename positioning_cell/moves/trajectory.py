@@ -65,6 +65,25 @@ class Trajectory:
         return float(self.times[-1])
 
 
+def pose_at(traj: Trajectory, t: float) -> tuple[FloatArray, FloatArray]:
+    """The planned platform pose of ``traj`` at ``t`` s from its start (held at its ends):
+    position (3,) m linear between the two samples around ``t``, quaternion (4,) their
+    normalised linear blend (the samples are a period apart: within 1e-9 rad of the slerp for
+    the turns of a move).
+    """
+    times = traj.times
+    if times.size == 1:
+        return traj.position[0].copy(), traj.quaternion[0].copy()
+    t = min(max(float(t), float(times[0])), float(times[-1]))
+    k = int(np.clip(np.searchsorted(times, t, side='right') - 1, 0, times.size - 2))
+    span = float(times[k + 1] - times[k])
+    w = 0.0 if span <= 0.0 else (t - float(times[k])) / span
+    p = (1.0 - w) * traj.position[k] + w * traj.position[k + 1]
+    q0, q1 = traj.quaternion[k], traj.quaternion[k + 1]
+    q = (1.0 - w) * q0 + w * (q1 if float(np.dot(q0, q1)) >= 0.0 else -q1)
+    return p, q / np.linalg.norm(q)
+
+
 def time_law(duration_accel: float, peak: float, total: float,
              times: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Normalised path s(t) ∈ [0, 1] and ṡ(t) for a profile whose speed rises as

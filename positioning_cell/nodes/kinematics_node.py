@@ -135,6 +135,7 @@ class PositionerNode(Node):
             return
         msg = m.pose_stamped(estimate.position, estimate.quaternion, self._now())
         self.pub_pose.publish(msg)
+        self.operator.publish_setpoint(msg.header.stamp)
         self._estimates += 1
         if self._estimates % self.params.settings.markers_every == 0:
             self.pub_markers.publish(m.platform_markers(self.mover.mech, estimate.position,

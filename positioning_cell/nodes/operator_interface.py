@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from geometry_msgs.msg import PoseStamped
 from positioning_cell_interfaces import action as act
 from positioning_cell_interfaces import srv
 from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
@@ -26,7 +27,7 @@ from positioning_cell.moves.outcomes import Attained
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.ros.goals import run_goal
-from positioning_cell.ros.qos import LATCHED_QOS, SERVICE_QOS
+from positioning_cell.ros.qos import LATCHED_QOS, SERVICE_QOS, STREAM_QOS
 
 #: The action feedback's phase of each state.
 _PHASES = {State.MOVING: act.MoveToPose.Feedback.MOVING,
@@ -60,6 +61,7 @@ class OperatorInterface:
                          cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)]
         self._pub_systems = node.create_publisher(CoordinateSystemsMsg, names.COORDINATE_SYSTEMS,
                                                   LATCHED_QOS)
+        self._pub_setpoint = node.create_publisher(PoseStamped, names.SETPOINT, STREAM_QOS)
         self._publish_systems()
 
     def _publish_systems(self) -> None:
@@ -69,6 +71,12 @@ class OperatorInterface:
 
     def _now(self) -> Any:
         return self.node.get_clock().now().to_msg()
+
+    def publish_setpoint(self, stamp: Any) -> None:
+        """The running trajectory's setpoint on /positioner/setpoint (nothing when none runs)."""
+        setpoint = self.controller.mover.setpoint()
+        if setpoint is not None:
+            self._pub_setpoint.publish(m.pose_stamped(*setpoint, stamp))
 
     # -- moves ----------------------------------------------------------------------------------
     def _resolve(self, command: MoveCommand) -> tuple[Any, Any] | Any:

@@ -13,6 +13,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from positioning_cell_interfaces.action import Home, MoveToPose
 from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
 from rcl_interfaces.msg import ParameterEvent, ParameterValue
 from rcl_interfaces.srv import GetParameters
@@ -139,6 +140,12 @@ class WatchInputs:
         self._on_measurement = on_measurement
         self.rejected = 0
         node.create_subscription(PoseStamped, names.TARGET, self._target, LATCHED_QOS)
+        node.create_subscription(PoseStamped, names.SETPOINT, self._setpoint, WATCH_QOS)
+        # The goals' own feedback (any client's move or homing): phase and progress at the
+        # action's period, finer than the positioner's 1 Hz status.
+        for action, name in ((MoveToPose, names.MOVE_ACTION), (Home, names.HOME_ACTION)):
+            node.create_subscription(action.Impl.FeedbackMessage, f'{name}/_action/feedback',
+                                     self._feedback, WATCH_QOS)
         # The estimate comes at the encoders' rate (100 Hz) and only the newest is drawn: taken
         # serialised, deserialised once per send (:meth:`snapshot`).
         self._estimate_raw: bytes | None = None
@@ -176,6 +183,14 @@ class WatchInputs:
         self._guard(names.TARGET, lambda: self.state.command(
             *m.pose_arrays(msg.pose), m.seconds(msg.header.stamp)))
 
+    def _feedback(self, msg: Any) -> None:
+        now = self.node.get_clock().now().nanoseconds * 1e-9
+        self.state.goal_progress(str(msg.feedback.phase_name), float(msg.feedback.progress), now)
+
+    def _setpoint(self, msg: PoseStamped) -> None:
+        self._guard(names.SETPOINT, lambda: self.state.setpoint(
+            *m.pose_arrays(msg.pose), m.seconds(msg.header.stamp)))
+
     def _estimate(self, raw: bytes) -> None:
         self._estimate_raw = raw
 
@@ -203,7 +218,11 @@ class WatchInputs:
         now = self.node.get_clock().now().nanoseconds * 1e-9
         for status in msg.status:
             if status.name == names.STATUS_POSITIONER:
-                self.state.positioner(Status(m.status_level(status), status.message, now))
+                self.state.positioner(Status(m.status_level(status), status.message, now,
+                                             m.status_values(status)))
+            elif status.name == names.STATUS_DRIVER:
+                self.state.driver(Status(m.status_level(status), status.message, now,
+                                         m.status_values(status)))
             elif status.name == names.STATUS_MONITOR_VERDICT:
                 self.state.verdict(Status(m.status_level(status), status.message, now))
             elif status.name == names.STATUS_RECORDER:

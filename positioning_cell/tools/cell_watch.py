@@ -81,6 +81,20 @@ def _status_text(label: str, status: Status | None, missing: str) -> Text:
         status.level, '')).append(status.message)
 
 
+def motion_line(snapshot: Snapshot, now: float) -> Text:
+    """Phase and progress, mode, the drives' state, and what the deviation is against: the
+    moving setpoint while a trajectory runs, else the goal."""
+    v = {} if snapshot.positioner is None else snapshot.positioner.values
+    phase = snapshot.phase(now)
+    drives = '?' if snapshot.driver is None else (
+        ('on' if snapshot.driver.values.get('enabled', '').lower() == 'true' else 'OFF')
+        + f' ({snapshot.driver.values.get("state", "?")})')
+    against = snapshot.reference[0]
+    return Text.assemble(('motion: ', 'bold'), f'{phase}  mode {v.get("mode", "?")}  '
+                         f'drives {drives}  ', ('vs the moving setpoint' if against ==
+                                                'setpoint' else 'vs the goal', 'dim'))
+
+
 def render(snapshot: Snapshot, frame: str, now: float) -> Group:
     """The watch window of ``snapshot`` in ``frame`` at wall time ``now`` (s)."""
     dev = snapshot.deviation(frame)
@@ -89,6 +103,7 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
     record = snapshot.recording(now)
     parts: list[Any] = [
         title, _status_text('positioner', snapshot.positioner, 'no status yet'),
+        motion_line(snapshot, now),
         _status_text('last verdict', snapshot.verdict, 'none since the watch started'),
         _status_text('recording', None if record is None else
                      Status(record.level, record.message, now), 'no recorder seen')]

@@ -6,6 +6,7 @@ setters. Poses in ``base`` (m, unit quaternions x, y, z, w), times in s."""
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -28,11 +29,18 @@ DEFAULT_TOLERANCES = Tolerances()
 @dataclass(frozen=True)
 class Status:
     """A diagnostic status as the watch shows it: ``level`` 0 OK, 1 WARN, 2 ERROR, 3 STALE,
-    its ``message`` and the time it came (s)."""
+    its ``message``, the time it came (s) and its key-values."""
 
     level: int
     message: str
     stamp: float
+    values: Mapping[str, str] = field(default_factory=dict)
+
+
+#: The positioner's states in which a trajectory runs: the watch judges against its setpoint.
+MOVING_STATES = frozenset({'moving', 'correcting', 'homing'})
+#: A goal's feedback older than this (s) no longer gives the progress (the status does).
+FEEDBACK_FRESH = 1.0
 
 
 @dataclass(frozen=True)
@@ -64,6 +72,42 @@ class Snapshot:
     recorder: RecorderReport | None = None
     user_in_base: Pose | None = None
     object_in_platform: Pose | None = None
+    setpoint: Pose | None = None
+    setpoint_stamp: float = 0.0
+    driver: Status | None = None
+    #: The newest goal feedback: phase, progress (0..1) and when it came (s); None: none yet.
+    progress: tuple[str, float, float] | None = None
+
+    def phase(self, now: float) -> str:
+        """The positioner's phase for people: its state, with the running goal's progress
+        while it moves (from the goal's feedback if one came within :data:`FEEDBACK_FRESH` s,
+        else from its status)."""
+        v = {} if self.positioner is None else self.positioner.values
+        phase = v.get('state', '?')
+        if not self.moving:
+            return phase
+        if self.progress is not None and now - self.progress[2] <= FEEDBACK_FRESH:
+            return f'{phase} {self.progress[1] * 100.0:.0f}%'
+        try:
+            return f'{phase} {float(v.get("progress", "")) * 100.0:.0f}%'
+        except ValueError:
+            return phase
+
+    @property
+    def moving(self) -> bool:
+        """The positioner's last status says a trajectory runs."""
+        return (self.positioner is not None
+                and self.positioner.values.get('state', '') in MOVING_STATES)
+
+    @property
+    def reference(self) -> tuple[str, Pose | None]:
+        """What the measured pose is judged against: the moving setpoint while a trajectory
+        runs (once the positioner has published one since the last target), else the goal
+        (the last target)."""
+        if (self.moving and self.setpoint is not None
+                and self.setpoint_stamp >= self.commanded_stamp):
+            return 'setpoint', self.setpoint
+        return 'goal', self.commanded
 
     @property
     def judged_tolerances(self) -> Tolerances:
@@ -86,7 +130,8 @@ class Snapshot:
     def deviation(self, frame: str) -> Deviation | None:
         """The measured pose's :class:`~positioning_cell.watch.deviation.Deviation` from the
         command in ``frame``; None until both have come (and, for ``user``, the machine)."""
-        if self.commanded is None or self.measured is None or self.measured_covariance is None:
+        reference = self.reference[1]
+        if reference is None or self.measured is None or self.measured_covariance is None:
             return None
         if self.mech is None:
             if frame == USER_FRAME:
@@ -94,7 +139,7 @@ class Snapshot:
             mech = Mechanism()  # not read in base: the platform pose itself
         else:
             mech = self.mech
-        return deviation(self.commanded, self.measured, self.measured_covariance, frame,
+        return deviation(reference, self.measured, self.measured_covariance, frame,
                          self.systems, mech, self.judged_tolerances)
 
     def scene(self, magnification: float) -> Scene | None:
@@ -132,6 +177,10 @@ class WatchState:
     def command(self, position: FloatArray, quaternion: FloatArray, stamp: float) -> None:
         """The commanded platform pose (/positioner/target)."""
         self._update(commanded=_pose(position, quaternion), commanded_stamp=float(stamp))
+
+    def setpoint(self, position: FloatArray, quaternion: FloatArray, stamp: float) -> None:
+        """The running trajectory's setpoint (/positioner/setpoint)."""
+        self._update(setpoint=_pose(position, quaternion), setpoint_stamp=float(stamp))
 
     def estimate(self, position: FloatArray, quaternion: FloatArray) -> None:
         """The positioner's estimate from the encoders (/positioner/pose)."""
@@ -180,6 +229,14 @@ class WatchState:
     def positioner(self, status: Status) -> None:
         """The positioner's state (its status on /diagnostics)."""
         self._update(positioner=status)
+
+    def goal_progress(self, phase: str, progress: float, stamp: float) -> None:
+        """A running goal's feedback: its phase and progress (0..1)."""
+        self._update(progress=(phase, float(progress), float(stamp)))
+
+    def driver(self, status: Status) -> None:
+        """The leg driver's state (its status on /diagnostics)."""
+        self._update(driver=status)
 
     def verdict(self, status: Status) -> None:
         """The accuracy monitor's last settled-pose verdict."""
