@@ -154,7 +154,9 @@ def test_common_options_and_default_timeouts() -> None:
     assert cp.default_timeout('status') < 60.0
     assert parse('move', '0', '0', '0', '0', '0', '0', '--timeout', '5').timeout == 5.0
     assert {parse(*a).command for a in (['status'], ['move', *'000000'], ['check', *'000000'],
-                                         ['frames', 'get'], ['frames', 'set'], ['home'],
+                                         ['frames', 'get'], ['frames', 'set'],
+                                         ['frames', 'define', 'user', 'w', *'000000'],
+                                         ['frames', 'use'], ['home'],
                                          ['stop'], ['jog', 'leg1_theta', '1'], ['speed'],
                                          ['limits', 'get'], ['limits', 'set'],
                                          ['limits', 'reset'], ['watch'])} == \
@@ -297,6 +299,60 @@ def test_limits_reset_sets_the_factory_box_and_no_user_box() -> None:
     np.testing.assert_array_equal(machine[0], client.factory[0])
     np.testing.assert_array_equal(machine[1], client.factory[1])
     assert np.all(user[0] == -np.inf) and np.all(user[1] == np.inf)
+
+
+class FramesClient:
+    """The operator client's named coordinate systems, as the positioner keeps them."""
+
+    def __init__(self) -> None:
+        from positioning_cell.frames.named import NamedSystems
+
+        self.named = NamedSystems()
+
+    def define_coordinate_system(self, kind: str, name: str, value: Transform,
+                                 activate: bool) -> tuple[bool, str]:
+        self.named = self.named.defined(kind, name, value, activate=activate)
+        return True, 'written'
+
+    def select_coordinate_systems(self, user: str, obj: str) -> tuple[bool, str]:
+        try:
+            self.named = self.named.selected(user, obj)
+        except Exception as err:  # the positioner answers with the reason
+            return False, str(err)
+        return True, 'written'
+
+    def coordinate_systems(self) -> tuple[CoordinateSystems, str]:
+        return self.named.active, '/f.yaml'
+
+    def system_names(self) -> cf.SystemNames:
+        n = self.named
+        return cf.SystemNames(n.active_user, n.active_object, sorted(n.users),
+                              sorted(n.objects))
+
+
+def _frames(client: FramesClient, *line: str) -> Any:
+    from positioning_cell.tools import cell_commands
+
+    session = cell_commands.Session(client, Signals(),  # type: ignore[arg-type]
+                                    cell.Output(True, io.StringIO(), io.StringIO()))
+    args = parse('frames', *line)
+    return cell_commands.COMMANDS[args.command](session, args)
+
+
+def test_frames_define_and_use_name_the_systems_and_show_them() -> None:
+    client = FramesClient()
+    report = _frames(client, 'define', 'user', 'work', '10', '0', '0', '0', '0', '90', '--use')
+    assert report.code == Exit.OK
+    doc = report.fields['coordinate_systems']
+    assert (doc['active_user'], doc['user_names']) == ('work', ['default', 'work'])
+    np.testing.assert_allclose(doc['user']['human'], [10, 0, 0, 0, 0, 90], atol=1e-9)
+    assert "user CS 'work' (in machine)" in report.text
+    assert 'stored                   user: default, work; object: default' in report.text
+    report = _frames(client, 'use', '--user', 'default')
+    assert report.code == Exit.OK and report.fields['coordinate_systems']['active_user'] == \
+        'default'
+    refused = _frames(client, 'use', '--object', 'tool')
+    assert refused.code == Exit.REFUSED and "no object system named 'tool'" in refused.error
 
 
 def test_jog_exit_codes() -> None:
@@ -809,6 +865,7 @@ def test_output_one_json_line_or_text() -> None:
 
 # -- --help --------------------------------------------------------------------------------------
 HELPS = [[], ['status'], ['move'], ['check'], ['frames'], ['frames', 'get'], ['frames', 'set'],
+         ['frames', 'define'], ['frames', 'use'],
          ['home'], ['stop'], ['jog'], ['speed'], ['limits'], ['limits', 'get'],
          ['limits', 'set'], ['limits', 'reset'], ['watch'], ['up']]
 

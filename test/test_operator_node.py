@@ -29,10 +29,12 @@ from positioning_cell_interfaces.msg import (
 from positioning_cell_interfaces.msg import Speeds as SpeedsMsg
 from positioning_cell_interfaces.srv import (
     CheckPose,
+    DefineCoordinateSystem,
     GetCoordinateSystems,
     GetLimits,
     Jog,
     MoveToPose,
+    SelectCoordinateSystems,
     SetCoordinateSystems,
     SetLimits,
     SetSpeed,
@@ -112,6 +114,51 @@ def test_coordinate_systems_are_persisted_and_never_move(positioner: Positioner,
     assert not refused.success and 'quaternion' in refused.reason
     assert frames_file.load(got.file).user == saved.user  # nothing changed
     assert len(published) == 2  # a refused set publishes nothing
+
+
+def test_named_systems_are_stored_switched_and_persisted(positioner: Positioner) -> None:
+    """Several user and object systems by name, one active of each (PI's work and tool
+    systems): define, switch, refuse an unknown name with nothing changed, and a restarted
+    node reads them back."""
+    client = positioner.client
+    work = Transform.from_human([5, 0, 0, 0, 0, 90])
+
+    def get() -> Any:
+        return client.call(GetCoordinateSystems, '/positioner/get_coordinate_systems',
+                           GetCoordinateSystems.Request())
+
+    def define(kind: str, name: str, t: Transform, activate: bool) -> Any:
+        return client.call(DefineCoordinateSystem, '/positioner/define_coordinate_system',
+                           DefineCoordinateSystem.Request(kind=kind, name=name,
+                                                          pose=pose_msg(*t.to_pq()),
+                                                          activate=activate))
+
+    def select(user: str, obj: str) -> Any:
+        return client.call(SelectCoordinateSystems, '/positioner/select_coordinate_systems',
+                           SelectCoordinateSystems.Request(user=user, object=obj))
+
+    assert define('user', 'work', work, True).success
+    assert define('object', 'tool', OBJECT, False).success
+    got = get()
+    assert (got.active_user, got.active_object) == ('work', 'default')
+    assert list(got.user_names) == ['default', 'work'] and list(got.object_names) == \
+        ['default', 'tool']
+    np.testing.assert_allclose(Transform.from_pq(*pose_arrays(got.systems.user)).to_pose6(),
+                               work.to_pose6(), atol=1e-12)
+    assert select('', 'tool').success  # the user system stays
+    got = get()
+    assert (got.active_user, got.active_object) == ('work', 'tool')
+    refused = select('nowhere', '')
+    assert not refused.success and "no user system named 'nowhere'" in refused.reason
+    refused = define('user', 'bad name', work, True)
+    assert not refused.success and 'a letter, then letters' in refused.reason
+    assert (get().active_user, get().active_object) == ('work', 'tool')  # nothing changed
+    saved = frames_file.load_named(got.file)  # what a restarted node reads
+    assert (saved.active_user, saved.active_object) == ('work', 'tool')
+    assert set(saved.users) == {'default', 'work'}
+    assert select('default', 'default').success
+    assert Transform.from_pq(*pose_arrays(get().systems.user)) == Transform.identity()
+    assert not positioner.driver.trajectories  # switching moved nothing
 
 
 def test_a_user_move_commands_t_user_g_t_object_inverse(positioner: Positioner) -> None:

@@ -6,6 +6,7 @@ numpy/scipy; no ROS.
   R = Rz·Ry·Rx);
 - :mod:`.systems`: the machine CS, the user and object CS, user positions and move requests
   resolved to the platform goal in ``base``;
+- :mod:`.named`: several user and object systems stored by name, one active of each;
 - :mod:`.file`: the coordinate systems file (YAML, written atomically).
 """
 

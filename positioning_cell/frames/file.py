@@ -1,7 +1,11 @@
 """The coordinate systems file: the user and object CS as they survive a restart.
 
-One YAML mapping under ``coordinate_systems:`` with exactly the keys ``user``
-(T_machine_user) and ``object`` (T_platform_object), each with ``position_m`` (3 numbers, m),
+One YAML mapping under ``coordinate_systems:`` with the keys ``user`` (T_machine_user) and
+``object`` (T_platform_object) of the active systems and, for the named systems
+(:mod:`positioning_cell.frames.named`), ``active`` (``{user: NAME, object: NAME}``) and
+``named`` (``{user: {NAME: system, ...}, object: {...}}``); a file without the last two (the
+single form) holds one system of each kind, named ``default``. The active named systems must
+be the ``user`` and ``object`` entries. Each system has ``position_m`` (3 numbers, m),
 ``quaternion_xyzw`` (4 numbers, unit within 1e-6) and, optionally, ``human``
 (``'Tx Ty Tz mm Rx Ry Rz deg'``, R = Rz·Ry·Rx, six decimals). The SI fields are the truth;
 ``human`` is for people and, when present, must agree with them (to its printed precision), so
@@ -39,12 +43,16 @@ import yaml
 from positioning_cell import files
 from positioning_cell.core.poses import as_unit_quaternions
 from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.frames.named import KINDS, NamedSystems
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.frames.transforms import Transform, distance, format_human
 
-#: The top-level key, and the systems under it in file order.
+#: The top-level key, and the systems under it in file order; then the named systems' keys.
 ROOT_KEY = 'coordinate_systems'
-SYSTEM_KEYS = ('user', 'object')
+SYSTEM_KEYS = KINDS
+NAMED_KEYS = ('active', 'named')
+#: How closely the active named systems must equal the ``user`` and ``object`` entries.
+SAME_POSITION, SAME_ANGLE = 1e-12, 1e-12
 #: The keys of one system: required, then optional.
 REQUIRED_KEYS = ('position_m', 'quaternion_xyzw')
 OPTIONAL_KEYS = ('human',)
@@ -57,7 +65,8 @@ _HEADER = ('# Coordinate systems of the positioner (positioning_cell.frames.file
            '# platform frame; its origin is the pivot). position_m and quaternion_xyzw (SI) are\n'
            "# the values; 'human' (mm, deg, R = Rz*Ry*Rx) must agree with them.\n")
 
-__all__ = ['CoordinateSystemsFileError', 'document', 'dump', 'load', 'parse', 'write']
+__all__ = ['CoordinateSystemsFileError', 'document', 'dump', 'load', 'load_named', 'parse',
+           'parse_named', 'write']
 
 
 class CoordinateSystemsFileError(ConfigError):
@@ -72,18 +81,25 @@ def _entry(t: Transform) -> dict[str, Any]:
             'human': format_human(t.to_human())}
 
 
-def document(systems: CoordinateSystems) -> dict[str, Any]:
-    """The file's content (module docstring) for ``systems``."""
-    return {ROOT_KEY: {'user': _entry(systems.user), 'object': _entry(systems.object)}}
+def document(systems: CoordinateSystems | NamedSystems) -> dict[str, Any]:
+    """The file's content (module docstring) for ``systems`` (a single pair: named
+    ``default``)."""
+    named = systems if isinstance(systems, NamedSystems) else NamedSystems.single(systems)
+    active = named.active
+    return {ROOT_KEY: {
+        'user': _entry(active.user), 'object': _entry(active.object),
+        'active': {kind: named.active_name(kind) for kind in KINDS},
+        'named': {kind: {name: _entry(t) for name, t in named.of(kind).items()}
+                  for kind in KINDS}}}
 
 
-def dump(systems: CoordinateSystems) -> str:
+def dump(systems: CoordinateSystems | NamedSystems) -> str:
     """The file's text for ``systems``: a comment header, then :func:`document` in YAML."""
     return _HEADER + yaml.safe_dump(document(systems), sort_keys=False,
                                     default_flow_style=None, width=99)
 
 
-def write(path: str | Path, systems: CoordinateSystems) -> Path:
+def write(path: str | Path, systems: CoordinateSystems | NamedSystems) -> Path:
     """Write ``systems`` to ``path`` atomically (module docstring), its folder created when
     missing (``$ROS_HOME/positioning_cell`` on a fresh ROS_HOME); the path written.
     CoordinateSystemsFileError if it cannot be written (the old file then stays as it was)."""
@@ -125,21 +141,31 @@ def _sync_directory(directory: Path) -> None:
 
 # -- reading -------------------------------------------------------------------------------------
 def load(path: str | Path) -> CoordinateSystems:
-    """The coordinate systems of the file ``path``; the identity systems if it does not
-    exist. CoordinateSystemsFileError naming the file and the problem otherwise (read by
-    :func:`positioning_cell.files.load_yaml`: a regular file of at most
-    :data:`~positioning_cell.files.COORDINATE_SYSTEMS_FILE`'s size; a short message)."""
+    """The active coordinate systems of the file ``path`` (:func:`load_named`)."""
+    return load_named(path).active
+
+
+def load_named(path: str | Path) -> NamedSystems:
+    """The named coordinate systems of the file ``path``; the identity systems, named
+    ``default``, if it does not exist. CoordinateSystemsFileError naming the file and the
+    problem otherwise (read by :func:`positioning_cell.files.load_yaml`: a regular file of at
+    most :data:`~positioning_cell.files.COORDINATE_SYSTEMS_FILE`'s size; a short message)."""
     data = files.load_yaml(path, files.COORDINATE_SYSTEMS_FILE, CoordinateSystemsFileError,
                            missing_ok=True)
     if data is files.MISSING:
-        return CoordinateSystems()
+        return NamedSystems()
     with files.brief_errors():
-        return parse(data, files.describe(files.COORDINATE_SYSTEMS_FILE, path))
+        return parse_named(data, files.describe(files.COORDINATE_SYSTEMS_FILE, path))
 
 
 def parse(data: Any, where: str = 'coordinate systems') -> CoordinateSystems:
-    """The coordinate systems of a loaded document (:func:`document`'s form);
-    CoordinateSystemsFileError prefixed with ``where`` if it is not one."""
+    """The active coordinate systems of a loaded document (:func:`parse_named`)."""
+    return parse_named(data, where).active
+
+
+def parse_named(data: Any, where: str = 'coordinate systems') -> NamedSystems:
+    """The named coordinate systems of a loaded document (:func:`document`'s form, or the
+    single form); CoordinateSystemsFileError prefixed with ``where`` if it is not one."""
     if not isinstance(data, dict) or set(data) != {ROOT_KEY}:
         found = (files.excerpt(sorted(map(str, data))) if isinstance(data, dict)
                  else type(data).__name__)
@@ -148,9 +174,38 @@ def parse(data: Any, where: str = 'coordinate systems') -> CoordinateSystems:
     body = data[ROOT_KEY]
     if not isinstance(body, dict):
         raise CoordinateSystemsFileError(f'{where}: "{ROOT_KEY}" is not a mapping')
-    _check_keys(body, SYSTEM_KEYS, (), ROOT_KEY, where)
+    _check_keys(body, SYSTEM_KEYS, NAMED_KEYS, ROOT_KEY, where)
     user, obj = (_system(body[name], name, where) for name in SYSTEM_KEYS)
-    return CoordinateSystems(user=user, object=obj)
+    given = [k for k in NAMED_KEYS if k in body]
+    if not given:
+        return NamedSystems.single(CoordinateSystems(user=user, object=obj))
+    if len(given) != len(NAMED_KEYS):
+        raise CoordinateSystemsFileError(f'{where}: {ROOT_KEY} has {given[0]} without '
+                                         f'{(set(NAMED_KEYS) - set(given)).pop()}')
+    active, named = body['active'], body['named']
+    for key, value in (('active', active), ('named', named)):
+        if not isinstance(value, dict):
+            raise CoordinateSystemsFileError(f'{where}: {key} is not a mapping')
+        _check_keys(value, KINDS, (), key, where)
+    stored = {}
+    for kind in KINDS:
+        if not isinstance(named[kind], dict):
+            raise CoordinateSystemsFileError(f'{where}: named.{kind} is not a mapping')
+        stored[kind] = {str(name): _system(entry, f'named.{kind}.{name}', where)
+                        for name, entry in named[kind].items()}
+    try:
+        systems = NamedSystems(stored['user'], stored['object'], str(active['user']),
+                               str(active['object']))
+    except InputError as err:
+        raise CoordinateSystemsFileError(f'{where}: {err}') from None
+    for kind, value in zip(KINDS, (user, obj), strict=True):
+        dp, angle = distance(value, systems.of(kind)[systems.active_name(kind)])
+        if dp > SAME_POSITION or angle > SAME_ANGLE:
+            raise CoordinateSystemsFileError(
+                f'{where}: {kind} is not the active named system '
+                f'{systems.active_name(kind)!r} (off by {dp * 1e3:.6f} mm, '
+                f'{math.degrees(angle):.6f} deg): the two must agree')
+    return systems
 
 
 def _check_keys(entry: dict[Any, Any], required: tuple[str, ...], optional: tuple[str, ...],

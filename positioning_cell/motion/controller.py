@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.errors import InputError
 from positioning_cell.frames import file as frames_file
+from positioning_cell.frames.named import NamedSystems
 from positioning_cell.frames.systems import (
     ABSOLUTE,
     MOVE_KINDS,
@@ -98,7 +100,9 @@ class Controller:
         self._lock = threading.Lock()
         self.settings = settings
         self.systems_file = systems_path(settings.coordinate_systems_file)
-        self.systems = frames_file.load(self.systems_file)  # ConfigError: no start
+        #: The stored systems by name; ``systems``, the active pair every request uses.
+        self.named = frames_file.load_named(self.systems_file)  # ConfigError: no start
+        self.systems = self.named.active
         self.maxima = Speeds(settings.max_linear_speed, settings.max_angular_speed,
                              settings.max_linear_acceleration,
                              settings.max_angular_acceleration)
@@ -114,20 +118,35 @@ class Controller:
 
     # -- coordinate systems -------------------------------------------------------------------
     def set_systems(self, user: Transform, obj: Transform) -> Path:
-        """New user and object coordinate systems, persisted (the file written); never moves
-        the machine. The user box must still map into the machine box (InputError, nothing
-        changed, otherwise)."""
-        systems = CoordinateSystems(user, obj)
+        """New values of the active user and object coordinate systems, persisted (the file
+        written); never moves the machine. The user box must still map into the machine box
+        (InputError, nothing changed, otherwise)."""
+        return self._apply(lambda named: named.with_active(CoordinateSystems(user, obj)))
+
+    def define_system(self, kind: str, name: str, value: Transform, activate: bool) -> Path:
+        """Store system ``name`` of ``kind`` (``user``: in the machine CS; ``object``: in the
+        platform frame), made active if ``activate``; as :meth:`set_systems` otherwise."""
+        return self._apply(lambda named: named.defined(kind, name, value, activate=activate))
+
+    def select_systems(self, user: str, obj: str) -> Path:
+        """Make the named systems active ('' keeps a kind); as :meth:`set_systems`."""
+        return self._apply(lambda named: named.selected(user, obj))
+
+    def _apply(self, change: Callable[[NamedSystems], NamedSystems]) -> Path:
+        """The named systems changed by ``change``, the active pair checked against the limit
+        layers, then persisted; on any error (InputError, a file that cannot be written)
+        nothing changed."""
         with self._lock:
-            previous = self.systems
-            self.systems = systems
+            previous = self.named, self.systems
+            named = change(self.named)
+            self.named, self.systems = named, named.active
             try:
                 self.layers = self.layers.validated(self.layers.machine_box,
                                                     self.layers.user_box,
                                                     self._user_to_machine)
-                path = frames_file.write(self.systems_file, systems)
+                path = frames_file.write(self.systems_file, named)
             except Exception:
-                self.systems = previous
+                self.named, self.systems = previous
                 raise
         return path
 
@@ -155,10 +174,13 @@ class Controller:
         return self.user_position(*goal)
 
     def status_values(self) -> dict[str, str | float]:
-        """The operator's settings in force, for /diagnostics: the coordinate systems (six
-        numbers, mm and deg), their file, the speeds (m/s, rad/s, m/s², rad/s²)."""
+        """The operator's settings in force, for /diagnostics: the active coordinate systems
+        (their names; six numbers, mm and deg), their file, the speeds (m/s, rad/s, m/s²,
+        rad/s²)."""
         speeds = self.speeds
-        return {'user_cs': format_human(self.systems.user.to_human()),
+        return {'user_cs_name': self.named.active_user,
+                'object_cs_name': self.named.active_object,
+                'user_cs': format_human(self.systems.user.to_human()),
                 'object_cs': format_human(self.systems.object.to_human()),
                 'coordinate_systems_file': str(self.systems_file),
                 'linear_speed': speeds.linear_speed, 'angular_speed': speeds.angular_speed,

@@ -49,6 +49,10 @@ class OperatorInterface:
                 (names.CHECK_POSE, srv.CheckPose, self._srv_check),
                 (names.SET_COORDINATE_SYSTEMS, srv.SetCoordinateSystems, self._srv_set_systems),
                 (names.GET_COORDINATE_SYSTEMS, srv.GetCoordinateSystems, self._srv_get_systems),
+                (names.DEFINE_COORDINATE_SYSTEM, srv.DefineCoordinateSystem,
+                 self._srv_define_system),
+                (names.SELECT_COORDINATE_SYSTEMS, srv.SelectCoordinateSystems,
+                 self._srv_select_systems),
                 (names.SET_LIMITS, srv.SetLimits, self._srv_set_limits),
                 (names.GET_LIMITS, srv.GetLimits, self._srv_get_limits),
                 (names.SET_SPEED, srv.SetSpeed, self._srv_set_speed),
@@ -196,9 +200,24 @@ class OperatorInterface:
         return response
 
     def _srv_set_systems(self, request: Any, response: Any) -> Any:
+        return self._systems_changed(response, lambda: self.controller.set_systems(
+            om.transform(request.systems.user), om.transform(request.systems.object)))
+
+    def _srv_define_system(self, request: Any, response: Any) -> Any:
+        return self._systems_changed(response, lambda: self.controller.define_system(
+            str(request.kind), str(request.name), om.transform(request.pose),
+            bool(request.activate)))
+
+    def _srv_select_systems(self, request: Any, response: Any) -> Any:
+        return self._systems_changed(response, lambda: self.controller.select_systems(
+            str(request.user), str(request.object)))
+
+    def _systems_changed(self, response: Any, change: Callable[[], Any]) -> Any:
+        """A change of the coordinate systems (``change()`` persists it and gives the file):
+        the answer, the systems in force published and on the status; refused with the
+        reason, nothing changed."""
         try:
-            path = self.controller.set_systems(om.transform(request.systems.user),
-                                               om.transform(request.systems.object))
+            path = change()
             response.success, response.reason = True, f'coordinate systems written to {path}'
             self._publish_systems()
         except (InputError, PositioningError) as err:
@@ -210,6 +229,9 @@ class OperatorInterface:
         op = self.controller
         response.systems = om.systems_msg(op.systems.user, op.systems.object)
         response.file = str(op.systems_file)
+        named = op.named
+        response.active_user, response.active_object = named.active_user, named.active_object
+        response.user_names, response.object_names = sorted(named.users), sorted(named.objects)
         return response
 
     def _srv_set_limits(self, request: Any, response: Any) -> Any:

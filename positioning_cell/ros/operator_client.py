@@ -16,9 +16,11 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import Home, MoveToPose
 from positioning_cell_interfaces.srv import (
     CheckPose,
+    DefineCoordinateSystem,
     GetCoordinateSystems,
     GetLimits,
     Jog,
+    SelectCoordinateSystems,
     SetCoordinateSystems,
     SetLimits,
     SetSpeed,
@@ -29,11 +31,18 @@ from rclpy.node import Node
 from positioning_cell import names
 from positioning_cell.core.mechanism import MECHANISM_PREFIX, Mechanism
 from positioning_cell.frames.systems import CoordinateSystems
+from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.ros import cell_messages as cm
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.ros.client import CellClient, GoalClient
-from positioning_cell.ros.messages import measurement, pose_arrays, status_level, status_values
+from positioning_cell.ros.messages import (
+    measurement,
+    pose_arrays,
+    pose_msg,
+    status_level,
+    status_values,
+)
 from positioning_cell.ros.parameters import parse_answer, requested_names
 from positioning_cell.ros.qos import LATCHED_QOS, LATEST_QOS, STREAM_QOS
 from positioning_cell.ros.watch_inputs import RemoteParameters, WatchInputs
@@ -163,6 +172,28 @@ class OperatorClient:
         response = self._call(GetCoordinateSystems, names.GET_COORDINATE_SYSTEMS,
                               GetCoordinateSystems.Request())
         return cm.systems_of(response.systems), str(response.file)
+
+    def system_names(self) -> cf.SystemNames:
+        """GetCoordinateSystems: the named systems (active and stored names)."""
+        r = self._call(GetCoordinateSystems, names.GET_COORDINATE_SYSTEMS,
+                       GetCoordinateSystems.Request())
+        return cf.SystemNames(str(r.active_user), str(r.active_object),
+                              [str(n) for n in r.user_names], [str(n) for n in r.object_names])
+
+    def define_coordinate_system(self, kind: str, name: str, value: Transform,
+                                 activate: bool) -> tuple[bool, str]:
+        """DefineCoordinateSystem: (taken, why)."""
+        response = self._call(DefineCoordinateSystem, names.DEFINE_COORDINATE_SYSTEM,
+                              DefineCoordinateSystem.Request(
+                                  kind=kind, name=name, pose=pose_msg(*value.to_pq()),
+                                  activate=activate))
+        return bool(response.success), str(response.reason)
+
+    def select_coordinate_systems(self, user: str, obj: str) -> tuple[bool, str]:
+        """SelectCoordinateSystems ('' keeps a kind): (taken, why)."""
+        response = self._call(SelectCoordinateSystems, names.SELECT_COORDINATE_SYSTEMS,
+                              SelectCoordinateSystems.Request(user=user, object=obj))
+        return bool(response.success), str(response.reason)
 
     def set_coordinate_systems(self, systems: CoordinateSystems) -> tuple[bool, str]:
         """SetCoordinateSystems: (taken, why)."""

@@ -14,6 +14,8 @@ instead (:mod:`positioning_cell.tools.cell_format`: ``command``, ``exit_code``, 
     cell check TX TY TZ RX RY RZ [same options]  the checks of that move, nothing moves
     cell frames get
     cell frames set [--user 6] [--object 6]      one left out stays as it is
+    cell frames define user|object NAME 6 [--use]   store a named system (and use it)
+    cell frames use [--user NAME] [--object NAME]   switch the active named systems
     cell watch [--frame user|base] [--rate HZ]   the live watch window; q or Ctrl-C quits
     cell home                                    reference if needed, then home (action)
     cell stop                                    controlled stop of whatever runs

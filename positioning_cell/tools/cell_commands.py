@@ -19,10 +19,11 @@ import numpy as np
 from positioning_cell import names
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.systems import CoordinateSystems
+from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.speed import Speeds as LibrarySpeeds
 from positioning_cell.polling import wait_until
 from positioning_cell.tools import cell_format as cf
-from positioning_cell.tools.cell_parser import default_timeout
+from positioning_cell.tools.cell_parser import default_timeout, human_pose
 from positioning_cell.tools.cell_watch import watch
 from positioning_cell.tools.exits import Exit
 from positioning_cell.tools.interruption import Interrupted, Signals, interruptible
@@ -189,8 +190,35 @@ def cmd_status(session: Session, args: Any) -> Report:
 
 def cmd_frames_get(session: Session, args: Any) -> Report:
     systems, file = session.client.coordinate_systems()
-    return Report(Exit.OK, {'coordinate_systems': cf.systems_document(systems, file)},
-                  cf.systems_text(systems, file))
+    named = session.client.system_names()
+    return Report(Exit.OK, {'coordinate_systems': cf.systems_document(systems, file, named)},
+                  cf.systems_text(systems, file, named))
+
+
+def cmd_frames_define(session: Session, args: Any) -> Report:
+    value = Transform.from_human(human_pose(args))
+    success, reason = session.client.define_coordinate_system(args.kind, args.name, value,
+                                                              args.use)
+    return _systems_report(session, success, reason, {
+        'defined': {'kind': args.kind, 'name': args.name, 'active': args.use,
+                    'pose': cf.transform_document(value)}})
+
+
+def cmd_frames_use(session: Session, args: Any) -> Report:
+    success, reason = session.client.select_coordinate_systems(args.user or '',
+                                                               args.object or '')
+    return _systems_report(session, success, reason,
+                           {'selected': {'user': args.user, 'object': args.object}})
+
+
+def _systems_report(session: Session, success: bool, reason: str,
+                    fields: dict[str, Any]) -> Report:
+    """A change of the named systems answered: refused with why, else the systems now."""
+    fields |= {'success': success, 'reason': reason}
+    if not success:
+        return Report(Exit.REFUSED, fields, '', f'refused: {reason}')
+    report = cmd_frames_get(session, None)
+    return Report(Exit.OK, fields | report.fields, report.text)
 
 
 def cmd_frames_set(session: Session, args: Any) -> Report:
@@ -295,7 +323,8 @@ def cmd_watch(session: Session, args: Any) -> Report:
 
 COMMANDS: dict[str, Callable[[Session, Any], Report]] = {
     'status': cmd_status, 'move': cmd_move, 'check': cmd_check,
-    'frames get': cmd_frames_get, 'frames set': cmd_frames_set, 'home': cmd_home,
+    'frames get': cmd_frames_get, 'frames set': cmd_frames_set,
+    'frames define': cmd_frames_define, 'frames use': cmd_frames_use, 'home': cmd_home,
     'stop': cmd_stop, 'jog': cmd_jog, 'speed': cmd_speed, 'limits get': cmd_limits_get,
     'limits set': cmd_limits_set, 'limits reset': cmd_limits_reset, 'watch': cmd_watch,
 }

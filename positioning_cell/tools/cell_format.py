@@ -48,7 +48,7 @@ from positioning_cell.tools.cell_parser import (  # the command line: there, lig
     MODE_RELATIVE_OBJECT,
     MODE_RELATIVE_USER,
     NO_LIMIT,
-    POSE_METAVAR,
+    human_pose,
 )
 from positioning_cell.tools.exits import Exit
 
@@ -210,7 +210,7 @@ class MoveRequest:
 
 def move_request(args: argparse.Namespace) -> MoveRequest:
     """The MoveRequest of parsed ``move`` or ``check`` arguments (mm → m, deg → rad)."""
-    human = [getattr(args, name.lower()) for name in POSE_METAVAR]
+    human = human_pose(args)
     if args.relative_user:
         mode, frame = MODE_RELATIVE_USER, USER_FRAME
     elif args.relative_object:
@@ -527,16 +527,40 @@ class CheckReport:
 
 
 # -- coordinate systems, limits, speeds -----------------------------------------------------------
-def systems_document(systems: CoordinateSystems, file: str = '') -> dict[str, Any]:
-    """The user and object CS for JSON (and the file they are kept in)."""
-    return {'user': transform_document(systems.user),
-            'object': transform_document(systems.object), 'file': file}
+class SystemNames(NamedTuple):
+    """The named coordinate systems as GetCoordinateSystems gives them: the active name and
+    every stored name of each kind."""
+
+    active_user: str
+    active_object: str
+    user_names: Sequence[str]
+    object_names: Sequence[str]
 
 
-def systems_text(systems: CoordinateSystems, file: str = '') -> str:
-    """The user and object CS for people."""
-    lines = [f'user CS (in machine)     {transform_text(systems.user)}',
-             f'object CS (in platform)  {transform_text(systems.object)}']
+def systems_document(systems: CoordinateSystems, file: str = '',
+                     named: SystemNames | None = None) -> dict[str, Any]:
+    """The active user and object CS for JSON (and the file they are kept in, and the named
+    systems when given)."""
+    doc: dict[str, Any] = {'user': transform_document(systems.user),
+                           'object': transform_document(systems.object), 'file': file}
+    if named is not None:
+        doc |= {'active_user': named.active_user, 'active_object': named.active_object,
+                'user_names': list(named.user_names),
+                'object_names': list(named.object_names)}
+    return doc
+
+
+def systems_text(systems: CoordinateSystems, file: str = '',
+                 named: SystemNames | None = None) -> str:
+    """The active user and object CS for people (with their names and the stored ones when
+    ``named`` is given)."""
+    user = '' if named is None else f' {named.active_user!r}'
+    obj = '' if named is None else f' {named.active_object!r}'
+    lines = [f'user CS{user} (in machine)'.ljust(25) + transform_text(systems.user),
+             f'object CS{obj} (in platform)'.ljust(25) + transform_text(systems.object)]
+    if named is not None:
+        lines.append(f'stored                   user: {", ".join(named.user_names)}; '
+                     f'object: {", ".join(named.object_names)}')
     if file:
         lines.append(f'file                     {file}')
     return '\n'.join(lines)

@@ -24,8 +24,9 @@ MODE_NAMES = {MODE_ABSOLUTE: 'absolute', MODE_RELATIVE_USER: 'relative_user',
 
 #: The subcommands that are clients of a running cell (``command`` of the parsed arguments
 #: and of the JSON document; tools.cell_commands runs them).
-CLIENT_COMMANDS = ('status', 'move', 'check', 'frames get', 'frames set', 'home', 'stop', 'jog',
-                   'speed', 'limits get', 'limits set', 'limits reset', 'watch')
+CLIENT_COMMANDS = ('status', 'move', 'check', 'frames get', 'frames set', 'frames define',
+                   'frames use', 'home', 'stop', 'jog', 'speed', 'limits get', 'limits set',
+                   'limits reset', 'watch')
 #: Every subcommand: the clients, and ``up``, which starts the cell (tools.cell_up).
 COMMANDS = (*CLIENT_COMMANDS, 'up')
 #: Default --timeout (s): moves and homing may take minutes; anything else is a quick answer.
@@ -116,10 +117,20 @@ def _common(timeout_default: str, *, top: bool = False) -> argparse.ArgumentPars
     return common
 
 
-def _pose_arguments(parser: argparse.ArgumentParser) -> None:
+def _six_numbers(parser: argparse.ArgumentParser) -> None:
+    """Tx Ty Tz (mm) Rx Ry Rz (deg) as six positionals ``tx`` ... ``rz``."""
     for name, unit in zip(POSE_METAVAR, ('mm',) * 3 + ('deg',) * 3, strict=True):
         parser.add_argument(name.lower(), metavar=name, type=_finite_number,
                             help=f'{name[0]}{name[1].lower()}, {unit}')
+
+
+def human_pose(args: argparse.Namespace) -> list[float]:
+    """The six numbers of :func:`_six_numbers` (mm, deg)."""
+    return [getattr(args, name.lower()) for name in POSE_METAVAR]
+
+
+def _pose_arguments(parser: argparse.ArgumentParser) -> None:
+    _six_numbers(parser)
     kind = parser.add_mutually_exclusive_group()
     kind.add_argument('--relative-user', action='store_true',
                       help='a step from the current user position: the translation along the '
@@ -199,6 +210,16 @@ def build_parser(description: str = '') -> argparse.ArgumentParser:
                             help='the user CS in the machine CS')
     frames_set.add_argument('--object', nargs=6, type=_finite_number, metavar=POSE_METAVAR,
                             help='the object CS in the platform frame (its origin: the pivot)')
+    define = _leaf(frames_sub, 'define', 'frames define', 'store a named user CS (in the '
+                   f'machine CS) or object CS (in the platform frame; {_HUMAN_UNITS})')
+    define.add_argument('kind', choices=('user', 'object'), help='user or object')
+    define.add_argument('name', help='a letter, then letters, digits, _ or -; at most 32')
+    _six_numbers(define)
+    define.add_argument('--use', action='store_true', help='and make it the active one')
+    use = _leaf(frames_sub, 'use', 'frames use', 'make named systems the active ones (a kind '
+                'left out stays as it is)')
+    use.add_argument('--user', metavar='NAME', help='the user CS to use')
+    use.add_argument('--object', metavar='NAME', help='the object CS to use')
 
     watch = _leaf(sub, 'watch', 'watch', 'the live watch window: per axis commanded, measured, '
                   'deviation, tolerance (in/out in colour), uncertainty; q or Ctrl-C quits')
