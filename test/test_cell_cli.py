@@ -648,13 +648,15 @@ def test_status_shows_the_last_code_the_calibration_and_the_measured_pose() -> N
     report = cf.StatusReport(
         positioner={'state': 'idle', 'reason': 'ready', 'mode': 'model', 'code': '',
                     'last_code': 'refused_limits', 'last_reason': 'machine limits: Tx 3 mm',
-                    'calibration': 'runs/x/calibration.yaml', 'referenced': 'True'},
+                    'calibration': 'runs/x/calibration.yaml', 'referenced': 'True',
+                    'user_cs_name': 'work', 'object_cs_name': 'default'},
         estimate=(home, quaternion_deg(0, 0, 0)), mechanism=MECH,
         measured=cf.MeasuredValues((home + [0.0002, 0, 0], quaternion_deg(0, 0, 0)), sigma,
                                    1000.0), now=1000.25)
     text = report.text()
     assert 'last code   refused_limits: machine limits: Tx 3 mm' in text
     assert 'calibration runs/x/calibration.yaml' in text
+    assert "systems     user 'work', object 'default'" in text
     assert text.count(' measured   ') == 2  # user and machine CS
     assert 'by the tracker, 0.25 s ago; uncertainty x y z 2.0 3.0 1.5 µm' in text
     doc = json.loads(cf.json_text(report.document()))

@@ -746,6 +746,9 @@ class StatusReport:
                  + (f' ({driver_state})' if driver_state else '')]
         target, estimate = self.positions(self.target), self.positions(self.estimate)
         measured = self.positions(None if self.measured is None else self.measured.pose)
+        if v.get('user_cs_name'):
+            lines.append(f'systems     user {v["user_cs_name"]!r}, object '
+                         f'{v.get("object_cs_name", "?")!r}')
         lines.append('positions   (Tx Ty Tz mm, Rx Ry Rz deg)')
         for frame in ('user', 'machine'):
             lines.append(f'  {frame:<8} target     {transform_text(target[frame])}')
