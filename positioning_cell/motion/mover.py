@@ -159,6 +159,7 @@ class Mover:
         #: What the looks at the joint states and at the tracker's readings found: their
         #: silence is judged from it (motion.hearing), not from the clock alone.
         self.joints_heard, self.tracker_heard = Hearing(), Hearing()
+        self.joints_time = -math.inf  # when the stored joint state was taken (clock, s)
         #: State changes reported so far: a command whose count has not moved since it began
         #: has not started (a refusal changes no state), and shows no progress.
         self.state_changes = 0
@@ -270,7 +271,7 @@ class Mover:
                 joints = None  # older than the joint state a later refresh stored
             if joints is not None:
                 self._joints_ticket = ticket
-                self.joints = joints
+                self.joints, self.joints_time = joints, joints_looked
                 if self._motion is not None:
                     self._motion[2].reading(joints.position, now)
             if taken:
@@ -960,7 +961,7 @@ class Mover:
 
         def settled() -> bool:  # under the lock (_wait): at rest, or the longest dwell over
             reading = self.joints
-            if reading is not None and rest.reading(reading.position, self.joints_heard.heard_at,
+            if reading is not None and rest.reading(reading.position, self.joints_time,
                                                     reading.stamp):
                 self._still_from = rest.still_from
                 return True
