@@ -7,6 +7,7 @@ taking goals, the monitor's verdict on the home pose in."""
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -50,6 +51,16 @@ def _call(what: Callable[[], T]) -> T:
         return what()
     except TimeoutError as err:
         raise StartError(str(err)) from err
+
+
+def new_run_folder(runs_dir: Path) -> Path:
+    """A new run's folder, ``runs_dir/<UTC time, %Y%m%dT%H%M%SZ>`` ('_' appended while one of
+    that name exists), created with its ``logs/``."""
+    run_dir = runs_dir / time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())
+    while run_dir.exists():
+        run_dir = run_dir.with_name(run_dir.name + '_')
+    (run_dir / 'logs').mkdir(parents=True)
+    return run_dir
 
 
 def run_overrides(run_dir: Path) -> Path:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,7 +20,7 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
 from positioning_cell.procedures.port import ProcedureError
 from positioning_cell.procedures.program_run import RunOutcome, calibrate_and_load, run_program
-from positioning_cell.ros.cell_start import StartError, run_overrides, start_cell
+from positioning_cell.ros.cell_start import StartError, new_run_folder, run_overrides, start_cell
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import DomainError, free_domain
 from positioning_cell.ros.port import RosCellPort
@@ -59,10 +58,7 @@ def run(program_path: Path | None = None, config: Path | None = None,
     except PositioningError as err:
         say(f'run_cell: error: {err}')
         return Exit.USAGE
-    run_dir = runs_dir / time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())
-    while run_dir.exists():
-        run_dir = run_dir.with_name(run_dir.name + '_')
-    (run_dir / 'logs').mkdir(parents=True)
+    run_dir = new_run_folder(runs_dir)
     bag = run_dir / 'bag'
     say(f'run_cell: {program.moves} moves ({len(program.names)} poses x {program.cycles} '
         f'cycles x modes {", ".join(program.modes)}); run folder {run_dir}')

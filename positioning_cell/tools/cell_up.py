@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -77,15 +76,12 @@ def up(args: argparse.Namespace, say: Callable[[str], None] = _say,
         return Exit.USAGE
     nodes = chosen_nodes({'record': args.record, 'live_view': args.live_view,
                           'calibrator': args.calibrator})
-    run_dir = runs_dir / time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())
-    while run_dir.exists():
-        run_dir = run_dir.with_name(run_dir.name + '_')
+    from positioning_cell.ros.cell_start import new_run_folder, run_overrides
+
+    run_dir = new_run_folder(runs_dir)
     logs = run_dir / 'logs'
-    logs.mkdir(parents=True)
     env = cell_environment(domain)
     env.setdefault('ROS_LOG_DIR', str(logs / 'ros'))
-    from positioning_cell.ros.cell_start import run_overrides
-
     overrides = run_overrides(run_dir)
     status: int = Exit.OK
     stopped_by = ''
