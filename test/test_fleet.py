@@ -428,3 +428,22 @@ def test_nested_close_finds_the_first_difference() -> None:
     for changed, where in cases:
         with pytest.raises(AssertionError, match=re.escape(where)):
             assert_nested_close(changed, doc, rtol=1e-9)
+
+
+def test_an_interactive_session_is_listed_apart_not_trended(tmp_path: Path) -> None:
+    """A bag without /cell/program steps (`cell up`, then moves by hand): its moves are no
+    program's poses. They stay out of the ISO 9283 series (a 4 mm "AP_p" point among
+    micrometres, before), and the report lists the run as interactive."""
+    run = synthetic_run(POSITIONS, QUATERNIONS, modes=('none',), cycles=2, rate=10.0,
+                        dwell_time=1.5, start=1.77e9, seed=9)
+    write_run_bag(tmp_path / 'by_hand', run, program=False)
+    digest = digest_bag(tmp_path / 'by_hand')
+    assert isinstance(digest, RunDigest) and not digest.program and digest.poses
+    far = RunDigest('/runs/by_hand/bag', 3000.0, 3100.0, 50, (
+        pose('none', 'P1', 3050.0, P1, (4000, 0, 0)),), 'cal_A.yaml', program=False)
+    with_it, without = trends([*fleet(), far]), trends(fleet())
+    assert [s.time.tolist() for s in with_it.series] == \
+        [s.time.tolist() for s in without.series]  # 3050 in no series
+    assert far in with_it.runs
+    text = markdown(with_it)
+    assert '| by_hand/bag | interactive |' in text and '| r1/bag | program |' in text

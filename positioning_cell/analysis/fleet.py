@@ -98,8 +98,10 @@ class RunDigest:
     count, per mode and pose the figures (:class:`PoseDigest`, in the analysis' order), the
     calibration file in force when its program started (None: the nominal machine, or not
     known: ``calibrations`` is then empty), the calibration timeline, the calibration runs and
-    the tracker's registrations recorded in it (:mod:`positioning_cell.analysis.context`), and
-    the problems the analysis found."""
+    the tracker's registrations recorded in it (:mod:`positioning_cell.analysis.context`), the
+    problems the analysis found, and ``program``: whether its moves were a program's (the bag
+    holds ``/cell/program`` steps; an interactive session, ``cell up`` and ``cell move``, has
+    none: its poses are kept here but are no ISO 9283 trend: :func:`trends` lists it apart)."""
 
     bag: str
     start: float
@@ -111,6 +113,7 @@ class RunDigest:
     calibration_runs: tuple[CalibrationRun, ...] = ()
     registrations: tuple[Registration, ...] = ()
     problems: tuple[str, ...] = ()
+    program: bool = True
 
     @property
     def modes(self) -> tuple[str, ...]:
@@ -123,7 +126,8 @@ class RunDigest:
                 'messages': self.messages, 'calibration': self.calibration,
                 'calibrations': [c.__dict__ for c in self.calibrations],
                 'calibration_runs': [r.__dict__ for r in self.calibration_runs],
-                'problems': list(self.problems), 'poses': [p.to_dict() for p in self.poses]}
+                'problems': list(self.problems), 'program': self.program,
+                'poses': [p.to_dict() for p in self.poses]}
 
 
 def digest(analysis: RunAnalysis) -> RunDigest:
@@ -144,7 +148,8 @@ def digest(analysis: RunAnalysis) -> RunDigest:
     program = min((p.time for p in poses), default=context.start)
     return RunDigest(str(analysis.bag), context.start, context.end, analysis.message_count,
                      poses, context.calibration_at(program), context.calibrations,
-                     context.calibration_runs, context.registrations, analysis.problems)
+                     context.calibration_runs, context.registrations, analysis.problems,
+                     program=bool(analysis.replay.program))
 
 
 @dataclass(frozen=True)
@@ -422,12 +427,13 @@ def _calibration_events(runs: Sequence[RunDigest]) -> tuple[list[_Event], str | 
 
 
 class _Observations:
-    """Every pose digest of the runs as flat arrays (O rows): run index, time, mode index,
-    pose index and the figures; rows in time order (ties: run order)."""
+    """Every pose digest of the program runs as flat arrays (O rows): run index, time, mode
+    index, pose index and the figures; rows in time order (ties: run order). An interactive
+    session's poses are left out (:attr:`RunDigest.program`)."""
 
     def __init__(self, runs: Sequence[RunDigest], position_tolerance: float,
                  angle_tolerance: float) -> None:
-        flat = [(i, p) for i, r in enumerate(runs) for p in r.poses]
+        flat = [(i, p) for i, r in enumerate(runs) if r.program for p in r.poses]
         flat.sort(key=lambda item: (item[1].time, item[0]))
         self.run = np.array([i for i, _ in flat], dtype=np.intp)
         digests = [p for _, p in flat]
