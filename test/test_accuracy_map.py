@@ -102,3 +102,29 @@ def test_a_run_of_few_poses_is_not_mapped(tmp_path: Path) -> None:
     assert '## Accuracy map' not in markdown(analysis)
     assert plot_names(analysis) == ['error_over_time.png', 'axis_errors.png', 'clusters.png',
                                     'error_distribution.png']
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    """Width and height in pixels from a PNG's IHDR chunk."""
+    data = path.read_bytes()
+    assert data[:8] == b'\x89PNG\r\n\x1a\n' and data[12:16] == b'IHDR'
+    return int.from_bytes(data[16:20], 'big'), int.from_bytes(data[20:24], 'big')
+
+
+def test_the_clusters_plot_of_many_poses_wraps_into_rows(tmp_path: Path) -> None:
+    """Thirteen poses (fewer than a map takes): six to a row, three rows, the last with one
+    pose; 23 poses in one row drew 8096 × 704 px (issue 26)."""
+    from positioning_cell.analysis.plots import CLUSTER_COLUMNS, CLUSTERS
+    from positioning_cell.plotting import DPI
+
+    k = np.arange(13)
+    p = np.column_stack([0.002 * np.cos(k), 0.002 * np.sin(k), 0.196 + 0.0003 * k])
+    run = synthetic_run(p, np.tile([0.0, 0.0, 0.0, 1.0], (13, 1)), modes=('model',),
+                        cycles=2, dwell_time=1.5, seed=7)
+    write_run_bag(tmp_path / 'bag', run)
+    analysis = analyse_bag(tmp_path / 'bag', SETTINGS)
+    assert len(analysis.modes[0].poses) == 13 < MAP_LEAST
+    assert CLUSTERS in plot_names(analysis)
+    [png] = draw_plots(analysis, tmp_path / 'plots', [CLUSTERS])
+    # six 3.2 in columns, three rows of two panels (6.4 in a row), at the plots' resolution
+    assert _png_size(png) == (round(CLUSTER_COLUMNS * 3.2 * DPI), round(3 * 6.4 * DPI))

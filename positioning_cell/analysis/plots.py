@@ -151,23 +151,33 @@ def plot_axis_errors(analysis: RunAnalysis, path: Path) -> Path:
     return save(fig, path)
 
 
+#: Poses per row of the clusters plot: more wrap to the next row (23 poses in one row drew
+#: 8096 × 704 px, issue 26).
+CLUSTER_COLUMNS = 6
+
+
 def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
-    """Per commanded pose of the program (columns): the attained positions relative to it
-    (µm), x-y (top) and x-z (bottom), one colour per mode, crosses at each mode's barycentre
-    (ISO AP). The visits of no mode of the program (before it: calibration, homing) are not
-    drawn and get no column."""
+    """Per commanded pose of the program (:data:`CLUSTER_COLUMNS` to a row): the attained
+    positions relative to it (µm), x-y (top) and x-z (below it), one colour per mode, crosses
+    at each mode's barycentre (ISO AP). The visits of no mode of the program (before it:
+    calibration, homing) are not drawn and get no panel."""
     mode_colour = colours([m.mode for m in analysis.modes])
     visits = [v for v in analysis.replay.visits if v.mode in mode_colour]
     poses = list(dict.fromkeys(v.pose for v in sorted(visits, key=lambda v: v.visit.key)))
-    n = max(len(poses), 1)
-    fig, axes = figure(3.2 * n, 6.4, 2, n, margins=(0.05, 0.99, 0.9, 0.08),
+    columns = min(max(len(poses), 1), CLUSTER_COLUMNS)
+    rows = max(math.ceil(len(poses) / columns), 1)
+    fig, grid = figure(3.2 * columns, 6.4 * rows, 2 * rows, columns,
+                       margins=(0.05, 0.99, 1.0 - 0.75 / (6.4 * rows), 0.5 / (6.4 * rows)),
                        space=(0.35, 0.3))
+    for k in range(len(poses), rows * columns):  # the empty cells of the last row
+        grid[2 * (k // columns), k % columns].set_visible(False)
+        grid[2 * (k // columns) + 1, k % columns].set_visible(False)
     dp, _ = _visit_errors(visits)
     pose_of = np.array([v.pose for v in visits], dtype=object)
     mode_of = np.array([v.mode for v in visits], dtype=object)
-    for col, pose in enumerate(poses):
+    for k, pose in enumerate(poses):
         for row, (i, j) in enumerate(((0, 1), (0, 2))):
-            ax = axes[row, col]
+            ax = grid[2 * (k // columns) + row, k % columns]
             for mode, colour in mode_colour.items():
                 sel = (pose_of == pose) & (mode_of == mode)
                 if not sel.any():
@@ -184,9 +194,9 @@ def plot_clusters(analysis: RunAnalysis, path: Path) -> Path:
             if row == 0:
                 ax.set_title(pose)
     if poses:
-        axes[0, 0].legend(fontsize=7)
+        grid[0, 0].legend(fontsize=7)
     fig.suptitle('Attained poses around each commanded pose (+: commanded, x: barycentre)',
-                 fontsize=10)
+                 fontsize=10, y=1.0 - 0.15 / (6.4 * rows))  # inches from the top, any height
     return save(fig, path)
 
 
