@@ -98,3 +98,32 @@ def test_a_hundred_thousand_points_decode_as_arrays() -> None:
     decoded = decode_joint_trajectory(data, 200_000)
     assert decoded.positions.shape == (100_002, 6)
     np.testing.assert_array_equal(decoded.positions[-1], list(msg.points[-1].positions))
+
+
+def _keys_on_both_ends(times: list[float]) -> tuple[str, str]:
+    """The key the positioner makes of its trajectory and the one the drives make of what
+    they decode from the wire (positioning_cell.moves.fingerprint)."""
+    from positioning_cell.moves.fingerprint import fingerprint
+    from positioning_cell.ros.messages import duration
+
+    positions = np.tile([0.2, 0.2, 0.2, 0.0, 0.0, 0.0], (len(times), 1))
+    msg = JointTrajectory(joint_names=[f'j{k}' for k in range(6)], points=[
+        JointTrajectoryPoint(positions=row.tolist(), time_from_start=duration(t))
+        for row, t in zip(positions, times, strict=True)])
+    wire = decode_joint_trajectory(serialize_message(msg), 10_000)
+    return fingerprint(times, positions), fingerprint(wire.times, wire.positions)
+
+
+def test_a_duration_on_a_half_microsecond_keys_the_same_on_both_ends() -> None:
+    """make run aborted a move whose planned duration went over the wire as 1 113 625 500 ns:
+    keyed by µs, the two ends rounded it apart and the drives' answer matched nothing."""
+    for last in (1.1136255, np.nextafter(1.1136255, 0.0), np.nextafter(1.1136255, 2.0),
+                 0.0000005, 2.0000015):
+        sent, received = _keys_on_both_ends([0.0, 0.01, float(last)])
+        assert sent == received, last
+
+
+@given(st.lists(st.floats(0.0, 1e4, allow_nan=False), min_size=1, max_size=8))
+def test_any_times_key_the_same_on_both_ends(times: list[float]) -> None:
+    sent, received = _keys_on_both_ends(sorted(times))
+    assert sent == received

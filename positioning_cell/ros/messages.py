@@ -30,6 +30,7 @@ from positioning_cell.core.kinematics import platform_points
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import Registration
+from positioning_cell.moves.fingerprint import wire_nanoseconds
 from positioning_cell.moves.machine import Answer, JointReading, Measurement
 from positioning_cell.names import BASE_FRAME
 
@@ -119,9 +120,11 @@ def joint_values(msg: JointState, names: Sequence[str],
 
 
 def duration(seconds: float) -> Duration:
-    """builtin_interfaces/Duration of ``seconds`` (>= 0)."""
-    whole = int(seconds)
-    return Duration(sec=whole, nanosec=min(round((seconds - whole) * 1e9), 999_999_999))
+    """builtin_interfaces/Duration of ``seconds`` (>= 0): the integer nanoseconds of
+    :func:`positioning_cell.moves.fingerprint.wire_nanoseconds` (a trajectory's key is made of
+    the same)."""
+    ns = int(wire_nanoseconds(seconds))
+    return Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
 def seconds(value: Duration | Time) -> float:
