@@ -88,13 +88,19 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
         stop_cleanly(procs)
 
 
+def _said(doc: dict[str, Any]) -> str:
+    """The whole answer as text: pytest cuts a dict's repr short, and an abort's reason is what
+    a failure must show."""
+    return json.dumps(doc, indent=1)
+
+
 def _home(cell: Cell) -> None:
     # the encoders may not have been read yet: retry while refused
     def homed() -> tuple[int, dict[str, Any]] | None:
         code, doc = cell.cli('home')
         return None if doc['outcome']['code_name'].startswith('refused') else (code, doc)
     code, doc = wait_until(homed, 60.0, 'cell home')
-    assert code == 0 and doc['outcome']['code_name'] == 'success', doc
+    assert code == 0 and doc['outcome']['code_name'] == 'success', _said(doc)
 
 
 def test_frames_moves_and_the_pivot(cell: Cell) -> None:
@@ -107,7 +113,7 @@ def test_frames_moves_and_the_pivot(cell: Cell) -> None:
     np.testing.assert_allclose(doc['coordinate_systems']['object']['human'], OBJECT, atol=1e-9)
     goal = [1.0, 2.0, 48.0, 0.5, -0.3, 1.0]
     code, doc = cell.cli('move', *map(str, goal))
-    assert code == 0 and doc['outcome']['code_name'] == 'success', doc['outcome']
+    assert code == 0 and doc['outcome']['code_name'] == 'success', _said(doc)
     attained = doc['outcome']['attained_user']['human']
     np.testing.assert_allclose(attained[:3], goal[:3], atol=0.015)  # mm: the settle tolerance
     np.testing.assert_allclose(attained[3:], goal[3:], atol=0.01)  # deg
@@ -116,7 +122,7 @@ def test_frames_moves_and_the_pivot(cell: Cell) -> None:
     np.testing.assert_allclose(doc['positions']['user']['target']['human'], goal, atol=1e-6)
     # relative to the object: a rotation about the pivot keeps the object origin
     code, doc = cell.cli('move', '--relative-object', '0', '0', '0', '1', '0', '0')
-    assert code == 0 and doc['outcome']['code_name'] == 'success', doc
+    assert code == 0 and doc['outcome']['code_name'] == 'success', _said(doc)
     code, after = cell.cli('status')
     target = after['positions']['user']['target']
     np.testing.assert_allclose(target['human'][:3], goal[:3], atol=1e-9)  # the pivot stayed
