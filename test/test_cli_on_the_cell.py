@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 import pytest
 from cell_harness import (
+    LOADED_COMMAND,
+    LOADED_LIVENESS,
     Client,
     ProcessGroup,
     executable,
@@ -70,17 +72,20 @@ class Cell:
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
     log_dir = tmp_path_factory.mktemp('cli')
     # mode model: settled on the encoders' estimate, no tracker corrections (quicker moves;
-    # the closed loop is test_cell's)
+    # the closed loop is test_cell's). Liveness is not under test here (test_faults'): the
+    # loaded bounds, so that a stalled process on a busy runner aborts no move (a relative
+    # move aborted in CI with the default 0.2 s joint silence).
     overrides = {names.NODE_POSITIONER: {
-        'compensation': {'mode': 'model'},
-        'operator': {'coordinate_systems_file': str(log_dir / 'coordinate_systems.yaml')}}}
+        'compensation': {'mode': 'model'}, 'liveness': LOADED_LIVENESS,
+        'operator': {'coordinate_systems_file': str(log_dir / 'coordinate_systems.yaml')}},
+        names.NODE_DRIVER: {'command': LOADED_COMMAND}}
     with isolated_domain() as domain, ProcessGroup(domain, log_dir) as procs, \
             Client(domain, 'cli_test') as client:
         tracker = client.collect(PoseWithCovarianceStamped, names.MEASURED_POSE, STREAM_QOS)
         poses = client.collect(PoseStamped, names.ESTIMATED_POSE, STREAM_QOS)
         for node in names.CELL_NODES[:3]:  # driver, tracker, positioner
-            procs.start(node.executable, overrides=overrides if
-                        node.name == names.NODE_POSITIONER else None)
+            procs.start(node.executable, overrides={node.name: overrides[node.name]}
+                        if node.name in overrides else None)
         wait_until(lambda: poses and tracker, 60.0, 'the cell to come up')
         cell = Cell(domain, procs, client)
         _home(cell)  # once for the module: each test then runs alone too (in any order)
