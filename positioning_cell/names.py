@@ -196,6 +196,8 @@ def set_parameters_service(node: str) -> str:
 
 # -- diagnostic status names (DiagnosticStatus.name on /diagnostics) ------------------------------
 STATUS_POSITIONER = 'positioner: state'
+#: The positioner status's ``calibration`` value while no calibration file is in force.
+NO_CALIBRATION = 'none'
 #: Who publishes the positioner's inputs: other nodes on them are reported (and ignored).
 STATUS_POSITIONER_INPUTS = 'positioner: inputs'
 #: The conditions the positioner compensates under (air temperature, approach) and the last

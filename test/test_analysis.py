@@ -436,7 +436,9 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
     analysis = analyse_bag(MAKE_RUN / 'bag', SETTINGS)
     now = json.loads(json.dumps(analysis.to_dict()))
     assert not analysis.problems and len(analysis.replay.visits) == 65
-    for key in ('bag', 'plots', 'context', 'axis_tests', 'error_budget', 'compliance'):  # new
+    assert now['description'] == {'records': [], 'attachments': []}  # recorded before it
+    for key in ('bag', 'plots', 'context', 'axis_tests', 'error_budget', 'compliance',
+                'description'):  # new
         before.pop(key, None)
         now.pop(key, None)
     assert now['settings']['tolerances'].pop('decision_rule') == 'iso_14253_1'  # issue 25

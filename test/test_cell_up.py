@@ -14,6 +14,7 @@ from cell_harness import executable, isolated_domain, processes_naming, wait_unt
 from mcap.reader import make_reader
 
 from positioning_cell import names
+from positioning_cell.bag.description import bag_description
 from positioning_cell.ros.processes import cell_environment
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow, pytest.mark.timing]
@@ -60,3 +61,8 @@ def test_cell_up_then_cell_home_then_ctrl_c_stops_everything(tmp_path: Path) -> 
     assert summary is not None and summary.statistics is not None
     topics = {c.topic for c in summary.channels.values()}
     assert names.JOINT_STATES in topics and summary.statistics.message_count > 0
+    # the bag says it was an operator's session, and carries the configuration it ran with
+    described = bag_description(run_dir / 'bag')
+    assert described.run()['kind'] == 'interactive', described
+    assert described.attachment('config/cell.yaml') is not None
+    assert described.keys()['calibration_file'] == names.NO_CALIBRATION  # none taken

@@ -440,7 +440,7 @@ def test_an_interactive_session_is_listed_apart_not_trended(tmp_path: Path) -> N
     digest = digest_bag(tmp_path / 'by_hand')
     assert isinstance(digest, RunDigest) and not digest.program and digest.poses
     far = RunDigest('/runs/by_hand/bag', 3000.0, 3100.0, 50, (
-        pose('none', 'P1', 3050.0, P1, (4000, 0, 0)),), 'cal_A.yaml', program=False)
+        pose('none', 'P1', 3050.0, P1, (4000, 0, 0)),), 'cal_A.yaml', kind='interactive')
     with_it, without = trends([*fleet(), far]), trends(fleet())
     assert [s.time.tolist() for s in with_it.series] == \
         [s.time.tolist() for s in without.series]  # 3050 in no series

@@ -28,7 +28,9 @@ from cell_harness import (
 
 from positioning_cell import names
 from positioning_cell.analysis.axis_test import TRUTH, AxisTestMarker, axis_test_figures
+from positioning_cell.analysis.fleet import ABORTED_RUN, run_kind
 from positioning_cell.bag import BagReader
+from positioning_cell.bag.description import bag_description
 from positioning_cell.calibration import file as calfile
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
@@ -148,6 +150,18 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     assert [[p['pose'] for p in m['poses']] for m in summary['modes']] == [['P1', 'P2']] * 2
     assert summary['problems'] == []
     assert any('identified from its own measurements' in n for n in summary['notes'])
+    # The bag describes its run: kind, program, configuration, and the calibration the
+    # positioner took, attached as the file it loaded.
+    described = bag_description(run / 'bag')
+    assert described.run()['kind'] == 'program' and described.run()['program_moves'] == '4'
+    assert described.attachment(f'program/{program.name}').data == program.read_bytes()
+    config = described.attachment('config/cell_fast.yaml')  # the --config given
+    assert config is not None and config.data == (program.parent / 'cell_fast.yaml').read_bytes()
+    loaded = described.attachment('calibration/calibration.yaml')
+    assert loaded is not None
+    assert loaded.data == (run / 'calibration' / 'calibration.yaml').read_bytes()
+    assert described.keys()['calibration_attached'] == 'calibration/calibration.yaml'
+    assert summary['description']['records'][0]['values']['kind'] == 'program'
     # the program's four steps and its end
     assert '/cell/program' in summary['topics'] and summary['topics']['/cell/program'][
         'count'] == 5
@@ -228,3 +242,6 @@ def test_an_interrupted_run_stops_every_process_and_keeps_a_readable_bag(
         assert bag.topics['/metrology/pose'].message_count > 0
     assert (run / 'report.md').is_file()
     assert not (run / 'calibration' / 'calibration.yaml').exists()  # nothing half-done
+    # its bag says it was a program's run, and none of the program's moves was made
+    described = bag_description(run / 'bag')
+    assert run_kind(described.keys(), ()) == ABORTED_RUN

@@ -16,10 +16,7 @@ from typing import Any
 
 from positioning_cell.calibration.collect import Marker
 from positioning_cell.errors import InputError
-from positioning_cell.names import STATUS_MEASUREMENT, STATUS_POSITIONER
-
-#: The value of the positioner's ``calibration`` diagnostic without a calibration file.
-NO_CALIBRATION = 'none'
+from positioning_cell.names import NO_CALIBRATION, STATUS_MEASUREMENT, STATUS_POSITIONER
 
 
 @dataclass(frozen=True)

@@ -38,8 +38,10 @@ from positioning_cell.accuracy.iso9283 import wrap_angle
 from positioning_cell.accuracy.monitor import MonitorSettings
 from positioning_cell.accuracy.verdicts import decision_key
 from positioning_cell.analysis.context import CalibrationInForce, CalibrationRun, Registration
+from positioning_cell.analysis.program import ProgramStep
 from positioning_cell.analysis.summary import RunAnalysis, analyse_bag
 from positioning_cell.bag import BagError
+from positioning_cell.bag.description import bag_description
 from positioning_cell.bag.metadata import METADATA_FILE
 from positioning_cell.core.poses import Quad, Triple, pose_error
 from positioning_cell.errors import InputError, PositioningError
@@ -92,6 +94,26 @@ class PoseDigest:
                 'decisions': dict(self.decisions)}
 
 
+#: A run's kinds (:func:`run_kind`).
+PROGRAM_RUN, INTERACTIVE_RUN, ABORTED_RUN = 'program', 'interactive', 'aborted'
+
+
+def run_kind(description: Mapping[str, str], steps: Sequence[ProgramStep]) -> str:
+    """What a run was, from its bag's description (``kind``, ``program_moves``) and its
+    ``/cell/program`` steps: :data:`INTERACTIVE_RUN` when it says so, or (a bag without a
+    description) when it has no step; :data:`ABORTED_RUN` when it marked fewer moves than its
+    program has (stopped, interrupted, a mode refused); :data:`PROGRAM_RUN` otherwise (a bag
+    without a description: any run with steps)."""
+    moves = sum(not step.end for step in steps)
+    said = description.get('kind')
+    if said == INTERACTIVE_RUN or (said is None and not moves):
+        return INTERACTIVE_RUN
+    expected = description.get('program_moves', '')
+    if said is not None and (not moves or (expected.isdigit() and moves < int(expected))):
+        return ABORTED_RUN
+    return PROGRAM_RUN
+
+
 @dataclass(frozen=True)
 class RunDigest:
     """What the trends need of one run: the bag, its first and last log time (s), its message
@@ -99,9 +121,10 @@ class RunDigest:
     calibration file in force when its program started (None: the nominal machine, or not
     known: ``calibrations`` is then empty), the calibration timeline, the calibration runs and
     the tracker's registrations recorded in it (:mod:`positioning_cell.analysis.context`), the
-    problems the analysis found, and ``program``: whether its moves were a program's (the bag
-    holds ``/cell/program`` steps; an interactive session, ``cell up`` and ``cell move``, has
-    none: its poses are kept here but are no ISO 9283 trend: :func:`trends` lists it apart)."""
+    problems the analysis found, its ``kind`` (:func:`run_kind`: only a ``program`` run's
+    poses are ISO 9283 trends; an ``interactive`` or ``aborted`` run's are kept here and
+    :func:`trends` lists the run apart) and the bag's ``description`` (its flat keys,
+    :meth:`positioning_cell.bag.description.BagDescription.keys`)."""
 
     bag: str
     start: float
@@ -113,7 +136,13 @@ class RunDigest:
     calibration_runs: tuple[CalibrationRun, ...] = ()
     registrations: tuple[Registration, ...] = ()
     problems: tuple[str, ...] = ()
-    program: bool = True
+    kind: str = PROGRAM_RUN
+    description: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def program(self) -> bool:
+        """Whether its poses are a whole program's (ISO 9283 trends)."""
+        return self.kind == PROGRAM_RUN
 
     @property
     def modes(self) -> tuple[str, ...]:
@@ -126,7 +155,8 @@ class RunDigest:
                 'messages': self.messages, 'calibration': self.calibration,
                 'calibrations': [c.__dict__ for c in self.calibrations],
                 'calibration_runs': [r.__dict__ for r in self.calibration_runs],
-                'problems': list(self.problems), 'program': self.program,
+                'problems': list(self.problems), 'kind': self.kind,
+                'description': dict(self.description),
                 'poses': [p.to_dict() for p in self.poses]}
 
 
@@ -146,10 +176,12 @@ def digest(analysis: RunAnalysis) -> RunDigest:
                              accuracy.decision_counts(verdicts.get((p.mode, p.pose), [])))
                   for m in analysis.modes for p in m.poses)
     program = min((p.time for p in poses), default=context.start)
+    description = analysis.description.keys()
     return RunDigest(str(analysis.bag), context.start, context.end, analysis.message_count,
                      poses, context.calibration_at(program), context.calibrations,
                      context.calibration_runs, context.registrations, analysis.problems,
-                     program=bool(analysis.replay.program))
+                     kind=run_kind(description, analysis.replay.program),
+                     description=description)
 
 
 @dataclass(frozen=True)
@@ -223,6 +255,22 @@ def find_bags(paths: Iterable[str | Path]) -> list[Path]:
         else:
             found.add(_bag_of_file(path))
     return sorted(found)
+
+
+def select_bags(bags: Sequence[Path], where: Mapping[str, str]) -> list[Path]:
+    """The ``bags`` whose description (:func:`positioning_cell.bag.description.bag_description`,
+    read from each file's summary) has every ``key: value`` of ``where``; all of them for an
+    empty ``where``. A bag whose description cannot be read is not selected."""
+    if not where:
+        return list(bags)
+    selected = []
+    for bag in bags:
+        try:
+            if bag_description(bag).matches(where):
+                selected.append(bag)
+        except BagError:
+            continue
+    return selected
 
 
 # -- trends ----------------------------------------------------------------------------------

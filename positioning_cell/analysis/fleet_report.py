@@ -65,7 +65,7 @@ def _angle_max(values: FloatArray) -> FloatArray:
 
 # -- Markdown --------------------------------------------------------------------------------
 def _runs_table(trends: Trends, label: dict[str, str]) -> list[str]:
-    rows = [[label[r.bag], 'program' if r.program else 'interactive', when(r.start),
+    rows = [[label[r.bag], r.kind, when(r.start),
              f'{r.end - r.start:.0f}', str(r.messages),
              r.calibration or ('none' if r.calibrations else 'not known'),
              ', '.join(r.modes) or NO_VALUE, str(len(r.poses)), str(len(r.problems))]
@@ -158,9 +158,11 @@ def markdown(trends: Trends, failures: Sequence[BagFailure] = (),
                 f'{when(runs[-1].end)} UTC; {len(failures)} failed. Times are the bags\' log '
                 'times; AP, RP: ISO 9283:1998 §7.2.1 and §7.2.2 over the cycles of each pose '
                 'in a run (RP needs two); a pose is one pose across runs when its commanded '
-                'pose agrees. Only program runs (their bags hold `/cell/program` steps) make '
-                'the trends; an interactive session (`cell up`, `cell move`) is listed in the '
-                'runs and counted in the registrations, not in the accuracy trends.', '']
+                'pose agrees. Only whole program runs make the trends: an interactive session '
+                '(`cell up`, `cell move`: its bag says so, or holds no `/cell/program` step) '
+                'and an aborted program (fewer moves marked than its program has, by its '
+                'bag\'s description) are listed in the runs and counted in the registrations, '
+                'not in the accuracy trends.', '']
     else:
         out += ['No bag could be analysed.', '']
     if failures:

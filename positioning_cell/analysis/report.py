@@ -249,6 +249,10 @@ def markdown(analysis: RunAnalysis, plots: Sequence[Path] = ()) -> str:
            f'{um(s.settle.position_threshold)} µm / {deg(s.settle.angle_threshold)}°.', '']
     if a.problems:
         out += ['## Problems', '', *(f'- {p}' for p in a.problems), '']
+    described = a.description.lines()
+    out += ['## The run as the bag describes it', '', *(described or [
+        '- the bag holds no description (recorded before bags described themselves, or by '
+        'another recorder)']), '']
     if a.missing_optional:
         out += [f'Not in the bag (figures that need them are left out): '
                 f'{", ".join(a.missing_optional)}.', '']

@@ -64,6 +64,7 @@ from positioning_cell.analysis.replay import (
     Replayer,
 )
 from positioning_cell.bag import BagError
+from positioning_cell.bag.description import BagDescription, bag_description
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import pose_error
@@ -449,6 +450,8 @@ class RunAnalysis:
     ignored: tuple[Ignored, ...] = field(default_factory=tuple)
     #: The error budget of each mode (:mod:`.error_budget`).
     budgets: tuple[ErrorBudget, ...] = ()
+    #: What the bag says of itself: the run, its configuration, program and calibrations.
+    description: BagDescription = field(default_factory=BagDescription)
 
     @cached_property
     def monitor(self) -> dict[str, Any]:
@@ -493,6 +496,7 @@ class RunAnalysis:
                         **v.visit.to_dict()} for v in self.replay.visits],
             'ignored': [i.__dict__ for i in self.ignored],
             'context': self.context.to_dict(),
+            'description': self.description.to_dict(),
             'axis_tests': [a.to_dict() for a in self.axis_tests],
             'compliance': [c.to_dict() for c in self.compliance],
             'error_budget': [b.to_dict() for b in self.budgets],
@@ -585,4 +589,9 @@ def analyse_bag(path: str | Path, settings: MonitorSettings | None = None,
     mech, resolution = budget_settings(config)
     budgets = with_recording(path, BUDGET_TOPICS, partial(
         gather, visits=analysis.replay.visits, mech=mech, resolution=resolution))
-    return replace(analysis, budgets=budgets)
+    try:
+        description = bag_description(Path(path))
+    except BagError as err:  # the messages were readable: the analysis stands without it
+        return replace(analysis, budgets=budgets, problems=(
+            *analysis.problems, f'the bag\'s description is unreadable: {err.reason}'))
+    return replace(analysis, budgets=budgets, description=description)

@@ -18,12 +18,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from mcap.records import Channel, Schema
+from mcap.records import Attachment as McapAttachment
+from mcap.records import Channel, Metadata, Schema
 from mcap.stream_reader import MAGIC_SIZE
 from rosbags.rosbag2.errors import ReaderError
 from ruamel.yaml import YAML
 from ruamel.yaml.error import YAMLError
 
+from positioning_cell.bag.description import ROSBAG2_RECORD, Attachment, MetadataRecord
 from positioning_cell.bag.errors import BagError
 from positioning_cell.bag.file_index import summarise
 from positioning_cell.bag.metadata import (
@@ -131,7 +133,8 @@ def _inspect(path: Path, check: FileCheck | None) -> _Inspection:
 
 def _rewrite(path: Path, compression: str) -> tuple[FileSummary, tuple[TopicMeta, ...]]:
     """Write the sound records of ``path`` (:func:`sound_records`: every readable chunk, corrupt
-    ones skipped) to ``path.recovering``; its summary and topics."""
+    ones skipped; the description records and attachments too) to ``path.recovering``; its
+    summary and topics."""
     target = path.with_name(path.name + '.recovering')
     target.unlink(missing_ok=True)
     out = McapFile(target, compression, RECOVER_CHUNK_BYTES)
@@ -148,6 +151,12 @@ def _rewrite(path: Path, compression: str) -> tuple[FileSummary, tuple[TopicMeta
                 topics[record.id] = _topic(record, schema, path)
                 out.add_topic(topics[record.id], schema.data.decode('utf-8', 'replace'),
                               schema.encoding)
+            elif isinstance(record, Metadata):
+                if record.name != ROSBAG2_RECORD:  # close() writes rosbag2's anew
+                    out.describe([MetadataRecord(record.name, record.metadata)])
+            elif isinstance(record, McapAttachment):
+                out.describe(attachments=[Attachment(record.name, record.media_type,
+                                                     bytes(record.data), record.log_time)])
             elif record.channel_id in topics:
                 out.write(topics[record.channel_id].name, record.data, record.log_time)
         summary = out.close(list(topics.values()))

@@ -41,6 +41,9 @@ class RecorderSettings:
                                         low=0.05, high=60.0)
     queue_depth: int = setting(0, 'subscription history per topic (0: keep all)', 'messages',
                                low=0, high=1_000_000)
+    description_file: str = setting('', 'the run\'s description (run_cell and cell up write '
+                                    'it): stored in the bag with the files it names; empty: '
+                                    'none')
     split: SplitSettings = group(SplitSettings, 'file splits')
     disk: DiskSettings = group(DiskSettings, 'free space of the bag\'s filesystem (WARN margins)')
 

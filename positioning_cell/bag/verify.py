@@ -389,8 +389,9 @@ class _Walk:
 
     # -- the record walk -----------------------------------------------------------------
     def records(self, want: bool) -> Iterator[list[McapRecord]]:
-        """Walk the data section; with ``want``, yield the schemas, channels and messages of
-        each sound part (the summary's schemas and channels first) as lists."""
+        """Walk the data section; with ``want``, yield the schemas, channels, messages,
+        attachments and metadata records of each sound part (the summary's schemas and
+        channels first) as lists."""
         if want and (self.schemas or self.channels):
             yield [*self.schemas.values(), *self.channels.values()]
         data, limit = self.data, self.limit
@@ -459,6 +460,8 @@ class _Walk:
             self.loose += 1
             first, last = self.loose_times
             self.loose_times = (min(first, record.log_time), max(last, record.log_time))
+            return record
+        if isinstance(record, (Attachment, Metadata)):  # what the bag says of itself
             return record
         return None
 
@@ -720,8 +723,10 @@ def verify_file(path: str | Path) -> FileCheck:
         return walk.result()
 
 
-def sound_records(path: str | Path) -> Iterator[Schema | Channel | Message]:
-    """The schemas, channels and messages of the sound part of an MCAP file in file order
+def sound_records(path: str | Path
+                  ) -> Iterator[Schema | Channel | Message | Attachment | Metadata]:
+    """The schemas, channels, messages, attachments and metadata records (the ``rosbag2``
+    one included) of the sound part of an MCAP file in file order
     (the summary's schemas and channels first, when it has a sound summary): every corrupt
     chunk is skipped and the walk goes on with the next (module docstring). Nothing for a file
     that is no MCAP file."""
@@ -733,7 +738,7 @@ def sound_records(path: str | Path) -> Iterator[Schema | Channel | Message]:
         walk = _Walk(path, data)
         for part in walk.records(want=True):
             for record in part:
-                if isinstance(record, (Schema, Channel, Message)):
+                if isinstance(record, (Schema, Channel, Message, Attachment, Metadata)):
                     yield record
 
 

@@ -76,6 +76,7 @@ from rosbags.rosbag2.storage_mcap import (
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from positioning_cell.bag.description import ROSBAG2_RECORD, Attachment, MetadataRecord
 from positioning_cell.bag.errors import BagError
 from positioning_cell.bag.metadata import (
     FileSummary,
@@ -117,6 +118,7 @@ _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL = 0x01, 0x02, 0x03, 0x04
 _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x05, 0x06, 0x07
 _OP_CHUNK_INDEX, _OP_STATISTICS, _OP_METADATA, _OP_METADATA_INDEX = 0x08, 0x0B, 0x0C, 0x0D
 _OP_SUMMARY_OFFSET, _OP_DATA_END = 0x0E, 0x0F
+_OP_ATTACHMENT, _OP_ATTACHMENT_INDEX = 0x09, 0x0A
 _RECORD_HEADER = 1 + 8                 # opcode, length
 _MESSAGE_FIXED = 2 + 4 + 8 + 8         # channel, sequence, log time, publish time
 _NO_TIME = 2**63 - 1
@@ -136,6 +138,27 @@ class StoredMessage(NamedTuple):
     topic: str
     log_time_ns: int
     data: bytes
+
+
+def _body(data: bytes) -> io.BytesIO:
+    """``data`` as a record body for rosbags' ``write_record`` (which takes its length from
+    the stream's position)."""
+    rec = io.BytesIO()
+    rec.write(data)
+    return rec
+
+
+def _metadata_body(name: str, values: Mapping[str, str]) -> io.BytesIO:
+    """The body of an MCAP metadata record: its name and its string map (keys sorted)."""
+    rec = io.BytesIO()
+    write_string(rec, name)
+    pairs = io.BytesIO()
+    for key in sorted(values):
+        write_string(pairs, key)
+        write_string(pairs, values[key])
+    write_uint32(rec, pairs.tell())
+    rec.write(pairs.getvalue())
+    return rec
 
 
 def _messages_in(records: bytes, topics: Mapping[int, str]) -> list[StoredMessage]:
@@ -230,6 +253,8 @@ class _CrcMcapWriter(McapWriter):
         self.channel_stats = {}
         self.blocks: list[_Block] = []
         self.index_bytes = 0  # the chunk index records of the summary section
+        #: The metadata and attachment records written: (index opcode, file offset, index body)
+        self.described: list[tuple[int, int, bytes]] = []
         self.torn = False
         rec = io.BytesIO()
         write_string(rec, 'ros2')
@@ -319,6 +344,48 @@ class _CrcMcapWriter(McapWriter):
                                   {cid: len(msgs) for cid, msgs in chunk.msgs.items()}))
         self.chunk = PendingChunk(_NO_TIME, 0, io.BytesIO(), defaultdict(list))
 
+    def describe(self, records: Sequence[MetadataRecord],
+                 attachments: Sequence[Attachment]) -> None:
+        """Write metadata and attachment records (after the chunk being filled, so that they
+        are top-level records of the data section) in one piece, and keep their index entries
+        for the summary section; an OSError writes none of them."""
+        if self.chunk.msgs:
+            self.close_chunk()
+        start = self.raw.position
+        block = io.BytesIO()
+        entries: list[tuple[int, int, bytes]] = []
+        for record in records:
+            at = start + block.tell()
+            write_record(block, _OP_METADATA, _metadata_body(record.name, record.values))
+            index = io.BytesIO()
+            write_uint64(index, at)
+            write_uint64(index, start + block.tell() - at)
+            write_string(index, record.name)
+            entries.append((_OP_METADATA_INDEX, at, index.getvalue()))
+        for item in attachments:
+            at = start + block.tell()
+            rec = io.BytesIO()
+            write_uint64(rec, item.log_time_ns)
+            write_uint64(rec, item.log_time_ns)  # create time: when it came into the recording
+            write_string(rec, item.name)
+            write_string(rec, item.media_type)
+            write_uint64(rec, len(item.data))
+            rec.write(item.data)
+            write_uint32(rec, zlib.crc32(rec.getvalue()))
+            write_record(block, _OP_ATTACHMENT, rec)
+            index = io.BytesIO()
+            write_uint64(index, at)
+            write_uint64(index, start + block.tell() - at)
+            write_uint64(index, item.log_time_ns)
+            write_uint64(index, item.log_time_ns)
+            write_uint64(index, len(item.data))
+            write_string(index, item.name)
+            write_string(index, item.media_type)
+            entries.append((_OP_ATTACHMENT_INDEX, at, index.getvalue()))
+        self._append(block.getvalue())
+        self.described += entries
+        self.index_bytes += sum(_RECORD_HEADER + len(body) for _, _, body in entries)
+
     def finish(self, metadata: str) -> None:
         """Write the chunk being filled, then the ``rosbag2`` metadata record, DataEnd with the
         data section's CRC, the summary section (rosbags' ``McapWriter.close``, 0.11.9) and the
@@ -333,14 +400,8 @@ class _CrcMcapWriter(McapWriter):
         base = self.raw.position
         tail = io.BytesIO()
 
-        rec = io.BytesIO()
-        write_string(rec, 'rosbag2')
-        sub = io.BytesIO()
-        write_string(sub, 'serialized_metadata')
-        write_string(sub, metadata)
-        write_uint32(rec, sub.tell())
-        rec.write(sub.getvalue())
-        write_record(tail, _OP_METADATA, rec)
+        write_record(tail, _OP_METADATA,
+                     _metadata_body(ROSBAG2_RECORD, {'serialized_metadata': metadata}))
         metadata_end = base + tail.tell()
         rec = io.BytesIO()
         write_uint32(rec, zlib.crc32(tail.getvalue(), self.raw.crc))
@@ -356,11 +417,18 @@ class _CrcMcapWriter(McapWriter):
         chunk_start = base + tail.tell()
         for index in self.chunks:
             write_record(tail, _OP_CHUNK_INDEX, index)
+        attachment_index_start = base + tail.tell()
+        for opcode, _, body in self.described:
+            if opcode == _OP_ATTACHMENT_INDEX:
+                write_record(tail, opcode, _body(body))
         metadata_index_start = base + tail.tell()
+        for opcode, _, body in self.described:
+            if opcode == _OP_METADATA_INDEX:
+                write_record(tail, opcode, _body(body))
         rec = io.BytesIO()
         write_uint64(rec, base)
         write_uint64(rec, metadata_end - base)
-        write_string(rec, 'rosbag2')
+        write_string(rec, ROSBAG2_RECORD)
         write_record(tail, _OP_METADATA_INDEX, rec)
 
         statistics_start = base + tail.tell()
@@ -368,8 +436,9 @@ class _CrcMcapWriter(McapWriter):
         write_uint64(rec, sum(self.channel_stats.values()))
         write_uint16(rec, len(self.schemas))
         write_uint32(rec, len(self.channels))
-        write_uint32(rec, 0)  # attachments
-        write_uint32(rec, 1)  # metadata
+        kinds = [opcode for opcode, _, _ in self.described]
+        write_uint32(rec, kinds.count(_OP_ATTACHMENT_INDEX))
+        write_uint32(rec, 1 + kinds.count(_OP_METADATA_INDEX))  # and rosbag2's own
         write_uint32(rec, len(self.chunks))
         write_uint64(rec, self.message_start_time)
         write_uint64(rec, self.message_end_time)
@@ -382,7 +451,9 @@ class _CrcMcapWriter(McapWriter):
         summary_offset_start = base + tail.tell()
         for opcode, begin, end in ((_OP_SCHEMA, schema_start, channel_start),
                                    (_OP_CHANNEL, channel_start, chunk_start),
-                                   (_OP_CHUNK_INDEX, chunk_start, metadata_index_start),
+                                   (_OP_CHUNK_INDEX, chunk_start, attachment_index_start),
+                                   (_OP_ATTACHMENT_INDEX, attachment_index_start,
+                                    metadata_index_start),
                                    (_OP_METADATA_INDEX, metadata_index_start, statistics_start),
                                    (_OP_STATISTICS, statistics_start, summary_offset_start)):
             if begin != end or opcode in (_OP_METADATA_INDEX, _OP_STATISTICS):
@@ -449,6 +520,9 @@ class _CrcMcapWriter(McapWriter):
             self.torn = True
             raise
         self.blocks.pop()
+        cut = [e for e in self.described if e[1] >= block.start]  # written after that chunk
+        self.described = [e for e in self.described if e[1] < block.start]
+        self.index_bytes -= sum(_RECORD_HEADER + len(body) for _, _, body in cut)
         index = self.chunks.pop()
         self.index_bytes -= _RECORD_HEADER + index.tell()
         for cid, n in block.counts.items():
@@ -502,6 +576,13 @@ class McapFile:
         self._storage.add_connection(conn, qos)
         self._static_bytes += 128 + 2 * len(topic.name) + len(topic.msgtype) + len(qos)
         self.connections[topic.name] = conn
+
+    def describe(self, records: Sequence[MetadataRecord] = (),
+                 attachments: Sequence[Attachment] = ()) -> None:
+        """Write metadata and attachment records (:mod:`positioning_cell.bag.description`)
+        after the messages so far; indexed in the summary section."""
+        if records or attachments:
+            self._storage.describe(records, attachments)
 
     def write(self, topic: str, data: bytes, log_time_ns: int) -> None:
         """Append one message of a registered ``topic`` (log time in ns since the epoch)."""
@@ -603,8 +684,8 @@ class McapFile:
 @dataclass(frozen=True)
 class WriteFailure:
     """A bag whose writing failed, and what is in it: the ``operation`` that failed
-    (``write``, ``flush``, ``split``, ``close`` or ``reserve``), the OSError's ``errno`` and
-    ``reason`` (strerror) and the ``file`` it came from; the ``bag``, whether it was
+    (``write``, ``flush``, ``split``, ``describe``, ``close`` or ``reserve``), the OSError's
+    ``errno`` and ``reason`` (strerror) and the ``file`` it came from; the ``bag``, whether it was
     ``closed`` cleanly (indexed files and metadata.yaml: readable as it is; else
     ``recover_bag`` restores the ``messages`` on disk), the ``messages`` in it and the
     messages ``lost`` (accepted by :meth:`BagWriter.write` but not in the bag)."""
@@ -688,6 +769,8 @@ class BagWriter:
         self._max_span_ns = round(split_max_duration_s * 1e9)
         self._typestore = typestore
         self._custom = dict(custom_data or {})
+        self._records: list[MetadataRecord] = []
+        self._attachments: list[Attachment] = []
         self._topics: dict[str, _Topic] = {}
         self._done: list[FileSummary] = []
         self._created = 0
@@ -745,6 +828,20 @@ class BagWriter:
         except OSError as err:
             unwritten = (topic, data, receive_time_ns) if operation == 'split' else None
             raise self._fail(operation, err, unwritten) from err
+
+    def describe(self, records: Sequence[MetadataRecord] = (),
+                 attachments: Sequence[Attachment] = ()) -> None:
+        """Store metadata and attachment records (what the bag says of itself,
+        :mod:`positioning_cell.bag.description`) in the file being written, after its
+        messages so far, and again at the start of every later file of a split, so that each
+        file describes itself. BagWriteError when the disk fails."""
+        current = self._active()
+        try:
+            current.describe(records, attachments)
+        except OSError as err:
+            raise self._fail('describe', err) from err
+        self._records += records
+        self._attachments += attachments
 
     def flush(self) -> None:
         """Write the chunk being filled to the file (bounds the loss of a killed process) and
@@ -835,6 +932,11 @@ class BagWriter:
         self._created += 1
         for entry in self._topics.values():
             new.add_topic(entry.meta, entry.schema)
+        try:
+            new.describe(self._records, self._attachments)
+        except OSError:
+            new.abandon()
+            raise
         return new
 
     def _split(self) -> McapFile:

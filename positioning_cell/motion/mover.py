@@ -73,6 +73,7 @@ from positioning_cell.names import (
     HOME,
     JOINT_TRAJECTORY,
     MEASURED_POSE,
+    NO_CALIBRATION,
     STOP,
     TRAJECTORY_STATUS,
 )
@@ -754,7 +755,7 @@ class Mover:
                 'last_reason': self.last_reason, 'progress': round(self.progress(), 3),
                 'referenced': self.referenced,
                 'position_confirmed': self.position_confirmed,
-                'calibration': self.settings.compensation.calibration_file or 'none',
+                'calibration': self.settings.compensation.calibration_file or NO_CALIBRATION,
                 'tracker_registration': 'received' if self.registration is not None
                 else 'none (the readings\' common part told by their scatter)'}
 

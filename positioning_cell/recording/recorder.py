@@ -1,18 +1,22 @@
 """The recorder's logic without ROS: a :class:`~positioning_cell.bag.BagWriter` with pause and
-resume, what happens after writing failed, the counts, the free-space checks, and the status it
-publishes (:mod:`positioning_cell.recording.status`). ``recorder_node`` feeds it the messages
-and the timers' ticks and publishes what it says."""
+resume, what happens after writing failed, the counts, the free-space checks, the run's
+description and calibrations stored in the bag (:mod:`positioning_cell.recording.description`),
+and the status it publishes (:mod:`positioning_cell.recording.status`). ``recorder_node``
+feeds it the messages and the timers' ticks and publishes what it says."""
 
 from __future__ import annotations
 
 import os
+import time
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from positioning_cell import names
 from positioning_cell.bag.errors import BagError
 from positioning_cell.bag.settings import RecorderSettings
 from positioning_cell.bag.writer import BagWriteError, BagWriter, WriteFailure
+from positioning_cell.recording.description import CalibrationWatch, load_description
 from positioning_cell.recording.disk import DiskReport, FreeSpace, free_bytes
 from positioning_cell.recording.status import RecorderStatus, recorder_status
 
@@ -26,9 +30,13 @@ def default_output(now: datetime | None = None) -> Path:
 class Recorder:
     """The bag of a recording (``settings.output``, or :func:`default_output`; BagError if it
     cannot be created) and its state. Once writing failed (``failure``), the bag is closed and
-    nothing more is written: messages are counted as ``not_recorded``."""
+    nothing more is written: messages are counted as ``not_recorded``. The run's description
+    (``settings.description_file``; ConfigError if it cannot be used, before any bag is made)
+    goes in first; the calibrations the positioner takes are stored as they come."""
 
     def __init__(self, settings: RecorderSettings) -> None:
+        description = (load_description(settings.description_file, time.time_ns())
+                       if settings.description_file else None)
         self.writer = BagWriter(
             settings.output or default_output(), compression=settings.compression,
             chunk_bytes=settings.chunk_bytes, split_max_bytes=settings.split.max_bytes,
@@ -41,6 +49,9 @@ class Recorder:
         self.write_errors = 0
         self.disk: DiskReport | None = None
         self._free_space = FreeSpace(settings.disk)
+        self._calibration = CalibrationWatch()
+        if description is not None:
+            self.writer.describe([description[0]], description[1])
 
     def record(self, topic: str, msgtype: str, data: bytes, receive_time_ns: int
                ) -> BagError | None:
@@ -56,6 +67,10 @@ class Recorder:
             return None
         try:
             self.writer.write(topic, msgtype, data, receive_time_ns)
+            if topic == names.DIAGNOSTICS:
+                taken = self._calibration.observe(data, receive_time_ns)
+                if taken is not None:
+                    self.writer.describe(*taken)
         except BagWriteError as err:
             self.failure = err.failure
             return err

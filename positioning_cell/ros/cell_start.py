@@ -63,14 +63,18 @@ def new_run_folder(runs_dir: Path) -> Path:
     return run_dir
 
 
-def run_overrides(run_dir: Path) -> Path:
+def run_overrides(run_dir: Path, description: Path | None = None) -> Path:
     """The run's parameter overrides, ``run_dir/run_overrides.yaml``: the recorder writes
-    ``run_dir/bag`` and also records the run driver's marker topics."""
+    ``run_dir/bag``, also records the run driver's marker topics and stores the run's
+    ``description`` file in the bag
+    (:func:`positioning_cell.recording.description.write_description_file`)."""
     path = run_dir / 'run_overrides.yaml'
     pattern = '|'.join(re.escape(t) for t in (names.PROGRAM, names.AXIS_TEST,
                                               names.COMPLIANCE_TEST))
-    path.write_text(yaml.safe_dump({names.NODE_RECORDER: {'ros__parameters': {
-        'output': str(run_dir / 'bag'), 'topic_pattern': pattern}}}))
+    recorder = {'output': str(run_dir / 'bag'), 'topic_pattern': pattern}
+    if description is not None:
+        recorder['description_file'] = str(description)
+    path.write_text(yaml.safe_dump({names.NODE_RECORDER: {'ros__parameters': recorder}}))
     return path
 
 

@@ -26,6 +26,7 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, W
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.analysis.program import ProgramStep
+from positioning_cell.bag.description import RUN_RECORD, MetadataRecord
 from positioning_cell.bag.metadata import make_qos
 from positioning_cell.bag.writer import DEFAULT_CHUNK_BYTES, BagWriter
 from positioning_cell.calibration.collect import FIT, Marker
@@ -147,7 +148,8 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
                   calibration_run: str | None = None,
                   registration_um: Sequence[float] | None = None,
                   variance_factor: float = 1.0, move_ends: bool = True,
-                  tracker_registration: tuple[ArrayLike, ArrayLike] | None = None) -> int:
+                  tracker_registration: tuple[ArrayLike, ArrayLike] | None = None,
+                  description: Mapping[str, str] | None = None) -> int:
     """Write ``run`` as a bag at ``path`` (must not exist): targets, measurements, and as
     asked the truth, the program steps, the positioner's mode diagnostics (a ``moving``
     status at each target and, with ``move_ends``, a ``settled`` one at each move's end) and
@@ -168,7 +170,8 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
     µm; their RMS and max, ``variance_factor``) in the pose_measurement diagnostics at the
     first and the last measurement; ``tracker_registration``: (origin (3,) m, covariance
     (6, 6)) on /metrology/registration (latched) just before the first measurement, as the
-    tracker publishes where it located itself. Returns the messages written."""
+    tracker publishes where it located itself. ``description``: the run record's values the
+    cell's recorder stores first (``writer='cell'`` only). Returns the messages written."""
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -276,6 +279,8 @@ def write_run_bag(path: str | Path, run: SyntheticRun, *, truth: bool = True,
 
     if writer == 'cell':
         with BagWriter(path, compression=compression, chunk_bytes=chunk_bytes) as bag:
+            if description is not None:
+                bag.describe([MetadataRecord(RUN_RECORD, description)])
             for topic, (msgtype, q) in qos.items():
                 bag.add_topic(topic, msgtype, [q])
             for topic, msgtype, raw, log_ns in serialized():

@@ -37,7 +37,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,9 +50,11 @@ from positioning_cell.analysis.fleet import (
     Trends,
     digest_bag,
     find_bags,
+    select_bags,
     trends,
 )
 from positioning_cell.analysis.fleet_report import write_plots, write_report
+from positioning_cell.bag.description import parse_where
 from positioning_cell.config import config_path
 from positioning_cell.errors import InputError, PositioningError
 from positioning_cell.tools.exits import Exit, exit_table
@@ -209,17 +211,26 @@ def digest_bags(client: Any, bags: Sequence[Path], settings: MonitorSettings | N
 
 def analyze_fleet(paths: Sequence[str | Path], out_dir: str | Path = DEFAULT_OUT,
                   config: str | Path | None = None, scheduler: str | None = None,
-                  workers: int | None = None, say: Callable[[str], None] = print
-                  ) -> FleetOutput:
-    """Find the bags under ``paths``, digest each on Dask (:func:`dask_client`), and write
+                  workers: int | None = None, say: Callable[[str], None] = print,
+                  where: Mapping[str, str] | None = None) -> FleetOutput:
+    """Find the bags under ``paths`` (only those whose description has every ``key: value``
+    of ``where``: :func:`select_bags`), digest each on Dask (:func:`dask_client`), and write
     the trend report, JSON and plots into ``out_dir``. Raises PositioningError (InputError,
-    ConfigError) when nothing can be analysed: no bag, a bad config, no scheduler."""
-    bags = find_bags(paths)
+    ConfigError) when nothing can be analysed: no bag (none selected), a bad config, no
+    scheduler."""
+    found = find_bags(paths)
+    bags = select_bags(found, where or {})
+    if not bags:
+        terms = ', '.join(f'{k}={v}' for k, v in (where or {}).items())
+        raise InputError(f'none of the {len(found)} bag(s) found has {terms} in its '
+                         'description')
+    if len(bags) < len(found):
+        say(f'analyze_bags: {len(bags)} of {len(found)} bag(s) selected by their description')
     settings = MonitorSettings.from_file(config or config_path('cell.yaml'))
     local = min(workers or cores(), len(bags))
-    where = (f'the scheduler at {scheduler}' if scheduler is not None else
-             f'{local} local worker process(es)')
-    say(f'analyze_bags: {len(bags)} bag(s) on {where}')
+    on = (f'the scheduler at {scheduler}' if scheduler is not None else
+          f'{local} local worker process(es)')
+    say(f'analyze_bags: {len(bags)} bag(s) on {on}')
     with dask_client(scheduler, local) as client:
         digests, failures = digest_bags(client, bags, settings, say)
     return report_fleet(digests, failures, out_dir)
@@ -274,7 +285,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                             'this package and the bags at the same paths)')
     where.add_argument('--workers', type=_positive,
                        help='local worker processes (default: one per core)')
+    parser.add_argument('--where', action='append', default=[], metavar='KEY=VALUE',
+                        help='only the bags whose description has this value (repeatable; '
+                             'keys such as kind, program, mechanism_fingerprint, '
+                             'calibration_file, calibration_sha256: analyze_bag\'s report '
+                             'lists a bag\'s keys)')
     args = parser.parse_args(argv)
+    try:
+        selection = parse_where(args.where)
+    except ValueError as err:
+        parser.error(str(err))
 
     def say(line: str) -> None:
         print(line, flush=True)
@@ -282,7 +302,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with interruptible():
             output = analyze_fleet(args.paths, args.out, args.config, args.scheduler,
-                                   args.workers, say)
+                                   args.workers, say, selection)
     except SchedulerUnreachableError as err:
         print(f'analyze_bags: error: {err}', file=sys.stderr)
         return Exit.NOT_THERE

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
 from positioning_cell.procedures.port import ProcedureError
 from positioning_cell.procedures.program_run import RunOutcome, calibrate_and_load, run_program
+from positioning_cell.recording.description import write_description_file
 from positioning_cell.ros.cell_start import StartError, new_run_folder, run_overrides, start_cell
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import DomainError, free_domain
@@ -76,7 +78,9 @@ def run(program_path: Path | None = None, config: Path | None = None,
                     client = CellClient(domain, 'run_cell', signals=False)
                     client.advertise_program()
                     say(f'ROS_DOMAIN_ID {domain}, logs in {run_dir / "logs"}')
-                    start_cell(procs, client, config, run_overrides(run_dir),
+                    described = write_description_file(
+                        run_dir, 'program', [config], program_path, program.moves, sys.argv)
+                    start_cell(procs, client, config, run_overrides(run_dir, described),
                                (program.position[0], program.quaternion[0]),
                                program.settle_timeout, say)
                     outcome = run_program(RosCellPort(client), program, config, run_dir, say,

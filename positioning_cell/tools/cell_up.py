@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -76,13 +77,15 @@ def up(args: argparse.Namespace, say: Callable[[str], None] = _say,
         return Exit.USAGE
     nodes = chosen_nodes({'record': args.record, 'live_view': args.live_view,
                           'calibrator': args.calibrator})
+    from positioning_cell.recording.description import write_description_file
     from positioning_cell.ros.cell_start import new_run_folder, run_overrides
 
     run_dir = new_run_folder(runs_dir)
     logs = run_dir / 'logs'
     env = cell_environment(domain)
     env.setdefault('ROS_LOG_DIR', str(logs / 'ros'))
-    overrides = run_overrides(run_dir)
+    overrides = run_overrides(run_dir, write_description_file(run_dir, 'interactive', [config],
+                                                              command=sys.argv))
     status: int = Exit.OK
     stopped_by = ''
     with interruptible() as signals:
