@@ -41,6 +41,7 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 	# Compile the numba kernels once now (cached on disk), not in the first process that needs them.
 	$(PY) -c 'from positioning_cell.core import kinematics; kinematics.warm_up()'
 	$(PY) -c 'from positioning_cell.tolerance import montecarlo; montecarlo.warm_up()'
+	$(PY) -c 'from positioning_cell.limits import axis_ranges; axis_ranges.warm_up()'
 	touch $(STAMP)
 
 # The suite in two tiers: everything but the timing tests in TEST_WORKERS pytest-xdist workers
