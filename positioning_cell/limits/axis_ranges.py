@@ -12,11 +12,14 @@ binds before, the end is there and its binding is :data:`SPAN_LIMIT`.
 
 Method: along each of the 12 directions (axis, sign) the margins are evaluated at
 :data:`COARSE_STEPS` equal steps of the span until the first invalid one, then the crossing is
-bisected to :data:`TOLERANCE` (m or rad; 0.1 µm, 0.1 µrad). Each end is the last valid value
-found: valid itself, the true boundary at most :data:`TOLERANCE` beyond it. An invalid sliver
-narrower than one coarse step (span / 64) between two valid steps is not seen: the margins are
-smooth on that scale for this mechanism. All twelve bounds run in one compiled kernel
-(:mod:`positioning_cell.core.compiled`; ~1 ms on one core, benchmarks/axis_ranges.py).
+bracketed to :data:`TOLERANCE` (m or rad; 0.1 µm, 0.1 µrad) by false position on the worst
+margin (Illinois), a bisection every third step. Each end is the last valid value found: valid
+itself, the true boundary at most :data:`TOLERANCE` beyond it. An invalid sliver narrower than
+one coarse step (span / 64) between two valid steps is not seen: the margins are smooth on
+that scale for this mechanism (the tests compare with a scan 60 times finer). All twelve
+bounds run in one compiled kernel (:mod:`positioning_cell.core.compiled`; ~1 ms on one core,
+benchmarks/axis_ranges.py): a node that calls it warms it while it is built
+(:func:`warm_up`).
 """
 
 from __future__ import annotations
@@ -39,9 +42,9 @@ from positioning_cell.parameters import check_fields, setting
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-#: Coarse steps of each direction's span before the bisection of the first crossing.
+#: Coarse steps of each direction's span before the first crossing is bracketed.
 COARSE_STEPS = 64
-#: Width (m for Tx..Tz, rad for Rx..Rz) below which the bisection of a crossing stops.
+#: Width (m for Tx..Tz, rad for Rx..Rz) of the bracket of a crossing at the end.
 TOLERANCE = 1e-7
 #: The binding of an end where no limit binds within the span.
 SPAN_LIMIT = 'span limit'
