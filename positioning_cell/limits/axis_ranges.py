@@ -64,8 +64,8 @@ DEFAULT_SPANS = (0.1,) * LINEAR + (1.0,) * LINEAR
 
 @dataclass(frozen=True)
 class AxisRangeSettings:
-    """The live axis ranges of the positioner (``operator.axis_ranges``): how far the search
-    goes along each axis, and how often they are published."""
+    """The live axis ranges' settings: how far the search goes along each axis, and how often
+    a publisher gives them (the positioner's, once it publishes them: not yet)."""
 
     spans: tuple[float, ...] = setting(
         DEFAULT_SPANS, 'farthest an axis range reaches from the pose on each side, Tx, Ty, Tz '
