@@ -24,9 +24,12 @@ setup: $(STAMP)
 # The typed interfaces (actions, services): a second ROS package, built from its own folder by
 # scikit-build-core against the ROS 2 wheels into the venv prefix (nothing to source; about a
 # minute the first time, then reused), and by colcon on a ROS install (docs/howto/building.md).
+# tf2_msgs (for /tf and /tf_static), which the PyPI wheels lack, is built the same way from its
+# Jazzy definitions, only where it is not importable already; a ROS install uses its own.
 INTERFACES := interfaces/positioning_cell_interfaces
-INTERFACE_FILES := $(wildcard $(INTERFACES)/*.txt $(INTERFACES)/*.xml $(INTERFACES)/*.toml \
-	$(INTERFACES)/msg/*.msg $(INTERFACES)/srv/*.srv $(INTERFACES)/action/*.action)
+TF2_MSGS := interfaces/tf2_msgs
+INTERFACE_FILES := interfaces/ros_wheels.cmake $(foreach d,$(INTERFACES) $(TF2_MSGS), \
+	$(wildcard $(d)/*.txt $(d)/*.xml $(d)/*.toml $(d)/msg/*.msg $(d)/srv/*.srv $(d)/action/*.action))
 
 # Reinstalls only when the package metadata or the interfaces change; the package itself is
 # editable.
@@ -34,7 +37,8 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	test -x $(UV) || $(PY) -m pip install --quiet --disable-pip-version-check uv==0.13.9
 	$(UV) pip install --quiet --compile-bytecode --python $(PY) --reinstall-package \
-		positioning_cell_interfaces ./$(INTERFACES) -e '.[cell,test]'
+		positioning_cell_interfaces ./$(INTERFACES) -e '.[cell,test]' \
+		$$($(PY) -c 'import tf2_msgs.msg' 2>/dev/null || echo ./$(TF2_MSGS))
 	# The package's bytecode now (the editable install leaves it to the first import; RUN_ENV
 	# lets later imports refresh it), so that the first nodes started do not each compile it.
 	$(PY) -m compileall -q positioning_cell
@@ -91,5 +95,5 @@ docs: $(STAMP)
 	env $(RUN_ENV) $(VENV)/bin/sphinx-build -W --keep-going -j auto -b html docs build/docs
 
 clean:
-	rm -rf $(VENV) $(TMP) build install log $(INTERFACES)/build docs/api/generated \
+	rm -rf $(VENV) $(TMP) build install log $(INTERFACES)/build $(TF2_MSGS)/build docs/api/generated \
 		docs/reference/generated

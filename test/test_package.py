@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ET
 from importlib.metadata import distribution
 from pathlib import Path
 
@@ -167,6 +168,25 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
                 log.close()
         logs = {n: (tmp_path / f'{n}.log').read_text(errors='replace')[-2000:] for n in nodes}
         assert all(code == 0 for code in codes.values()), (codes, logs)
+
+
+def test_the_interface_packages_build_from_the_same_wheels() -> None:
+    """interfaces/tf2_msgs is built as the project's interfaces are (docs/howto/building.md):
+    the same pinned build requirements, the ROS package and version its definitions come
+    from, skipped by colcon; the installed one is the standard TFMessage."""
+    import tomllib
+    from tf2_msgs.msg import TFMessage
+
+    folders = [REPO / 'interfaces' / name for name in ('positioning_cell_interfaces', 'tf2_msgs')]
+    builds = [tomllib.loads((f / 'pyproject.toml').read_text())['build-system'] for f in folders]
+    assert builds[0] == builds[1]
+    assert (REPO / 'interfaces' / 'tf2_msgs' / 'COLCON_IGNORE').is_file()
+    package = ET.parse(folders[1] / 'package.xml').getroot()
+    assert (package.findtext('name'), package.findtext('version')) == ('tf2_msgs', '0.36.4')
+    assert (folders[1] / 'msg' / 'TFMessage.msg').read_text() == (
+        'geometry_msgs/TransformStamped[] transforms\n')
+    assert TFMessage.get_fields_and_field_types() == {
+        'transforms': 'sequence<geometry_msgs/TransformStamped>'}
 
 
 def test_colcon_finds_both_packages_from_the_documented_base_paths() -> None:
