@@ -17,6 +17,11 @@ MACHINE_FRAME = 'machine'
 USER_FRAME = 'user'
 #: The object CS (T_platform_object); its origin is the pivot.
 OBJECT_FRAME = 'object'
+#: The platform where the tracker measures it and where the running trajectory commands it
+#: (children of ``base``; ``platform`` is the estimate from the encoders): on /tf and in the
+#: live view.
+PLATFORM_MEASURED_FRAME = 'platform_measured'
+PLATFORM_COMMANDED_FRAME = 'platform_commanded'
 #: The frames an absolute goal may be given in.
 ABSOLUTE_FRAMES = (BASE_FRAME, MACHINE_FRAME, USER_FRAME)
 #: The frames a watch window shows deviations in.
@@ -94,6 +99,16 @@ MEASURED_POSE = '/metrology/pose'
 #: common to every reading on MEASURED_POSE), latched: published on each locate.
 TRACKER_REGISTRATION = '/metrology/registration'
 TRUE_POSE = '/sim/platform/true_pose'
+#: The machine as ROS tools (RViz, Foxglove's 3-D panel, robot_state_publisher) see it
+#: (docs/conventions/robot-description.md): the URDF of the positioner's model
+#: (std_msgs/String, latched), every joint's value, actuated and passive (sensor_msgs/JointState,
+#: the estimate's), the tree's transforms and the platform's measured pose (tf2_msgs/TFMessage)
+#: and the static frames (tf2_msgs/TFMessage, latched: the tree's fixed joints, base → machine,
+#: user, tracker as located; platform → object).
+ROBOT_DESCRIPTION = '/robot_description'
+ROBOT_JOINT_STATES = '/joint_states'
+TF = '/tf'
+TF_STATIC = '/tf_static'
 #: The cell's air temperature (sensor_msgs/Temperature, °C, frame ``base``): the sensor's
 #: reading, with its own error (the pose_measurement simulator publishes it); what the
 #: compensation, the tracker's refraction correction and each calibration pose's conditions
@@ -131,7 +146,8 @@ CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
     ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRACKER_REGISTRATION, TRUE_POSE, AIR_TEMPERATURE,
     POSITION_ERROR, ORIENTATION_ERROR, DIAGNOSTICS, PROGRAM, CALIBRATION, AXIS_TEST,
-    COMPLIANCE_TEST, LOAD_COMMAND, LOAD_FORCE,
+    COMPLIANCE_TEST, LOAD_COMMAND, LOAD_FORCE, ROBOT_DESCRIPTION, ROBOT_JOINT_STATES, TF,
+    TF_STATIC,
 )
 
 #: Parameter changes of every node (rcl_interfaces ParameterEvent, ROS's own topic): the watch
@@ -148,9 +164,6 @@ LIVE_TRANSFORMS = '/live/transforms'
 LIVE_DEVIATION = '/live/deviation'
 #: The positioner's state and the accuracy monitor's last verdict (JSON).
 LIVE_STATUS = '/live/status'
-#: Frames of the live view besides base and platform (the estimate from the encoders).
-PLATFORM_COMMANDED_FRAME = 'platform_commanded'
-PLATFORM_MEASURED_FRAME = 'platform_measured'
 
 # -- services (positioning_cell_interfaces unless named otherwise) ------------------------------
 #: Move and return when settled (srv MoveToPose).

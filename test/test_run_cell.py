@@ -12,6 +12,7 @@ import signal
 import subprocess
 import threading
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -25,6 +26,9 @@ from cell_harness import (
     processes_naming,
     wait_until,
 )
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
 
 from positioning_cell import names
 from positioning_cell.analysis.axis_test import TRUTH, AxisTestMarker, axis_test_figures
@@ -33,8 +37,11 @@ from positioning_cell.bag import BagReader
 from positioning_cell.bag.description import bag_description
 from positioning_cell.calibration import file as calfile
 from positioning_cell.config import load_parameter_file, node_parameters
+from positioning_cell.core.kinematics import inverse, leg_directions, platform_points
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.parameters import parse
+from positioning_cell.robot.tree import RobotTree
+from positioning_cell.robot.urdf import MOVING_JOINT_NAMES
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
@@ -187,6 +194,81 @@ def test_run_cell_runs_a_program_records_and_analyses_it(program: Path, tmp_path
     # the home pose, the calibration poses the monitor saw settle, then the program's moves
     assert sum(live['verdicts'].values()) >= 1 + 4
     _check_the_axis_test(run, text, summary)
+    _check_the_machine_as_ros_tools_see_it(run / 'bag')
+
+
+def _check_the_machine_as_ros_tools_see_it(bag: Path) -> None:
+    """The bag shows the machine to Foxglove's 3-D panel and RViz: /robot_description, /tf
+    and /tf_static decoded with the standard message definitions (rosbags' Jazzy typestore, not
+    the bag's schemas); each of the positioner's /tf states, composed along the tree with
+    scipy, puts the platform at its pose estimate of that instant and every leg's rod and S
+    joint where the inverse kinematics puts them (1e-9 m, 1e-9 rad); the tracker's frame and
+    measured pose are there, and /joint_states names every joint."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    topics = (names.ROBOT_DESCRIPTION, names.TF, names.TF_STATIC, names.ROBOT_JOINT_STATES,
+              names.ESTIMATED_POSE)
+    found: dict[str, list[tuple[str, Any]]] = {t: [] for t in topics}
+    with AnyReader([bag], default_typestore=store) as reader:
+        for conn, _, raw in reader.messages([c for c in reader.connections if c.topic in topics]):
+            found[conn.topic].append((conn.msgtype, store.deserialize_cdr(raw, conn.msgtype)))
+    assert {t: {kind for kind, _ in found[t]} for t in topics[:4]} == {
+        names.ROBOT_DESCRIPTION: {'std_msgs/msg/String'}, names.TF: {'tf2_msgs/msg/TFMessage'},
+        names.TF_STATIC: {'tf2_msgs/msg/TFMessage'},
+        names.ROBOT_JOINT_STATES: {'sensor_msgs/msg/JointState'}}
+    tree = RobotTree.parse(found[names.ROBOT_DESCRIPTION][0][1].data)
+    assert tree.root == names.BASE_FRAME
+    static = {t.child_frame_id: t for _, m in found[names.TF_STATIC] for t in m.transforms}
+    assert {names.PLATFORM_FRAME, names.MACHINE_FRAME, names.USER_FRAME, names.OBJECT_FRAME,
+            names.TRACKER_FRAME} <= set(static)
+    states = [m for _, m in found[names.ROBOT_JOINT_STATES]]
+    assert states and all(list(m.name) == list(MOVING_JOINT_NAMES) for m in states)
+    estimates = {(m.header.stamp.sec, m.header.stamp.nanosec): m.pose
+                 for _, m in found[names.ESTIMATED_POSE]}
+    tree_states = [m for _, m in found[names.TF] if len(m.transforms) == len(MOVING_JOINT_NAMES)]
+    measured = [m for _, m in found[names.TF]
+                if [t.child_frame_id for t in m.transforms] == [names.PLATFORM_MEASURED_FRAME]]
+    assert len(tree_states) >= 100 and len(measured) >= 100, (len(tree_states), len(measured))
+    worst = [0.0, 0.0]
+    for message in tree_states[::10]:
+        stamp = message.transforms[0].header.stamp
+        pose = estimates[(stamp.sec, stamp.nanosec)]
+        p = np.array([pose.position.x, pose.position.y, pose.position.z])
+        q = np.array([pose.orientation.x, pose.orientation.y, pose.orientation.z,
+                      pose.orientation.w])
+        frames = _compose({t.child_frame_id: t for t in (*static.values(), *message.transforms)})
+        b = platform_points(MECH, p[None], q[None])[0]
+        joints = inverse(MECH, p, q)
+        u = leg_directions(MECH, joints.phis, joints.thetas)[0]
+        at, turned = frames[names.PLATFORM_FRAME]
+        worst = [max(worst[0], float(np.abs(at - p).max())),
+                 max(worst[1], (turned.inv() * Rotation.from_quat(q)).magnitude())]
+        for leg in (1, 2, 3):
+            rod_at, rod_turned = frames[f'leg{leg}_rod']
+            ball_at, ball_turned = frames[f'leg{leg}_s']
+            worst[0] = max(worst[0], float(np.abs(rod_at - b[leg - 1]).max()),
+                           float(np.abs(ball_at - b[leg - 1]).max()),
+                           float(np.abs(rod_turned.apply([0.0, 0.0, 1.0]) - u[leg - 1]).max()))
+            worst[1] = max(worst[1], (ball_turned.inv() * Rotation.from_quat(q)).magnitude())
+    assert worst[0] < 1e-9 and worst[1] < 1e-9, worst
+
+
+def _compose(transforms: dict[str, Any]) -> dict[str, tuple[np.ndarray, Rotation]]:
+    """Each frame's pose in ``base`` from TransformStamped messages by child frame."""
+    out: dict[str, tuple[np.ndarray, Rotation]] = {names.BASE_FRAME: (np.zeros(3),
+                                                                     Rotation.identity())}
+
+    def pose(frame: str) -> tuple[np.ndarray, Rotation]:
+        if frame not in out:
+            t = transforms[frame]
+            parent_at, parent_turned = pose(t.header.frame_id)
+            v, r = t.transform.translation, t.transform.rotation
+            out[frame] = (parent_at + parent_turned.apply([v.x, v.y, v.z]),
+                          parent_turned * Rotation.from_quat([r.x, r.y, r.z, r.w]))
+        return out[frame]
+
+    for frame in transforms:
+        pose(frame)
+    return out
 
 
 def _check_the_axis_test(run: Path, text: str, summary: dict[str, object]) -> None:

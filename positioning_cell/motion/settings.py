@@ -295,8 +295,8 @@ class PositionerSettings:
                                          high=60.0, dynamic=True)
     pose_rate_hz: float = setting(50.0, 'rate of the pose estimate on /positioner/pose', 'Hz',
                                   low=1.0, high=200.0)
-    markers_every: int = setting(5, 'markers are published with every this many pose '
-                                 'estimates', low=1, high=1000)
+    markers_every: int = setting(5, 'the markers, /joint_states and /tf are published with '
+                                 'every this many pose estimates', low=1, high=1000)
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -1,8 +1,10 @@
 """kinematics_node (node ``positioner``): pose commands by action or service → the operator's
 surface (:mod:`positioning_cell.motion.controller`: coordinate systems, limit layers, speeds,
 jog) → the move state machine (:mod:`positioning_cell.motion.mover`) → joint trajectories for
-the leg driver; the pose estimated from the encoders on /positioner/pose; the state, refusals,
-result codes and the operator's settings on /diagnostics."""
+the leg driver; the pose estimated from the encoders on /positioner/pose, and the machine for
+ROS tools at it (/robot_description, /joint_states, /tf, markers:
+:mod:`positioning_cell.ros.robot_state`); the state, refusals, result codes and the operator's
+settings on /diagnostics."""
 
 from __future__ import annotations
 
@@ -16,7 +18,6 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
-from visualization_msgs.msg import MarkerArray
 
 from positioning_cell import names
 from positioning_cell.motion.controller import Controller
@@ -35,6 +36,7 @@ from positioning_cell.ros import qos
 from positioning_cell.ros.latest import SourceReader
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.registration import RegistrationReader
+from positioning_cell.ros.robot_state import RobotState
 from positioning_cell.ros.senders import own_publisher_ids
 from positioning_cell.ros.spin import NodeStart, Spin
 
@@ -65,7 +67,6 @@ class PositionerNode(Node):
                                               qos.COMMAND_QOS)
         self.pub_target = self.create_publisher(PoseStamped, names.TARGET, qos.LATCHED_QOS)
         self.pub_pose = self.create_publisher(PoseStamped, names.ESTIMATED_POSE, qos.STREAM_QOS)
-        self.pub_markers = self.create_publisher(MarkerArray, names.MARKERS, qos.STREAM_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
                                               qos.DIAGNOSTICS_QOS)
         topics, services = MutuallyExclusiveCallbackGroup(), ReentrantCallbackGroup()
@@ -89,7 +90,8 @@ class PositionerNode(Node):
             publisher_ids=lambda: own_publisher_ids(self, names.JOINT_TRAJECTORY),
             registration=self._registration.take))
         self.controller = Controller(self.mover, settings.operator)  # ConfigError: no start
-        self._estimates = 0
+        self.robot = RobotState(self, self.mover.mech, settings.markers_every,
+                                lambda: self.controller.systems)
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
                                  qos.DIAGNOSTICS_QOS, callback_group=topics)
         self.create_subscription(Temperature, names.AIR_TEMPERATURE, self._on_temperature,
@@ -136,10 +138,7 @@ class PositionerNode(Node):
         msg = m.pose_stamped(estimate.position, estimate.quaternion, self._now())
         self.pub_pose.publish(msg)
         self.operator.publish_setpoint(msg.header.stamp)
-        self._estimates += 1
-        if self._estimates % self.params.settings.markers_every == 0:
-            self.pub_markers.publish(m.platform_markers(self.mover.mech, estimate.position,
-                                                        estimate.quaternion, msg.header))
+        self.robot.publish(estimate.position, estimate.quaternion, msg.header.stamp)
 
     def _status(self, level: str, message: str, code: ResultCode | None) -> None:
         op = getattr(self, 'controller', None)

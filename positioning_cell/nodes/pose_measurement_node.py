@@ -3,16 +3,18 @@ tracker measuring it (:mod:`positioning_cell.sim.pose_measurement`).
 
 At start the tracker locates itself on the base reference targets (``locate.*``; again on
 /pose_measurement/locate), logs the registration and its residuals and publishes it, latched, on
-/metrology/registration (the part of every reading's covariance common to all readings). The newest
+/metrology/registration (the part of every reading's covariance common to all readings) and as
+base → tracker on /tf_static. The newest
 /sim/legs/true_joint_states → the true platform pose (at most ``truth_rate_hz``) on
 /sim/platform/true_pose, stamped with the joint state's time → at ``rate_hz`` a tracker reading
 of the SMRs, converted to ``base`` with the located registration, the fitted pose and the
-cell's own covariance of it (datasheet noise and registration uncertainty) on /metrology/pose,
-stamped with the time of the truth it measured. At ``air_sensor.rate_hz`` the air-temperature
-sensor's reading on /cell/air_temperature (its variance the sensor's own error). The
-compliance test's load rig: a force on /load_rig/command (latched, frame ``base``) is applied
-to the machine and its load cell's reading published, latched, on /load_rig/force (at start:
-no load); a command it cannot take is logged and changes nothing.
+cell's own covariance of it (datasheet noise and registration uncertainty) on /metrology/pose
+and as base → platform_measured on /tf, stamped with the time of the truth it measured. At
+``air_sensor.rate_hz`` the air-temperature sensor's reading on /cell/air_temperature (its
+variance the sensor's own error). The compliance test's load rig: a force on /load_rig/command
+(latched, frame ``base``) is applied to the machine and its load cell's reading published,
+latched, on /load_rig/force (at start: no load); a command it cannot take is logged and
+changes nothing.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, WrenchStam
 from rclpy.node import Node
 from sensor_msgs.msg import JointState, Temperature
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
 from positioning_cell import names
 from positioning_cell.core.mechanism import JOINT_NAMES
@@ -31,7 +34,14 @@ from positioning_cell.errors import InputError
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.latest import Reader
 from positioning_cell.ros.parameters import NodeParameters
-from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
+from positioning_cell.ros.qos import (
+    DIAGNOSTICS_QOS,
+    LATCHED_QOS,
+    SERVICE_QOS,
+    STREAM_QOS,
+    TF_QOS,
+)
+from positioning_cell.ros.robot_state import frames_message
 from positioning_cell.ros.spin import NodeStart
 from positioning_cell.sim.pose_measurement import (
     PoseMeasurementSettings,
@@ -53,6 +63,8 @@ class PoseMeasurementNode(Node):
         self.sim = PoseMeasurementSimulator(settings)
         self._registration_pub = self.create_publisher(
             PoseWithCovarianceStamped, names.TRACKER_REGISTRATION, LATCHED_QOS)
+        self._tf_static_pub = self.create_publisher(TFMessage, names.TF_STATIC, LATCHED_QOS)
+        self._tf_pub = self.create_publisher(TFMessage, names.TF, TF_QOS)
         self._log_location()
         self._joints = Reader(self, JointState, names.TRUE_JOINT_STATES)
         self._true_pub = self.create_publisher(PoseStamped, names.TRUE_POSE, STREAM_QOS)
@@ -88,10 +100,12 @@ class PoseMeasurementNode(Node):
         location = self.sim.location
         covariance = None if location is None else location.tracker.covariance
         if location is not None and covariance is not None:
-            tracker = location.tracker
+            tracker, now = location.tracker, self.get_clock().now().to_msg()
             self._registration_pub.publish(m.registration_msg(
-                tracker.position, tracker.orientation, covariance,
-                self.get_clock().now().to_msg()))
+                tracker.position, tracker.orientation, covariance, now))
+            self._tf_static_pub.publish(frames_message(
+                [(names.BASE_FRAME, names.TRACKER_FRAME, tracker.position, tracker.orientation)],
+                now))
         level, message = self.sim.locate_status
         values = self.sim.location_values()
         if values:
@@ -129,6 +143,9 @@ class PoseMeasurementNode(Node):
         msg.pose.pose = m.pose_msg(reading.fit.position[0], reading.fit.quaternion[0])
         msg.pose.covariance = reading.fit.covariance[0].ravel().tolist()
         self._pose_pub.publish(msg)
+        self._tf_pub.publish(frames_message([(names.BASE_FRAME, names.PLATFORM_MEASURED_FRAME,
+                                              reading.fit.position[0], reading.fit.quaternion[0])],
+                                            reading.stamp))
 
     def _air_temperature(self) -> None:
         now = self.get_clock().now().to_msg()

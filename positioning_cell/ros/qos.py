@@ -69,6 +69,15 @@ DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.VOLATILE)
 
+#: /tf: tf2_ros's dynamic broadcaster profile (reliable, volatile, 100 deep).
+TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+#: /joint_states: robot_state_publisher's subscription depth, reliable. (/tf_static and
+#: /robot_description are LATCHED_QOS, as tf2_ros and robot_state_publisher publish them.)
+JOINT_STATES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
+
 _INFINITE_NS = 2**63 - 1
 
 
