@@ -6,6 +6,9 @@ a wide one where the mechanism's own limits bind):
 - :meth:`positioning_cell.limits.axis_ranges.RangeModel.ranges` per pose: median and p95 of
   wall time, the model taken from :meth:`RangeModel.cached` (the positioner's limits and
   coordinate systems change seldom), and apart the time to build a model anew;
+- the same searches as the positioner runs them, through its range worker (a process of its
+  own, :mod:`positioning_cell.limits.range_worker`): the round trip per pose, the pipe and
+  pickles included, median and p95, once the worker is ready;
 - a baseline in the same run: one single-pose validity check as the positioner makes it
   (:func:`positioning_cell.limits.validity.factory_check` and the machine box on scipy's Euler
   angles), median.
@@ -29,7 +32,9 @@ from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.frames.transforms import Transform, pose6_from_pq
 from positioning_cell.limits import axis_ranges
 from positioning_cell.limits.boxes import BoxLimits, LimitLayers, base_pq_of_machine_pose6
+from positioning_cell.limits.range_worker import RangeWorker
 from positioning_cell.limits.validity import factory_check
+from positioning_cell.polling import wait_until
 
 MECH = Mechanism.default()
 TARGET_S = 2e-3
@@ -44,6 +49,11 @@ def main() -> int:
     rng = np.random.default_rng(0)
     times: list[float] = []
     builds: list[float] = []
+    trips: list[float] = []
+    worker = RangeWorker(answer_timeout=5.0)
+    wait_until(lambda: worker.ranges(axis_ranges.RangeModel.cached(
+        MECH, LimitLayers.for_mechanism(MECH), CoordinateSystems()), np.zeros(6)).valid, 120.0,
+        'the range worker')
     valid = 0
     for layers_name, layers in (('default factory box', LimitLayers.for_mechanism(MECH)),
                                 ('wide factory box', LimitLayers.of(WIDE))):
@@ -59,12 +69,16 @@ def main() -> int:
             t0 = time.perf_counter()
             found = axis_ranges.RangeModel.cached(MECH, layers, systems).ranges(start)
             elapsed = time.perf_counter() - t0
-            if found != model.ranges(start):
-                print('WRONG: two searches of one pose differ')
+            t0 = time.perf_counter()
+            through = worker.ranges(model, start)
+            trip = time.perf_counter() - t0
+            if found != model.ranges(start) or through != found:
+                print('WRONG: two searches of one pose differ (here, or here and the worker)')
                 return 1
             if found.valid:
                 valid += 1
                 times.append(elapsed)
+                trips.append(trip)
                 if not all(r.low <= start[k] <= r.high for k, r in enumerate(found.ranges)):
                     print(f'WRONG: a range of {start} does not hold the pose: {found}')
                     return 1
@@ -83,6 +97,11 @@ def main() -> int:
     print(f'  median {median * 1e3:.3f} ms, p95 {p95 * 1e3:.3f} ms, max '
           f'{max(times) * 1e3:.3f} ms (target <= {TARGET_S * 1e3:.0f} ms: '
           f'{"met" if p95 <= TARGET_S else "NOT met"} at p95)')
+    print(f'  through the range worker (the positioner\'s path, its own process): median '
+          f'{np.median(trips) * 1e3:.3f} ms, p95 {np.percentile(trips, 95) * 1e3:.3f} ms '
+          f'(target <= {TARGET_S * 1e3:.0f} ms: '
+          f'{"met" if np.percentile(trips, 95) <= TARGET_S else "NOT met"} at p95)')
+    worker.close()
     print(f'  building a model anew (limits or CS changed): median '
           f'{np.median(builds) * 1e3:.3f} ms')
     print(f'baseline, one single-pose validity check (numpy): median {check * 1e3:.3f} ms; '

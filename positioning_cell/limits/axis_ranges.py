@@ -24,6 +24,7 @@ benchmarks/axis_ranges.py): a node that calls it warms it while it is built
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -35,7 +36,7 @@ from positioning_cell.core.compiled import kernel, kernel_array
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import CoordinateSystems
-from positioning_cell.limits.boxes import AXES, LINEAR, LimitLayers, as_pose6
+from positioning_cell.limits.boxes import AXES, LINEAR, LimitLayers, as_pose6, pose6_text
 from positioning_cell.limits.validity import CONSTRAINT_BITS
 from positioning_cell.parameters import check_fields, setting
 
@@ -64,8 +65,8 @@ DEFAULT_SPANS = (0.1,) * LINEAR + (1.0,) * LINEAR
 
 @dataclass(frozen=True)
 class AxisRangeSettings:
-    """The live axis ranges' settings: how far the search goes along each axis, and how often
-    a publisher gives them (the positioner's, once it publishes them: not yet)."""
+    """The live axis ranges of the positioner (``operator.axis_ranges``): how far the search
+    goes along each axis, and how often they are published."""
 
     spans: tuple[float, ...] = setting(
         DEFAULT_SPANS, 'farthest an axis range reaches from the pose on each side, Tx, Ty, Tz '
@@ -93,11 +94,13 @@ class AxisRange:
 @dataclass(frozen=True)
 class AxisRanges:
     """The axis ranges of one user pose6 ``pose`` (6,) m, rad: six :class:`AxisRange`, Tx
-    first; none, with the ``reason``, when the pose itself is not valid (or not known)."""
+    first; none, with the ``reason``, when the pose itself is not valid (or not known);
+    ``pending`` when there are none yet because the search is still starting (ask again)."""
 
     pose: tuple[float, ...]
     ranges: tuple[AxisRange, ...] = ()
     reason: str = ''
+    pending: bool = False
 
     @property
     def valid(self) -> bool:
@@ -105,9 +108,25 @@ class AxisRanges:
         return bool(self.ranges)
 
     @classmethod
-    def unknown(cls, reason: str) -> AxisRanges:
-        """No ranges, and why (no pose to start from...)."""
-        return cls((math.nan,) * 6, (), reason)
+    def unknown(cls, reason: str, pending: bool = False) -> AxisRanges:
+        """No ranges, and why (no pose to start from...); ``pending``: not yet."""
+        return cls((math.nan,) * 6, (), reason, pending)
+
+    def document(self) -> dict[str, object]:
+        """For JSON, SI (m, rad): valid, reason, the pose and per axis its range and
+        bindings."""
+        return {'valid': self.valid, 'pending': self.pending, 'reason': self.reason,
+                'pose': list(self.pose),
+                'ranges': [dataclasses.asdict(r) for r in self.ranges]}
+
+    def lines(self) -> list[str]:
+        """For people, mm and deg: one line per axis (its range and what binds at each end),
+        or why there are none."""
+        if not self.valid:
+            return [f'none: {self.reason or "not given"}']
+        return [f'{r.axis}  {pose6_text(k, r.low):>12} .. {pose6_text(k, r.high):>12}  '
+                f'(low: {r.low_binding}; high: {r.high_binding})'
+                for k, r in enumerate(self.ranges)]
 
 
 @dataclass(frozen=True)
@@ -161,27 +180,53 @@ class RangeModel:
         return self.geometry, self.vectors, self.limits, self.boxes
 
     def ranges(self, user_pose6: ArrayLike) -> AxisRanges:
-        """The axis ranges of one user pose6 (6,) m, rad (module docstring). A pose that is
-        not valid gives no ranges and the constraints it violates; InputError only for a
-        pose that is not 6 finite numbers."""
-        pose = as_pose6(user_pose6, 'user pose6')
-        if pose.shape[0] != 1:
-            raise InputError(f'user pose6: one pose expected, got {pose.shape[0]}')
-        start = kernel_array(pose[0])
-        bounds = np.empty((6, 2))
-        binding = np.empty((6, 2), dtype=np.int64)
-        margins = np.empty(_N_CONSTRAINTS)
-        _ranges_kernel(start, self.spans, float(COARSE_STEPS), TOLERANCE,
-             *self._arrays(), bounds, binding, margins)
-        values = tuple(float(v) for v in start)
-        if not np.all(margins >= 0.0):
-            bad = [f'{CONSTRAINTS[i]} {margins[i]:.6g}' for i in np.flatnonzero(
-                ~(margins >= 0.0))]
-            return AxisRanges(values, (), 'the pose itself is not valid: ' + ', '.join(bad))
-        names = (*CONSTRAINTS, SPAN_LIMIT)
-        return AxisRanges(values, tuple(
-            AxisRange(AXES[k], float(bounds[k, 0]), float(bounds[k, 1]),
-                      names[binding[k, 0]], names[binding[k, 1]]) for k in range(6)))
+        """The axis ranges of one user pose6 (6,) m, rad (module docstring), searched in this
+        process. A pose that is not valid gives no ranges and the constraints it violates;
+        InputError only for a pose that is not 6 finite numbers."""
+        start = start_pose(user_pose6)
+        return assemble(start, *search(self.fields(), start))
+
+    def fields(self) -> tuple[FloatArray, ...]:
+        """The model as its arrays, in field order (what a range worker is sent)."""
+        return (self.geometry, self.vectors, self.limits, self.boxes, self.spans)
+
+
+def start_pose(user_pose6: ArrayLike) -> FloatArray:
+    """One user pose6 (6,) m, rad as the search takes it (InputError: not one pose of 6 finite
+    numbers)."""
+    pose = as_pose6(user_pose6, 'user pose6')
+    if pose.shape[0] != 1:
+        raise InputError(f'user pose6: one pose expected, got {pose.shape[0]}')
+    start: FloatArray = kernel_array(pose[0])
+    return start
+
+
+def search(fields: tuple[FloatArray, ...], start: FloatArray
+           ) -> tuple[FloatArray, IntArray, FloatArray]:
+    """The compiled search of the model ``fields`` (:meth:`RangeModel.fields`) from ``start``
+    (:func:`start_pose`): the bounds (6, 2), their bindings' indices (6, 2) and ``start``'s
+    own margins (constraints,)."""
+    geometry, vectors, limits, boxes, spans = (kernel_array(a) for a in fields)
+    bounds = np.empty((6, 2))
+    binding = np.empty((6, 2), dtype=np.int64)
+    margins = np.empty(_N_CONSTRAINTS)
+    _ranges_kernel(start, spans, float(COARSE_STEPS), TOLERANCE, geometry, vectors, limits,
+                   boxes, bounds, binding, margins)
+    return bounds, binding, margins
+
+
+def assemble(start: FloatArray, bounds: FloatArray, binding: IntArray,
+             margins: FloatArray) -> AxisRanges:
+    """The AxisRanges of a :func:`search` from ``start``: none, naming the constraints it
+    violates, when ``start`` itself is not valid."""
+    values = tuple(float(v) for v in start)
+    if not np.all(margins >= 0.0):
+        bad = [f'{CONSTRAINTS[i]} {margins[i]:.6g}' for i in np.flatnonzero(~(margins >= 0.0))]
+        return AxisRanges(values, (), 'the pose itself is not valid: ' + ', '.join(bad))
+    names = (*CONSTRAINTS, SPAN_LIMIT)
+    return AxisRanges(values, tuple(
+        AxisRange(AXES[k], float(bounds[k, 0]), float(bounds[k, 1]),
+                  names[binding[k, 0]], names[binding[k, 1]]) for k in range(6)))
 
 
 def warm_up() -> None:
