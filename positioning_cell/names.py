@@ -94,6 +94,10 @@ MARKERS = '/positioner/markers'
 #: The user and object coordinate systems in force (latched; positioning_cell_interfaces
 #: CoordinateSystems), published at start and on every change.
 COORDINATE_SYSTEMS = '/positioner/coordinate_systems'
+#: The live range of each user axis from the current user position, the others held
+#: (positioning_cell_interfaces AxisRanges; latched, at operator.axis_ranges.rate_hz): what
+#: ``cell status`` and ``cell watch`` show. Not recorded, as COORDINATE_SYSTEMS.
+AXIS_RANGES = '/positioner/axis_ranges'
 MEASURED_POSE = '/metrology/pose'
 #: The tracker's located registration (its pose in ``base`` and that pose's covariance, the part
 #: common to every reading on MEASURED_POSE), latched: published on each locate.
@@ -140,8 +144,8 @@ LOAD_COMMAND = '/load_rig/command'
 LOAD_FORCE = '/load_rig/force'
 
 #: Every topic of the cell, in the order of the docs' topic table: what the recorder takes by
-#: default (not COORDINATE_SYSTEMS: its type, of positioning_cell_interfaces, is not in the bags'
-#: Jazzy typestore).
+#: default (not COORDINATE_SYSTEMS nor AXIS_RANGES: their types, of
+#: positioning_cell_interfaces, are not in the bags' Jazzy typestore).
 CELL_TOPICS = (
     JOINT_TRAJECTORY, TRAJECTORY_STATUS, JOINT_STATES, TRUE_JOINT_STATES, TARGET,
     ESTIMATED_POSE, MARKERS, MEASURED_POSE, TRACKER_REGISTRATION, TRUE_POSE, AIR_TEMPERATURE,

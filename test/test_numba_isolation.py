@@ -29,7 +29,8 @@ pytestmark = pytest.mark.slow
 
 #: The nodes whose work runs compiled kernels: none (forward kinematics, for the positioner's
 #: pose from the encoders, the driver's efforts, the simulated tracker's truth and the
-#: calibrator's machine model, runs uncompiled there, one pose at a time).
+#: calibrator's machine model, runs uncompiled there, one pose at a time; the positioner's axis
+#: ranges run compiled in a range worker, a process of their own: test_range_worker).
 KERNEL_NODES: set[str] = set()
 #: The nodes whose build needs scipy (its import is ~0.2-0.4 s of a node's start, issue 24):
 #: the simulated tracker locates itself (a matrix to quaternion), the positioner derives its

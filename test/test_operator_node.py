@@ -20,6 +20,7 @@ from geometry_msgs.msg import PoseStamped
 from positioning_cell_interfaces.action import Home
 from positioning_cell_interfaces.action import MoveToPose as MoveAction
 from positioning_cell_interfaces.msg import (
+    AxisRanges,
     BoxLimits,
     CoordinateSystems,
     MoveCommand,
@@ -241,6 +242,29 @@ def test_limit_layers_are_validated_checked_and_named(positioner: Positioner) ->
                        SetLimits.Request(machine=narrow, user=user)).success
     answer = check(positioner, command(HOME_P + [0.0008, 0.0, 0.0], HOME_Q))
     assert answer.validity.bits == Validity.USER_LIMITS, answer.validity.violations
+    # The first check starts the range worker: no ranges yet, pending, then the worker's.
+    assert answer.axis_ranges.pending or 'user.Tx_max' in answer.axis_ranges.reason
+
+    def answered() -> object:
+        a = check(positioner, command(HOME_P + [0.0008, 0.0, 0.0], HOME_Q))
+        return None if a.axis_ranges.pending else a
+
+    answer = wait_until(answered, 30.0, 'the range worker to answer a check')
+    assert not answer.axis_ranges.valid and 'user.Tx_max' in answer.axis_ranges.reason
+    # the axis ranges from a valid goal end at the user box (identity user CS: along x, the
+    # goal's 0.2 mm to the box's 0.5 mm)
+    ranges = check(positioner, command(HOME_P + [0.0002, 0.0, 0.0], HOME_Q)).axis_ranges
+    assert ranges.valid and list(ranges.axes) == ['Tx', 'Ty', 'Tz', 'Rx', 'Ry', 'Rz']
+    assert (ranges.low_binding[0], ranges.high_binding[0]) == ('user.Tx_min', 'user.Tx_max')
+    assert ranges.pose[0] == pytest.approx(0.0002, abs=1e-9)
+    assert (ranges.low[0], ranges.high[0]) == (pytest.approx(-0.0005, abs=1e-6),
+                                               pytest.approx(0.0005, abs=1e-6))
+    # and on /positioner/axis_ranges, from where the platform stands (home), latched
+    published = client.collect(AxisRanges, '/positioner/axis_ranges', LATCHED_QOS)
+    wait_until(lambda: any(r.valid and r.high_binding[5] == 'user.Rz_max' for r in published),
+               20.0, 'the axis ranges within the user box on /positioner/axis_ranges')
+    newest = next(r for r in reversed(published) if r.valid)
+    assert newest.user_cs and newest.high[5] == pytest.approx(0.005, abs=1e-6)
     # `cell limits reset`'s request: the factory box for the machine, no user box
     assert client.call(SetLimits, '/positioner/set_limits',
                        SetLimits.Request(machine=limits.factory, user=unlimited)).success

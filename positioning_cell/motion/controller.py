@@ -35,6 +35,7 @@ from positioning_cell.frames.transforms import (
     pose6_from_pq,
     pq_from_pose6,
 )
+from positioning_cell.limits.axis_ranges import AxisRanges, RangeModel
 from positioning_cell.limits.boxes import BoxLimits, LimitLayers
 from positioning_cell.limits.jog import axis_index, jog_target, jog_trajectory
 from positioning_cell.limits.speed import Speeds, motion_limits, scaled, set_speeds
@@ -84,11 +85,14 @@ class MoveCommand:
 @dataclass(frozen=True)
 class Check:
     """A checked request: the validity found, the goal in base (None when it could not be
-    resolved) and the planned duration s (0 when nothing was planned)."""
+    resolved), the planned duration s (0 when nothing was planned) and the axis ranges from
+    the goal (:meth:`Controller.axis_ranges_at`: how far each user axis of the goal may go,
+    the others held; none when the goal itself is outside a limit or not resolved)."""
 
     result: CheckResult
     goal: tuple[FloatArray, FloatArray] | None
     duration: float
+    ranges: AxisRanges
 
 
 class Controller:
@@ -115,6 +119,10 @@ class Controller:
                 if settings.user_lower is not None and settings.user_upper is not None
                 else BoxLimits.unlimited())
         self.layers = factory.validated(machine, user, self._user_to_machine)
+        #: What searches the axis ranges: in this process by default (the compiled kernel); a
+        #: node gives the search of its range worker (:mod:`positioning_cell.limits.range_worker`)
+        #: so as never to load numba itself.
+        self.range_search: Callable[[RangeModel, FloatArray], AxisRanges] = RangeModel.ranges
 
     # -- coordinate systems -------------------------------------------------------------------
     def set_systems(self, user: Transform, obj: Transform) -> Path:
@@ -164,6 +172,12 @@ class Controller:
         """What relative moves start from: the user position of the last goal once that move
         settled (its target position), else of where the encoders are (None before the first
         reading)."""
+        goal = self._current_pose()
+        return None if goal is None else self.user_position(*goal)
+
+    def _current_pose(self) -> tuple[FloatArray, FloatArray] | None:
+        """The platform pose in base relative moves start from (:meth:`current_user_position`),
+        None before the first reading."""
         mover = self.mover
         goal = mover.goal if mover.state is State.SETTLED else None
         if goal is None:
@@ -171,7 +185,7 @@ class Controller:
             if estimate is None:
                 return None
             goal = (estimate.position, estimate.quaternion)
-        return self.user_position(*goal)
+        return goal
 
     def status_values(self) -> dict[str, str | float]:
         """The operator's settings in force, for /diagnostics: the active coordinate systems
@@ -186,6 +200,30 @@ class Controller:
                 'linear_speed': speeds.linear_speed, 'angular_speed': speeds.angular_speed,
                 'linear_acceleration': speeds.linear_acceleration,
                 'angular_acceleration': speeds.angular_acceleration}
+
+    # -- axis ranges ----------------------------------------------------------------------------
+    def axis_ranges_at(self, position: ArrayLike, quaternion: ArrayLike) -> AxisRanges:
+        """The live axis ranges (:mod:`positioning_cell.limits.axis_ranges`) of the user
+        position of a platform pose in base (``position`` (3,) m, ``quaternion`` (4,) x, y, z,
+        w), in the active user CS, within the limit layers in force; none, with the reason,
+        for a pose outside a limit. Searched by :attr:`range_search`. Never raises."""
+        layers, systems = self.layers, self.systems
+        try:
+            pose6 = systems.user_position(position, quaternion, self.mech).to_pose6()
+            model = RangeModel.cached(self.mech, layers, systems,
+                                      self.settings.axis_ranges.spans)
+            return self.range_search(model, pose6)
+        except InputError as err:
+            return AxisRanges.unknown(f'no axis ranges: {err}')
+
+    def current_axis_ranges(self) -> AxisRanges:
+        """The axis ranges from the pose relative moves start from
+        (:meth:`current_user_position`: the settled goal, else the encoders' estimate); none
+        before the first reading."""
+        goal = self._current_pose()
+        if goal is None:
+            return AxisRanges.unknown('no pose estimate yet')
+        return self.axis_ranges_at(*goal)
 
     # -- limits and speeds ----------------------------------------------------------------------
     def set_limits(self, machine: BoxLimits, user: BoxLimits) -> LimitLayers:
@@ -259,7 +297,8 @@ class Controller:
         try:
             p, q = self.resolve(command)
         except InputError as err:
-            return Check(state.merged(invalid_goal(str(err))), None, 0.0)
+            return Check(state.merged(invalid_goal(str(err))), None, 0.0,
+                         AxisRanges.unknown(f'no goal: {err}'))
         tolerance = float(command.tolerance)
         try:
             self.mover.settings.goal_tolerance.for_request(tolerance)
@@ -273,7 +312,8 @@ class Controller:
             path_p, path_q = p[None], q[None]
         result = state.merged(factory_check(self.mech, path_p, path_q),
                               self.box_check(path_p, path_q))
-        return Check(result, (p, q), duration if result.valid else 0.0)
+        return Check(result, (p, q), duration if result.valid else 0.0,
+                     self.axis_ranges_at(p, q))
 
     def _state_check(self) -> CheckResult:
         mover = self.mover

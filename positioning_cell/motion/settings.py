@@ -15,6 +15,7 @@ from positioning_cell.clearance import ClearanceModel, ClearanceParameters, buil
 from positioning_cell.config import load_parameter_file, node_parameters
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
+from positioning_cell.limits.axis_ranges import AxisRangeSettings
 from positioning_cell.limits.boxes import FactoryBoxSettings
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.motion.standstill import StandstillSettings
@@ -260,6 +261,8 @@ class OperatorSettings:
                                              'm/s^2', low=1e-6, high=1.0)
     jog_theta_acceleration: float = setting(0.1, 'jog acceleration of a theta angle',
                                             'rad/s^2', low=1e-6, high=10.0)
+    axis_ranges: AxisRangeSettings = group(
+        AxisRangeSettings, 'the live axis ranges (/positioner/axis_ranges, CheckPose)')
 
     def __post_init__(self) -> None:
         check_fields(self)

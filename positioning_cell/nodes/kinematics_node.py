@@ -187,8 +187,9 @@ class PositionerNode(Node):
         return response
 
     def close(self) -> None:
-        """At shutdown: a running move ends aborted and the drives stop."""
+        """At shutdown: a running move ends aborted and the drives stop; the range worker ends."""
         self.mover.stop()
+        self.operator.range_worker.close()
 
 
 #: The entry point of ``kinematics_node`` (alone; ``cell_container`` hosts it with others).

@@ -11,6 +11,7 @@ from typing import Any
 from geometry_msgs.msg import PoseStamped
 from positioning_cell_interfaces import action as act
 from positioning_cell_interfaces import srv
+from positioning_cell_interfaces.msg import AxisRanges as AxisRangesMsg
 from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import CallbackGroup
@@ -18,7 +19,9 @@ from rclpy.node import Node
 
 from positioning_cell import names
 from positioning_cell.errors import InputError, PositioningError
+from positioning_cell.limits.axis_ranges import AxisRanges
 from positioning_cell.limits.jog import axis_index
+from positioning_cell.limits.range_worker import RangeWorker
 from positioning_cell.limits.validity import factory_constraints
 from positioning_cell.motion.controller import Controller, MoveCommand
 from positioning_cell.motion.mover import MoveAbortedError, MoveResult, ResultCode, State
@@ -67,6 +70,14 @@ class OperatorInterface:
                                                   LATCHED_QOS)
         self._pub_setpoint = node.create_publisher(PoseStamped, names.SETPOINT, STREAM_QOS)
         self._publish_systems()
+        # The axis ranges: searched by a worker process (numba never loaded here), started by
+        # the first search; latched: a one-shot reader (cell status) has the last ranges at
+        # once. Searched only while someone reads them.
+        self.range_worker = RangeWorker()
+        controller.range_search = self.range_worker.ranges
+        self._pub_ranges = node.create_publisher(AxisRangesMsg, names.AXIS_RANGES, LATCHED_QOS)
+        node.create_timer(1.0 / controller.settings.axis_ranges.rate_hz,
+                          self.publish_axis_ranges, callback_group=group)
 
     def _publish_systems(self) -> None:
         """The coordinate systems in force, latched (the watch windows draw the user frame)."""
@@ -75,6 +86,15 @@ class OperatorInterface:
 
     def _now(self) -> Any:
         return self.node.get_clock().now().to_msg()
+
+    def _ranges_msg(self, ranges: AxisRanges) -> Any:
+        return om.axis_ranges_msg(ranges, self.controller.named.active_user, self._now())
+
+    def publish_axis_ranges(self) -> None:
+        """The axis ranges from the current user position on /positioner/axis_ranges, while
+        the topic has a reader."""
+        if self._pub_ranges.get_subscription_count() > 0:
+            self._pub_ranges.publish(self._ranges_msg(self.controller.current_axis_ranges()))
 
     def publish_setpoint(self, stamp: Any) -> None:
         """The running trajectory's setpoint on /positioner/setpoint (nothing when none runs)."""
@@ -193,6 +213,7 @@ class OperatorInterface:
         response.valid = check.result.valid
         response.validity = om.validity(check.result)
         response.duration = float(check.duration)
+        response.axis_ranges = self._ranges_msg(check.ranges)
         if check.goal is not None:
             response.goal = m.pose_stamped(*check.goal, self._now())
         if not check.result.valid:

@@ -1,5 +1,5 @@
 """positioning_cell_interfaces messages ↔ the library's types of the operator's surface: move
-requests, outcomes, validity, coordinate systems, limit boxes, speeds."""
+requests, outcomes, validity, coordinate systems, limit boxes, speeds, axis ranges."""
 
 from __future__ import annotations
 
@@ -8,6 +8,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from geometry_msgs.msg import Pose
+from positioning_cell_interfaces.msg import (
+    AxisRanges as AxisRangesMsg,
+)
 from positioning_cell_interfaces.msg import (
     BoxLimits as BoxLimitsMsg,
 )
@@ -28,12 +31,13 @@ from positioning_cell_interfaces.msg import (
 from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.frames.systems import ABSOLUTE, RELATIVE_OBJECT, RELATIVE_USER
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.limits.axis_ranges import AxisRange, AxisRanges
 from positioning_cell.limits.boxes import BoxLimits
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.limits.validity import CheckResult
 from positioning_cell.moves.correction import deviation
 from positioning_cell.moves.outcomes import Attained, MoveResult, ResultCode
-from positioning_cell.ros.messages import pose_arrays, pose_msg
+from positioning_cell.ros.messages import pose_arrays, pose_msg, seconds
 
 if TYPE_CHECKING:
     from positioning_cell.motion.controller import MoveCommand
@@ -141,3 +145,28 @@ def speeds_msg(value: Speeds) -> SpeedsMsg:
     return SpeedsMsg(linear_speed=value.linear_speed, angular_speed=value.angular_speed,
                      linear_acceleration=value.linear_acceleration,
                      angular_acceleration=value.angular_acceleration)
+
+
+def axis_ranges_msg(ranges: AxisRanges, user_cs: str, stamp: Any) -> AxisRangesMsg:
+    """The AxisRanges message of the axis ranges of a user position in the user CS named
+    ``user_cs``, stamped ``stamp`` (builtin_interfaces/Time)."""
+    found = ranges.ranges
+    return AxisRangesMsg(stamp=stamp, valid=ranges.valid, reason=ranges.reason,
+                         pending=ranges.pending,
+                         user_cs=user_cs, pose=[float(v) for v in ranges.pose],
+                         axes=[r.axis for r in found], low=[float(r.low) for r in found],
+                         high=[float(r.high) for r in found],
+                         low_binding=[r.low_binding for r in found],
+                         high_binding=[r.high_binding for r in found])
+
+
+def axis_ranges(msg: AxisRangesMsg) -> tuple[AxisRanges, str, float]:
+    """An AxisRanges message as the library's axis ranges, the user CS's name and the stamp
+    (s)."""
+    found = tuple(AxisRange(str(a), float(lo), float(hi), str(b_lo), str(b_hi))
+                  for a, lo, hi, b_lo, b_hi in zip(msg.axes, msg.low, msg.high,
+                                                   msg.low_binding, msg.high_binding,
+                                                   strict=True))
+    return (AxisRanges(tuple(float(v) for v in msg.pose), found, str(msg.reason),
+                       bool(msg.pending)),
+            str(msg.user_cs), seconds(msg.stamp))
