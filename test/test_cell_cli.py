@@ -31,6 +31,8 @@ from positioning_cell.frames.systems import (
     CoordinateSystems,
 )
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.limits.axis_ranges import AxisRange, AxisRanges
+from positioning_cell.limits.boxes import AXES
 from positioning_cell.limits.speed import Speeds as LibrarySpeeds
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.names import BASE_FRAME
@@ -578,6 +580,10 @@ def test_progress_line() -> None:
 
 
 # -- check, status, limits, speeds ---------------------------------------------------------------
+RANGES = AxisRanges((0.0,) * 6, tuple(
+    AxisRange(axis, -0.001, 0.004, f'user.{axis}_min', 'span limit') for axis in AXES))
+
+
 def check_response(valid: bool) -> Any:
     response = CheckPose.Response(valid=valid, duration=2.5 if valid else 0.0)
     response.goal.header.frame_id = BASE_FRAME
@@ -609,6 +615,29 @@ def test_check_valid_and_invalid() -> None:
                               {'name': 'machine_limits', 'value': -0.005}]
     assert doc['goal']['frame'] == BASE_FRAME and doc['goal']['human'][2] == pytest.approx(190)
     assert doc['duration_s'] == 0.0
+    assert doc['axis_ranges']['valid'] is False  # an answer without ranges: none shown
+
+
+def test_check_and_status_show_the_axis_ranges() -> None:
+    response = check_response(True)
+    response.axis_ranges = om.axis_ranges_msg(RANGES, 'work', Time(sec=5))
+    report = cm.check_of(response)
+    assert report.axis_ranges == RANGES
+    text = report.text()
+    assert 'axis ranges (each user axis with the other five held; mm, deg) from the goal:' \
+        in text
+    assert '  Ty     -1.000 mm ..     4.000 mm  (low: user.Ty_min; high: span limit)' in text
+    doc = json.loads(cf.json_text(report.document()))['axis_ranges']
+    assert doc['valid'] is True and doc['ranges'][1] == {
+        'axis': 'Ty', 'low': -0.001, 'high': 0.004, 'low_binding': 'user.Ty_min',
+        'high_binding': 'span limit'}
+    status = cf.StatusReport(positioner={'state': 'idle'}, axis_ranges=RANGES)
+    assert '  Rx  ' in status.text() and 'from the current user position:' in status.text()
+    assert json.loads(cf.json_text(status.document()))['axis_ranges']['pose'] == [0.0] * 6
+    none = cf.StatusReport(positioner={'state': 'idle'},
+                           axis_ranges=AxisRanges.unknown('no pose estimate yet'))
+    assert '  none: no pose estimate yet' in none.text()
+    assert json.loads(cf.json_text(none.document()))['axis_ranges']['pose'] == [None] * 6
 
 
 def test_status_positions_in_the_machine_and_user_cs() -> None:

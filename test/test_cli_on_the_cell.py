@@ -28,7 +28,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from sensor_msgs.msg import JointState
 
 from positioning_cell import names
-from positioning_cell.frames.transforms import Transform
+from positioning_cell.frames.transforms import Transform, pose6_from_human
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.ros.qos import STREAM_QOS
 
@@ -122,9 +122,24 @@ def test_frames_moves_and_the_pivot(cell: Cell) -> None:
     attained = doc['outcome']['attained_user']['human']
     np.testing.assert_allclose(attained[:3], goal[:3], atol=0.015)  # mm: the settle tolerance
     np.testing.assert_allclose(attained[3:], goal[3:], atol=0.01)  # deg
-    code, doc = cell.cli('status')
+
+    def status_with_ranges() -> tuple[int, Any] | None:
+        """cell status once its axis ranges are no longer pending (the first reader starts
+        the positioner's range worker; cell status waits a bounded time for it)."""
+        code, doc = cell.cli('status')
+        return None if (doc.get('axis_ranges') or {}).get('pending') else (code, doc)
+
+    code, doc = wait_until(status_with_ranges, 60.0, 'cell status with the axis ranges')
     assert code == 0 and doc['referenced'] and doc['state'] == 'settled', doc
     np.testing.assert_allclose(doc['positions']['user']['target']['human'], goal, atol=1e-6)
+    # the live axis ranges from there (published while read, latched; found since it settled,
+    # or while it settled, within the settle tolerance of the goal), each holding the pose
+    ranges, goal_si = doc['axis_ranges'], pose6_from_human(goal)
+    assert ranges['valid'], ranges
+    np.testing.assert_allclose(ranges['pose'], goal_si, atol=2e-5)
+    assert [r['axis'] for r in ranges['ranges']] == ['Tx', 'Ty', 'Tz', 'Rx', 'Ry', 'Rz']
+    assert all(r['low'] < ranges['pose'][k] < r['high'] and r['low_binding']
+               and r['high_binding'] for k, r in enumerate(ranges['ranges'])), ranges
     # relative to the object: a rotation about the pivot keeps the object origin
     code, doc = cell.cli('move', '--relative-object', '0', '0', '0', '1', '0', '0')
     assert code == 0 and doc['outcome']['code_name'] == 'success', _said(doc)

@@ -24,6 +24,8 @@ from positioning_cell.core.poses import pose_error
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.limits.axis_ranges import AxisRange, AxisRanges
+from positioning_cell.limits.boxes import AXES
 from positioning_cell.nodes.live_view_messages import status_document
 from positioning_cell.recording import SILENT_AFTER_S, RecorderReport
 from positioning_cell.tools.cell_watch import render
@@ -299,3 +301,17 @@ def test_the_watch_tells_when_recording_stopped() -> None:
     assert f'recording: \x1b[0m\x1b[1;31mERROR \x1b[0m\x1b[1m{failure}' in shown(102.5, True)
     assert status_document(state.snapshot(), 200.0)['recording'] == {
         'level': 2, 'message': failure, 'stopped': True}
+
+
+def test_render_shows_the_axis_ranges_or_waits_for_them() -> None:
+    state = WatchState(MECH)
+    assert 'waiting for /positioner/axis_ranges' in _text(state, 100.0)
+    state.axis_ranges(AxisRanges((0.0,) * 6, tuple(
+        AxisRange(axis, -0.002, 0.003, f'machine.{axis}_min', 'factory.length_max')
+        for axis in AXES)))
+    text = _text(state, 100.0)
+    assert 'Tx     -2.000 mm ..     3.000 mm  (low: machine.Tx_min; high: ' \
+        'factory.length_max)' in text
+    assert 'Rz    -0.115 deg ..    0.172 deg  (low: machine.Rz_min' in text
+    state.axis_ranges(AxisRanges.unknown('the pose itself is not valid: user.Tx_max -1e-05'))
+    assert 'none: the pose itself is not valid: user.Tx_max' in _text(state, 100.0)

@@ -56,7 +56,8 @@ def check_of(response: Any) -> cf.CheckReport:
     return cf.CheckReport(bool(response.valid), int(v.bits), [str(n) for n in v.bit_names],
                           [str(t) for t in v.violations], [str(n) for n in v.margin_names],
                           [float(m) for m in v.margins], str(response.goal.header.frame_id),
-                          p, q, float(response.duration))
+                          p, q, float(response.duration),
+                          om.axis_ranges(response.axis_ranges)[0])
 
 
 def systems_of(msg: SystemsMsg) -> CoordinateSystems:

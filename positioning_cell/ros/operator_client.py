@@ -14,6 +14,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import Home, MoveToPose
+from positioning_cell_interfaces.msg import AxisRanges as AxisRangesMsg
 from positioning_cell_interfaces.srv import (
     CheckPose,
     DefineCoordinateSystem,
@@ -32,6 +33,7 @@ from positioning_cell import names
 from positioning_cell.core.mechanism import MECHANISM_PREFIX, Mechanism
 from positioning_cell.frames.systems import CoordinateSystems
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.limits.axis_ranges import AxisRanges
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.ros import cell_messages as cm
 from positioning_cell.ros import operator_messages as om
@@ -102,6 +104,7 @@ class StatusFeed:
         self._estimates = cell.collect(PoseStamped, names.ESTIMATED_POSE, LATEST_QOS)
         self._measured = cell.collect(PoseWithCovarianceStamped, names.MEASURED_POSE,
                                       STREAM_QOS)
+        self._ranges = cell.collect(AxisRangesMsg, names.AXIS_RANGES, LATCHED_QOS)
 
     @staticmethod
     def _status(statuses: list[Any]) -> StatusValues | None:
@@ -129,6 +132,10 @@ class StatusFeed:
     def estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The newest estimated platform pose."""
         return self._pose(self._estimates)
+
+    def axis_ranges(self) -> AxisRanges | None:
+        """The newest axis ranges from the current user position (None while none came)."""
+        return om.axis_ranges(self._ranges[-1])[0] if self._ranges else None
 
     def measured(self) -> cf.MeasuredValues | None:
         """The tracker's newest reading of the platform pose: the pose, its standard

@@ -14,6 +14,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import Home, MoveToPose
+from positioning_cell_interfaces.msg import AxisRanges as AxisRangesMsg
 from positioning_cell_interfaces.msg import CoordinateSystems as CoordinateSystemsMsg
 from rcl_interfaces.msg import ParameterEvent, ParameterValue
 from rcl_interfaces.srv import GetParameters
@@ -155,6 +156,7 @@ class WatchInputs:
                                  self._measured, WATCH_QOS)
         node.create_subscription(CoordinateSystemsMsg, names.COORDINATE_SYSTEMS, self._systems,
                                  LATCHED_QOS)
+        node.create_subscription(AxisRangesMsg, names.AXIS_RANGES, self._ranges, LATCHED_QOS)
         node.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._diagnostics,
                                  DIAGNOSTICS_QOS)
         self.parameters = [
@@ -213,6 +215,9 @@ class WatchInputs:
     def _systems(self, msg: CoordinateSystemsMsg) -> None:
         self._guard(names.COORDINATE_SYSTEMS, lambda: self.state.coordinate_systems(
             CoordinateSystems(om.transform(msg.user), om.transform(msg.object))))
+
+    def _ranges(self, msg: AxisRangesMsg) -> None:
+        self._guard(names.AXIS_RANGES, lambda: self.state.axis_ranges(om.axis_ranges(msg)[0]))
 
     def _diagnostics(self, msg: DiagnosticArray) -> None:
         now = self.node.get_clock().now().nanoseconds * 1e-9

@@ -35,6 +35,9 @@ if TYPE_CHECKING:
 #: status: after the positioner's status, how long the driver's status, the target and the
 #: estimate may take to come (s).
 STATUS_EXTRA_WAIT = 2.0
+#: Longest wait of ``cell status`` (s) for axis ranges while the positioner's range search
+#: starts (the first reader of /positioner/axis_ranges starts its worker: about a second).
+STATUS_RANGES_WAIT = 6.0
 
 
 @dataclass
@@ -169,7 +172,10 @@ def cmd_status(session: Session, args: Any) -> Report:
                         f'the status "{names.STATUS_POSITIONER}" on {names.DIAGNOSTICS}')
     with contextlib.suppress(TimeoutError):
         wait_until(lambda: feed.driver() and feed.target() and feed.estimate()
-                   and feed.measured(), STATUS_EXTRA_WAIT, 'the rest')
+                   and feed.measured() and feed.axis_ranges(), STATUS_EXTRA_WAIT, 'the rest')
+    with contextlib.suppress(TimeoutError):  # the first reader starts the range search
+        wait_until(lambda: (r := feed.axis_ranges()) is not None and not r.pending,
+                   STATUS_RANGES_WAIT, 'the axis ranges')
     driver, target, estimate = feed.driver(), feed.target(), feed.estimate()
     measured = feed.measured()
     if measured is None:
@@ -180,11 +186,15 @@ def cmd_status(session: Session, args: Any) -> Report:
         notes.append(f'no target on {names.TARGET} (nothing commanded yet)')
     if estimate is None:
         notes.append(f'no estimate on {names.ESTIMATED_POSE}')
+    ranges = feed.axis_ranges()
+    if ranges is None:
+        notes.append(f'no axis ranges on {names.AXIS_RANGES}')
     report = cf.StatusReport(
         positioner=status.values, positioner_message=status.message,
         positioner_level=status.level, driver=None if driver is None else driver.values,
         target=target, estimate=estimate, systems=systems, systems_file=file,
-        mechanism=mechanism, notes=notes, measured=measured, now=time.time())
+        mechanism=mechanism, notes=notes, measured=measured, now=time.time(),
+        axis_ranges=ranges)
     return Report(Exit.OK, report.document(), report.text())
 
 

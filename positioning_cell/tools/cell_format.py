@@ -40,6 +40,7 @@ from positioning_cell.frames.transforms import (
     human_from_pose6,
     pq_from_pose6,
 )
+from positioning_cell.limits.axis_ranges import AxisRanges
 from positioning_cell.limits.speed import Speeds
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.tools.cell_parser import (  # the command line: there, light
@@ -86,6 +87,8 @@ def exit_code(code_name: str, code: int | None = None) -> Exit:
 
 
 # -- numbers and poses ---------------------------------------------------------------------------
+#: The heading of the live axis ranges (status, check; the watch's table too).
+AXIS_RANGES_TITLE = 'axis ranges (each user axis with the other five held; mm, deg)'
 #: The six pose components with their human units.
 AXES_HUMAN = ('Tx mm', 'Ty mm', 'Tz mm', 'Rx deg', 'Ry deg', 'Rz deg')
 #: Decimals of human output: mm (0.1 µm) and degrees.
@@ -492,6 +495,7 @@ class CheckReport:
     goal_position: FloatArray
     goal_quaternion: FloatArray
     duration: float
+    axis_ranges: AxisRanges | None = None
 
     @property
     def exit_code(self) -> Exit:
@@ -506,11 +510,13 @@ class CheckReport:
                             for n, v in zip(self.margin_names, self.margins, strict=False)],
                 'goal': {'frame': self.goal_frame,
                          **pose_document(self.goal_position, self.goal_quaternion)},
-                'duration_s': self.duration}
+                'duration_s': self.duration,
+                'axis_ranges': (None if self.axis_ranges is None
+                                else self.axis_ranges.document())}
 
     def text(self) -> str:
         """For people: valid and the duration, or the violated constraints and each
-        violation; then the margins."""
+        violation; then the margins and the axis ranges from the goal."""
         if self.valid:
             goal = transform_of(self.goal_position, self.goal_quaternion)
             lines = [f'valid: the move takes {self.duration:.2f} s',
@@ -523,6 +529,9 @@ class CheckReport:
             width = max(len(n) for n in self.margin_names)
             lines += [f'  {n:<{width}}  {v:.6g}'
                       for n, v in zip(self.margin_names, self.margins, strict=False)]
+        if self.axis_ranges is not None:
+            lines.append(f'{AXIS_RANGES_TITLE} from the goal:')
+            lines += [f'  {line}' for line in self.axis_ranges.lines()]
         return '\n'.join(lines)
 
 
@@ -662,6 +671,7 @@ class StatusReport:
     notes: Sequence[str] = ()
     measured: MeasuredValues | None = None
     now: float = math.nan
+    axis_ranges: AxisRanges | None = None
 
     @property
     def measured_age(self) -> float | None:
@@ -722,6 +732,7 @@ class StatusReport:
                                    else systems_document(self.systems, self.systems_file)),
             'positioner_values': dict(self.positioner),
             'driver_values': None if self.driver is None else dict(self.driver),
+            'axis_ranges': None if self.axis_ranges is None else self.axis_ranges.document(),
             'notes': list(self.notes),
         }
 
@@ -760,6 +771,9 @@ class StatusReport:
                          + ('not stamped' if age is None else f'{age:.2f} s ago')
                          + f'; uncertainty {_uncertainty_text(self.measured.uncertainty)} '
                          '(1σ)')
+        if self.axis_ranges is not None:
+            lines.append(f'{AXIS_RANGES_TITLE} from the current user position:')
+            lines += [f'  {line}' for line in self.axis_ranges.lines()]
         lines += [f'note: {n}' for n in self.notes]
         return '\n'.join(lines)
 

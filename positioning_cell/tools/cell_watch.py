@@ -2,7 +2,8 @@
 the deviation, the tolerance with an in/out marker in colour, and the tracker's standard
 uncertainty, in the ``user`` or ``base`` frame (:mod:`positioning_cell.watch`); above it the
 positioner's state, the accuracy monitor's last verdict and the recording (``recording
-stopped: <reason>`` when the recorder failed, stopped or went silent). Redrawn ``--rate``
+stopped: <reason>`` when the recorder failed, stopped or went silent); below it the live
+axis ranges of the user position. Redrawn ``--rate``
 times a second (5 by default) in the terminal's alternate screen; works over SSH and in tmux
 (plain ANSI colours, ASCII markers). ``q`` or Ctrl-C quits (exit 0). Read-only: it
 subscribes and reads parameters, it never commands the cell."""
@@ -27,6 +28,7 @@ from rich.text import Text
 
 from positioning_cell import names
 from positioning_cell.accuracy.verdicts import DECISION_LEVELS, RULE_NAMES
+from positioning_cell.tools.cell_format import AXIS_RANGES_TITLE
 from positioning_cell.watch.state import Snapshot, Status
 from positioning_cell.watch.table import DECISION_MARKERS, HEADERS, rows
 
@@ -95,6 +97,16 @@ def motion_line(snapshot: Snapshot, now: float) -> Text:
                                                 'setpoint' else 'vs the goal', 'dim'))
 
 
+def ranges_text(snapshot: Snapshot) -> Text:
+    """The positioner's live axis ranges (user CS, from the current user position), one line
+    an axis, or what they wait for."""
+    title = Text(f'{AXIS_RANGES_TITLE}, user CS:', style='bold')
+    ranges = snapshot.axis_ranges
+    if ranges is None:
+        return title.append(f' waiting for {names.AXIS_RANGES}', style='dim')
+    return Text('\n').join([title, *(Text(f'  {line}') for line in ranges.lines())])
+
+
 def render(snapshot: Snapshot, frame: str, now: float) -> Group:
     """The watch window of ``snapshot`` in ``frame`` at wall time ``now`` (s)."""
     dev = snapshot.deviation(frame)
@@ -132,6 +144,7 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
                                  LEVEL_STYLES[DECISION_LEVELS[decision]]),
             (f' ({RULE_NAMES[dev.tolerances.rule]}; as measured: '
              f'{"in" if dev.ok else "out of"} tolerance)', 'dim'))]
+    parts.append(ranges_text(snapshot))
     parts.append(Text('q or Ctrl-C quits', style='dim'))
     return Group(*parts)
 

@@ -16,6 +16,7 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import FloatArray, as_pose_batch
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import USER_FRAME, CoordinateSystems, machine_origin
+from positioning_cell.limits.axis_ranges import AxisRanges
 from positioning_cell.names import ESTIMATED_POSE, MEASURED_POSE, NODE_POSITIONER, TARGET
 from positioning_cell.recording.status import RecorderReport, Recording, recording
 from positioning_cell.watch.deviation import Deviation, deviation
@@ -77,6 +78,8 @@ class Snapshot:
     driver: Status | None = None
     #: The newest goal feedback: phase, progress (0..1) and when it came (s); None: none yet.
     progress: tuple[str, float, float] | None = None
+    #: The positioner's newest live axis ranges (/positioner/axis_ranges); None: none yet.
+    axis_ranges: AxisRanges | None = None
 
     def phase(self, now: float) -> str:
         """The positioner's phase for people: its state, with the running goal's progress
@@ -241,6 +244,10 @@ class WatchState:
     def verdict(self, status: Status) -> None:
         """The accuracy monitor's last settled-pose verdict."""
         self._update(verdict=status)
+
+    def axis_ranges(self, ranges: AxisRanges) -> None:
+        """The positioner's live axis ranges from the current user position."""
+        self._update(axis_ranges=ranges)
 
     def recorder(self, report: RecorderReport) -> None:
         """The recorder's latest status (its ``received`` time on the wall clock, s)."""
