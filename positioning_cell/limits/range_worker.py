@@ -12,9 +12,9 @@ parent goes, however the node ends (a SIGKILL of the node included); the node's 
 it.
 
 :meth:`RangeWorker.ranges` starts the worker on its first call (a node that is never asked
-for ranges never starts it) and waits at most ``answer_timeout`` s for an answer; until the
-worker is ready (``pending``), when it is late, or when it has ended, the answer is no ranges
-and why. A late
+for ranges never starts it), never waits for it to load, and waits at most ``answer_timeout``
+s for an answer; until the worker is ready (``pending``), when it is late, or when it has
+ended, the answer is no ranges and why. A late
 answer is recognised by its number and dropped. Started again at most once per
 :data:`RESTART_PERIOD_S` after it ends.
 """
@@ -68,8 +68,8 @@ def _read_exact(fd: int, n: int, deadline: float | None) -> bytes:
     out = bytearray()
     while len(out) < n:
         if deadline is not None:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0.0 or not select.select([fd], [], [], remaining)[0]:
+            remaining = max(deadline - time.monotonic(), 0.0)
+            if not select.select([fd], [], [], remaining)[0]:
                 raise TimeoutError
         chunk = os.read(fd, n - len(out))
         if not chunk:
@@ -126,12 +126,12 @@ class RangeWorker:
             proc = self._proc
             if proc is None or proc.stdin is None or proc.stdout is None:
                 return AxisRanges.unknown(self._status, pending=self._pending())
-            deadline = time.monotonic() + self.answer_timeout
             try:
-                if not self._ready:
-                    if _read_frame(proc.stdout.fileno(), deadline) != READY:
+                if not self._ready:  # said yet? (not waited for: a caller never waits on the load)
+                    if _read_frame(proc.stdout.fileno(), time.monotonic()) != READY:
                         raise WorkerError('it did not say it was ready')
                     self._ready = True
+                deadline = time.monotonic() + self.answer_timeout
                 self._number += 1
                 _write_frame(proc.stdin, (self._number, model.fields(), start))
                 while True:
