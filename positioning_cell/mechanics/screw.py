@@ -101,13 +101,13 @@ def reciprocal_product(twists: ArrayLike, wrenches: ArrayLike) -> FloatArray:
     return product
 
 
-def _null_space(a: FloatArray) -> FloatArray:
-    """Orthonormal basis (columns) of the null space of ``a`` (scipy.linalg.null_space at
+def null_space_rows(a: FloatArray) -> FloatArray:
+    """Orthonormal basis (rows) of the null space of ``a`` (scipy.linalg.null_space at
     RANK_TOLERANCE). scipy.linalg is imported at the first call: ~0.15 s of the start of every
     node that imports this module (through the clearance model) and never asks (issue 24)."""
     from scipy.linalg import null_space
 
-    basis: FloatArray = null_space(a, rcond=RANK_TOLERANCE)
+    basis: FloatArray = null_space(a, rcond=RANK_TOLERANCE).T
     return basis
 
 
@@ -119,7 +119,7 @@ def reciprocal_screws(screws: ArrayLike) -> FloatArray:
     if s.size == 0:
         return np.eye(6)
     swapped = np.hstack([s[:, 3:], s[:, :3]])  # s ∘ w = swapped(s) · w
-    basis: FloatArray = _null_space(swapped).T
+    basis: FloatArray = null_space_rows(swapped)
     return basis
 
 
@@ -265,7 +265,7 @@ def mobility(limbs: Sequence[Limb]) -> Mobility:
     omega = free[:, :3]
     n_rot = rank(omega) if free.size else 0
     if free.size:
-        coeffs = _null_space(omega.T).T
+        coeffs = null_space_rows(omega.T)
         trans = coeffs @ free[:, 3:]
         trans = _orthonormal_rows(trans)
         rot_axes = _orthonormal_rows(omega)

@@ -1,0 +1,10 @@
+"""A panel held by several positioners (issue 27): the coordinated cell. Pure numpy/scipy; no
+ROS.
+
+- :mod:`.attachments`: how a positioner's platform holds the panel (a clamp, a ball, a ball in
+  a slot or on a flat) as the relative freedoms it leaves and the wrenches it can carry;
+- :mod:`.mobility`: the assembled cell's mobility by screw theory (seed 001 §3): the panel's
+  freedom, the idle and the redundant inputs, the internal force systems of an
+  over-constrained cell; checked by a velocity analysis of the closed loops;
+- :mod:`.cell_file`: the cell configuration (positioners, their bases and attachments).
+"""
