@@ -25,6 +25,7 @@ CONSOLE_SCRIPTS = [
     'run_cell = positioning_cell.tools.run_cell:main',
     'calibrate_cell = positioning_cell.tools.calibrate_cell:main',
     'cell = positioning_cell.tools.cell:main',
+    'cell_mobility = positioning_cell.tools.cell_mobility:main',
 ]
 
 # ROS 2 Jazzy from PyPI wheels and the pinned libraries the cell runs on (make run / make test).

@@ -80,6 +80,8 @@ MECHANISM_FILE = FileKind('mechanism file', 512 * KIB)
 CALIBRATION_FILE = FileKind('calibration file', 384 * KIB)
 #: The positioner's coordinate systems file (under 1 KB).
 COORDINATE_SYSTEMS_FILE = FileKind('coordinate systems file', 64 * KIB)
+#: A coordinated cell's configuration (config/three_positioners.yaml: 2 KB).
+CELL_FILE = FileKind('cell file', 256 * KIB)
 #: A Fast DDS XML profile named by FASTRTPS_DEFAULT_PROFILES_FILE (the shipped one: 3 KB).
 FAST_DDS_PROFILE = FileKind('Fast DDS profile', 1 * MIB)
 

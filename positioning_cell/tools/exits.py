@@ -40,7 +40,7 @@ MEANINGS = {
     Exit.NOT_ACHIEVED: 'done, but short of what was asked: settled out of the tolerance, a move '
                        'of a run failed, the data did not identify the machine, an analysis '
                        'was partial, a fault trial missed its expectation, a node of cell up '
-                       'did not stop cleanly',
+                       'did not stop cleanly, two mobility analyses disagreed',
     Exit.USAGE: 'the command line or a file it names cannot be used (argparse, a bad program, '
                 'configuration or bag); nothing was sent',
     Exit.REFUSED: 'the cell refused, nothing moved (any refused_* code, a goal rejected, an '

@@ -1,0 +1,138 @@
+"""The coordinated cell's configuration (issue 27): the positioners holding one panel, each
+with its base in the cell frame and its attachment to the panel (config/three_positioners.yaml
+is the shipped one; docs/howto/coordinated.md).
+
+Format (YAML; lengths m, quaternions x, y, z, w)::
+
+    cell:
+      positioners:
+        - name: p1                        # its namespace, later its node set's
+          base: [x, y, z, qx, qy, qz, qw] # its base frame in the cell frame
+          attachment:
+            kind: spherical               # clamp, spherical, ball_in_slot, ball_on_plane
+            offset: [0.0, 0.0, 0.05]      # the ball (clamp reference) in the platform frame
+            direction: [1.0, 0.0, 0.0]    # slot axis / flat normal, cell frame (else unused)
+
+Every positioner has the machine of :class:`~positioning_cell.core.mechanism.Mechanism` given
+to :meth:`CellFile.attachments` (the default: seed 000's); an attachment's point in the cell
+frame is where its platform puts it at home. Every refusal is a ConfigError naming the file,
+the positioner and the key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from positioning_cell import files
+from positioning_cell.config import load_yaml_mapping
+from positioning_cell.coordinated.attachments import Attachment
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import matrix_from_quaternion
+from positioning_cell.errors import ConfigError, InputError
+
+#: Fewest and most positioners of a coordinated cell.
+MIN_POSITIONERS, MAX_POSITIONERS = 1, 4
+_POSITIONER_KEYS = {'name', 'base', 'attachment'}
+_ATTACHMENT_KEYS = {'kind', 'offset', 'direction'}
+
+
+@dataclass(frozen=True)
+class PositionerEntry:
+    """One positioner of the cell: ``base`` its base frame in the cell frame (position (3,) m,
+    unit quaternion (4,)), and its attachment's kind, ``offset`` (3,) m in the platform frame
+    and ``direction`` (3,) in the cell frame."""
+
+    name: str
+    base_position: tuple[float, float, float]
+    base_quaternion: tuple[float, float, float, float]
+    kind: str
+    offset: tuple[float, float, float]
+    direction: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class CellFile:
+    """A coordinated cell's configuration (module docstring)."""
+
+    path: Path
+    positioners: tuple[PositionerEntry, ...]
+
+    def attachments(self, mech: Mechanism | None = None) -> list[Attachment]:
+        """Each positioner's attachment with its point in the cell frame, its platform at home
+        (``mech``: the positioners' machine, default seed 000's)."""
+        machine = mech or Mechanism.default()
+        out = []
+        for entry in self.positioners:
+            rotation = matrix_from_quaternion(np.asarray(entry.base_quaternion)[None])[0]
+            point = np.asarray(entry.base_position) + rotation @ (
+                machine.home_position + np.asarray(entry.offset))
+            out.append(Attachment(entry.name, entry.kind, tuple(point), entry.direction))
+        return out
+
+
+def _numbers(value: object, n: int, where: str) -> tuple[float, ...]:
+    if not isinstance(value, list) or len(value) != n or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        raise ConfigError(f'{where}: expected a list of {n} numbers, got {value!r}')
+    out = tuple(float(v) for v in value)
+    if not np.isfinite(out).all():
+        raise ConfigError(f'{where}: {list(out)} is not finite')
+    return out
+
+
+def _entry(raw: object, k: int, source: str) -> PositionerEntry:
+    where = f'{source}: cell.positioners[{k}]'
+    if not isinstance(raw, Mapping):
+        raise ConfigError(f'{where}: expected a mapping, got {raw!r}')
+    unknown = sorted(set(raw) - _POSITIONER_KEYS)
+    if unknown or not {'name', 'base', 'attachment'} <= set(raw):
+        raise ConfigError(f'{where}: keys must be {sorted(_POSITIONER_KEYS)} (unknown: '
+                          f'{unknown}, missing: {sorted(_POSITIONER_KEYS - set(raw))})')
+    name = raw['name']
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ConfigError(f'{where}.name: {name!r} is not a name (letters, digits, _)')
+    where = f'{source}: positioner {name}'
+    base = _numbers(raw['base'], 7, f'{where}.base')
+    norm = float(np.linalg.norm(base[3:]))
+    if abs(norm - 1.0) > 1e-6:
+        raise ConfigError(f'{where}.base: the quaternion {list(base[3:])} is not unit '
+                          f'(norm {norm:.9g})')
+    att = raw['attachment']
+    if not isinstance(att, Mapping) or set(att) - _ATTACHMENT_KEYS or 'kind' not in att:
+        raise ConfigError(f'{where}.attachment: expected a mapping with kind (and offset, '
+                          f'direction), got {att!r}')
+    offset = _numbers(att.get('offset', [0.0, 0.0, 0.0]), 3, f'{where}.attachment.offset')
+    direction = _numbers(att.get('direction', [0.0, 0.0, 1.0]), 3,
+                         f'{where}.attachment.direction')
+    entry = PositionerEntry(
+        name, (base[0], base[1], base[2]), (base[3], base[4], base[5], base[6]),
+        str(att['kind']), (offset[0], offset[1], offset[2]),
+        (direction[0], direction[1], direction[2]))
+    try:  # the attachment's own rules (kind, direction)
+        Attachment(name, entry.kind, entry.offset, entry.direction)
+    except InputError as err:
+        raise ConfigError(f'{where}.attachment: {err}') from err
+    return entry
+
+
+def load(path: str | Path) -> CellFile:
+    """The cell file ``path`` (ConfigError naming the file and what is wrong)."""
+    data: dict[str, Any] = load_yaml_mapping(path, files.CELL_FILE, 'cell')
+    source = files.describe(files.CELL_FILE, path)
+    cell = data.get('cell')
+    if set(data) != {'cell'} or not isinstance(cell, Mapping) or set(cell) != {'positioners'}:
+        raise ConfigError(f'{source}: expected one key `cell` holding `positioners`')
+    raw = cell['positioners']
+    if not isinstance(raw, list) or not MIN_POSITIONERS <= len(raw) <= MAX_POSITIONERS:
+        raise ConfigError(f'{source}: cell.positioners must list {MIN_POSITIONERS} to '
+                          f'{MAX_POSITIONERS} positioners')
+    entries = tuple(_entry(item, k, source) for k, item in enumerate(raw))
+    names = [e.name for e in entries]
+    if len(set(names)) != len(names):
+        raise ConfigError(f'{source}: positioner names repeat: {names}')
+    return CellFile(Path(path), entries)
