@@ -6,5 +6,7 @@ ROS.
 - :mod:`.mobility`: the assembled cell's mobility by screw theory (seed 001 §3): the panel's
   freedom, the idle and the redundant inputs, the internal force systems of an
   over-constrained cell; checked by a velocity analysis of the closed loops;
+- :mod:`.internal_forces`: the forces in the panel when the positioners disagree (seed 002's
+  deformation compatibility), their self-equilibrated part per pair, the worst pair named;
 - :mod:`.cell_file`: the cell configuration (positioners, their bases and attachments).
 """

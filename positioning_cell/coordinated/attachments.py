@@ -24,7 +24,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.errors import InputError
-from positioning_cell.mechanics.screw import prismatic, reciprocal_screws, spherical
+from positioning_cell.mechanics.screw import (
+    free_vector,
+    line,
+    prismatic,
+    reciprocal_screws,
+    spherical,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -84,6 +90,25 @@ class Attachment:
             across = np.linalg.svd(d[None])[2][1:]  # two unit vectors spanning the flat
             rows += [prismatic(v) for v in across]
         return np.vstack(rows)
+
+    @property
+    def wrench_lines(self) -> tuple[FloatArray, FloatArray]:
+        """The wrenches it carries as unit lines (k, 6) and which are couples (k,): unit forces
+        through ``point`` (x, y, z for a ball and a clamp; across the slot; along the flat's
+        normal), then, for a clamp, unit couples about x, y, z. They span
+        :attr:`constraint_wrenches`; each is one elastic line of the internal-force model."""
+        d = np.asarray(self.direction)
+        if self.kind in (CLAMP, SPHERICAL):
+            directions = np.eye(3)
+        elif self.kind == BALL_IN_SLOT:
+            directions = np.linalg.svd(d[None])[2][1:]  # across the slot
+        else:
+            directions = d[None]
+        forces = np.array([line(s, self.point) for s in directions])
+        couples = (np.array([free_vector(e) for e in np.eye(3)]) if self.kind == CLAMP
+                   else np.zeros((0, 6)))
+        return (np.vstack([forces, couples]),
+                np.r_[np.zeros(len(forces), bool), np.ones(len(couples), bool)])
 
     @property
     def constraint_wrenches(self) -> FloatArray:
