@@ -8,5 +8,7 @@ ROS.
   over-constrained cell; checked by a velocity analysis of the closed loops;
 - :mod:`.internal_forces`: the forces in the panel when the positioners disagree (seed 002's
   deformation compatibility), their self-equilibrated part per pair, the worst pair named;
+- :mod:`.base_calibration`: each positioner's base in the cell frame from tracker readings of
+  its attachment point, with its covariance;
 - :mod:`.cell_file`: the cell configuration (positioners, their bases and attachments).
 """
