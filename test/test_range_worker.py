@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -114,3 +115,18 @@ def test_the_worker_ends_with_its_parent_even_while_it_loads(ready: bool) -> Non
         parent.send_signal(signal.SIGKILL)
         parent.wait()
     wait_until(lambda: not _alive(pid), 10.0, f'the worker {pid} to end with its parent')
+
+
+def test_a_caller_never_waits_longer_than_the_answer_timeout() -> None:
+    """Another request holding the worker: the call gives up at its timeout and says so."""
+    worker = RangeWorker(answer_timeout=0.05)
+    try:
+        with worker._lock:
+            t0 = time.monotonic()
+            busy = worker.ranges(MODEL, np.zeros(6))
+            waited = time.monotonic() - t0
+        assert not busy.valid and not busy.pending and 'busy' in busy.reason, busy
+        assert waited < 1.0  # bounded (0.05 s asked; generous for a loaded machine)
+        assert worker._proc is None  # nothing started for a call that gave up
+    finally:
+        worker.close()

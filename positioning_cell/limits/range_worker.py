@@ -32,7 +32,7 @@ import time
 from typing import IO, Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.limits.axis_ranges import (
     AxisRanges,
@@ -41,6 +41,8 @@ from positioning_cell.limits.axis_ranges import (
     search,
     start_pose,
 )
+
+FloatArray = NDArray[np.float64]
 
 #: The worker's niceness: its searches and its start yield to the cell's nodes.
 NICE = 10
@@ -89,7 +91,7 @@ def _read_frame(fd: int, deadline: float | None) -> Any:
 class RangeWorker:
     """The search in a child process (module docstring). Thread-safe; :meth:`close` ends it."""
 
-    def __init__(self, answer_timeout: float = 0.5) -> None:
+    def __init__(self, answer_timeout: float = 0.1) -> None:
         self.answer_timeout = answer_timeout
         self._lock = threading.Lock()
         self._proc: subprocess.Popen[bytes] | None = None
@@ -118,37 +120,49 @@ class RangeWorker:
 
     def ranges(self, model: RangeModel, user_pose6: ArrayLike) -> AxisRanges:
         """The axis ranges of one user pose6 (6,) m, rad, searched by the worker; none, with the
-        reason, while it starts, when it answers later than ``answer_timeout`` or has ended.
-        InputError for a pose that is not 6 finite numbers."""
+        reason, while it starts, when another request holds it or its answer comes later than
+        ``answer_timeout`` s after this call (the whole call is bounded by it: a node's service
+        thread never waits longer), or when it has ended. InputError for a pose that is not 6
+        finite numbers."""
         start = start_pose(user_pose6)
-        with self._lock:
-            self._start_locked()
-            proc = self._proc
-            if proc is None or proc.stdin is None or proc.stdout is None:
-                return AxisRanges.unknown(self._status, pending=self._pending())
-            try:
-                if not self._ready:  # said yet? (not waited for: a caller never waits on the load)
-                    if _read_frame(proc.stdout.fileno(), time.monotonic()) != READY:
-                        raise WorkerError('it did not say it was ready')
-                    self._ready = True
-                deadline = time.monotonic() + self.answer_timeout
-                self._number += 1
-                _write_frame(proc.stdin, (self._number, model.fields(), start))
-                while True:
-                    number, *found = _read_frame(proc.stdout.fileno(), deadline)
-                    if number == self._number:
-                        return assemble(start, *found)
-            except TimeoutError:
-                if not self._ready:
-                    return AxisRanges.unknown(self._status, pending=True)
-                return AxisRanges.unknown(
-                    f'the range search did not answer within {self.answer_timeout:g} s')
-            except (WorkerError, OSError, pickle.UnpicklingError, ValueError) as err:
-                code = proc.poll()
-                self._status = (f'the range search process ended (exit code {code})'
-                                if code is not None else f'the range search failed: {err}')
-                proc.kill()
-                return AxisRanges.unknown(self._status)
+        deadline = time.monotonic() + self.answer_timeout
+        if not self._lock.acquire(timeout=self.answer_timeout):  # a caller never queues long
+            return AxisRanges.unknown('the range search is busy with another request for '
+                                      f'longer than {self.answer_timeout:g} s')
+        try:
+            return self._ranges_locked(model, start, deadline)
+        finally:
+            self._lock.release()
+
+    def _ranges_locked(self, model: RangeModel, start: FloatArray,
+                       deadline: float) -> AxisRanges:
+        """:meth:`ranges` with the lock held, the answer awaited until ``deadline``."""
+        self._start_locked()
+        proc = self._proc
+        if proc is None or proc.stdin is None or proc.stdout is None:
+            return AxisRanges.unknown(self._status, pending=self._pending())
+        try:
+            if not self._ready:  # said yet? (not waited for: a caller never waits on the load)
+                if _read_frame(proc.stdout.fileno(), time.monotonic()) != READY:
+                    raise WorkerError('it did not say it was ready')
+                self._ready = True
+            self._number += 1
+            _write_frame(proc.stdin, (self._number, model.fields(), start))
+            while True:
+                number, *found = _read_frame(proc.stdout.fileno(), deadline)
+                if number == self._number:
+                    return assemble(start, *found)
+        except TimeoutError:
+            if not self._ready:
+                return AxisRanges.unknown(self._status, pending=True)
+            return AxisRanges.unknown(
+                f'the range search did not answer within {self.answer_timeout:g} s')
+        except (WorkerError, OSError, pickle.UnpicklingError, ValueError) as err:
+            code = proc.poll()
+            self._status = (f'the range search process ended (exit code {code})'
+                            if code is not None else f'the range search failed: {err}')
+            proc.kill()
+            return AxisRanges.unknown(self._status)
 
     def _pending(self) -> bool:
         return self._proc is not None and self._proc.poll() is None and not self._ready
