@@ -50,6 +50,13 @@ def _vector(value: ArrayLike, name: str) -> FloatArray:
     return v
 
 
+def _across(direction: FloatArray) -> FloatArray:
+    """Two orthonormal vectors (2, 3) perpendicular to the unit ``direction``: the flat's
+    slides, or the directions across a slot."""
+    across: FloatArray = np.linalg.svd(direction[None])[2][1:]
+    return across
+
+
 @dataclass(frozen=True)
 class Attachment:
     """The joint between positioner ``name``'s platform and the panel (module docstring):
@@ -87,8 +94,7 @@ class Attachment:
         if self.kind == BALL_IN_SLOT:
             rows.append(prismatic(d))
         elif self.kind == BALL_ON_PLANE:
-            across = np.linalg.svd(d[None])[2][1:]  # two unit vectors spanning the flat
-            rows += [prismatic(v) for v in across]
+            rows += [prismatic(v) for v in _across(d)]  # the two slides in the flat
         return np.vstack(rows)
 
     @property
@@ -101,7 +107,7 @@ class Attachment:
         if self.kind in (CLAMP, SPHERICAL):
             directions = np.eye(3)
         elif self.kind == BALL_IN_SLOT:
-            directions = np.linalg.svd(d[None])[2][1:]  # across the slot
+            directions = _across(d)
         else:
             directions = d[None]
         forces = np.array([line(s, self.point) for s in directions])

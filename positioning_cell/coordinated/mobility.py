@@ -129,7 +129,7 @@ def cell_mobility(attachments: Sequence[Attachment]) -> CellMobility:
     rank_locked = rank(stacked)
     counts = [w.shape[0] for w in held]
     per_attachment = _self_stress(held, sum(counts) - rank_locked)
-    idle = sum(min(a.twists.shape[0], 6) for a in attachments)
+    idle = sum(a.twists.shape[0] for a in attachments)  # each freedom an input may take
     return CellMobility(names, tuple(a.kind for a in attachments),
                         INPUTS_PER_POSITIONER * len(attachments), panel.dof, 6 - rank_locked,
                         idle, sum(counts) - rank_locked, per_attachment)

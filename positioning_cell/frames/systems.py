@@ -121,6 +121,10 @@ class CoordinateSystems:
         pose T_machine."""
         return (machine_origin(mech) @ machine).to_pq()
 
+    def user_in_base(self, mech: Mechanism) -> Transform:
+        """T_base_user = T_base_machine · T_machine_user: the user CS in ``base``."""
+        return machine_origin(mech) @ self.user
+
     # -- user position ---------------------------------------------------------------------
     def user_position(self, position: ArrayLike, quaternion: ArrayLike,
                       mech: Mechanism) -> Transform:

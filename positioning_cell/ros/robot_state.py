@@ -57,9 +57,8 @@ def frame_transforms(frames: Sequence[tuple[str, str, ArrayLike, ArrayLike]]) ->
 def systems_frames(mech: Mechanism, systems: CoordinateSystems
                    ) -> list[tuple[str, str, FloatArray, FloatArray]]:
     """base → machine, base → user (T_base_machine · T_machine_user), platform → object."""
-    machine = machine_origin(mech)
-    return [(names.BASE_FRAME, names.MACHINE_FRAME, *machine.to_pq()),
-            (names.BASE_FRAME, names.USER_FRAME, *(machine @ systems.user).to_pq()),
+    return [(names.BASE_FRAME, names.MACHINE_FRAME, *machine_origin(mech).to_pq()),
+            (names.BASE_FRAME, names.USER_FRAME, *systems.user_in_base(mech).to_pq()),
             (names.PLATFORM_FRAME, names.OBJECT_FRAME, *systems.object.to_pq())]
 
 

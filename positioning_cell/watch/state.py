@@ -15,7 +15,7 @@ from positioning_cell.accuracy.verdicts import Tolerances
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import FloatArray, as_pose_batch
 from positioning_cell.errors import InputError
-from positioning_cell.frames.systems import USER_FRAME, CoordinateSystems, machine_origin
+from positioning_cell.frames.systems import USER_FRAME, CoordinateSystems
 from positioning_cell.limits.axis_ranges import AxisRanges
 from positioning_cell.names import ESTIMATED_POSE, MEASURED_POSE, NODE_POSITIONER, TARGET
 from positioning_cell.recording.status import RecorderReport, Recording, recording
@@ -204,8 +204,8 @@ class WatchState:
         if not snapshot.systems_known or snapshot.mech is None:
             return snapshot
         return replace(snapshot,
-                       user_in_base=(machine_origin(snapshot.mech) @ snapshot.systems.user)
-                       .to_pq(), object_in_platform=snapshot.systems.object.to_pq())
+                       user_in_base=snapshot.systems.user_in_base(snapshot.mech).to_pq(),
+                       object_in_platform=snapshot.systems.object.to_pq())
 
     def mechanism(self, mech: Mechanism) -> None:
         """The machine (the positioner's ``mechanism.*`` parameters)."""
