@@ -41,6 +41,7 @@ from positioning_cell.motion.settings import COMPENSATION_MODE, GoalTolerance
 from positioning_cell.motion.standstill import StandstillSettings, StandstillWatch
 from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
 from positioning_cell.moves.fingerprint import fingerprint
+from positioning_cell.moves.timing import Timing
 from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.parameters import parse
 from positioning_cell.polling import wait_until
@@ -141,6 +142,7 @@ class World:
         self.connected = True  # the drives' endpoints matched (subscriber and answers)
         self.unreadable: list[int] = []  # axes whose encoder reads NaN
         self.trajectories: list[Trajectory] = []
+        self.starts: list[float | None] = []  # the start of each (ROS time s; None: now)
         self.pending: list[Answer] = []
         self.stops = 0
         self.references = 0
@@ -161,9 +163,10 @@ class World:
                        identity=self.identity, publisher_ids=lambda: self.publisher_ids,
                        registration=lambda: self.registration)
 
-    def send(self, traj: Trajectory) -> None:
+    def send(self, traj: Trajectory, start: float | None = None) -> None:
         with self.lock:
             self.trajectories.append(traj)
+            self.starts.append(start)
             key = fingerprint(traj.times, np.hstack([traj.lengths, traj.thetas]))
             if self.answering:
                 self.pending.append(Answer(key, self.refuse is None, self.refuse or 'ok'))
@@ -344,6 +347,37 @@ def test_a_bad_request_tolerance_is_refused(tolerance: float) -> None:
     with pytest.raises(MoveAbortedError, match=r'tolerance = .*: must be finite, >= 0') as info:
         mover(world).move('base', GOAL, GOAL_Q, tolerance)
     assert info.value.code is ResultCode.REFUSED_INVALID_GOAL and not world.trajectories
+
+
+def test_a_timed_move_sends_its_start_and_lasts_its_duration() -> None:
+    """The coordinated cell's time base (moves.timing): the first trajectory carries the start
+    and lasts the least duration; the move waits out the delay before judging arrival."""
+    world = World()
+    m = mover(world)
+    natural = m.check('base', GOAL, GOAL_Q).duration
+    start = time.time() + 0.3
+    m.move('base', GOAL, GOAL_Q, timing=Timing(2.0 * natural, start))
+    assert world.starts == [start]
+    assert world.trajectories[0].duration == pytest.approx(2.0 * natural, rel=1e-12)
+    assert m.state is State.SETTLED
+
+
+def test_a_start_already_past_is_refused_and_nothing_moves() -> None:
+    world = World()
+    m = mover(world)
+    with pytest.raises(MoveAbortedError, match='start time was') as info:
+        m.move('base', GOAL, GOAL_Q, timing=Timing(0.0, time.time() - 0.5))
+    assert info.value.code is ResultCode.REFUSED_INVALID_GOAL
+    assert not world.trajectories and world.stops == 0
+
+
+@pytest.mark.parametrize(('duration', 'start', 'words'), [
+    (-1.0, None, 'duration'), (float('nan'), None, 'duration'), (1e9, None, 'duration'),
+    (0.0, float('nan'), 'start'), (0.0, -5.0, 'start'),
+])
+def test_a_bad_time_base_is_named(duration: float, start: float | None, words: str) -> None:
+    with pytest.raises(InputError, match=words):
+        Timing(duration, start)
 
 
 def test_check_plans_without_moving() -> None:
@@ -1222,8 +1256,8 @@ class LaggingWorld(World):
         self.lag = lag
         self.poses = [(-math.inf, *self.attained())]  # (since when, position, quaternion)
 
-    def send(self, traj: Trajectory) -> None:
-        super().send(traj)
+    def send(self, traj: Trajectory, start: float | None = None) -> None:
+        super().send(traj, start)
         self.poses.append((time.monotonic(), *self.attained()))
 
     def latest(self) -> JointReading | None:

@@ -72,6 +72,51 @@ def test_move_respects_limits_and_ends_on_goal(dp: list[float], rv: list[float])
     assert np.abs(traj.theta_rates[[0, -1]]).max() < 1e-12
 
 
+@pytest.mark.parametrize(('dp', 'rv'), [
+    ([0.005, 0.0, 0.0], [0.0, 0.0, 0.0]),
+    ([0.003, -0.004, 0.002], [0.02, 0.0, -0.04]),
+])
+def test_a_move_asked_to_last_longer_is_the_same_path_time_scaled(dp: list[float],
+                                                                 rv: list[float]) -> None:
+    """A least duration longer than the fastest move's stretches its time law by k: the same
+    path, the sample at t the fastest one's at t/k, speeds 1/k and accelerations 1/k² of it,
+    ending exactly at the duration (the coordinated cell's common duration)."""
+    period = 0.002
+    p_goal, q_goal = goal(dp, rv)
+    fast = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                     limits=LIMITS)
+    k = 1.7
+    slow = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                     limits=LIMITS, duration=k * fast.duration)
+    assert slow.duration == pytest.approx(k * fast.duration, rel=1e-12)
+    assert slow.limits.ok
+    for t in np.linspace(0.0, slow.duration, 13):
+        p_slow, q_slow = pose_at(slow, t)
+        p_fast, q_fast = pose_at(fast, t / k)
+        # Both are linear blends of samples one period apart: equal to the period's curvature.
+        np.testing.assert_allclose(p_slow, p_fast, atol=2e-7)
+        turn = Rotation.from_quat(q_slow) * Rotation.from_quat(q_fast).inv()
+        assert turn.magnitude() < 2e-6
+    v_fast = np.abs(np.diff(fast.position, axis=0)).max(axis=0) / period
+    v_slow = np.abs(np.diff(slow.position, axis=0)).max(axis=0) / period
+    np.testing.assert_allclose(v_slow, v_fast / k, rtol=0.02, atol=1e-9)
+    np.testing.assert_allclose(np.abs(slow.length_rates).max(axis=0),
+                               np.abs(fast.length_rates).max(axis=0) / k, rtol=0.02)
+    # Shorter than the fastest move: the fastest move, unchanged.
+    same = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                     limits=LIMITS, duration=0.5 * fast.duration)
+    np.testing.assert_array_equal(same.times, fast.times)
+    np.testing.assert_array_equal(same.position, fast.position)
+
+
+@pytest.mark.parametrize('duration', [-1.0, float('nan'), float('inf')])
+def test_a_bad_least_duration_is_refused(duration: float) -> None:
+    p_goal, q_goal = goal([0.001, 0.0, 0.0], [0.0, 0.0, 0.0])
+    with pytest.raises(InputError, match='duration'):
+        plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=0.002,
+                  limits=LIMITS, duration=duration)
+
+
 def test_joint_rates_match_finite_differences_of_joint_commands() -> None:
     p_goal, q_goal = goal([0.004, 0.002, -0.003], [0.02, 0.01, 0.03])
     traj = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=0.001,

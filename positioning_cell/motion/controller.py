@@ -50,6 +50,7 @@ from positioning_cell.limits.validity import (
 from positioning_cell.motion.mover import JointReading, MoveAbortedError, Mover, MoveResult
 from positioning_cell.motion.settings import OperatorSettings
 from positioning_cell.moves.outcomes import ResultCode, State
+from positioning_cell.moves.timing import Timing
 from positioning_cell.moves.trajectory import MotionLimits
 
 FloatArray = NDArray[np.float64]
@@ -72,7 +73,9 @@ def systems_path(configured: str) -> Path:
 class MoveCommand:
     """A move request (the ROS MoveCommand): ``kind`` absolute / relative_user /
     relative_object, ``frame_id`` of ``position`` (3,) m and ``quaternion`` (4,), the settle
-    ``tolerance`` m (0: the configured one), ``speed_scale`` in (0, 1] (0: 1)."""
+    ``tolerance`` m (0: the configured one), ``speed_scale`` in (0, 1] (0: 1), the motion's
+    least ``duration`` s (0: as fast as the speeds allow) and its ``start`` (ROS time s; None:
+    on receipt): :class:`~positioning_cell.moves.timing.Timing`."""
 
     kind: str
     frame_id: str
@@ -80,6 +83,12 @@ class MoveCommand:
     quaternion: ArrayLike
     tolerance: float = 0.0
     speed_scale: float = 0.0
+    duration: float = 0.0
+    start: float | None = None
+
+    def timing(self) -> Timing:
+        """The request's time base (InputError naming a bad duration or start)."""
+        return Timing(float(self.duration), self.start)
 
 
 @dataclass(frozen=True)
@@ -258,12 +267,13 @@ class Controller:
     # -- requests -------------------------------------------------------------------------------
     def resolve(self, command: MoveCommand) -> tuple[FloatArray, FloatArray]:
         """The platform goal in base of a request (InputError naming what is wrong: kind,
-        frame, numbers, speed scale)."""
+        frame, numbers, speed scale, duration, start)."""
         if command.kind not in MOVE_KINDS:
             raise InputError(f'move mode {command.kind!r} is not one of {", ".join(MOVE_KINDS)}')
         scale = float(command.speed_scale)
         if not (math.isfinite(scale) and 0.0 <= scale <= 1.0):
             raise InputError(f'speed_scale = {scale!r}: must be in (0, 1] (0: 1)')
+        command.timing()
         current = None if command.kind == ABSOLUTE else self.current_user_position()
         if command.kind != ABSOLUTE and current is None:
             raise InputError('a relative move needs a pose to start from: no pose estimate yet')
@@ -277,16 +287,14 @@ class Controller:
         it, not resolved again, so that a relative move and the feedback of its caller use
         one goal), planned within every layer at the requested speed, moved and settled
         within its tolerance (MoveAbortedError names the outcome otherwise)."""
-        if resolved is not None:
-            p, q = resolved
-        else:
-            try:
-                p, q = self.resolve(command)
-            except InputError as err:
-                raise self.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
+        try:
+            p, q = resolved if resolved is not None else self.resolve(command)
+            timing = command.timing()
+        except InputError as err:
+            raise self.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
         return self.mover.move('base', p, q, command.tolerance,
                                limits=self.limits_for(float(command.speed_scale)),
-                               path_check=self._path_check)
+                               path_check=self._path_check, timing=timing)
 
     def check(self, command: MoveCommand) -> Check:
         """Every check of a request without moving: the state of the cell, then the path from
@@ -306,7 +314,8 @@ class Controller:
             state = state.merged(invalid_goal(str(err)))
         duration = 0.0
         try:
-            traj = self.mover.plan_path(p, q, self.limits_for(float(command.speed_scale)))
+            traj = self.mover.plan_path(p, q, self.limits_for(float(command.speed_scale)),
+                                        float(command.duration))
             path_p, path_q, duration = traj.position, traj.quaternion, traj.duration
         except MoveAbortedError:  # no pose estimate yet: the goal alone
             path_p, path_q = p[None], q[None]

@@ -65,6 +65,7 @@ from positioning_cell.moves.outcomes import (
     ResultCode,
     State,
 )
+from positioning_cell.moves.timing import AT_ONCE, Timing
 from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move, pose_at
 from positioning_cell.names import (
     BASE_FRAME,
@@ -400,12 +401,14 @@ class Mover:
 
     def move(self, frame_id: str, position: ArrayLike, quaternion: ArrayLike,
              tolerance: float = 0.0, *, limits: MotionLimits | None = None,
-             path_check: PathCheck | None = None) -> MoveResult:
+             path_check: PathCheck | None = None, timing: Timing = AT_ONCE) -> MoveResult:
         """Move to a goal and return when settled within the tolerance (``tolerance``: the
         settle tolerance in m, 0 for the configured one); MoveAbortedError names the outcome
         otherwise (refused: nothing moved; aborted: the drives were stopped; out of
         tolerance: settled elsewhere). A goal the machine is already settled at within the
-        tolerance succeeds without moving. ``limits`` and ``path_check``: as :meth:`check`."""
+        tolerance succeeds without moving. ``limits`` and ``path_check``: as :meth:`check`;
+        ``timing``: the motion's least duration and its start (the first trajectory's; a
+        start already past when it is sent is refused, nothing moved)."""
         with self._exclusive():
             goal = self._goal(frame_id, position, quaternion)
             try:
@@ -413,7 +416,7 @@ class Mover:
             except InputError as err:
                 raise self.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
             self.ready()
-            return self._execute(*goal, tol, limits, path_check)
+            return self._execute(*goal, tol, limits, path_check, timing)
 
     def home(self) -> MoveResult:
         """Reference the drives if they are not, then move to the home pose."""
@@ -647,11 +650,12 @@ class Mover:
                     return
                 self.cond.wait(min(remaining, POLL_PERIOD))
 
-    def plan_path(self, p: FloatArray, q: FloatArray,
-                  limits: MotionLimits | None = None) -> Trajectory:
+    def plan_path(self, p: FloatArray, q: FloatArray, limits: MotionLimits | None = None,
+                  duration: float = 0.0) -> Trajectory:
         """The move from the last command (or, after an abort, from where the encoders are)
         to (p, q) (3,) m, (4,) in base, planned with ``limits`` (None: the configured
-        ``motion``) but not judged: its ``limits`` report says what it violates.
+        ``motion``), lasting at least ``duration`` s, but not judged: its ``limits`` report
+        says what it violates.
         MoveAbortedError REFUSED_NO_ESTIMATE before the first encoder reading."""
         with self.cond:
             command = self.command
@@ -663,7 +667,7 @@ class Mover:
             command = (estimate.position, estimate.quaternion)
         return plan_move(self.mech, *command, p, q, period=self.settings.trajectory.period,
                          limits=limits or self.settings.motion,
-                         clearance=self._model(self._approach_to(p, q)))
+                         clearance=self._model(self._approach_to(p, q)), duration=duration)
 
     def _checked(self, traj: Trajectory, path_check: PathCheck | None) -> Trajectory:
         """``traj`` if it violates no limit (the mechanism's, then ``path_check``'s, then the
@@ -685,24 +689,29 @@ class Mover:
                                       if len(violations) > 3 else ''))
         return traj
 
-    def _plan(self, p: FloatArray, q: FloatArray) -> Trajectory:
-        """The checked move to (p, q) with the running move's speeds and path check."""
+    def _plan(self, p: FloatArray, q: FloatArray, duration: float = 0.0) -> Trajectory:
+        """The checked move to (p, q) with the running move's speeds and path check, lasting
+        at least ``duration`` s."""
         limits, path_check = self._move_limits
-        return self._checked(self.plan_path(p, q, limits), path_check)
+        return self._checked(self.plan_path(p, q, limits, duration), path_check)
 
     # -- the move -------------------------------------------------------------------------------
     def _execute(self, p: FloatArray, q: FloatArray, tol: GoalTolerance,
-                 limits: MotionLimits | None, path_check: PathCheck | None) -> MoveResult:
+                 limits: MotionLimits | None, path_check: PathCheck | None,
+                 timing: Timing = AT_ONCE) -> MoveResult:
         self._move_limits = (limits, path_check)
         command = self._carried(p, q)
         try:  # refused before anything is announced or moved
             try:
-                first = self._plan(*command)
+                first = self._plan(*command, timing.duration)
             except MoveAbortedError:
                 if command[0] is p:
                     raise
                 command = (p, q)  # the goal itself, without the carried correction
-                first = self._plan(p, q)
+                first = self._plan(p, q, timing.duration)
+            late = timing.late(self.machine.wall_clock())
+            if late is not None:
+                raise MoveAbortedError(ResultCode.REFUSED_INVALID_GOAL, late)
         except MoveAbortedError as err:
             raise self.refusal(err.code, str(err)) from err
         with self.cond:
@@ -717,7 +726,7 @@ class Mover:
                 self._set_state(State.SETTLED, there[0], ResultCode.SUCCESS)
                 return MoveResult(np.empty((0, 3)), np.empty((0, 4)), *there)
             moved = True
-            self._go(*command, first)
+            self._go(*command, first, timing.start)
             sigma: FloatArray | None = None
             source = MEASURED if self.mode is CompensationMode.MEASURED else ESTIMATED
             if source == MEASURED:
@@ -905,18 +914,22 @@ class Mover:
             return p, q
         return offset_command(p, q, offset)
 
-    def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None) -> None:
-        """Send the move to (p, q), wait for the drives to accept it, to arrive, to settle."""
+    def _go(self, p: FloatArray, q: FloatArray, planned: Trajectory | None = None,
+            start: float | None = None) -> None:
+        """Send the move to (p, q) (to start at ``start``, ROS time s; None: on receipt),
+        wait for the drives to accept it, to arrive, to settle."""
         traj = planned if planned is not None else self._plan(p, q)
         with self.cond:
             joints = self.joints
         if joints is not None:  # the direction each axis takes (what the plan was made with)
             self.compensation.moved(np.r_[traj.lengths[-1], traj.thetas[-1]], joints.position)
-        self._drive(traj, (p, q))
+        self._drive(traj, (p, q), start)
 
-    def _drive(self, traj: Trajectory, command: tuple[FloatArray, FloatArray] | None) -> None:
+    def _drive(self, traj: Trajectory, command: tuple[FloatArray, FloatArray] | None,
+               start: float | None = None) -> None:
         """Send ``traj`` (``command``: the pose it ends at, None for a move outside the
-        kinematics), wait for the drives to accept it, to arrive, to settle."""
+        kinematics; ``start``: when the drives start it, ROS time s, None: on receipt), wait
+        for the drives to accept it, to arrive, to settle."""
         joints = np.hstack([traj.lengths, traj.thetas])
         key = fingerprint(traj.times, joints)
         live, arrival = self.settings.liveness, self.settings.arrival
@@ -930,11 +943,12 @@ class Mover:
             self._moved = True
             self.answers.clear()
             counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
-            self._motion = (self.machine.clock(), traj,
+            delay = 0.0 if start is None else max(start - self.machine.wall_clock(), 0.0)
+            self._motion = (self.machine.clock() + delay, traj,
                             FreezeWatch(live.freeze_window, live.freeze_motion, counts))
             self._silence_stops = self.driver.get('silence_stops', '0')
             self._sent = (self._motion[0], traj.duration)
-            self.machine.send_trajectory(traj)
+            self.machine.send_trajectory(traj, start)
         measuring = self.mode is CompensationMode.MEASURED  # the tracker must stay live
         self._wait(lambda: any(a.key == key for a in self.answers), live.answer_timeout,
                    'the leg driver to answer the trajectory', ResultCode.ABORTED_DRIVER_LOST,
@@ -951,7 +965,7 @@ class Mover:
                 reading.position, reading.velocity, final, arrival.position_tolerance,
                 arrival.speed_tolerance)
 
-        self._wait(arrived, traj.duration + arrival.timeout, 'the drives to arrive',
+        self._wait(arrived, delay + traj.duration + arrival.timeout, 'the drives to arrive',
                    measuring=measuring)
         with self.cond:
             self._motion = None

@@ -62,7 +62,9 @@ def _nothing(*_: object) -> None:
 class Machine:
     """What the mover does to and reads from the world.
 
-    ``send_trajectory(traj)`` commands the drives; ``stop_drives()`` sends the controlled stop;
+    ``send_trajectory(traj, start)`` commands the drives (``start``: ROS time s at which they
+    start it, the trajectory's header stamp; None: on receipt); ``wall_clock()`` is ROS time
+    in s (what a start is given in); ``stop_drives()`` sends the controlled stop;
     ``publish_target(p, q)`` announces the goal; ``latest_joints()`` gives the newest encoder
     reading since the last call (None: nothing new); ``new_measurements()`` the tracker
     readings and ``trajectory_answers()`` the drives' answers that came in since the last call,
@@ -80,7 +82,7 @@ class Machine:
     :func:`~positioning_cell.moves.correction.mean_reading`).
     """
 
-    send_trajectory: Callable[[Trajectory], None]
+    send_trajectory: Callable[[Trajectory, float | None], None]
     stop_drives: Callable[[], None]
     publish_target: Callable[[FloatArray, FloatArray], None]
     latest_joints: Callable[[], JointReading | None]
@@ -91,6 +93,7 @@ class Machine:
     state_changed: Callable[[State, str, ResultCode | None], None] = field(default=_nothing)
     refused: Callable[[ResultCode, str], None] = field(default=_nothing)
     clock: Callable[[], float] = time.monotonic
+    wall_clock: Callable[[], float] = time.time
     identity: str = ''
     publisher_ids: Callable[[], frozenset[str]] = frozenset
     registration: Callable[[], Registration | None] = lambda: None

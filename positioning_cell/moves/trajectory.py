@@ -108,11 +108,16 @@ def time_law(duration_accel: float, peak: float, total: float,
     return s, sd
 
 
-def plan_profile(distance: float, angle: float,
-                 limits: MotionLimits) -> tuple[float, float, float]:
+def plan_profile(distance: float, angle: float, limits: MotionLimits,
+                 duration: float = 0.0) -> tuple[float, float, float]:
     """(ramp time, peak ṡ, duration) in s, 1/s, s for a move of ``distance`` m and ``angle`` rad
     keeping both within the speed and acceleration limits. Peak acceleration of the
-    sinusoidal ramp is π·v/(2·ta)."""
+    sinusoidal ramp is π·v/(2·ta). A move faster than ``duration`` s is time-scaled to last
+    exactly that long: s(t) becomes s(t/k), k = duration/total, so the ramp lasts k times
+    longer, the peak speed is 1/k and the peak acceleration 1/k² of the fastest move's (the
+    coordinated cell's common duration)."""
+    if not (math.isfinite(duration) and duration >= 0.0):
+        raise InputError(f'duration = {duration!r}: must be a finite number of seconds >= 0')
     if distance <= 0.0 and angle <= 0.0:
         return 0.0, 0.0, 0.0
     with np.errstate(divide='ignore'):
@@ -126,6 +131,9 @@ def plan_profile(distance: float, angle: float,
         v = math.sqrt(2.0 * a_max / math.pi)
         ta = 1.0 / v
     total = 2.0 * ta + (1.0 - v * ta) / v
+    if duration > total:
+        k = duration / total
+        return ta * k, v / k, duration
     return ta, v, total
 
 
@@ -143,8 +151,9 @@ def cruise(distance: float, angle: float, limits: MotionLimits) -> tuple[float, 
 def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: ArrayLike,
               goal_position: ArrayLike, goal_quaternion: ArrayLike, *, period: float,
               limits: MotionLimits | None = None,
-              clearance: ClearanceModel = None) -> Trajectory:
-    """Sample the move from start to goal every ``period`` s (the last sample is the goal).
+              clearance: ClearanceModel = None, duration: float = 0.0) -> Trajectory:
+    """Sample the move from start to goal every ``period`` s (the last sample is the goal),
+    lasting at least ``duration`` s (:func:`plan_profile`; 0: as fast as ``limits`` allow).
 
     Joint commands come from :func:`positioning_cell.clearance.compensate` with ``clearance``
     (None: nominal inverse kinematics); joint rates from the inverse Jacobian times the
@@ -164,7 +173,7 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
     delta_p = p[1] - p[0]
     rotvec = (rotations[0].inv() * rotations[1]).as_rotvec()
     distance, angle = float(np.linalg.norm(delta_p)), float(np.linalg.norm(rotvec))
-    ta, peak, total = plan_profile(distance, angle, limits)
+    ta, peak, total = plan_profile(distance, angle, limits, duration)
     n = max(math.ceil(total / period - 1e-9), 1)
     times = np.minimum(np.arange(n + 1) * period, total)
     if total == 0.0:  # already there: hold for one period (times must increase)

@@ -73,7 +73,7 @@ class PositionerNode(Node):
         self._reference = self.create_client(Trigger, names.DRIVER_REFERENCE,
                                              callback_group=topics)
         self.mover = Mover(settings, Machine(
-            send_trajectory=lambda t: self.pub_traj.publish(m.joint_trajectory(t)),
+            send_trajectory=lambda t, at: self.pub_traj.publish(m.joint_trajectory(t, at)),
             stop_drives=lambda: self.pub_traj.publish(m.stop_trajectory()),
             publish_target=lambda p, q: self.pub_target.publish(m.pose_stamped(p, q,
                                                                                self._now())),
@@ -87,7 +87,7 @@ class PositionerNode(Node):
             state_changed=self._state_changed,
             refused=self._refused,
             identity=self.get_fully_qualified_name(),
-            publisher_ids=lambda: own_publisher_ids(self, names.JOINT_TRAJECTORY),
+            publisher_ids=lambda: own_publisher_ids(self, self.pub_traj.topic_name),
             registration=self._registration.take))
         self.controller = Controller(self.mover, settings.operator)  # ConfigError: no start
         self.robot = RobotState(self, self.mover.mech, settings.markers_every,

@@ -132,11 +132,24 @@ def seconds(value: Duration | Time) -> float:
     return value.sec + value.nanosec * 1e-9
 
 
-def joint_trajectory(traj: Trajectory) -> JointTrajectory:
+def stamp(seconds: float) -> Time:
+    """builtin_interfaces/Time of a ROS time ``seconds`` (> 0: since the epoch)."""
+    ns = round(seconds * 1e9)
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def start_of(value: Time) -> float | None:
+    """A start time as ROS time s; None for the zero Time (on receipt)."""
+    return None if stamp_is_zero(value) else seconds(value)
+
+
+def joint_trajectory(traj: Trajectory, start: float | None = None) -> JointTrajectory:
     """trajectory_msgs/JointTrajectory of a planned move: positions and velocities of the six
-    actuated joints (JOINT_NAMES order) at each sample time; a zero header stamp (the ROS
-    convention: start on receipt)."""
+    actuated joints (JOINT_NAMES order) at each sample time; the header stamp ``start`` (ROS
+    time s: when the drives start it), or zero (None; the ROS convention: start on receipt)."""
     msg = JointTrajectory(joint_names=list(JOINT_NAMES))
+    if start is not None:
+        msg.header.stamp = stamp(start)
     positions = np.hstack([traj.lengths, traj.thetas])
     velocities = np.hstack([traj.length_rates, traj.theta_rates])
     msg.points = [JointTrajectoryPoint(positions=positions[i].tolist(),

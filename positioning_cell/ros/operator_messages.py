@@ -37,7 +37,7 @@ from positioning_cell.limits.speed import Speeds
 from positioning_cell.limits.validity import CheckResult
 from positioning_cell.moves.correction import deviation
 from positioning_cell.moves.outcomes import Attained, MoveResult, ResultCode
-from positioning_cell.ros.messages import pose_arrays, pose_msg, seconds
+from positioning_cell.ros.messages import pose_arrays, pose_msg, seconds, start_of
 
 if TYPE_CHECKING:
     from positioning_cell.motion.controller import MoveCommand
@@ -57,7 +57,8 @@ def move_command(msg: MoveCommandMsg) -> MoveCommand:
 
     p, q = pose_arrays(msg.pose.pose)
     return MoveCommand(KINDS.get(msg.mode, f'mode {msg.mode}'), msg.pose.header.frame_id, p, q,
-                       float(msg.tolerance), float(msg.speed_scale))
+                       float(msg.tolerance), float(msg.speed_scale), float(msg.duration),
+                       start_of(msg.start))
 
 
 def attained(result: MoveResult, goal: tuple[Any, Any]) -> tuple[Any, Any]:

@@ -75,7 +75,8 @@ class InstantCell:
             return np.full(count, REFERENCE_TEMPERATURE)
         return thermal.sensor(np.full(count, self.time), self._sensor_rng)
 
-    def _send(self, traj: Trajectory) -> None:
+    def _send(self, traj: Trajectory, start: float | None = None) -> None:
+        del start  # an instant machine: every motion is over when sent
         joints = np.hstack([traj.lengths, traj.thetas])
         with self._lock:
             self.position = joints[-1].copy()

@@ -194,7 +194,7 @@ class InstantFaultPort(InstantPort):
         def driver() -> bool:
             return alive() and self._alive[names.NODE_DRIVER]
 
-        def send(traj: Trajectory) -> None:
+        def send(traj: Trajectory, start: float | None = None) -> None:  # start: on receipt
             if driver():
                 joints = np.hstack([traj.lengths, traj.thetas])
                 rates = np.hstack([traj.length_rates, traj.theta_rates])
