@@ -10,5 +10,9 @@ ROS.
   deformation compatibility), their self-equilibrated part per pair, the worst pair named;
 - :mod:`.base_calibration`: each positioner's base in the cell frame from tracker readings of
   its attachment point, with its covariance;
+- :mod:`.panel_motion`: the panel's pose as each positioner's platform pose and back, and how
+  far each pair of attachments is pulled apart;
+- :mod:`.coordinator`: a panel move with every positioner as one (checked by all first, one
+  time base, a fault or stop of one stops all);
 - :mod:`.cell_file`: the cell configuration (positioners, their bases and attachments).
 """

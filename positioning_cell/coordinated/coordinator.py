@@ -1,0 +1,256 @@
+"""Moving the panel with every positioner as one (issue 27, item 3): the coordinator's rules,
+without ROS (the ``cell_coordinator`` node runs them on the node sets,
+:mod:`positioning_cell.ros.set_port`).
+
+A panel move (:meth:`Coordinator.move`):
+
+1. the panel's goal (cell frame) becomes each positioner's platform goal in its base
+   (:func:`~positioning_cell.coordinated.panel_motion.platform_goals`);
+2. every positioner checks its goal in all its limit layers and its state (CheckPose) before
+   any moves: one refusal refuses the panel move, naming each positioner that refuses and
+   why; nothing moved;
+3. one time base (:class:`~positioning_cell.moves.timing.Timing`): the slowest positioner's
+   duration for all, and one start ``start_lead`` s ahead, so that the drives start together
+   and reach their goals together;
+4. every positioner is sent its move; the coordinator watches them every ``poll_period``
+   s. A positioner that ends otherwise than settled (refused, aborted, out of tolerance,
+   stopped by anyone) stops all the others at once: the panel move ends with its code and
+   reason, naming it. A stop asked of the coordinator stops all (ABORTED_STOP); a move not
+   over ``end_margin`` s after the common motion's end stops all (ABORTED_TIMEOUT).
+5. Settled: the panel pose each positioner's attained platform implies, their mean, and how
+   far each pair of attachment points is pulled apart
+   (:func:`~positioning_cell.coordinated.panel_motion.pair_disagreement`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.panel_motion import (
+    PairDisagreement,
+    implied_panels,
+    mean_panel,
+    pair_disagreement,
+    platform_goals,
+)
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import InputError
+from positioning_cell.frames.transforms import Transform
+from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.moves.timing import Timing
+from positioning_cell.parameters import check_fields, setting
+
+FloatArray = NDArray[np.float64]
+Pose = tuple[FloatArray, FloatArray]
+
+
+@dataclass(frozen=True)
+class CoordinatorSettings:
+    """The coordinator's timing (``cell_coordinator`` parameters)."""
+
+    start_lead: float = setting(0.5, 'the common start lies this far ahead of the moment the '
+                                'moves are sent (each positioner plans and sends within it; '
+                                'at most the drives\' command.max_start_delay)', 's',
+                                low=0.05, high=5.0)
+    poll_period: float = setting(0.01, 'how often the running moves are looked at', 's',
+                                 low=0.001, high=0.5)
+    end_margin: float = setting(60.0, 'a move not over this long after the common motion '
+                                'ends (settling, corrections) stops every positioner', 's',
+                                low=1.0, high=3600.0)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class PanelRequest:
+    """A panel goal: ``position`` (3,) m and ``quaternion`` (4,) of the panel in the cell
+    frame; each positioner's settle ``tolerance`` (m; 0: its configured one) and
+    ``speed_scale`` in (0, 1] (0: 1), as in a positioner's MoveCommand."""
+
+    position: FloatArray
+    quaternion: FloatArray
+    tolerance: float = 0.0
+    speed_scale: float = 0.0
+
+
+class Checked(NamedTuple):
+    """A positioner's check of its goal: ``code`` (SUCCESS: it would move), ``reason`` (why
+    not), and the planned ``duration`` s."""
+
+    code: ResultCode
+    reason: str
+    duration: float
+
+
+class Ended(NamedTuple):
+    """How a positioner's move ended: its ``code``, ``reason`` and ``attained`` platform pose
+    in its base (None: not known)."""
+
+    code: ResultCode
+    reason: str
+    attained: Pose | None
+
+
+class Positioner(Protocol):
+    """One positioner as the coordinator drives it (its node set, on ROS)."""
+
+    name: str
+
+    def check(self, goal: Pose, request: PanelRequest, duration: float) -> Checked:
+        """Check the move to ``goal`` (platform in base) lasting at least ``duration`` s."""
+
+    def move(self, goal: Pose, request: PanelRequest, timing: Timing
+             ) -> Callable[[], Ended | None]:
+        """Send the move; the returned poll gives its end (None while it runs)."""
+
+    def stop(self) -> None:
+        """Stop whatever the positioner runs, under control."""
+
+
+@dataclass(frozen=True)
+class PanelOutcome:
+    """How a panel move ended: ``code`` and ``reason`` (naming the positioner that ended it
+    otherwise than settled), each positioner's :class:`Ended` (``ends``, by name; those not
+    sent a move are missing), the common ``timing``, and when settled the mean ``panel`` pose
+    (cell frame) the positioners' attained poses imply and each pair's
+    :class:`~positioning_cell.coordinated.panel_motion.PairDisagreement`."""
+
+    code: ResultCode
+    reason: str
+    ends: dict[str, Ended] = field(default_factory=dict)
+    timing: Timing | None = None
+    panel: Transform | None = None
+    pairs: tuple[PairDisagreement, ...] = ()
+
+    @property
+    def worst_pair(self) -> PairDisagreement | None:
+        """The pair pulled apart (or together) most; None when not known."""
+        return max(self.pairs, key=lambda d: abs(d.stretch)) if self.pairs else None
+
+
+class Coordinator:
+    """The coordinator's rules (module docstring) over ``positioners`` (one per positioner of
+    ``cell``, in its order) whose model machine is ``mech``; ``clock()`` is ROS time, s."""
+
+    def __init__(self, cell: CellFile, mech: Mechanism, positioners: Sequence[Positioner],
+                 settings: CoordinatorSettings = CoordinatorSettings(),
+                 clock: Callable[[], float] = time.time) -> None:
+        if [p.name for p in positioners] != [e.name for e in cell.positioners]:
+            raise InputError(f'positioners {[p.name for p in positioners]} are not the '
+                             f"cell's {[e.name for e in cell.positioners]}")
+        self.cell, self.mech, self.positioners = cell, mech, list(positioners)
+        self.settings, self.clock = settings, clock
+
+    def stop_all(self) -> None:
+        """Stop every positioner (each is asked, whatever the others answer)."""
+        errors = []
+        for p in self.positioners:
+            try:
+                p.stop()
+            except Exception as err:  # the others must be stopped all the same
+                errors.append(f'{p.name}: {err}')
+        if errors:
+            raise RuntimeError('stop not delivered to ' + '; '.join(errors))
+
+    def move(self, request: PanelRequest, stop: threading.Event,
+             progress: Callable[[float], None] | None = None) -> PanelOutcome:
+        """Move the panel (module docstring); ``stop`` set: stop every positioner and end;
+        ``progress(share)`` with the share of the common motion's time elapsed."""
+        try:
+            goals = platform_goals(self.cell, self.mech, request.position, request.quaternion)
+        except InputError as err:
+            return PanelOutcome(ResultCode.REFUSED_INVALID_GOAL, f'panel goal: {err}')
+        checks = [p.check(goal, request, 0.0) for p, goal in zip(self.positioners, goals,
+                                                                  strict=True)]
+        refusing = [(p.name, c) for p, c in zip(self.positioners, checks, strict=True)
+                    if c.code is not ResultCode.SUCCESS]
+        if refusing:
+            return PanelOutcome(refusing[0][1].code, 'refused, nothing moved: ' + '; '.join(
+                f'{name}: {c.reason}' for name, c in refusing))
+        timing = Timing(max(c.duration for c in checks),
+                        self.clock() + self.settings.start_lead)
+        polls: list[tuple[str, Callable[[], Ended | None]]] = []
+        try:
+            for p, goal in zip(self.positioners, goals, strict=True):
+                polls.append((p.name, p.move(goal, request, timing)))
+        except Exception as err:  # whatever failed, the sent ones must stop
+            self.stop_all()
+            return PanelOutcome(ResultCode.ABORTED_FAULT, f'{p.name}: the move could not be '
+                                f'sent ({err}); every positioner stopped', timing=timing)
+        return self._watch(polls, timing, stop, progress)
+
+    def _watch(self, polls: list[tuple[str, Callable[[], Ended | None]]], timing: Timing,
+               stop: threading.Event, progress: Callable[[float], None] | None
+               ) -> PanelOutcome:
+        ends: dict[str, Ended] = {}
+        assert timing.start is not None
+        deadline = timing.start + timing.duration + self.settings.end_margin
+        while True:
+            for name, poll in polls:
+                if name not in ends:
+                    end = poll()
+                    if end is not None:
+                        ends[name] = end
+            failed = [(n, e) for n, e in ends.items() if e.code is not ResultCode.SUCCESS]
+            if failed:
+                self.stop_all()
+                name, end = failed[0]
+                return PanelOutcome(end.code, f'{name}: {end.reason}; every positioner '
+                                    'stopped', self._drain(polls, ends), timing)
+            if len(ends) == len(polls):
+                return self._settled(ends, timing)
+            now = self.clock()
+            if stop.is_set():
+                self.stop_all()
+                return PanelOutcome(ResultCode.ABORTED_STOP, 'stopped: every positioner '
+                                    'stopped', self._drain(polls, ends), timing)
+            if now > deadline:
+                self.stop_all()
+                late = [n for n, _ in polls if n not in ends]
+                return PanelOutcome(ResultCode.ABORTED_TIMEOUT, f'{", ".join(late)} not '
+                                    f'settled {self.settings.end_margin:g} s after the common '
+                                    'motion ended; every positioner stopped',
+                                    self._drain(polls, ends), timing)
+            if progress is not None and timing.duration > 0.0:
+                progress(min(max(-timing.delay(now) / timing.duration, 0.0), 1.0))
+            stop.wait(self.settings.poll_period)
+
+    def _drain(self, polls: list[tuple[str, Callable[[], Ended | None]]],
+               ends: dict[str, Ended], wait: float = 5.0) -> dict[str, Ended]:
+        """After a stop: the ends of the stopped moves as they come in (up to ``wait`` s)."""
+        deadline = time.monotonic() + wait
+        while len(ends) < len(polls) and time.monotonic() < deadline:
+            for name, poll in polls:
+                if name not in ends:
+                    end = poll()
+                    if end is not None:
+                        ends[name] = end
+            time.sleep(self.settings.poll_period)
+        return ends
+
+    def _settled(self, ends: dict[str, Ended], timing: Timing) -> PanelOutcome:
+        names = [p.name for p in self.positioners]
+        attained = [ends[n].attained for n in names]
+        if any(a is None for a in attained):
+            unknown = [n for n, a in zip(names, attained, strict=True) if a is None]
+            return PanelOutcome(ResultCode.SUCCESS, 'every positioner settled (attained pose '
+                                f'not known for {", ".join(unknown)})', ends, timing)
+        poses = [a for a in attained if a is not None]
+        panel = mean_panel(implied_panels(self.cell, self.mech, poses))
+        pairs = tuple(pair_disagreement(self.cell, self.mech, poses))
+        worst = PanelOutcome(ResultCode.SUCCESS, '', pairs=pairs).worst_pair
+        words = 'every positioner settled'
+        if worst is not None:
+            words += (f'; attachments {worst.first}-{worst.second} '
+                      f'{worst.stretch * 1e6:+.1f} um apart from the rigid panel (the worst '
+                      'pair)')
+        return PanelOutcome(ResultCode.SUCCESS, words, ends, timing, panel, pairs)

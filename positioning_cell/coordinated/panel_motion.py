@@ -1,0 +1,113 @@
+"""The panel's pose as each positioner's platform pose, and back (issue 27, item 3).
+
+Frames: ``cell`` (the cell file's), each positioner's ``base`` (T_cell_base_i, the cell file's
+``base``) and ``platform``, and the ``panel``: the frame that coincides with ``cell`` when
+every platform is at its home pose. The panel is rigid and carries every platform with it: at
+panel pose T_cell_panel, positioner i's platform is at
+
+    T_base_platform_i = T_cell_base_iᐨ¹ · T_cell_panel · T_cell_base_i · T_base_home,
+
+so a ball attachment turns nothing in its socket (the positioner's idle freedom, a turn about
+its ball, is held at zero: :mod:`.mobility`). Back from the platforms, each positioner implies a
+panel pose of its own; where they differ the positioners disagree, and what a rigid panel on
+balls cannot take is the change of the distance between two balls
+(:func:`pair_disagreement`: one internal force system per pair, :mod:`.internal_forces`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from itertools import combinations
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import scipy_rotation
+from positioning_cell.errors import InputError
+from positioning_cell.frames.transforms import Transform
+
+FloatArray = NDArray[np.float64]
+
+
+def bases(cell: CellFile) -> list[Transform]:
+    """T_cell_base of every positioner of ``cell``, in its order."""
+    return [Transform.from_pq(e.base_position, e.base_quaternion) for e in cell.positioners]
+
+
+def _homes(cell: CellFile, mech: Mechanism) -> list[Transform]:
+    """T_cell_platform of every positioner at its home pose (the panel's home)."""
+    home = Transform.from_pq(mech.home_position, mech.home_quaternion)
+    return [base @ home for base in bases(cell)]
+
+
+def platform_goals(cell: CellFile, mech: Mechanism, panel_position: ArrayLike,
+                   panel_quaternion: ArrayLike) -> list[tuple[FloatArray, FloatArray]]:
+    """Each positioner's platform pose in its own base (position (3,) m, quaternion (4,)) that
+    puts the panel at ``panel_position`` (3,) m, ``panel_quaternion`` (4,) in the cell frame
+    (module docstring). InputError for a pose that is not finite or a non-unit quaternion."""
+    panel = Transform.from_pq(panel_position, panel_quaternion)  # InputError: bad pose
+    return [(base.inverse() @ panel @ home).to_pq()
+            for base, home in zip(bases(cell), _homes(cell, mech), strict=True)]
+
+
+def implied_panels(cell: CellFile, mech: Mechanism,
+                   platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[Transform]:
+    """The panel pose T_cell_panel each positioner's platform pose (position m, quaternion, in
+    its base; one per positioner, in the cell's order) implies."""
+    if len(platforms) != len(cell.positioners):
+        raise InputError(f'{len(platforms)} platform poses for {len(cell.positioners)} '
+                         'positioners')
+    return [base @ Transform.from_pq(*pose) @ home.inverse()
+            for base, home, pose in zip(bases(cell), _homes(cell, mech), platforms,
+                                        strict=True)]
+
+
+def mean_panel(panels: Sequence[Transform]) -> Transform:
+    """The mean of panel poses: the mean position, the chordal L2 mean rotation (scipy
+    ``Rotation.mean``)."""
+    rot = scipy_rotation()
+    position = np.mean([p.p for p in panels], axis=0)
+    quaternion = rot.from_quat(np.array([p.q for p in panels])).mean().as_quat()
+    return Transform.from_pq(position, quaternion)
+
+
+def attachment_points(cell: CellFile, mech: Mechanism,
+                      platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> FloatArray:
+    """(N, 3) m, cell frame: where each positioner's platform pose (in its base) puts its
+    attachment point (its ``offset`` in the platform frame)."""
+    if len(platforms) != len(cell.positioners):
+        raise InputError(f'{len(platforms)} platform poses for {len(cell.positioners)} '
+                         'positioners')
+    return np.array([(base @ Transform.from_pq(*pose)).apply(np.asarray(e.offset))
+                     for base, pose, e in zip(bases(cell), platforms, cell.positioners,
+                                              strict=True)])
+
+
+class PairDisagreement(NamedTuple):
+    """The disagreement of two positioners ``first``, ``second`` (their names): ``stretch``
+    m, how much longer the distance between their attachment points is than on the rigid
+    panel (negative: shorter)."""
+
+    first: str
+    second: str
+    stretch: float
+
+
+def pair_disagreement(cell: CellFile, mech: Mechanism,
+                      platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[PairDisagreement]:
+    """For every pair of positioners, how far their platforms (poses in their bases) pull
+    their attachment points apart from where the rigid panel holds them: the distance now
+    minus the distance at home (m). A rigid panel on balls takes any motion that keeps every
+    such distance; what it cannot take shows here."""
+    home = attachment_points(cell, mech, [(mech.home_position, mech.home_quaternion)]
+                             * len(cell.positioners))
+    now = attachment_points(cell, mech, platforms)
+    out = []
+    for i, j in combinations(range(len(cell.positioners)), 2):
+        stretch = float(np.linalg.norm(now[i] - now[j]) - np.linalg.norm(home[i] - home[j]))
+        out.append(PairDisagreement(cell.positioners[i].name, cell.positioners[j].name,
+                                    stretch))
+    return out

@@ -1,0 +1,217 @@
+"""The coordinated cell's panel motion and its coordinator's rules (issue 27, item 3), without
+ROS: the panel pose as each positioner's platform pose and back, each pair's disagreement,
+and the coordinator on fake positioners: every goal checked before any moves, one time base,
+a refusal, a fault, a stop or a late positioner stops all, naming it."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from positioning_cell.config import config_path
+from positioning_cell.coordinated import cell_file
+from positioning_cell.coordinated.coordinator import (
+    Checked,
+    Coordinator,
+    CoordinatorSettings,
+    Ended,
+    PanelRequest,
+    Pose,
+)
+from positioning_cell.coordinated.panel_motion import (
+    attachment_points,
+    implied_panels,
+    mean_panel,
+    pair_disagreement,
+    platform_goals,
+)
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import InputError
+from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.moves.timing import Timing
+
+MECH = Mechanism.default()
+CELL = cell_file.load(config_path('three_positioners.yaml'))
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+HOME: Pose = (MECH.home_position, MECH.home_quaternion)
+
+
+def panel_pose(dp: list[float], rv: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    return np.asarray(dp, dtype=float), Rotation.from_rotvec(rv).as_quat()
+
+
+def test_the_panel_at_home_puts_every_platform_at_home() -> None:
+    for p, q in platform_goals(CELL, MECH, np.zeros(3), IDENTITY):
+        np.testing.assert_allclose(p, MECH.home_position, atol=1e-15)
+        assert Rotation.from_quat(q).magnitude() < 1e-15
+    # The attachment points where the cell file puts them at home.
+    expected = np.array([a.point for a in CELL.attachments(MECH)])
+    np.testing.assert_allclose(attachment_points(CELL, MECH, [HOME] * 3), expected, atol=1e-15)
+
+
+@settings(max_examples=60, deadline=None)
+@given(dp=st.lists(st.floats(-0.01, 0.01), min_size=3, max_size=3),
+       rv=st.lists(st.floats(-0.02, 0.02), min_size=3, max_size=3))
+def test_the_platform_goals_carry_the_attachments_with_the_rigid_panel(dp: list[float],
+                                                                      rv: list[float]) -> None:
+    """Each platform goal puts its attachment point where the rigid panel carries it (the
+    panel's pose applied to the home points, an independent path), implies the panel pose
+    back, and pulls no pair apart."""
+    p, q = panel_pose(dp, rv)
+    goals = platform_goals(CELL, MECH, p, q)
+    home_points = np.array([a.point for a in CELL.attachments(MECH)])
+    carried = Rotation.from_quat(q).apply(home_points) + p
+    np.testing.assert_allclose(attachment_points(CELL, MECH, goals), carried, atol=1e-12)
+    for implied in implied_panels(CELL, MECH, goals):
+        np.testing.assert_allclose(implied.p, p, atol=1e-12)
+        assert (Rotation.from_quat(implied.q) * Rotation.from_quat(q).inv()).magnitude() < 1e-12
+    assert all(abs(d.stretch) < 1e-12 for d in pair_disagreement(CELL, MECH, goals))
+    mean = mean_panel(implied_panels(CELL, MECH, goals))
+    np.testing.assert_allclose(mean.p, p, atol=1e-12)
+
+
+def test_one_positioner_off_along_a_side_stretches_its_pairs_only_as_far_as_it_reaches() -> None:
+    """p2's platform 0.2 mm further from p1 along the side p1-p2: that pair 0.2 mm longer;
+    p1-p3 unchanged; p2-p3 by the projection of the shift on that side."""
+    points = np.array([a.point for a in CELL.attachments(MECH)])
+    side = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
+    shift = 2e-4 * side
+    poses: list[Pose] = [HOME, (MECH.home_position + shift, MECH.home_quaternion), HOME]
+    pairs = {(d.first, d.second): d.stretch for d in pair_disagreement(CELL, MECH, poses)}
+    assert pairs[('p1', 'p2')] == pytest.approx(2e-4, abs=1e-12)
+    assert pairs[('p1', 'p3')] == pytest.approx(0.0, abs=1e-15)
+    other = (points[1] - points[2]) / np.linalg.norm(points[1] - points[2])
+    # To first order the projection; the second order is |shift|² sin² / (2 L) ~ 1e-8 m.
+    assert pairs[('p2', 'p3')] == pytest.approx(float(shift @ other), abs=2e-8)
+
+
+def test_bad_panel_goals_and_pose_counts_are_named() -> None:
+    with pytest.raises(InputError, match='quaternion'):
+        platform_goals(CELL, MECH, np.zeros(3), [0.0, 0.0, 0.0, 2.0])
+    with pytest.raises(InputError, match='2 platform poses for 3 positioners'):
+        pair_disagreement(CELL, MECH, [HOME, HOME])
+
+
+# -- the coordinator on fake positioners ----------------------------------------------------------
+class FakePositioner:
+    """A positioner that plans ``duration`` s, ends ``after`` s past the start with ``end``
+    (None: runs until stopped), and records what it was asked."""
+
+    def __init__(self, name: str, duration: float = 0.1, after: float | None = 0.0,
+                 end: ResultCode = ResultCode.SUCCESS, refuse: str = '') -> None:
+        self.name, self.duration, self.after, self.end, self.refuse = (name, duration, after,
+                                                                      end, refuse)
+        self.checked: list[Pose] = []
+        self.moved: list[tuple[Pose, Timing]] = []
+        self.stops = 0
+        self.lock = threading.Lock()
+
+    def check(self, goal: Pose, request: PanelRequest, duration: float) -> Checked:
+        self.checked.append(goal)
+        if self.refuse:
+            return Checked(ResultCode.REFUSED_LIMITS, self.refuse, 0.0)
+        return Checked(ResultCode.SUCCESS, '', self.duration)
+
+    def move(self, goal: Pose, request: PanelRequest, timing: Timing
+             ) -> Callable[[], Ended | None]:
+        self.moved.append((goal, timing))
+        assert timing.start is not None
+        start = timing.start
+
+        def poll() -> Ended | None:
+            with self.lock:
+                if self.stops:
+                    return Ended(ResultCode.ABORTED_STOP, 'stopped', None)
+            if self.after is not None and time.time() >= start + self.after:
+                return Ended(self.end, 'settled' if self.end is ResultCode.SUCCESS
+                             else 'drive fault: following error', goal)
+            return None
+        return poll
+
+    def stop(self) -> None:
+        with self.lock:
+            self.stops += 1
+
+
+FAST = CoordinatorSettings(start_lead=0.05, poll_period=0.005, end_margin=1.0)
+REQUEST = PanelRequest(np.array([0.0, 0.0, 0.002]), IDENTITY)
+
+
+def coordinator(*fakes: FakePositioner) -> Coordinator:
+    return Coordinator(CELL, MECH, fakes, FAST)
+
+
+def test_a_panel_move_gives_every_positioner_one_time_base_the_slowest_duration() -> None:
+    fakes = [FakePositioner('p1', 0.4), FakePositioner('p2', 0.9), FakePositioner('p3', 0.2)]
+    before = time.time()
+    outcome = coordinator(*fakes).move(REQUEST, threading.Event())
+    assert outcome.code is ResultCode.SUCCESS, outcome.reason
+    timings = {f.moved[0][1] for f in fakes}
+    assert len(timings) == 1  # one start and one duration for all
+    timing = timings.pop()
+    assert timing.duration == 0.9 and timing.start is not None
+    assert before + FAST.start_lead <= timing.start <= time.time()
+    goals = platform_goals(CELL, MECH, REQUEST.position, REQUEST.quaternion)
+    for fake, goal in zip(fakes, goals, strict=True):
+        np.testing.assert_array_equal(fake.moved[0][0][0], goal[0])
+    assert outcome.panel is not None
+    np.testing.assert_allclose(outcome.panel.p, REQUEST.position, atol=1e-12)
+    assert outcome.worst_pair is not None and abs(outcome.worst_pair.stretch) < 1e-12
+    assert 'every positioner settled' in outcome.reason
+
+
+def test_one_refusal_refuses_the_panel_move_naming_each_and_nothing_moves() -> None:
+    fakes = [FakePositioner('p1'), FakePositioner('p2', refuse='path refused, stroke'),
+             FakePositioner('p3', refuse='axes not referenced')]
+    outcome = coordinator(*fakes).move(REQUEST, threading.Event())
+    assert outcome.code is ResultCode.REFUSED_LIMITS
+    assert 'p2: path refused, stroke' in outcome.reason
+    assert 'p3: axes not referenced' in outcome.reason and 'nothing moved' in outcome.reason
+    assert all(f.checked and not f.moved for f in fakes)
+
+
+def test_a_fault_of_one_stops_all_at_once_naming_it() -> None:
+    fakes = [FakePositioner('p1', after=None), FakePositioner('p2', after=0.05,
+                                                              end=ResultCode.ABORTED_FAULT),
+             FakePositioner('p3', after=None)]
+    began = time.time()
+    outcome = coordinator(*fakes).move(REQUEST, threading.Event())
+    assert outcome.code is ResultCode.ABORTED_FAULT
+    assert outcome.reason.startswith('p2: drive fault') and 'every positioner stopped' in \
+        outcome.reason
+    assert all(f.stops == 1 for f in fakes)
+    assert outcome.ends['p1'].code is ResultCode.ABORTED_STOP
+    # Ended within a few polls of the fault (start lead + 50 ms + polls), not at the deadline.
+    assert time.time() - began < FAST.start_lead + 0.05 + FAST.end_margin
+
+
+def test_a_stop_asked_of_the_coordinator_stops_every_positioner() -> None:
+    fakes = [FakePositioner(n, after=None) for n in ('p1', 'p2', 'p3')]
+    stop = threading.Event()
+    threading.Timer(0.1, stop.set).start()
+    shares: list[float] = []
+    outcome = coordinator(*fakes).move(REQUEST, stop, shares.append)
+    assert outcome.code is ResultCode.ABORTED_STOP
+    assert all(f.stops == 1 for f in fakes)
+    assert shares and all(0.0 <= s <= 1.0 for s in shares)
+
+
+def test_a_positioner_that_never_settles_stops_all_at_the_deadline_naming_it() -> None:
+    fakes = [FakePositioner('p1'), FakePositioner('p2', after=None), FakePositioner('p3')]
+    outcome = coordinator(*fakes).move(REQUEST, threading.Event())
+    assert outcome.code is ResultCode.ABORTED_TIMEOUT
+    assert outcome.reason.startswith('p2 not settled')
+    assert all(f.stops == 1 for f in fakes)
+
+
+def test_the_positioners_must_be_the_cells() -> None:
+    with pytest.raises(InputError, match='are not the cell'):
+        Coordinator(CELL, MECH, [FakePositioner('p1'), FakePositioner('p3'),
+                                 FakePositioner('p2')], FAST)
