@@ -19,6 +19,7 @@ CONSOLE_SCRIPTS = [
     'accuracy_monitor_node = positioning_cell.ros.entry:accuracy_monitor_node',
     'calibrator_node = positioning_cell.ros.entry:calibrator_node',
     'live_view_node = positioning_cell.ros.entry:live_view_node',
+    'cell_coordinator_node = positioning_cell.ros.entry:cell_coordinator_node',
     'cell_container = positioning_cell.ros.entry:cell_container',
     'analyze_bag = positioning_cell.tools.analyze_bag:main',
     'analyze_bags = positioning_cell.tools.analyze_bags:main',

@@ -50,23 +50,28 @@ NODE_RECORDER = 'recorder'
 NODE_PLAYER = 'bag_player'
 NODE_CALIBRATOR = 'calibrator'
 NODE_LIVE_VIEW = 'live_view'
+NODE_COORDINATOR = 'cell_coordinator'
 
 #: The simulated leg drives (actuators and encoders).
 DRIVER = CellNode('leg_driver_node', NODE_DRIVER)
+#: The simulated laser tracker and the positioner (kinematics, limits, compensation).
+MEASUREMENT = CellNode('pose_measurement_node', NODE_MEASUREMENT)
+POSITIONER = CellNode('kinematics_node', NODE_POSITIONER)
 #: The cell's nodes in start order: the launch file and the run driver start these.
-CELL_NODES = (
-    DRIVER,
-    CellNode('pose_measurement_node', NODE_MEASUREMENT),
-    CellNode('kinematics_node', NODE_POSITIONER),
-    CellNode('accuracy_monitor_node', NODE_MONITOR),
-)
+CELL_NODES = (DRIVER, MEASUREMENT, POSITIONER, CellNode('accuracy_monitor_node', NODE_MONITOR))
+#: The nodes of one positioner's set in a coordinated cell (positioning_cell.ros.node_sets), in
+#: start order: the drives, the tracker, the positioner (a single cell's accuracy monitor
+#: judges one positioner's moves; the coordinated cell's figures are the panel's).
+SET_NODES = (DRIVER, MEASUREMENT, POSITIONER)
 RECORDER = CellNode('recorder_node', NODE_RECORDER)
 PLAYER = CellNode('bag_player_node', NODE_PLAYER)
 CALIBRATOR = CellNode('calibrator_node', NODE_CALIBRATOR)
 #: The Foxglove live view (read-only; its WebSocket server on 127.0.0.1:8765 by default).
 LIVE_VIEW = CellNode('live_view_node', NODE_LIVE_VIEW)
+#: Several positioners holding one panel (docs/howto/coordinated.md): moves them as one.
+COORDINATOR = CellNode('cell_coordinator_node', NODE_COORDINATOR)
 #: Every node executable of the package.
-NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR, LIVE_VIEW)
+NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR, LIVE_VIEW, COORDINATOR)
 #: The nodes a cell brought up may add to CELL_NODES (``cell up``, ``launch/cell.launch.py``):
 #: each with its switch (``cell up --record``/``--no-record``, ``record:=true``) and whether
 #: it is on by default. The recorder first, as ``make run`` starts it.
@@ -204,6 +209,40 @@ HOME_ACTION = '/positioner/homing'
 #: Calibrate the machine from its own measurements, progress per pose (action Calibrate,
 #: served by calibrator_node).
 CALIBRATE_ACTION = '/calibrator/calibrate'
+
+
+# -- the coordinated cell (issue 27) --------------------------------------------------------------
+#: Move the panel (action MoveToPose: the goal is the panel frame in the ``cell`` frame, mode
+#: ABSOLUTE); cancel = every positioner stops.
+COORDINATED_MOVE_ACTION = '/cell_coordinator/move'
+#: Stop every positioner of the cell (std_srvs/srv/Trigger).
+COORDINATED_STOP = '/cell_coordinator/stop'
+#: The coordinated cell's own frame (the cell file's bases are in it) and the panel's.
+CELL_FRAME = 'cell'
+PANEL_FRAME = 'panel'
+STATUS_COORDINATOR = 'cell_coordinator'
+
+#: What one positioner's node set uses on the wire: under a namespace ``ns`` every one of these
+#: becomes ``/ns<name>`` (:func:`in_set`; positioning_cell.ros.node_sets remaps them), every
+#: name but ROS's own PARAMETER_EVENTS and /rosout.
+SET_TOPICS = (*CELL_TOPICS, HEARTBEAT, SETPOINT, COORDINATE_SYSTEMS, AXIS_RANGES)
+SET_SERVICES = (
+    MOVE_TO_POSE, CHECK_POSE, HOME, STOP, SET_COORDINATE_SYSTEMS, GET_COORDINATE_SYSTEMS,
+    DEFINE_COORDINATE_SYSTEM, SELECT_COORDINATE_SYSTEMS, SET_LIMITS, GET_LIMITS, SET_SPEED, JOG,
+    DRIVER_ENABLE, DRIVER_REFERENCE, LOCATE_TRACKER, MONITOR_REPORT, MONITOR_RESET,
+    RECORDER_PAUSE, RECORDER_RESUME,
+)
+SET_ACTIONS = (MOVE_ACTION, HOME_ACTION, CALIBRATE_ACTION)
+#: The topics and services an action is made of (rcl_action's, under the action's name): Jazzy
+#: remaps an action through these, not by its own name (ros2/rcl#1170 came later).
+ACTION_ENDPOINTS = ('_action/send_goal', '_action/cancel_goal', '_action/get_result',
+                    '_action/feedback', '_action/status')
+
+
+def in_set(name: str, namespace: str) -> str:
+    """Wire name ``name`` (absolute) of the node set under ``namespace`` (a name, no slashes;
+    '': the single positioner's cell, the name itself)."""
+    return f'/{namespace}{name}' if namespace else name
 
 
 def set_parameters_service(node: str) -> str:

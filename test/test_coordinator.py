@@ -20,7 +20,6 @@ from positioning_cell.coordinated import cell_file
 from positioning_cell.coordinated.coordinator import (
     Checked,
     Coordinator,
-    CoordinatorSettings,
     Ended,
     PanelRequest,
     Pose,
@@ -32,6 +31,7 @@ from positioning_cell.coordinated.panel_motion import (
     pair_disagreement,
     platform_goals,
 )
+from positioning_cell.coordinated.settings import CoordinatorSettings
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.moves.outcomes import ResultCode

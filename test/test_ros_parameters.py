@@ -13,6 +13,7 @@ from positioning_cell import names
 from positioning_cell.nodes.accuracy_monitor_node import AccuracyMonitorNode
 from positioning_cell.nodes.bag_player_node import BagPlayerNode
 from positioning_cell.nodes.calibrator_node import CalibratorNode
+from positioning_cell.nodes.cell_coordinator_node import CellCoordinatorNode
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.nodes.leg_driver_node import LegDriverNode
 from positioning_cell.nodes.live_view_node import LiveViewNode
@@ -24,7 +25,7 @@ from positioning_cell.ros.parameters import descriptor
 pytestmark = pytest.mark.nodes
 
 NODES = (PositionerNode, LegDriverNode, PoseMeasurementNode, AccuracyMonitorNode, RecorderNode,
-         BagPlayerNode, CalibratorNode, LiveViewNode)
+         BagPlayerNode, CalibratorNode, LiveViewNode, CellCoordinatorNode)
 
 
 def test_every_node_declares_the_settings_type_the_config_is_checked_against() -> None:

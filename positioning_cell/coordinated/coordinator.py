@@ -41,33 +41,15 @@ from positioning_cell.coordinated.panel_motion import (
     pair_disagreement,
     platform_goals,
 )
+from positioning_cell.coordinated.settings import CoordinatorSettings
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.moves.timing import Timing
-from positioning_cell.parameters import check_fields, setting
 
 FloatArray = NDArray[np.float64]
 Pose = tuple[FloatArray, FloatArray]
-
-
-@dataclass(frozen=True)
-class CoordinatorSettings:
-    """The coordinator's timing (``cell_coordinator`` parameters)."""
-
-    start_lead: float = setting(0.5, 'the common start lies this far ahead of the moment the '
-                                'moves are sent (each positioner plans and sends within it; '
-                                'at most the drives\' command.max_start_delay)', 's',
-                                low=0.05, high=5.0)
-    poll_period: float = setting(0.01, 'how often the running moves are looked at', 's',
-                                 low=0.001, high=0.5)
-    end_margin: float = setting(60.0, 'a move not over this long after the common motion '
-                                'ends (settling, corrections) stops every positioner', 's',
-                                low=1.0, high=3600.0)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
 
 
 @dataclass(frozen=True)
@@ -142,13 +124,13 @@ class Coordinator:
     ``cell``, in its order) whose model machine is ``mech``; ``clock()`` is ROS time, s."""
 
     def __init__(self, cell: CellFile, mech: Mechanism, positioners: Sequence[Positioner],
-                 settings: CoordinatorSettings = CoordinatorSettings(),
+                 settings: CoordinatorSettings | None = None,
                  clock: Callable[[], float] = time.time) -> None:
         if [p.name for p in positioners] != [e.name for e in cell.positioners]:
             raise InputError(f'positioners {[p.name for p in positioners]} are not the '
                              f"cell's {[e.name for e in cell.positioners]}")
         self.cell, self.mech, self.positioners = cell, mech, list(positioners)
-        self.settings, self.clock = settings, clock
+        self.settings, self.clock = settings or CoordinatorSettings(), clock
 
     def stop_all(self) -> None:
         """Stop every positioner (each is asked, whatever the others answer)."""

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from positioning_cell_interfaces.action import Calibrate
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
@@ -28,7 +28,7 @@ from positioning_cell.motion.settings import machine_settings
 from positioning_cell.procedures.calibration import Outcome, calibrate
 from positioning_cell.procedures.stopping import Stopped
 from positioning_cell.ros.client import CellClient
-from positioning_cell.ros.goals import Ran, run_goal
+from positioning_cell.ros.goals import OneGoal, Ran, run_goal
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.spin import NodeStart, Spin
@@ -48,35 +48,15 @@ class CalibratorNode(Node):
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS)
         self.machine = machine_settings(self.params.settings.machine_file())
-        self._lock = threading.Lock()
-        self._busy = False
-        self._closing = threading.Event()
-        self._idle = threading.Event()
-        self._idle.set()
+        self._goal = OneGoal(self.get_logger(), 'calibration')
         self._server = ActionServer(self, Calibrate, names.CALIBRATE_ACTION, self._execute,
-                                    goal_callback=self._on_goal,
+                                    goal_callback=self._goal.accept,
                                     cancel_callback=lambda _: CancelResponse.ACCEPT,
                                     callback_group=ReentrantCallbackGroup())
 
-    def _on_goal(self, goal: Any) -> GoalResponse:
-        """One calibration at a time: a goal while one runs (or at shutdown) is rejected."""
-        with self._lock:
-            if self._busy or self._closing.is_set():
-                self.get_logger().warning('Calibrate goal rejected: ' + (
-                    'the node shuts down' if self._closing.is_set()
-                    else 'a calibration is running'))
-                return GoalResponse.REJECT
-            self._busy = True
-            self._idle.clear()
-        return GoalResponse.ACCEPT
-
     def _execute(self, goal_handle: Any) -> Calibrate.Result:
-        try:
+        with self._goal.running():
             return self._calibrate(goal_handle)
-        finally:
-            with self._lock:
-                self._busy = False
-                self._idle.set()
 
     def _calibrate(self, goal_handle: Any) -> Calibrate.Result:
         goal = goal_handle.request
@@ -86,7 +66,7 @@ class CalibratorNode(Node):
             goal_handle.abort()
             return Calibrate.Result(success=False, reason=f'invalid goal: {err}')
         ran = run_goal(goal_handle, lambda stop, feedback: self._work(settings, stop, feedback),
-                       closing=self._closing)
+                       closing=self._goal.closing)
         return self._finish(goal_handle, ran)
 
     def _work(self, settings: CalibratorSettings, stop: threading.Event,
@@ -136,8 +116,7 @@ class CalibratorNode(Node):
     def close(self) -> None:
         """At shutdown: a running calibration is stopped (drives stopped, the positioner's
         mode put back, nothing written) before the node goes."""
-        self._closing.set()
-        self._idle.wait(CLOSE_WAIT_S)
+        self._goal.close(CLOSE_WAIT_S)
 
 
 #: The entry point of ``calibrator_node`` (alone; ``cell_container`` hosts it with others).

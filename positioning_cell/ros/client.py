@@ -247,15 +247,16 @@ class CellClient:
         client = self.service(srv_type, name, 0.0)
         return [client.call_async(r) for r in requests]
 
-    def home(self, timeout: float = 60.0) -> tuple[bool, str]:
-        """Home the positioner (it references the drives first): (success, message). Retries
-        while it refuses for want of encoder or tracker readings (the cell is still coming up:
-        the tracker locates itself before it measures)."""
+    def home(self, timeout: float = 60.0, namespace: str = '') -> tuple[bool, str]:
+        """Home the positioner (of the node set ``namespace``; '': the single cell's; it
+        references the drives first): (success, message). Retries while it refuses for want
+        of encoder or tracker readings (the cell is still coming up: the tracker locates
+        itself before it measures)."""
         not_yet = (ResultCode.REFUSED_DRIVER_SILENT.value, ResultCode.REFUSED_NO_ESTIMATE.value,
                    ResultCode.REFUSED_TRACKER_SILENT.value)
 
         def attempt() -> tuple[bool, str] | None:
-            done, message = self.trigger(names.HOME)
+            done, message = self.trigger(names.in_set(names.HOME, namespace))
             return None if not done and message.startswith(not_yet) else (done, message)
 
         result: tuple[bool, str] = self._wait(attempt, timeout, 'the positioner to home')
@@ -312,11 +313,12 @@ class CellClient:
     def plan(self, service: str, position: ArrayLike, quaternion: ArrayLike,
              tolerance: float = 0.0, timeout: float = 120.0) -> bool:
         """Call /positioner/move_to_pose (moved and settled within tolerance?) or
-        /positioner/check_pose (would it move?) for an absolute goal in the base frame."""
+        /positioner/check_pose (would it move?) for an absolute goal in the base frame (either
+        of a node set: names.in_set)."""
         command = MoveCommand(pose=pose_stamped(position, quaternion,
                                                 self.node.get_clock().now().to_msg()),
                               mode=MoveCommand.ABSOLUTE, tolerance=float(tolerance))
-        if service == names.CHECK_POSE:
+        if service.endswith(names.CHECK_POSE):
             return bool(self.call(CheckPose, service, CheckPose.Request(command=command),
                                   timeout).valid)
         response = self.call(MoveToPose, service, MoveToPose.Request(command=command), timeout)
@@ -365,11 +367,12 @@ class CellClient:
 
 def serving_node(name: str) -> str:
     """The node that serves service or action ``name``: the cell's names are
-    /<node>/<what> (:mod:`positioning_cell.names`)."""
+    /<node>/<what> (:mod:`positioning_cell.names`), a node set's /<namespace>/<node>/<what>
+    (names.in_set): the node is what precedes the last part, its namespace with it."""
     parts = name.strip('/').split('/')
     if len(parts) < 2:
         raise ValueError(f'{name!r} is not /<node>/<service>')
-    return parts[0]
+    return '/'.join(parts[:-1])
 
 
 #: Numbers the nodes of the GoalClients of a process: each its own name.

@@ -6,11 +6,14 @@ servers of the positioner's operator interface and of the calibrator run their g
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
+
+from rclpy.action import GoalResponse
 
 T = TypeVar('T')
 
@@ -74,3 +77,46 @@ def run_goal(goal_handle: Any, work: Callable[[threading.Event, Callable[[Any], 
             publish(tick())
     pass_on()
     return Ran(box.get('value'), box.get('error'), stop.is_set(), canceled)
+
+
+class OneGoal:
+    """The guard of an action server that runs one goal at a time (the calibrator's, the
+    coordinator's): :meth:`accept` is its goal callback (a goal while one runs, or once the
+    node closes, is rejected and logged with ``what`` the server runs); :meth:`running` wraps
+    the goal's execution; :meth:`close` refuses new goals and waits for the running one to
+    end (its work sees ``closing``: :func:`run_goal`)."""
+
+    def __init__(self, logger: Any, what: str) -> None:
+        self._logger, self._what = logger, what
+        self._lock = threading.Lock()
+        self.busy = False
+        self.closing = threading.Event()
+        self._idle = threading.Event()
+        self._idle.set()
+
+    def accept(self, _goal: Any) -> GoalResponse:
+        """ACCEPT, or REJECT while a goal runs or the node shuts down."""
+        with self._lock:
+            if self.busy or self.closing.is_set():
+                self._logger.warning(f'{self._what} goal rejected: ' + (
+                    'the node shuts down' if self.closing.is_set()
+                    else f'a {self._what} is running'))
+                return GoalResponse.REJECT
+            self.busy = True
+            self._idle.clear()
+        return GoalResponse.ACCEPT
+
+    @contextlib.contextmanager
+    def running(self) -> Iterator[None]:
+        """Around an accepted goal's execution: idle again when it ends, however."""
+        try:
+            yield
+        finally:
+            with self._lock:
+                self.busy = False
+                self._idle.set()
+
+    def close(self, wait: float) -> None:
+        """Reject every new goal; wait up to ``wait`` s for the running one to end."""
+        self.closing.set()
+        self._idle.wait(wait)

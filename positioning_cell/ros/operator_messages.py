@@ -38,6 +38,7 @@ from positioning_cell.limits.validity import CheckResult
 from positioning_cell.moves.correction import deviation
 from positioning_cell.moves.outcomes import Attained, MoveResult, ResultCode
 from positioning_cell.ros.messages import pose_arrays, pose_msg, seconds, start_of
+from positioning_cell.ros.outcome_codes import CODES
 
 if TYPE_CHECKING:
     from positioning_cell.motion.controller import MoveCommand
@@ -45,8 +46,6 @@ if TYPE_CHECKING:
 #: MoveCommand.mode ↔ the library's move kinds.
 KINDS = {MoveCommandMsg.ABSOLUTE: ABSOLUTE, MoveCommandMsg.RELATIVE_USER: RELATIVE_USER,
          MoveCommandMsg.RELATIVE_OBJECT: RELATIVE_OBJECT}
-#: ResultCode → MoveOutcome's constant (the same names, upper case).
-CODES = {code: int(getattr(MoveOutcome, code.name)) for code in ResultCode}
 
 
 def move_command(msg: MoveCommandMsg) -> MoveCommand:

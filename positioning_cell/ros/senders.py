@@ -132,11 +132,12 @@ class IdentifiedSubscription:
     with their sender (module docstring). Thread-safe."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: QoSProfile) -> None:
-        self.topic = topic
         self._node = Node(f'_{node.get_name()}_identified_{topic.strip("/").replace("/", "_")}',
                           context=node.context, start_parameter_services=False,
                           enable_rosout=False)
         self._sub = self._node.create_subscription(msg_type, topic, lambda _: None, qos)
+        #: The topic as the graph lists it: resolved, remapped (a node set's, ros.node_sets).
+        self.topic = self._sub.topic_name
         self._lock = threading.Lock()
         self._senders: dict[bytes, str] = {}
         lib = _rcl()

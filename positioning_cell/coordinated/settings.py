@@ -1,0 +1,55 @@
+"""The coordinated cell's settings: the coordinator's time base (:class:`CoordinatorSettings`)
+and every parameter of the ``cell_coordinator`` node (:class:`CellCoordinatorSettings`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from positioning_cell.config import config_path
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.cell_file import load as load_cell
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.parameters import check_fields, group, setting
+
+#: The shipped coordinated cell (config/).
+SHIPPED_CELL = 'three_positioners.yaml'
+
+
+@dataclass(frozen=True)
+class CoordinatorSettings:
+    """The coordinator's timing (``cell_coordinator`` parameters)."""
+
+    start_lead: float = setting(0.5, 'the common start lies this far ahead of the moment the '
+                                'moves are sent (each positioner plans and sends within it; '
+                                'at most the drives\' command.max_start_delay)', 's',
+                                low=0.05, high=5.0)
+    poll_period: float = setting(0.01, 'how often the running moves are looked at', 's',
+                                 low=0.001, high=0.5)
+    end_margin: float = setting(60.0, 'a move not over this long after the common motion '
+                                'ends (settling, corrections) stops every positioner', 's',
+                                low=1.0, high=3600.0)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
+class CellCoordinatorSettings:
+    """Every parameter of the ``cell_coordinator`` node (read-only: restart to change them)."""
+
+    mechanism: Mechanism = group(Mechanism, "the positioners' nominal machine: each one's "
+                                 "home pose is the panel's home")
+    cell_file: str = setting('', 'the coordinated cell: its positioners (their namespaces), '
+                             'bases and attachments (docs/howto/coordinated.md); empty: the '
+                             f'shipped config/{SHIPPED_CELL}')
+    timing: CoordinatorSettings = group(CoordinatorSettings, "the panel moves' time base")
+    answer_timeout: float = setting(10.0, "longest wait for a positioner's answer to a check "
+                                    'or a stop', 's', low=0.1, high=120.0)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+    def cell(self) -> CellFile:
+        """The cell file (ConfigError naming what is wrong in it)."""
+        return load_cell(Path(self.cell_file) if self.cell_file else config_path(SHIPPED_CELL))

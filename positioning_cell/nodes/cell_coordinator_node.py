@@ -1,0 +1,176 @@
+"""cell_coordinator_node (node ``cell_coordinator``): several positioners holding one panel,
+moved as one (issue 27; docs/howto/coordinated.md).
+
+The cell file (``cell_file``) names the positioners; each is a node set under its namespace
+(:mod:`positioning_cell.ros.node_sets`). The action /cell_coordinator/move (MoveToPose: the
+panel frame in the ``cell`` frame, mode ABSOLUTE) runs
+:meth:`~positioning_cell.coordinated.coordinator.Coordinator.move` on the sets through
+:class:`~positioning_cell.ros.set_port.RosSetPort` (a client node of its own in this node's
+context), in a worker thread (:func:`positioning_cell.ros.goals.run_goal`): every
+positioner's goal checked first, the slowest duration and one start for all, a fault or a stop
+of one stops all. Feedback: the share of the common motion elapsed. One goal at a time;
+a cancel, /cell_coordinator/stop or the node's shutdown stops every positioner. Its state on
+/diagnostics (``cell_coordinator``) each second and at every end."""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from positioning_cell_interfaces.action import MoveToPose
+from rclpy.action import ActionServer, CancelResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from positioning_cell import names
+from positioning_cell.coordinated.coordinator import Coordinator, PanelOutcome, PanelRequest
+from positioning_cell.coordinated.settings import CellCoordinatorSettings
+from positioning_cell.moves.correction import deviation
+from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.ros import messages as m
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.goals import OneGoal, Ran, run_goal
+from positioning_cell.ros.outcome_codes import CODES
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS
+from positioning_cell.ros.set_port import RosSetPort
+from positioning_cell.ros.spin import NodeStart, Spin
+
+#: Longest wait at shutdown for a running panel move to stop every positioner, s.
+CLOSE_WAIT_S = 10.0
+#: The status period, s.
+STATUS_PERIOD_S = 1.0
+
+
+class CellCoordinatorNode(Node):
+    """The ``cell_coordinator`` node (module docstring)."""
+
+    NAME = names.NODE_COORDINATOR
+    SETTINGS = CellCoordinatorSettings
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NAME, **kwargs)
+        self.params = NodeParameters(self, self.SETTINGS)
+        settings = self.params.settings
+        self.cell = settings.cell()  # ConfigError: no start
+        self._client: CellClient | None = None
+        self._coordinator: Coordinator | None = None
+        self._lock = threading.Lock()
+        self._goal = OneGoal(self.get_logger(), 'panel move')
+        self.last: PanelOutcome | None = None
+        self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
+                                              DIAGNOSTICS_QOS)
+        group = ReentrantCallbackGroup()
+        self._server = ActionServer(self, MoveToPose, names.COORDINATED_MOVE_ACTION,
+                                    self._execute, goal_callback=self._goal.accept,
+                                    cancel_callback=lambda _: CancelResponse.ACCEPT,
+                                    callback_group=group)
+        self.create_service(Trigger, names.COORDINATED_STOP, self._srv_stop,
+                            callback_group=group)
+        self.create_timer(STATUS_PERIOD_S, self._status)
+
+    @property
+    def coordinator(self) -> Coordinator:
+        """The coordinator on the node sets, built at the first goal or stop: its client node
+        spins in a thread of its own, which a coordinator nobody asks does not start."""
+        with self._lock:
+            if self._coordinator is None:
+                settings = self.params.settings
+                self._client = CellClient(name=f'{self.NAME}_client', context=self.context)
+                ports = [RosSetPort(self._client, e.name, settings.answer_timeout)
+                         for e in self.cell.positioners]
+                self._coordinator = Coordinator(self.cell, settings.mechanism, ports,
+                                                settings.timing)
+            return self._coordinator
+
+    def _execute(self, goal_handle: Any) -> MoveToPose.Result:
+        try:
+            with self._goal.running():
+                return self._move(goal_handle)
+        finally:
+            self._status()
+
+    def _move(self, goal_handle: Any) -> MoveToPose.Result:
+        command = goal_handle.request.command
+        frame = command.pose.header.frame_id or names.CELL_FRAME
+        p, q = m.pose_arrays(command.pose.pose)
+        if command.mode != command.ABSOLUTE or frame != names.CELL_FRAME:
+            return self._end(goal_handle, PanelOutcome(
+                ResultCode.REFUSED_INVALID_GOAL, f'a panel goal is ABSOLUTE in frame '
+                f'{names.CELL_FRAME!r} (got mode {command.mode}, frame {frame!r})'), p, q)
+        request = PanelRequest(p, q, float(command.tolerance), float(command.speed_scale))
+
+        def work(stop: threading.Event, feedback: Any) -> PanelOutcome:
+            def progress(share: float) -> None:
+                feedback(MoveToPose.Feedback(phase=MoveToPose.Feedback.MOVING,
+                                             phase_name='moving', progress=share))
+            return self.coordinator.move(request, stop, progress)
+
+        ran: Ran[PanelOutcome] = run_goal(goal_handle, work, closing=self._goal.closing)
+        outcome = ran.value or PanelOutcome(ResultCode.ABORTED_FAULT, f'{ran.error!r}')
+        return self._end(goal_handle, outcome, p, q, ran.canceled)
+
+    def _end(self, goal_handle: Any, outcome: PanelOutcome, p: Any, q: Any,
+             canceled: bool = False) -> MoveToPose.Result:
+        """The result: the code and reason, the mean panel pose the positioners' attained
+        poses imply (cell frame) and its error against the goal."""
+        self.last = outcome
+        result = MoveToPose.Result()
+        out = result.outcome
+        out.code, out.code_name, out.reason = (CODES[outcome.code], outcome.code.value,
+                                               outcome.reason)
+        out.position_error, out.orientation_error = [np.nan] * 3, [np.nan] * 3
+        out.uncertainty = [np.nan] * 6
+        if outcome.panel is not None:
+            out.attained = m.pose_stamped(*outcome.panel.to_pq(), self.get_clock().now()
+                                          .to_msg(), names.CELL_FRAME)
+            out.attained_source = 'estimated'
+            e_p, e_r = deviation(*outcome.panel.to_pq(), p, q)
+            out.position_error = [float(v) for v in e_p]
+            out.orientation_error = [float(v) for v in e_r]
+        if outcome.code is ResultCode.SUCCESS:
+            goal_handle.succeed()
+        elif canceled:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+        self.get_logger().info(f'panel move: {outcome.code.value}: {outcome.reason}')
+        return result
+
+    def _srv_stop(self, _request: Any, response: Trigger.Response) -> Trigger.Response:
+        """Stop every positioner (a running panel move then ends, naming the first that
+        stopped)."""
+        try:
+            self.coordinator.stop_all()
+        except RuntimeError as err:
+            response.success, response.message = False, str(err)
+            return response
+        response.success, response.message = True, 'every positioner stopping'
+        return response
+
+    def _status(self) -> None:
+        last = self.last
+        state = 'moving' if self._goal.busy else 'idle'
+        values = {'state': state, 'positioners': ' '.join(e.name for e in self.cell.positioners),
+                  'last_code': last.code.value if last else '',
+                  'last_reason': last.reason if last else ''}
+        level = 'ok' if last is None or last.code is ResultCode.SUCCESS else 'warn'
+        self.pub_diag.publish(m.diagnostic(names.STATUS_COORDINATOR, level, state, values,
+                                           self.get_clock().now().to_msg()))
+
+    def close(self) -> None:
+        """At shutdown: a running panel move stops every positioner before the node goes."""
+        self._goal.close(CLOSE_WAIT_S)
+        if self._client is not None:
+            self._client.close()
+
+
+#: The entry point of ``cell_coordinator_node`` (alone; ``cell_container`` hosts it too).
+main = NodeStart(CellCoordinatorNode, Spin.THREADS, threads=4)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

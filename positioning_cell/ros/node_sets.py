@@ -1,0 +1,149 @@
+"""Several positioners in one ROS graph (issue 27, item 1): each positioner's node set (the
+cell's nodes, names.CELL_NODES) under a namespace of its own, as ROS 2 runs several robots;
+the coordinator (``cell_coordinator_node``) in the root namespace talks to each.
+
+Every node of a set gets ``-r __ns:=/<ns>`` and a remap of every wire name the set uses
+(names.SET_TOPICS, SET_SERVICES and each action of SET_ACTIONS through its endpoints) to
+``/<ns><name>`` (:func:`remap_arguments`): the nodes keep their absolute names (names.py) and
+the single positioner's cell is unchanged. Each set's parameters are the cell's parameter
+files rewritten for it (:func:`set_parameter_files`): every node's section under its
+namespaced name (a file's ``/**`` section applies as it is), the names that bind the set's
+nodes to each other (the driver's commander, the positioner's sources, its coordinate-system
+file) in the namespace, and every seed in the files (``seed`` or ``*_seed`` keys) moved on by
+the set's index, so that each positioner is a machine of its own: its own geometric errors,
+clearance, drives and noise. Plain Python; the processes: :mod:`positioning_cell.ros.processes`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from positioning_cell import names
+from positioning_cell.config import load_parameter_file
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.errors import ConfigError
+from positioning_cell.ros.processes import Processes
+
+#: The wildcard section of a ROS parameter file: it applies to every node, in any namespace.
+ALL_NODES = '/**'
+#: Where each set's coordinate systems persist (under ROS_HOME, default ~/.ros): one file per
+#: namespace, as the single cell's is ``positioning_cell/coordinate_systems.yaml``.
+SYSTEMS_FILE = Path('positioning_cell') / 'sets' / '{namespace}' / 'coordinate_systems.yaml'
+
+
+def check_namespace(namespace: str) -> str:
+    """``namespace`` if it names a set (letters, digits, '_', not starting with a digit: a
+    ROS name token); ConfigError otherwise."""
+    if not namespace.isidentifier() or not namespace.isascii():
+        raise ConfigError(f'namespace {namespace!r}: a node set is named by letters, digits '
+                          "and '_', not starting with a digit")
+    return namespace
+
+
+def remap_arguments(namespace: str) -> list[str]:
+    """The ROS arguments (after ``--ros-args``) that put a node of the cell in the set
+    ``namespace``: its namespace and every name of names.SET_TOPICS, SET_SERVICES and the
+    endpoints of SET_ACTIONS remapped to :func:`names.in_set`."""
+    check_namespace(namespace)
+    wire = [*names.SET_TOPICS, *names.SET_SERVICES,
+            *(f'{action}/{part}' for action in names.SET_ACTIONS
+              for part in names.ACTION_ENDPOINTS)]
+    args = ['-r', f'__ns:=/{namespace}']
+    for name in dict.fromkeys(wire):
+        args += ['-r', f'{name}:={names.in_set(name, namespace)}']
+    return args
+
+
+def _shift_seeds(params: Any, by: int) -> Any:
+    """``params`` (a node's nested parameters) with every ``seed`` / ``*_seed`` integer >= 0
+    moved on by ``by`` (a negative seed means "none drawn": kept)."""
+    if not isinstance(params, Mapping):
+        return params
+    out = {}
+    for key, value in params.items():
+        seed = str(key) == 'seed' or str(key).endswith('_seed')
+        if seed and isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+            out[key] = value + by
+        else:
+            out[key] = _shift_seeds(value, by)
+    return out
+
+
+def bindings(namespace: str) -> dict[str, dict[str, Any]]:
+    """The parameters that bind the set's nodes to each other, by node name: the driver obeys
+    the set's positioner, the positioner takes the set's driver and tracker, and keeps its
+    coordinate systems in a file of the set's own."""
+    def node(name: str) -> str:
+        return f'/{namespace}/{name}'
+
+    home = Path(os.environ.get('ROS_HOME') or Path.home() / '.ros')
+    return {
+        names.NODE_DRIVER: {'command': {'commander': node(names.NODE_POSITIONER)}},
+        names.NODE_POSITIONER: {
+            'sources': {'leg_driver': node(names.NODE_DRIVER),
+                        'tracker': node(names.NODE_MEASUREMENT)},
+            'operator': {'coordinate_systems_file': str(
+                home / str(SYSTEMS_FILE).format(namespace=namespace))},
+        },
+    }
+
+
+def _merged(base: Mapping[str, Any], more: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``more`` laid over it, nested mappings merged key by key."""
+    out = dict(base)
+    for key, value in more.items():
+        old = out.get(key)
+        out[key] = (_merged(old, value) if isinstance(old, Mapping) and isinstance(value, Mapping)
+                    else value)
+    return out
+
+
+def set_parameter_files(files: Sequence[Path], namespace: str, index: int, out_dir: Path,
+                        overrides: Mapping[str, Mapping[str, Any]] | None = None) -> list[Path]:
+    """The parameter files of set ``namespace`` (the ``index``-th of the cell, from 0): each
+    of ``files`` rewritten (module docstring) into ``out_dir/<namespace>.<k>.yaml``, then the
+    set's :func:`bindings` with ``overrides`` ({node name: nested parameters}, the same for
+    every set) in ``out_dir/<namespace>.bindings.yaml`` (last: they win). ConfigError naming a
+    file that is not a parameter file."""
+    check_namespace(namespace)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for k, path in enumerate(files):
+        doc = load_parameter_file(path)
+        rewritten: dict[str, Any] = {}
+        for node, section in doc.items():
+            key = node if str(node).startswith('/') else f'/{namespace}/{node}'
+            if str(node).startswith('/') and node != ALL_NODES:
+                raise ConfigError(f'{path}: section {node!r}: a set rewrites node names; '
+                                  f'give them without a namespace (or {ALL_NODES})')
+            rewritten[key] = _shift_seeds(section, index)
+        target = out_dir / f'{namespace}.{k}.yaml'
+        target.write_text(yaml.safe_dump(rewritten, sort_keys=False))
+        written.append(target)
+    bound: dict[str, Any] = _merged(overrides or {}, bindings(namespace))
+    target = out_dir / f'{namespace}.bindings.yaml'
+    target.write_text(yaml.safe_dump(
+        {f'/{namespace}/{node}': {'ros__parameters': params} for node, params in bound.items()},
+        sort_keys=False))
+    return [*written, target]
+
+
+def start_coordinated(procs: Processes, cell: CellFile, files: Sequence[Path], out_dir: Path,
+                      overrides: Mapping[str, Mapping[str, Any]] | None = None) -> None:
+    """Start the coordinated cell ``cell`` in ``procs``: one ``cell_container`` per positioner
+    hosting names.SET_NODES under its namespace (label: the namespace), with the parameter
+    files ``files`` rewritten for it and ``overrides`` (by node name, for every set; the
+    coordinator's section too), then the ``cell_coordinator`` on the cell file."""
+    for k, entry in enumerate(cell.positioners):
+        params = set_parameter_files(files, entry.name, k, out_dir, overrides)
+        procs.start(names.CONTAINER, *remap_arguments(entry.name), params=params,
+                    label=entry.name, extra_args=[n.name for n in names.SET_NODES])
+    coordinator = _merged((overrides or {}).get(names.NODE_COORDINATOR, {}),
+                          {'cell_file': str(cell.path)})
+    procs.start(names.COORDINATOR.executable, params=files,
+                overrides={names.NODE_COORDINATOR: coordinator})

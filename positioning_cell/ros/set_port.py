@@ -1,0 +1,87 @@
+"""One positioner's node set as the coordinator drives it
+(:class:`~positioning_cell.coordinated.coordinator.Positioner`), through a
+:class:`~positioning_cell.ros.client.CellClient`: its CheckPose, its MoveToPose (sent with the
+common duration and start, answered when it settles, is refused or aborts) and its Stop, each
+under the set's namespace (names.in_set)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from positioning_cell_interfaces.msg import MoveCommand
+from positioning_cell_interfaces.srv import CheckPose, MoveToPose
+
+from positioning_cell import names
+from positioning_cell.coordinated.coordinator import Checked, Ended, PanelRequest, Pose
+from positioning_cell.limits.validity import result_code
+from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.moves.timing import Timing
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.messages import pose_arrays, pose_stamped, stamp
+
+
+class RosSetPort:
+    """The positioner of set ``name`` (its namespace) on ``client``'s graph; ``timeout`` s:
+    the longest wait for a check's or a stop's answer (and for the services to appear)."""
+
+    def __init__(self, client: CellClient, name: str, timeout: float) -> None:
+        self.client, self.name, self.timeout = client, name, timeout
+        self._check = names.in_set(names.CHECK_POSE, name)
+        self._move = names.in_set(names.MOVE_TO_POSE, name)
+        self._stop = names.in_set(names.STOP, name)
+
+    def _command(self, goal: Pose, request: PanelRequest, timing: Timing) -> MoveCommand:
+        command = MoveCommand(mode=MoveCommand.ABSOLUTE, tolerance=float(request.tolerance),
+                              speed_scale=float(request.speed_scale),
+                              duration=float(timing.duration))
+        command.pose = pose_stamped(goal[0], goal[1], self.client.node.get_clock().now()
+                                    .to_msg(), names.BASE_FRAME)
+        if timing.start is not None:
+            command.start = stamp(timing.start)
+        return command
+
+    def check(self, goal: Pose, request: PanelRequest, duration: float) -> Checked:
+        """CheckPose of the goal; its move service is found too, so that the move is sent at
+        once. A set that does not answer is a refusal naming it (REFUSED_DRIVER_SILENT)."""
+        try:
+            answer = self.client.call(CheckPose, self._check, CheckPose.Request(
+                command=self._command(goal, request, Timing(duration))), self.timeout)
+            self.client.service(MoveToPose, self._move, self.timeout)
+        except TimeoutError as err:
+            return Checked(ResultCode.REFUSED_DRIVER_SILENT, f'no answer: {err}', 0.0)
+        if answer.valid:
+            return Checked(ResultCode.SUCCESS, '', float(answer.duration))
+        reason = '; '.join(answer.validity.violations) or ', '.join(answer.validity.bit_names)
+        return Checked(result_code(int(answer.validity.bits)), reason, 0.0)
+
+    def move(self, goal: Pose, request: PanelRequest, timing: Timing
+             ) -> Callable[[], Ended | None]:
+        """Send the move (MoveToPose with ``timing``); the poll gives its outcome once it has
+        answered (None while it runs)."""
+        future = self.client.service(MoveToPose, self._move, self.timeout).call_async(
+            MoveToPose.Request(command=self._command(goal, request, timing)))
+
+        def poll() -> Ended | None:
+            if not future.done():
+                return None
+            error = future.exception()
+            if error is not None:
+                return Ended(ResultCode.ABORTED_DRIVER_LOST, f'the move call failed: {error}',
+                             None)
+            return ended(future.result().outcome)
+        return poll
+
+    def stop(self) -> None:
+        """Stop (the set's Stop service; TimeoutError when it does not answer)."""
+        self.client.trigger(self._stop, self.timeout)
+
+
+def ended(outcome: Any) -> Ended:
+    """A MoveOutcome as an :class:`Ended` (the attained pose in base when one is known)."""
+    try:
+        code = ResultCode(str(outcome.code_name))
+    except ValueError:
+        code = ResultCode.ABORTED_FAULT
+    attained = pose_arrays(outcome.attained.pose) if outcome.attained_source else None
+    return Ended(code, str(outcome.reason), attained)
