@@ -39,8 +39,10 @@ FAST_MOTION = {'linear_speed': 0.03, 'linear_acceleration': 0.15, 'angular_speed
 #: liveness is not under test (test_faults proves it alone, in the timing tier). On a loaded
 #: 2-core machine (three workers beside the docs build) the busiest minute held the driver's
 #: 100 Hz joint states past the default 0.2 s, and the tracker's 20 Hz readings past the
-#: default 0.5 s (0.51 s, a homing aborted in CI): a stalled process, not a lost input.
-LOADED_LIVENESS = {'joint_silence': 1.0, 'tracker_silence': 1.5}
+#: default 0.5 s (0.51 s, a homing aborted in CI): a stalled process, not a lost input. The
+#: drives' answer to a trajectory likewise (0.5 s by default: a coordinated test's move aborted
+#: under three workers and the docs build).
+LOADED_LIVENESS = {'joint_silence': 1.0, 'tracker_silence': 1.5, 'answer_timeout': 2.0}
 
 #: The leg driver's ``command`` for the same tests: a positioner stalled 0.52 s on a loaded
 #: CI runner went without a heartbeat past the default 0.5 s, and the drives stopped a

@@ -430,7 +430,7 @@ def expected_exit(name: str) -> Exit:
 
 def test_every_move_outcome_constant_maps_to_an_exit_code() -> None:
     constants = outcome_constants()
-    assert len(constants) == 22 and constants['ABORTED_STOP'] == 30
+    assert len(constants) == 23 and constants['ABORTED_STOP'] == 30
     # The message's constants are the positioner's result codes, one for one.
     assert {name.lower() for name in constants} == {r.value for r in ResultCode}
     for name, value in constants.items():

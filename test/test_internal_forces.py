@@ -119,3 +119,26 @@ def test_bad_values_and_a_panel_not_held_are_refused() -> None:
         internal_forces(BALLS, np.zeros((3, 6)), (K_FORCE, K_COUPLE), load=(np.nan,) * 6)
     with pytest.raises(InputError, match='not held'):
         internal_forces(BALLS[:2], np.zeros((2, 6)), (K_FORCE, K_COUPLE))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-2e-4, 2e-4), min_size=18, max_size=18), st.booleans())
+def test_the_pair_map_is_the_internal_forces_by_superposition(values: list[float],
+                                                              clamps: bool) -> None:
+    """What the force watch evaluates at every reading (a linear map built from unit
+    displacements) gives each pair the size the full solution gives, for balls and clamps."""
+    from positioning_cell.coordinated.internal_forces import pair_map
+
+    shipped = load(config_path('three_positioners.yaml'))
+    cell = shipped.attachments()
+    if clamps:
+        cell = [Attachment(a.name, 'clamp', a.point) for a in cell]
+    moved = np.array(values).reshape(3, 6)
+    if not clamps:
+        moved[:, 3:] = 0.0  # a ball takes no turn
+    by_map = dict(pair_map(cell, shipped.panel.stiffness).sizes(moved))
+    solved = dict(internal_forces(cell, moved, shipped.panel.stiffness,
+                                  shipped.panel.weight()).pairs)
+    assert by_map.keys() == solved.keys()
+    for pair, size in solved.items():
+        assert by_map[pair] == pytest.approx(size, rel=1e-9, abs=1e-6)

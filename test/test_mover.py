@@ -21,6 +21,7 @@ from workspace import MECH
 
 from positioning_cell import clearance as cl
 from positioning_cell.core import kinematics
+from positioning_cell.core.mechanism import JOINT_NAMES
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import Registration
 from positioning_cell.motion.mover import (
@@ -39,6 +40,7 @@ from positioning_cell.motion.mover import (
 )
 from positioning_cell.motion.settings import COMPENSATION_MODE, GoalTolerance
 from positioning_cell.motion.standstill import StandstillSettings, StandstillWatch
+from positioning_cell.motion.watch import FreezeWatch
 from positioning_cell.moves.correction import corrected_command, deviation, mean_pose
 from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.moves.timing import Timing
@@ -557,6 +559,19 @@ def test_every_abort_mid_move_stops_the_drives_in_bounded_time(
     assert err.code is code and words in str(err), str(err)
     assert took < bound + 0.1, took  # POLL_PERIOD and a busy machine's slack
     assert world.stops == 1 and m.state in (State.ABORTED, State.FAULT)
+
+
+def test_an_axis_waiting_for_its_start_is_not_frozen() -> None:
+    """A trajectory sent ahead of its start (the coordinated cell's lead): the encoders stand
+    still until then, and only what follows the start counts toward a freeze."""
+    counts = np.full(6, 1e-6)
+    watch = FreezeWatch(0.5, 10.0, counts, start=10.0)
+    watch.reading(np.zeros(6), 9.5)  # sent at 9.5 s, unchanged since
+    moving = np.full(6, 1e-4)  # 100 counts commanded over the window
+    assert watch.frozen(moving, 10.2) == []  # 0.2 s after the start
+    assert [name for name, _ in watch.frozen(moving, 10.5)] == list(JOINT_NAMES)
+    watch.reading(np.full(6, 1e-5), 10.4)  # it moved
+    assert watch.frozen(moving, 10.6) == []
 
 
 def test_a_frozen_encoder_is_a_fault_naming_the_axis_within_a_second() -> None:

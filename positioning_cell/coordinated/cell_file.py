@@ -12,6 +12,13 @@ Format (YAML; lengths m, quaternions x, y, z, w)::
             kind: spherical               # clamp, spherical, ball_in_slot, ball_on_plane
             offset: [0.0, 0.0, 0.05]      # the ball (clamp reference) in the platform frame
             direction: [1.0, 0.0, 0.0]    # slot axis / flat normal, cell frame (else unused)
+      panel:                              # optional; these are the defaults
+        mass: 0.0                         # kg
+        centre_of_gravity: [0.0, 0.0, 0.0]  # m, cell frame, the panel at home
+        stiffness: [1.0e+7, 1.0e+4]       # N/m, N·m/rad: each attachment's force and couple
+                                          # lines (positioner and panel in series)
+        internal_force_limit: 500.0       # N: a panel move whose internal force exceeds it
+                                          # stops every positioner
 
 Every positioner has the machine of :class:`~positioning_cell.core.mechanism.Mechanism` given
 to :meth:`CellFile.attachments` (the default: seed 000's); an attachment's point in the cell
@@ -27,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from positioning_cell import files
 from positioning_cell.config import load_yaml_mapping
@@ -35,9 +43,32 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import matrix_from_quaternion
 from positioning_cell.errors import ConfigError, InputError
 
+FloatArray = NDArray[np.float64]
+
 #: Fewest and most positioners of a coordinated cell.
 MIN_POSITIONERS, MAX_POSITIONERS = 1, 4
 _POSITIONER_KEYS = {'name', 'base', 'attachment'}
+_PANEL_KEYS = {'mass', 'centre_of_gravity', 'stiffness', 'internal_force_limit'}
+#: Gravity in the cell frame, m/s² (z up).
+GRAVITY = (0.0, 0.0, -9.81)
+
+
+@dataclass(frozen=True)
+class Panel:
+    """The panel: ``mass`` kg at ``centre_of_gravity`` (3,) m (cell frame, the panel at home),
+    each attachment's ``stiffness`` (k_force N/m, k_couple N·m/rad: the positioner and the
+    panel in series), and the ``internal_force_limit`` N above which a panel move stops."""
+
+    mass: float = 0.0
+    centre_of_gravity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    stiffness: tuple[float, float] = (1.0e7, 1.0e4)
+    internal_force_limit: float = 500.0
+
+    def weight(self) -> FloatArray:
+        """The panel's weight as a wrench (6,) on it: force N, moment N·m about the cell
+        origin."""
+        force = self.mass * np.asarray(GRAVITY)
+        return np.concatenate([force, np.cross(np.asarray(self.centre_of_gravity), force)])
 _ATTACHMENT_KEYS = {'kind', 'offset', 'direction'}
 
 
@@ -61,6 +92,7 @@ class CellFile:
 
     path: Path
     positioners: tuple[PositionerEntry, ...]
+    panel: Panel = Panel()
 
     def attachments(self, mech: Mechanism | None = None) -> list[Attachment]:
         """Each positioner's attachment with its point in the cell frame, its platform at home
@@ -120,13 +152,32 @@ def _entry(raw: object, k: int, source: str) -> PositionerEntry:
     return entry
 
 
+def _panel(raw: object, source: str) -> Panel:
+    where = f'{source}: cell.panel'
+    if not isinstance(raw, Mapping) or set(raw) - _PANEL_KEYS:
+        raise ConfigError(f'{where}: expected a mapping of {sorted(_PANEL_KEYS)}, got {raw!r}')
+    default = Panel()
+    mass = _numbers([raw.get('mass', default.mass)], 1, f'{where}.mass')[0]
+    cog = _numbers(raw.get('centre_of_gravity', list(default.centre_of_gravity)), 3,
+                   f'{where}.centre_of_gravity')
+    stiffness = _numbers(raw.get('stiffness', list(default.stiffness)), 2, f'{where}.stiffness')
+    limit = _numbers([raw.get('internal_force_limit', default.internal_force_limit)], 1,
+                     f'{where}.internal_force_limit')[0]
+    if mass < 0.0 or min(stiffness) <= 0.0 or limit <= 0.0:
+        raise ConfigError(f'{where}: mass must be >= 0, stiffness and internal_force_limit '
+                          f'> 0 (got mass {mass}, stiffness {list(stiffness)}, limit {limit})')
+    return Panel(mass, (cog[0], cog[1], cog[2]), (stiffness[0], stiffness[1]), limit)
+
+
 def load(path: str | Path) -> CellFile:
     """The cell file ``path`` (ConfigError naming the file and what is wrong)."""
     data: dict[str, Any] = load_yaml_mapping(path, files.CELL_FILE, 'cell')
     source = files.describe(files.CELL_FILE, path)
     cell = data.get('cell')
-    if set(data) != {'cell'} or not isinstance(cell, Mapping) or set(cell) != {'positioners'}:
-        raise ConfigError(f'{source}: expected one key `cell` holding `positioners`')
+    if (set(data) != {'cell'} or not isinstance(cell, Mapping)
+            or not {'positioners'} <= set(cell) <= {'positioners', 'panel'}):
+        raise ConfigError(f'{source}: expected one key `cell` holding `positioners` (and '
+                          '`panel`)')
     raw = cell['positioners']
     if not isinstance(raw, list) or not MIN_POSITIONERS <= len(raw) <= MAX_POSITIONERS:
         raise ConfigError(f'{source}: cell.positioners must list {MIN_POSITIONERS} to '
@@ -135,4 +186,4 @@ def load(path: str | Path) -> CellFile:
     names = [e.name for e in entries]
     if len(set(names)) != len(names):
         raise ConfigError(f'{source}: positioner names repeat: {names}')
-    return CellFile(Path(path), entries)
+    return CellFile(Path(path), entries, _panel(cell.get('panel', {}), source))

@@ -16,7 +16,10 @@ A panel move (:meth:`Coordinator.move`):
    s. A positioner that ends otherwise than settled (refused, aborted, out of tolerance,
    stopped by anyone) stops all the others at once: the panel move ends with its code and
    reason, naming it. A stop asked of the coordinator stops all (ABORTED_STOP); a move not
-   over ``end_margin`` s after the common motion's end stops all (ABORTED_TIMEOUT).
+   over ``end_margin`` s after the common motion's end stops all (ABORTED_TIMEOUT). With a
+   :class:`~positioning_cell.coordinated.force_watch.ForceWatch`, an internal force in the
+   panel above the cell's limit stops all (ABORTED_INTERNAL_FORCE, naming the pair of
+   attachments that disagree).
 5. Settled: the panel pose each positioner's attained platform implies, their mean, and how
    far each pair of attachment points is pulled apart
    (:func:`~positioning_cell.coordinated.panel_motion.pair_disagreement`).
@@ -34,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.force_watch import Excess, ForceWatch
 from positioning_cell.coordinated.panel_motion import (
     PairDisagreement,
     implied_panels,
@@ -112,6 +116,9 @@ class PanelOutcome:
     timing: Timing | None = None
     panel: Transform | None = None
     pairs: tuple[PairDisagreement, ...] = ()
+    excess: Excess | None = None
+    #: The largest internal force the watch estimated during the move: (pair, N).
+    peak: tuple[tuple[str, ...], float] | None = None
 
     @property
     def worst_pair(self) -> PairDisagreement | None:
@@ -121,16 +128,19 @@ class PanelOutcome:
 
 class Coordinator:
     """The coordinator's rules (module docstring) over ``positioners`` (one per positioner of
-    ``cell``, in its order) whose model machine is ``mech``; ``clock()`` is ROS time, s."""
+    ``cell``, in its order) whose model machine is ``mech``; ``clock()`` is ROS time, s;
+    ``watch``: the internal force watch its caller feeds (None: not watched)."""
 
     def __init__(self, cell: CellFile, mech: Mechanism, positioners: Sequence[Positioner],
                  settings: CoordinatorSettings | None = None,
-                 clock: Callable[[], float] = time.time) -> None:
+                 clock: Callable[[], float] = time.time, watch: ForceWatch | None = None
+                 ) -> None:
         if [p.name for p in positioners] != [e.name for e in cell.positioners]:
             raise InputError(f'positioners {[p.name for p in positioners]} are not the '
                              f"cell's {[e.name for e in cell.positioners]}")
         self.cell, self.mech, self.positioners = cell, mech, list(positioners)
         self.settings, self.clock = settings or CoordinatorSettings(), clock
+        self.watch = watch
 
     def stop_all(self) -> None:
         """Stop every positioner (each is asked, whatever the others answer)."""
@@ -160,6 +170,8 @@ class Coordinator:
                 f'{name}: {c.reason}' for name, c in refusing))
         timing = Timing(max(c.duration for c in checks),
                         self.clock() + self.settings.start_lead)
+        if self.watch is not None:
+            self.watch.reset()
         polls: list[tuple[str, Callable[[], Ended | None]]] = []
         try:
             for p, goal in zip(self.positioners, goals, strict=True):
@@ -174,6 +186,7 @@ class Coordinator:
                stop: threading.Event, progress: Callable[[float], None] | None
                ) -> PanelOutcome:
         ends: dict[str, Ended] = {}
+        peak: tuple[tuple[str, ...], float] | None = None
         assert timing.start is not None
         deadline = timing.start + timing.duration + self.settings.end_margin
         while True:
@@ -188,8 +201,17 @@ class Coordinator:
                 name, end = failed[0]
                 return PanelOutcome(end.code, f'{name}: {end.reason}; every positioner '
                                     'stopped', self._drain(polls, ends), timing)
+            sizes = self.watch.sizes() if self.watch is not None else None
+            if sizes and (peak is None or sizes[0][1] > peak[1]):
+                peak = sizes[0]
+            excess = self.watch.excess() if self.watch is not None else None
+            if excess is not None:
+                self.stop_all()
+                return PanelOutcome(ResultCode.ABORTED_INTERNAL_FORCE, f'{excess.words()}; '
+                                    'every positioner stopped', self._drain(polls, ends), timing,
+                                    excess=excess, peak=peak)
             if len(ends) == len(polls):
-                return self._settled(ends, timing)
+                return self._settled(ends, timing, peak)
             now = self.clock()
             if stop.is_set():
                 self.stop_all()
@@ -219,13 +241,14 @@ class Coordinator:
             time.sleep(self.settings.poll_period)
         return ends
 
-    def _settled(self, ends: dict[str, Ended], timing: Timing) -> PanelOutcome:
+    def _settled(self, ends: dict[str, Ended], timing: Timing,
+                 peak: tuple[tuple[str, ...], float] | None) -> PanelOutcome:
         names = [p.name for p in self.positioners]
         attained = [ends[n].attained for n in names]
         if any(a is None for a in attained):
             unknown = [n for n, a in zip(names, attained, strict=True) if a is None]
             return PanelOutcome(ResultCode.SUCCESS, 'every positioner settled (attained pose '
-                                f'not known for {", ".join(unknown)})', ends, timing)
+                                f'not known for {", ".join(unknown)})', ends, timing, peak=peak)
         poses = [a for a in attained if a is not None]
         panel = mean_panel(implied_panels(self.cell, self.mech, poses))
         pairs = tuple(pair_disagreement(self.cell, self.mech, poses))
@@ -235,4 +258,7 @@ class Coordinator:
             words += (f'; attachments {worst.first}-{worst.second} '
                       f'{worst.stretch * 1e6:+.1f} um apart from the rigid panel (the worst '
                       'pair)')
-        return PanelOutcome(ResultCode.SUCCESS, words, ends, timing, panel, pairs)
+        if peak is not None:
+            words += (f'; internal force at most {peak[1]:.0f} N ({"-".join(peak[0])}) during '
+                      'the move')
+        return PanelOutcome(ResultCode.SUCCESS, words, ends, timing, panel, pairs, peak=peak)

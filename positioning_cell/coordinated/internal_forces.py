@@ -113,17 +113,60 @@ def internal_forces(attachments: Sequence[Attachment], displacements: ArrayLike,
                        _pair_sizes(attachments, internal))
 
 
+class PairMap(NamedTuple):
+    """The internal force systems' coefficients as a linear map of the positioners'
+    displacements (the internal part of :func:`internal_forces` does not depend on the load,
+    and is linear in the displacements): ``pairs`` the pair (group) of each system, ``matrix``
+    (S, 6N) its coefficient (N) per unit displacement (m, rad; each attachment's δp, δθ in
+    the cell frame, in the attachments' order). What a watch evaluates at every reading."""
+
+    pairs: tuple[tuple[str, ...], ...]
+    matrix: FloatArray
+
+    def sizes(self, displacements: ArrayLike) -> tuple[tuple[tuple[str, ...], float], ...]:
+        """Each pair's size (N; root-sum-square of its systems' coefficients) for
+        ``displacements`` (N, 6), largest first: :attr:`PanelForces.pairs`, by the map."""
+        coefficients = self.matrix @ np.asarray(displacements, dtype=float).ravel()
+        sizes: dict[tuple[str, ...], float] = {}
+        for names, c in zip(self.pairs, coefficients, strict=True):
+            sizes[names] = float(np.hypot(sizes.get(names, 0.0), c))
+        return tuple(sorted(sizes.items(), key=lambda item: -item[1]))
+
+
+def pair_map(attachments: Sequence[Attachment], stiffness: ArrayLike) -> PairMap:
+    """The :class:`PairMap` of ``attachments`` with ``stiffness`` ((N, 2) or (2,), as
+    :func:`internal_forces`): its columns are the coefficients for each unit displacement."""
+    n = len(attachments)
+    mobility = cell_mobility(attachments)
+    pairs = tuple(tuple(names) for names in mobility.pairs_in_stress())
+    columns = []
+    for k in range(6 * n):
+        unit = np.zeros(6 * n)
+        unit[k] = 1.0
+        internal = internal_forces(attachments, unit.reshape(n, 6), stiffness).internal
+        columns.append(_coefficients(mobility.self_stress, internal))
+    matrix = np.array(columns).T if columns else np.zeros((0, 0))
+    return PairMap(pairs, matrix.reshape(len(pairs), 6 * n))
+
+
+def _coefficients(basis: FloatArray, internal: FloatArray) -> FloatArray:
+    """The coefficients of ``internal`` (N, 6) on the internal force systems ``basis``."""
+    if basis.shape[0] == 0:
+        return np.zeros(0)
+    coefficients, *_ = np.linalg.lstsq(basis.reshape(basis.shape[0], -1).T, internal.ravel(),
+                                       rcond=None)
+    return np.asarray(coefficients)
+
+
 def _pair_sizes(attachments: Sequence[Attachment], internal: FloatArray
                 ) -> tuple[tuple[tuple[str, ...], float], ...]:
     """The size (N) of the internal force systems each pair (group) carries in ``internal``:
     its coefficients on the cell's basis of internal force systems (each scaled to a largest
     force of 1), root-sum-squared per pair; largest first."""
     mobility = cell_mobility(attachments)
-    basis = mobility.self_stress
-    if basis.shape[0] == 0:
+    if mobility.self_stress.shape[0] == 0:
         return ()
-    coefficients, *_ = np.linalg.lstsq(basis.reshape(basis.shape[0], -1).T, internal.ravel(),
-                                       rcond=None)
+    coefficients = _coefficients(mobility.self_stress, internal)
     sizes: dict[tuple[str, ...], float] = {}
     for names, c in zip(mobility.pairs_in_stress(), coefficients, strict=True):
         key = tuple(names)

@@ -944,8 +944,9 @@ class Mover:
             self.answers.clear()
             counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
             delay = 0.0 if start is None else max(start - self.machine.wall_clock(), 0.0)
-            self._motion = (self.machine.clock() + delay, traj,
-                            FreezeWatch(live.freeze_window, live.freeze_motion, counts))
+            start_at = self.machine.clock() + delay
+            self._motion = (start_at, traj, FreezeWatch(live.freeze_window, live.freeze_motion,
+                                                        counts, start_at))
             self._silence_stops = self.driver.get('silence_stops', '0')
             self._sent = (self._motion[0], traj.duration)
             self.machine.send_trajectory(traj, start)

@@ -21,10 +21,14 @@ def unreadable_axes(position: FloatArray) -> list[str]:
 class FreezeWatch:
     """Encoders that freeze: for each axis the time its reading last changed; an axis is
     frozen when its reading has not changed for ``window`` s while the commanded motion over
-    the last ``window`` s exceeds ``counts`` encoder counts (``count`` (6,): m or rad)."""
+    the last ``window`` s exceeds ``counts`` encoder counts (``count`` (6,): m or rad). Only
+    time from ``start`` on counts (when the motion is due to start; a trajectory sent ahead of
+    its start stands still until then)."""
 
-    def __init__(self, window: float, counts: float, count: FloatArray) -> None:
+    def __init__(self, window: float, counts: float, count: FloatArray,
+                 start: float = -np.inf) -> None:
         self.window, self.threshold = window, counts * np.asarray(count, dtype=float)
+        self.start = start
         self._last: FloatArray | None = None
         self._changed = np.zeros(6)
 
@@ -41,7 +45,7 @@ class FreezeWatch:
         motion (6,) over the last ``window`` s."""
         if self._last is None:
             return []
-        idle = now - self._changed >= self.window
+        idle = now - np.maximum(self._changed, self.start) >= self.window
         moving = np.abs(commanded_motion) > self.threshold
         return [(JOINT_NAMES[i], float(commanded_motion[i]))
                 for i in np.flatnonzero(idle & moving)]

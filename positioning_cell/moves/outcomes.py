@@ -52,6 +52,8 @@ class ResultCode(Enum):
     ABORTED_TRACKER_LOST = 'aborted_tracker_lost'
     ABORTED_TRACKER_INCONSISTENT = 'aborted_tracker_inconsistent'
     ABORTED_TIMEOUT = 'aborted_timeout'
+    #: The coordinated cell: the positioners' disagreement loads the panel beyond its limit.
+    ABORTED_INTERNAL_FORCE = 'aborted_internal_force'
     OUT_OF_TOLERANCE = 'out_of_tolerance'
     #: Not the end of a command: the machine moved while nothing was commanded (standstill
     #: monitoring); the drives were stopped.

@@ -15,10 +15,12 @@ a cancel, /cell_coordinator/stop or the node's shutdown stops every positioner. 
 from __future__ import annotations
 
 import threading
+from functools import partial
 from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import MoveToPose
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -27,6 +29,7 @@ from std_srvs.srv import Trigger
 
 from positioning_cell import names
 from positioning_cell.coordinated.coordinator import Coordinator, PanelOutcome, PanelRequest
+from positioning_cell.coordinated.force_watch import force_watch
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
 from positioning_cell.moves.correction import deviation
 from positioning_cell.moves.outcomes import ResultCode
@@ -35,7 +38,7 @@ from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.goals import OneGoal, Ran, run_goal
 from positioning_cell.ros.outcome_codes import CODES
 from positioning_cell.ros.parameters import NodeParameters
-from positioning_cell.ros.qos import DIAGNOSTICS_QOS
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
 from positioning_cell.ros.set_port import RosSetPort
 from positioning_cell.ros.spin import NodeStart, Spin
 
@@ -56,6 +59,7 @@ class CellCoordinatorNode(Node):
         self.params = NodeParameters(self, self.SETTINGS)
         settings = self.params.settings
         self.cell = settings.cell()  # ConfigError: no start
+        self._watch = force_watch(self.cell, settings.mechanism)  # ConfigError: not held
         self._client: CellClient | None = None
         self._coordinator: Coordinator | None = None
         self._lock = threading.Lock()
@@ -71,6 +75,18 @@ class CellCoordinatorNode(Node):
         self.create_service(Trigger, names.COORDINATED_STOP, self._srv_stop,
                             callback_group=group)
         self.create_timer(STATUS_PERIOD_S, self._status)
+        for entry in self.cell.positioners:  # what the force watch compares, once it exists
+            self.create_subscription(
+                PoseWithCovarianceStamped, names.in_set(names.MEASURED_POSE, entry.name),
+                partial(self._feed, entry.name, 'reading'), STREAM_QOS, callback_group=group)
+            self.create_subscription(
+                PoseStamped, names.in_set(names.SETPOINT, entry.name),
+                partial(self._feed, entry.name, 'setpoint'), STREAM_QOS, callback_group=group)
+
+    def _feed(self, name: str, kind: str, msg: Any) -> None:
+        """A tracker reading or a setpoint of positioner ``name``, to the force watch."""
+        pose = msg.pose.pose if kind == 'reading' else msg.pose
+        getattr(self._watch, kind)(name, m.seconds(msg.header.stamp), *m.pose_arrays(pose))
 
     @property
     def coordinator(self) -> Coordinator:
@@ -83,7 +99,7 @@ class CellCoordinatorNode(Node):
                 ports = [RosSetPort(self._client, e.name, settings.answer_timeout)
                          for e in self.cell.positioners]
                 self._coordinator = Coordinator(self.cell, settings.mechanism, ports,
-                                                settings.timing)
+                                                settings.timing, watch=self._watch)
             return self._coordinator
 
     def _execute(self, goal_handle: Any) -> MoveToPose.Result:
@@ -157,6 +173,8 @@ class CellCoordinatorNode(Node):
         values = {'state': state, 'positioners': ' '.join(e.name for e in self.cell.positioners),
                   'last_code': last.code.value if last else '',
                   'last_reason': last.reason if last else ''}
+        if last is not None and last.excess is not None:  # when the force was read, ROS time
+            values['internal_force_exceeded_at'] = f'{last.excess.stamp:.6f}'
         level = 'ok' if last is None or last.code is ResultCode.SUCCESS else 'warn'
         self.pub_diag.publish(m.diagnostic(names.STATUS_COORDINATOR, level, state, values,
                                            self.get_clock().now().to_msg()))

@@ -134,13 +134,18 @@ def set_parameter_files(files: Sequence[Path], namespace: str, index: int, out_d
 
 
 def start_coordinated(procs: Processes, cell: CellFile, files: Sequence[Path], out_dir: Path,
-                      overrides: Mapping[str, Mapping[str, Any]] | None = None) -> None:
+                      overrides: Mapping[str, Mapping[str, Any]] | None = None,
+                      per_set: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None
+                      ) -> None:
     """Start the coordinated cell ``cell`` in ``procs``: one ``cell_container`` per positioner
     hosting names.SET_NODES under its namespace (label: the namespace), with the parameter
-    files ``files`` rewritten for it and ``overrides`` (by node name, for every set; the
-    coordinator's section too), then the ``cell_coordinator`` on the cell file."""
+    files ``files`` rewritten for it, ``overrides`` (by node name, for every set; the
+    coordinator's section too) and ``per_set`` (by namespace, then node name: one set's own,
+    e.g. a fault injected in one positioner), then the ``cell_coordinator`` on the cell
+    file."""
     for k, entry in enumerate(cell.positioners):
-        params = set_parameter_files(files, entry.name, k, out_dir, overrides)
+        own = _merged(overrides or {}, (per_set or {}).get(entry.name, {}))
+        params = set_parameter_files(files, entry.name, k, out_dir, own)
         procs.start(names.CONTAINER, *remap_arguments(entry.name), params=params,
                     label=entry.name, extra_args=[n.name for n in names.SET_NODES])
     coordinator = _merged((overrides or {}).get(names.NODE_COORDINATOR, {}),

@@ -1,0 +1,143 @@
+"""The internal force in the panel while it moves, estimated from what the cell measures (issue
+27, item 4): each positioner's tracker readings against where its running trajectory commands
+the platform at the reading's instant.
+
+For positioner i, a reading at stamp t (its platform pose in its base) puts its attachment
+point at a_i(t) (cell frame); its setpoints (the platform pose its trajectory commands, as it
+publishes them, interpolated at t) put it at c_i(t). The platforms are commanded along the
+rigid panel's motion (:mod:`.panel_motion`), so what a positioner adds to the panel is its
+deviation δ_i = a_i − c_i (with the rotation's, for a clamp). The latest ``smoothing``
+deviations of each are averaged (the tracker's noise, ~10 µm per reading, is ~100 N at
+1e7 N/m), and the internal force systems they load follow from the linear map of seed 002's
+deformation compatibility (:func:`.internal_forces.pair_map`). A pair above the cell's
+``internal_force_limit`` is an :class:`Excess`, stamped with the newest reading it rests on.
+Thread-safe: readings and setpoints come in from the node's callbacks, the coordinator asks.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.internal_forces import pair_map
+from positioning_cell.coordinated.panel_motion import bases
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import scipy_rotation
+from positioning_cell.errors import ConfigError, InputError
+from positioning_cell.frames.transforms import Transform
+
+FloatArray = NDArray[np.float64]
+#: Setpoints kept per positioner (its pose rate, 50 Hz: 20 s).
+SETPOINTS_KEPT = 1000
+
+
+class Excess(NamedTuple):
+    """A pair of attachments (``pair``, names) whose internal force ``force`` N exceeds
+    ``limit`` N, from readings up to ``stamp`` (ROS time s)."""
+
+    pair: tuple[str, ...]
+    force: float
+    limit: float
+    stamp: float
+
+    def words(self) -> str:
+        """The excess for people."""
+        return (f'internal force {self.force:.0f} N between {" and ".join(self.pair)} above the '
+                f'limit {self.limit:.0f} N')
+
+
+class ForceWatch:
+    """The watch of the module docstring over ``cell`` (its panel's stiffness and limit) whose
+    positioners' model machine is ``mech``."""
+
+    def __init__(self, cell: CellFile, mech: Mechanism, smoothing: int = 3) -> None:
+        if smoothing < 1:
+            raise InputError(f'smoothing = {smoothing}: at least one reading')
+        self.names = [e.name for e in cell.positioners]
+        self.limit = cell.panel.internal_force_limit
+        self._bases = dict(zip(self.names, bases(cell), strict=True))
+        self._offsets = {e.name: np.asarray(e.offset, dtype=float) for e in cell.positioners}
+        self._map = pair_map(cell.attachments(mech), cell.panel.stiffness)
+        self._smoothing = smoothing
+        self._lock = threading.Lock()
+        self._setpoints: dict[str, deque[tuple[float, FloatArray, FloatArray]]] = {}
+        self._deviations: dict[str, deque[tuple[float, FloatArray]]] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every setpoint and deviation (a new panel move)."""
+        with self._lock:
+            self._setpoints = {n: deque(maxlen=SETPOINTS_KEPT) for n in self.names}
+            self._deviations = {n: deque(maxlen=self._smoothing) for n in self.names}
+
+    def setpoint(self, name: str, stamp: float, position: ArrayLike,
+                 quaternion: ArrayLike) -> None:
+        """Positioner ``name``'s commanded platform pose (in its base) at ``stamp`` s."""
+        with self._lock:
+            self._setpoints[name].append((stamp, np.asarray(position, dtype=float),
+                                          np.asarray(quaternion, dtype=float)))
+
+    def _commanded(self, name: str, stamp: float) -> tuple[FloatArray, FloatArray] | None:
+        """The setpoint at ``stamp`` (under the lock): linear between the two around it, the
+        last one after them (the trajectory has ended), None before the first."""
+        series = self._setpoints[name]
+        if not series or stamp < series[0][0]:
+            return None
+        if stamp >= series[-1][0]:
+            return series[-1][1], series[-1][2]
+        times = np.array([s[0] for s in series])
+        k = int(np.searchsorted(times, stamp, side='right')) - 1
+        (t0, p0, q0), (t1, p1, q1) = series[k], series[k + 1]
+        w = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
+        q = (1.0 - w) * q0 + w * (q1 if float(q0 @ q1) >= 0.0 else -q1)
+        return (1.0 - w) * p0 + w * p1, q / np.linalg.norm(q)
+
+    def reading(self, name: str, stamp: float, position: ArrayLike,
+                quaternion: ArrayLike) -> None:
+        """Positioner ``name``'s tracker reading (platform in its base) at ``stamp`` s; kept
+        as its deviation when a setpoint covers its instant."""
+        with self._lock:
+            commanded = self._commanded(name, stamp)
+            if commanded is None:
+                return
+            base, offset = self._bases[name], self._offsets[name]
+            measured = base @ Transform.from_pq(position, quaternion)
+            wanted = base @ Transform.from_pq(*commanded)
+            d_p = measured.apply(offset) - wanted.apply(offset)
+            d_r = scipy_rotation().from_matrix(measured.R @ wanted.R.T).as_rotvec()
+            self._deviations[name].append((stamp, np.concatenate([d_p, d_r])))
+
+    def sizes(self) -> tuple[tuple[tuple[str, ...], float], ...] | None:
+        """Each pair's internal force (N), largest first, from the latest deviations; None
+        until every positioner has one."""
+        with self._lock:
+            if not all(self._deviations.values()):
+                return None
+            mean = np.array([np.mean([d for _, d in self._deviations[n]], axis=0)
+                             for n in self.names])
+        return self._map.sizes(mean)
+
+    def excess(self) -> Excess | None:
+        """The worst pair when its force exceeds the limit; None otherwise (or not known)."""
+        sizes = self.sizes()
+        if not sizes or sizes[0][1] <= self.limit:
+            return None
+        with self._lock:
+            stamp = max(d[-1][0] for d in self._deviations.values())
+        return Excess(sizes[0][0], sizes[0][1], self.limit, stamp)
+
+
+def force_watch(cell: CellFile, mech: Mechanism) -> ForceWatch:
+    """The :class:`ForceWatch` of ``cell``; ConfigError naming the cell file when its
+    attachments do not hold the panel (its internal forces are then not determined: two balls
+    leave it a turn about the line through them)."""
+    try:
+        return ForceWatch(cell, mech)
+    except InputError as err:
+        raise ConfigError(f'{cell.path}: the internal force of this panel cannot be watched: '
+                          f'{err}') from err

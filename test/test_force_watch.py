@@ -1,0 +1,140 @@
+"""The coordinated cell's internal force watch (issue 27, item 4), without ROS: tracker
+readings against the setpoints of their instant, the disagreement they show sized pair by
+pair, an excess named and stamped; the coordinator stopping every positioner on it."""
+
+from __future__ import annotations
+
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+from test_coordinator import FakePositioner
+
+from positioning_cell.config import config_path
+from positioning_cell.coordinated import cell_file
+from positioning_cell.coordinated.coordinator import Coordinator, PanelRequest
+from positioning_cell.coordinated.force_watch import ForceWatch, force_watch
+from positioning_cell.coordinated.internal_forces import internal_forces
+from positioning_cell.coordinated.settings import CoordinatorSettings
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import ConfigError
+from positioning_cell.moves.outcomes import ResultCode
+
+MECH = Mechanism.default()
+CELL = cell_file.load(config_path('three_positioners.yaml'))
+HOME_P, HOME_Q = MECH.home_position, MECH.home_quaternion
+NAMES = ('p1', 'p2', 'p3')
+
+
+def path(t: float) -> np.ndarray:
+    """A platform position commanded at t s: 10 mm/s up from home."""
+    return HOME_P + np.array([0.0, 0.0, 0.01 * t])
+
+
+def fed(watch: ForceWatch, off: dict[str, np.ndarray], readings: int = 5) -> None:
+    """Setpoints every 20 ms along :func:`path` for 1 s; readings every 50 ms in between (not
+    at a setpoint's instant), each positioner's ``off`` its true offset from its setpoint."""
+    for name in NAMES:
+        for t in np.arange(0.0, 1.0, 0.02):
+            watch.setpoint(name, 100.0 + t, path(t), HOME_Q)
+        for t in 0.013 + 0.05 * np.arange(readings):
+            watch.reading(name, 100.0 + t, path(t) + off.get(name, 0.0), HOME_Q)
+
+
+def test_positioners_that_follow_their_setpoints_load_nothing() -> None:
+    watch = ForceWatch(CELL, MECH)
+    assert watch.sizes() is None  # no reading yet
+    fed(watch, {})
+    sizes = watch.sizes()
+    assert sizes is not None and max(f for _, f in sizes) < 1e-6
+    assert watch.excess() is None
+
+
+def test_one_positioner_off_by_0_2_mm_along_a_side_is_named_with_its_force() -> None:
+    """p2 0.2 mm off along the side p1-p2: 1000 N in p1-p2 (k·d, test_internal_forces' hand
+    case), 343 N in each other pair, against the 500 N limit."""
+    points = np.array([a.point for a in CELL.attachments(MECH)])
+    side = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
+    watch = ForceWatch(CELL, MECH)
+    fed(watch, {'p2': 2e-4 * side})
+    excess = watch.excess()
+    assert excess is not None
+    assert excess.pair == ('p1', 'p2') and excess.force == pytest.approx(1000.0, rel=1e-6)
+    assert excess.limit == CELL.panel.internal_force_limit == 500.0
+    assert excess.stamp == pytest.approx(100.0 + 0.013 + 0.05 * 4)
+    assert excess.words() == 'internal force 1000 N between p1 and p2 above the limit 500 N'
+
+
+def test_readings_before_the_first_setpoint_are_not_compared_and_a_reset_forgets() -> None:
+    watch = ForceWatch(CELL, MECH)
+    for name in NAMES:
+        watch.reading(name, 99.0, HOME_P + 0.01, HOME_Q)  # before any setpoint: skipped
+    assert watch.sizes() is None
+    fed(watch, {'p3': np.array([0.0, 0.0, 1e-3])})
+    assert watch.excess() is None  # a ball raised tilts the panel on three balls: no force
+    fed(watch, {'p3': np.array([1e-3, 0.0, 0.0])})
+    assert watch.excess() is not None
+    watch.reset()
+    assert watch.sizes() is None
+
+
+def test_one_stray_reading_among_three_does_not_trip_the_watch() -> None:
+    """The last three deviations are averaged: a single 0.12 mm outlier weighs 40 um."""
+    watch = ForceWatch(CELL, MECH)
+    fed(watch, {})
+    watch.reading('p2', 100.5, path(0.5) + np.array([1.2e-4, 0.0, 0.0]), HOME_Q)
+    assert watch.excess() is None
+    sizes = watch.sizes()
+    assert sizes is not None and 100.0 < sizes[0][1] < CELL.panel.internal_force_limit
+
+
+def test_a_turned_clamp_loads_its_pair() -> None:
+    """Clamps carry couples: a platform turned 1 mrad off its setpoint loads the panel."""
+    doc = yaml.safe_load(config_path('three_positioners.yaml').read_text())
+    for entry in doc['cell']['positioners']:
+        entry['attachment']['kind'] = 'clamp'
+    with tempfile.TemporaryDirectory() as tmp:
+        path_ = Path(tmp) / 'clamped.yaml'
+        path_.write_text(yaml.safe_dump(doc))
+        clamped = cell_file.load(path_)
+    watch = ForceWatch(clamped, MECH)
+    turned = Rotation.from_rotvec([1e-3, 0.0, 0.0]).as_quat()
+    for name in NAMES:
+        watch.setpoint(name, 1.0, HOME_P, HOME_Q)
+        watch.reading(name, 1.5, HOME_P, turned if name == 'p3' else HOME_Q)
+    sizes = watch.sizes()
+    assert sizes is not None and 'p3' in sizes[0][0] and sizes[0][1] > 100.0
+
+
+def test_a_panel_the_attachments_do_not_hold_cannot_be_watched(tmp_path: Path) -> None:
+    doc = yaml.safe_load(config_path('three_positioners.yaml').read_text())
+    doc['cell']['positioners'] = doc['cell']['positioners'][:2]  # two balls: it would turn
+    path_ = tmp_path / 'two_balls.yaml'
+    path_.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError, match='cannot be watched'):
+        force_watch(cell_file.load(path_), MECH)
+
+
+def test_the_coordinator_stops_every_positioner_on_an_excess_naming_the_pair() -> None:
+    watch = ForceWatch(CELL, MECH)
+    fakes = [FakePositioner(n, after=None) for n in NAMES]
+    settings = CoordinatorSettings(start_lead=0.05, poll_period=0.005, end_margin=5.0)
+    coordinator = Coordinator(CELL, MECH, fakes, settings, watch=watch)
+    points = np.array([a.point for a in CELL.attachments(MECH)])
+    side = (points[2] - points[1]) / np.linalg.norm(points[2] - points[1])
+    threading.Timer(0.2, fed, (watch, {'p3': 3e-4 * side})).start()
+    outcome = coordinator.move(PanelRequest(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+                               threading.Event())
+    assert outcome.code is ResultCode.ABORTED_INTERNAL_FORCE
+    assert outcome.excess is not None and outcome.excess.pair == ('p2', 'p3')
+    moved = np.zeros((3, 6))
+    moved[2, :3] = 3e-4 * side
+    solved = internal_forces(CELL.attachments(MECH), moved, CELL.panel.stiffness)
+    assert outcome.excess.force == pytest.approx(solved.pairs[0][1], rel=1e-9)
+    assert outcome.reason.startswith(f'internal force {solved.pairs[0][1]:.0f} N between p2 '
+                                     'and p3 above the limit 500 N')
+    assert all(f.stops == 1 for f in fakes)
