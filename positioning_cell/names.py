@@ -217,6 +217,9 @@ CALIBRATE_ACTION = '/calibrator/calibrate'
 COORDINATED_MOVE_ACTION = '/cell_coordinator/move'
 #: Stop every positioner of the cell (std_srvs/srv/Trigger).
 COORDINATED_STOP = '/cell_coordinator/stop'
+#: Relax the panel at rest: each positioner moved onto the rigid placement its tracker's
+#: readings imply, all as one, and keeping that correction (std_srvs/srv/Trigger).
+COORDINATED_RELAX = '/cell_coordinator/relax'
 #: The coordinated cell's own frame (the cell file's bases are in it) and the panel's.
 CELL_FRAME = 'cell'
 PANEL_FRAME = 'panel'

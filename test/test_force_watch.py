@@ -19,6 +19,7 @@ from positioning_cell.coordinated import cell_file
 from positioning_cell.coordinated.coordinator import Coordinator, PanelRequest
 from positioning_cell.coordinated.force_watch import ForceWatch, force_watch
 from positioning_cell.coordinated.internal_forces import internal_forces
+from positioning_cell.coordinated.panel_motion import pair_disagreement
 from positioning_cell.coordinated.settings import CoordinatorSettings
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
@@ -138,3 +139,47 @@ def test_the_coordinator_stops_every_positioner_on_an_excess_naming_the_pair() -
     assert outcome.reason.startswith(f'internal force {solved.pairs[0][1]:.0f} N between p2 '
                                      'and p3 above the limit 500 N')
     assert all(f.stops == 1 for f in fakes)
+
+
+def test_relax_moves_each_positioner_onto_the_rigid_placement_and_keeps_the_correction() -> None:
+    """At rest, p2 measured 0.2 mm off along the side p1-p2: relax moves the three onto the
+    rigid placement the readings imply (p1 and p2 0.1 mm toward each other's place, p3 by
+    the mean's share), which loads the panel with nothing; the next panel move carries the
+    corrections, and the watch takes them off the setpoints."""
+    points = np.array([a.point for a in CELL.attachments(MECH)])
+    side = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
+    watch = ForceWatch(CELL, MECH)
+    fakes = [FakePositioner(n) for n in NAMES]
+    coordinator = Coordinator(CELL, MECH, fakes, CoordinatorSettings(
+        start_lead=0.05, poll_period=0.005, end_margin=5.0), watch=watch)
+    refused = coordinator.relax(threading.Event())
+    assert refused.code is ResultCode.REFUSED_TRACKER_SILENT
+    assert 'p1, p2, p3' in refused.reason and not any(f.moved for f in fakes)
+    off = {'p2': 2e-4 * side}
+    for k in range(10):
+        for name in NAMES:
+            watch.reading(name, 50.0 + 0.05 * k, HOME_P + off.get(name, 0.0), HOME_Q)
+    outcome = coordinator.relax(threading.Event())
+    assert outcome.code is ResultCode.SUCCESS, outcome.reason
+    assert outcome.reason.startswith('relaxed: moved p1 ')
+    steps = {f.name: f.moved[0][0][0] - HOME_P for f in fakes}
+    # After the steps the three attachment points are a rigid placement of the panel's.
+    after = [(HOME_P + off.get(n, 0.0) + steps[n], HOME_Q) for n in NAMES]
+    assert max(abs(d.stretch) for d in pair_disagreement(CELL, MECH, after)) < 1e-9
+    np.testing.assert_allclose(steps['p2'] - steps['p1'], -2e-4 * side, atol=1e-12)
+    for name in NAMES:
+        np.testing.assert_allclose(coordinator.corrections[name], steps[name], atol=1e-15)
+    # The next panel move: each goal carries its correction; positioners that now follow
+    # their corrected setpoints load nothing.
+    coordinator.move(PanelRequest(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+                     threading.Event())
+    for fake in fakes:
+        np.testing.assert_allclose(fake.moved[-1][0][0], HOME_P + steps[fake.name],
+                                   atol=1e-12)
+    for name in NAMES:
+        watch.setpoint(name, 60.0, HOME_P + steps[name], HOME_Q)
+        for k in range(3):
+            watch.reading(name, 60.1 + 0.05 * k, HOME_P + off.get(name, 0.0) + steps[name],
+                          HOME_Q)
+    sizes = watch.sizes()
+    assert sizes is not None and sizes[0][1] < 1e-3

@@ -23,10 +23,21 @@ A panel move (:meth:`Coordinator.move`):
 5. Settled: the panel pose each positioner's attained platform implies, their mean, and how
    far each pair of attachment points is pulled apart
    (:func:`~positioning_cell.coordinated.panel_motion.pair_disagreement`).
+
+Relax (:meth:`Coordinator.relax`, the compliant adjustment of the redundant inputs): at rest,
+each positioner's platform as its tracker measures it (the watch's recent readings, averaged)
+implies a panel pose; their mean is the rigid placement nearest to where the panel is. Each
+positioner is moved, all as one, by what separates its measured platform from that placement
+(the non-rigid part of their disagreement: what loads the panel), and keeps that as its
+correction, added to its goals from then on (and taken off its setpoints by the watch). The
+panel itself stays where it is, within the readings' noise; its internal force goes. The
+watch is off during a relax move: its reference is the commanded panel's placement, which a
+relax move leaves on purpose (the move only lowers the disagreement, by tens of µm).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -141,6 +152,11 @@ class Coordinator:
         self.cell, self.mech, self.positioners = cell, mech, list(positioners)
         self.settings, self.clock = settings or CoordinatorSettings(), clock
         self.watch = watch
+        #: Each positioner's correction (m, its base frame) from :meth:`relax`: added to its
+        #: platform goals.
+        self.corrections = {e.name: np.zeros(3) for e in cell.positioners}
+        #: The panel's last goal (cell frame): home until a move settles.
+        self.panel_goal = Transform.identity()
 
     def stop_all(self) -> None:
         """Stop every positioner (each is asked, whatever the others answer)."""
@@ -158,9 +174,54 @@ class Coordinator:
         """Move the panel (module docstring); ``stop`` set: stop every positioner and end;
         ``progress(share)`` with the share of the common motion's time elapsed."""
         try:
-            goals = platform_goals(self.cell, self.mech, request.position, request.quaternion)
+            goals = self._corrected(Transform.from_pq(request.position, request.quaternion))
         except InputError as err:
             return PanelOutcome(ResultCode.REFUSED_INVALID_GOAL, f'panel goal: {err}')
+        outcome = self._run(goals, request, stop, progress)
+        if outcome.code is ResultCode.SUCCESS:
+            self.panel_goal = Transform.from_pq(request.position, request.quaternion)
+        return outcome
+
+    def _corrected(self, panel: Transform) -> list[Pose]:
+        """Each positioner's platform goal for the panel at ``panel``, with its correction."""
+        goals = platform_goals(self.cell, self.mech, *panel.to_pq())
+        return [(p + self.corrections[e.name], q)
+                for (p, q), e in zip(goals, self.cell.positioners, strict=True)]
+
+    def relax(self, stop: threading.Event, readings: int = 10) -> PanelOutcome:
+        """Relax the panel (module docstring) from the mean of each positioner's last
+        ``readings`` tracker readings; refused (nothing moves) without a watch or without
+        those readings."""
+        if self.watch is None:
+            return PanelOutcome(ResultCode.REFUSED_INVALID_GOAL, 'no force watch: the '
+                                'positioners\' readings are not followed')
+        measured = {e.name: self.watch.rest_pose(e.name, readings)
+                    for e in self.cell.positioners}
+        missing = [n for n, pose in measured.items() if pose is None]
+        if missing:
+            return PanelOutcome(ResultCode.REFUSED_TRACKER_SILENT, f'refused, nothing moved: '
+                                f'fewer than {readings} recent tracker readings of '
+                                f'{", ".join(missing)}')
+        poses = [pose for pose in measured.values() if pose is not None]
+        placed = platform_goals(self.cell, self.mech,
+                                *mean_panel(implied_panels(self.cell, self.mech, poses)).to_pq())
+        commands = self._corrected(self.panel_goal)
+        steps = [target[0] - pose[0] for target, pose in zip(placed, poses, strict=True)]
+        goals = [(c[0] + d, c[1]) for c, d in zip(commands, steps, strict=True)]
+        outcome = self._run(goals, PanelRequest(*self.panel_goal.to_pq()), stop, None,
+                            watched=False)
+        if outcome.code is not ResultCode.SUCCESS:
+            return outcome
+        for e, d in zip(self.cell.positioners, steps, strict=True):
+            self.corrections[e.name] = self.corrections[e.name] + d
+        moved = ', '.join(f'{e.name} {np.linalg.norm(d) * 1e6:.1f} um'
+                          for e, d in zip(self.cell.positioners, steps, strict=True))
+        return dataclasses.replace(outcome, reason=f'relaxed: moved {moved}; {outcome.reason}')
+
+    def _run(self, goals: list[Pose], request: PanelRequest, stop: threading.Event,
+             progress: Callable[[float], None] | None, watched: bool = True) -> PanelOutcome:
+        """Check, time and run the positioners' ``goals`` as one (module docstring), the
+        internal force watched (``watched``, when there is a watch)."""
         checks = [p.check(goal, request, 0.0) for p, goal in zip(self.positioners, goals,
                                                                   strict=True)]
         refusing = [(p.name, c) for p, c in zip(self.positioners, checks, strict=True)
@@ -170,8 +231,9 @@ class Coordinator:
                 f'{name}: {c.reason}' for name, c in refusing))
         timing = Timing(max(c.duration for c in checks),
                         self.clock() + self.settings.start_lead)
-        if self.watch is not None:
-            self.watch.reset()
+        watch = self.watch if watched else None
+        if watch is not None:
+            watch.reset(self.corrections)
         polls: list[tuple[str, Callable[[], Ended | None]]] = []
         try:
             for p, goal in zip(self.positioners, goals, strict=True):
@@ -180,11 +242,11 @@ class Coordinator:
             self.stop_all()
             return PanelOutcome(ResultCode.ABORTED_FAULT, f'{p.name}: the move could not be '
                                 f'sent ({err}); every positioner stopped', timing=timing)
-        return self._watch(polls, timing, stop, progress)
+        return self._watch(polls, timing, stop, progress, watch)
 
     def _watch(self, polls: list[tuple[str, Callable[[], Ended | None]]], timing: Timing,
-               stop: threading.Event, progress: Callable[[float], None] | None
-               ) -> PanelOutcome:
+               stop: threading.Event, progress: Callable[[float], None] | None,
+               watch: ForceWatch | None) -> PanelOutcome:
         ends: dict[str, Ended] = {}
         peak: tuple[tuple[str, ...], float] | None = None
         assert timing.start is not None
@@ -201,10 +263,10 @@ class Coordinator:
                 name, end = failed[0]
                 return PanelOutcome(end.code, f'{name}: {end.reason}; every positioner '
                                     'stopped', self._drain(polls, ends), timing)
-            sizes = self.watch.sizes() if self.watch is not None else None
+            sizes = watch.sizes() if watch is not None else None
             if sizes and (peak is None or sizes[0][1] > peak[1]):
                 peak = sizes[0]
-            excess = self.watch.excess() if self.watch is not None else None
+            excess = watch.excess() if watch is not None else None
             if excess is not None:
                 self.stop_all()
                 return PanelOutcome(ResultCode.ABORTED_INTERNAL_FORCE, f'{excess.words()}; '

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import threading
 from collections import deque
+from collections.abc import Mapping
 from typing import NamedTuple
 
 import numpy as np
@@ -34,6 +35,8 @@ from positioning_cell.frames.transforms import Transform
 FloatArray = NDArray[np.float64]
 #: Setpoints kept per positioner (its pose rate, 50 Hz: 20 s).
 SETPOINTS_KEPT = 1000
+#: Tracker readings kept per positioner for its pose at rest (20 Hz: 5 s).
+READINGS_KEPT = 100
 
 
 class Excess(NamedTuple):
@@ -67,13 +70,21 @@ class ForceWatch:
         self._lock = threading.Lock()
         self._setpoints: dict[str, deque[tuple[float, FloatArray, FloatArray]]] = {}
         self._deviations: dict[str, deque[tuple[float, FloatArray]]] = {}
+        self._recent: dict[str, deque[tuple[FloatArray, FloatArray]]] = {
+            n: deque(maxlen=READINGS_KEPT) for n in self.names}
+        self._corrections = {n: np.zeros(3) for n in self.names}
         self.reset()
 
-    def reset(self) -> None:
-        """Forget every setpoint and deviation (a new panel move)."""
+    def reset(self, corrections: Mapping[str, ArrayLike] | None = None) -> None:
+        """Forget every setpoint and deviation (a new panel move); ``corrections`` (m, each
+        positioner's base frame): what the coordinator adds to each one's goals beyond the
+        rigid panel's placement (:meth:`Coordinator.relax`), taken off its setpoints."""
         with self._lock:
             self._setpoints = {n: deque(maxlen=SETPOINTS_KEPT) for n in self.names}
             self._deviations = {n: deque(maxlen=self._smoothing) for n in self.names}
+            if corrections is not None:
+                self._corrections = {n: np.asarray(corrections[n], dtype=float)
+                                     for n in self.names}
 
     def setpoint(self, name: str, stamp: float, position: ArrayLike,
                  quaternion: ArrayLike) -> None:
@@ -102,15 +113,29 @@ class ForceWatch:
         """Positioner ``name``'s tracker reading (platform in its base) at ``stamp`` s; kept
         as its deviation when a setpoint covers its instant."""
         with self._lock:
+            self._recent[name].append((np.asarray(position, dtype=float),
+                                       np.asarray(quaternion, dtype=float)))
             commanded = self._commanded(name, stamp)
             if commanded is None:
                 return
             base, offset = self._bases[name], self._offsets[name]
             measured = base @ Transform.from_pq(position, quaternion)
-            wanted = base @ Transform.from_pq(*commanded)
+            wanted = base @ Transform.from_pq(commanded[0] - self._corrections[name],
+                                              commanded[1])
             d_p = measured.apply(offset) - wanted.apply(offset)
             d_r = scipy_rotation().from_matrix(measured.R @ wanted.R.T).as_rotvec()
             self._deviations[name].append((stamp, np.concatenate([d_p, d_r])))
+
+    def rest_pose(self, name: str, count: int) -> tuple[FloatArray, FloatArray] | None:
+        """Positioner ``name``'s platform (in its base) as the mean of its last ``count``
+        tracker readings (position m, normalised mean quaternion); None with fewer."""
+        with self._lock:
+            recent = list(self._recent[name])[-count:]
+        if len(recent) < count:
+            return None
+        quaternions = np.array([q if q @ recent[0][1] >= 0.0 else -q for _, q in recent])
+        mean_q = quaternions.mean(axis=0)
+        return np.mean([p for p, _ in recent], axis=0), mean_q / np.linalg.norm(mean_q)
 
     def sizes(self) -> tuple[tuple[tuple[str, ...], float], ...] | None:
         """Each pair's internal force (N), largest first, from the latest deviations; None

@@ -18,11 +18,10 @@ import threading
 from functools import partial
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from positioning_cell_interfaces.action import MoveToPose
-from rclpy.action import ActionServer, CancelResponse
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -31,12 +30,11 @@ from positioning_cell import names
 from positioning_cell.coordinated.coordinator import Coordinator, PanelOutcome, PanelRequest
 from positioning_cell.coordinated.force_watch import force_watch
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
-from positioning_cell.moves.correction import deviation
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.ros import messages as m
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.goals import OneGoal, Ran, run_goal
-from positioning_cell.ros.outcome_codes import CODES
+from positioning_cell.ros.panel_messages import coordinator_values, panel_outcome
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
 from positioning_cell.ros.set_port import RosSetPort
@@ -72,8 +70,9 @@ class CellCoordinatorNode(Node):
                                     self._execute, goal_callback=self._goal.accept,
                                     cancel_callback=lambda _: CancelResponse.ACCEPT,
                                     callback_group=group)
-        self.create_service(Trigger, names.COORDINATED_STOP, self._srv_stop,
-                            callback_group=group)
+        for name, serve in ((names.COORDINATED_STOP, self._srv_stop),
+                            (names.COORDINATED_RELAX, self._srv_relax)):
+            self.create_service(Trigger, name, serve, callback_group=group)
         self.create_timer(STATUS_PERIOD_S, self._status)
         for entry in self.cell.positioners:  # what the force watch compares, once it exists
             self.create_subscription(
@@ -134,19 +133,8 @@ class CellCoordinatorNode(Node):
         """The result: the code and reason, the mean panel pose the positioners' attained
         poses imply (cell frame) and its error against the goal."""
         self.last = outcome
-        result = MoveToPose.Result()
-        out = result.outcome
-        out.code, out.code_name, out.reason = (CODES[outcome.code], outcome.code.value,
-                                               outcome.reason)
-        out.position_error, out.orientation_error = [np.nan] * 3, [np.nan] * 3
-        out.uncertainty = [np.nan] * 6
-        if outcome.panel is not None:
-            out.attained = m.pose_stamped(*outcome.panel.to_pq(), self.get_clock().now()
-                                          .to_msg(), names.CELL_FRAME)
-            out.attained_source = 'estimated'
-            e_p, e_r = deviation(*outcome.panel.to_pq(), p, q)
-            out.position_error = [float(v) for v in e_p]
-            out.orientation_error = [float(v) for v in e_r]
+        stamp = self.get_clock().now().to_msg()
+        result = MoveToPose.Result(outcome=panel_outcome(outcome, (p, q), stamp))
         if outcome.code is ResultCode.SUCCESS:
             goal_handle.succeed()
         elif canceled:
@@ -155,6 +143,18 @@ class CellCoordinatorNode(Node):
             goal_handle.abort()
         self.get_logger().info(f'panel move: {outcome.code.value}: {outcome.reason}')
         return result
+
+    def _srv_relax(self, _request: Any, response: Trigger.Response) -> Trigger.Response:
+        """Relax the panel (:meth:`Coordinator.relax`), one command at a time."""
+        if self._goal.accept(None) != GoalResponse.ACCEPT:
+            response.success, response.message = False, 'refused: a panel move is running'
+            return response
+        with self._goal.running():
+            self.last = outcome = self.coordinator.relax(self._goal.closing)
+        self._status()
+        response.success = outcome.code is ResultCode.SUCCESS
+        response.message = f'{outcome.code.value}: {outcome.reason}'
+        return response
 
     def _srv_stop(self, _request: Any, response: Trigger.Response) -> Trigger.Response:
         """Stop every positioner (a running panel move then ends, naming the first that
@@ -170,11 +170,7 @@ class CellCoordinatorNode(Node):
     def _status(self) -> None:
         last = self.last
         state = 'moving' if self._goal.busy else 'idle'
-        values = {'state': state, 'positioners': ' '.join(e.name for e in self.cell.positioners),
-                  'last_code': last.code.value if last else '',
-                  'last_reason': last.reason if last else ''}
-        if last is not None and last.excess is not None:  # when the force was read, ROS time
-            values['internal_force_exceeded_at'] = f'{last.excess.stamp:.6f}'
+        values = coordinator_values(state, ' '.join(e.name for e in self.cell.positioners), last)
         level = 'ok' if last is None or last.code is ResultCode.SUCCESS else 'warn'
         self.pub_diag.publish(m.diagnostic(names.STATUS_COORDINATOR, level, state, values,
                                            self.get_clock().now().to_msg()))
