@@ -20,6 +20,7 @@ CONSOLE_SCRIPTS = [
     'calibrator_node = positioning_cell.ros.entry:calibrator_node',
     'live_view_node = positioning_cell.ros.entry:live_view_node',
     'cell_coordinator_node = positioning_cell.ros.entry:cell_coordinator_node',
+    'panel_simulator_node = positioning_cell.ros.entry:panel_simulator_node',
     'cell_container = positioning_cell.ros.entry:cell_container',
     'analyze_bag = positioning_cell.tools.analyze_bag:main',
     'analyze_bags = positioning_cell.tools.analyze_bags:main',

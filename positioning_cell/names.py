@@ -51,6 +51,7 @@ NODE_PLAYER = 'bag_player'
 NODE_CALIBRATOR = 'calibrator'
 NODE_LIVE_VIEW = 'live_view'
 NODE_COORDINATOR = 'cell_coordinator'
+NODE_PANEL_SIMULATOR = 'panel_simulator'
 
 #: The simulated leg drives (actuators and encoders).
 DRIVER = CellNode('leg_driver_node', NODE_DRIVER)
@@ -70,8 +71,11 @@ CALIBRATOR = CellNode('calibrator_node', NODE_CALIBRATOR)
 LIVE_VIEW = CellNode('live_view_node', NODE_LIVE_VIEW)
 #: Several positioners holding one panel (docs/howto/coordinated.md): moves them as one.
 COORDINATOR = CellNode('cell_coordinator_node', NODE_COORDINATOR)
+#: The coordinated cell's panel as it really is (simulation truth).
+PANEL_SIMULATOR = CellNode('panel_simulator_node', NODE_PANEL_SIMULATOR)
 #: Every node executable of the package.
-NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR, LIVE_VIEW, COORDINATOR)
+NODE_EXECUTABLES = (*CELL_NODES, RECORDER, PLAYER, CALIBRATOR, LIVE_VIEW, COORDINATOR,
+                    PANEL_SIMULATOR)
 #: The nodes a cell brought up may add to CELL_NODES (``cell up``, ``launch/cell.launch.py``):
 #: each with its switch (``cell up --record``/``--no-record``, ``record:=true``) and whether
 #: it is on by default. The recorder first, as ``make run`` starts it.
@@ -224,11 +228,18 @@ COORDINATED_RELAX = '/cell_coordinator/relax'
 CELL_FRAME = 'cell'
 PANEL_FRAME = 'panel'
 STATUS_COORDINATOR = 'cell_coordinator'
+#: The wrench the panel puts on a set's platform (simulation truth, geometry_msgs/
+#: WrenchStamped, frame ``base``, about the platform origin): from the panel simulator to the
+#: set's leg driver, whose load cells read it with the rest of the load (in each set: SET_TOPICS).
+PANEL_WRENCH = '/sim/platform/panel_wrench'
+#: The panel's internal forces (simulation truth, for judging: std_msgs/String JSON, each
+#: pair's force N and the largest at one attachment).
+PANEL_FORCES = '/sim/panel/internal_forces'
 
 #: What one positioner's node set uses on the wire: under a namespace ``ns`` every one of these
 #: becomes ``/ns<name>`` (:func:`in_set`; positioning_cell.ros.node_sets remaps them), every
 #: name but ROS's own PARAMETER_EVENTS and /rosout.
-SET_TOPICS = (*CELL_TOPICS, HEARTBEAT, SETPOINT, COORDINATE_SYSTEMS, AXIS_RANGES)
+SET_TOPICS = (*CELL_TOPICS, HEARTBEAT, SETPOINT, COORDINATE_SYSTEMS, AXIS_RANGES, PANEL_WRENCH)
 SET_SERVICES = (
     MOVE_TO_POSE, CHECK_POSE, HOME, STOP, SET_COORDINATE_SYSTEMS, GET_COORDINATE_SYSTEMS,
     DEFINE_COORDINATE_SYSTEM, SELECT_COORDINATE_SYSTEMS, SET_LIMITS, GET_LIMITS, SET_SPEED, JOG,

@@ -13,6 +13,7 @@ from positioning_cell.calibration.settings import CalibratorSettings
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.sim.drives import DriverSettings
+from positioning_cell.sim.panel import PanelSimulatorSettings
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.watch.settings import LiveViewSettings
 
@@ -21,7 +22,8 @@ _BY_NAME: dict[str, type] = {
     names.NODE_MEASUREMENT: PoseMeasurementSettings, names.NODE_MONITOR: MonitorSettings,
     names.NODE_RECORDER: RecorderSettings, names.NODE_PLAYER: PlayerSettings,
     names.NODE_CALIBRATOR: CalibratorSettings, names.NODE_LIVE_VIEW: LiveViewSettings,
-    names.NODE_COORDINATOR: CellCoordinatorSettings}
+    names.NODE_COORDINATOR: CellCoordinatorSettings,
+    names.NODE_PANEL_SIMULATOR: PanelSimulatorSettings}
 
 #: Node name → its settings type (a dataclass of ``setting(...)`` and ``group(...)`` fields).
 NODE_SETTINGS: dict[str, type] = {node.name: _BY_NAME[node.name]

@@ -41,8 +41,10 @@ FAST_MOTION = {'linear_speed': 0.03, 'linear_acceleration': 0.15, 'angular_speed
 #: 100 Hz joint states past the default 0.2 s, and the tracker's 20 Hz readings past the
 #: default 0.5 s (0.51 s, a homing aborted in CI): a stalled process, not a lost input. The
 #: drives' answer to a trajectory likewise (0.5 s by default: a coordinated test's move aborted
-#: under three workers and the docs build).
-LOADED_LIVENESS = {'joint_silence': 1.0, 'tracker_silence': 1.5, 'answer_timeout': 2.0}
+#: under three workers and the docs build), and the frozen-encoder watch (0.5 s: a container
+#: stalled that long looked like a frozen encoder, test_coordinated_cell).
+LOADED_LIVENESS = {'joint_silence': 1.0, 'tracker_silence': 1.5, 'answer_timeout': 2.0,
+                   'freeze_window': 1.5}
 
 #: The leg driver's ``command`` for the same tests: a positioner stalled 0.52 s on a loaded
 #: CI runner went without a heartbeat past the default 0.5 s, and the drives stopped a

@@ -6,6 +6,7 @@ positioner and a cancel are seen to stop both."""
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,11 +26,13 @@ from cell_harness import (
     isolated_domain,
     stop_cleanly,
 )
-from geometry_msgs.msg import PoseStamped
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, WrenchStamped
 from positioning_cell_interfaces.action import MoveToPose
 from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
@@ -37,11 +40,18 @@ from positioning_cell import names
 from positioning_cell.coordinated import cell_file
 from positioning_cell.coordinated.panel_motion import pair_disagreement
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.mechanics.statics import Payload, actuator_efforts
 from positioning_cell.polling import wait_until
 from positioning_cell.ros.client import GoalClient
-from positioning_cell.ros.messages import pose_arrays, pose_stamped, seconds, status_values
+from positioning_cell.ros.messages import (
+    pose_arrays,
+    pose_stamped,
+    seconds,
+    status_values,
+    wrench_of,
+)
 from positioning_cell.ros.node_sets import start_coordinated
-from positioning_cell.ros.qos import STREAM_QOS
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 
@@ -76,21 +86,28 @@ IDENTITY = [0.0, 0.0, 0.0, 1.0]
 
 
 class CoordinatedCell:
-    """The running cell: the test's client, each set's drive commands and true axes, and the
-    panel action's client."""
+    """The running cell: the test's client, each set's drive commands, the panel action's
+    client, and the streams a test asks for (:meth:`stream`: subscribed at its first call, so
+    that this process takes only what its tests read, ~100 messages/s each)."""
 
     def __init__(self, client: Client, procs: ProcessGroup) -> None:
         self.client, self.procs = client, procs
         self.sent = {ns: client.collect(JointTrajectory, names.in_set(names.JOINT_TRAJECTORY, ns),
                                         QoSProfile(depth=100))
                      for ns in SETS}
-        self.truth = {ns: client.collect(JointState, names.in_set(names.TRUE_JOINT_STATES, ns),
-                                         STREAM_QOS)
-                      for ns in SETS}
-        self.true_poses = {ns: client.collect(PoseStamped, names.in_set(names.TRUE_POSE, ns),
-                                              STREAM_QOS)
-                           for ns in SETS}
+        self._streams: dict[str, list[Any]] = {}
         self.goals = GoalClient(client, MoveToPose, names.COORDINATED_MOVE_ACTION)
+        self.up = False  # the panel 4 mm up (_moved_together)
+
+    def stream(self, msg_type: Any, topic: str) -> list[Any]:
+        """The messages on ``topic`` since its first call (an absolute name)."""
+        if topic not in self._streams:
+            self._streams[topic] = self.client.collect(msg_type, topic, STREAM_QOS)
+        return self._streams[topic]
+
+    def truth(self, ns: str) -> list[JointState]:
+        """Set ``ns``'s true axes."""
+        return self.stream(JointState, names.in_set(names.TRUE_JOINT_STATES, ns))
 
     def move(self, position: list[float], quaternion: list[float] = IDENTITY,
              speed_scale: float = 0.0, during: Any = None, timeout: float = 60.0
@@ -152,6 +169,22 @@ def faulty_cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Coordinate
     yield from _running(tmp_path_factory.mktemp('faulty'), P2_WRONG)
 
 
+@pytest.fixture(scope='module')
+def faulty_cell_timed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[CoordinatedCell]:
+    """p2's model wrong by 0.2 mm, for the timing tier (not relaxed by another test)."""
+    yield from _running(tmp_path_factory.mktemp('faulty_timed'), P2_WRONG)
+
+
+@pytest.mark.timing
+def test_the_internal_force_abort_stops_both_within_half_a_second(
+        faulty_cell_timed: CoordinatedCell) -> None:
+    """Issue 27's target: the abort ≤ 0.5 s after the force is exceeded (the reading that
+    showed it). Timed: alone, after the parallel tier; first of the module's timed tests, so
+    that no other cell runs beside this one."""
+    stops, exceeded = _stopped_by_force(faulty_cell_timed)
+    assert all(stops[ns] - exceeded <= 0.5 for ns in SETS), (stops, exceeded)
+
+
 def _crossings(states: list[JointState], since: float, shares: list[float]) -> list[float]:
     """When (s, interpolated between readings) the true axis that travels furthest since
     ``since`` crossed each share of its travel. Both machines' servos are the same linear
@@ -173,12 +206,15 @@ def _crossings(states: list[JointState], since: float, shares: list[float]) -> l
 
 
 def _moved_together(cell: CoordinatedCell) -> tuple[JointTrajectory, list[float]]:
-    """A panel move 4 mm up: p1's trajectory as sent, and when each set's true legs crossed
-    half their travel (:func:`_crossings`), after both drives were seen to get one start and
-    one duration."""
+    """A panel move 4 mm up (or back down, after one up): p1's trajectory as sent, and when
+    each set's true legs crossed half their travel (:func:`_crossings`), after both drives
+    were seen to get one start and one duration."""
     before = {ns: len(cell.sent[ns]) for ns in SETS}
     since = cell.client.node.get_clock().now().nanoseconds * 1e-9
-    status, outcome, _ = cell.move([0.0, 0.0, 0.004], speed_scale=0.5)
+    for ns in SETS:
+        cell.truth(ns)
+    cell.up = not cell.up
+    status, outcome, _ = cell.move([0.0, 0.0, 0.004 if cell.up else 0.0], speed_scale=0.5)
     assert outcome.code == MoveOutcome.SUCCESS, outcome.reason
     assert status == GoalStatus.STATUS_SUCCEEDED
     assert 'every positioner settled' in outcome.reason and 'internal force at most' in \
@@ -193,9 +229,9 @@ def _moved_together(cell: CoordinatedCell) -> tuple[JointTrajectory, list[float]
     assert outcome.attained.header.frame_id == names.CELL_FRAME
     assert np.linalg.norm(outcome.position_error) < 20e-6
     start, end = seconds(first.header.stamp), seconds(first.points[-1].time_from_start)
-    wait_until(lambda: all(cell.truth[ns] and seconds(cell.truth[ns][-1].header.stamp)
+    wait_until(lambda: all(cell.truth(ns) and seconds(cell.truth(ns)[-1].header.stamp)
                            > start + end + 1.0 for ns in SETS), 20.0, 'the axes at rest')
-    return first, [_crossings(cell.truth[ns], since, [0.5])[0] for ns in SETS]
+    return first, [_crossings(cell.truth(ns), since, [0.5])[0] for ns in SETS]
 
 
 def test_a_panel_move_sends_both_drives_one_start_and_one_duration(
@@ -244,8 +280,9 @@ def test_a_stop_of_one_positioner_stops_the_other_and_names_it(cell: Coordinated
     assert shares and all(0.0 <= x < 1.0 for x in shares) and shares == sorted(shares)
     assert outcome.reason.startswith('p2: ') and 'every positioner stopped' in outcome.reason
     # p1 was sent its move and then the stop (an empty trajectory).
-    sent = cell.sent['p1'][before['p1']:]
-    assert len(sent) >= 2 and sent[0].points and not sent[-1].points
+    sent = wait_until(lambda: (new if len(new := cell.sent['p1'][before['p1']:]) >= 2
+                               and not new[-1].points else None), 10.0, "p1's stop")
+    assert sent[0].points
 
 
 def test_a_cancel_stops_both(cell: CoordinatedCell) -> None:
@@ -254,12 +291,13 @@ def test_a_cancel_stops_both(cell: CoordinatedCell) -> None:
     def cancel(handle: Any, _feedback: list[Any]) -> None:
         cell.goals.cancel(handle)
 
-    status, outcome, _ = cell.move([0.0, 0.0, 0.0], speed_scale=0.1, during=cancel)
+    # far from where the stop before left the panel: a move of a few um would be over first
+    status, outcome, _ = cell.move([0.0, 0.0, 0.012], speed_scale=0.1, during=cancel)
     assert outcome.code == MoveOutcome.ABORTED_STOP, outcome.reason
     assert status == GoalStatus.STATUS_CANCELED
-    for ns in SETS:
-        sent = cell.sent[ns][before[ns]:]
-        assert sent and not sent[-1].points, ns  # each ended with the stop
+    for ns in SETS:  # each ended with the stop
+        wait_until(lambda ns=ns: (new := cell.sent[ns][before[ns]:]) and not new[-1].points,
+                   10.0, f"{ns}'s stop")
 
 
 def test_the_node_sets_keep_to_their_namespaces(cell: CoordinatedCell) -> None:
@@ -280,29 +318,38 @@ def test_the_node_sets_keep_to_their_namespaces(cell: CoordinatedCell) -> None:
 def _stopped_by_force(cell: CoordinatedCell) -> tuple[dict[str, float], float]:
     """Issue 27's fault: p2's model wrong by 0.2 mm. Its tracker sees its platform 0.2 mm
     off where its trajectory commands it; the 1e7 N/m clamps make that over 1000 N between p1
-    and p2 (the limit: 500 N). When each drive got its stop (the test's clock), and the stamp
-    of the reading that showed the excess (the coordinator's status)."""
-    stops: dict[str, float] = {}
-
-    def on_stop(ns: str, msg: JointTrajectory) -> None:
-        if not msg.points:
-            stops.setdefault(ns, time.time())
-
-    for ns in SETS:
-        cell.client.node.create_subscription(
-            JointTrajectory, names.in_set(names.JOINT_TRAJECTORY, ns),
-            lambda msg, ns=ns: on_stop(ns, msg), QoSProfile(depth=100))
+    and p2 (the limit: 500 N). When each positioner stopped (the stamp of its ``aborted``
+    state on its /diagnostics: its own clock, not when this busy test process heard of it),
+    and the stamp of the reading that showed the excess (the coordinator's status)."""
+    diagnostics = {ns: cell.client.collect(DiagnosticArray,
+                                           names.in_set(names.DIAGNOSTICS, ns), DIAGNOSTICS_QOS)
+                   for ns in SETS}
     statuses = cell.client.statuses(names.STATUS_COORDINATOR)
     status, outcome, _ = cell.move([0.0, 0.0, 0.008], speed_scale=0.5)
     assert outcome.code == MoveOutcome.ABORTED_INTERNAL_FORCE, outcome.reason
     assert status == GoalStatus.STATUS_ABORTED
     assert 'between p1 and p2 above the limit 500 N' in outcome.reason
     assert 'every positioner stopped' in outcome.reason
-    exceeded = wait_until(lambda: next((float(v['internal_force_exceeded_at'])
-                                        for v in map(status_values, statuses)
-                                        if 'internal_force_exceeded_at' in v), None),
-                          10.0, "the coordinator's status")
-    wait_until(lambda: set(stops) == set(SETS), 10.0, 'a stop sent to both drives')
+    values = wait_until(lambda: next((v for v in map(status_values, statuses)
+                                      if 'internal_force_exceeded_at' in v), None),
+                        10.0, "the coordinator's status")
+    exceeded, seen = (float(values[k]) for k in ('internal_force_exceeded_at',
+                                                 'internal_force_seen_at'))
+
+    def stopped(ns: str) -> float | None:
+        return next((seconds(array.header.stamp) for array in diagnostics[ns]
+                     for s in array.status if s.name == names.STATUS_POSITIONER
+                     and status_values(s).get('state') == 'aborted'
+                     and seconds(array.header.stamp) > exceeded - 1.0), None)
+
+    def both() -> dict[str, float] | None:
+        found = {ns: stopped(ns) for ns in SETS}
+        return {ns: t for ns, t in found.items() if t is not None} if all(
+            t is not None for t in found.values()) else None
+
+    stops: dict[str, float] = wait_until(both, 10.0, 'both positioners aborted')
+    print(f'exceeded {exceeded:.3f}: seen +{seen - exceeded:.3f} s, stopped +'
+          + ', '.join(f'{ns} {stops[ns] - exceeded:.3f} s' for ns in SETS))
     return stops, exceeded
 
 
@@ -312,38 +359,66 @@ def test_a_panel_move_that_loads_the_panel_beyond_its_limit_stops_both_naming_th
     assert all(stops[ns] > exceeded for ns in SETS), (stops, exceeded)
 
 
-@pytest.mark.timing
-def test_the_internal_force_abort_stops_both_within_half_a_second(
-        faulty_cell: CoordinatedCell) -> None:
-    """Issue 27's target: the abort ≤ 0.5 s after the force is exceeded (the reading that
-    showed it). Timed: alone, after the parallel tier."""
-    stops, exceeded = _stopped_by_force(faulty_cell)
-    assert all(stops[ns] - exceeded <= 0.5 for ns in SETS), (stops, exceeded)
+
+
+
+def _at_rest(cell: CoordinatedCell) -> dict[str, Any]:
+    """After 0.3 s more of the cell at rest: the true (p1, p2) stretch (m), the panel
+    simulator's largest pair force (N), p2's push and its true pose, and p2's legs' load
+    cells (N: the three axial forces)."""
+    since = time.time() + 0.3
+    mech = Mechanism.default()
+    two = cell_file.load(cell.procs.log_dir / 'two_positioners.yaml')
+
+    true_poses = {ns: cell.stream(PoseStamped, names.in_set(names.TRUE_POSE, ns))
+                  for ns in SETS}
+    # the panel simulator's truth, and what p2's legs' load cells read
+    push = cell.stream(WrenchStamped, names.in_set(names.PANEL_WRENCH, 'p2'))
+    forces = cell.stream(String, names.PANEL_FORCES)
+    load_cells = cell.stream(JointState, names.in_set(names.JOINT_STATES, 'p2'))
+
+    def after(msgs: list[Any]) -> bool:
+        return bool(msgs) and seconds(msgs[-1].header.stamp) > since
+
+    wait_until(lambda: all(after(true_poses[ns]) for ns in SETS) and after(push)
+               and after(load_cells) and bool(forces)
+               and json.loads(forces[-1].data)['stamp'] > since, 30.0, 'the cell at rest')
+    poses = [pose_arrays(true_poses[ns][-1].pose) for ns in SETS]
+    (pair,) = pair_disagreement(two, mech, poses)
+    return {'stretch': pair.stretch,
+            'force': max(p['force_n'] for p in json.loads(forces[-1].data)['pairs']),
+            'push': wrench_of(push[-1]), 'pose': poses[1],
+            'legs': np.array(load_cells[-1].effort[:3])}
 
 
 def test_relax_puts_the_panel_at_rest_and_the_next_move_goes_through(
         faulty_cell: CoordinatedCell) -> None:
-    """Judged by the simulators' truth: p2's 0.2 mm pulls the attachments 0.2 mm together;
-    relax moves both onto the rigid placement their trackers imply, and the next panel move,
-    carrying the corrections, is no longer stopped by the internal force."""
+    """Judged by the simulators' truth: p2's 0.2 mm pulls the attachments 0.2 mm together and
+    loads the panel (the panel simulator's forces, which p2's load cells read as the statics
+    of its push say); relax moves both onto the rigid placement their trackers imply, the
+    force goes, and the next panel move, carrying the corrections, is no longer stopped."""
     cell = faulty_cell
-    mech = Mechanism.default()
-    two = cell_file.load(cell.procs.log_dir / 'two_positioners.yaml')
-
-    def true_stretch() -> float:
-        since = time.time()
-        wait_until(lambda: all(cell.true_poses[ns] and seconds(
-            cell.true_poses[ns][-1].header.stamp) > since for ns in SETS), 10.0, 'true poses')
-        poses = [pose_arrays(cell.true_poses[ns][-1].pose) for ns in SETS]
-        (pair,) = pair_disagreement(two, mech, poses)
-        return pair.stretch
-
-    before = true_stretch()
-    assert before == pytest.approx(-2e-4, abs=2e-5)  # the fault, toward p1
+    before = _at_rest(cell)
+    assert before['stretch'] == pytest.approx(-2e-4, abs=2e-5)  # the fault, toward p1
+    assert before['force'] > 500.0
     done, message = cell.client.trigger(names.COORDINATED_RELAX)
     assert done and message.startswith('success: relaxed: moved p1 '), message
-    wait_until(lambda: abs(true_stretch()) < 2e-5, 10.0, 'the panel relaxed')
+    relaxed = _at_rest(cell)
+    assert abs(relaxed['stretch']) < 2e-5 and relaxed['force'] < 0.1 * before['force']
+    # The load cells: what changed in p2's axial forces is the statics of what changed in
+    # the panel's push on it (mechanics.statics, from the true pose).
+    mech = Mechanism.default()
+    gravity = [0.0, 0.0, -9.80665]
+
+    def legs(state: dict[str, Any]) -> np.ndarray:
+        push = tuple(float(v) for v in state['push'])
+        payload = Payload(mass=0.0, gravity=(0.0, 0.0, gravity[2]), external_wrench=push)
+        return actuator_efforts(mech, *state['pose'], payload)[0, :3]
+
+    changed = before['legs'] - relaxed['legs']
+    assert np.abs(changed).max() > 100.0
+    np.testing.assert_allclose(changed, legs(before) - legs(relaxed), atol=1.0)
     status, outcome, _ = cell.move([0.0, 0.0, 0.004], speed_scale=0.5)
     assert outcome.code == MoveOutcome.SUCCESS, outcome.reason
     assert status == GoalStatus.STATUS_SUCCEEDED
-    assert abs(true_stretch()) < 2e-5
+    assert abs(_at_rest(cell)['stretch']) < 2e-5

@@ -17,6 +17,7 @@ from positioning_cell.nodes.cell_coordinator_node import CellCoordinatorNode
 from positioning_cell.nodes.kinematics_node import PositionerNode
 from positioning_cell.nodes.leg_driver_node import LegDriverNode
 from positioning_cell.nodes.live_view_node import LiveViewNode
+from positioning_cell.nodes.panel_simulator_node import PanelSimulatorNode
 from positioning_cell.nodes.pose_measurement_node import PoseMeasurementNode
 from positioning_cell.nodes.recorder_node import RecorderNode
 from positioning_cell.parameters import declarations
@@ -25,7 +26,7 @@ from positioning_cell.ros.parameters import descriptor
 pytestmark = pytest.mark.nodes
 
 NODES = (PositionerNode, LegDriverNode, PoseMeasurementNode, AccuracyMonitorNode, RecorderNode,
-         BagPlayerNode, CalibratorNode, LiveViewNode, CellCoordinatorNode)
+         BagPlayerNode, CalibratorNode, LiveViewNode, CellCoordinatorNode, PanelSimulatorNode)
 
 
 def test_every_node_declares_the_settings_type_the_config_is_checked_against() -> None:

@@ -50,7 +50,7 @@ MIN_POSITIONERS, MAX_POSITIONERS = 1, 4
 _POSITIONER_KEYS = {'name', 'base', 'attachment'}
 _PANEL_KEYS = {'mass', 'centre_of_gravity', 'stiffness', 'internal_force_limit'}
 #: Gravity in the cell frame, m/s² (z up).
-GRAVITY = (0.0, 0.0, -9.81)
+GRAVITY = (0.0, 0.0, -9.80665)
 
 
 @dataclass(frozen=True)

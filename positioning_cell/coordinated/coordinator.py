@@ -159,13 +159,22 @@ class Coordinator:
         self.panel_goal = Transform.identity()
 
     def stop_all(self) -> None:
-        """Stop every positioner (each is asked, whatever the others answer)."""
-        errors = []
-        for p in self.positioners:
+        """Stop every positioner: each asked at once, in a thread of its own, whatever the
+        others answer (RuntimeError naming those that could not be asked)."""
+        errors: list[str] = []
+
+        def stop(p: Positioner) -> None:
             try:
                 p.stop()
             except Exception as err:  # the others must be stopped all the same
                 errors.append(f'{p.name}: {err}')
+
+        threads = [threading.Thread(target=stop, args=(p,), daemon=True)
+                   for p in self.positioners]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
         if errors:
             raise RuntimeError('stop not delivered to ' + '; '.join(errors))
 
@@ -268,6 +277,7 @@ class Coordinator:
                 peak = sizes[0]
             excess = watch.excess() if watch is not None else None
             if excess is not None:
+                excess = excess._replace(seen=self.clock())
                 self.stop_all()
                 return PanelOutcome(ResultCode.ABORTED_INTERNAL_FORCE, f'{excess.words()}; '
                                     'every positioner stopped', self._drain(polls, ends), timing,

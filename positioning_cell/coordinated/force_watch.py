@@ -41,12 +41,14 @@ READINGS_KEPT = 100
 
 class Excess(NamedTuple):
     """A pair of attachments (``pair``, names) whose internal force ``force`` N exceeds
-    ``limit`` N, from readings up to ``stamp`` (ROS time s)."""
+    ``limit`` N, from readings up to ``stamp`` (ROS time s); ``seen``: when the coordinator
+    acted on it (ROS time s; NaN until then)."""
 
     pair: tuple[str, ...]
     force: float
     limit: float
     stamp: float
+    seen: float = float('nan')
 
     def words(self) -> str:
         """The excess for people."""

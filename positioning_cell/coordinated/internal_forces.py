@@ -149,6 +149,38 @@ def pair_map(attachments: Sequence[Attachment], stiffness: ArrayLike) -> PairMap
     return PairMap(pairs, matrix.reshape(len(pairs), 6 * n))
 
 
+class WrenchMap(NamedTuple):
+    """The attachments' wrenches on the panel as an affine map of the positioners'
+    displacements (:func:`internal_forces` is linear in them for a given load): ``wrenches``
+    (N, 6) = ``by_load`` + (``matrix`` @ displacements.ravel()).reshape(N, 6). What the panel
+    simulator evaluates at every true pose."""
+
+    by_load: FloatArray
+    matrix: FloatArray
+
+    def wrenches(self, displacements: ArrayLike) -> FloatArray:
+        """Each attachment's wrench on the panel (N, 6) (N; N·m about the cell origin) for
+        ``displacements`` (N, 6) (m, rad; cell frame)."""
+        d = np.asarray(displacements, dtype=float).ravel()
+        out: FloatArray = self.by_load + (self.matrix @ d).reshape(self.by_load.shape)
+        return out
+
+
+def wrench_map(attachments: Sequence[Attachment], stiffness: ArrayLike,
+               load: ArrayLike = (0.0,) * 6) -> WrenchMap:
+    """The :class:`WrenchMap` of ``attachments`` with ``stiffness`` under ``load`` (as
+    :func:`internal_forces`)."""
+    n = len(attachments)
+    base = internal_forces(attachments, np.zeros((n, 6)), stiffness, load).wrenches
+    columns = []
+    for k in range(6 * n):
+        unit = np.zeros(6 * n)
+        unit[k] = 1.0
+        moved = internal_forces(attachments, unit.reshape(n, 6), stiffness, load).wrenches
+        columns.append((moved - base).ravel())
+    return WrenchMap(base, np.array(columns).T)
+
+
 def _coefficients(basis: FloatArray, internal: FloatArray) -> FloatArray:
     """The coefficients of ``internal`` (N, 6) on the internal force systems ``basis``."""
     if basis.shape[0] == 0:

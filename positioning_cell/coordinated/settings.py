@@ -16,6 +16,12 @@ from positioning_cell.parameters import check_fields, group, setting
 SHIPPED_CELL = 'three_positioners.yaml'
 
 
+def cell_of(cell_file: str) -> CellFile:
+    """The cell file a node's ``cell_file`` parameter names (empty: the shipped one);
+    ConfigError naming what is wrong in it."""
+    return load_cell(Path(cell_file) if cell_file else config_path(SHIPPED_CELL))
+
+
 @dataclass(frozen=True)
 class CoordinatorSettings:
     """The coordinator's timing (``cell_coordinator`` parameters)."""
@@ -52,4 +58,4 @@ class CellCoordinatorSettings:
 
     def cell(self) -> CellFile:
         """The cell file (ConfigError naming what is wrong in it)."""
-        return load_cell(Path(self.cell_file) if self.cell_file else config_path(SHIPPED_CELL))
+        return cell_of(self.cell_file)

@@ -12,7 +12,9 @@ topic; publishes the encoder readings on /legs/joint_states and the truth on
 that came, apply those whose checks are done (:mod:`positioning_cell.sim.commands`: decoded as
 arrays and checked on a thread of their own, so a long trajectory never holds up a
 publication), integrate, publish. Switched by /leg_driver/enable, referenced by
-/leg_driver/reference; reports on /diagnostics.
+/leg_driver/reference; reports on /diagnostics. In a coordinated cell the wrench the panel
+puts on the platform (/sim/platform/panel_wrench, simulation truth from the panel simulator) is
+part of the load the efforts hold: what the legs' load cells read (JointState effort).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from __future__ import annotations
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import WrenchStamped
 from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
@@ -74,6 +77,9 @@ class LegDriverNode(Node):
                             qos_profile=SERVICE_QOS)
         self.create_service(Trigger, names.DRIVER_REFERENCE, self._on_reference,
                             qos_profile=SERVICE_QOS)
+        # the coordinated cell's panel pushing on the platform (simulation truth, as the rest)
+        self.create_subscription(WrenchStamped, names.PANEL_WRENCH,
+                                 lambda msg: self.driver.push(m.wrench_of(msg)), STREAM_QOS)
         self.create_timer(1.0 / settings.physics_rate, self._step)
         self.create_timer(settings.diagnostics_period, self._report)
         self.create_timer(GRAPH_PERIOD_S, self._watch_graph)

@@ -75,12 +75,24 @@ def vector3_stamped(vector: ArrayLike, stamp: Time,
 
 def force_stamped(force: ArrayLike, stamp: Time, frame: str = BASE_FRAME) -> WrenchStamped:
     """geometry_msgs/WrenchStamped of a force (3,) N in ``frame`` (no torque)."""
+    return wrench_stamped(np.concatenate([np.ravel(force), np.zeros(3)]), stamp, frame)
+
+
+def wrench_stamped(wrench: ArrayLike, stamp: Time, frame: str = BASE_FRAME) -> WrenchStamped:
+    """geometry_msgs/WrenchStamped of a wrench (6,): force N, torque N·m, in ``frame``."""
     msg = WrenchStamped()
     msg.header.stamp = stamp
     msg.header.frame_id = frame
-    msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = (float(v)
-                                                                 for v in np.ravel(force))
+    w = [float(v) for v in np.ravel(wrench)]
+    msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z = w[:3]
+    msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = w[3:]
     return msg
+
+
+def wrench_of(msg: WrenchStamped) -> np.ndarray:
+    """The wrench (6,) of a geometry_msgs/WrenchStamped: force N, torque N·m."""
+    f, t = msg.wrench.force, msg.wrench.torque
+    return np.array([f.x, f.y, f.z, t.x, t.y, t.z])
 
 
 def force_of(msg: WrenchStamped) -> np.ndarray:

@@ -21,13 +21,27 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from positioning_cell import names
 from positioning_cell.config import load_parameter_file
-from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.cell_file import GRAVITY, CellFile
 from positioning_cell.errors import ConfigError
+from positioning_cell.frames.transforms import Transform
 from positioning_cell.ros.processes import Processes
+
+
+class _NoAliases(yaml.SafeDumper):
+    """YAML without anchors and aliases: rcl's parameter-file parser refuses them."""
+
+    def ignore_aliases(self, data: Any) -> bool:
+        return True
+
+
+def _dump(doc: Mapping[str, Any]) -> str:
+    return yaml.dump(doc, Dumper=_NoAliases, sort_keys=False)
+
 
 #: The wildcard section of a ROS parameter file: it applies to every node, in any namespace.
 ALL_NODES = '/**'
@@ -123,32 +137,49 @@ def set_parameter_files(files: Sequence[Path], namespace: str, index: int, out_d
                                   f'give them without a namespace (or {ALL_NODES})')
             rewritten[key] = _shift_seeds(section, index)
         target = out_dir / f'{namespace}.{k}.yaml'
-        target.write_text(yaml.safe_dump(rewritten, sort_keys=False))
+        target.write_text(_dump(rewritten))
         written.append(target)
     bound: dict[str, Any] = _merged(overrides or {}, bindings(namespace))
     target = out_dir / f'{namespace}.bindings.yaml'
-    target.write_text(yaml.safe_dump(
-        {f'/{namespace}/{node}': {'ros__parameters': params} for node, params in bound.items()},
-        sort_keys=False))
+    target.write_text(_dump({f'/{namespace}/{node}': {'ros__parameters': params}
+                             for node, params in bound.items()}))
     return [*written, target]
 
 
 def start_coordinated(procs: Processes, cell: CellFile, files: Sequence[Path], out_dir: Path,
                       overrides: Mapping[str, Mapping[str, Any]] | None = None,
-                      per_set: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None
-                      ) -> None:
+                      per_set: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None,
+                      container: bool = True) -> None:
     """Start the coordinated cell ``cell`` in ``procs``: one ``cell_container`` per positioner
-    hosting names.SET_NODES under its namespace (label: the namespace), with the parameter
+    hosting names.SET_NODES under its namespace (label: the namespace; ``container`` false:
+    each node a process of its own, label ``<namespace>.<node>``), with the parameter
     files ``files`` rewritten for it, ``overrides`` (by node name, for every set; the
     coordinator's section too) and ``per_set`` (by namespace, then node name: one set's own,
     e.g. a fault injected in one positioner), then the ``cell_coordinator`` on the cell
-    file."""
+    file, and the ``panel_simulator`` (simulation truth: the panel's wrench on each platform,
+    which each set's drives carry in place of a payload of their own: :func:`carried`)."""
     for k, entry in enumerate(cell.positioners):
-        own = _merged(overrides or {}, (per_set or {}).get(entry.name, {}))
+        own = _merged(_merged(carried(cell, k), overrides or {}),
+                      (per_set or {}).get(entry.name, {}))
         params = set_parameter_files(files, entry.name, k, out_dir, own)
-        procs.start(names.CONTAINER, *remap_arguments(entry.name), params=params,
-                    label=entry.name, extra_args=[n.name for n in names.SET_NODES])
-    coordinator = _merged((overrides or {}).get(names.NODE_COORDINATOR, {}),
-                          {'cell_file': str(cell.path)})
-    procs.start(names.COORDINATOR.executable, params=files,
-                overrides={names.NODE_COORDINATOR: coordinator})
+        if container:
+            procs.start(names.CONTAINER, *remap_arguments(entry.name), params=params,
+                        label=entry.name, extra_args=[n.name for n in names.SET_NODES])
+            continue
+        for node in names.SET_NODES:
+            procs.start(node.executable, *remap_arguments(entry.name), params=params,
+                        label=f'{entry.name}.{node.name}')
+    for node in (names.COORDINATOR, names.PANEL_SIMULATOR):
+        section = _merged((overrides or {}).get(node.name, {}), {'cell_file': str(cell.path)})
+        procs.start(node.executable, params=files, overrides={node.name: section})
+
+
+def carried(cell: CellFile, index: int) -> dict[str, dict[str, Any]]:
+    """What the ``index``-th positioner of ``cell`` carries, by node: no payload of its own
+    (the panel's weight and internal forces reach its drives through the panel simulator) and
+    gravity in its base frame (the cell frame's, z up, turned into its base)."""
+    entry = cell.positioners[index]
+    rotation = Transform.from_pq(entry.base_position, entry.base_quaternion).R
+    gravity = [float(v) for v in rotation.T @ np.asarray(GRAVITY)]
+    payload = {'payload': {'mass': 0.0, 'gravity': gravity}}
+    return {node.name: payload for node in names.SET_NODES}

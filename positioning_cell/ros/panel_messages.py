@@ -42,4 +42,5 @@ def coordinator_values(state: str, positioners: str, last: PanelOutcome | None
               'last_reason': last.reason if last else ''}
     if last is not None and last.excess is not None:
         values['internal_force_exceeded_at'] = f'{last.excess.stamp:.6f}'
+        values['internal_force_seen_at'] = f'{last.excess.seen:.6f}'
     return values

@@ -11,6 +11,7 @@ from typing import Any
 
 from positioning_cell_interfaces.msg import MoveCommand
 from positioning_cell_interfaces.srv import CheckPose, MoveToPose
+from std_srvs.srv import Trigger
 
 from positioning_cell import names
 from positioning_cell.coordinated.coordinator import Checked, Ended, PanelRequest, Pose
@@ -42,12 +43,14 @@ class RosSetPort:
         return command
 
     def check(self, goal: Pose, request: PanelRequest, duration: float) -> Checked:
-        """CheckPose of the goal; its move service is found too, so that the move is sent at
-        once. A set that does not answer is a refusal naming it (REFUSED_DRIVER_SILENT)."""
+        """CheckPose of the goal; its move and stop services are found too (discovered and
+        handshaken, :meth:`CellClient.service`), so that a move or a stop goes at once. A set
+        that does not answer is a refusal naming it (REFUSED_DRIVER_SILENT)."""
         try:
             answer = self.client.call(CheckPose, self._check, CheckPose.Request(
                 command=self._command(goal, request, Timing(duration))), self.timeout)
             self.client.service(MoveToPose, self._move, self.timeout)
+            self.client.service(Trigger, self._stop, self.timeout)
         except TimeoutError as err:
             return Checked(ResultCode.REFUSED_DRIVER_SILENT, f'no answer: {err}', 0.0)
         if answer.valid:

@@ -19,7 +19,12 @@ from numpy.typing import NDArray
 from positioning_cell.core.kinematics import forward, inverse
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
-from positioning_cell.mechanics.statics import Payload, Structure, actuator_efforts
+from positioning_cell.mechanics.statics import (
+    Payload,
+    Structure,
+    actuator_efforts,
+    efforts_from_wrench,
+)
 from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.names import JOINT_TRAJECTORY, NODE_POSITIONER
 from positioning_cell.parameters import ParameterError, check_fields, group, setting
@@ -192,6 +197,11 @@ class LegDriver:
         self._steps = 0
         self.effort: FloatArray | None = None
         self._effort_position: FloatArray | None = None
+        #: What else pushes on the platform (force N, moment N·m about its origin, base): the
+        #: coordinated cell's panel (simulation truth, :meth:`push`).
+        self.pushed: FloatArray = np.zeros(6)
+        self._effort_pose: tuple[FloatArray, FloatArray] = (np.zeros((1, 3)), np.zeros((1, 4)))
+        self._payload_effort: FloatArray = np.zeros(6)
         self._phis: FloatArray | None = None
         #: Last word from the commander (a heartbeat or a trajectory), s; a commanded motion
         #: is in progress while ``_following`` (cleared once it ended or was stopped).
@@ -298,19 +308,33 @@ class LegDriver:
             self.event = f'fault: {s.fault.message() if s.fault else ""}'
         return reading, s.state
 
+    def push(self, wrench: FloatArray) -> None:
+        """What else now pushes on the platform (:attr:`pushed`); the load cells read it from
+        the next effort update on."""
+        self.pushed = np.asarray(wrench, dtype=float)
+
     def update_effort(self) -> FloatArray | None:
-        """The efforts (6,) (N, N·m) holding the payload at the axes' true position; computed
-        again only when the axes have moved since."""
+        """The efforts (6,) (N, N·m) at the axes' true position holding the payload, and what
+        else pushes on the platform (:meth:`push`): what the load cells read. The pose (forward
+        kinematics, uncompiled in a node) and the payload's share are computed again only when
+        the axes have moved; the push's share, τ = Jᵀ·(−push) (seed 002 §2,
+        :func:`~positioning_cell.mechanics.statics.efforts_from_wrench`), at every update
+        while there is one."""
         q = self.servos.state.position
-        if self._effort_position is not None and np.array_equal(q, self._effort_position):
-            return self.effort
         s = self.settings
-        fk = forward(s.mechanism, q[:3], q[3:], self._phis)
-        if fk.converged[0]:
+        if self._effort_position is None or not np.array_equal(q, self._effort_position):
+            fk = forward(s.mechanism, q[:3], q[3:], self._phis)
+            if not fk.converged[0]:
+                return self.effort
             self._phis = fk.phis
-            self.effort = actuator_efforts(s.mechanism, fk.position, fk.quaternion, s.payload,
-                                           s.structure)[0]
+            self._effort_pose = (fk.position, fk.quaternion)
+            self._payload_effort = actuator_efforts(s.mechanism, fk.position, fk.quaternion,
+                                                    s.payload, s.structure)[0]
             self._effort_position = q.copy()
+            self.effort = self._payload_effort
+        if self.pushed.any():
+            self.effort = self._payload_effort + efforts_from_wrench(
+                s.mechanism, *self._effort_pose, -self.pushed[None])[0]
         return self.effort
 
     def follow(self, names: Sequence[str], times: Times, positions: Points, velocities: Points,

@@ -1,0 +1,78 @@
+"""panel_simulator_node (node ``panel_simulator``): the coordinated cell's panel as it really
+is (simulation truth, :mod:`positioning_cell.sim.panel`).
+
+It takes each positioner's true platform pose (/<name>/sim/platform/true_pose, for every
+positioner of ``cell_file``) and, at ``rate_hz`` once every one has come, publishes to each
+set the wrench the panel puts on its platform (/<name>/sim/platform/panel_wrench,
+geometry_msgs/WrenchStamped, frame ``base``, about the platform origin: what the set's leg
+driver adds to its load and its load cells read), and the panel's internal forces, for judging
+only (/sim/panel/internal_forces, std_msgs/String JSON: each pair's force N, the largest at
+one attachment). The positioners and the coordinator never read it."""
+
+from __future__ import annotations
+
+import json
+import threading
+from functools import partial
+from typing import Any
+
+from geometry_msgs.msg import PoseStamped, WrenchStamped
+from rclpy.node import Node
+from std_msgs.msg import String
+
+from positioning_cell import names
+from positioning_cell.ros import messages as m
+from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos import STREAM_QOS
+from positioning_cell.ros.spin import NodeStart
+from positioning_cell.sim.panel import PanelSimulatorSettings, PanelTruth
+
+
+class PanelSimulatorNode(Node):
+    """The ``panel_simulator`` node (module docstring)."""
+
+    NAME = names.NODE_PANEL_SIMULATOR
+    SETTINGS = PanelSimulatorSettings
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(self.NAME, **kwargs)
+        self.params = NodeParameters(self, self.SETTINGS)
+        settings = self.params.settings
+        self.cell = settings.cell()  # ConfigError: no start
+        self.truth = PanelTruth(self.cell, settings.mechanism)
+        self._lock = threading.Lock()
+        self._poses: dict[str, Any] = {}
+        self._wrench_pubs = {}
+        for entry in self.cell.positioners:
+            self.create_subscription(PoseStamped, names.in_set(names.TRUE_POSE, entry.name),
+                                     partial(self._on_pose, entry.name), STREAM_QOS)
+            self._wrench_pubs[entry.name] = self.create_publisher(
+                WrenchStamped, names.in_set(names.PANEL_WRENCH, entry.name), STREAM_QOS)
+        self._forces = self.create_publisher(String, names.PANEL_FORCES, STREAM_QOS)
+        self.create_timer(1.0 / settings.rate_hz, self._publish)
+
+    def _on_pose(self, name: str, msg: PoseStamped) -> None:
+        with self._lock:
+            self._poses[name] = m.pose_arrays(msg.pose)
+
+    def _publish(self) -> None:
+        with self._lock:
+            poses = [self._poses[e.name] for e in self.cell.positioners if e.name in self._poses]
+        if len(poses) < len(self.cell.positioners):
+            return
+        state = self.truth.state(poses)
+        stamp = self.get_clock().now().to_msg()
+        for name, wrench in state.on_platforms.items():
+            self._wrench_pubs[name].publish(m.wrench_stamped(wrench, stamp))
+        self._forces.publish(String(data=json.dumps({
+            'stamp': m.seconds(stamp), 'largest_n': round(state.largest, 3),
+            'pairs': [{'pair': list(pair), 'force_n': round(force, 3)}
+                      for pair, force in state.pairs]})))
+
+
+#: The entry point of ``panel_simulator_node`` (alone; ``cell_container`` hosts it too).
+main = NodeStart(PanelSimulatorNode)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
