@@ -251,6 +251,7 @@ def test_the_two_machines_cross_mid_travel_within_one_drive_period(
     their peak speed, so a late reading does not bend the interpolation (in the ramps, a
     50 ms gap did: a skew that was not). Timed: alone, after the parallel tier."""
     _, (one, two) = _moved_together(cell)
+    print(f'mid-travel crossings: skew {abs(one - two) * 1e3:.3f} ms')
     assert abs(one - two) <= 0.005, (one, two)
 
 

@@ -358,9 +358,9 @@ def test_a_timed_move_sends_its_start_and_lasts_its_duration() -> None:
     m = mover(world)
     natural = m.check('base', GOAL, GOAL_Q).duration
     start = time.time() + 0.3
-    m.move('base', GOAL, GOAL_Q, timing=Timing(2.0 * natural, start))
+    m.move('base', GOAL, GOAL_Q, timing=Timing(3.0 * natural, start))
     assert world.starts == [start]
-    assert world.trajectories[0].duration == pytest.approx(2.0 * natural, rel=1e-12)
+    assert world.trajectories[0].duration == pytest.approx(3.0 * natural, rel=1e-12)
     assert m.state is State.SETTLED
 
 

@@ -76,37 +76,46 @@ def test_move_respects_limits_and_ends_on_goal(dp: list[float], rv: list[float])
     ([0.005, 0.0, 0.0], [0.0, 0.0, 0.0]),
     ([0.003, -0.004, 0.002], [0.02, 0.0, -0.04]),
 ])
-def test_a_move_asked_to_last_longer_is_the_same_path_time_scaled(dp: list[float],
+def test_the_coordinated_time_law_is_one_shape_within_the_limits(dp: list[float],
                                                                  rv: list[float]) -> None:
-    """A least duration longer than the fastest move's stretches its time law by k: the same
-    path, the sample at t the fastest one's at t/k, speeds 1/k and accelerations 1/k² of it,
-    ending exactly at the duration (the coordinated cell's common duration)."""
+    """A duration asks for the coordinated law: ramps a quarter of it each, so that two
+    moves of different lengths sent one duration stay in proportion all along (a panel
+    turned: its platforms travel different distances); asked for less than its limits allow,
+    a move takes the least duration they do, and keeps within them (finite differences)."""
     period = 0.002
     p_goal, q_goal = goal(dp, rv)
-    fast = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+    fastest = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                        limits=LIMITS, duration=1e-6)
+    assert fastest.limits.ok
+    free = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
                      limits=LIMITS)
-    k = 1.7
+    assert free.duration <= fastest.duration <= 1.5 * free.duration  # the fixed shape's cost
+    dt = np.diff(fastest.times)
+    v = np.linalg.norm(np.diff(fastest.position, axis=0), axis=1) / dt
+    w = (Rotation.from_quat(fastest.quaternion[1:])
+         * Rotation.from_quat(fastest.quaternion[:-1]).inv()).magnitude() / dt
+    assert v.max() <= LIMITS.linear_speed * (1 + 1e-6)
+    assert w.max() <= LIMITS.angular_speed * (1 + 1e-6)
+    a = np.abs(np.diff(v[:-1])) / dt[1:-1]
+    assert a.max() <= LIMITS.linear_acceleration * 1.01
+    # A longer duration: the same shape, longer; a move 0.7 times as long, the same s(t).
+    longer = 1.7 * fastest.duration
     slow = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
-                     limits=LIMITS, duration=k * fast.duration)
-    assert slow.duration == pytest.approx(k * fast.duration, rel=1e-12)
-    assert slow.limits.ok
-    for t in np.linspace(0.0, slow.duration, 13):
-        p_slow, q_slow = pose_at(slow, t)
-        p_fast, q_fast = pose_at(fast, t / k)
-        # Both are linear blends of samples one period apart: equal to the period's curvature.
-        np.testing.assert_allclose(p_slow, p_fast, atol=2e-7)
-        turn = Rotation.from_quat(q_slow) * Rotation.from_quat(q_fast).inv()
-        assert turn.magnitude() < 2e-6
-    v_fast = np.abs(np.diff(fast.position, axis=0)).max(axis=0) / period
-    v_slow = np.abs(np.diff(slow.position, axis=0)).max(axis=0) / period
-    np.testing.assert_allclose(v_slow, v_fast / k, rtol=0.02, atol=1e-9)
-    np.testing.assert_allclose(np.abs(slow.length_rates).max(axis=0),
-                               np.abs(fast.length_rates).max(axis=0) / k, rtol=0.02)
-    # Shorter than the fastest move: the fastest move, unchanged.
-    same = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
-                     limits=LIMITS, duration=0.5 * fast.duration)
-    np.testing.assert_array_equal(same.times, fast.times)
-    np.testing.assert_array_equal(same.position, fast.position)
+                     limits=LIMITS, duration=longer)
+    assert slow.duration == pytest.approx(longer, rel=1e-12)
+    p_short = MECH.home_position + 0.7 * np.asarray(dp)
+    q_short = Rotation.from_rotvec(0.7 * np.asarray(rv)).as_quat()
+    short = plan_move(MECH, MECH.home_position, IDENTITY, p_short, q_short, period=period,
+                      limits=LIMITS, duration=longer)
+    assert short.duration == pytest.approx(longer, rel=1e-12)
+    np.testing.assert_allclose(short.position - MECH.home_position,
+                               0.7 * (slow.position - MECH.home_position), atol=1e-12)
+    # The ramps: a quarter of the duration each (the speed peaks from t = T/4 to 3T/4).
+    speed = np.linalg.norm(np.diff(slow.position, axis=0), axis=1) / np.diff(slow.times)
+    cruise = speed >= speed.max() * (1 - 1e-9)
+    mid = slow.times[:-1][cruise]
+    assert mid.min() == pytest.approx(longer / 4, abs=2 * period)
+    assert mid.max() == pytest.approx(3 * longer / 4, abs=2 * period)
 
 
 @pytest.mark.parametrize('duration', [-1.0, float('nan'), float('inf')])

@@ -9,9 +9,10 @@ A panel move (:meth:`Coordinator.move`):
 2. every positioner checks its goal in all its limit layers and its state (CheckPose) before
    any moves: one refusal refuses the panel move, naming each positioner that refuses and
    why; nothing moved;
-3. one time base (:class:`~positioning_cell.moves.timing.Timing`): the slowest positioner's
-   duration for all, and one start ``start_lead`` s ahead, so that the drives start together
-   and reach their goals together;
+3. one time base (:class:`~positioning_cell.moves.timing.Timing`): every positioner's least
+   duration on the coordinated time law (one shape for all: the platforms stay in proportion
+   along the way, as the rigid panel moves them), the longest for all, and one start
+   ``start_lead`` s ahead, so that the drives start together and reach their goals together;
 4. every positioner is sent its move; the coordinator watches them every ``poll_period``
    s. A positioner that ends otherwise than settled (refused, aborted, out of tolerance,
    stopped by anyone) stops all the others at once: the panel move ends with its code and
@@ -61,7 +62,7 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.moves.outcomes import ResultCode
-from positioning_cell.moves.timing import Timing
+from positioning_cell.moves.timing import FASTEST_COORDINATED, Timing
 
 FloatArray = NDArray[np.float64]
 Pose = tuple[FloatArray, FloatArray]
@@ -231,8 +232,8 @@ class Coordinator:
              progress: Callable[[float], None] | None, watched: bool = True) -> PanelOutcome:
         """Check, time and run the positioners' ``goals`` as one (module docstring), the
         internal force watched (``watched``, when there is a watch)."""
-        checks = [p.check(goal, request, 0.0) for p, goal in zip(self.positioners, goals,
-                                                                  strict=True)]
+        checks = [p.check(goal, request, FASTEST_COORDINATED)
+                  for p, goal in zip(self.positioners, goals, strict=True)]
         refusing = [(p.name, c) for p, c in zip(self.positioners, checks, strict=True)
                     if c.code is not ResultCode.SUCCESS]
         if refusing:

@@ -12,12 +12,16 @@ from positioning_cell.errors import InputError
 
 #: The longest duration a move may be asked to last, s.
 MAX_DURATION = 3600.0
+#: A duration that asks for the coordinated time law as fast as the limits allow (what the
+#: coordinator checks each positioner's goal with, to learn its least duration), s.
+FASTEST_COORDINATED = 1e-6
 
 
 @dataclass(frozen=True)
 class Timing:
-    """``duration``: the least duration of the motion, s (0: as fast as the speeds allow;
-    :func:`~positioning_cell.moves.trajectory.plan_profile` slows a faster one down);
+    """``duration``: the least duration of the motion, s (0: the fastest profile the speeds
+    allow; > 0: the coordinated time law, one shape for every positioner,
+    :func:`~positioning_cell.moves.trajectory.plan_profile`);
     ``start``: when the drives start it, ROS time (s since the epoch; None: on receipt).
     InputError naming a field that is not a finite number in range."""
 

@@ -108,14 +108,22 @@ def time_law(duration_accel: float, peak: float, total: float,
     return s, sd
 
 
+#: The coordinated time law (a move given a duration): each ramp lasts this share of the
+#: duration. One shape for every positioner of a coordinated cell, whatever each travels: the
+#: platforms stay in proportion all along, as the rigid panel they hold moves them.
+COORDINATED_RAMP_SHARE = 0.25
+
+
 def plan_profile(distance: float, angle: float, limits: MotionLimits,
                  duration: float = 0.0) -> tuple[float, float, float]:
     """(ramp time, peak ṡ, duration) in s, 1/s, s for a move of ``distance`` m and ``angle`` rad
     keeping both within the speed and acceleration limits. Peak acceleration of the
-    sinusoidal ramp is π·v/(2·ta). A move faster than ``duration`` s is time-scaled to last
-    exactly that long: s(t) becomes s(t/k), k = duration/total, so the ramp lasts k times
-    longer, the peak speed is 1/k and the peak acceleration 1/k² of the fastest move's (the
-    coordinated cell's common duration)."""
+    sinusoidal ramp is π·v/(2·ta). ``duration`` 0: the fastest such profile. ``duration`` > 0:
+    the coordinated time law: ramps of :data:`COORDINATED_RAMP_SHARE` r of the duration T
+    each (v = 1/((1 − r)·T), peak acceleration π/(2·r·(1 − r)·T²)), T the duration or, when
+    the limits need longer, the least T they allow; the same s(t) for every positioner sent
+    the same T (the coordinated cell asks each for its least T, then sends them all the
+    longest)."""
     if not (math.isfinite(duration) and duration >= 0.0):
         raise InputError(f'duration = {duration!r}: must be a finite number of seconds >= 0')
     if distance <= 0.0 and angle <= 0.0:
@@ -125,15 +133,18 @@ def plan_profile(distance: float, angle: float, limits: MotionLimits,
                     limits.angular_speed / angle if angle > 0 else math.inf)
         a_max = min(limits.linear_acceleration / distance if distance > 0 else math.inf,
                     limits.angular_acceleration / angle if angle > 0 else math.inf)
+    if duration > 0.0:
+        r = COORDINATED_RAMP_SHARE
+        least = max(1.0 / ((1.0 - r) * v_max),
+                    math.sqrt(math.pi / (2.0 * r * (1.0 - r) * a_max)))
+        total = max(duration, least)
+        return r * total, 1.0 / ((1.0 - r) * total), total
     v = v_max
     ta = math.pi * v / (2.0 * a_max)
     if v * ta > 1.0:  # no cruise: the ramps alone cover the path, s = v·ta = 1
         v = math.sqrt(2.0 * a_max / math.pi)
         ta = 1.0 / v
     total = 2.0 * ta + (1.0 - v * ta) / v
-    if duration > total:
-        k = duration / total
-        return ta * k, v / k, duration
     return ta, v, total
 
 
@@ -152,8 +163,9 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
               goal_position: ArrayLike, goal_quaternion: ArrayLike, *, period: float,
               limits: MotionLimits | None = None,
               clearance: ClearanceModel = None, duration: float = 0.0) -> Trajectory:
-    """Sample the move from start to goal every ``period`` s (the last sample is the goal),
-    lasting at least ``duration`` s (:func:`plan_profile`; 0: as fast as ``limits`` allow).
+    """Sample the move from start to goal every ``period`` s (the last sample is the goal); with
+    ``duration`` > 0 on the coordinated time law lasting at least that long
+    (:func:`plan_profile`; 0: as fast as ``limits`` allow).
 
     Joint commands come from :func:`positioning_cell.clearance.compensate` with ``clearance``
     (None: nominal inverse kinematics); joint rates from the inverse Jacobian times the
