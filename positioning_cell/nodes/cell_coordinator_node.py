@@ -7,9 +7,11 @@ panel frame in the ``cell`` frame, mode ABSOLUTE) runs
 :meth:`~positioning_cell.coordinated.coordinator.Coordinator.move` on the sets through
 :class:`~positioning_cell.ros.set_port.RosSetPort` (a client node of its own in this node's
 context), in a worker thread (:func:`positioning_cell.ros.goals.run_goal`): every
-positioner's goal checked first, the slowest duration and one start for all, a fault or a stop
-of one stops all. Feedback: the share of the common motion elapsed. One goal at a time;
-a cancel, /cell_coordinator/stop or the node's shutdown stops every positioner. Its state on
+positioner's goal checked first, one time law, duration and start for all, a fault or a stop
+of one stops all, and so does an internal force above the panel's limit (the force watch, fed
+here with each set's tracker readings and setpoints). Feedback: the share of the common
+motion elapsed. One command at a time; a cancel, /cell_coordinator/stop or the node's shutdown
+stops every positioner; /cell_coordinator/relax relaxes the panel at rest. Its state on
 /diagnostics (``cell_coordinator``) each second and at every end."""
 
 from __future__ import annotations
@@ -74,7 +76,7 @@ class CellCoordinatorNode(Node):
                             (names.COORDINATED_RELAX, self._srv_relax)):
             self.create_service(Trigger, name, serve, callback_group=group)
         self.create_timer(STATUS_PERIOD_S, self._status)
-        for entry in self.cell.positioners:  # what the force watch compares, once it exists
+        for entry in self.cell.positioners:  # what the force watch compares
             self.create_subscription(
                 PoseWithCovarianceStamped, names.in_set(names.MEASURED_POSE, entry.name),
                 partial(self._feed, entry.name, 'reading'), STREAM_QOS, callback_group=group)
