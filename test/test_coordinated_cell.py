@@ -67,8 +67,12 @@ CELL_FILE = {'cell': {'positioners': [
 #: disagree by is what a test injects, seen through the trackers' noise), the nominal model
 #: (the moves end on the encoders), fast motion, liveness for a loaded machine.
 OVERRIDES = {
+    # Two cells of a module run side by side beside the other workers: a set's container was
+    # seen silent for 1.02 s while homing, and for 1.5 s mid-move (a stall looks like a frozen
+    # encoder too). Liveness is test_faults'.
     names.NODE_POSITIONER: {'compensation': {'mode': 'none'}, 'motion': FAST_MOTION,
-                            'liveness': LOADED_LIVENESS},
+                            'liveness': {**LOADED_LIVENESS, 'joint_silence': 3.0,
+                                         'tracker_silence': 3.0, 'freeze_window': 3.0}},
     # A start 2 s ahead: on a loaded machine (three workers beside the docs build) a set took
     # over the default 0.5 s to plan its move, and refused a start already past.
     names.NODE_DRIVER: {'command': {**LOADED_COMMAND, 'max_start_delay': 3.0}},
@@ -405,7 +409,9 @@ def test_relax_puts_the_panel_at_rest_and_the_next_move_goes_through(
     done, message = cell.client.trigger(names.COORDINATED_RELAX)
     assert done and message.startswith('success: relaxed: moved p1 '), message
     relaxed = _at_rest(cell)
-    assert abs(relaxed['stretch']) < 2e-5 and relaxed['force'] < 0.1 * before['force']
+    # Within the readings' noise: 10 readings of each tracker leave ~10 um, ~100 N at 1e7 N/m
+    # (seen: 13 um, 108 N against 1041 N before).
+    assert abs(relaxed['stretch']) < 2e-5 and relaxed['force'] < 0.25 * before['force']
     # The load cells: what changed in p2's axial forces is the statics of what changed in
     # the panel's push on it (mechanics.statics, from the true pose).
     mech = Mechanism.default()

@@ -56,6 +56,7 @@ from positioning_cell.coordinated.panel_motion import (
     mean_panel,
     pair_disagreement,
     platform_goals,
+    rigid_placement,
 )
 from positioning_cell.coordinated.settings import CoordinatorSettings
 from positioning_cell.core.mechanism import Mechanism
@@ -213,8 +214,7 @@ class Coordinator:
                                 f'fewer than {readings} recent tracker readings of '
                                 f'{", ".join(missing)}')
         poses = [pose for pose in measured.values() if pose is not None]
-        placed = platform_goals(self.cell, self.mech,
-                                *mean_panel(implied_panels(self.cell, self.mech, poses)).to_pq())
+        placed = rigid_placement(self.cell, self.mech, poses)
         commands = self._corrected(self.panel_goal)
         steps = [target[0] - pose[0] for target, pose in zip(placed, poses, strict=True)]
         goals = [(c[0] + d, c[1]) for c, d in zip(commands, steps, strict=True)]

@@ -31,6 +31,7 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.moves.correction import mean_pose
 
 FloatArray = NDArray[np.float64]
 #: Setpoints kept per positioner (its pose rate, 50 Hz: 20 s).
@@ -135,9 +136,7 @@ class ForceWatch:
             recent = list(self._recent[name])[-count:]
         if len(recent) < count:
             return None
-        quaternions = np.array([q if q @ recent[0][1] >= 0.0 else -q for _, q in recent])
-        mean_q = quaternions.mean(axis=0)
-        return np.mean([p for p, _ in recent], axis=0), mean_q / np.linalg.norm(mean_q)
+        return mean_pose([p for p, _ in recent], [q for _, q in recent])
 
     def sizes(self) -> tuple[tuple[tuple[str, ...], float], ...] | None:
         """Each pair's internal force (N), largest first, from the latest deviations; None

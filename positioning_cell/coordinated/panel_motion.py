@@ -25,9 +25,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.moves.correction import mean_pose
 
 FloatArray = NDArray[np.float64]
 
@@ -66,12 +66,19 @@ def implied_panels(cell: CellFile, mech: Mechanism,
 
 
 def mean_panel(panels: Sequence[Transform]) -> Transform:
-    """The mean of panel poses: the mean position, the chordal L2 mean rotation (scipy
-    ``Rotation.mean``)."""
-    rot = scipy_rotation()
-    position = np.mean([p.p for p in panels], axis=0)
-    quaternion = rot.from_quat(np.array([p.q for p in panels])).mean().as_quat()
-    return Transform.from_pq(position, quaternion)
+    """The mean of panel poses (:func:`~positioning_cell.moves.correction.mean_pose`: the mean
+    position, the chordal L2 mean rotation)."""
+    return Transform.from_pq(*mean_pose([p.p for p in panels], [p.q for p in panels]))
+
+
+def rigid_placement(cell: CellFile, mech: Mechanism,
+                    platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[tuple[FloatArray,
+                                                                                 FloatArray]]:
+    """The platform poses (each in its base) of the rigid panel nearest to ``platforms``:
+    at the mean of the panel poses they imply. What separates the two is the non-rigid part
+    of the positioners' disagreement, the part that loads the panel (relax moves it away; the
+    panel simulator turns it into forces)."""
+    return platform_goals(cell, mech, *mean_panel(implied_panels(cell, mech, platforms)).to_pq())
 
 
 def attachment_points(cell: CellFile, mech: Mechanism,

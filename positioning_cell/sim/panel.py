@@ -29,9 +29,7 @@ from positioning_cell.coordinated.internal_forces import pair_map, wrench_map
 from positioning_cell.coordinated.panel_motion import (
     attachment_points,
     bases,
-    implied_panels,
-    mean_panel,
-    platform_goals,
+    rigid_placement,
 )
 from positioning_cell.coordinated.settings import SHIPPED_CELL, cell_of
 from positioning_cell.core.mechanism import Mechanism
@@ -87,9 +85,7 @@ class PanelTruth:
     def state(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> PanelState:
         """The panel held by the true platform poses ``platforms`` (each in its base, in the
         cell's order)."""
-        placed = platform_goals(self.cell, self.mech,
-                                *mean_panel(implied_panels(self.cell, self.mech,
-                                                           platforms)).to_pq())
+        placed = rigid_placement(self.cell, self.mech, platforms)
         real = attachment_points(self.cell, self.mech, platforms)
         rigid = attachment_points(self.cell, self.mech, placed)
         rot = scipy_rotation()
