@@ -10,9 +10,10 @@ plots, heaviest first, and the error budget's pass and the report go on here mea
 :meth:`PlotWorkers.paths` waits for the files.
 
 The workers are forked (they inherit the imported modules; nothing else is started: a spawned
-interpreter would import numpy and the package again) and run at the lowest priority
+interpreter would import numpy and the package again) and run at a lower priority
 (:data:`WORKER_NICE`): on two cores, two workers and the analysing process would otherwise
-share them three ways, and the analysis, which the plots wait for, would slow by a third. A
+share them three ways, and the analysis, which the plots wait for, would slow by a third. An
+analysis that fails ends its workers at once, warmed up or not. A
 process with other threads running (e.g. ``run_cell``, whose ROS client has its own) is not
 forked: there, and with a single worker or core, the plots are drawn here, one after the
 other, in :meth:`PlotWorkers.paths`.
@@ -76,14 +77,17 @@ def can_fork(workers: int) -> bool:
             and 'fork' in multiprocessing.get_all_start_methods())
 
 
-#: The workers' nice value (the lowest priority): they take what the analysing process leaves.
-#: On the 2-core VM, a 1 M-message `make run` bag, fresh processes alternating: analyze with
-#: the plots 1.73-1.92 s at 19 against 1.78-2.15 s at 0 (every pair faster).
-WORKER_NICE = 19
+#: The workers' nice value: below the analysing process, which the plots wait for, so that it
+#: keeps its core (on the 2-core VM, a 1 M-message `make run` bag, fresh processes
+#: alternating: analyze with the plots 1.73-1.92 s at 19 against 1.78-2.15 s at 0), but not the
+#: lowest: at 19 a busy machine starves them (CFS gives a nice-19 process 1.5 % of a nice-0
+#: one's share; test_plot_workers's plots took 129 s under three busy loops on two cores, 8.8 s
+#: at 5, which still leaves the analysis three quarters of a core it shares with a worker).
+WORKER_NICE = 5
 
 
 def start_worker() -> None:
-    """A worker's start: lowest priority (:data:`WORKER_NICE`), then matplotlib warmed up
+    """A worker's start: a lower priority (:data:`WORKER_NICE`), then matplotlib warmed up
     (:func:`positioning_cell.plotting.warm_up`)."""
     os.nice(WORKER_NICE)
     warm_up()
@@ -159,5 +163,7 @@ class PlotWorkers:
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
                  trace: TracebackType | None) -> None:
-        if self._pool is not None:
+        if kind is not None:  # nothing to draw: the workers (maybe still warming up) end now
+            self._end_workers()
+        elif self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
