@@ -12,6 +12,9 @@ Format (YAML; lengths m, quaternions x, y, z, w)::
             kind: spherical               # clamp, spherical, ball_in_slot, ball_on_plane
             offset: [0.0, 0.0, 0.05]      # the ball (clamp reference) in the platform frame
             direction: [1.0, 0.0, 0.0]    # slot axis / flat normal, cell frame (else unused)
+            in_panel: [0.0, 0.0, 0.246]   # optional: the ball in the panel frame (a cell
+                                          # calibration's; default: where the platform puts
+                                          # it at home)
       panel:                              # optional; these are the defaults
         mass: 0.0                         # kg
         centre_of_gravity: [0.0, 0.0, 0.0]  # m, cell frame, the panel at home
@@ -22,8 +25,10 @@ Format (YAML; lengths m, quaternions x, y, z, w)::
 
 Every positioner has the machine of :class:`~positioning_cell.core.mechanism.Mechanism` given
 to :meth:`CellFile.attachments` (the default: seed 000's); an attachment's point in the cell
-frame is where its platform puts it at home. Every refusal is a ConfigError naming the file,
-the positioner and the key.
+frame is where its platform puts it at home, unless the file gives it (``in_panel``: the
+socket's place in the panel, which a cell calibration identifies with the base,
+:mod:`.cell_calibration`). The panel frame coincides with the cell frame when the panel is at
+home. Every refusal is a ConfigError naming the file, the positioner and the key.
 """
 
 from __future__ import annotations
@@ -69,14 +74,15 @@ class Panel:
         origin."""
         force = self.mass * np.asarray(GRAVITY)
         return np.concatenate([force, np.cross(np.asarray(self.centre_of_gravity), force)])
-_ATTACHMENT_KEYS = {'kind', 'offset', 'direction'}
+_ATTACHMENT_KEYS = {'kind', 'offset', 'direction', 'in_panel'}
 
 
 @dataclass(frozen=True)
 class PositionerEntry:
     """One positioner of the cell: ``base`` its base frame in the cell frame (position (3,) m,
-    unit quaternion (4,)), and its attachment's kind, ``offset`` (3,) m in the platform frame
-    and ``direction`` (3,) in the cell frame."""
+    unit quaternion (4,)), and its attachment's kind, ``offset`` (3,) m in the platform frame,
+    ``direction`` (3,) in the cell frame and ``in_panel`` (3,) m, its point in the panel frame
+    (None: where the platform puts it at home)."""
 
     name: str
     base_position: tuple[float, float, float]
@@ -84,6 +90,7 @@ class PositionerEntry:
     kind: str
     offset: tuple[float, float, float]
     direction: tuple[float, float, float]
+    in_panel: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -94,17 +101,44 @@ class CellFile:
     positioners: tuple[PositionerEntry, ...]
     panel: Panel = Panel()
 
-    def attachments(self, mech: Mechanism | None = None) -> list[Attachment]:
-        """Each positioner's attachment with its point in the cell frame, its platform at home
-        (``mech``: the positioners' machine, default seed 000's)."""
+    def panel_points(self, mech: Mechanism | None = None) -> FloatArray:
+        """(N, 3) m: each attachment's point in the panel frame (the cell frame, the panel at
+        home): its ``in_panel``, else where its platform puts it at home (``mech``: the
+        positioners' machine, default seed 000's)."""
         machine = mech or Mechanism.default()
-        out = []
-        for entry in self.positioners:
+        out = np.empty((len(self.positioners), 3))
+        for k, entry in enumerate(self.positioners):
+            if entry.in_panel is not None:
+                out[k] = entry.in_panel
+                continue
             rotation = matrix_from_quaternion(np.asarray(entry.base_quaternion)[None])[0]
-            point = np.asarray(entry.base_position) + rotation @ (
+            out[k] = np.asarray(entry.base_position) + rotation @ (
                 machine.home_position + np.asarray(entry.offset))
-            out.append(Attachment(entry.name, entry.kind, tuple(point), entry.direction))
         return out
+
+    def attachments(self, mech: Mechanism | None = None) -> list[Attachment]:
+        """Each positioner's attachment with its point in the cell frame, the panel at home
+        (:meth:`panel_points`)."""
+        return [Attachment(entry.name, entry.kind, (float(x), float(y), float(z)),
+                           entry.direction)
+                for entry, (x, y, z) in zip(self.positioners, self.panel_points(mech),
+                                            strict=True)]
+
+    def as_yaml(self) -> dict[str, Any]:
+        """The file's content (what :func:`load` reads back to an equal CellFile)."""
+        positioners = []
+        for e in self.positioners:
+            attachment: dict[str, Any] = {'kind': e.kind, 'offset': list(e.offset),
+                                          'direction': list(e.direction)}
+            if e.in_panel is not None:
+                attachment['in_panel'] = list(e.in_panel)
+            positioners.append({'name': e.name,
+                                'base': [*e.base_position, *e.base_quaternion],
+                                'attachment': attachment})
+        p = self.panel
+        return {'cell': {'positioners': positioners, 'panel': {
+            'mass': p.mass, 'centre_of_gravity': list(p.centre_of_gravity),
+            'stiffness': list(p.stiffness), 'internal_force_limit': p.internal_force_limit}}}
 
 
 def _numbers(value: object, n: int, where: str) -> tuple[float, ...]:
@@ -141,10 +175,13 @@ def _entry(raw: object, k: int, source: str) -> PositionerEntry:
     offset = _numbers(att.get('offset', [0.0, 0.0, 0.0]), 3, f'{where}.attachment.offset')
     direction = _numbers(att.get('direction', [0.0, 0.0, 1.0]), 3,
                          f'{where}.attachment.direction')
+    in_panel = (None if att.get('in_panel') is None else
+                _numbers(att['in_panel'], 3, f'{where}.attachment.in_panel'))
     entry = PositionerEntry(
         name, (base[0], base[1], base[2]), (base[3], base[4], base[5], base[6]),
         str(att['kind']), (offset[0], offset[1], offset[2]),
-        (direction[0], direction[1], direction[2]))
+        (direction[0], direction[1], direction[2]),
+        None if in_panel is None else (in_panel[0], in_panel[1], in_panel[2]))
     try:  # the attachment's own rules (kind, direction)
         Attachment(name, entry.kind, entry.offset, entry.direction)
     except InputError as err:

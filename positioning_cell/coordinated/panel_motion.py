@@ -2,13 +2,17 @@
 
 Frames: ``cell`` (the cell file's), each positioner's ``base`` (T_cell_base_i, the cell file's
 ``base``) and ``platform``, and the ``panel``: the frame that coincides with ``cell`` when
-every platform is at its home pose. The panel is rigid and carries every platform with it: at
-panel pose T_cell_panel, positioner i's platform is at
+the panel is at home. The panel is rigid and carries every platform with it: at panel pose
+T_cell_panel, positioner i's platform is at
 
-    T_base_platform_i = T_cell_base_iᐨ¹ · T_cell_panel · T_cell_base_i · T_base_home,
+    T_base_platform_i = T_cell_base_iᐨ¹ · T_cell_panel · X_i,
 
-so a ball attachment turns nothing in its socket (the positioner's idle freedom, a turn about
-its ball, is held at zero: :mod:`.mobility`). Back from the platforms, each positioner implies a
+X_i = T_panel_platform_i its platform in the panel frame: turned as T_cell_base_i · T_base_home
+turns it, placed so that its attachment point (``offset``) is the panel's (``in_panel``,
+:meth:`~positioning_cell.coordinated.cell_file.CellFile.panel_points`); without ``in_panel``,
+X_i = T_cell_base_i · T_base_home, every platform at home with the panel. A ball attachment
+so turns nothing in its socket (the positioner's idle freedom, a turn about its ball, is held
+at zero: :mod:`.mobility`). Back from the platforms, each positioner implies a
 panel pose of its own; where they differ the positioners disagree, and what a rigid panel on
 balls cannot take is the change of the distance between two balls
 (:func:`pair_disagreement`: one internal force system per pair, :mod:`.internal_forces`).
@@ -38,9 +42,15 @@ def bases(cell: CellFile) -> list[Transform]:
 
 
 def _homes(cell: CellFile, mech: Mechanism) -> list[Transform]:
-    """T_cell_platform of every positioner at its home pose (the panel's home)."""
+    """X_i = T_panel_platform of every positioner (module docstring): the platform where it
+    is with the panel at home."""
     home = Transform.from_pq(mech.home_position, mech.home_quaternion)
-    return [base @ home for base in bases(cell)]
+    out = []
+    for base, entry, point in zip(bases(cell), cell.positioners, cell.panel_points(mech),
+                                  strict=True):
+        turned = base @ home
+        out.append(Transform(point - turned.R @ np.asarray(entry.offset), turned.R))
+    return out
 
 
 def platform_goals(cell: CellFile, mech: Mechanism, panel_position: ArrayLike,
@@ -109,8 +119,7 @@ def pair_disagreement(cell: CellFile, mech: Mechanism,
     their attachment points apart from where the rigid panel holds them: the distance now
     minus the distance at home (m). A rigid panel on balls takes any motion that keeps every
     such distance; what it cannot take shows here."""
-    home = attachment_points(cell, mech, [(mech.home_position, mech.home_quaternion)]
-                             * len(cell.positioners))
+    home = cell.panel_points(mech)
     now = attachment_points(cell, mech, platforms)
     out = []
     for i, j in combinations(range(len(cell.positioners)), 2):
