@@ -10,6 +10,8 @@ ROS.
   deformation compatibility), their self-equilibrated part per pair, the worst pair named;
 - :mod:`.base_calibration`: each positioner's base in the cell frame from tracker readings of
   its attachment point, with its covariance;
+- :mod:`.cell_calibration`: the cell's calibration: every base and each ball's socket in the
+  panel from one tracker's readings of the panel's targets, its model's shortfall said;
 - :mod:`.panel_motion`: the panel's pose as each positioner's platform pose and back, and how
   far each pair of attachments is pulled apart;
 - :mod:`.coordinator`: a panel move with every positioner as one (checked by all first, one

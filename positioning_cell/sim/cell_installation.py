@@ -1,0 +1,145 @@
+"""The coordinated cell as it is really installed (issue 27 item 5): simulation truth, for
+simulating the cell's calibration and judging it; the cell's own calibration never reads it
+(:mod:`positioning_cell.coordinated.cell_calibration`).
+
+- Each positioner's base stands off where the cell file puts it (a seeded installation error:
+  ``base_position_sigma`` m per axis, ``base_angle_sigma`` rad about each axis), and its ball
+  sits off its nominal place in the panel (``socket_sigma`` m per axis).
+- The panel rests where its balls put it: the rigid placement of its true sockets nearest to
+  the real ball centres (a least-squares rigid fit, the springs' energy minimum for equal
+  ball stiffness), lowered by its weight on the attachments' stiffness (seed 002's
+  compatibility, :func:`~positioning_cell.coordinated.internal_forces.internal_forces`: about
+  15 µm for the shipped 45 kg panel on three balls of 1e7 N/m). Neither the sag nor the balls'
+  misfit is in the cell calibration's model.
+- One laser tracker, its true pose and systematic errors in the cell frame
+  (:class:`~positioning_cell.sim.tracker.SimulatedTracker`), reads the panel's targets; the cell
+  frame is the one the tracker realises (its located registration taken as exact: the frame's
+  own tie to the floor is outside this simulation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from positioning_cell.coordinated.attachments import Attachment
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.internal_forces import internal_forces
+from positioning_cell.coordinated.panel_motion import bases
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.frames.transforms import Transform
+from positioning_cell.metrology.fit import weighted_kabsch
+from positioning_cell.metrology.instrument import Tracker, TrackerAccuracy
+from positioning_cell.metrology.targets import TargetLayout
+from positioning_cell.moves.correction import mean_pose
+from positioning_cell.sim.tracker import SimulatedTracker, TrackerTruth, observe
+
+FloatArray = NDArray[np.float64]
+
+#: The cell tracker's true place: 2.5 m in front of the shipped cell's panel, 1.8 m up,
+#: levelled (its standing axis along cell +z).
+CELL_TRACKER = TrackerTruth(position=(0.6, -2.5, 1.8), orientation=(0.0, 0.0, 0.0, 1.0))
+
+
+def panel_targets(cell: CellFile, mech: Mechanism, margin: float = 0.1,
+                  height: float = 0.05) -> TargetLayout:
+    """Six targets on the panel (panel frame): the corners and mid-sides of the attachment
+    points' box in x, y widened by ``margin`` m, ``height`` m above their highest point (the
+    mid-sides a further 20 mm up: not all in one plane)."""
+    points = cell.panel_points(mech)
+    low, high = points[:, :2].min(axis=0) - margin, points[:, :2].max(axis=0) + margin
+    z = points[:, 2].max() + height
+    mid = (low + high) / 2.0
+    rows = [(low[0], low[1], z), (mid[0], low[1], z + 0.02), (high[0], low[1], z),
+            (low[0], high[1], z), (mid[0], high[1], z + 0.02), (high[0], high[1], z)]
+    return TargetLayout(tuple((float(x), float(y), float(w)) for x, y, w in rows))
+
+
+@dataclass(frozen=True)
+class CellInstallation:
+    """The installed ``cell`` of positioners of machine ``mech`` (module docstring): its
+    installation errors drawn from ``seed``, its panel ``targets`` (default
+    :func:`panel_targets`) read by the ``tracker``."""
+
+    cell: CellFile
+    mech: Mechanism
+    seed: int = 0
+    base_position_sigma: float = 1e-3
+    base_angle_sigma: float = 2e-3
+    socket_sigma: float = 3e-4
+    tracker: SimulatedTracker = field(default_factory=lambda: SimulatedTracker(
+        CELL_TRACKER, TrackerAccuracy()))
+    targets: TargetLayout | None = None
+
+    @cached_property
+    def _draws(self) -> tuple[list[Transform], FloatArray]:
+        rng = np.random.default_rng(self.seed)
+        n = len(self.cell.positioners)
+        moves = rng.standard_normal((n, 6))
+        out = []
+        for base, move in zip(bases(self.cell), moves, strict=True):
+            turn = Rotation.from_rotvec(move[3:] * self.base_angle_sigma).as_matrix()
+            out.append(Transform(base.p + move[:3] * self.base_position_sigma, turn @ base.R))
+        sockets = self.cell.panel_points(self.mech) + rng.standard_normal((n, 3)) \
+            * self.socket_sigma
+        return out, sockets
+
+    @property
+    def true_bases(self) -> list[Transform]:
+        """Each positioner's true T_cell_base (truth)."""
+        return self._draws[0]
+
+    @property
+    def true_sockets(self) -> FloatArray:
+        """(N, 3) m: each ball's true place in the panel frame (truth)."""
+        return self._draws[1]
+
+    @cached_property
+    def layout(self) -> TargetLayout:
+        """The panel's targets (panel frame, m): as the cell knows them (its design)."""
+        return self.targets or panel_targets(self.cell, self.mech)
+
+    @cached_property
+    def _sag(self) -> Transform:
+        """The panel's displacement under its weight (small, cell frame)."""
+        attachments = [Attachment(e.name, e.kind, tuple(point), e.direction)
+                       for e, point in zip(self.cell.positioners, self.true_sockets,
+                                           strict=True)]
+        n = len(attachments)
+        moved = internal_forces(attachments, np.zeros((n, 6)), self.cell.panel.stiffness,
+                                self.cell.panel.weight()).displacement
+        return Transform(moved[:3], Rotation.from_rotvec(moved[3:]).as_matrix())
+
+    def ball_centres(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> FloatArray:
+        """(N, 3) m, cell frame: where the true platform poses (each (position (3,) m,
+        quaternion (4,)) in its base) put the balls."""
+        return np.array([(base @ Transform.from_pq(*pose)).apply(np.asarray(e.offset))
+                         for base, pose, e in zip(self.true_bases, platforms,
+                                                  self.cell.positioners, strict=True)])
+
+    def true_panel(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> Transform:
+        """T_cell_panel where the panel rests on the true platform poses (module docstring)."""
+        balls = self.ball_centres(platforms)
+        rotation, position = weighted_kabsch(self.true_sockets, balls[None],
+                                             np.ones((1, len(balls))))
+        return self._sag @ Transform(position[0], rotation[0])
+
+    def measured_panel(self, panels: Sequence[Transform], rng: np.random.Generator,
+                       samples: int = 10) -> tuple[FloatArray, FloatArray]:
+        """The cell's measurement of each true panel pose: the mean of ``samples`` fits of
+        the tracker's readings of the targets; positions (K, 3) m, quaternions (K, 4)."""
+        located = Tracker(self.tracker.accuracy, self.tracker.truth.position,
+                          self.tracker.truth.orientation)
+        p = np.repeat([t.p for t in panels], samples, axis=0)
+        q = np.repeat([t.to_pq()[1] for t in panels], samples, axis=0)
+        _, fit = observe(self.tracker, located, self.layout, p, q, rng)
+        out_p, out_q = np.empty((len(panels), 3)), np.empty((len(panels), 4))
+        for k in range(len(panels)):  # one mean per pose (the rotation mean: scipy's)
+            rows = slice(k * samples, (k + 1) * samples)
+            out_p[k], out_q[k] = mean_pose(fit.position[rows], fit.quaternion[rows])
+        return out_p, out_q
