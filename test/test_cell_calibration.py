@@ -16,7 +16,7 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.calibration import identify as idf
@@ -252,6 +252,41 @@ def test_the_platform_goals_put_each_ball_where_the_panel_holds_it(move: list[fl
     goals = platform_goals(calibrated, MECH, *panel.to_pq())
     balls = attachment_points(calibrated, MECH, goals)
     np.testing.assert_allclose(balls, panel.apply(calibrated.panel_points(MECH)), atol=1e-12)
+
+
+# -- the truth: where the panel rests -----------------------------------------------------
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_the_panel_rests_at_the_springs_energy_minimum_with_its_weight(seed: int) -> None:
+    """The installation's panel (sim.panel.PanelTruth of the true cell) against a second
+    path: the balls' springs' energy plus the weight's potential minimised over the panel's
+    pose by scipy, the platforms sent by the nominal cell file (millimetres of misfit, a few
+    mrad of placement to correct)."""
+    installation = CellInstallation(CELL, MECH, seed=seed)
+    panel = panel_poses(1, 3000 + seed)[0]
+    platforms = [(np.asarray(p), np.asarray(q))
+                 for p, q in platform_goals(CELL, MECH, *panel.to_pq())]
+    balls = np.array([(base @ Transform.from_pq(*pose)).apply(np.asarray(e.offset))
+                      for base, pose, e in zip(installation.true_bases, platforms,
+                                               CELL.positioners, strict=True)])
+    k, weight = CELL.panel.stiffness[0], CELL.panel.mass * 9.80665
+    cog = np.asarray(CELL.panel.centre_of_gravity)
+
+    def energy(x: np.ndarray) -> float:
+        t = Transform(x[:3], Rotation.from_rotvec(x[3:]).as_matrix())
+        stretch = t.apply(installation.true_sockets) - balls
+        return float(0.5 * k * np.sum(stretch**2) + weight * t.apply(cog)[2])
+
+    state = installation.panel.state(platforms)
+    start = np.r_[panel.p, Rotation.from_matrix(panel.R).as_rotvec()]
+    found = minimize(energy, start, method='BFGS', options={'gtol': 1e-8})
+    exact = Transform(found.x[:3], Rotation.from_rotvec(found.x[3:]).as_matrix())
+    # ~100 J in the springs (kN over mm): 1e-6 of it is a turn of ~1e-8 rad
+    assert energy(np.r_[state.panel.p, Rotation.from_matrix(state.panel.R).as_rotvec()]) \
+        <= found.fun * (1.0 + 1e-6)
+    assert np.linalg.norm(state.panel.apply(CENTRE) - exact.apply(CENTRE)) < 0.1e-6
+    assert np.max(np.linalg.norm(balls - installation.true_sockets @ state.panel.R.T
+                                 - state.panel.p, axis=1)) > 0.5e-3  # millimetres of misfit
 
 
 # -- judged on the truth: three positioners, each calibrated first, then the cell -----------

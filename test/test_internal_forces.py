@@ -142,3 +142,30 @@ def test_the_pair_map_is_the_internal_forces_by_superposition(values: list[float
     assert by_map.keys() == solved.keys()
     for pair, size in solved.items():
         assert by_map[pair] == pytest.approx(size, rel=1e-9, abs=1e-6)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-2e-4, 2e-4), min_size=18, max_size=18), st.booleans())
+def test_the_wrench_map_is_the_full_solution_with_the_weight(values: list[float],
+                                                             clamps: bool) -> None:
+    """What the panel simulator evaluates at every true pose (an affine map built once) gives
+    every attachment's wrench and the panel's displacement the full solution gives."""
+    from positioning_cell.coordinated.internal_forces import wrench_map
+
+    shipped = load(config_path('three_positioners.yaml'))
+    cell = shipped.attachments()
+    if clamps:
+        cell = [Attachment(a.name, 'clamp', a.point) for a in cell]
+    moved = np.array(values).reshape(3, 6)
+    if not clamps:
+        moved[:, 3:] = 0.0
+    mapped = wrench_map(cell, shipped.panel.stiffness, shipped.panel.weight())
+    solved = internal_forces(cell, moved, shipped.panel.stiffness, shipped.panel.weight())
+    np.testing.assert_allclose(mapped.wrenches(moved), solved.wrenches, rtol=0.0, atol=1e-6)
+    np.testing.assert_allclose(mapped.displacement(moved), solved.displacement, rtol=0.0,
+                               atol=1e-12)
+    if not clamps:  # the weight alone (over the balls' centroid) lowers the panel by m·g / 3k
+        lowered = mapped.displacement(np.zeros((3, 6)))
+        assert lowered[2] == pytest.approx(
+            -shipped.panel.mass * 9.80665 / (3 * shipped.panel.stiffness[0]), rel=1e-6)
+        np.testing.assert_allclose(lowered[3:], 0.0, atol=1e-12)

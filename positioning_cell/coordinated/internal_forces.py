@@ -150,13 +150,16 @@ def pair_map(attachments: Sequence[Attachment], stiffness: ArrayLike) -> PairMap
 
 
 class WrenchMap(NamedTuple):
-    """The attachments' wrenches on the panel as an affine map of the positioners'
-    displacements (:func:`internal_forces` is linear in them for a given load): ``wrenches``
-    (N, 6) = ``by_load`` + (``matrix`` @ displacements.ravel()).reshape(N, 6). What the panel
-    simulator evaluates at every true pose."""
+    """The attachments' wrenches on the panel, and the panel's displacement, as affine maps of
+    the positioners' displacements (:func:`internal_forces` is linear in them for a given
+    load): ``wrenches`` (N, 6) = ``by_load`` + (``matrix`` @ displacements.ravel()).reshape(N,
+    6); the panel's (δp m of the cell origin, δθ rad) = ``moved_by_load`` + ``moved`` @
+    displacements.ravel(). What the panel simulator evaluates at every true pose."""
 
     by_load: FloatArray
     matrix: FloatArray
+    moved_by_load: FloatArray
+    moved: FloatArray
 
     def wrenches(self, displacements: ArrayLike) -> FloatArray:
         """Each attachment's wrench on the panel (N, 6) (N; N·m about the cell origin) for
@@ -165,20 +168,28 @@ class WrenchMap(NamedTuple):
         out: FloatArray = self.by_load + (self.matrix @ d).reshape(self.by_load.shape)
         return out
 
+    def displacement(self, displacements: ArrayLike) -> FloatArray:
+        """The panel's displacement (6,) (δp m of the cell origin, δθ rad; cell frame) for
+        ``displacements`` (N, 6) (m, rad; cell frame)."""
+        out: FloatArray = self.moved_by_load + self.moved @ np.asarray(
+            displacements, dtype=float).ravel()
+        return out
+
 
 def wrench_map(attachments: Sequence[Attachment], stiffness: ArrayLike,
                load: ArrayLike = (0.0,) * 6) -> WrenchMap:
     """The :class:`WrenchMap` of ``attachments`` with ``stiffness`` under ``load`` (as
     :func:`internal_forces`)."""
     n = len(attachments)
-    base = internal_forces(attachments, np.zeros((n, 6)), stiffness, load).wrenches
-    columns = []
+    base = internal_forces(attachments, np.zeros((n, 6)), stiffness, load)
+    columns, turns = [], []
     for k in range(6 * n):
         unit = np.zeros(6 * n)
         unit[k] = 1.0
-        moved = internal_forces(attachments, unit.reshape(n, 6), stiffness, load).wrenches
-        columns.append((moved - base).ravel())
-    return WrenchMap(base, np.array(columns).T)
+        moved = internal_forces(attachments, unit.reshape(n, 6), stiffness, load)
+        columns.append((moved.wrenches - base.wrenches).ravel())
+        turns.append(moved.displacement - base.displacement)
+    return WrenchMap(base.wrenches, np.array(columns).T, base.displacement, np.array(turns).T)
 
 
 def _coefficients(basis: FloatArray, internal: FloatArray) -> FloatArray:

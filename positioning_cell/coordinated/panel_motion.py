@@ -81,14 +81,21 @@ def mean_panel(panels: Sequence[Transform]) -> Transform:
     return Transform.from_pq(*mean_pose([p.p for p in panels], [p.q for p in panels]))
 
 
+def nearest_panel(cell: CellFile, mech: Mechanism,
+                  platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> Transform:
+    """T_cell_panel of the rigid panel nearest to the platform poses ``platforms`` (each in
+    its base): the mean of the panel poses they imply."""
+    return mean_panel(implied_panels(cell, mech, platforms))
+
+
 def rigid_placement(cell: CellFile, mech: Mechanism,
                     platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> list[tuple[FloatArray,
                                                                                  FloatArray]]:
-    """The platform poses (each in its base) of the rigid panel nearest to ``platforms``:
-    at the mean of the panel poses they imply. What separates the two is the non-rigid part
-    of the positioners' disagreement, the part that loads the panel (relax moves it away; the
-    panel simulator turns it into forces)."""
-    return platform_goals(cell, mech, *mean_panel(implied_panels(cell, mech, platforms)).to_pq())
+    """The platform poses (each in its base) of the rigid panel nearest to ``platforms``
+    (:func:`nearest_panel`). What separates the two is the non-rigid part of the positioners'
+    disagreement, the part that loads the panel (relax moves it away; the panel simulator
+    turns it into forces)."""
+    return platform_goals(cell, mech, *nearest_panel(cell, mech, platforms).to_pq())
 
 
 def attachment_points(cell: CellFile, mech: Mechanism,

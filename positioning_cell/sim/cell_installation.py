@@ -5,12 +5,11 @@ simulating the cell's calibration and judging it; the cell's own calibration nev
 - Each positioner's base stands off where the cell file puts it (a seeded installation error:
   ``base_position_sigma`` m per axis, ``base_angle_sigma`` rad about each axis), and its ball
   sits off its nominal place in the panel (``socket_sigma`` m per axis).
-- The panel rests where its balls put it: the rigid placement of its true sockets nearest to
-  the real ball centres (a least-squares rigid fit, the springs' energy minimum for equal
-  ball stiffness), lowered by its weight on the attachments' stiffness (seed 002's
-  compatibility, :func:`~positioning_cell.coordinated.internal_forces.internal_forces`: about
-  15 µm for the shipped 45 kg panel on three balls of 1e7 N/m). Neither the sag nor the balls'
-  misfit is in the cell calibration's model.
+- The panel rests where the true platforms put it (:class:`~positioning_cell.sim.panel.
+  PanelTruth` of the true cell, :attr:`CellInstallation.true_cell`): the rigid placement
+  nearest to them, moved by seed 002's compatibility under its weight (the balls' misfits
+  shared by the springs; the sag about 15 µm for the shipped 45 kg panel on three balls of
+  1e7 N/m). Neither the sag nor the misfits are in the cell calibration's model.
 - One laser tracker, its true pose and systematic errors in the cell frame
   (:class:`~positioning_cell.sim.tracker.SimulatedTracker`), reads the panel's targets; the cell
   frame is the one the tracker realises (its located registration taken as exact: the frame's
@@ -20,23 +19,21 @@ simulating the cell's calibration and judging it; the cell's own calibration nev
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from positioning_cell.coordinated.attachments import Attachment
 from positioning_cell.coordinated.cell_file import CellFile
-from positioning_cell.coordinated.internal_forces import internal_forces
 from positioning_cell.coordinated.panel_motion import bases
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.frames.transforms import Transform
-from positioning_cell.metrology.fit import weighted_kabsch
 from positioning_cell.metrology.instrument import Tracker, TrackerAccuracy
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.moves.correction import mean_pose
+from positioning_cell.sim.panel import PanelTruth
 from positioning_cell.sim.tracker import SimulatedTracker, TrackerTruth, observe
 
 FloatArray = NDArray[np.float64]
@@ -105,29 +102,26 @@ class CellInstallation:
         return self.targets or panel_targets(self.cell, self.mech)
 
     @cached_property
-    def _sag(self) -> Transform:
-        """The panel's displacement under its weight (small, cell frame)."""
-        attachments = [Attachment(e.name, e.kind, tuple(point), e.direction)
-                       for e, point in zip(self.cell.positioners, self.true_sockets,
-                                           strict=True)]
-        n = len(attachments)
-        moved = internal_forces(attachments, np.zeros((n, 6)), self.cell.panel.stiffness,
-                                self.cell.panel.weight()).displacement
-        return Transform(moved[:3], Rotation.from_rotvec(moved[3:]).as_matrix())
+    def true_cell(self) -> CellFile:
+        """The cell file of the installed cell (truth): its true bases and sockets."""
+        entries = []
+        for entry, base, socket in zip(self.cell.positioners, self.true_bases,
+                                       self.true_sockets, strict=True):
+            (x, y, z), (qx, qy, qz, qw) = base.p.tolist(), base.to_pq()[1].tolist()
+            bx, by, bz = socket.tolist()
+            entries.append(replace(entry, base_position=(x, y, z),
+                                   base_quaternion=(qx, qy, qz, qw), in_panel=(bx, by, bz)))
+        return replace(self.cell, positioners=tuple(entries))
 
-    def ball_centres(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> FloatArray:
-        """(N, 3) m, cell frame: where the true platform poses (each (position (3,) m,
-        quaternion (4,)) in its base) put the balls."""
-        return np.array([(base @ Transform.from_pq(*pose)).apply(np.asarray(e.offset))
-                         for base, pose, e in zip(self.true_bases, platforms,
-                                                  self.cell.positioners, strict=True)])
+    @cached_property
+    def panel(self) -> PanelTruth:
+        """The panel on the true platforms of the installed cell (truth)."""
+        return PanelTruth(self.true_cell, self.mech)
 
     def true_panel(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> Transform:
-        """T_cell_panel where the panel rests on the true platform poses (module docstring)."""
-        balls = self.ball_centres(platforms)
-        rotation, position = weighted_kabsch(self.true_sockets, balls[None],
-                                             np.ones((1, len(balls))))
-        return self._sag @ Transform(position[0], rotation[0])
+        """T_cell_panel where the panel rests on the true platform poses ``platforms`` (each
+        (position (3,) m, quaternion (4,)) in its base; module docstring)."""
+        return self.panel.state(platforms).panel
 
     def measured_panel(self, panels: Sequence[Transform], rng: np.random.Generator,
                        samples: int = 10) -> tuple[FloatArray, FloatArray]:

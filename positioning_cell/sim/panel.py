@@ -29,7 +29,8 @@ from positioning_cell.coordinated.internal_forces import pair_map, wrench_map
 from positioning_cell.coordinated.panel_motion import (
     attachment_points,
     bases,
-    rigid_placement,
+    nearest_panel,
+    platform_goals,
 )
 from positioning_cell.coordinated.settings import SHIPPED_CELL, cell_of
 from positioning_cell.core.mechanism import Mechanism
@@ -59,15 +60,23 @@ class PanelSimulatorSettings:
         return cell_of(self.cell_file)
 
 
+#: Newton steps of the panel's pose (:meth:`PanelTruth.state`): from the placement of an
+#: uncalibrated cell (millimetres of misfit) they leave it within 0.1 µm of the springs'
+#: energy minimum (test_cell_calibration's second path).
+PLACEMENT_STEPS = 3
+
+
 class PanelState(NamedTuple):
     """The panel held by the true platforms: each pair's internal force (``pairs``, N, largest
-    first), the largest force at one attachment (``largest``, N), and the wrench the panel puts
+    first), the largest force at one attachment (``largest``, N), the wrench the panel puts
     on each platform (``on_platforms``, by name: force N, moment N·m about the platform origin,
-    in that positioner's base frame)."""
+    in that positioner's base frame), and where the panel is (``panel``, T_cell_panel: the
+    rigid placement moved by the compatibility's displacement, its weight's sag among it)."""
 
     pairs: tuple[tuple[tuple[str, ...], float], ...]
     largest: float
     on_platforms: dict[str, FloatArray]
+    panel: Transform
 
 
 class PanelTruth:
@@ -82,10 +91,12 @@ class PanelTruth:
         self._pairs = pair_map(attachments, cell.panel.stiffness)
         self._bases = bases(cell)
 
-    def state(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> PanelState:
-        """The panel held by the true platform poses ``platforms`` (each in its base, in the
-        cell's order)."""
-        placed = rigid_placement(self.cell, self.mech, platforms)
+    def _misfits(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]], panel: Transform
+                 ) -> tuple[FloatArray, FloatArray]:
+        """Each attachment's displacement (N, 6) (δp m, δθ rad; in the panel frame, as the
+        maps' geometry is the panel at home) of the true platforms from where the rigid panel
+        at ``panel`` holds them, and the real attachment points (N, 3) m (cell frame)."""
+        placed = platform_goals(self.cell, self.mech, *panel.to_pq())
         real = attachment_points(self.cell, self.mech, platforms)
         rigid = attachment_points(self.cell, self.mech, placed)
         rot = scipy_rotation()
@@ -93,12 +104,27 @@ class PanelTruth:
                   * rot.from_quat(q_placed).inv() * rot.from_matrix(base.R).inv()).as_rotvec()
                  for base, (_, q), (_, q_placed) in zip(self._bases, platforms, placed,
                                                        strict=True)]
-        displacements = np.hstack([real - rigid, np.array(turns)])
+        return np.hstack([real - rigid, np.array(turns)]) @ np.kron(np.eye(2), panel.R), real
+
+    def state(self, platforms: Sequence[tuple[ArrayLike, ArrayLike]]) -> PanelState:
+        """The panel held by the true platform poses ``platforms`` (each in its base, in the
+        cell's order). Its pose: from the rigid placement nearest to them, the compatibility's
+        displacement taken again about each new pose (:data:`PLACEMENT_STEPS`; Newton's
+        method: the displacement is linear about the pose it starts from, and the placement
+        may start a few mrad off, with millimetres of misfit in an uncalibrated cell), all in
+        the panel frame, where the maps' geometry holds exactly."""
+        panel = nearest_panel(self.cell, self.mech, platforms)
+        rot = scipy_rotation()
+        for _ in range(PLACEMENT_STEPS):
+            moved = self._wrenches.displacement(self._misfits(platforms, panel)[0])
+            panel = panel @ Transform(moved[:3], rot.from_rotvec(moved[3:]).as_matrix())
+        displacements, real = self._misfits(platforms, panel)
         wrenches = self._wrenches.wrenches(displacements)
         on_platforms = {}
         for k, (entry, base) in enumerate(zip(self.cell.positioners, self._bases, strict=True)):
-            force, moment = wrenches[k, :3], wrenches[k, 3:]
-            couple = moment - np.cross(self._home_points[k], force)  # a clamp's, else 0
+            force_panel, moment_panel = wrenches[k, :3], wrenches[k, 3:]  # the panel frame
+            force = panel.R @ force_panel
+            couple = panel.R @ (moment_panel - np.cross(self._home_points[k], force_panel))
             origin = (base @ Transform.from_pq(*platforms[k])).p
             about_origin = -couple + np.cross(real[k] - origin, -force)
             on_platforms[entry.name] = np.concatenate([base.R.T @ -force,
@@ -106,4 +132,4 @@ class PanelTruth:
         pairs = self._pairs.sizes(displacements)
         largest = float(np.linalg.norm(wrenches[:, :3] - self._wrenches.by_load[:, :3],
                                        axis=1).max(initial=0.0))
-        return PanelState(pairs, largest, on_platforms)
+        return PanelState(pairs, largest, on_platforms, panel)
