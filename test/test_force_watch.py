@@ -84,24 +84,65 @@ def test_readings_before_the_first_setpoint_are_not_compared_and_a_reset_forgets
 
 
 def test_one_stray_reading_among_three_does_not_trip_the_watch() -> None:
-    """The last three deviations are averaged: a single 0.12 mm outlier weighs 40 um."""
+    """Three instants are averaged: a single 0.12 mm outlier weighs 40 um, once the others'
+    readings reach its instant (compared at common instants: until then it is not used)."""
     watch = ForceWatch(CELL, MECH)
     fed(watch, {})
     watch.reading('p2', 100.5, path(0.5) + np.array([1.2e-4, 0.0, 0.0]), HOME_Q)
+    sizes = watch.sizes()
+    assert sizes is not None and sizes[0][1] < 1e-6  # the others have not read 100.5 yet
+    for name in ('p1', 'p3'):
+        watch.reading(name, 100.5, path(0.5), HOME_Q)
     assert watch.excess() is None
     sizes = watch.sizes()
     assert sizes is not None and 100.0 < sizes[0][1] < CELL.panel.internal_force_limit
 
 
-def test_a_turned_clamp_loads_its_pair() -> None:
-    """Clamps carry couples: a platform turned 1 mrad off its setpoint loads the panel."""
+def test_a_lag_every_drive_shares_loads_nothing_while_the_panel_turns() -> None:
+    """Platforms that follow a turning, accelerating panel 40 ms late (the drives' following
+    error), read by trackers 17 and 34 ms apart: compared at common instants, in the panel's
+    frame, no internal force to speak of."""
+    clamped = clamped_cell()
+    from positioning_cell.coordinated.panel_motion import platform_goals
+
+    def panel_at(t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The panel turning 8 mrad about z through the centroid while rising 10 mm, in 1 s
+        on the coordinated time law (ramps of a quarter each)."""
+        u = float(np.clip(t, 0.0, 1.0))
+        s = (8.0 / 3.0 * u**2 if u < 0.25 else 1.0 / 6.0 + 4.0 / 3.0 * (u - 0.25) if u < 0.75
+             else 1.0 - 8.0 / 3.0 * (1.0 - u)**2)
+        rotation = Rotation.from_rotvec([0.0, 0.0, 0.008 * s])
+        centre = clamped.panel_points(MECH).mean(axis=0)
+        return centre + [0.0, 0.0, 0.01 * s] - rotation.apply(centre), rotation.as_quat()
+
+    watch = ForceWatch(clamped, MECH)
+    for t in np.arange(0.0, 1.0, 0.02):
+        for k, name in enumerate(NAMES):
+            watch.setpoint(name, 100.0 + t, *platform_goals(clamped, MECH, *panel_at(t))[k])
+    for k, name in enumerate(NAMES):
+        for t in 0.05 + 0.017 * k + 0.05 * np.arange(5):  # through the first ramp
+            watch.reading(name, 100.0 + t,
+                          *platform_goals(clamped, MECH, *panel_at(t - 0.04))[k])
+    sizes = watch.sizes()
+    # compared at each reading's own instant: 121 N; at common instants ~5 N (the deviation's
+    # kink at the ramp's end, between two readings), against ~100 N of the trackers' noise
+    assert sizes is not None and sizes[0][1] < 20.0, sizes
+
+
+def clamped_cell() -> cell_file.CellFile:
+    """The shipped cell with every positioner clamping the panel."""
     doc = yaml.safe_load(config_path('three_positioners.yaml').read_text())
     for entry in doc['cell']['positioners']:
         entry['attachment']['kind'] = 'clamp'
     with tempfile.TemporaryDirectory() as tmp:
         path_ = Path(tmp) / 'clamped.yaml'
         path_.write_text(yaml.safe_dump(doc))
-        clamped = cell_file.load(path_)
+        return cell_file.load(path_)
+
+
+def test_a_turned_clamp_loads_its_pair() -> None:
+    """Clamps carry couples: a platform turned 1 mrad off its setpoint loads the panel."""
+    clamped = clamped_cell()
     watch = ForceWatch(clamped, MECH)
     turned = Rotation.from_rotvec([1e-3, 0.0, 0.0]).as_quat()
     for name in NAMES:

@@ -6,10 +6,19 @@ For positioner i, a reading at stamp t (its platform pose in its base) puts its 
 point at a_i(t) (cell frame); its setpoints (the platform pose its trajectory commands, as it
 publishes them, interpolated at t) put it at c_i(t). The platforms are commanded along the
 rigid panel's motion (:mod:`.panel_motion`), so what a positioner adds to the panel is its
-deviation δ_i = a_i − c_i (with the rotation's, for a clamp). The latest ``smoothing``
-deviations of each are averaged (the tracker's noise, ~10 µm per reading, is ~100 N at
-1e7 N/m), and the internal force systems they load follow from the linear map of seed 002's
-deformation compatibility (:func:`.internal_forces.pair_map`). A pair above the cell's
+deviation δ_i = a_i − c_i (with the rotation's, for a clamp). The deviations are compared at
+common instants: the last ``smoothing`` readings' stamps of the positioner whose latest
+reading is the oldest, every other positioner's deviation interpolated there (linear in time)
+and the ``smoothing`` instants averaged (the tracker's noise, ~10 µm per reading, is ~100 N
+at 1e7 N/m). Compared at their own instants, the deviations while the panel moves held the
+drives' following error (a lag all share, which loads nothing: the lagging platforms are
+the rigid panel a little earlier) taken at instants up to a reading period apart, and with
+the panel turning, where each platform moves its own way, that difference read as hundreds
+of newtons on machines without error. The internal force systems the deviations load follow
+from the linear map of seed 002's deformation compatibility
+(:func:`.internal_forces.pair_map`), built on the panel at home: each deviation is taken into
+the commanded panel's frame (a rigid motion of the panel moved and turned is then a rigid
+motion of the map's geometry, and loads nothing). A pair above the cell's
 ``internal_force_limit`` is an :class:`Excess`, stamped with the newest reading it rests on.
 Thread-safe: readings and setpoints come in from the node's callbacks, the coordinator asks.
 """
@@ -26,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.internal_forces import pair_map
-from positioning_cell.coordinated.panel_motion import bases
+from positioning_cell.coordinated.panel_motion import bases, platforms_in_panel
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.errors import ConfigError, InputError
@@ -38,6 +47,9 @@ FloatArray = NDArray[np.float64]
 SETPOINTS_KEPT = 1000
 #: Tracker readings kept per positioner for its pose at rest (20 Hz: 5 s).
 READINGS_KEPT = 100
+#: Deviations kept per positioner, in readings per instant compared: enough that the others'
+#: series cover the oldest positioner's latest instants (the trackers are not synchronised).
+DEVIATIONS_KEPT_PER_INSTANT = 4
 
 
 class Excess(NamedTuple):
@@ -68,6 +80,7 @@ class ForceWatch:
         self.limit = cell.panel.internal_force_limit
         self._bases = dict(zip(self.names, bases(cell), strict=True))
         self._offsets = {e.name: np.asarray(e.offset, dtype=float) for e in cell.positioners}
+        self._in_panel = dict(zip(self.names, platforms_in_panel(cell, mech), strict=True))
         self._map = pair_map(cell.attachments(mech), cell.panel.stiffness)
         self._smoothing = smoothing
         self._lock = threading.Lock()
@@ -84,7 +97,8 @@ class ForceWatch:
         rigid panel's placement (:meth:`Coordinator.relax`), taken off its setpoints."""
         with self._lock:
             self._setpoints = {n: deque(maxlen=SETPOINTS_KEPT) for n in self.names}
-            self._deviations = {n: deque(maxlen=self._smoothing) for n in self.names}
+            kept = self._smoothing * DEVIATIONS_KEPT_PER_INSTANT
+            self._deviations = {n: deque(maxlen=kept) for n in self.names}
             if corrections is not None:
                 self._corrections = {n: np.asarray(corrections[n], dtype=float)
                                      for n in self.names}
@@ -127,7 +141,9 @@ class ForceWatch:
                                               commanded[1])
             d_p = measured.apply(offset) - wanted.apply(offset)
             d_r = scipy_rotation().from_matrix(measured.R @ wanted.R.T).as_rotvec()
-            self._deviations[name].append((stamp, np.concatenate([d_p, d_r])))
+            to_panel = (wanted @ self._in_panel[name].inverse()).R.T  # the commanded panel's
+            self._deviations[name].append((stamp, np.concatenate([to_panel @ d_p,
+                                                                  to_panel @ d_r])))
 
     def rest_pose(self, name: str, count: int) -> tuple[FloatArray, FloatArray] | None:
         """Positioner ``name``'s platform (in its base) as the mean of its last ``count``
@@ -139,14 +155,21 @@ class ForceWatch:
         return mean_pose([p for p, _ in recent], [q for _, q in recent])
 
     def sizes(self) -> tuple[tuple[tuple[str, ...], float], ...] | None:
-        """Each pair's internal force (N), largest first, from the latest deviations; None
-        until every positioner has one."""
+        """Each pair's internal force (N), largest first, from the deviations at the latest
+        common instants (module docstring); None until every positioner has one."""
         with self._lock:
             if not all(self._deviations.values()):
                 return None
-            mean = np.array([np.mean([d for _, d in self._deviations[n]], axis=0)
-                             for n in self.names])
-        return self._map.sizes(mean)
+            series = {n: list(self._deviations[n]) for n in self.names}
+        oldest = min(self.names, key=lambda n: series[n][-1][0])
+        instants = np.array([t for t, _ in series[oldest][-self._smoothing:]])
+        mean = []
+        for name in self.names:
+            stamps = np.array([t for t, _ in series[name]])
+            values = np.array([d for _, d in series[name]])
+            at = np.column_stack([np.interp(instants, stamps, values[:, c]) for c in range(6)])
+            mean.append(at.mean(axis=0))
+        return self._map.sizes(np.array(mean))
 
     def excess(self) -> Excess | None:
         """The worst pair when its force exceeds the limit; None otherwise (or not known)."""

@@ -41,7 +41,7 @@ def bases(cell: CellFile) -> list[Transform]:
     return [Transform.from_pq(e.base_position, e.base_quaternion) for e in cell.positioners]
 
 
-def _homes(cell: CellFile, mech: Mechanism) -> list[Transform]:
+def platforms_in_panel(cell: CellFile, mech: Mechanism) -> list[Transform]:
     """X_i = T_panel_platform of every positioner (module docstring): the platform where it
     is with the panel at home."""
     home = Transform.from_pq(mech.home_position, mech.home_quaternion)
@@ -60,7 +60,7 @@ def platform_goals(cell: CellFile, mech: Mechanism, panel_position: ArrayLike,
     (module docstring). InputError for a pose that is not finite or a non-unit quaternion."""
     panel = Transform.from_pq(panel_position, panel_quaternion)  # InputError: bad pose
     return [(base.inverse() @ panel @ home).to_pq()
-            for base, home in zip(bases(cell), _homes(cell, mech), strict=True)]
+            for base, home in zip(bases(cell), platforms_in_panel(cell, mech), strict=True)]
 
 
 def implied_panels(cell: CellFile, mech: Mechanism,
@@ -71,7 +71,7 @@ def implied_panels(cell: CellFile, mech: Mechanism,
         raise InputError(f'{len(platforms)} platform poses for {len(cell.positioners)} '
                          'positioners')
     return [base @ Transform.from_pq(*pose) @ home.inverse()
-            for base, home, pose in zip(bases(cell), _homes(cell, mech), platforms,
+            for base, home, pose in zip(bases(cell), platforms_in_panel(cell, mech), platforms,
                                         strict=True)]
 
 
