@@ -235,6 +235,11 @@ PANEL_WRENCH = '/sim/platform/panel_wrench'
 #: The panel's internal forces (simulation truth, for judging: std_msgs/String JSON, each
 #: pair's force N and the largest at one attachment).
 PANEL_FORCES = '/sim/panel/internal_forces'
+#: The panel's pose as the cell's tracker measures its targets (geometry_msgs/
+#: PoseWithCovarianceStamped, frame ``cell``: the panel frame in the cell frame), and as it
+#: really is (simulation truth, for judging: geometry_msgs/PoseStamped, frame ``cell``).
+PANEL_MEASURED_POSE = '/panel/metrology/pose'
+PANEL_TRUE_POSE = '/sim/panel/true_pose'
 
 #: What one positioner's node set uses on the wire: under a namespace ``ns`` every one of these
 #: becomes ``/ns<name>`` (:func:`in_set`; positioning_cell.ros.node_sets remaps them), every

@@ -13,7 +13,7 @@ from positioning_cell.calibration.settings import CalibratorSettings
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
 from positioning_cell.motion.settings import PositionerSettings
 from positioning_cell.sim.drives import DriverSettings
-from positioning_cell.sim.panel import PanelSimulatorSettings
+from positioning_cell.sim.panel_simulator import PanelSimulatorSettings
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 from positioning_cell.watch.settings import LiveViewSettings
 

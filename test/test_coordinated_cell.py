@@ -81,6 +81,10 @@ OVERRIDES = {
         'geometry_seed': -1, 'clearance': {'model': 'none'}, 'drives': {'enabled': False},
         'thermal': {'enabled': False}, 'compliance': {'enabled': False},
         'tracker': {'scale_ppm': 0.0, 'angle_offsets': [0.0, 0.0]}}},
+    # the cell installed as its file says (an uncalibrated cell's bases put millimetres of
+    # misfit, kilonewtons, into the panel)
+    names.NODE_PANEL_SIMULATOR: {'installation': {
+        'base_position_sigma': 0.0, 'base_angle_sigma': 0.0, 'socket_sigma': 0.0}},
 }
 #: p2's model wrong by 0.2 mm (issue 27's fault): its U-joint centres 0.2 mm off along x, so
 #: its platform really stands 0.2 mm off along −x, toward p1, wherever it is sent.

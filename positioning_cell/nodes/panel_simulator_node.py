@@ -5,9 +5,14 @@ It takes each positioner's true platform pose (/<name>/sim/platform/true_pose, f
 positioner of ``cell_file``) and, at ``rate_hz`` once every one has come, publishes to each
 set the wrench the panel puts on its platform (/<name>/sim/platform/panel_wrench,
 geometry_msgs/WrenchStamped, frame ``base``, about the platform origin: what the set's leg
-driver adds to its load and its load cells read), and the panel's internal forces, for judging
-only (/sim/panel/internal_forces, std_msgs/String JSON: each pair's force N, the largest at
-one attachment). The positioners and the coordinator never read it."""
+driver adds to its load and its load cells read), the cell tracker's reading of the panel's
+targets (/panel/metrology/pose, geometry_msgs/PoseWithCovarianceStamped, frame ``cell``: what
+the cell's calibration measures), and for judging only the panel's internal forces
+(/sim/panel/internal_forces, std_msgs/String JSON: each pair's force N, the largest at one
+attachment) and its true pose (/sim/panel/true_pose). The cell is as installed
+(``installation.*``: bases and sockets off the cell file,
+:mod:`positioning_cell.sim.cell_installation`). The positioners and the coordinator never
+read the truth."""
 
 from __future__ import annotations
 
@@ -16,7 +21,7 @@ import threading
 from functools import partial
 from typing import Any
 
-from geometry_msgs.msg import PoseStamped, WrenchStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, WrenchStamped
 from rclpy.node import Node
 from std_msgs.msg import String
 
@@ -25,7 +30,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import STREAM_QOS
 from positioning_cell.ros.spin import NodeStart
-from positioning_cell.sim.panel import PanelSimulatorSettings, PanelTruth
+from positioning_cell.sim.panel_simulator import PanelSimulator, PanelSimulatorSettings
 
 
 class PanelSimulatorNode(Node):
@@ -38,8 +43,8 @@ class PanelSimulatorNode(Node):
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS)
         settings = self.params.settings
-        self.cell = settings.cell()  # ConfigError: no start
-        self.truth = PanelTruth(self.cell, settings.mechanism)
+        self.sim = PanelSimulator(settings)  # ConfigError: no start
+        self.cell = self.sim.cell
         self._lock = threading.Lock()
         self._poses: dict[str, Any] = {}
         self._wrench_pubs = {}
@@ -49,6 +54,9 @@ class PanelSimulatorNode(Node):
             self._wrench_pubs[entry.name] = self.create_publisher(
                 WrenchStamped, names.in_set(names.PANEL_WRENCH, entry.name), STREAM_QOS)
         self._forces = self.create_publisher(String, names.PANEL_FORCES, STREAM_QOS)
+        self._measured = self.create_publisher(PoseWithCovarianceStamped,
+                                               names.PANEL_MEASURED_POSE, STREAM_QOS)
+        self._true = self.create_publisher(PoseStamped, names.PANEL_TRUE_POSE, STREAM_QOS)
         self.create_timer(1.0 / settings.rate_hz, self._publish)
 
     def _on_pose(self, name: str, msg: PoseStamped) -> None:
@@ -60,8 +68,10 @@ class PanelSimulatorNode(Node):
             poses = [self._poses[e.name] for e in self.cell.positioners if e.name in self._poses]
         if len(poses) < len(self.cell.positioners):
             return
-        state = self.truth.state(poses)
+        state, reading = self.sim.step(poses)
         stamp = self.get_clock().now().to_msg()
+        self._true.publish(m.pose_stamped(*state.panel.to_pq(), stamp, names.CELL_FRAME))
+        self._measured.publish(m.pose_with_covariance(*reading, stamp, names.CELL_FRAME))
         for name, wrench in state.on_platforms.items():
             self._wrench_pubs[name].publish(m.wrench_stamped(wrench, stamp))
         self._forces.publish(String(data=json.dumps({

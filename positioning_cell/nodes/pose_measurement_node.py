@@ -138,11 +138,9 @@ class PoseMeasurementNode(Node):
         reading = self.sim.measure()
         if reading is None:
             return
-        msg = PoseWithCovarianceStamped()
-        msg.header.stamp, msg.header.frame_id = reading.stamp, names.BASE_FRAME
-        msg.pose.pose = m.pose_msg(reading.fit.position[0], reading.fit.quaternion[0])
-        msg.pose.covariance = reading.fit.covariance[0].ravel().tolist()
-        self._pose_pub.publish(msg)
+        self._pose_pub.publish(m.pose_with_covariance(
+            reading.fit.position[0], reading.fit.quaternion[0], reading.fit.covariance[0],
+            reading.stamp))
         self._tf_pub.publish(frames_message([(names.BASE_FRAME, names.PLATFORM_MEASURED_FRAME,
                                               reading.fit.position[0], reading.fit.quaternion[0])],
                                             reading.stamp))

@@ -227,15 +227,21 @@ def registration(msg: PoseWithCovarianceStamped) -> Registration:
     return Registration.checked(position, msg.pose.covariance)
 
 
+def pose_with_covariance(position: ArrayLike, quaternion: ArrayLike, covariance: ArrayLike,
+                         stamp: Time, frame: str = BASE_FRAME) -> PoseWithCovarianceStamped:
+    """A measured pose in ``frame`` (m, x, y, z, w) with its covariance (6, 6)."""
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp, msg.header.frame_id = stamp, frame
+    msg.pose.pose = pose_msg(position, quaternion)
+    msg.pose.covariance = np.asarray(covariance, dtype=float).reshape(36).tolist()
+    return msg
+
+
 def registration_msg(position: ArrayLike, quaternion: ArrayLike, covariance: ArrayLike,
                      stamp: Time) -> PoseWithCovarianceStamped:
     """/metrology/registration: the located tracker's pose in ``base`` (m, x, y, z, w) and its
     covariance (6, 6: δp m, δθ rad about the base axes at the tracker origin)."""
-    msg = PoseWithCovarianceStamped()
-    msg.header.stamp, msg.header.frame_id = stamp, BASE_FRAME
-    msg.pose.pose = pose_msg(position, quaternion)
-    msg.pose.covariance = np.asarray(covariance, dtype=float).reshape(36).tolist()
-    return msg
+    return pose_with_covariance(position, quaternion, covariance, stamp)
 
 
 def answer(status: DiagnosticStatus) -> Answer | None:

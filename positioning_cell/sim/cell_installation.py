@@ -24,15 +24,16 @@ from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.panel_motion import bases
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.metrology.instrument import Tracker, TrackerAccuracy
 from positioning_cell.metrology.targets import TargetLayout
 from positioning_cell.moves.correction import mean_pose
+from positioning_cell.parameters import check_fields, group, setting
 from positioning_cell.sim.panel import PanelTruth
 from positioning_cell.sim.tracker import SimulatedTracker, TrackerTruth, observe
 
@@ -58,32 +59,54 @@ def panel_targets(cell: CellFile, mech: Mechanism, margin: float = 0.1,
 
 
 @dataclass(frozen=True)
+class InstallationSettings:
+    """The ``installation:`` block of the panel simulator (read-only): how far the installed
+    cell stands off its file (drawn once from ``seed``), and where the cell's tracker really
+    stands, with its systematic errors (simulation truth)."""
+
+    seed: int = setting(0, 'seed of the installation errors', low=0, high=2**31 - 1)
+    base_position_sigma: float = setting(1e-3, "each base's place off the cell file's, per "
+                                         'axis', 'm', low=0.0, high=0.01)
+    base_angle_sigma: float = setting(2e-3, "each base's turn off the cell file's, about each "
+                                      'axis', 'rad', low=0.0, high=0.05)
+    socket_sigma: float = setting(3e-4, "each ball's socket off its nominal place in the "
+                                  'panel, per axis', 'm', low=0.0, high=0.01)
+    tracker: TrackerTruth = group(TrackerTruth, "the cell tracker's true pose in the cell "
+                                  'frame and its systematic errors', default=lambda: CELL_TRACKER)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+@dataclass(frozen=True)
 class CellInstallation:
     """The installed ``cell`` of positioners of machine ``mech`` (module docstring): its
-    installation errors drawn from ``seed``, its panel ``targets`` (default
-    :func:`panel_targets`) read by the ``tracker``."""
+    installation ``errors``, its panel ``targets`` (default :func:`panel_targets`) read by
+    the tracker (of ``accuracy``)."""
 
     cell: CellFile
     mech: Mechanism
-    seed: int = 0
-    base_position_sigma: float = 1e-3
-    base_angle_sigma: float = 2e-3
-    socket_sigma: float = 3e-4
-    tracker: SimulatedTracker = field(default_factory=lambda: SimulatedTracker(
-        CELL_TRACKER, TrackerAccuracy()))
+    errors: InstallationSettings = field(default_factory=InstallationSettings)
+    accuracy: TrackerAccuracy = field(default_factory=TrackerAccuracy)
     targets: TargetLayout | None = None
 
     @cached_property
+    def tracker(self) -> SimulatedTracker:
+        """The cell's tracker as it really is (truth)."""
+        return SimulatedTracker(self.errors.tracker, self.accuracy)
+
+    @cached_property
     def _draws(self) -> tuple[list[Transform], FloatArray]:
-        rng = np.random.default_rng(self.seed)
+        e = self.errors
+        rng = np.random.default_rng(e.seed)
         n = len(self.cell.positioners)
         moves = rng.standard_normal((n, 6))
         out = []
         for base, move in zip(bases(self.cell), moves, strict=True):
-            turn = Rotation.from_rotvec(move[3:] * self.base_angle_sigma).as_matrix()
-            out.append(Transform(base.p + move[:3] * self.base_position_sigma, turn @ base.R))
+            turn = scipy_rotation().from_rotvec(move[3:] * e.base_angle_sigma).as_matrix()
+            out.append(Transform(base.p + move[:3] * e.base_position_sigma, turn @ base.R))
         sockets = self.cell.panel_points(self.mech) + rng.standard_normal((n, 3)) \
-            * self.socket_sigma
+            * e.socket_sigma
         return out, sockets
 
     @property
@@ -123,17 +146,25 @@ class CellInstallation:
         (position (3,) m, quaternion (4,)) in its base; module docstring)."""
         return self.panel.state(platforms).panel
 
-    def measured_panel(self, panels: Sequence[Transform], rng: np.random.Generator,
-                       samples: int = 10) -> tuple[FloatArray, FloatArray]:
-        """The cell's measurement of each true panel pose: the mean of ``samples`` fits of
-        the tracker's readings of the targets; positions (K, 3) m, quaternions (K, 4)."""
+    def read_panel(self, panels: Sequence[Transform], rng: np.random.Generator
+                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """One fit of the tracker's readings of the targets of each true panel pose, through
+        its located registration (taken as exact, module docstring): positions (K, 3) m,
+        quaternions (K, 4), covariances (K, 6, 6) (δp m, δθ rad about the cell axes)."""
         located = Tracker(self.tracker.accuracy, self.tracker.truth.position,
                           self.tracker.truth.orientation)
-        p = np.repeat([t.p for t in panels], samples, axis=0)
-        q = np.repeat([t.to_pq()[1] for t in panels], samples, axis=0)
-        _, fit = observe(self.tracker, located, self.layout, p, q, rng)
+        _, fit = observe(self.tracker, located, self.layout, np.array([t.p for t in panels]),
+                         np.array([t.to_pq()[1] for t in panels]), rng)
+        return fit.position, fit.quaternion, fit.covariance
+
+    def measured_panel(self, panels: Sequence[Transform], rng: np.random.Generator,
+                       samples: int = 10) -> tuple[FloatArray, FloatArray]:
+        """The cell's measurement of each true panel pose: the mean of ``samples`` fits
+        (:meth:`read_panel`); positions (K, 3) m, quaternions (K, 4)."""
+        position, quaternion, _ = self.read_panel(
+            [t for t in panels for _ in range(samples)], rng)
         out_p, out_q = np.empty((len(panels), 3)), np.empty((len(panels), 4))
         for k in range(len(panels)):  # one mean per pose (the rotation mean: scipy's)
             rows = slice(k * samples, (k + 1) * samples)
-            out_p[k], out_q[k] = mean_pose(fit.position[rows], fit.quaternion[rows])
+            out_p[k], out_q[k] = mean_pose(position[rows], quaternion[rows])
         return out_p, out_q

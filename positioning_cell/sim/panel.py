@@ -18,7 +18,6 @@ frame, as the drives' statics take an external wrench
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -32,32 +31,11 @@ from positioning_cell.coordinated.panel_motion import (
     nearest_panel,
     platform_goals,
 )
-from positioning_cell.coordinated.settings import SHIPPED_CELL, cell_of
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.frames.transforms import Transform
-from positioning_cell.parameters import check_fields, group, setting
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class PanelSimulatorSettings:
-    """Every parameter of the ``panel_simulator`` node (read-only)."""
-
-    mechanism: Mechanism = group(Mechanism, "the positioners' nominal machine: each one's "
-                                 "home pose is the panel's home")
-    cell_file: str = setting('', 'the coordinated cell (its panel: mass, centre of gravity, '
-                             f'stiffness); empty: the shipped config/{SHIPPED_CELL}')
-    rate_hz: float = setting(20.0, 'how often the wrenches and the internal forces are '
-                             'published', 'Hz', low=1.0, high=200.0)
-
-    def __post_init__(self) -> None:
-        check_fields(self)
-
-    def cell(self) -> CellFile:
-        """The cell file (ConfigError naming what is wrong in it)."""
-        return cell_of(self.cell_file)
 
 
 #: Newton steps of the panel's pose (:meth:`PanelTruth.state`): from the placement of an
