@@ -30,9 +30,12 @@ from positioning_cell.coordinated.panel_motion import attachment_points, platfor
 from positioning_cell.core.kinematics import inverse
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
-from positioning_cell.parameters import parse
+from positioning_cell.parameters import ParameterError, parse
+from positioning_cell.procedures import panel_calibration
+from positioning_cell.procedures.panel_calibration import PanelCalibrationSettings
+from positioning_cell.procedures.port import Moved, ProcedureError
 from positioning_cell.sim.campaign import measure_program
-from positioning_cell.sim.cell_installation import CellInstallation
+from positioning_cell.sim.cell_installation import CellInstallation, InstallationSettings
 from positioning_cell.sim.encoders import EncoderSettings
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
 from positioning_cell.sim.truth import Truth
@@ -72,7 +75,7 @@ class Exact(NamedTuple):
 def exact_data(seed: int, k: int = 10) -> Exact:
     """Platform poses (each positioner's, its base frame) that put every ball exactly where
     the installation's true bases and sockets hold it on ``k`` panel poses."""
-    truth = CellInstallation(CELL, MECH, seed=seed)
+    truth = CellInstallation(CELL, MECH, InstallationSettings(seed=seed))
     panels = panel_poses(k, seed + 100)
     rng = np.random.default_rng(seed)
     platforms = []
@@ -191,7 +194,7 @@ def test_refusals_name_what_is_wrong() -> None:
                           SIGMA)
     # the panel only translated: the socket and the base are not separated
     still = np.tile([0.0, 0.0, 0.0, 1.0], (len(p), 1))
-    truth = CellInstallation(CELL, MECH, seed=6)
+    truth = CellInstallation(CELL, MECH, InstallationSettings(seed=6))
     platforms = []
     for i, (base, entry) in enumerate(zip(truth.true_bases, CELL.positioners, strict=True)):
         balls = p + truth.true_sockets[i]
@@ -262,7 +265,7 @@ def test_the_panel_rests_at_the_springs_energy_minimum_with_its_weight(seed: int
     path: the balls' springs' energy plus the weight's potential minimised over the panel's
     pose by scipy, the platforms sent by the nominal cell file (millimetres of misfit, a few
     mrad of placement to correct)."""
-    installation = CellInstallation(CELL, MECH, seed=seed)
+    installation = CellInstallation(CELL, MECH, InstallationSettings(seed=seed))
     panel = panel_poses(1, 3000 + seed)[0]
     platforms = [(np.asarray(p), np.asarray(q))
                  for p, q in platform_goals(CELL, MECH, *panel.to_pq())]
@@ -361,7 +364,7 @@ def test_after_its_calibration_the_panel_is_within_15_um_on_hold_out_poses(
     """The issue's target: panel pose accuracy after the cell's calibration, truth RMS
     <= 15 µm on hold-out panel poses; the installation's errors (bases ~1 mm, 2 mrad; sockets
     0.3 mm) set the uncalibrated cell's, which the calibration must remove."""
-    installation = CellInstallation(CELL, MECH, seed=seed)
+    installation = CellInstallation(CELL, MECH, InstallationSettings(seed=seed))
     program = panel_poses(12, 1000 + seed)
     commanded, true = moved(CELL, installation, positioners, program)
     measured = installation.measured_panel(true, np.random.default_rng(seed))
@@ -389,3 +392,67 @@ def test_after_its_calibration_the_panel_is_within_15_um_on_hold_out_poses(
         assert np.all(np.abs(turn.as_rotvec()) <= 4 * sigma[:3] + 10e-6)
         assert np.all(np.abs(fit.base_position - base.p) <= 4 * sigma[3:6] + 15e-6)
         assert np.all(np.abs(fit.in_panel - socket) <= 4 * sigma[6:] + 15e-6)
+
+
+# -- the procedure: the program driven through a port --------------------------------------
+
+class InstalledPort:
+    """The procedure's port on the installed cell offline: a panel move sends each simulated
+    positioner its platform goal (through ``cell``, the file the coordinator has), its model
+    commands its drives, the truth puts its platform; the tracker reads the panel there."""
+
+    def __init__(self, installation: CellInstallation, positioners: list[Positioner],
+                 refuse_at: int | None = None) -> None:
+        self.installation, self.positioners, self.refuse_at = installation, positioners, \
+            refuse_at
+        self.moves = 0
+        self.panel: Transform | None = None
+        self.rng = np.random.default_rng(11)
+
+    def move_panel(self, position: Any, quaternion: Any, speed_scale: float = 0.0) -> Moved:
+        self.moves += 1
+        if self.moves == self.refuse_at:
+            return Moved(False, 'refused_limits', 'p2: leg length 2 beyond its travel')
+        _, (true,) = moved(CELL, self.installation, self.positioners,
+                           [Transform.from_pq(position, quaternion)])
+        self.panel = true
+        return Moved(True, 'success', '')
+
+    def panel_readings(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        assert self.panel is not None
+        p, q, _ = self.installation.read_panel([self.panel] * count, self.rng)
+        return p, q
+
+
+def test_the_procedure_calibrates_the_cell_through_its_port(
+        positioners: list[Positioner]) -> None:
+    installation = CellInstallation(CELL, MECH, InstallationSettings(seed=3))
+    port = InstalledPort(installation, positioners)
+    said: list[str] = []
+    settings = PanelCalibrationSettings()
+    done = panel_calibration.run(port, CELL, MECH, settings, said.append)
+    assert port.moves == settings.poses + 1  # the program, then home
+    assert len(said) == settings.poses and said[0].startswith('panel pose 1/12: measured')
+    assert done.commanded[0] == Transform(np.zeros(3), np.eye(3))  # home first
+    np.testing.assert_allclose(port.panel.apply(CENTRE), CENTRE, atol=2e-3)  # home again
+    lines = panel_calibration.summary(done.calibration)
+    assert len(lines) == N and all('variance factor' in line for line in lines)
+    hold_out = panel_poses(20, 4000, reach=5e-3, turn=5e-3)
+    _, after = moved(done.calibration.applied(CELL), installation, positioners, hold_out)
+    dp, _ = panel_errors(hold_out, after)
+    print(f'procedure: hold-out panel |dp| RMS {rms(dp) * 1e6:.2f} um')
+    assert rms(dp) <= 15e-6 and done.calibration.adequate
+
+
+def test_a_move_that_fails_stops_the_procedure_naming_the_pose(
+        positioners: list[Positioner]) -> None:
+    port = InstalledPort(CellInstallation(CELL, MECH), positioners, refuse_at=3)
+    with pytest.raises(ProcedureError, match='panel pose 3 of 12: refused_limits: p2: leg') \
+            as raised:
+        panel_calibration.run(port, CELL, MECH, PanelCalibrationSettings())
+    assert raised.value.code == 'refused_limits' and port.moves == 3
+
+
+def test_too_few_poses_are_refused_before_anything_moves() -> None:
+    with pytest.raises(ParameterError, match='poses'):
+        PanelCalibrationSettings(poses=5)
