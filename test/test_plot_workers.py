@@ -4,9 +4,11 @@ has other threads; the log axes' minor ticks (positioning_cell.plotting.log_scal
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import threading
@@ -115,36 +117,37 @@ def test_a_worker_starts_at_a_lower_priority_matplotlib_warm() -> None:
     assert 0 < WORKER_NICE <= 10
 
 
-def test_an_analysis_that_fails_ends_its_workers_at_once(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+#: A fresh interpreter (one thread: the workers are forked) whose workers never end their
+#: warm-up, and whose analysis fails: it prints the workers' pids once out of the ``with``.
+_FAILED_ANALYSIS = """
+import threading
+from positioning_cell.analysis import plot_workers
+plot_workers.warm_up = lambda: threading.Event().wait()
+workers = plot_workers.PlotWorkers()
+assert workers.forked
+pids = list(workers._pool._processes)
+try:
+    with workers:
+        raise ValueError('the bag is refused')
+except ValueError:
+    print(*pids)
+"""
+
+
+def test_an_analysis_that_fails_ends_its_workers_at_once() -> None:
     """A bag refused (an error inside the ``with``) ends the workers then and there, even
     ones still warming up: here a warm-up that never ends, which a shutdown waiting for the
-    workers would wait on for ever."""
-    from positioning_cell.analysis import plot_workers
-
-    if not can_fork(2):
-        pytest.skip('the workers are not forked here')
-    monkeypatch.setattr(plot_workers, 'warm_up', lambda: threading.Event().wait())
-    workers = PlotWorkers()
-    assert workers.forked
-    processes = list(workers._pool._processes.values())  # type: ignore[union-attr]
-    rescued: list[bool] = []
-
-    def rescue() -> None:  # a regression fails here instead of hanging the suite
-        rescued.append(True)
-        for process in processes:
-            process.kill()
-
-    timer = threading.Timer(60.0, rescue)
-    timer.start()
+    workers would wait on for ever (the interpreter would not exit: the timeout fails it)."""
+    child = subprocess.Popen([sys.executable, '-c', _FAILED_ANALYSIS], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        with pytest.raises(ValueError, match='refused'), workers:
-            raise ValueError('the bag is refused')
-    finally:
-        timer.cancel()
-    assert not rescued, 'the failed analysis waited on its warming workers'
-    pids = [process.pid for process in processes]
-    assert pids
+        out, err = child.communicate(timeout=60)
+    finally:  # its workers too, should it hang
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(child.pid, signal.SIGKILL)
+    assert child.returncode == 0, err
+    pids = [int(pid) for pid in out.split()]
+    assert len(pids) == 2
     wait_until(lambda: not any(_running(pid) for pid in pids), 30.0, 'the workers ended')
 
 
