@@ -66,7 +66,7 @@ class PanelCalibrationSettings:
     turn: float = setting(6e-3, "the panel's turn about each axis, at most", 'rad',
                           low=1e-4, high=0.05)
     readings: int = setting(10, 'tracker readings averaged per pose', low=1, high=1000)
-    speed_scale: float = setting(0.5, "the panel's moves, as a share of the positioners' speed "
+    speed_scale: float = setting(0.25, "the panel's moves, as a share of the positioners' speed "
                                  'limits: a turning panel moves each platform its own way, '
                                  "and the drives' following errors then part the attachments "
                                  'in proportion to the speed', low=0.0, low_open=True,
