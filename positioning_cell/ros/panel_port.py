@@ -6,6 +6,7 @@ MoveToPose, cell frame) and the cell tracker's readings of the panel
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections import deque
 from typing import Any
@@ -31,8 +32,8 @@ HISTORY = 1200
 
 class RosPanelPort:
     """The panel on ``client``'s graph; ``timeout`` s for readings and for the coordinator to
-    answer, ``move_timeout`` s for a panel move's result. A context manager (its exit closes
-    the action client)."""
+    answer, ``move_timeout`` s for a panel move's result (past it the move is cancelled: every
+    positioner stops). A context manager (its exit closes the action client)."""
 
     def __init__(self, client: CellClient, timeout: float = 30.0,
                  move_timeout: float = 120.0) -> None:
@@ -64,11 +65,17 @@ class RosPanelPort:
                                     .to_msg(), names.CELL_FRAME)
         try:
             handle = self.goals.send(MoveToPose.Goal(command=command), timeout=self.timeout)
-            if not handle.accepted:
-                return Moved(False, 'refused', 'the cell coordinator refused the goal')
-            outcome = self.goals.result(handle, self.move_timeout).result.outcome
         except TimeoutError as err:
             return Moved(False, '', str(err))
+        if not handle.accepted:
+            return Moved(False, 'refused', 'the cell coordinator refused the goal')
+        try:
+            outcome = self.goals.result(handle, self.move_timeout).result.outcome
+        except TimeoutError as err:
+            # a move that does not end in time is stopped: the cancel stops every positioner
+            with contextlib.suppress(TimeoutError):
+                self.goals.cancel(handle, self.timeout)
+            return Moved(False, '', f'{err}; the panel move cancelled')
         return Moved(outcome.code == 0, str(outcome.code_name), str(outcome.reason))
 
     def panel_readings(self, count: int) -> tuple[FloatArray, FloatArray]:
