@@ -150,12 +150,18 @@ class PlotWorkers:
         return draw_plots(analysis, out_dir, names)
 
     def _end_workers(self) -> None:
-        """Terminate the workers now and forget the pool (its plots are drawn here)."""
+        """Kill the workers now and forget the pool (its plots are drawn here). SIGKILL, not
+        SIGTERM: a forked worker has its parent's signal handlers, and one signalled just
+        after the fork, before multiprocessing's child code is entered, unwinds as a copy of
+        its parent (a SIGTERM handler raising KeyboardInterrupt, as pytest's conftest has
+        it, made a copy of a pytest-xdist worker end the session in its name: the CI saw
+        "worker finished" mid-test, an analysis of an empty bag failing at once after the
+        fork). A worker holds nothing to save."""
         pool, self._pool = self._pool, None
         if pool is None:
             return
         for process in list(getattr(pool, '_processes', {}).values()):
-            process.terminate()
+            process.kill()
         pool.shutdown(wait=False, cancel_futures=True)
 
     def __enter__(self) -> PlotWorkers:
