@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from positioning_cell.config import config_path
 from positioning_cell.coordinated.attachments import Attachment
-from positioning_cell.coordinated.cell_file import load
+from positioning_cell.coordinated.cell_file import GRAVITY, CellFile, load
 from positioning_cell.coordinated.internal_forces import internal_forces
 from positioning_cell.errors import InputError
 
@@ -121,6 +121,20 @@ def test_bad_values_and_a_panel_not_held_are_refused() -> None:
         internal_forces(BALLS[:2], np.zeros((2, 6)), (K_FORCE, K_COUPLE))
 
 
+def _shipped_case(values: list[float], clamps: bool
+                  ) -> tuple[CellFile, list[Attachment], np.ndarray]:
+    """The shipped cell (its attachments as clamps when ``clamps``) and the positioners'
+    displacements (3, 6) from ``values`` (a ball takes no turn)."""
+    shipped = load(config_path('three_positioners.yaml'))
+    cell = shipped.attachments()
+    if clamps:
+        cell = [Attachment(a.name, 'clamp', a.point) for a in cell]
+    moved = np.array(values).reshape(3, 6)
+    if not clamps:
+        moved[:, 3:] = 0.0
+    return shipped, cell, moved
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.lists(st.floats(-2e-4, 2e-4), min_size=18, max_size=18), st.booleans())
 def test_the_pair_map_is_the_internal_forces_by_superposition(values: list[float],
@@ -129,13 +143,7 @@ def test_the_pair_map_is_the_internal_forces_by_superposition(values: list[float
     displacements) gives each pair the size the full solution gives, for balls and clamps."""
     from positioning_cell.coordinated.internal_forces import pair_map
 
-    shipped = load(config_path('three_positioners.yaml'))
-    cell = shipped.attachments()
-    if clamps:
-        cell = [Attachment(a.name, 'clamp', a.point) for a in cell]
-    moved = np.array(values).reshape(3, 6)
-    if not clamps:
-        moved[:, 3:] = 0.0  # a ball takes no turn
+    shipped, cell, moved = _shipped_case(values, clamps)
     by_map = dict(pair_map(cell, shipped.panel.stiffness).sizes(moved))
     solved = dict(internal_forces(cell, moved, shipped.panel.stiffness,
                                   shipped.panel.weight()).pairs)
@@ -152,13 +160,7 @@ def test_the_wrench_map_is_the_full_solution_with_the_weight(values: list[float]
     every attachment's wrench and the panel's displacement the full solution gives."""
     from positioning_cell.coordinated.internal_forces import wrench_map
 
-    shipped = load(config_path('three_positioners.yaml'))
-    cell = shipped.attachments()
-    if clamps:
-        cell = [Attachment(a.name, 'clamp', a.point) for a in cell]
-    moved = np.array(values).reshape(3, 6)
-    if not clamps:
-        moved[:, 3:] = 0.0
+    shipped, cell, moved = _shipped_case(values, clamps)
     mapped = wrench_map(cell, shipped.panel.stiffness, shipped.panel.weight())
     solved = internal_forces(cell, moved, shipped.panel.stiffness, shipped.panel.weight())
     np.testing.assert_allclose(mapped.wrenches(moved), solved.wrenches, rtol=0.0, atol=1e-6)
@@ -167,5 +169,5 @@ def test_the_wrench_map_is_the_full_solution_with_the_weight(values: list[float]
     if not clamps:  # the weight alone (over the balls' centroid) lowers the panel by m·g / 3k
         lowered = mapped.displacement(np.zeros((3, 6)))
         assert lowered[2] == pytest.approx(
-            -shipped.panel.mass * 9.80665 / (3 * shipped.panel.stiffness[0]), rel=1e-6)
+            shipped.panel.mass * GRAVITY[2] / (3 * shipped.panel.stiffness[0]), rel=1e-6)
         np.testing.assert_allclose(lowered[3:], 0.0, atol=1e-12)

@@ -96,6 +96,13 @@ class CellInstallation:
         return SimulatedTracker(self.errors.tracker, self.accuracy)
 
     @cached_property
+    def located(self) -> Tracker:
+        """The tracker as the cell has it located: at its true pose (the cell frame is the one
+        it realises, module docstring)."""
+        return Tracker(self.tracker.accuracy, self.tracker.truth.position,
+                       self.tracker.truth.orientation)
+
+    @cached_property
     def _draws(self) -> tuple[list[Transform], FloatArray]:
         e = self.errors
         rng = np.random.default_rng(e.seed)
@@ -151,9 +158,7 @@ class CellInstallation:
         """One fit of the tracker's readings of the targets of each true panel pose, through
         its located registration (taken as exact, module docstring): positions (K, 3) m,
         quaternions (K, 4), covariances (K, 6, 6) (δp m, δθ rad about the cell axes)."""
-        located = Tracker(self.tracker.accuracy, self.tracker.truth.position,
-                          self.tracker.truth.orientation)
-        _, fit = observe(self.tracker, located, self.layout, np.array([t.p for t in panels]),
+        _, fit = observe(self.tracker, self.located, self.layout, np.array([t.p for t in panels]),
                          np.array([t.to_pq()[1] for t in panels]), rng)
         return fit.position, fit.quaternion, fit.covariance
 
