@@ -13,7 +13,15 @@ from enum import Enum
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import (
+    ConditionReachedException,
+    Executor,
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    ShutdownException,
+    TimeoutException,
+    TimeoutObject,
+)
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -27,6 +35,10 @@ from positioning_cell.ros.entry import hold_stops, stop_requested
 
 STOP_POLL_S = 0.1
 """Longest time from SIGINT / SIGTERM to the executor returning (s), besides a running callback."""
+
+HANDOFF_WAIT_S = 0.05
+"""Longest wait of a multi-threaded executor for a pool thread to take the callback it handed
+out (s), before it hands it out again (:meth:`JoinedMultiThreadedExecutor._spin_once_impl`)."""
 
 SHUTDOWN_WAIT_S = 5.0
 """Longest wait for running callbacks after a stop (s), before the node is destroyed under
@@ -89,7 +101,8 @@ class NodeStart:
 
 
 class JoinedMultiThreadedExecutor(MultiThreadedExecutor):
-    """rclpy's multi-threaded executor whose ``shutdown`` waits for the callbacks it started.
+    """rclpy's multi-threaded executor whose ``shutdown`` waits for the callbacks it started,
+    and which hands each callback out once (:meth:`_spin_once_impl`).
 
     Jazzy's ``Executor.shutdown`` sets its shutdown flag and then skips its own wait for
     outstanding work (it waits only ``if not self._is_shutdown``), and the multi-threaded
@@ -99,6 +112,39 @@ class JoinedMultiThreadedExecutor(MultiThreadedExecutor):
     exception was never retrieved: cannot use Destroyable because destruction was requested",
     in 7 of 50 positioner stops, ad hoc). Here the pool is shut down first, its queued and
     running callbacks finished (at most ``timeout_sec``), and only then the executor."""
+
+    def _spin_once_impl(self, timeout_sec: float | TimeoutObject | None = None,
+                        wait_condition: Callable[[], bool] = lambda: False) -> None:
+        """rclpy's (Jazzy) one turn of the loop, with one change: a callback handed to the
+        thread pool is waited for until a pool thread has taken it (at most
+        :data:`HANDOFF_WAIT_S`), before the next turn.
+
+        rclpy's turn returns at once, and its next one hands the same task out again while
+        no pool thread has started it yet (the in-progress tasks are yielded again while
+        neither executing nor done), each time after rebuilding its wait set over every
+        entity: the positioner at rest, 100 joint states and ~60 timer calls a second, went
+        through ~700 turns a second, its executor's own Python taking most of its CPU (yappi,
+        ad hoc; benchmarks/idle_cpu.py). With every pool thread busy the wait ends at its
+        bound and the task is handed out once more (a pool thread that takes it a second time
+        finds it executing or done and returns)."""
+        try:
+            handler, _, _ = self.wait_for_ready_callbacks(timeout_sec, None, wait_condition)
+        except (ExternalShutdownException, ShutdownException, TimeoutException,
+                ConditionReachedException):
+            return
+        taken = threading.Event()
+
+        def run() -> None:
+            taken.set()
+            handler()
+
+        self._executor.submit(run)
+        self._futures.append(handler)
+        taken.wait(HANDOFF_WAIT_S)
+        for future in self._futures[:]:
+            if future.done():
+                self._futures.remove(future)
+                future.result()  # a callback's exception, raised here as rclpy does
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
         """Finish the callbacks handed to the thread pool (within ``timeout_sec``; None:
