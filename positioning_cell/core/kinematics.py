@@ -24,6 +24,7 @@ from positioning_cell.core.poses import (
     matrix_from_quaternion,
     quaternion_from_matrix,
 )
+from positioning_cell.core.vectors import cross
 from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -215,7 +216,7 @@ def _triangle_frames(points: FloatArray) -> tuple[FloatArray, FloatArray]:
     v = points[:, 0] - centroid
     y = v - np.sum(v * x, axis=1, keepdims=True) * x
     y /= np.linalg.norm(y, axis=1, keepdims=True)
-    return centroid, np.stack([x, y, np.cross(x, y)], axis=2)
+    return centroid, np.stack([x, y, cross(x, y)], axis=2)
 
 
 @kernel
@@ -356,8 +357,8 @@ def _inverse_jacobian(mech: Mechanism, p: FloatArray, q: FloatArray) -> FloatArr
     ut = np.einsum('nkj,kj->nk', u, mech.tangential)
     cos_theta = np.sqrt(np.clip(1.0 - ut**2, 0.0, None))
     w = (mech.tangential - ut[..., None] * u) / (lengths * cos_theta)[..., None]
-    rows_l = np.concatenate([u, np.cross(r, u)], axis=2)
-    rows_t = np.concatenate([w, np.cross(r, w)], axis=2)
+    rows_l = np.concatenate([u, cross(r, u)], axis=2)
+    rows_t = np.concatenate([w, cross(r, w)], axis=2)
     return np.concatenate([rows_l, rows_t], axis=1)
 
 

@@ -26,6 +26,7 @@ from positioning_cell.core.kinematics import inverse as inverse_kinematics
 from positioning_cell.core.kinematics import jacobian, leg_directions
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch, as_vectors, matrix_from_quaternion
+from positioning_cell.core.vectors import cross
 from positioning_cell.mechanics.screw import theta_rate_direction
 from positioning_cell.parameters import ParameterError, check_fields, setting
 
@@ -206,19 +207,19 @@ def required_wrench(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
     moment = np.zeros((n, 3))
     for body in platform_bodies(payload, s):
         rc = rot @ body.centre
-        acc = a + np.cross(alpha, rc) + np.cross(omega, np.cross(omega, rc)) if moving else 0.0
+        acc = a + cross(alpha, rc) + cross(omega, cross(omega, rc)) if moving else 0.0
         f = body.mass * (acc - g)
         force += f
-        moment += np.cross(rc, f)
+        moment += cross(rc, f)
         if moving:
             inertia = rot @ body.inertia @ rot.transpose(0, 2, 1)
             moment += (np.einsum('nij,nj->ni', inertia, alpha)
-                       + np.cross(omega, np.einsum('nij,nj->ni', inertia, omega)))
+                       + cross(omega, np.einsum('nij,nj->ni', inertia, omega)))
     legs = leg_state(mech, p, q)
     f_leg = leg_equivalent_forces(legs, s, g, v, omega, a, alpha) if moving else \
         leg_equivalent_forces(legs, s, g)
     force += f_leg.sum(axis=1)
-    moment += np.cross(legs.r, f_leg).sum(axis=1)
+    moment += cross(legs.r, f_leg).sum(axis=1)
     wrench: FloatArray = np.hstack([force, moment]) - np.asarray(payload.external_wrench)
     return wrench
 
@@ -236,22 +237,22 @@ def leg_equivalent_forces(legs: LegState, structure: Structure, gravity: FloatAr
         c_acc = r_acc = np.zeros_like(u)
         spin = np.zeros_like(u)
     else:
-        b_dot = v[:, None, :] + np.cross(omega[:, None, :], legs.r)
-        b_ddot = (a[:, None, :] + np.cross(alpha[:, None, :], legs.r)
-                  + np.cross(omega[:, None, :], np.cross(omega[:, None, :], legs.r)))
+        b_dot = v[:, None, :] + cross(omega[:, None, :], legs.r)
+        b_ddot = (a[:, None, :] + cross(alpha[:, None, :], legs.r)
+                  + cross(omega[:, None, :], cross(omega[:, None, :], legs.r)))
         l_dot = _dot(u, b_dot)
         u_dot = (b_dot - l_dot * u) / length
         l_ddot = _dot(u_dot, b_dot) + _dot(u, b_ddot)
         u_ddot = (b_ddot - l_ddot * u - 2.0 * l_dot * u_dot) / length
         c_acc = s.cylinder_offset * u_ddot
         r_acc = b_ddot - s.rod_offset * u_ddot
-        spin = (s.cylinder_inertia + s.rod_inertia) * np.cross(u, u_ddot)
+        spin = (s.cylinder_inertia + s.rod_inertia) * cross(u, u_ddot)
     f_cyl = s.cylinder_mass * (c_acc - gravity)
     f_rod = s.rod_mass * (r_acc - gravity)
     f_cyl_perp = f_cyl - _dot(u, f_cyl) * u
     f_rod_perp = f_rod - _dot(u, f_rod) * u
     out: FloatArray = (s.cylinder_offset / length * f_cyl_perp + f_rod
-                       - s.rod_offset / length * f_rod_perp + np.cross(spin, u) / length)
+                       - s.rod_offset / length * f_rod_perp + cross(spin, u) / length)
     return out
 
 
@@ -298,11 +299,11 @@ def joint_forces(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
     g = np.asarray(payload.gravity)
     length, u, w = legs.lengths[..., None], legs.u, legs.w
     lever = s.cylinder_mass * s.cylinder_offset + s.rod_mass * (length - s.rod_offset)
-    moment = lever * np.cross(u, np.broadcast_to(g, u.shape))
+    moment = lever * cross(u, np.broadcast_to(g, u.shape))
     et = np.broadcast_to(mech.tangential, u.shape)
-    v_dir = np.cross(et, u)
+    v_dir = cross(et, u)
     axial = tau[:, :3, None] + s.rod_mass * _dot(u, np.broadcast_to(g, u.shape))
-    lateral = (tau[:, 3:, None] + _dot(np.cross(u, w), moment)) / length
+    lateral = (tau[:, 3:, None] + _dot(cross(u, w), moment)) / length
     passive = _dot(et, moment) / (length * _dot(v_dir, v_dir))
     at_platform = axial * u + lateral * w + passive * v_dir
     return JointForces(at_platform, s.leg_mass * g - at_platform)

@@ -28,6 +28,7 @@ from positioning_cell.coordinated.internal_forces import pair_map, wrench_map
 from positioning_cell.coordinated.panel_motion import bases, platforms_in_panel
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import scipy_rotation
+from positioning_cell.core.vectors import cross
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.moves.correction import mean_pose
 
@@ -118,8 +119,8 @@ class PanelTruth:
         for k, entry in enumerate(self.cell.positioners):
             force_panel, moment_panel = wrenches[k, :3], wrenches[k, 3:]  # the panel frame
             force = panel.R @ force_panel
-            couple = panel.R @ (moment_panel - np.cross(self._home_points[k], force_panel))
-            about_origin = -couple + np.cross(real[k] - origins[k], -force)
+            couple = panel.R @ (moment_panel - cross(self._home_points[k], force_panel))
+            about_origin = -couple + cross(real[k] - origins[k], -force)
             on_platforms[entry.name] = np.concatenate([self._r_base[k].T @ -force,
                                                        self._r_base[k].T @ about_origin])
         pairs = self._pairs.sizes(displacements)
