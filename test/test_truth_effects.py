@@ -14,7 +14,7 @@ import pytest
 
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.core.kinematics import inverse
-from positioning_cell.errors import ConfigError
+from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.mechanics.statics import deflection
 from positioning_cell.parameters import parse
 from positioning_cell.sim.campaign import Timing, measure_program
@@ -355,3 +355,24 @@ def test_the_fixed_point_solves_the_machine_and_a_too_soft_one_has_no_pose() -> 
     np.testing.assert_allclose(needed.thetas + shift[:, 3:], real_t, atol=1e-10, rtol=0.0)
     soft = machine(only(compliance={'theta_stiffness': 100.0}))
     assert not np.any(soft.poses(CMD.lengths, CMD.thetas).converged)
+
+
+def test_a_fixed_point_started_from_a_nearby_shift_settles_on_the_same_pose() -> None:
+    """Truth.settle started from the shift of a pose 0.2 mm away (the simulator's stream: the
+    previous true pose's) gives the pose a start from zero gives, within the fixed point's
+    tolerance; the shift it returns is the one the cold start settles on; a shift that is not
+    finite is refused."""
+    truth = machine(TRUTH)
+    near = inverse(MECH, POSITIONS + 2e-4, QUATERNIONS)
+    _, start = truth.settle(near.lengths, near.thetas)
+    cold, cold_shift = truth.settle(CMD.lengths, CMD.thetas)
+    warm, warm_shift = truth.settle(CMD.lengths, CMD.thetas, shift0=start)
+    assert np.max(np.abs(start - cold_shift)) > 1e-9  # a real change of the effects
+    np.testing.assert_allclose(warm.position, cold.position, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(warm.quaternion, cold.quaternion, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(warm_shift, cold_shift, rtol=0, atol=1e-11)
+    np.testing.assert_array_equal(truth.poses(CMD.lengths, CMD.thetas).position, cold.position)
+    with pytest.raises(InputError, match='shift0'):
+        truth.settle(CMD.lengths, CMD.thetas, shift0=np.full(6, np.nan))
+    exact_shift = exact(TRUTH).settle(CMD.lengths, CMD.thetas)[1]
+    assert exact_shift.shape == (N, 6) and not exact_shift.any()

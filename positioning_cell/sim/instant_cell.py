@@ -51,6 +51,7 @@ class InstantCell:
         self.time = 0.0  # s since the start
         self.history.update(self.position, self.time)
         self._answers: list[Answer] = []
+        self._shift: FloatArray | None = None
         self._lock = threading.Lock()
 
     def machine(self) -> Machine:
@@ -62,8 +63,10 @@ class InstantCell:
 
     def true_pose(self) -> tuple[FloatArray, FloatArray]:
         """Judging only: where the platform really is, position (3,) m, quaternion (4,)."""
-        pose = self.truth.poses(self.position[None, :3], self.position[None, 3:],
-                                conditions=self.history.conditions(self.time))
+        pose, shift = self.truth.settle(self.position[None, :3], self.position[None, 3:],
+                                        conditions=self.history.conditions(self.time),
+                                        shift0=self._shift)
+        self._shift = shift[0]  # the next pose's start (Truth.settle)
         return pose.position[0], pose.quaternion[0]
 
     def air_readings(self, count: int) -> FloatArray:

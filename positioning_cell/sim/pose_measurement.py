@@ -158,6 +158,9 @@ class PoseMeasurementSimulator:
         self._latest: tuple[FloatArray, Any, float] | None = None
         self._joints = np.full(6, np.nan)  # joints of the current true pose (NaN: none)
         self._phis: FloatArray | None = None
+        #: The joint shift (6,) m, rad of the current true pose: where the next one's fixed
+        #: point starts (Truth.settle).
+        self._shift: FloatArray | None = None
         self.true_pose: TruePose | None = None
         #: The load rig's load cell reading (3,) N, base frame (what it was last commanded).
         self.load: FloatArray = np.zeros(3)
@@ -269,8 +272,8 @@ class PoseMeasurementSimulator:
             self.true_pose = self.true_pose._replace(stamp=stamp)  # the machine has not moved
         else:
             try:
-                result = self.truth.poses(joints[:3], joints[3:], self._phis,
-                                          conditions=self.history.conditions(time))
+                result, shift = self.truth.settle(joints[:3], joints[3:], self._phis,
+                                                  self.history.conditions(time), self._shift)
                 if not result.converged[0]:
                     raise ConvergenceError('forward kinematics did not converge')
             except (InputError, ConvergenceError) as err:
@@ -278,6 +281,7 @@ class PoseMeasurementSimulator:
                 self.status = ('error', f'no true pose for joints {joints.tolist()}: {err}')
                 return None
             self._joints, self._phis, self._computed_at = joints, result.phis[0], time
+            self._shift = shift[0]
             self._loaded = False
             self.true_pose = TruePose(result.position[0], result.quaternion[0], stamp)
         self.stats['truth_updates'] += 1

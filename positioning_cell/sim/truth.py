@@ -28,7 +28,7 @@ from positioning_cell.config import flatten
 from positioning_cell.core.kinematics import ForwardResult, forward, inverse
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import Triple, as_vectors
-from positioning_cell.errors import ConvergenceError
+from positioning_cell.errors import ConvergenceError, InputError
 from positioning_cell.mechanics.statics import Payload, Structure
 from positioning_cell.parameters import (
     ParameterError,
@@ -162,8 +162,19 @@ class Truth(MachineModel):
         (the air temperature taken for the legs' too; None: 20 °C, approach unknown); without
         effects exactly :meth:`MachineModel.poses`. ConvergenceError when the fixed point does
         not settle."""
+        return self.settle(lengths, thetas, phi0, conditions)[0]
+
+    def settle(self, lengths: ArrayLike, thetas: ArrayLike, phi0: ArrayLike | None = None,
+               conditions: Conditions | ModelConditions | None = None,
+               shift0: ArrayLike | None = None) -> tuple[ForwardResult, FloatArray]:
+        """:meth:`poses`, and the joint shift (N, 6) m, rad its effects settled on
+        (:meth:`joint_shift`; zeros without effects). ``shift0`` (N, 6) or (6,): where the
+        fixed point starts (None: zero), the shift of a nearby pose for a stream of poses (the
+        simulator's, each a period from the last): the same pose within the fixed point's
+        tolerance, in two or three rounds instead of five."""
         if not self.effects.active:
-            return super().poses(lengths, thetas, phi0)
+            result = super().poses(lengths, thetas, phi0)
+            return result, np.zeros((len(result.position), 6))
         real_l = as_vectors(lengths, 3, 'lengths') + self.length_offsets
         real_t = as_vectors(thetas, 3, 'thetas') + self.theta_offsets
         cond = _true_conditions(conditions, len(real_l))
@@ -172,7 +183,11 @@ class Truth(MachineModel):
             real_l, real_t = fx.drives.actual(real_l, real_t, cond.approach)
         if fx.thermal is not None:
             real_l = fx.thermal.expanded_lengths(real_l, cond.legs)
-        return self._fixed_point(real_l, real_t, cond, phi0)
+        start = np.zeros((len(real_l), 6)) if shift0 is None else np.broadcast_to(
+            np.asarray(shift0, dtype=float), (len(real_l), 6))
+        if not np.all(np.isfinite(start)):
+            raise InputError('shift0: the starting joint shift must be finite')
+        return self._fixed_point(real_l, real_t, cond, phi0, start)
 
     def history(self) -> MachineHistory:
         """A history of this machine's true joint stream (its legs' heating, its axes' place
@@ -181,11 +196,12 @@ class Truth(MachineModel):
         return MachineHistory(self.effects.thermal, None if drives is None else drives.bands)
 
     def _fixed_point(self, real_l: FloatArray, real_t: FloatArray, cond: Conditions,
-                     phi0: ArrayLike | None) -> ForwardResult:
+                     phi0: ArrayLike | None, start: FloatArray
+                     ) -> tuple[ForwardResult, FloatArray]:
         mech = self.mechanism
-        result = forward(mech, real_l, real_t, phi0)
+        shift = start.copy()
+        result = forward(mech, real_l - shift[:, :3], real_t - shift[:, 3:], phi0)
         ok = result.converged.copy()
-        shift = np.zeros((len(real_l), 6))
         for _ in range(_MAX_ITERATIONS):
             rows = np.flatnonzero(ok)
             new = self.joint_shift(result.position[rows], result.quaternion[rows],
@@ -198,7 +214,7 @@ class Truth(MachineModel):
             if change <= _TOLERANCE:
                 return ForwardResult(np.where(ok[:, None], result.position, np.nan),
                                      np.where(ok[:, None], result.quaternion, np.nan),
-                                     result.phis, ok)
+                                     result.phis, ok), shift
         raise ConvergenceError('the simulated machine\'s effects did not settle on a pose')
 
     def joint_shift(self, position: FloatArray, quaternion: FloatArray,
