@@ -37,7 +37,7 @@ from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.internal_forces import pair_map
 from positioning_cell.coordinated.panel_motion import bases, platforms_in_panel
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import scipy_rotation
+from positioning_cell.core.poses import interpolated_pose, scipy_rotation
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.moves.correction import mean_pose
@@ -116,14 +116,8 @@ class ForceWatch:
         series = self._setpoints[name]
         if not series or stamp < series[0][0]:
             return None
-        if stamp >= series[-1][0]:
-            return series[-1][1], series[-1][2]
-        times = np.array([s[0] for s in series])
-        k = int(np.searchsorted(times, stamp, side='right')) - 1
-        (t0, p0, q0), (t1, p1, q1) = series[k], series[k + 1]
-        w = 0.0 if t1 <= t0 else (stamp - t0) / (t1 - t0)
-        q = (1.0 - w) * q0 + w * (q1 if float(q0 @ q1) >= 0.0 else -q1)
-        return (1.0 - w) * p0 + w * p1, q / np.linalg.norm(q)
+        return interpolated_pose([s[0] for s in series], [s[1] for s in series],
+                                 [s[2] for s in series], stamp)
 
     def reading(self, name: str, stamp: float, position: ArrayLike,
                 quaternion: ArrayLike) -> None:

@@ -187,6 +187,26 @@ def _quaternion_shepperd(m: FloatArray) -> FloatArray:
     return q
 
 
+def interpolated_pose(times: ArrayLike, positions: ArrayLike, quaternions: ArrayLike,
+                      t: float) -> tuple[FloatArray, FloatArray]:
+    """The pose at ``t`` s of a stamped series: ``times`` (M,) s increasing, ``positions``
+    (M, 3) m, ``quaternions`` (M, 4) x, y, z, w; held at its ends. The position is linear
+    between the two samples around ``t``; the quaternion their normalised linear blend (the
+    shorter way round), within 1e-9 rad of the slerp for samples a control period apart."""
+    stamps = np.asarray(times, dtype=float)
+    p_all, q_all = np.asarray(positions, dtype=float), np.asarray(quaternions, dtype=float)
+    if stamps.size == 1:
+        return p_all[0].copy(), q_all[0].copy()
+    t = min(max(float(t), float(stamps[0])), float(stamps[-1]))
+    k = int(np.clip(np.searchsorted(stamps, t, side='right') - 1, 0, stamps.size - 2))
+    span = float(stamps[k + 1] - stamps[k])
+    w = 0.0 if span <= 0.0 else (t - float(stamps[k])) / span
+    p = (1.0 - w) * p_all[k] + w * p_all[k + 1]
+    q0, q1 = q_all[k], q_all[k + 1]
+    q = (1.0 - w) * q0 + w * (q1 if float(np.dot(q0, q1)) >= 0.0 else -q1)
+    return p, q / np.linalg.norm(q)
+
+
 def pose_error(position: FloatArray, quaternion: FloatArray, position_ref: FloatArray,
                quaternion_ref: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Pose minus reference: Δp (N, 3) in m, base frame; rotation vector of R_refᵀ·R (N, 3) rad.

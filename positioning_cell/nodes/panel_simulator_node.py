@@ -8,8 +8,9 @@ geometry_msgs/WrenchStamped, frame ``base``, about the platform origin: what the
 driver adds to its load and its load cells read), the cell tracker's reading of the panel's
 targets (/panel/metrology/pose, geometry_msgs/PoseWithCovarianceStamped, frame ``cell``: what
 the cell's calibration measures), and for judging only the panel's internal forces
-(/sim/panel/internal_forces, std_msgs/String JSON: each pair's force N, the largest at one
-attachment) and its true pose (/sim/panel/true_pose). The cell is as installed
+(/sim/panel/internal_forces, std_msgs/String JSON: each pair's force N and stretch µm, the
+largest force at one attachment) and its true pose (/sim/panel/true_pose), all at the latest
+instant every set's true pose has reached (stamped with it). The cell is as installed
 (``installation.*``: bases and sockets off the cell file,
 :mod:`positioning_cell.sim.cell_installation`). The positioners and the coordinator never
 read the truth."""
@@ -46,7 +47,6 @@ class PanelSimulatorNode(Node):
         self.sim = PanelSimulator(settings)  # ConfigError: no start
         self.cell = self.sim.cell
         self._lock = threading.Lock()
-        self._poses: dict[str, Any] = {}
         self._wrench_pubs = {}
         for entry in self.cell.positioners:
             self.create_subscription(PoseStamped, names.in_set(names.TRUE_POSE, entry.name),
@@ -61,23 +61,19 @@ class PanelSimulatorNode(Node):
 
     def _on_pose(self, name: str, msg: PoseStamped) -> None:
         with self._lock:
-            self._poses[name] = m.pose_arrays(msg.pose)
+            self.sim.true_pose(name, m.seconds(msg.header.stamp), *m.pose_arrays(msg.pose))
 
     def _publish(self) -> None:
         with self._lock:
-            poses = [self._poses[e.name] for e in self.cell.positioners if e.name in self._poses]
-        if len(poses) < len(self.cell.positioners):
+            cycle = self.sim.cycle()
+        if cycle is None:
             return
-        state, reading = self.sim.step(poses)
-        stamp = self.get_clock().now().to_msg()
-        self._true.publish(m.pose_stamped(*state.panel.to_pq(), stamp, names.CELL_FRAME))
-        self._measured.publish(m.pose_with_covariance(*reading, stamp, names.CELL_FRAME))
-        for name, wrench in state.on_platforms.items():
+        stamp = m.stamp(cycle.stamp)  # the instant the true poses describe
+        self._true.publish(m.pose_stamped(*cycle.state.panel.to_pq(), stamp, names.CELL_FRAME))
+        self._measured.publish(m.pose_with_covariance(*cycle.reading, stamp, names.CELL_FRAME))
+        for name, wrench in cycle.state.on_platforms.items():
             self._wrench_pubs[name].publish(m.wrench_stamped(wrench, stamp))
-        self._forces.publish(String(data=json.dumps({
-            'stamp': m.seconds(stamp), 'largest_n': round(state.largest, 3),
-            'pairs': [{'pair': list(pair), 'force_n': round(force, 3)}
-                      for pair, force in state.pairs]})))
+        self._forces.publish(String(data=json.dumps(cycle.forces_record())))
 
 
 #: The entry point of ``panel_simulator_node`` (alone; ``cell_container`` hosts it too).
