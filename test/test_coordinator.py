@@ -30,12 +30,14 @@ from positioning_cell.coordinated.panel_motion import (
     mean_panel,
     pair_disagreement,
     platform_goals,
+    platforms_in_panel,
 )
 from positioning_cell.coordinated.settings import CoordinatorSettings
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.moves.timing import Timing
+from positioning_cell.moves.trajectory import plan_move
 
 MECH = Mechanism.default()
 CELL = cell_file.load(config_path('three_positioners.yaml'))
@@ -99,6 +101,46 @@ def test_bad_panel_goals_and_pose_counts_are_named() -> None:
         pair_disagreement(CELL, MECH, [HOME, HOME])
 
 
+def test_platforms_moved_about_the_panels_origin_move_as_the_rigid_panel() -> None:
+    """A turning panel move planned as the coordinator sends it (one duration, each
+    positioner's pivot the panel's origin in its platform frame): at every sample the three
+    platforms imply one panel pose (within 1e-9 m, 1e-9 rad), and the panel's origin goes on
+    the straight line. Planned without the pivots, the implied panels part by the chords of
+    the platforms' arcs (the defect this fixes, issue 27: over 10 µm for 10 mrad)."""
+    start = platform_goals(CELL, MECH, np.zeros(3), IDENTITY)
+    goal_p, goal_q = panel_pose([0.004, -0.003, 0.002], [0.006, -0.005, 0.007])
+    goals = platform_goals(CELL, MECH, goal_p, goal_q)
+    pivots = Coordinator(CELL, MECH, [FakePositioner(e.name) for e in CELL.positioners],
+                         FAST).pivots
+
+    def spread(with_pivots: bool) -> tuple[float, float, np.ndarray]:
+        plans = [plan_move(MECH, *a, *b, period=0.01, duration=3.0,
+                           pivot=pivot if with_pivots else None)
+                 for a, b, pivot in zip(start, goals, pivots, strict=True)]
+        assert len({plan.times.size for plan in plans}) == 1
+        worst_p = worst_r = 0.0
+        origins = []
+        for k in range(plans[0].times.size):
+            panels = implied_panels(CELL, MECH, [(plan.position[k], plan.quaternion[k])
+                                                 for plan in plans])
+            origins.append(panels[0].p)
+            for other in panels[1:]:
+                worst_p = max(worst_p, float(np.linalg.norm(other.p - panels[0].p)))
+                worst_r = max(worst_r, float(np.linalg.norm(
+                    (Rotation.from_matrix(other.R).inv()
+                     * Rotation.from_matrix(panels[0].R)).as_rotvec())))
+        return worst_p, worst_r, np.array(origins)
+
+    worst_p, worst_r, origins = spread(True)
+    assert worst_p < 1e-9 and worst_r < 1e-9
+    rel = origins - origins[0]
+    d = origins[-1] - origins[0]
+    np.testing.assert_allclose(rel, np.outer(rel @ d / (d @ d), d), rtol=0, atol=1e-9)
+    assert spread(False)[0] > 10e-6
+    for pivot, held in zip(pivots, platforms_in_panel(CELL, MECH), strict=True):
+        np.testing.assert_allclose(held.R @ pivot + held.p, 0.0, atol=1e-12)
+
+
 # -- the coordinator on fake positioners ----------------------------------------------------------
 class FakePositioner:
     """A positioner that plans ``duration`` s, ends ``after`` s past the start with ``end``
@@ -110,18 +152,22 @@ class FakePositioner:
                                                                       end, refuse)
         self.checked: list[Pose] = []
         self.moved: list[tuple[Pose, Timing]] = []
+        self.pivots: list[np.ndarray] = []
         self.stops = 0
         self.lock = threading.Lock()
 
-    def check(self, goal: Pose, request: PanelRequest, duration: float) -> Checked:
+    def check(self, goal: Pose, request: PanelRequest, duration: float,
+              pivot: np.ndarray) -> Checked:
         self.checked.append(goal)
+        self.pivots.append(pivot)
         if self.refuse:
             return Checked(ResultCode.REFUSED_LIMITS, self.refuse, 0.0)
         return Checked(ResultCode.SUCCESS, '', self.duration)
 
-    def move(self, goal: Pose, request: PanelRequest, timing: Timing
+    def move(self, goal: Pose, request: PanelRequest, timing: Timing, pivot: np.ndarray
              ) -> Callable[[], Ended | None]:
         self.moved.append((goal, timing))
+        self.pivots.append(pivot)
         assert timing.start is not None
         start = timing.start
 

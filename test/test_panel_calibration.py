@@ -40,9 +40,9 @@ INSTALLATION = {'seed': 4, 'base_position_sigma': 1e-3, 'base_angle_sigma': 2e-3
                 'socket_sigma': 3e-4}
 MECH = Mechanism.default()
 #: The panel's limit raised: under the suite's load the simulated drives' loops jitter, and a
-#: turning panel's platforms part mid-move by what a late servo step lets them (300-980 N were
-#: read at a quarter of the tests' fast motion, the simulator's truth alike; at a tenth the
-#: test takes 100 s). The watch's limit is test_coordinated_cell's and test_force_watch's.
+#: turning panel's platforms part mid-move by what a late servo step lets them (the watch read
+#: 300-980 N at a quarter of the tests' fast motion; at a tenth the test takes 100 s). The
+#: watch's limit is test_coordinated_cell's and test_force_watch's.
 PANEL = {'internal_force_limit': 2000.0}
 #: Hold-out panel poses (cell frame): moved and turned, none of the program's (after the
 #: calibration; before it, the program's first pose, home, is judged).

@@ -163,6 +163,24 @@ def test_refusals_say_why_and_move_nothing(positioner: Positioner, p: Any, q: An
     assert not positioner.driver.trajectories and not positioner.targets  # nothing moved
 
 
+def test_a_pivot_is_taken_and_a_bad_one_refused_naming_it(positioner: Positioner) -> None:
+    """MoveCommand.pivot: a point a metre off the platform makes a turning move longer (its
+    arc, within the linear speed); one that is not finite is refused by both services,
+    naming it, and nothing moves."""
+    turned = [0.0, 0.0, float(np.sin(0.005)), float(np.cos(0.005))]  # 10 mrad about z
+    plain = positioner.plan('/positioner/check_pose', command(HOME_P, turned))
+    about = command(HOME_P, turned)
+    about.pivot.x = 1.0
+    far = positioner.plan('/positioner/check_pose', about)
+    assert plain.valid and far.valid and far.duration > plain.duration + 0.1
+    about.pivot.x = float('nan')
+    for service in ('/positioner/check_pose', '/positioner/move_to_pose'):
+        mark = len(positioner.statuses)
+        assert not done(positioner.plan(service, about))
+        positioner.wait_reason(mark, 'pivot')
+    assert not positioner.driver.trajectories and not positioner.targets  # nothing moved
+
+
 def test_check_pose_returns_the_goal_and_duration_without_moving(
         positioner: Positioner) -> None:
     goal = HOME_P + [0.005, 0.0, 0.0]

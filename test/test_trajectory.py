@@ -136,6 +136,62 @@ def test_joint_rates_match_finite_differences_of_joint_commands() -> None:
         np.testing.assert_allclose(fd[1:-1], rate[1:-2], atol=2e-6)
 
 
+#: A point of a panel a metre from the platform (platform frame, m).
+PIVOT = np.array([0.9, -0.4, 0.3])
+
+
+def test_a_pivot_goes_straight_while_the_platform_turns_about_it() -> None:
+    """With a pivot, the pivot's point (p + R·pivot) goes on the straight line from its start
+    to its goal at the path's pace, the platform turning on the SLERP about it; the platform
+    ends exactly on its goal, keeps within the linear speed along its arc (finite
+    differences), and its joint rates are those of its joint commands. Planned without the
+    pivot, that point leaves the line by the chord of the arc (tens of µm): what a panel held
+    by several positioners would be pulled by (issue 27)."""
+    period = 0.002
+    p_goal, q_goal = goal([0.003, -0.002, 0.004], [0.01, -0.008, 0.012])
+    traj = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                     limits=LIMITS, pivot=PIVOT)
+    assert traj.limits.ok
+    np.testing.assert_allclose(traj.position[0], MECH.home_position, atol=1e-15)
+    np.testing.assert_array_equal(traj.position[-1], p_goal)
+    turned = Rotation.from_quat(traj.quaternion)
+    c = traj.position + turned.apply(PIVOT)
+    d = c[-1] - c[0]
+    along = (c - c[0]) @ d / (d @ d)
+    np.testing.assert_allclose(c - c[0], along[:, None] * d, rtol=0, atol=1e-12)
+    assert np.all(np.diff(along) >= -1e-15)
+    slerp = Slerp([0.0, 1.0], Rotation.from_quat([IDENTITY, q_goal]))(along)
+    assert (slerp.inv() * turned).magnitude().max() < 1e-12
+    dt = np.diff(traj.times)
+    for point in (traj.position, c):
+        v = np.linalg.norm(np.diff(point, axis=0), axis=1) / dt
+        assert v.max() <= LIMITS.linear_speed * (1 + 1e-6)
+    fd = np.gradient(traj.lengths[:-1], traj.times[:-1], axis=0)
+    np.testing.assert_allclose(fd[1:-1], traj.length_rates[1:-2], atol=2e-6)
+    fd = np.gradient(traj.thetas[:-1], traj.times[:-1], axis=0)
+    np.testing.assert_allclose(fd[1:-1], traj.theta_rates[1:-2], atol=2e-6)
+    plain = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                      limits=LIMITS)
+    c_plain = plain.position + Rotation.from_quat(plain.quaternion).apply(PIVOT)
+    rel = c_plain - c_plain[0]
+    off_line = rel - np.outer(rel @ d / (d @ d), d)
+    assert np.linalg.norm(off_line, axis=1).max() > 10e-6
+    origin = plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=period,
+                       limits=LIMITS, pivot=np.zeros(3))
+    np.testing.assert_array_equal(origin.position[:-1], plain.position[:-1])
+    np.testing.assert_array_equal(origin.lengths, plain.lengths)
+
+
+@pytest.mark.parametrize(('pivot', 'words'), [
+    ([np.nan, 0.0, 0.0], 'three finite'), ([0.1, 0.2], 'three finite'),
+    ([25.0, 0.0, 0.0], 'beyond 20 m')])
+def test_a_bad_pivot_is_refused(pivot: list[float], words: str) -> None:
+    p_goal, q_goal = goal([0.001, 0.0, 0.0], [0.0, 0.0, 0.0])
+    with pytest.raises(InputError, match=f'pivot.*{words}'):
+        plan_move(MECH, MECH.home_position, IDENTITY, p_goal, q_goal, period=0.002,
+                  pivot=pivot)
+
+
 def test_compensated_move_ends_on_goal_with_the_model() -> None:
     model = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(0))
     p_goal, q_goal = goal([0.005, 0.0, 0.0], [0.0, 0.0, 0.0])

@@ -13,6 +13,10 @@ A panel move (:meth:`Coordinator.move`):
    duration on the coordinated time law (one shape for all: the platforms stay in proportion
    along the way, as the rigid panel moves them), the longest for all, and one start
    ``start_lead`` s ahead, so that the drives start together and reach their goals together;
+   one path: each positioner's move carries the panel's origin (its ``pivot``, in its platform
+   frame) on a straight line, the platform turning about it, so that every platform follows
+   the rigid panel's motion (each on its own straight line and SLERP would leave the chord of
+   its arc between them: ~15 µm for a 10 mrad turn 1.2 m from the pivot);
 4. every positioner is sent its move; the coordinator watches them every ``poll_period``
    s. A positioner that ends otherwise than settled (refused, aborted, out of tolerance,
    stopped by anyone) stops all the others at once: the panel move ends with its code and
@@ -56,6 +60,7 @@ from positioning_cell.coordinated.panel_motion import (
     mean_panel,
     pair_disagreement,
     platform_goals,
+    platforms_in_panel,
     rigid_placement,
 )
 from positioning_cell.coordinated.settings import CoordinatorSettings
@@ -104,12 +109,15 @@ class Positioner(Protocol):
 
     name: str
 
-    def check(self, goal: Pose, request: PanelRequest, duration: float) -> Checked:
-        """Check the move to ``goal`` (platform in base) lasting at least ``duration`` s."""
+    def check(self, goal: Pose, request: PanelRequest, duration: float,
+              pivot: FloatArray) -> Checked:
+        """Check the move to ``goal`` (platform in base) lasting at least ``duration`` s, its
+        ``pivot`` (3,) m (platform frame) on a straight line."""
 
-    def move(self, goal: Pose, request: PanelRequest, timing: Timing
+    def move(self, goal: Pose, request: PanelRequest, timing: Timing, pivot: FloatArray
              ) -> Callable[[], Ended | None]:
-        """Send the move; the returned poll gives its end (None while it runs)."""
+        """Send the move (about ``pivot``, as checked); the returned poll gives its end (None
+        while it runs)."""
 
     def stop(self) -> None:
         """Stop whatever the positioner runs, under control."""
@@ -159,6 +167,10 @@ class Coordinator:
         self.corrections = {e.name: np.zeros(3) for e in cell.positioners}
         #: The panel's last goal (cell frame): home until a move settles.
         self.panel_goal = Transform.identity()
+        #: Each positioner's pivot (3,) m: the panel's origin in its platform frame, the one
+        #: point of the panel every platform's motion carries on a straight line (so that
+        #: they move as the rigid panel; moves.trajectory).
+        self.pivots = [held.inverse().p for held in platforms_in_panel(cell, mech)]
 
     def stop_all(self) -> None:
         """Stop every positioner: each asked at once, in a thread of its own, whatever the
@@ -232,8 +244,8 @@ class Coordinator:
              progress: Callable[[float], None] | None, watched: bool = True) -> PanelOutcome:
         """Check, time and run the positioners' ``goals`` as one (module docstring), the
         internal force watched (``watched``, when there is a watch)."""
-        checks = [p.check(goal, request, FASTEST_COORDINATED)
-                  for p, goal in zip(self.positioners, goals, strict=True)]
+        checks = [p.check(goal, request, FASTEST_COORDINATED, pivot)
+                  for p, goal, pivot in zip(self.positioners, goals, self.pivots, strict=True)]
         refusing = [(p.name, c) for p, c in zip(self.positioners, checks, strict=True)
                     if c.code is not ResultCode.SUCCESS]
         if refusing:
@@ -246,8 +258,8 @@ class Coordinator:
             watch.reset(self.corrections)
         polls: list[tuple[str, Callable[[], Ended | None]]] = []
         try:
-            for p, goal in zip(self.positioners, goals, strict=True):
-                polls.append((p.name, p.move(goal, request, timing)))
+            for p, goal, pivot in zip(self.positioners, goals, self.pivots, strict=True):
+                polls.append((p.name, p.move(goal, request, timing, pivot)))
         except Exception as err:  # whatever failed, the sent ones must stop
             self.stop_all()
             return PanelOutcome(ResultCode.ABORTED_FAULT, f'{p.name}: the move could not be '

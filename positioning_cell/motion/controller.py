@@ -51,7 +51,7 @@ from positioning_cell.motion.mover import JointReading, MoveAbortedError, Mover,
 from positioning_cell.motion.settings import OperatorSettings
 from positioning_cell.moves.outcomes import ResultCode, State
 from positioning_cell.moves.timing import Timing
-from positioning_cell.moves.trajectory import MotionLimits
+from positioning_cell.moves.trajectory import MotionLimits, checked_pivot
 
 FloatArray = NDArray[np.float64]
 
@@ -75,7 +75,9 @@ class MoveCommand:
     relative_object, ``frame_id`` of ``position`` (3,) m and ``quaternion`` (4,), the settle
     ``tolerance`` m (0: the configured one), ``speed_scale`` in (0, 1] (0: 1), the motion's
     least ``duration`` s (0: as fast as the speeds allow) and its ``start`` (ROS time s; None:
-    on receipt): :class:`~positioning_cell.moves.timing.Timing`."""
+    on receipt): :class:`~positioning_cell.moves.timing.Timing`; the ``pivot`` (3,) m, the
+    point of the platform (platform frame) the motion carries on a straight line (None or
+    zeros: its origin; :func:`~positioning_cell.moves.trajectory.plan_move`)."""
 
     kind: str
     frame_id: str
@@ -85,6 +87,7 @@ class MoveCommand:
     speed_scale: float = 0.0
     duration: float = 0.0
     start: float | None = None
+    pivot: ArrayLike | None = None
 
     def timing(self) -> Timing:
         """The request's time base (InputError naming a bad duration or start)."""
@@ -267,13 +270,14 @@ class Controller:
     # -- requests -------------------------------------------------------------------------------
     def resolve(self, command: MoveCommand) -> tuple[FloatArray, FloatArray]:
         """The platform goal in base of a request (InputError naming what is wrong: kind,
-        frame, numbers, speed scale, duration, start)."""
+        frame, numbers, speed scale, duration, start, pivot)."""
         if command.kind not in MOVE_KINDS:
             raise InputError(f'move mode {command.kind!r} is not one of {", ".join(MOVE_KINDS)}')
         scale = float(command.speed_scale)
         if not (math.isfinite(scale) and 0.0 <= scale <= 1.0):
             raise InputError(f'speed_scale = {scale!r}: must be in (0, 1] (0: 1)')
         command.timing()
+        checked_pivot(command.pivot)
         current = None if command.kind == ABSOLUTE else self.current_user_position()
         if command.kind != ABSOLUTE and current is None:
             raise InputError('a relative move needs a pose to start from: no pose estimate yet')
@@ -294,7 +298,8 @@ class Controller:
             raise self.mover.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
         return self.mover.move('base', p, q, command.tolerance,
                                limits=self.limits_for(float(command.speed_scale)),
-                               path_check=self._path_check, timing=timing)
+                               path_check=self._path_check, timing=timing,
+                               pivot=checked_pivot(command.pivot))
 
     def check(self, command: MoveCommand) -> Check:
         """Every check of a request without moving: the state of the cell, then the path from
@@ -315,7 +320,7 @@ class Controller:
         duration = 0.0
         try:
             traj = self.mover.plan_path(p, q, self.limits_for(float(command.speed_scale)),
-                                        float(command.duration))
+                                        float(command.duration), checked_pivot(command.pivot))
             path_p, path_q, duration = traj.position, traj.quaternion, traj.duration
         except MoveAbortedError:  # no pose estimate yet: the goal alone
             path_p, path_q = p[None], q[None]

@@ -401,14 +401,18 @@ class Mover:
 
     def move(self, frame_id: str, position: ArrayLike, quaternion: ArrayLike,
              tolerance: float = 0.0, *, limits: MotionLimits | None = None,
-             path_check: PathCheck | None = None, timing: Timing = AT_ONCE) -> MoveResult:
+             path_check: PathCheck | None = None, timing: Timing = AT_ONCE,
+             pivot: FloatArray | None = None) -> MoveResult:
         """Move to a goal and return when settled within the tolerance (``tolerance``: the
         settle tolerance in m, 0 for the configured one); MoveAbortedError names the outcome
         otherwise (refused: nothing moved; aborted: the drives were stopped; out of
         tolerance: settled elsewhere). A goal the machine is already settled at within the
         tolerance succeeds without moving. ``limits`` and ``path_check``: as :meth:`check`;
         ``timing``: the motion's least duration and its start (the first trajectory's; a
-        start already past when it is sent is refused, nothing moved)."""
+        start already past when it is sent is refused, nothing moved); ``pivot`` (3,) m: the
+        point of the platform (platform frame) the motion carries on a straight line
+        (:func:`~positioning_cell.moves.trajectory.plan_move`; None: its origin; the first
+        trajectory's, the corrections after it are short)."""
         with self._exclusive():
             goal = self._goal(frame_id, position, quaternion)
             try:
@@ -416,7 +420,7 @@ class Mover:
             except InputError as err:
                 raise self.refusal(ResultCode.REFUSED_INVALID_GOAL, str(err)) from err
             self.ready()
-            return self._execute(*goal, tol, limits, path_check, timing)
+            return self._execute(*goal, tol, limits, path_check, timing, pivot)
 
     def home(self) -> MoveResult:
         """Reference the drives if they are not, then move to the home pose."""
@@ -651,11 +655,12 @@ class Mover:
                 self.cond.wait(min(remaining, POLL_PERIOD))
 
     def plan_path(self, p: FloatArray, q: FloatArray, limits: MotionLimits | None = None,
-                  duration: float = 0.0) -> Trajectory:
+                  duration: float = 0.0, pivot: FloatArray | None = None) -> Trajectory:
         """The move from the last command (or, after an abort, from where the encoders are)
         to (p, q) (3,) m, (4,) in base, planned with ``limits`` (None: the configured
-        ``motion``), lasting at least ``duration`` s, but not judged: its ``limits`` report
-        says what it violates.
+        ``motion``), lasting at least ``duration`` s, its ``pivot`` (3,) m (platform frame;
+        None: the origin) on a straight line, but not judged: its ``limits`` report says what
+        it violates.
         MoveAbortedError REFUSED_NO_ESTIMATE before the first encoder reading."""
         with self.cond:
             command = self.command
@@ -667,7 +672,8 @@ class Mover:
             command = (estimate.position, estimate.quaternion)
         return plan_move(self.mech, *command, p, q, period=self.settings.trajectory.period,
                          limits=limits or self.settings.motion,
-                         clearance=self._model(self._approach_to(p, q)), duration=duration)
+                         clearance=self._model(self._approach_to(p, q)), duration=duration,
+                         pivot=pivot)
 
     def _checked(self, traj: Trajectory, path_check: PathCheck | None) -> Trajectory:
         """``traj`` if it violates no limit (the mechanism's, then ``path_check``'s, then the
@@ -689,26 +695,27 @@ class Mover:
                                       if len(violations) > 3 else ''))
         return traj
 
-    def _plan(self, p: FloatArray, q: FloatArray, duration: float = 0.0) -> Trajectory:
+    def _plan(self, p: FloatArray, q: FloatArray, duration: float = 0.0,
+              pivot: FloatArray | None = None) -> Trajectory:
         """The checked move to (p, q) with the running move's speeds and path check, lasting
-        at least ``duration`` s."""
+        at least ``duration`` s, about ``pivot`` (:meth:`plan_path`)."""
         limits, path_check = self._move_limits
-        return self._checked(self.plan_path(p, q, limits, duration), path_check)
+        return self._checked(self.plan_path(p, q, limits, duration, pivot), path_check)
 
     # -- the move -------------------------------------------------------------------------------
     def _execute(self, p: FloatArray, q: FloatArray, tol: GoalTolerance,
                  limits: MotionLimits | None, path_check: PathCheck | None,
-                 timing: Timing = AT_ONCE) -> MoveResult:
+                 timing: Timing = AT_ONCE, pivot: FloatArray | None = None) -> MoveResult:
         self._move_limits = (limits, path_check)
         command = self._carried(p, q)
         try:  # refused before anything is announced or moved
             try:
-                first = self._plan(*command, timing.duration)
+                first = self._plan(*command, timing.duration, pivot)
             except MoveAbortedError:
                 if command[0] is p:
                     raise
                 command = (p, q)  # the goal itself, without the carried correction
-                first = self._plan(p, q, timing.duration)
+                first = self._plan(p, q, timing.duration, pivot)
             late = timing.late(self.machine.wall_clock())
             if late is not None:
                 raise MoveAbortedError(ResultCode.REFUSED_INVALID_GOAL, late)

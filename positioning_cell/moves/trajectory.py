@@ -1,6 +1,13 @@
 """Point-to-point moves: a straight line in position and SLERP in orientation, timed by a
 smooth (sinusoidal-acceleration) law within speed and acceleration limits, sampled at a fixed
-period, every sample checked against the mechanism's limits and the singularity margin."""
+period, every sample checked against the mechanism's limits and the singularity margin.
+
+The straight line is that of a point of the platform, its ``pivot`` (platform frame; by
+default the platform's origin): with the pivot at c and the platform turning by R(s) (SLERP),
+the platform's origin is at p(s) = c(s) − R(s)·pivot. A coordinated cell gives every
+positioner the same point of the panel as its pivot, so that every platform follows the one
+rigid motion of the panel (its point on a straight line, the panel turning about it) instead
+of each its own chord (issue 27)."""
 
 from __future__ import annotations
 
@@ -14,7 +21,13 @@ from positioning_cell.clearance import ClearanceModel, compensate
 from positioning_cell.core.kinematics import _inverse_jacobian
 from positioning_cell.core.limits import LimitReport, check_poses
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import as_pose_batch, scipy_rotation, scipy_slerp
+from positioning_cell.core.poses import (
+    as_pose_batch,
+    interpolated_pose,
+    scipy_rotation,
+    scipy_slerp,
+)
+from positioning_cell.core.vectors import cross
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.singularity import check_path
 from positioning_cell.parameters import check_fields, setting
@@ -68,20 +81,8 @@ class Trajectory:
 def pose_at(traj: Trajectory, t: float) -> tuple[FloatArray, FloatArray]:
     """The planned platform pose of ``traj`` at ``t`` s from its start (held at its ends):
     position (3,) m linear between the two samples around ``t``, quaternion (4,) their
-    normalised linear blend (the samples are a period apart: within 1e-9 rad of the slerp for
-    the turns of a move).
-    """
-    times = traj.times
-    if times.size == 1:
-        return traj.position[0].copy(), traj.quaternion[0].copy()
-    t = min(max(float(t), float(times[0])), float(times[-1]))
-    k = int(np.clip(np.searchsorted(times, t, side='right') - 1, 0, times.size - 2))
-    span = float(times[k + 1] - times[k])
-    w = 0.0 if span <= 0.0 else (t - float(times[k])) / span
-    p = (1.0 - w) * traj.position[k] + w * traj.position[k + 1]
-    q0, q1 = traj.quaternion[k], traj.quaternion[k + 1]
-    q = (1.0 - w) * q0 + w * (q1 if float(np.dot(q0, q1)) >= 0.0 else -q1)
-    return p, q / np.linalg.norm(q)
+    normalised linear blend (:func:`~positioning_cell.core.poses.interpolated_pose`)."""
+    return interpolated_pose(traj.times, traj.position, traj.quaternion, t)
 
 
 def time_law(duration_accel: float, peak: float, total: float,
@@ -159,22 +160,50 @@ def cruise(distance: float, angle: float, limits: MotionLimits) -> tuple[float, 
     return peak * distance, ramp * distance, (1.0 - ramp) * distance
 
 
+#: The farthest a move's pivot may be from the platform's origin, m: a point of the panel a
+#: positioner holds (a wing panel's few metres), not a number gone wrong.
+PIVOT_REACH = 20.0
+
+
+def checked_pivot(pivot: ArrayLike | None) -> FloatArray:
+    """A move's pivot (3,) m in the platform frame (None: the origin); InputError naming a
+    pivot that is not three finite numbers within :data:`PIVOT_REACH` m."""
+    if pivot is None:
+        return np.zeros(3)
+    arr = np.array(pivot, dtype=float)  # a copy: scipy's apply takes no read-only array
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(f'pivot = {np.asarray(pivot).tolist()!r}: expected three finite '
+                         'coordinates (m, platform frame)')
+    if float(np.linalg.norm(arr)) > PIVOT_REACH:
+        raise InputError(f'pivot = {arr.tolist()!r}: {float(np.linalg.norm(arr)):.3g} m from '
+                         f'the platform origin, beyond {PIVOT_REACH:g} m')
+    return arr
+
+
 def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: ArrayLike,
               goal_position: ArrayLike, goal_quaternion: ArrayLike, *, period: float,
               limits: MotionLimits | None = None,
-              clearance: ClearanceModel = None, duration: float = 0.0) -> Trajectory:
+              clearance: ClearanceModel = None, duration: float = 0.0,
+              pivot: ArrayLike | None = None) -> Trajectory:
     """Sample the move from start to goal every ``period`` s (the last sample is the goal); with
     ``duration`` > 0 on the coordinated time law lasting at least that long
     (:func:`plan_profile`; 0: as fast as ``limits`` allow).
 
+    The ``pivot`` (3,) m, platform frame (None: the origin) goes on a straight line and the
+    platform turns about it on SLERP (module docstring): p(s) = c₀ + s·(c₁ − c₀) − R(s)·pivot,
+    c_k = p_k + R_k·pivot. The time law is that of the longest way a point of the platform
+    between its origin and the pivot travels: |c₁ − c₀| + angle·|pivot| (at least the origin's
+    arc), so that the platform keeps within the linear limits along its arc.
+
     Joint commands come from :func:`positioning_cell.clearance.compensate` with ``clearance``
     (None: nominal inverse kinematics); joint rates from the inverse Jacobian times the
-    platform twist. The returned ``limits`` report covers every sample; callers refuse the move
-    when it is not ok.
+    platform twist (v = ṡ·(Δc − ω × R(s)·pivot), ω = ṡ·R₀·rotvec). The returned ``limits``
+    report covers every sample; callers refuse the move when it is not ok.
     """
     limits = limits or MotionLimits()
     if not (math.isfinite(period) and period > 0.0):
         raise InputError(f'period = {period!r}: must be a finite number of seconds > 0')
+    pivot_platform = checked_pivot(pivot)
     p, q = as_pose_batch(np.vstack([np.reshape(start_position, (-1, 3)),
                                     np.reshape(goal_position, (-1, 3))]),
                          np.vstack([np.reshape(start_quaternion, (-1, 4)),
@@ -182,9 +211,11 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
     if p.shape[0] != 2:
         raise InputError('plan_move takes exactly one start and one goal pose')
     rotations = scipy_rotation().from_quat(q)
-    delta_p = p[1] - p[0]
+    ends_c = p + rotations.apply(pivot_platform)  # the pivot at the start and at the goal
+    delta_c = ends_c[1] - ends_c[0]
     rotvec = (rotations[0].inv() * rotations[1]).as_rotvec()
-    distance, angle = float(np.linalg.norm(delta_p)), float(np.linalg.norm(rotvec))
+    angle = float(np.linalg.norm(rotvec))
+    distance = float(np.linalg.norm(delta_c)) + angle * float(np.linalg.norm(pivot_platform))
     ta, peak, total = plan_profile(distance, angle, limits, duration)
     n = max(math.ceil(total / period - 1e-9), 1)
     times = np.minimum(np.arange(n + 1) * period, total)
@@ -193,12 +224,16 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
         s, sd = np.ones(n + 1), np.zeros(n + 1)
     else:
         s, sd = time_law(ta, peak, total, times)
-    position = p[0] + s[:, None] * delta_p
-    quaternion = scipy_slerp()([0.0, 1.0], rotations)(s).as_quat()
+    turned = scipy_slerp()([0.0, 1.0], rotations)(s)
+    quaternion = turned.as_quat()
+    lever = turned.apply(pivot_platform)  # R(s)·pivot, base frame
+    position = ends_c[0] + s[:, None] * delta_c - lever
+    position[-1] = p[1]  # the goal exactly, not within rounding of it
     joints = compensate(mech, clearance, position, quaternion)
-    # Platform twist: v = ṡ Δp; ω = ṡ · (R_start · rotvec) in the base frame.
+    # Platform twist in base: ω = ṡ · (R_start · rotvec); v = ṡ · Δc − ω × R(s)·pivot.
     omega_axis = rotations[0].apply(rotvec)
-    twist = np.hstack([sd[:, None] * delta_p, sd[:, None] * omega_axis])
+    omega = sd[:, None] * omega_axis
+    twist = np.hstack([sd[:, None] * delta_c - cross(omega, lever), omega])
     rates = np.einsum('nij,nj->ni', _inverse_jacobian(mech, position, quaternion), twist)
     # Joint, stroke and collision limits, and the singularity margin of the actuation and
     # constraint wrench system (seed 001) along the whole path.

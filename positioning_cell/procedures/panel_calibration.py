@@ -67,8 +67,7 @@ class PanelCalibrationSettings:
                           low=1e-4, high=0.05)
     readings: int = setting(10, 'tracker readings averaged per pose', low=1, high=1000)
     speed_scale: float = setting(0.25, "the panel's moves, as a share of the positioners' speed "
-                                 'limits: a turning panel moves each platform its own way, '
-                                 "and the drives' following errors then part the attachments "
+                                 "limits: the drives' following errors part the attachments "
                                  'in proportion to the speed', low=0.0, low_open=True,
                                  high=1.0)
     sigma: float = setting(6e-6, 'the residual expected per axis: the panel fit at a ball '

@@ -17,6 +17,7 @@ from geometry_msgs.msg import (
     Pose,
     PoseStamped,
     PoseWithCovarianceStamped,
+    Vector3,
     Vector3Stamped,
     WrenchStamped,
 )
@@ -63,13 +64,24 @@ def pose_stamped(position: ArrayLike, quaternion: ArrayLike, stamp: Time,
     return msg
 
 
+def vector3(vector: ArrayLike) -> Vector3:
+    """geometry_msgs/Vector3 of a vector (3,)."""
+    x, y, z = (float(v) for v in np.ravel(vector))
+    return Vector3(x=x, y=y, z=z)
+
+
+def vector_of(msg: Vector3) -> np.ndarray:
+    """The vector (3,) of a geometry_msgs/Vector3."""
+    return np.array([msg.x, msg.y, msg.z])
+
+
 def vector3_stamped(vector: ArrayLike, stamp: Time,
                     frame: str = BASE_FRAME) -> Vector3Stamped:
     """geometry_msgs/Vector3Stamped in ``frame``."""
     msg = Vector3Stamped()
     msg.header.stamp = stamp
     msg.header.frame_id = frame
-    msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in np.ravel(vector))
+    msg.vector = vector3(vector)
     return msg
 
 

@@ -37,7 +37,7 @@ from positioning_cell.limits.speed import Speeds
 from positioning_cell.limits.validity import CheckResult
 from positioning_cell.moves.correction import deviation
 from positioning_cell.moves.outcomes import Attained, MoveResult, ResultCode
-from positioning_cell.ros.messages import pose_arrays, pose_msg, seconds, start_of
+from positioning_cell.ros.messages import pose_arrays, pose_msg, seconds, start_of, vector_of
 from positioning_cell.ros.outcome_codes import CODES
 
 if TYPE_CHECKING:
@@ -57,7 +57,7 @@ def move_command(msg: MoveCommandMsg) -> MoveCommand:
     p, q = pose_arrays(msg.pose.pose)
     return MoveCommand(KINDS.get(msg.mode, f'mode {msg.mode}'), msg.pose.header.frame_id, p, q,
                        float(msg.tolerance), float(msg.speed_scale), float(msg.duration),
-                       start_of(msg.start))
+                       start_of(msg.start), vector_of(msg.pivot))
 
 
 def attained(result: MoveResult, goal: tuple[Any, Any]) -> tuple[Any, Any]:

@@ -14,12 +14,18 @@ from positioning_cell_interfaces.srv import CheckPose, MoveToPose
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
-from positioning_cell.coordinated.coordinator import Checked, Ended, PanelRequest, Pose
+from positioning_cell.coordinated.coordinator import (
+    Checked,
+    Ended,
+    FloatArray,
+    PanelRequest,
+    Pose,
+)
 from positioning_cell.limits.validity import result_code
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.moves.timing import Timing
 from positioning_cell.ros.client import CellClient
-from positioning_cell.ros.messages import pose_arrays, pose_stamped, stamp
+from positioning_cell.ros.messages import pose_arrays, pose_stamped, stamp, vector3
 
 
 class RosSetPort:
@@ -32,23 +38,25 @@ class RosSetPort:
         self._move = names.in_set(names.MOVE_TO_POSE, name)
         self._stop = names.in_set(names.STOP, name)
 
-    def _command(self, goal: Pose, request: PanelRequest, timing: Timing) -> MoveCommand:
+    def _command(self, goal: Pose, request: PanelRequest, timing: Timing,
+                 pivot: FloatArray) -> MoveCommand:
         command = MoveCommand(mode=MoveCommand.ABSOLUTE, tolerance=float(request.tolerance),
                               speed_scale=float(request.speed_scale),
-                              duration=float(timing.duration))
+                              duration=float(timing.duration), pivot=vector3(pivot))
         command.pose = pose_stamped(goal[0], goal[1], self.client.node.get_clock().now()
                                     .to_msg(), names.BASE_FRAME)
         if timing.start is not None:
             command.start = stamp(timing.start)
         return command
 
-    def check(self, goal: Pose, request: PanelRequest, duration: float) -> Checked:
+    def check(self, goal: Pose, request: PanelRequest, duration: float,
+              pivot: FloatArray) -> Checked:
         """CheckPose of the goal; its move and stop services are found too (discovered and
         handshaken, :meth:`CellClient.service`), so that a move or a stop goes at once. A set
         that does not answer is a refusal naming it (REFUSED_DRIVER_SILENT)."""
         try:
             answer = self.client.call(CheckPose, self._check, CheckPose.Request(
-                command=self._command(goal, request, Timing(duration))), self.timeout)
+                command=self._command(goal, request, Timing(duration), pivot)), self.timeout)
             self.client.service(MoveToPose, self._move, self.timeout)
             self.client.service(Trigger, self._stop, self.timeout)
         except TimeoutError as err:
@@ -58,12 +66,12 @@ class RosSetPort:
         reason = '; '.join(answer.validity.violations) or ', '.join(answer.validity.bit_names)
         return Checked(result_code(int(answer.validity.bits)), reason, 0.0)
 
-    def move(self, goal: Pose, request: PanelRequest, timing: Timing
+    def move(self, goal: Pose, request: PanelRequest, timing: Timing, pivot: FloatArray
              ) -> Callable[[], Ended | None]:
-        """Send the move (MoveToPose with ``timing``); the poll gives its outcome once it has
-        answered (None while it runs)."""
+        """Send the move (MoveToPose with ``timing``, about ``pivot``); the poll gives its
+        outcome once it has answered (None while it runs)."""
         future = self.client.service(MoveToPose, self._move, self.timeout).call_async(
-            MoveToPose.Request(command=self._command(goal, request, timing)))
+            MoveToPose.Request(command=self._command(goal, request, timing, pivot)))
 
         def poll() -> Ended | None:
             if not future.done():
