@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from positioning_cell.core.mechanism import JOINT_NAMES
+from positioning_cell.core.poses import as_pose_batch, pose_error
 from positioning_cell.moves.correction import deviation
 from positioning_cell.parameters import check_fields, setting
 
@@ -183,10 +184,13 @@ class StandstillWatch:
         of it; None when they disagree."""
         s = self.settings
         readings = list(self._tracker)
-        scaled = np.array([[(float(np.linalg.norm(e_p)) / s.tracker_position_tolerance,
-                             float(np.linalg.norm(e_r)) / s.tracker_orientation_tolerance)
-                            for e_p, e_r in (deviation(*one, *other) for other in readings)]
-                           for one in readings])  # (reading, other, position/rotation)
+        n = len(readings)
+        p, q = as_pose_batch([r[0] for r in readings], [r[1] for r in readings])
+        one, other = np.divmod(np.arange(n * n), n)  # every ordered pair, as one batch
+        e_p, e_r = pose_error(p[one], q[one], p[other], q[other])
+        scaled = np.stack([np.linalg.norm(e_p, axis=1) / s.tracker_position_tolerance,
+                           np.linalg.norm(e_r, axis=1) / s.tracker_orientation_tolerance],
+                          axis=1).reshape(n, n, 2)  # (reading, other, position/rotation)
         centre = int(np.argmin(scaled.sum(axis=(1, 2))))
         if np.any(scaled[centre] > 1.0):
             return None
