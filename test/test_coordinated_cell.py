@@ -268,13 +268,16 @@ def test_the_two_machines_cross_mid_travel_within_one_drive_period(
 TURN = [0.0, 0.0045, 0.005]
 
 
+@pytest.mark.timing
 def test_a_turning_panel_move_keeps_the_attachments_together(cell: CoordinatedCell) -> None:
     """Issue 27's target, judged by the panel simulator's truth (each pair's stretch, the
     sets' true poses taken at one instant): during a panel move that turns it 6.7 mrad and
     back, the attachments keep within 20 µm of the rigid panel's distance. Each platform
     moves about the panel's origin (the coordinator's pivots): on its own straight line, p2
     would leave its arc by ~7 µm (test_coordinator: the chord), and the drives' following
-    errors part them too."""
+    errors part them too. Timed (alone, after the parallel tier): it judges motion the
+    simulated drives' Python timers make, and beside the parallel tier it failed once in
+    seven runs, its reason not kept (0.4-1.4 µm in three runs beside three busy loops)."""
     forces = cell.stream(String, names.PANEL_FORCES)
     wait_until(lambda: bool(forces), 30.0, 'the panel simulator\'s forces')
     height = [0.0, 0.0, 0.004 if cell.up else 0.0]
