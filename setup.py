@@ -26,6 +26,7 @@ CONSOLE_SCRIPTS = [
     'analyze_bags = positioning_cell.tools.analyze_bags:main',
     'run_cell = positioning_cell.tools.run_cell:main',
     'calibrate_cell = positioning_cell.tools.calibrate_cell:main',
+    'calibrate_panel = positioning_cell.tools.calibrate_panel:main',
     'cell = positioning_cell.tools.cell:main',
     'cell_mobility = positioning_cell.tools.cell_mobility:main',
 ]

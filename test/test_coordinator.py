@@ -8,6 +8,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -32,9 +33,9 @@ from positioning_cell.coordinated.panel_motion import (
     platform_goals,
     platforms_in_panel,
 )
-from positioning_cell.coordinated.settings import CoordinatorSettings
+from positioning_cell.coordinated.settings import CoordinatorSettings, replacing
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.errors import InputError
+from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.moves.timing import Timing
 from positioning_cell.moves.trajectory import plan_move
@@ -261,3 +262,16 @@ def test_the_positioners_must_be_the_cells() -> None:
     with pytest.raises(InputError, match='are not the cell'):
         Coordinator(CELL, MECH, [FakePositioner('p1'), FakePositioner('p3'),
                                  FakePositioner('p2')], FAST)
+
+
+def test_a_running_coordinator_takes_a_file_of_the_same_positioners_only() -> None:
+    """cell_file set while the coordinator runs (a calibration): the same positioners in the
+    same order, else refused naming both lists."""
+    assert replacing(CELL, CELL) is CELL
+    renamed = replace(CELL, positioners=tuple(replace(e, name=f'x{k}') for k, e in
+                                              enumerate(CELL.positioners)))
+    with pytest.raises(ConfigError, match=r"positioners \['x0', 'x1', 'x2'\] are not the "
+                                          r"running cell's \['p1', 'p2', 'p3'\]"):
+        replacing(CELL, renamed)
+    with pytest.raises(ConfigError, match='not the running cell'):
+        replacing(CELL, replace(CELL, positioners=CELL.positioners[::-1]))

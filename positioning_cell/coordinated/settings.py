@@ -10,6 +10,7 @@ from positioning_cell.config import config_path
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.cell_file import load as load_cell
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import ConfigError
 from positioning_cell.parameters import check_fields, group, setting
 
 #: The shipped coordinated cell (config/).
@@ -40,15 +41,29 @@ class CoordinatorSettings:
         check_fields(self)
 
 
+def replacing(current: CellFile, new: CellFile) -> CellFile:
+    """``new``, to stand for ``current`` in a running coordinator (a calibrated file of the same
+    cell): the same positioners in the same order, as its subscriptions and its ports are
+    bound to their namespaces; ConfigError naming the difference."""
+    was, now = [e.name for e in current.positioners], [e.name for e in new.positioners]
+    if was != now:
+        raise ConfigError(f'cell_file: positioners {now} are not the running cell\'s {was}: '
+                          'restart the coordinator for another cell')
+    return new
+
+
 @dataclass(frozen=True)
 class CellCoordinatorSettings:
-    """Every parameter of the ``cell_coordinator`` node (read-only: restart to change them)."""
+    """Every parameter of the ``cell_coordinator`` node (read-only but ``cell_file``: restart
+    to change them)."""
 
     mechanism: Mechanism = group(Mechanism, "the positioners' nominal machine: each one's "
                                  "home pose is the panel's home")
     cell_file: str = setting('', 'the coordinated cell: its positioners (their namespaces), '
                              'bases and attachments (docs/howto/coordinated.md); empty: the '
-                             f'shipped config/{SHIPPED_CELL}')
+                             f'shipped config/{SHIPPED_CELL}. Set while the node runs, a file '
+                             'of the same positioners (a calibration: calibrate_panel), taken '
+                             'from the next panel move on; refused during one', dynamic=True)
     timing: CoordinatorSettings = group(CoordinatorSettings, "the panel moves' time base")
     answer_timeout: float = setting(10.0, "longest wait for a positioner's answer to a check "
                                     'or a stop', 's', low=0.1, high=120.0)

@@ -1,23 +1,21 @@
 """cell_coordinator_node (node ``cell_coordinator``): several positioners holding one panel,
 moved as one (issue 27; docs/howto/coordinated.md).
 
-The cell file (``cell_file``) names the positioners; each is a node set under its namespace
-(:mod:`positioning_cell.ros.node_sets`). The action /cell_coordinator/move (MoveToPose: the
-panel frame in the ``cell`` frame, mode ABSOLUTE) runs
-:meth:`~positioning_cell.coordinated.coordinator.Coordinator.move` on the sets through
-:class:`~positioning_cell.ros.set_port.RosSetPort` (a client node of its own in this node's
-context), in a worker thread (:func:`positioning_cell.ros.goals.run_goal`): every
-positioner's goal checked first, one time law, duration and start for all, a fault or a stop
-of one stops all, and so does an internal force above the panel's limit (the force watch, fed
-here with each set's tracker readings and setpoints). Feedback: the share of the common
-motion elapsed. One command at a time; a cancel, /cell_coordinator/stop or the node's shutdown
-stops every positioner; /cell_coordinator/relax relaxes the panel at rest. Its state on
-/diagnostics (``cell_coordinator``) each second and at every end."""
+The cell file (``cell_file``) names the positioners, each a node set under its namespace. The
+action /cell_coordinator/move (MoveToPose: the panel frame in the ``cell`` frame, ABSOLUTE)
+runs :meth:`~positioning_cell.coordinated.coordinator.Coordinator.move` on the sets
+(:class:`~positioning_cell.ros.set_port.RosSetPort`, a client node of its own) in a worker
+thread (:func:`positioning_cell.ros.goals.run_goal`), the force watch fed here with each set's
+tracker readings and setpoints. Feedback: the share of the common motion elapsed. One command
+at a time; a cancel, /cell_coordinator/stop or the node's shutdown stops every positioner;
+/cell_coordinator/relax relaxes the panel at rest; state on /diagnostics. ``cell_file`` set
+while it runs (a calibrated file of the same positioners): from the next panel move on."""
 
 from __future__ import annotations
 
 import threading
 from functools import partial
+from itertools import product
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -29,14 +27,15 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
-from positioning_cell.coordinated.coordinator import Coordinator, PanelOutcome, PanelRequest
+from positioning_cell.coordinated.coordinator import Coordinator, PanelOutcome
 from positioning_cell.coordinated.force_watch import force_watch
-from positioning_cell.coordinated.settings import CellCoordinatorSettings
+from positioning_cell.coordinated.settings import CellCoordinatorSettings, replacing
+from positioning_cell.errors import ConfigError
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.ros import messages as m
+from positioning_cell.ros import panel_messages as pm
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.goals import OneGoal, Ran, run_goal
-from positioning_cell.ros.panel_messages import coordinator_values, panel_outcome
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
 from positioning_cell.ros.set_port import RosSetPort
@@ -46,6 +45,9 @@ from positioning_cell.ros.spin import NodeStart, Spin
 CLOSE_WAIT_S = 10.0
 #: The status period, s.
 STATUS_PERIOD_S = 1.0
+#: What each set sends the force watch: its tracker's readings and its setpoints.
+FED = (('reading', PoseWithCovarianceStamped, names.MEASURED_POSE),
+       ('setpoint', PoseStamped, names.SETPOINT))
 
 
 class CellCoordinatorNode(Node):
@@ -56,7 +58,7 @@ class CellCoordinatorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(self.NAME, **kwargs)
-        self.params = NodeParameters(self, self.SETTINGS)
+        self.params = NodeParameters(self, self.SETTINGS, self._new_cell, self._check_cell)
         settings = self.params.settings
         self.cell = settings.cell()  # ConfigError: no start
         self._watch = force_watch(self.cell, settings.mechanism)  # ConfigError: not held
@@ -76,13 +78,23 @@ class CellCoordinatorNode(Node):
                             (names.COORDINATED_RELAX, self._srv_relax)):
             self.create_service(Trigger, name, serve, callback_group=group)
         self.create_timer(STATUS_PERIOD_S, self._status)
-        for entry in self.cell.positioners:  # what the force watch compares
-            self.create_subscription(
-                PoseWithCovarianceStamped, names.in_set(names.MEASURED_POSE, entry.name),
-                partial(self._feed, entry.name, 'reading'), STREAM_QOS, callback_group=group)
-            self.create_subscription(
-                PoseStamped, names.in_set(names.SETPOINT, entry.name),
-                partial(self._feed, entry.name, 'setpoint'), STREAM_QOS, callback_group=group)
+        for entry, (kind, kind_type, topic) in product(self.cell.positioners, FED):
+            self.create_subscription(kind_type, names.in_set(topic, entry.name), partial(
+                self._feed, entry.name, kind), STREAM_QOS, callback_group=group)
+
+    def _check_cell(self, settings: CellCoordinatorSettings, changed: frozenset[str]) -> None:
+        """A new ``cell_file``: refused during a move, or unless of the same positioners."""
+        if 'cell_file' in changed and self._goal.busy:
+            raise ConfigError('cell_file: refused while a panel move runs')
+        if 'cell_file' in changed:  # ConfigError: other positioners, or a panel not held
+            force_watch(replacing(self.cell, settings.cell()), settings.mechanism)
+
+    def _new_cell(self, settings: CellCoordinatorSettings, changed: frozenset[str]) -> None:
+        if 'cell_file' in changed:
+            with self._lock:  # the coordinator is built again on it at its next use
+                self.cell, self._coordinator = settings.cell(), None
+                self._watch = force_watch(self.cell, settings.mechanism)
+            self.get_logger().info(f'cell_file: {settings.cell_file} from the next panel move')
 
     def _feed(self, name: str, kind: str, msg: Any) -> None:
         """A tracker reading or a setpoint of positioner ``name``, to the force watch."""
@@ -96,7 +108,8 @@ class CellCoordinatorNode(Node):
         with self._lock:
             if self._coordinator is None:
                 settings = self.params.settings
-                self._client = CellClient(name=f'{self.NAME}_client', context=self.context)
+                self._client = self._client or CellClient(name=f'{self.NAME}_client',
+                                                          context=self.context)
                 ports = [RosSetPort(self._client, e.name, settings.answer_timeout)
                          for e in self.cell.positioners]
                 self._coordinator = Coordinator(self.cell, settings.mechanism, ports,
@@ -112,13 +125,10 @@ class CellCoordinatorNode(Node):
 
     def _move(self, goal_handle: Any) -> MoveToPose.Result:
         command = goal_handle.request.command
-        frame = command.pose.header.frame_id or names.CELL_FRAME
         p, q = m.pose_arrays(command.pose.pose)
-        if command.mode != command.ABSOLUTE or frame != names.CELL_FRAME:
-            return self._end(goal_handle, PanelOutcome(
-                ResultCode.REFUSED_INVALID_GOAL, f'a panel goal is ABSOLUTE in frame '
-                f'{names.CELL_FRAME!r} (got mode {command.mode}, frame {frame!r})'), p, q)
-        request = PanelRequest(p, q, float(command.tolerance), float(command.speed_scale))
+        request = pm.panel_request(command)
+        if isinstance(request, PanelOutcome):  # refused
+            return self._end(goal_handle, request, p, q)
 
         def work(stop: threading.Event, feedback: Any) -> PanelOutcome:
             def progress(share: float) -> None:
@@ -136,7 +146,7 @@ class CellCoordinatorNode(Node):
         poses imply (cell frame) and its error against the goal."""
         self.last = outcome
         stamp = self.get_clock().now().to_msg()
-        result = MoveToPose.Result(outcome=panel_outcome(outcome, (p, q), stamp))
+        result = MoveToPose.Result(outcome=pm.panel_outcome(outcome, (p, q), stamp))
         if outcome.code is ResultCode.SUCCESS:
             goal_handle.succeed()
         elif canceled:
@@ -163,16 +173,15 @@ class CellCoordinatorNode(Node):
         stopped)."""
         try:
             self.coordinator.stop_all()
+            response.success, response.message = True, 'every positioner stopping'
         except RuntimeError as err:
             response.success, response.message = False, str(err)
-            return response
-        response.success, response.message = True, 'every positioner stopping'
         return response
 
     def _status(self) -> None:
-        last = self.last
-        state = 'moving' if self._goal.busy else 'idle'
-        values = coordinator_values(state, ' '.join(e.name for e in self.cell.positioners), last)
+        last, state = self.last, 'moving' if self._goal.busy else 'idle'
+        values = pm.coordinator_values(state, ' '.join(e.name for e in self.cell.positioners),
+                                       last)
         level = 'ok' if last is None or last.code is ResultCode.SUCCESS else 'warn'
         self.pub_diag.publish(m.diagnostic(names.STATUS_COORDINATOR, level, state, values,
                                            self.get_clock().now().to_msg()))
@@ -186,7 +195,6 @@ class CellCoordinatorNode(Node):
 
 #: The entry point of ``cell_coordinator_node`` (alone; ``cell_container`` hosts it too).
 main = NodeStart(CellCoordinatorNode, Spin.THREADS, threads=4)
-
 
 if __name__ == '__main__':
     raise SystemExit(main())

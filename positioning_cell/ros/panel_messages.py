@@ -7,13 +7,26 @@ from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from positioning_cell_interfaces.msg import MoveOutcome
+from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
 
 from positioning_cell import names
-from positioning_cell.coordinated.coordinator import PanelOutcome
+from positioning_cell.coordinated.coordinator import PanelOutcome, PanelRequest
 from positioning_cell.moves.correction import deviation
-from positioning_cell.ros.messages import pose_stamped
+from positioning_cell.moves.outcomes import ResultCode
+from positioning_cell.ros.messages import pose_arrays, pose_stamped
 from positioning_cell.ros.outcome_codes import CODES
+
+
+def panel_request(command: MoveCommand) -> PanelRequest | PanelOutcome:
+    """The panel goal of a MoveCommand (ABSOLUTE, in the ``cell`` frame; an empty frame is
+    it), or the refusal of another (REFUSED_INVALID_GOAL, naming what it got)."""
+    frame = command.pose.header.frame_id or names.CELL_FRAME
+    if command.mode != command.ABSOLUTE or frame != names.CELL_FRAME:
+        return PanelOutcome(ResultCode.REFUSED_INVALID_GOAL, f'a panel goal is ABSOLUTE in '
+                            f'frame {names.CELL_FRAME!r} (got mode {command.mode}, frame '
+                            f'{frame!r})')
+    p, q = pose_arrays(command.pose.pose)
+    return PanelRequest(p, q, float(command.tolerance), float(command.speed_scale))
 
 
 def panel_outcome(outcome: PanelOutcome, goal: tuple[Any, Any], stamp: Time) -> MoveOutcome:

@@ -29,22 +29,13 @@ from positioning_cell.procedures.axis_test import ModeRefusedError, run_axis_tes
 from positioning_cell.procedures.port import ProcedureError
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.port import RosCellPort
-from positioning_cell.tools.exits import Exit, exit_table
+from positioning_cell.tools.exits import Exit, exit_table, procedure_exit
 from positioning_cell.tools.interruption import Interrupted, interruptible
 
 
 def say(text: str) -> None:
     """A progress line, at once."""
     print(text, flush=True)
-
-
-def procedure_exit(err: ProcedureError) -> Exit:
-    """The exit status of a procedure the cell ended: refused (a refusal, nothing moved by
-    that step), aborted (any other result code), or the cell not there (no code: no answer,
-    no readings)."""
-    if isinstance(err, ModeRefusedError) or err.code.startswith('refused'):
-        return Exit.REFUSED
-    return Exit.ABORTED if err.code else Exit.NOT_THERE
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -80,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return Exit.INTERRUPTED
         except ProcedureError as err:
             say(f'axis_test: error: {err}')
-            return procedure_exit(err)
+            return procedure_exit(err.code, isinstance(err, ModeRefusedError))
         except TimeoutError as err:
             say(f'axis_test: error: {err}')
             return Exit.NOT_THERE

@@ -63,3 +63,12 @@ def markdown_table() -> str:
     """The table in Markdown (the docs' reference page)."""
     rows = [f'| {code.value} | `{code.label}` | {code.meaning} |' for code in Exit]
     return '\n'.join(['| exit | name | when |', '|---:|---|---|', *rows])
+
+
+def procedure_exit(code: str, refused: bool = False) -> Exit:
+    """The exit status of a procedure the cell ended with result ``code`` (its wire name, empty
+    when there was none): refused (``refused``, or a refusal: nothing moved by that step),
+    aborted (any other code), or the cell not there (no code: no answer, no readings)."""
+    if refused or code.startswith('refused'):
+        return Exit.REFUSED
+    return Exit.ABORTED if code else Exit.NOT_THERE
