@@ -277,7 +277,8 @@ def test_a_turning_panel_move_keeps_the_attachments_together(cell: CoordinatedCe
     would leave its arc by ~7 µm (test_coordinator: the chord), and the drives' following
     errors part them too. Timed (alone, after the parallel tier): it judges motion the
     simulated drives' Python timers make, and beside the parallel tier it failed once in
-    seven runs, its reason not kept (0.4-1.4 µm in three runs beside three busy loops)."""
+    eleven runs, its reason not kept (the other ten and three runs beside three busy loops:
+    0.4-1.6 µm)."""
     forces = cell.stream(String, names.PANEL_FORCES)
     wait_until(lambda: bool(forces), 30.0, 'the panel simulator\'s forces')
     height = [0.0, 0.0, 0.004 if cell.up else 0.0]
