@@ -9,9 +9,11 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -33,7 +35,11 @@ from positioning_cell.coordinated.panel_motion import (
     platform_goals,
     platforms_in_panel,
 )
-from positioning_cell.coordinated.settings import CoordinatorSettings, replacing
+from positioning_cell.coordinated.settings import (
+    CellCoordinatorSettings,
+    CoordinatorSettings,
+    replacing,
+)
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.moves.outcomes import ResultCode
@@ -275,3 +281,21 @@ def test_a_running_coordinator_takes_a_file_of_the_same_positioners_only() -> No
         replacing(CELL, renamed)
     with pytest.raises(ConfigError, match='not the running cell'):
         replacing(CELL, replace(CELL, positioners=CELL.positioners[::-1]))
+
+
+def test_the_coordinators_settings_from_a_parameter_file_as_the_node_gets_them(
+        tmp_path: Path) -> None:
+    """CellCoordinatorSettings.from_file (calibrate_panel's machine and default cell): the
+    shipped config gives the shipped cell; the blocks other nodes share are left out, a key of
+    the coordinator's own section is read, and a bad one is refused naming it."""
+    shipped = CellCoordinatorSettings.from_file(config_path('cell.yaml'))
+    assert shipped.cell() == CELL and shipped.mechanism == MECH
+    path = tmp_path / 'params.yaml'
+    path.write_text(yaml.safe_dump({
+        '/**': {'ros__parameters': {'payload': {'mass': 3.0}}},
+        'cell_coordinator': {'ros__parameters': {'answer_timeout': 5.0}}}))
+    assert CellCoordinatorSettings.from_file(path).answer_timeout == 5.0
+    path.write_text(yaml.safe_dump({
+        'cell_coordinator': {'ros__parameters': {'answer_timeout': -1.0}}}))
+    with pytest.raises(ConfigError, match='answer_timeout'):
+        CellCoordinatorSettings.from_file(path)

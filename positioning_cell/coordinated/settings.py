@@ -3,15 +3,16 @@ and every parameter of the ``cell_coordinator`` node (:class:`CellCoordinatorSet
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
-from positioning_cell.config import config_path
+from positioning_cell import names
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.cell_file import load as load_cell
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
-from positioning_cell.parameters import check_fields, group, setting
+from positioning_cell.parameters import check_fields, group, parse, setting
 
 #: The shipped coordinated cell (config/).
 SHIPPED_CELL = 'three_positioners.yaml'
@@ -74,3 +75,12 @@ class CellCoordinatorSettings:
     def cell(self) -> CellFile:
         """The cell file (ConfigError naming what is wrong in it)."""
         return cell_of(self.cell_file)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> CellCoordinatorSettings:
+        """From the ``cell_coordinator`` section (and ``/**``) of a ROS 2 parameter file, as
+        the node receives them: the keys it does not declare (the blocks shared with other
+        nodes: payload, structure) are left out."""
+        params = node_parameters(load_parameter_file(path), names.NODE_COORDINATOR)
+        own = {f.name for f in fields(cls)}
+        return parse(cls, {k: v for k, v in params.items() if k in own})

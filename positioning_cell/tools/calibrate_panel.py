@@ -7,11 +7,12 @@ within ``--reach`` and ``--turn`` of it, then home again, at ``--speed-scale`` o
 positioners' speeds; ``--readings`` readings of the panel averaged at each), a line per pose;
 then each positioner's base in the cell frame and its ball's socket in the panel identified
 (:mod:`positioning_cell.coordinated.cell_calibration`), a line per positioner (its base and
-socket, its residual and variance factor, and whether its model holds). Writes the cell file
-``--cell`` (default: the shipped config/three_positioners.yaml, the coordinator's own) with
-the identified bases and sockets to ``OUT/cell.yaml``; ``--load`` then sets the coordinator's
-``cell_file`` to it (its next panel move on). Ctrl-C / SIGTERM stops every positioner
-(/cell_coordinator/stop) and writes nothing.
+socket, its residual and variance factor, and whether its model holds). The positioners'
+nominal machine and the default cell file are the coordinator's (its section of ``--config``,
+default config/cell.yaml). Writes the cell file ``--cell`` (default: the coordinator's
+``cell_file``) with the identified bases and sockets to ``OUT/cell.yaml``; ``--load`` then
+sets the coordinator's ``cell_file`` to it (its next panel move on). Ctrl-C / SIGTERM stops
+every positioner (/cell_coordinator/stop) and writes nothing.
 
 Exit status (:mod:`positioning_cell.tools.exits`): 0 written (and loaded, with ``--load``);
 1 the data did not identify the cell, or a positioner's model falls short of it (nothing
@@ -33,6 +34,7 @@ from positioning_cell.tools.exits import Exit, exit_table, procedure_exit
 
 if TYPE_CHECKING:
     from positioning_cell.coordinated.cell_file import CellFile
+    from positioning_cell.core.mechanism import Mechanism
     from positioning_cell.procedures.panel_calibration import PanelCalibrationSettings
     from positioning_cell.ros.client import CellClient
 
@@ -46,8 +48,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      description=__doc__.split('\n\n')[0],
                                      epilog='exit status:\n' + exit_table(),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--cell', type=Path, help='the cell file the coordinator runs '
-                        '(default: the shipped config/three_positioners.yaml)')
+    parser.add_argument('--cell', type=Path, help="the cell file the coordinator runs "
+                        "(default: --config's cell_coordinator.cell_file)")
+    parser.add_argument('--config', type=Path, help='parameter file of the cell (default: the '
+                        "shipped config/cell.yaml): the coordinator's machine and cell file")
     parser.add_argument('--out', type=Path, default=Path('cell_calibration'),
                         help=f'folder for {CELL_FILE_NAME} (default ./cell_calibration)')
     parser.add_argument('--poses', type=int, help='panel poses measured (default 12)')
@@ -76,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     # numpy, scipy and the ROS adapter load now, not for --help or a usage error
     from positioning_cell import names
     from positioning_cell.config import config_path
-    from positioning_cell.coordinated.settings import SHIPPED_CELL, cell_of
+    from positioning_cell.coordinated.settings import CellCoordinatorSettings, cell_of
     from positioning_cell.errors import PositioningError
     from positioning_cell.parameters import parse
     from positioning_cell.procedures.panel_calibration import PanelCalibrationSettings
@@ -86,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
     chosen = {k: getattr(args, k) for k in ('poses', 'reach', 'turn', 'readings',
                                             'speed_scale') if getattr(args, k) is not None}
     try:
-        cell = cell_of(str(args.cell or config_path(SHIPPED_CELL)))
+        coordinator = CellCoordinatorSettings.from_file(args.config or config_path('cell.yaml'))
+        cell = cell_of(str(args.cell)) if args.cell else coordinator.cell()
         settings = parse(PanelCalibrationSettings, chosen)
     except PositioningError as err:
         say(f'calibrate_panel: error: {err}')
@@ -94,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     with interruptible() as signals:
         client = CellClient(name='calibrate_panel', signals=False)
         try:
-            return _calibrate(client, cell, settings, args)
+            return _calibrate(client, cell, coordinator.mechanism, settings, args)
         except Interrupted as err:
             with signals.ignored(), contextlib.suppress(TimeoutError):  # stopping goes on
                 client.trigger(names.COORDINATED_STOP, args.timeout)
@@ -108,13 +113,12 @@ def run(args: argparse.Namespace) -> int:
             client.close()
 
 
-def _calibrate(client: CellClient, cell: CellFile, settings: PanelCalibrationSettings,
-               args: argparse.Namespace) -> Exit:
+def _calibrate(client: CellClient, cell: CellFile, mech: Mechanism,
+               settings: PanelCalibrationSettings, args: argparse.Namespace) -> Exit:
     """The program, the identification, the file written and (``--load``) loaded."""
     import yaml
 
     from positioning_cell import names
-    from positioning_cell.core.mechanism import Mechanism
     from positioning_cell.errors import PositioningError
     from positioning_cell.procedures import panel_calibration as procedure
     from positioning_cell.procedures.port import ProcedureError
@@ -123,7 +127,7 @@ def _calibrate(client: CellClient, cell: CellFile, settings: PanelCalibrationSet
     with RosPanelPort(client, timeout=args.timeout, move_timeout=args.timeout) as port:
         port.ready()
         try:
-            done = procedure.run(port, cell, Mechanism.default(), settings, say)
+            done = procedure.run(port, cell, mech, settings, say)
         except ProcedureError as err:
             say(f'calibrate_panel: a panel move did not settle, nothing written: {err}')
             return procedure_exit(err.code)
