@@ -117,6 +117,26 @@ def test_the_worker_ends_with_its_parent_even_while_it_loads(ready: bool) -> Non
     wait_until(lambda: not _alive(pid), 10.0, f'the worker {pid} to end with its parent')
 
 
+def test_a_parent_gone_before_the_worker_starts_is_seen() -> None:
+    """The race behind stop 53's CI failure: the parent killed before the worker's interpreter
+    reached ``main``. The worker checks the pid its starter passed, not whichever process has
+    adopted it by then, so it ends at its first check instead of loading numba for nobody and
+    waiting on an input nobody closes (it did, with ``os.getppid()`` taken in ``main``)."""
+    gone = subprocess.Popen([sys.executable, '-c', 'pass'])
+    gone.wait()
+    worker = subprocess.Popen([sys.executable, '-m', range_worker.__name__, str(gone.pid)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert worker.wait(timeout=READY_TIMEOUT_S) == 0
+        assert worker.stdout is not None and worker.stdout.read() == b''  # never said READY
+    finally:
+        worker.kill()
+        worker.wait()
+        for stream in (worker.stdin, worker.stdout):
+            assert stream is not None
+            stream.close()
+
+
 def test_a_caller_never_waits_longer_than_the_answer_timeout() -> None:
     """Another request holding the worker: the call gives up at its timeout and says so."""
     worker = RangeWorker(answer_timeout=0.05)

@@ -114,8 +114,8 @@ class RangeWorker:
         self._started = time.monotonic()
         self._ready = False
         self._proc = subprocess.Popen(
-            [sys.executable, '-m', __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            bufsize=0, close_fds=True)
+            [sys.executable, '-m', __name__, str(os.getpid())], stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE, bufsize=0, close_fds=True)
         self._status = 'the range search is starting (its process loads the compiled kernel)'
 
     def ranges(self, model: RangeModel, user_pose6: ArrayLike) -> AxisRanges:
@@ -181,8 +181,10 @@ class RangeWorker:
 
 
 def _end_with_parent(parent: int) -> None:
-    """End this process once its parent has gone (reparented), also while it loads numba and
-    reads nothing: checked every 0.2 s."""
+    """End this process once its parent ``parent`` (the pid its starter passed) has gone
+    (reparented), also while it loads numba and reads nothing: checked every 0.2 s. The pid comes
+    from the starter, not from ``os.getppid()`` here: a parent killed before this interpreter got
+    as far would otherwise be missed, and the worker would load numba for nobody."""
     while os.getppid() == parent:
         time.sleep(0.2)
     os._exit(0)
@@ -191,7 +193,8 @@ def _end_with_parent(parent: int) -> None:
 def main() -> int:
     """The worker: nice, the kernel loaded, READY, then one answer per request until its input
     ends. Its standard output carries only frames (anything printed goes to standard error)."""
-    threading.Thread(target=_end_with_parent, args=(os.getppid(),), daemon=True).start()
+    parent = int(sys.argv[1]) if len(sys.argv) > 1 else os.getppid()
+    threading.Thread(target=_end_with_parent, args=(parent,), daemon=True).start()
     os.nice(NICE)
     answers = os.fdopen(os.dup(sys.stdout.fileno()), 'wb')
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
