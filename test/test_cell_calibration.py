@@ -418,10 +418,14 @@ class InstalledPort:
         self.panel = true
         return Moved(True, 'success', '')
 
-    def panel_readings(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+    def panel_readings(self, count: int, since: float | None = None
+                       ) -> tuple[np.ndarray, np.ndarray]:
         assert self.panel is not None
         p, q, _ = self.installation.read_panel([self.panel] * count, self.rng)
         return p, q
+
+    def now(self) -> float:
+        return float(self.moves)
 
 
 def test_the_procedure_calibrates_the_cell_through_its_port(

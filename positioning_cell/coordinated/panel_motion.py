@@ -36,6 +36,17 @@ from positioning_cell.moves.correction import mean_pose
 FloatArray = NDArray[np.float64]
 
 
+def panel_about(centre: ArrayLike, move: ArrayLike, rotvec: ArrayLike) -> Transform:
+    """T_cell_panel of the panel moved from home by ``move`` (3,) m and turned by the rotation
+    vector ``rotvec`` (3,) rad, both in the cell frame, about the point ``centre`` (3,) m of
+    the cell frame (the panel's at home): the point goes to ``centre + move``."""
+    from scipy.spatial.transform import Rotation
+
+    c = np.asarray(centre, dtype=float)
+    rotation = Rotation.from_rotvec(np.asarray(rotvec, dtype=float)).as_matrix()
+    return Transform(c + np.asarray(move, dtype=float) - rotation @ c, rotation)
+
+
 def bases(cell: CellFile) -> list[Transform]:
     """T_cell_base of every positioner of ``cell``, in its order."""
     return [Transform.from_pq(e.base_position, e.base_quaternion) for e in cell.positioners]

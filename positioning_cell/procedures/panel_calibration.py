@@ -20,7 +20,6 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 from scipy.stats import qmc
 
 from positioning_cell.coordinated.cell_calibration import (
@@ -29,7 +28,7 @@ from positioning_cell.coordinated.cell_calibration import (
     calibrate_cell,
 )
 from positioning_cell.coordinated.cell_file import CellFile
-from positioning_cell.coordinated.panel_motion import platform_goals
+from positioning_cell.coordinated.panel_motion import panel_about, platform_goals
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.moves.correction import mean_pose
@@ -49,10 +48,15 @@ class PanelPort(Protocol):
         of the positioners' speed limits (0: their own default); how it ended."""
         ...
 
-    def panel_readings(self, count: int) -> tuple[FloatArray, FloatArray]:
-        """The next ``count`` readings of the panel's pose by the cell's tracker (positions
-        (count, 3) m, quaternions (count, 4), cell frame), taken after the call
-        (ProcedureError when they do not come)."""
+    def panel_readings(self, count: int, since: float | None = None
+                       ) -> tuple[FloatArray, FloatArray]:
+        """The first ``count`` readings of the panel's pose by the cell's tracker stamped at or
+        after ``since`` (s, :meth:`now`'s clock; None: the call) (positions (count, 3) m,
+        quaternions (count, 4), cell frame) (ProcedureError when they do not come)."""
+        ...
+
+    def now(self) -> float:
+        """The time on the clock that stamps the readings, s."""
         ...
 
 
@@ -85,11 +89,8 @@ def calibration_poses(cell: CellFile, mech: Mechanism,
     # the sequence's first point is its origin (home, here); the rest fill ±1
     unit = 2.0 * qmc.Halton(d=6, scramble=False).random(settings.poses) - 1.0
     unit[0] = 0.0
-    out = []
-    for row in unit:
-        rotation = Rotation.from_rotvec(row[3:] * settings.turn).as_matrix()
-        out.append(Transform(centre + row[:3] * settings.reach - rotation @ centre, rotation))
-    return out
+    return [panel_about(centre, row[:3] * settings.reach, row[3:] * settings.turn)
+            for row in unit]
 
 
 class PanelCalibrationRun(NamedTuple):

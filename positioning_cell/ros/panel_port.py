@@ -55,7 +55,7 @@ class RosPanelPort:
         """Wait for the coordinator's panel move (TimeoutError after ``timeout``)."""
         self.goals.ready(self.timeout)
 
-    def _now(self) -> float:
+    def now(self) -> float:
         return float(self.client.node.get_clock().now().nanoseconds * 1e-9)
 
     def move_panel(self, position: ArrayLike, quaternion: ArrayLike,
@@ -78,20 +78,21 @@ class RosPanelPort:
             return Moved(False, '', f'{err}; the panel move cancelled')
         return Moved(outcome.code == 0, str(outcome.code_name), str(outcome.reason))
 
-    def panel_readings(self, count: int) -> tuple[FloatArray, FloatArray]:
-        start = self._now()
+    def panel_readings(self, count: int, since: float | None = None
+                       ) -> tuple[FloatArray, FloatArray]:
+        start = self.now() if since is None else since
 
-        def since() -> list[tuple[float, FloatArray, FloatArray]]:
+        def taken() -> list[tuple[float, FloatArray, FloatArray]]:
             with self._lock:
                 return [r for r in self._readings if r[0] >= start]
 
         try:
-            wait_until(lambda: len(since()) >= count, self.timeout,
+            wait_until(lambda: len(taken()) >= count, self.timeout,
                        f'{count} readings on {names.PANEL_MEASURED_POSE}')
         except TimeoutError as err:
             raise ProcedureError(str(err)) from err
-        taken = sorted(since(), key=lambda r: r[0])[:count]
-        return np.array([r[1] for r in taken]), np.array([r[2] for r in taken])
+        first = sorted(taken(), key=lambda r: r[0])[:count]
+        return np.array([r[1] for r in first]), np.array([r[2] for r in first])
 
     def __enter__(self) -> RosPanelPort:
         return self
