@@ -240,6 +240,9 @@ PANEL_FORCES = '/sim/panel/internal_forces'
 #: really is (simulation truth, for judging: geometry_msgs/PoseStamped, frame ``cell``).
 PANEL_MEASURED_POSE = '/panel/metrology/pose'
 PANEL_TRUE_POSE = '/sim/panel/true_pose'
+#: The coordinated run's program steps (std_msgs/String, JSON of positioning_cell.procedures.
+#: panel_program.PanelStep, reliable, transient-local), each as its move ends and is measured.
+PANEL_PROGRAM = '/cell/panel_program'
 
 #: What one positioner's node set uses on the wire: under a namespace ``ns`` every one of these
 #: becomes ``/ns<name>`` (:func:`in_set`; positioning_cell.ros.node_sets remaps them), every
