@@ -96,7 +96,7 @@ class CellClient:
         self._known: set[str] = set()
         self._in_flight: list[Future] = []
         self._statuses: dict[str, list[DiagnosticStatus]] | None = None
-        self._program: Any = None
+        self._programs: dict[str, Any] = {}
         #: What raised in the spin thread (kept; each also logged), for a call that times out.
         self.spin_errors: list[str] = []
         self._closing = False
@@ -335,19 +335,20 @@ class CellClient:
                                                    Trigger.Request(), 10.0).message)
         return doc
 
-    def advertise_program(self) -> None:
-        """Offer /cell/program (latched), so the recorder subscribes before the first step."""
-        if self._program is None:
-            self._program = self.node.create_publisher(String, names.PROGRAM, LATCHED_QOS)
+    def advertise_program(self, topic: str = names.PROGRAM) -> None:
+        """Offer ``topic`` (/cell/program, /cell/panel_program; latched), so the recorder
+        subscribes before the first step."""
+        if topic not in self._programs:
+            self._programs[topic] = self.node.create_publisher(String, topic, LATCHED_QOS)
 
-    def publish_program(self, text: str) -> None:
-        """Publish a run-program step on /cell/program and wait (up to
-        :data:`PROGRAM_ACK_S`) until every matched reader, the recorder among them, has
-        acknowledged it: the step is in the bag before its move, and the end-of-program
-        marker before run_cell stops the recorder (a bag once lacked it: 4 markers of 5)."""
-        self.advertise_program()
-        self._program.publish(String(data=text))
-        self._program.wait_for_all_acked(Duration(seconds=PROGRAM_ACK_S))
+    def publish_program(self, text: str, topic: str = names.PROGRAM) -> None:
+        """Publish a run-program step on ``topic`` and wait (up to :data:`PROGRAM_ACK_S`)
+        until every matched reader, the recorder among them, has acknowledged it: the step is
+        in the bag before its move, and the end-of-program marker before run_cell stops the
+        recorder (a bag once lacked it: 4 markers of 5)."""
+        self.advertise_program(topic)
+        self._programs[topic].publish(String(data=text))
+        self._programs[topic].wait_for_all_acked(Duration(seconds=PROGRAM_ACK_S))
 
     def close(self) -> None:
         """Stop spinning and shut the context down."""

@@ -64,9 +64,40 @@ def run(program_path: Path | None = None, config: Path | None = None,
     bag = run_dir / 'bag'
     say(f'run_cell: {program.moves} moves ({len(program.names)} poses x {program.cycles} '
         f'cycles x modes {", ".join(program.modes)}); run folder {run_dir}')
-    status: int = Exit.OK
     outcome: RunOutcome | None = None
     live: dict[str, Any] | None = None
+
+    def work(procs: Processes, client: CellClient) -> int:
+        nonlocal outcome, live
+        client.advertise_program()
+        described = write_description_file(
+            run_dir, 'program', [config], program_path, program.moves, sys.argv)
+        start_cell(procs, client, config, run_overrides(run_dir, described),
+                   (program.position[0], program.quaternion[0]), program.settle_timeout, say)
+        outcome = run_program(RosCellPort(client), program, config, run_dir, say,
+                              calibrator=calibrate_and_load, axis_test_plan=axes)
+        live = client.monitor_report()
+        return Exit.OK
+
+    status = in_running_cell(run_dir, say, work)
+    if live is not None:
+        (run_dir / 'monitor_report.json').write_text(json.dumps(live, indent=1))
+    try:
+        with interruptible():  # the analysis of what was recorded, also after an interrupt
+            return _analyse(bag, run_dir, config, live, status, outcome, say, program_path)
+    except Interrupted:
+        say('run_cell: interrupted')
+        return Exit.INTERRUPTED
+
+
+def in_running_cell(run_dir: Path, say: Callable[[str], None],
+                    work: Callable[[Processes, CellClient], int]) -> int:
+    """``work(procs, client)`` on a free ROS domain of this machine's loopback (this process's
+    client too; logs in ``run_dir/logs``); every process it started stopped afterwards
+    (SIGINT, SIGKILL after a grace period), also when it raised or was interrupted; the exit
+    status: its own, NOT_THERE when the cell did not come up or answer (StartError,
+    ProcedureError, TimeoutError), INTERRUPTED on a signal."""
+    status: int = Exit.OK
     with interruptible() as signals:
         try:
             with free_domain() as domain:
@@ -76,17 +107,8 @@ def run(program_path: Path | None = None, config: Path | None = None,
                 client: CellClient | None = None
                 try:
                     client = CellClient(domain, 'run_cell', signals=False)
-                    client.advertise_program()
                     say(f'ROS_DOMAIN_ID {domain}, logs in {run_dir / "logs"}')
-                    described = write_description_file(
-                        run_dir, 'program', [config], program_path, program.moves, sys.argv)
-                    start_cell(procs, client, config, run_overrides(run_dir, described),
-                               (program.position[0], program.quaternion[0]),
-                               program.settle_timeout, say)
-                    outcome = run_program(RosCellPort(client), program, config, run_dir, say,
-                                          calibrator=calibrate_and_load,
-                                          axis_test_plan=axes)
-                    live = client.monitor_report()
+                    status = work(procs, client)
                 except (StartError, ProcedureError, TimeoutError) as err:
                     say(f'run_cell: error: {err}')
                     status = Exit.NOT_THERE
@@ -104,14 +126,7 @@ def run(program_path: Path | None = None, config: Path | None = None,
         except DomainError as err:
             say(f'run_cell: error: {err}')
             status = Exit.NOT_THERE
-    if live is not None:
-        (run_dir / 'monitor_report.json').write_text(json.dumps(live, indent=1))
-    try:
-        with interruptible():  # the analysis of what was recorded, also after an interrupt
-            return _analyse(bag, run_dir, config, live, status, outcome, say, program_path)
-    except Interrupted:
-        say('run_cell: interrupted')
-        return Exit.INTERRUPTED
+    return status
 
 
 def _analyse(bag: Path, run_dir: Path, config: Path, live: dict[str, Any] | None,

@@ -25,6 +25,12 @@ the analysis knows the mode and pose name of every move. Exit status
 the axis test or the analysis was partial; 2 a bad program or config (nothing started); 5 the
 cell did not come up or stopped answering; 130 interrupted (the processes are stopped and what
 was recorded is analysed).
+
+With ``--cell FILE`` (e.g. ``config/three_positioners.yaml``) it runs the coordinated cell of
+that file instead: its positioners holding one panel, the cell calibrated from the panel's
+targets, then the panel program of ``--panel-program`` (default ``config/panel_program.yaml``),
+recorded and analysed into the panel's ISO 9283 figures
+(:mod:`positioning_cell.tools.cell_run_panel`).
 """
 
 from __future__ import annotations
@@ -43,7 +49,8 @@ SHIPPED_AXIS_TEST = Path('<shipped axis_test.yaml>')
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``run_cell [--program F] [--config F] [--runs DIR] [--axis-test [F]]``."""
+    """Command line: ``run_cell [--program F] [--config F] [--runs DIR] [--axis-test [F]]
+    [--cell F [--panel-program F]]``."""
     parser = argparse.ArgumentParser(
         prog='run_cell', formatter_class=argparse.RawDescriptionHelpFormatter,
         description='Run the positioning cell (all nodes, recorder) through a program of poses '
@@ -59,10 +66,25 @@ def main(argv: Sequence[str] | None = None) -> int:
                         metavar='FILE', help='after the calibration, run the axis test '
                         '(ISO 230-2 per actuator) of FILE (default: the shipped '
                         'config/axis_test.yaml)')
+    parser.add_argument('--cell', type=Path, metavar='FILE', help='run the coordinated cell '
+                        'of this cell file (e.g. config/three_positioners.yaml) through its '
+                        'calibration and the panel program')
+    parser.add_argument('--panel-program', type=Path, metavar='FILE', help='with --cell: the '
+                        'panel program (default: the shipped config/panel_program.yaml)')
     args = parser.parse_args(argv)
+    if args.cell is None and args.panel_program is not None:
+        parser.error('--panel-program needs --cell')
+    if args.cell is not None and (args.program is not None or args.axis_test is not None):
+        parser.error('--cell runs the panel program: not with --program or --axis-test')
     # the work (numpy, rclpy, the analysis) loads now, not for --help or a usage error
     from positioning_cell.config import config_path
     from positioning_cell.tools.cell_run import run
+
+    if args.cell is not None:
+        from positioning_cell.tools import cell_run_panel
+
+        return cell_run_panel.run(args.cell, args.panel_program, args.config, args.runs,
+                                  lambda s: print(s, flush=True))
 
     axis_file = args.axis_test
     if axis_file == SHIPPED_AXIS_TEST:

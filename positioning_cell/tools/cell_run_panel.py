@@ -1,0 +1,169 @@
+"""The work of ``run_cell --cell`` (:mod:`positioning_cell.tools.run_cell`: the command line):
+the coordinated cell run end to end (issue 27).
+
+Starts, on a private ROS_DOMAIN_ID on this machine's loopback, the recorder and the
+coordinated cell of the cell file (:func:`positioning_cell.ros.node_sets.start_coordinated`:
+each positioner's node set, the cell coordinator, the panel simulator); homes every
+positioner; calibrates the cell from the panel's targets (the program file's
+``panel_calibration``: :mod:`positioning_cell.procedures.panel_calibration`), writes the
+calibrated cell file into the run folder and sets it as the coordinator's ``cell_file``; drives
+the panel program (:mod:`positioning_cell.procedures.panel_program`), each step recorded on
+``/cell/panel_program``; stops every process; analyses the bag
+(:mod:`positioning_cell.analysis.panel`: the panel's ISO 9283 figures, judged against the
+simulation's truth) into ``panel_report.md`` and ``panel_report.json``; prints the table. Exit
+status as ``run_cell``'s: 0 done; 1 done but a move failed, the calibration did not hold or the
+analysis differs from the run; 2 a bad file (nothing started); 5 the cell did not come up or
+stopped answering; 130 interrupted (the processes stopped, what was recorded analysed)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import yaml
+
+from positioning_cell import names
+from positioning_cell.analysis.panel import (
+    PANEL_TOPICS,
+    panel_figures,
+    read_panel_bag,
+    report_lines,
+)
+from positioning_cell.config import config_path
+from positioning_cell.coordinated import cell_file
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.settings import CellCoordinatorSettings
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import PositioningError
+from positioning_cell.polling import wait_until
+from positioning_cell.procedures import panel_calibration, panel_program
+from positioning_cell.procedures.panel_program import PanelProgram, PanelStep
+from positioning_cell.procedures.port import ProcedureError
+from positioning_cell.ros.cell_start import new_run_folder
+from positioning_cell.ros.client import CellClient
+from positioning_cell.ros.node_sets import start_coordinated
+from positioning_cell.ros.panel_port import RosPanelPort
+from positioning_cell.ros.processes import Processes
+from positioning_cell.tools.cell_run import in_running_cell
+from positioning_cell.tools.exits import Exit
+from positioning_cell.tools.interruption import Interrupted, interruptible
+
+Say = Callable[[str], None]
+#: The longest wait for the cell to come up, a homing or an answer, s.
+START_TIMEOUT = 120.0
+
+
+def recorded_topics(cell: CellFile) -> list[str]:
+    """What the run records: the panel's topics (:data:`PANEL_TOPICS`), /diagnostics, and each
+    positioner's encoders, goals and measured platform."""
+    per_set = (names.JOINT_STATES, names.TARGET, names.MEASURED_POSE)
+    return [*PANEL_TOPICS, names.DIAGNOSTICS,
+            *(names.in_set(t, e.name) for e in cell.positioners for t in per_set)]
+
+
+def run(cell_path: Path, program_path: Path | None, config: Path | None, runs_dir: Path,
+        say: Say = print) -> int:
+    """The whole run (module docstring); the exit status."""
+    config = config or config_path('cell.yaml')
+    program_path = program_path or config_path('panel_program.yaml')
+    try:
+        cell = cell_file.load(cell_path)
+        program = panel_program.load_panel_program(program_path)
+        mech = CellCoordinatorSettings.from_file(config).mechanism
+    except PositioningError as err:
+        say(f'run_cell: error: {err}')
+        return Exit.USAGE
+    run_dir = new_run_folder(runs_dir)
+    bag = run_dir / 'bag'
+    say(f'run_cell: the coordinated cell {cell_path} ({len(cell.positioners)} positioners): '
+        f'calibration of {program.calibration.poses} panel poses, then {program.steps} moves '
+        f'({len(program.names)} poses x {program.settings.cycles} cycles); run folder {run_dir}')
+
+    def work(procs: Processes, client: CellClient) -> int:
+        client.advertise_program(names.PANEL_PROGRAM)
+        return _drive(procs, client, cell, mech, program, config, run_dir, say)
+
+    status = in_running_cell(run_dir, say, work)
+    try:
+        with interruptible():  # the analysis of what was recorded, also after an interrupt
+            return _analyse(bag, run_dir, status, say)
+    except Interrupted:
+        say('run_cell: interrupted')
+        return Exit.INTERRUPTED
+
+
+def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism,
+           program: PanelProgram, config: Path, run_dir: Path, say: Say) -> int:
+    """Start, home, calibrate, drive the program; the exit status so far."""
+    topics = recorded_topics(cell)
+    procs.start(names.RECORDER.executable, params=[config], overrides={names.NODE_RECORDER: {
+        'output': str(run_dir / 'bag'), 'topics': topics, 'topic_pattern': ''}})
+    start_coordinated(procs, cell, [config], run_dir / 'params')
+    say(f'started the recorder, {len(cell.positioners)} node sets, the cell coordinator and '
+        'the panel simulator; waiting for the cell')
+
+    def up() -> bool:
+        dead = procs.dead()
+        if dead:
+            raise ProcedureError(f'{", ".join(dead)} exited during start-up (see the logs)')
+        return all(client.subscribed(t, names.NODE_RECORDER) for t in PANEL_TOPICS)
+
+    wait_until(up, START_TIMEOUT, 'the recorder to subscribe to the panel topics')
+    for entry in cell.positioners:
+        done, message = client.home(START_TIMEOUT, namespace=entry.name)
+        if not done:
+            raise ProcedureError(f'{entry.name}: homing failed: {message}')
+    say(f'homed {", ".join(e.name for e in cell.positioners)}')
+    status: int = Exit.OK
+    with RosPanelPort(client, timeout=START_TIMEOUT, move_timeout=START_TIMEOUT) as port:
+        port.ready()
+        calibrated = panel_calibration.run(port, cell, mech, program.calibration, say)
+        for line in panel_calibration.summary(calibrated.calibration):
+            say(line)
+        if calibrated.calibration.adequate:
+            out = run_dir / 'cell_calibration'
+            out.mkdir()
+            path = (out / 'cell.yaml').resolve()
+            cell = calibrated.calibration.applied(cell)
+            path.write_text(yaml.safe_dump(cell.as_yaml(), sort_keys=False))
+            result = client.set_parameter(names.NODE_COORDINATOR, 'cell_file', str(path))
+            if not result.successful:
+                raise ProcedureError(f'the coordinator refused the calibrated cell file: '
+                                     f'{result.reason}')
+            say(f'calibrated: {path}, loaded by the coordinator')
+        else:
+            say('run_cell: a positioner has more error than its model explains: the program '
+                'runs on the cell file as it was')
+            status = Exit.NOT_ACHIEVED
+
+        def record(step: PanelStep) -> None:
+            client.publish_program(step.to_json(), names.PANEL_PROGRAM)
+
+        steps = panel_program.run(port, cell, mech, program, record, say)
+    failed = sum(not s.succeeded for s in steps)
+    if failed:
+        say(f'run_cell: {failed} panel move(s) failed')
+        status = Exit.NOT_ACHIEVED
+    return status
+
+
+def _analyse(bag: Path, run_dir: Path, status: int, say: Say) -> int:
+    if not bag.exists():
+        say(f'run_cell: no bag was recorded (logs in {run_dir / "logs"})')
+        return status or Exit.NOT_THERE
+    say(f'analysing {bag}')
+    try:
+        figures = panel_figures(read_panel_bag(bag))
+    except PositioningError as err:
+        say(f'run_cell: analysis failed: {err}')
+        return status or Exit.NOT_ACHIEVED
+    lines = report_lines(figures)
+    (run_dir / 'panel_report.md').write_text('\n'.join(lines) + '\n')
+    (run_dir / 'panel_report.json').write_text(json.dumps(figures.to_dict(), indent=1))
+    for line in lines:
+        say(line)
+    say(f'bag:     {bag}\nreport:  {run_dir / "panel_report.md"}')
+    if status == Exit.OK and not figures.same_as_live:
+        status = Exit.NOT_ACHIEVED
+    return status

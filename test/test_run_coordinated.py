@@ -1,0 +1,79 @@
+"""``run_cell --cell`` (issue 27): the coordinated cell run end to end as a command: two
+positioners installed off their cell file, the cell calibrated from the panel's targets, a
+short panel program recorded and analysed into the panel's ISO 9283 figures. Judged by what
+the command wrote (its exit status, the report) and by the simulation's truth the analysis
+carries (the run folder's panel_report.json)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+import yaml
+from cell_harness import CELL_YAML, executable, isolated_domain
+from test_coordinated_cell import CELL_FILE, OVERRIDES
+from test_panel_calibration import INSTALLATION, PANEL
+
+from positioning_cell import names
+from positioning_cell.config import load_parameter_file
+from positioning_cell.ros.processes import cell_environment
+
+pytestmark = [pytest.mark.nodes, pytest.mark.slow]
+
+#: Two poses, two cycles; the calibration on six poses (as test_panel_calibration's).
+PROGRAM = {'panel_program': {'cycles': 2, 'readings': 5, 'speed_scale': 0.25},
+           'poses': {'A': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                     'B': [0.003, -0.002, 0.002, 0.002, -0.003, 0.002]},
+           'panel_calibration': {'poses': 6, 'speed_scale': 0.25}}
+
+
+def _config(tmp_path: Path) -> Path:
+    """config/cell.yaml with the coordination tests' overrides (exact machines, fast motion,
+    liveness for a loaded machine) and the panel installed off its file."""
+    doc = load_parameter_file(CELL_YAML)
+    more = {**OVERRIDES, names.NODE_PANEL_SIMULATOR: {'installation': INSTALLATION}}
+    for node, params in more.items():
+        section = doc.setdefault(node, {}).setdefault('ros__parameters', {})
+        _merge(section, params)
+    path = tmp_path / 'cell.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def _merge(into: dict, more: dict) -> None:
+    for key, value in more.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            _merge(into[key], value)
+        else:
+            into[key] = value
+
+
+def test_the_coordinated_cell_runs_end_to_end(tmp_path: Path) -> None:
+    cell = tmp_path / 'two_positioners.yaml'
+    cell.write_text(yaml.safe_dump({'cell': {**CELL_FILE['cell'], 'panel': PANEL}}))
+    program = tmp_path / 'panel_program.yaml'
+    program.write_text(yaml.safe_dump(PROGRAM))
+    command = [executable('run_cell'), '--cell', str(cell), '--panel-program', str(program),
+               '--config', str(_config(tmp_path)), '--runs', str(tmp_path / 'runs')]
+    with isolated_domain() as domain:  # the command takes a free domain of its own
+        ran = subprocess.run(command, env=cell_environment(domain), capture_output=True,
+                             text=True, timeout=400, check=False)
+    said = ran.stdout.splitlines()
+    assert ran.returncode == 0, ran.stdout + ran.stderr
+    assert sum(line.startswith('panel pose ') for line in said) == 6, said
+    assert sum(line.startswith('cycle ') for line in said) == 4, said
+    (run_dir,) = (tmp_path / 'runs').iterdir()
+    assert (run_dir / 'cell_calibration' / 'cell.yaml').is_file()
+    report = json.loads((run_dir / 'panel_report.json').read_text())
+    assert report['steps'] == 4 and report['failed'] == [] and report['same_as_live']
+    assert report['poses'] == ['A', 'B']
+    assert [f['n'] for f in report['measured']] == [2, 2]
+    print(f"true errors {report['true_error_um']} um, tracker {report['tracker_error_um']} um; "
+          f"moving {report['moving']}, at rest {report['at_rest']}")
+    # the calibrated cell puts the panel where it is sent (test_panel_calibration's bound)
+    assert max(report['true_error_um']) <= 30.0
+    assert report['moving']['largest_stretch_um'] is not None
+    table = (run_dir / 'panel_report.md').read_text()
+    assert '| A | 2 |' in table and '| B | 2 |' in table
