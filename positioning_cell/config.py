@@ -69,20 +69,23 @@ def load_parameter_file(path: str | Path) -> dict[str, Any]:
 def node_parameters(data: Mapping[str, Any], node_name: str) -> dict[str, Any]:
     """Nested parameters a node named ``node_name`` receives: ``/**`` merged with its own
     section (``node_name``, ``/node_name`` or ``/**/node_name``), the node's section winning."""
-    merged: dict[str, Any] = {}
+    params: dict[str, Any] = {}
     for key in ('/**', node_name, f'/{node_name}', f'/**/{node_name}'):
         section = data.get(key)
         if isinstance(section, Mapping):
-            _deep_merge(merged, dict(section.get('ros__parameters', {}) or {}))
-    return merged
+            params = merged(params, section.get('ros__parameters', {}) or {})
+    return params
 
 
-def _deep_merge(into: dict[str, Any], new: Mapping[str, Any]) -> None:
-    for key, value in new.items():
-        if isinstance(value, Mapping) and isinstance(into.get(key), dict):
-            _deep_merge(into[key], value)
-        else:
-            into[key] = dict(value) if isinstance(value, Mapping) else value
+def merged(base: Mapping[str, Any], more: Mapping[str, Any]) -> dict[str, Any]:
+    """Nested parameters ``base`` with ``more`` laid over them, nested mappings merged key by
+    key (neither is changed)."""
+    out = dict(base)
+    for key, value in more.items():
+        old = out.get(key)
+        out[key] = (merged(old, value) if isinstance(old, Mapping) and isinstance(value, Mapping)
+                    else dict(value) if isinstance(value, Mapping) else value)
+    return out
 
 
 def flatten(params: Mapping[str, Any], prefix: str = '') -> dict[str, Any]:

@@ -4,15 +4,17 @@ grouped by what it governs. SI units."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.clearance import ClearanceModel, ClearanceParameters, build
-from positioning_cell.config import load_parameter_file, node_parameters
+from positioning_cell.config import load_parameter_file, merged, node_parameters
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.limits.axis_ranges import AxisRangeSettings
@@ -331,10 +333,12 @@ CARRY_DISTANCE = 'compensation.carry_distance'
 CALIBRATION_FILE = 'compensation.calibration_file'
 
 
-def machine_settings(config: str | Path) -> PositionerSettings:
-    """The positioner's settings in a parameter file without its compensation block: the
-    nominal machine, payload, structure and motion a tool needs to calibrate it or predict its
-    accuracy (a compensation block naming a calibration file is not loaded)."""
-    params = node_parameters(load_parameter_file(config), NODE_POSITIONER)
+def machine_settings(config: str | Path, more: Mapping[str, Any] | None = None
+                     ) -> PositionerSettings:
+    """The positioner's settings in a parameter file (with ``more``, nested parameters, laid
+    over them: e.g. a coordinated cell's set's own payload) without its compensation block:
+    the nominal machine, payload, structure and motion a tool needs to calibrate it or predict
+    its accuracy (a compensation block naming a calibration file is not loaded)."""
+    params = merged(node_parameters(load_parameter_file(config), NODE_POSITIONER), more or {})
     params.pop('compensation', None)
     return parse(PositionerSettings, params)

@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from positioning_cell import names
-from positioning_cell.config import load_parameter_file
+from positioning_cell.config import load_parameter_file, merged
 from positioning_cell.coordinated.cell_file import GRAVITY, CellFile
 from positioning_cell.errors import ConfigError
 from positioning_cell.frames.transforms import Transform
@@ -107,16 +107,6 @@ def bindings(namespace: str) -> dict[str, dict[str, Any]]:
     }
 
 
-def _merged(base: Mapping[str, Any], more: Mapping[str, Any]) -> dict[str, Any]:
-    """``base`` with ``more`` laid over it, nested mappings merged key by key."""
-    out = dict(base)
-    for key, value in more.items():
-        old = out.get(key)
-        out[key] = (_merged(old, value) if isinstance(old, Mapping) and isinstance(value, Mapping)
-                    else value)
-    return out
-
-
 def set_parameter_files(files: Sequence[Path], namespace: str, index: int, out_dir: Path,
                         overrides: Mapping[str, Mapping[str, Any]] | None = None) -> list[Path]:
     """The parameter files of set ``namespace`` (the ``index``-th of the cell, from 0): each
@@ -139,7 +129,7 @@ def set_parameter_files(files: Sequence[Path], namespace: str, index: int, out_d
         target = out_dir / f'{namespace}.{k}.yaml'
         target.write_text(_dump(rewritten))
         written.append(target)
-    bound: dict[str, Any] = _merged(overrides or {}, bindings(namespace))
+    bound: dict[str, Any] = merged(overrides or {}, bindings(namespace))
     target = out_dir / f'{namespace}.bindings.yaml'
     target.write_text(_dump({f'/{namespace}/{node}': {'ros__parameters': params}
                              for node, params in bound.items()}))
@@ -150,16 +140,25 @@ def start_coordinated(procs: Processes, cell: CellFile, files: Sequence[Path], o
                       overrides: Mapping[str, Mapping[str, Any]] | None = None,
                       per_set: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None,
                       container: bool = True) -> None:
-    """Start the coordinated cell ``cell`` in ``procs``: one ``cell_container`` per positioner
-    hosting names.SET_NODES under its namespace (label: the namespace; ``container`` false:
-    each node a process of its own, label ``<namespace>.<node>``), with the parameter
-    files ``files`` rewritten for it, ``overrides`` (by node name, for every set; the
-    coordinator's section too) and ``per_set`` (by namespace, then node name: one set's own,
-    e.g. a fault injected in one positioner), then the ``cell_coordinator`` on the cell
-    file, and the ``panel_simulator`` (simulation truth: the panel's wrench on each platform,
-    which each set's drives carry in place of a payload of their own: :func:`carried`)."""
+    """Start the coordinated cell ``cell`` in ``procs``: its node sets (:func:`start_sets`),
+    then the coordinator and the panel (:func:`start_panel`)."""
+    start_sets(procs, cell, files, out_dir, overrides, per_set, container)
+    start_panel(procs, cell, files, overrides)
+
+
+def start_sets(procs: Processes, cell: CellFile, files: Sequence[Path], out_dir: Path,
+               overrides: Mapping[str, Mapping[str, Any]] | None = None,
+               per_set: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None,
+               container: bool = True) -> None:
+    """Start one ``cell_container`` per positioner of ``cell`` in ``procs``, hosting
+    names.SET_NODES under its namespace (label: the namespace; ``container`` false: each node
+    a process of its own, label ``<namespace>.<node>``), with the parameter files ``files``
+    rewritten for it, ``overrides`` (by node name, for every set) and ``per_set`` (by
+    namespace, then node name: one set's own, e.g. a fault injected in one positioner). Each
+    carries no payload of its own (:func:`carried`): without the panel (:func:`start_panel`),
+    nothing."""
     for k, entry in enumerate(cell.positioners):
-        own = _merged(_merged(carried(cell, k), overrides or {}),
+        own = merged(merged(carried(cell, k), overrides or {}),
                       (per_set or {}).get(entry.name, {}))
         params = set_parameter_files(files, entry.name, k, out_dir, own)
         if container:
@@ -169,8 +168,16 @@ def start_coordinated(procs: Processes, cell: CellFile, files: Sequence[Path], o
         for node in names.SET_NODES:
             procs.start(node.executable, *remap_arguments(entry.name), params=params,
                         label=f'{entry.name}.{node.name}')
+
+
+def start_panel(procs: Processes, cell: CellFile, files: Sequence[Path],
+                overrides: Mapping[str, Mapping[str, Any]] | None = None) -> None:
+    """Mount the panel on the running sets of ``cell``: start the ``cell_coordinator`` on the
+    cell file and the ``panel_simulator`` (simulation truth: the panel's wrench on each
+    platform, which each set's drives carry), with the parameter files ``files`` and their
+    sections of ``overrides``."""
     for node in (names.COORDINATOR, names.PANEL_SIMULATOR):
-        section = _merged((overrides or {}).get(node.name, {}), {'cell_file': str(cell.path)})
+        section = merged((overrides or {}).get(node.name, {}), {'cell_file': str(cell.path)})
         procs.start(node.executable, params=files, overrides={node.name: section})
 
 
