@@ -42,7 +42,9 @@ from positioning_cell.coordinated import cell_file
 from positioning_cell.coordinated.panel_motion import pair_disagreement
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.mechanics.statics import Payload, actuator_efforts
+from positioning_cell.motion.settings import COMPENSATION_MODE
 from positioning_cell.polling import wait_until
+from positioning_cell.procedures.port import ProcedureError
 from positioning_cell.ros.client import GoalClient
 from positioning_cell.ros.messages import (
     pose_arrays,
@@ -52,6 +54,7 @@ from positioning_cell.ros.messages import (
     wrench_of,
 )
 from positioning_cell.ros.node_sets import start_coordinated
+from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
@@ -358,6 +361,24 @@ def test_the_node_sets_keep_to_their_namespaces(cell: CoordinatedCell) -> None:
         for i in [*node.get_publishers_info_by_topic(t), *node.get_subscriptions_info_by_topic(t)]
         if i.node_namespace.strip('/') in SETS)
     assert stray == [], stray
+
+
+def test_a_set_is_reached_through_a_port_of_its_own(cell: CoordinatedCell) -> None:
+    """The procedures' port on one set (RosCellPort(namespace=...), as run_cell --cell
+    calibrates each positioner): its homing, encoders, tracker and parameters, not another
+    set's nor a single cell's."""
+    port = RosCellPort(cell.client, 30.0, namespace='p2')
+    assert port.home().success
+    assert port.mode() == 'none' and port.calibration_file() == ''
+    readings = port.readings(3, 30.0)
+    assert readings.position.shape == (3, 3) and readings.encoder.shape == (6,)
+    # p2's platform, as its own tracker sees it in its base: at home
+    assert np.linalg.norm(readings.position.mean(axis=0)
+                          - Mechanism.default().home_position) < 1e-3
+    taken, _ = port._set(COMPENSATION_MODE, 'not_a_mode')
+    assert not taken  # p2's positioner refused it: the parameter went to /p2/positioner
+    with pytest.raises(ProcedureError, match='/p9/metrology/pose'):  # no such set
+        RosCellPort(cell.client, 30.0, namespace='p9').readings(1, 0.2)
 
 
 def _stopped_by_force(cell: CoordinatedCell) -> tuple[dict[str, float], float]:

@@ -58,36 +58,46 @@ ENCODER_WAIT = 1.0
 
 class RosCellPort:
     """:class:`~positioning_cell.procedures.port.CellPort` on the cell of ``client``
-    (``timeout`` s for a reading, a parameter, a service to appear)."""
+    (``timeout`` s for a reading, a parameter, a service to appear); ``namespace``: one
+    positioner's node set of a coordinated cell (every name through :func:`names.in_set`;
+    '': the single positioner's cell)."""
 
-    def __init__(self, client: CellClient, timeout: float = 30.0) -> None:
-        self.client, self.timeout = client, timeout
+    def __init__(self, client: CellClient, timeout: float = 30.0, namespace: str = '') -> None:
+        self.client, self.timeout, self.namespace = client, timeout, namespace
+        self._positioner = f'{namespace}/{names.NODE_POSITIONER}' if namespace \
+            else names.NODE_POSITIONER
+        wire = self._wire
         self._lock = threading.Lock()
         self._joints: deque[tuple[float, FloatArray]] = deque(maxlen=HISTORY)
         self._true: deque[tuple[float, FloatArray]] = deque(maxlen=HISTORY)
         self._poses: deque[tuple[float, Any]] = deque(maxlen=HISTORY)
         self._air: deque[tuple[float, float]] = deque(maxlen=AIR_HISTORY)
         node = client.node
-        node.create_subscription(JointState, names.JOINT_STATES,
+        node.create_subscription(JointState, wire(names.JOINT_STATES),
                                  lambda m: self._on_joints(self._joints, m), STREAM_QOS)
-        node.create_subscription(JointState, names.TRUE_JOINT_STATES,
+        node.create_subscription(JointState, wire(names.TRUE_JOINT_STATES),
                                  lambda m: self._on_joints(self._true, m), STREAM_QOS)
-        node.create_subscription(PoseWithCovarianceStamped, names.MEASURED_POSE,
+        node.create_subscription(PoseWithCovarianceStamped, wire(names.MEASURED_POSE),
                                  self._on_pose, STREAM_QOS)
-        node.create_subscription(Temperature, names.AIR_TEMPERATURE, self._on_air, STREAM_QOS)
+        node.create_subscription(Temperature, wire(names.AIR_TEMPERATURE), self._on_air,
+                                 STREAM_QOS)
         self._registration: Registration | None = None
-        node.create_subscription(PoseWithCovarianceStamped, names.TRACKER_REGISTRATION,
+        node.create_subscription(PoseWithCovarianceStamped, wire(names.TRACKER_REGISTRATION),
                                  self._on_registration, LATCHED_QOS)
         self._markers: dict[str, Any] = {}
         self._load_cell: FloatArray | None = None  # the rig's latest reading
-        node.create_subscription(WrenchStamped, names.LOAD_FORCE, self._on_load_cell,
+        node.create_subscription(WrenchStamped, wire(names.LOAD_FORCE), self._on_load_cell,
                                  LATCHED_QOS)
-        self._load_command = node.create_publisher(WrenchStamped, names.LOAD_COMMAND,
+        self._load_command = node.create_publisher(WrenchStamped, wire(names.LOAD_COMMAND),
                                                    LATCHED_QOS)
         self._verdicts = client.statuses(names.STATUS_MONITOR_VERDICT)
         # its own client of /positioner/stop: stop() may be called from any thread, while the
         # procedure's thread waits for a move on the shared client
-        self._stop = node.create_client(Trigger, names.STOP, qos_profile=SERVICE_QOS)
+        self._stop = node.create_client(Trigger, wire(names.STOP), qos_profile=SERVICE_QOS)
+
+    def _wire(self, name: str) -> str:
+        """The wire name ``name`` (names.py) has in this port's set."""
+        return names.in_set(name, self.namespace)
 
     # -- what comes in --------------------------------------------------------------------------
     def _on_joints(self, into: deque[tuple[float, FloatArray]], msg: Any) -> None:
@@ -127,7 +137,7 @@ class RosCellPort:
     # -- moves ----------------------------------------------------------------------------------
     def home(self) -> Moved:
         try:
-            done, message = self.client.home(max(self.timeout, 60.0))
+            done, message = self.client.home(max(self.timeout, 60.0), self.namespace)
         except TimeoutError as err:
             return Moved(False, '', f'homing: {err}')
         return Moved(done, 'success' if done else message.split(':')[0], message)
@@ -137,7 +147,7 @@ class RosCellPort:
                                                 self.client.node.get_clock().now().to_msg()),
                               mode=MoveCommand.ABSOLUTE, tolerance=float(tolerance))
         try:
-            response = self.client.call(MoveToPose, names.MOVE_TO_POSE,
+            response = self.client.call(MoveToPose, self._wire(names.MOVE_TO_POSE),
                                         MoveToPose.Request(command=command), MOVE_TIMEOUT)
         except TimeoutError as err:
             return Moved(False, '', str(err))
@@ -146,7 +156,8 @@ class RosCellPort:
 
     def jog(self, axis: str, delta: float) -> Moved:
         try:
-            answer = self.client.call(Jog, names.JOG, Jog.Request(axis=axis, delta=float(delta)),
+            answer = self.client.call(Jog, self._wire(names.JOG),
+                                      Jog.Request(axis=axis, delta=float(delta)),
                                       max(self.timeout, 60.0))
         except TimeoutError as err:
             return Moved(False, '', f'jog {axis}: {err}')
@@ -162,13 +173,13 @@ class RosCellPort:
     # -- the positioner's parameters ------------------------------------------------------------
     def _parameter(self, name: str) -> str:
         try:
-            return str(self.client.get_parameter(names.NODE_POSITIONER, name) or '')
+            return str(self.client.get_parameter(self._positioner, name) or '')
         except TimeoutError as err:
             raise ProcedureError(f'the positioner\'s {name}: {err}') from err
 
     def _set(self, name: str, value: str) -> tuple[bool, str]:
         try:
-            result = self.client.set_parameter(names.NODE_POSITIONER, name, value)
+            result = self.client.set_parameter(self._positioner, name, value)
         except TimeoutError as err:
             return False, str(err)
         return bool(result.successful), str(result.reason)
@@ -192,7 +203,7 @@ class RosCellPort:
     def joints(self) -> FloatArray:
         try:
             wait_until(lambda: self._joints, self.timeout,
-                       f'an encoder reading on {names.JOINT_STATES}')
+                       f'an encoder reading on {self._wire(names.JOINT_STATES)}')
         except TimeoutError as err:
             raise ProcedureError(str(err)) from err
         with self._lock:
@@ -206,7 +217,7 @@ class RosCellPort:
         start = self.now()
         try:
             wait_until(lambda: len(self._since(start)) >= samples, timeout,
-                       f'{samples} tracker readings on {names.MEASURED_POSE}')
+                       f'{samples} tracker readings on {self._wire(names.MEASURED_POSE)}')
         except TimeoutError as err:
             raise ProcedureError(str(err)) from err
         taken = sorted(self._since(start), key=lambda e: e[0])[:samples]
@@ -223,7 +234,7 @@ class RosCellPort:
             located = self._registration
         if not encoder:
             if latest is None:
-                raise ProcedureError(f'no encoder reading on {names.JOINT_STATES}')
+                raise ProcedureError(f'no encoder reading on {self._wire(names.JOINT_STATES)}')
             encoder = [latest]
         mean, sem = encoder_window(encoder)
         position = np.array([m.position for _, m in taken])
@@ -257,7 +268,7 @@ class RosCellPort:
                     self._load_cell, wanted, rtol=1e-9, atol=1e-9))
         try:
             wait_until(reads_it, self.timeout, f'the load rig\'s reading of {wanted.tolist()} N '
-                       f'on {names.LOAD_FORCE} (a command it refuses is in the '
+                       f'on {self._wire(names.LOAD_FORCE)} (a command it refuses is in the '
                        f'{names.NODE_MEASUREMENT} log)')
         except TimeoutError as err:
             raise ProcedureError(str(err)) from err
@@ -267,18 +278,18 @@ class RosCellPort:
         if topic not in names.MARKER_TOPICS:
             raise ValueError(f'{topic} is not a marker topic ({", ".join(names.MARKER_TOPICS)})')
         if topic == names.PROGRAM:  # latched: the recorder takes the step before the move
-            self.client.publish_program(text)
+            self.client.publish_program(text, self._wire(topic))
             return
         publisher = self._markers.get(topic)
         if publisher is None:
             # transient-local: a recorder that subscribes once it sees this publisher still
             # gets every marker sent before
             publisher = self._markers[topic] = self.client.node.create_publisher(
-                String, topic, MARKER_QOS)
+                String, self._wire(topic), MARKER_QOS)
         publisher.publish(String(data=text))
 
     def recorded(self, topic: str) -> bool:
-        return self.client.subscribed(topic, names.NODE_RECORDER)
+        return self.client.subscribed(self._wire(topic), names.NODE_RECORDER)
 
     def _truth_visits(self) -> int | None:
         """Settled visits of the true pose so far (None: the monitor has no truth)."""
