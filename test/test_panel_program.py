@@ -109,6 +109,7 @@ def test_the_shipped_program() -> None:
     assert PROGRAM.names == ('P1', 'P2', 'P3', 'P4', 'P5')
     assert PROGRAM.steps == 15 and PROGRAM.settings.readings == 10
     assert PROGRAM.calibration.poses == 12
+    assert PROGRAM.positioners.enabled and PROGRAM.positioners.poses == 20
     poses = panel_program.program_poses(CELL, MECH, PROGRAM)
     np.testing.assert_allclose(poses[0].apply(CENTRE), CENTRE, atol=1e-15)  # P1: home
     for row, pose in zip(PROGRAM.moves, poses, strict=True):
@@ -126,6 +127,8 @@ def test_the_shipped_program() -> None:
     ({'poses': {'P1': [0.0] * 6}, 'panel_program': {'cycles': 0}}, 'panel_program.cycles'),
     ({'poses': {'P1': [0.0] * 6}, 'panel_program': {'cycle': 2}}, 'panel_program.cycle'),
     ({'poses': {'P1': [0.0] * 6}, 'panel_calibration': {'poses': 2}}, 'panel_calibration.poses'),
+    ({'poses': {'P1': [0.0] * 6}, 'positioner_calibration': {'hold_out': -1}},
+     'positioner_calibration.hold_out'),
 ])
 def test_a_bad_program_file_is_refused_naming_the_key(tmp_path: Path, doc: dict[str, Any],
                                                       says: str) -> None:

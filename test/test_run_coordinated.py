@@ -17,7 +17,7 @@ from test_coordinated_cell import CELL_FILE, OVERRIDES
 from test_panel_calibration import INSTALLATION, PANEL
 
 from positioning_cell import names
-from positioning_cell.config import load_parameter_file
+from positioning_cell.config import load_parameter_file, merged
 from positioning_cell.ros.processes import cell_environment
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
@@ -26,7 +26,9 @@ pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 PROGRAM = {'panel_program': {'cycles': 2, 'readings': 5, 'speed_scale': 0.25},
            'poses': {'A': [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
                      'B': [0.003, -0.002, 0.002, 0.002, -0.003, 0.002]},
-           'panel_calibration': {'poses': 6, 'speed_scale': 0.25}}
+           'panel_calibration': {'poses': 6, 'speed_scale': 0.25},
+           # the machines are error-free (OVERRIDES): their own calibrations are left out
+           'positioner_calibration': {'enabled': False}}
 
 
 def _config(tmp_path: Path) -> Path:
@@ -34,20 +36,10 @@ def _config(tmp_path: Path) -> Path:
     liveness for a loaded machine) and the panel installed off its file."""
     doc = load_parameter_file(CELL_YAML)
     more = {**OVERRIDES, names.NODE_PANEL_SIMULATOR: {'installation': INSTALLATION}}
-    for node, params in more.items():
-        section = doc.setdefault(node, {}).setdefault('ros__parameters', {})
-        _merge(section, params)
+    doc = merged(doc, {node: {'ros__parameters': params} for node, params in more.items()})
     path = tmp_path / 'cell.yaml'
     path.write_text(yaml.safe_dump(doc))
     return path
-
-
-def _merge(into: dict, more: dict) -> None:
-    for key, value in more.items():
-        if isinstance(value, dict) and isinstance(into.get(key), dict):
-            _merge(into[key], value)
-        else:
-            into[key] = value
 
 
 def test_the_coordinated_cell_runs_end_to_end(tmp_path: Path) -> None:

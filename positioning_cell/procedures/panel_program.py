@@ -2,7 +2,7 @@
 poses, cycle after cycle, each measured by the cell's tracker reading the panel's targets, for
 the panel's ISO 9283 pose figures (:mod:`positioning_cell.analysis.panel`).
 
-A program file (``config/panel_program.yaml``) holds three blocks:
+A program file (``config/panel_program.yaml``) holds four blocks:
 
 - ``panel_program`` (:class:`PanelProgramSettings`): the cycles, the tracker readings averaged
   per pose, the panel's speed;
@@ -10,8 +10,10 @@ A program file (``config/panel_program.yaml``) holds three blocks:
   attachment points (the ISO 9283 test point), in the cell frame: ``[x, y, z]`` m then the
   rotation vector ``[rx, ry, rz]`` rad (:func:`~positioning_cell.coordinated.panel_motion.
   panel_about`), visited in the file's order in every cycle;
+- ``positioner_calibration`` (:class:`PositionerCalibrationSettings`): each positioner's own
+  calibration, before the panel is mounted;
 - ``panel_calibration`` (:class:`~positioning_cell.procedures.panel_calibration.
-  PanelCalibrationSettings`): the cell's calibration that comes first.
+  PanelCalibrationSettings`): then the cell's, from the panel's targets.
 
 :func:`run` drives the program on a :class:`~positioning_cell.procedures.panel_calibration.
 PanelPort` and hands each step (:class:`PanelStep`: the commanded pose, when the move started
@@ -64,14 +66,31 @@ class PanelProgramSettings:
         check_fields(self)
 
 
+@dataclass(frozen=True)
+class PositionerCalibrationSettings:
+    """Each positioner's own calibration before the panel is mounted (``run_cell --cell``:
+    :func:`positioning_cell.procedures.calibration.calibrate` on each set, one after the other)."""
+
+    enabled: bool = setting(True, "calibrate each positioner on its own first (off: the "
+                            "positioners run on their nominal model)")
+    poses: int = setting(20, 'D-optimal calibration poses', low=8, high=500)
+    hold_out: int = setting(6, 'validation poses, never used in the fit', low=0, high=500)
+    samples: int = setting(10, 'tracker readings averaged per pose', low=1, high=1000)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
 class PanelProgram(NamedTuple):
     """A program file's blocks: the settings, the poses' names and their moves (K, 6) (m,
-    rad: :func:`~positioning_cell.coordinated.panel_motion.panel_about`), the calibration."""
+    rad: :func:`~positioning_cell.coordinated.panel_motion.panel_about`), the cell's
+    calibration and each positioner's own."""
 
     settings: PanelProgramSettings
     names: tuple[str, ...]
     moves: FloatArray
     calibration: PanelCalibrationSettings
+    positioners: PositionerCalibrationSettings
 
     @property
     def steps(self) -> int:
@@ -103,8 +122,10 @@ def load_panel_program(path: str | Path) -> PanelProgram:
     key of anything that cannot be used."""
     path = Path(path)
     names, moves = _poses(load_parameter_file(path).get('poses'), path)
-    return PanelProgram(parse_block(PanelProgramSettings, path, 'panel_program'), names, moves,
-                        parse_block(PanelCalibrationSettings, path, 'panel_calibration'))
+    return PanelProgram(
+        parse_block(PanelProgramSettings, path, 'panel_program'), names, moves,
+        parse_block(PanelCalibrationSettings, path, 'panel_calibration'),
+        parse_block(PositionerCalibrationSettings, path, 'positioner_calibration'))
 
 
 def program_poses(cell: CellFile, mech: Mechanism, program: PanelProgram) -> list[Transform]:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import yaml
@@ -30,20 +31,23 @@ from positioning_cell.analysis.panel import (
     read_panel_bag,
     report_lines,
 )
+from positioning_cell.calibration.program_settings import ProgramSettings
 from positioning_cell.config import config_path
 from positioning_cell.coordinated import cell_file
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
+from positioning_cell.motion.settings import CompensationMode, machine_settings
 from positioning_cell.polling import wait_until
-from positioning_cell.procedures import panel_calibration, panel_program
+from positioning_cell.procedures import calibration, panel_calibration, panel_program
 from positioning_cell.procedures.panel_program import PanelProgram, PanelStep
 from positioning_cell.procedures.port import ProcedureError
 from positioning_cell.ros.cell_start import new_run_folder
 from positioning_cell.ros.client import CellClient
-from positioning_cell.ros.node_sets import start_coordinated
+from positioning_cell.ros.node_sets import carried, start_panel, start_sets
 from positioning_cell.ros.panel_port import RosPanelPort
+from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.processes import Processes
 from positioning_cell.tools.cell_run import in_running_cell
 from positioning_cell.tools.exits import Exit
@@ -56,8 +60,8 @@ START_TIMEOUT = 120.0
 
 def recorded_topics(cell: CellFile) -> list[str]:
     """What the run records: the panel's topics (:data:`PANEL_TOPICS`), /diagnostics, and each
-    positioner's encoders, goals and measured platform."""
-    per_set = (names.JOINT_STATES, names.TARGET, names.MEASURED_POSE)
+    positioner's encoders, goals, measured platform and calibration markers."""
+    per_set = (names.JOINT_STATES, names.TARGET, names.MEASURED_POSE, names.CALIBRATION)
     return [*PANEL_TOPICS, names.DIAGNOSTICS,
             *(names.in_set(t, e.name) for e in cell.positioners for t in per_set)]
 
@@ -99,23 +103,36 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
     topics = recorded_topics(cell)
     procs.start(names.RECORDER.executable, params=[config], overrides={names.NODE_RECORDER: {
         'output': str(run_dir / 'bag'), 'topics': topics, 'topic_pattern': ''}})
-    start_coordinated(procs, cell, [config], run_dir / 'params')
-    say(f'started the recorder, {len(cell.positioners)} node sets, the cell coordinator and '
-        'the panel simulator; waiting for the cell')
+    start_sets(procs, cell, [config], run_dir / 'params')
+    say(f'started the recorder and {len(cell.positioners)} node sets')
 
-    def up() -> bool:
+    def alive() -> None:
         dead = procs.dead()
         if dead:
-            raise ProcedureError(f'{", ".join(dead)} exited during start-up (see the logs)')
+            raise ProcedureError(f'{", ".join(dead)} exited (see the logs)')
+
+    def home_all() -> None:
+        for entry in cell.positioners:
+            alive()
+            done, message = client.home(START_TIMEOUT, namespace=entry.name)
+            if not done:
+                raise ProcedureError(f'{entry.name}: homing failed: {message}')
+        say(f'homed {", ".join(e.name for e in cell.positioners)}')
+
+    home_all()
+    status: int = Exit.OK
+    if program.positioners.enabled:
+        status = _calibrate_positioners(client.context.get_domain_id(), cell, program, config,
+                                        run_dir, say)
+        home_all()  # the panel is mounted on the positioners at home
+    start_panel(procs, cell, [config])
+    say('the panel mounted: the cell coordinator and the panel simulator started')
+
+    def up() -> bool:
+        alive()
         return all(client.subscribed(t, names.NODE_RECORDER) for t in PANEL_TOPICS)
 
     wait_until(up, START_TIMEOUT, 'the recorder to subscribe to the panel topics')
-    for entry in cell.positioners:
-        done, message = client.home(START_TIMEOUT, namespace=entry.name)
-        if not done:
-            raise ProcedureError(f'{entry.name}: homing failed: {message}')
-    say(f'homed {", ".join(e.name for e in cell.positioners)}')
-    status: int = Exit.OK
     with RosPanelPort(client, timeout=START_TIMEOUT, move_timeout=START_TIMEOUT) as port:
         port.ready()
         calibrated = panel_calibration.run(port, cell, mech, program.calibration, say)
@@ -146,6 +163,44 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
         say(f'run_cell: {failed} panel move(s) failed')
         status = Exit.NOT_ACHIEVED
     return status
+
+
+def _calibrate_positioners(domain: int, cell: CellFile, program: PanelProgram, config: Path,
+                           run_dir: Path, say: Say) -> int:
+    """Each positioner's own calibration (:func:`positioning_cell.procedures.calibration.
+    calibrate`), one after the other, each through a client of its own, into
+    ``run_dir/calibration/<name>``, loaded, and its compensation mode set to ``model``; a
+    positioner whose calibration fails keeps its nominal model (said; NOT_ACHIEVED)."""
+    settings = program.positioners
+    cal = replace(ProgramSettings(), poses=settings.poses, hold_out=settings.hold_out)
+    say(f'calibrating {", ".join(e.name for e in cell.positioners)}, each on its own: '
+        f'{settings.poses} poses + {settings.hold_out} hold-out, {settings.samples} readings '
+        'each')
+
+    def one(k: int) -> str | None:
+        name = cell.positioners[k].name
+
+        def said(line: str) -> None:
+            say(f'{name}: {line}')
+
+        machine = machine_settings(config, carried(cell, k)[names.NODE_POSITIONER])
+        with CellClient(domain, f'run_cell_{name}', signals=False) as client:
+            port = RosCellPort(client, START_TIMEOUT, namespace=name)
+            try:
+                outcome = calibration.calibrate(port, machine, cal, settings.samples,
+                                                run_dir / 'calibration' / name, said, load=True)
+                if not outcome.succeeded:
+                    return f'{name}: its calibration failed'
+                port.set_mode(CompensationMode.MODEL.value)
+            except PositioningError as err:
+                return f'{name}: its calibration failed: {err}'
+        return None
+
+    # one after the other: all at once, three sets on 2 cores lost their drives' heartbeats
+    failed = [f for f in map(one, range(len(cell.positioners))) if f]
+    for line in failed:
+        say(f'run_cell: {line}; it runs on its nominal model')
+    return Exit.NOT_ACHIEVED if failed else Exit.OK
 
 
 def _analyse(bag: Path, run_dir: Path, status: int, say: Say) -> int:
