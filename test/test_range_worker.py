@@ -137,6 +137,24 @@ def test_a_parent_gone_before_the_worker_starts_is_seen() -> None:
             stream.close()
 
 
+def test_a_sigint_ends_the_worker_without_a_traceback() -> None:
+    """The node's stop (SIGINT to its process group) ends the worker quietly: it printed a
+    KeyboardInterrupt traceback into the node's log."""
+    worker = subprocess.Popen([sys.executable, '-m', range_worker.__name__, str(os.getpid())],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE)
+    try:
+        assert worker.stdout is not None
+        assert worker.stdout.read(1)  # its READY frame has begun: it waits for requests
+        worker.send_signal(signal.SIGINT)
+        _, err = worker.communicate(timeout=READY_TIMEOUT_S)
+        assert worker.returncode == -signal.SIGINT
+        assert b'Traceback' not in err, err.decode(errors='replace')
+    finally:
+        worker.kill()
+        worker.communicate()
+
+
 def test_a_caller_never_waits_longer_than_the_answer_timeout() -> None:
     """Another request holding the worker: the call gives up at its timeout and says so."""
     worker = RangeWorker(answer_timeout=0.05)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 import pickle
 import select
+import signal
 import struct
 import subprocess
 import sys
@@ -193,6 +194,9 @@ def _end_with_parent(parent: int) -> None:
 def main() -> int:
     """The worker: nice, the kernel loaded, READY, then one answer per request until its input
     ends. Its standard output carries only frames (anything printed goes to standard error)."""
+    # a SIGINT to the node's process group (its stop) ends the worker at once, without the
+    # KeyboardInterrupt traceback it printed into the node's log while it loaded numba
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     parent = int(sys.argv[1]) if len(sys.argv) > 1 else os.getppid()
     threading.Thread(target=_end_with_parent, args=(parent,), daemon=True).start()
     os.nice(NICE)
