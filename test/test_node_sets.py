@@ -15,11 +15,11 @@ from positioning_cell.config import config_path, load_parameter_file
 from positioning_cell.errors import ConfigError
 from positioning_cell.ros.node_sets import ALL_NODES, remap_arguments, set_parameter_files
 
-#: Wire names no set remaps: ROS's own, the coordinator's (the root's), the live view's
-#: Foxglove channels (not ROS topics).
+#: Wire names no set remaps: ROS's own, the coordinator's and the coordinated run's (the
+#: root's), the live view's Foxglove channels (not ROS topics).
 NOT_REMAPPED = {names.PARAMETER_EVENTS, names.COORDINATED_MOVE_ACTION, names.COORDINATED_STOP,
                 names.COORDINATED_RELAX, names.PANEL_FORCES, names.PANEL_MEASURED_POSE,
-                names.PANEL_TRUE_POSE,
+                names.PANEL_TRUE_POSE, names.PANEL_PROGRAM,
                 names.LIVE_SCENE, names.LIVE_TRANSFORMS, names.LIVE_DEVIATION,
                 names.LIVE_STATUS}
 
