@@ -47,6 +47,8 @@ FloatArray = NDArray[np.float64]
 SETPOINTS_KEPT = 1000
 #: Tracker readings kept per positioner for its pose at rest (20 Hz: 5 s).
 READINGS_KEPT = 100
+#: A setpoint is extrapolated at most this far past the last one, s (two periods at 50 Hz).
+EXTRAPOLATION_S = 0.04
 #: Deviations kept per positioner, in readings per instant compared: enough that the others'
 #: series cover the oldest positioner's latest instants (the trackers are not synchronised).
 DEVIATIONS_KEPT_PER_INSTANT = 4
@@ -111,13 +113,29 @@ class ForceWatch:
                                           np.asarray(quaternion, dtype=float)))
 
     def _commanded(self, name: str, stamp: float) -> tuple[FloatArray, FloatArray] | None:
-        """The setpoint at ``stamp`` (under the lock): linear between the two around it, the
-        last one after them (the trajectory has ended), None before the first."""
+        """The setpoint at ``stamp`` (under the lock): linear between the two around it; after
+        the last, extrapolated from the last two at their velocity for at most
+        :data:`EXTRAPOLATION_S` (a reading stamped before the next setpoint has come: held at
+        the last one, it read as a deviation of the platform's speed times the gap, different
+        for each platform of a turning panel; a trajectory that has ended stays where it
+        ended, its last two setpoints a standstill apart); None before the first."""
         series = self._setpoints[name]
         if not series or stamp < series[0][0]:
             return None
-        return interpolated_pose([s[0] for s in series], [s[1] for s in series],
-                                 [s[2] for s in series], stamp)
+        last = series[-1]
+        if stamp <= last[0] or len(series) < 2:
+            return interpolated_pose([s[0] for s in series], [s[1] for s in series],
+                                     [s[2] for s in series], stamp)
+        before = series[-2]
+        span = last[0] - before[0]
+        if span <= 0.0:
+            return last[1].copy(), last[2].copy()
+        ahead = min(stamp - last[0], EXTRAPOLATION_S) / span
+        rotation = scipy_rotation()
+        r_last = rotation.from_quat(last[2])
+        turn = (r_last * rotation.from_quat(before[2]).inv()).as_rotvec()
+        return (last[1] + ahead * (last[1] - before[1]),
+                (rotation.from_rotvec(ahead * turn) * r_last).as_quat())
 
     def reading(self, name: str, stamp: float, position: ArrayLike,
                 quaternion: ArrayLike) -> None:
@@ -156,7 +174,13 @@ class ForceWatch:
                 return None
             series = {n: list(self._deviations[n]) for n in self.names}
         oldest = min(self.names, key=lambda n: series[n][-1][0])
-        instants = np.array([t for t, _ in series[oldest][-self._smoothing:]])
+        # only instants every series covers: held at a series' first deviation (np.interp's
+        # ends), a positioner whose setpoints came later was compared at another instant, a
+        # following error apart while the drives accelerate
+        first = max(series[n][0][0] for n in self.names)
+        instants = np.array([t for t, _ in series[oldest][-self._smoothing:] if t >= first])
+        if instants.size == 0:
+            return None
         mean = []
         for name in self.names:
             stamps = np.array([t for t, _ in series[name]])
