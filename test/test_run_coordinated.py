@@ -2,7 +2,7 @@
 positioners installed off their cell file, the cell calibrated from the panel's targets, a
 short panel program recorded and analysed into the panel's ISO 9283 figures. Judged by what
 the command wrote (its exit status, the report) and by the simulation's truth the analysis
-carries (the run folder's panel_report.json)."""
+carries (the run folder's panel_report.json), and by the legs' load cells against it."""
 
 from __future__ import annotations
 
@@ -67,5 +67,10 @@ def test_the_coordinated_cell_runs_end_to_end(tmp_path: Path) -> None:
     # the calibrated cell puts the panel where it is sent (test_panel_calibration's bound)
     assert max(report['true_error_um']) <= 30.0
     assert report['moving']['largest_stretch_um'] is not None
+    # the strain the installation puts in the panel (sockets off their file: ~1.9 kN here,
+    # the same at every pose, which no pose measurement shows): the legs' load cells say it
+    said, truth = max(report['load_cells_internal_n']), report['at_rest']['largest_force_n']
+    assert len(report['load_cells_internal_n']) == 4
+    assert abs(said - truth) <= 0.1 * truth, (said, truth)
     table = (run_dir / 'panel_report.md').read_text()
     assert '| A | 2 |' in table and '| B | 2 |' in table

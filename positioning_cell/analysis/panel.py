@@ -21,8 +21,10 @@ window those at rest.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -30,9 +32,14 @@ from numpy.typing import NDArray
 
 from positioning_cell import names
 from positioning_cell.accuracy.iso9283 import PoseFigures, iso9283
+from positioning_cell.analysis.reading import joint_values
 from positioning_cell.bag.reader import BagReader
+from positioning_cell.coordinated.cell_file import CellFile
+from positioning_cell.coordinated.load_cells import attachment_forces, internal_force_sizes
+from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
+from positioning_cell.mechanics.statics import Structure
 from positioning_cell.moves.correction import mean_pose
 from positioning_cell.procedures.panel_program import PanelStep
 
@@ -76,13 +83,31 @@ class PanelForces(NamedTuple):
         return float(self.largest_n[lo:hi].max()), float(self.largest_stretch_m[lo:hi].max())
 
 
+class SetJoints(NamedTuple):
+    """One positioner's joint states in stamp order: stamps (N,) s, encoder values (N, 6) and
+    load-cell efforts (N, 6) (m, rad; N, N·m; JOINT_NAMES order)."""
+
+    stamps: FloatArray
+    positions: FloatArray
+    efforts: FloatArray
+
+    def mean(self, first: float, last: float) -> tuple[FloatArray, FloatArray] | None:
+        """The mean encoder values and efforts stamped in [first, last]; None when none."""
+        lo, hi = _span(self.stamps, first, last)
+        if hi <= lo:
+            return None
+        return self.positions[lo:hi].mean(axis=0), self.efforts[lo:hi].mean(axis=0)
+
+
 class PanelRecording(NamedTuple):
-    """What a coordinated run's bag holds for the analysis (module docstring)."""
+    """What a coordinated run's bag holds for the analysis (module docstring); ``joints``:
+    each positioner's joint states, by set name (empty: not read)."""
 
     steps: list[PanelStep]
     readings: StampedPoses
     truth: StampedPoses
     forces: PanelForces
+    joints: Mapping[str, SetJoints] = MappingProxyType({})
 
 
 @dataclass(frozen=True)
@@ -93,7 +118,9 @@ class PanelFigures:
     measured test point from the true one; ``command_errors_m`` of the true one from its
     goal; ``moving`` and ``at_rest`` the largest internal force (N) and stretch (m) over the
     moves and over the reading windows; ``same_as_live``: every mean taken again from the bag
-    equals the run's own."""
+    equals the run's own; ``load_cells_n``: each settled step's largest internal force at one
+    attachment as the legs' load cells say it over its reading window (N; empty: not
+    figured, :mod:`positioning_cell.coordinated.load_cells`)."""
 
     test_point: tuple[float, float, float]
     steps: int
@@ -106,6 +133,7 @@ class PanelFigures:
     moving: tuple[float, float]
     at_rest: tuple[float, float]
     same_as_live: bool
+    load_cells_n: tuple[float, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (NaN as None)."""
@@ -122,7 +150,8 @@ class PanelFigures:
                            'largest_stretch_um': clean(self.moving[1] * 1e6)},
                 'at_rest': {'largest_force_n': clean(self.at_rest[0]),
                             'largest_stretch_um': clean(self.at_rest[1] * 1e6)},
-                'same_as_live': self.same_as_live}
+                'same_as_live': self.same_as_live,
+                'load_cells_internal_n': [round(f, 1) for f in self.load_cells_n]}
 
 
 def _at_point(point: FloatArray, positions: FloatArray, quaternions: FloatArray) -> FloatArray:
@@ -147,10 +176,14 @@ def _taken(readings: StampedPoses, step: PanelStep) -> StampedPoses:
                         readings.quaternions[lo:hi])
 
 
-def panel_figures(recording: PanelRecording) -> PanelFigures:
+def panel_figures(recording: PanelRecording, cell: CellFile | None = None,
+                  mech: Mechanism | None = None, structure: Structure | None = None
+                  ) -> PanelFigures:
     """The figures (module docstring) of ``recording``, at its steps' test point (m, the panel
-    frame's: the cell's with the panel at home). InputError when no step settled or the
-    readings a step averaged are not in the bag."""
+    frame's: the cell's with the panel at home); with the ``cell`` (its nominal machine
+    ``mech``, the positioners' own ``structure``) and the sets' joint states, also the
+    internal force the load cells say at each settled step. InputError when no step settled
+    or the readings a step averaged are not in the bag."""
     done = [s for s in recording.steps if s.succeeded]
     if not done:
         raise InputError('no panel move of the program settled: nothing to figure')
@@ -160,6 +193,7 @@ def panel_figures(recording: PanelRecording) -> PanelFigures:
     truth: list[PoseFigures] = []
     errors: list[float] = []
     command_errors: list[float] = []
+    load_cells: list[float] = []
     same = True
     at_rest = (float('nan'), float('nan'))
     by_pose: dict[str, list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]]] = {
@@ -180,6 +214,9 @@ def panel_figures(recording: PanelRecording) -> PanelFigures:
         errors.append(float(np.linalg.norm(measured_point - true_point)))
         command_errors.append(float(np.linalg.norm(true_point - goal_point)))
         at_rest = _larger(at_rest, recording.forces.largest(taken.stamps[0], taken.stamps[-1]))
+        if cell is not None and mech is not None:
+            load_cells.append(_load_cells(recording, cell, mech, structure,
+                                          taken.stamps[0], taken.stamps[-1]))
     moving = (float('nan'), float('nan'))
     for step in recording.steps:
         moving = _larger(moving, recording.forces.largest(step.started, step.settled))
@@ -199,7 +236,21 @@ def panel_figures(recording: PanelRecording) -> PanelFigures:
                      if not s.succeeded), poses=tuple(order),
         measured=tuple(measured), truth=tuple(truth), errors_m=tuple(errors),
         command_errors_m=tuple(command_errors), moving=moving, at_rest=at_rest,
-        same_as_live=same)
+        same_as_live=same, load_cells_n=tuple(load_cells))
+
+
+def _load_cells(recording: PanelRecording, cell: CellFile, mech: Mechanism,
+                structure: Structure | None, first: float, last: float) -> float:
+    """The largest internal force (N) the sets' load cells say over [first, last] (NaN when
+    a set's joint states are not in the bag for it)."""
+    means = [recording.joints[e.name].mean(first, last) if e.name in recording.joints
+             else None for e in cell.positioners]
+    if any(m is None for m in means):
+        return float('nan')
+    joints = np.array([m[0] for m in means if m is not None])
+    efforts = np.array([m[1] for m in means if m is not None])
+    forces = attachment_forces(cell, mech, joints, efforts, structure)
+    return float(internal_force_sizes(cell, mech, forces).max())
 
 
 def _larger(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float]:
@@ -227,18 +278,26 @@ def _stamped(rows: list[list[float]]) -> StampedPoses:
     return StampedPoses(a[:, 0], a[:, 1:4], a[:, 4:8])
 
 
-def read_panel_bag(path: str | Path) -> PanelRecording:
-    """A coordinated run's bag at ``path`` as the analysis uses it (BagError for a bag that
-    cannot be read; InputError for a step record that is not one). Only the cell frame's
-    panel readings are taken."""
+def read_panel_bag(path: str | Path, sets: Sequence[str] = ()) -> PanelRecording:
+    """A coordinated run's bag at ``path`` as the analysis uses it, with the joint states of
+    the positioners ``sets`` (their names) (BagError for a bag that cannot be read;
+    InputError for a step record that is not one). Only the cell frame's panel readings are
+    taken."""
     steps: list[PanelStep] = []
     readings: list[list[float]] = []
     truth: list[list[float]] = []
     forces: list[tuple[float, float, float]] = []
+    by_topic = {names.in_set(names.JOINT_STATES, name): name for name in sets}
+    joints: dict[str, list[list[float]]] = {name: [] for name in sets}
     with BagReader(path) as bag:
-        for item in bag.messages([t for t in PANEL_TOPICS if t in bag.topics]):
+        wanted = [t for t in (*PANEL_TOPICS, *by_topic) if t in bag.topics]
+        for item in bag.messages(wanted):
             msg = item.message
-            if item.topic == names.PANEL_PROGRAM:
+            if item.topic in by_topic:
+                joints[by_topic[item.topic]].append(
+                    [_stamp(msg.header), *joint_values(msg.name, msg.position),
+                     *joint_values(msg.name, msg.effort)])
+            elif item.topic == names.PANEL_PROGRAM:
                 steps.append(PanelStep.from_json(msg.data))
             elif item.topic == names.PANEL_MEASURED_POSE:
                 if msg.header.frame_id == names.CELL_FRAME:
@@ -252,7 +311,14 @@ def read_panel_bag(path: str | Path) -> PanelRecording:
     f = np.array(forces, dtype=float).reshape(-1, 3)
     f = f[np.argsort(f[:, 0], kind='stable')]
     return PanelRecording(steps, _stamped(readings), _stamped(truth),
-                          PanelForces(f[:, 0], f[:, 1], f[:, 2]))
+                          PanelForces(f[:, 0], f[:, 1], f[:, 2]),
+                          {name: _set_joints(rows) for name, rows in joints.items()})
+
+
+def _set_joints(rows: list[list[float]]) -> SetJoints:
+    a = np.array(rows, dtype=float).reshape(-1, 13)
+    a = a[np.argsort(a[:, 0], kind='stable')]
+    return SetJoints(a[:, 0], a[:, 1:7], a[:, 7:13])
 
 
 def report_lines(figures: PanelFigures) -> list[str]:
@@ -275,6 +341,11 @@ def report_lines(figures: PanelFigures) -> list[str]:
               f'{um(_rms(errors))} um RMS from the truth. Largest attachment disagreement '
               f'{um(figures.moving[1])} um and internal force {figures.moving[0]:.0f} N '
               f'while moving; {um(figures.at_rest[1])} um, {figures.at_rest[0]:.0f} N at rest.']
+    if figures.load_cells_n:
+        said = np.array(figures.load_cells_n)
+        lines.append(f"The legs' load cells say at most {np.nanmax(said):.0f} N of internal force "
+                     f'at rest (median {np.nanmedian(said):.0f} N over the settled moves; the '
+                     f'truth at most {figures.at_rest[0]:.0f} N).')
     lines += [f'failed: {f}' for f in figures.failed]
     if not figures.same_as_live:
         lines.append('WARNING: a mean taken again from the bag differs from the run\'s own')

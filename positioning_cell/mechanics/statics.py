@@ -265,6 +265,18 @@ def efforts_from_wrench(mech: Mechanism, position: ArrayLike, quaternion: ArrayL
     return out
 
 
+def wrench_from_efforts(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
+                        efforts: ArrayLike) -> FloatArray:
+    """The wrench (N, 6) (N; N·m about the platform origin, base frame) that actuator efforts
+    (N, 6) (N, N·m) exert on the platform at poses (N, 3) m, (N, 4): τ = Jᵀ·w solved for w,
+    the inverse of :func:`efforts_from_wrench` away from singularities (seed 002 §2: what
+    the legs' load cells say the platform carries)."""
+    jac = jacobian(mech, position, quaternion).matrix
+    tau = np.asarray(efforts, dtype=float).reshape(jac.shape[0], 6)
+    out: FloatArray = np.linalg.solve(np.swapaxes(jac, 1, 2), tau[..., None])[..., 0]
+    return out
+
+
 def actuator_efforts(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
                      payload: Payload, structure: Structure | None = None) -> FloatArray:
     """Static actuator efforts (N, 6) holding ``payload`` at poses (N, 3) m, (N, 4) x, y, z, w:

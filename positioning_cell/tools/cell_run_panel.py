@@ -38,6 +38,7 @@ from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import PositioningError
+from positioning_cell.mechanics.statics import Structure
 from positioning_cell.motion.settings import CompensationMode, machine_settings
 from positioning_cell.polling import wait_until
 from positioning_cell.procedures import calibration, panel_calibration, panel_program
@@ -91,7 +92,8 @@ def run(cell_path: Path, program_path: Path | None, config: Path | None, runs_di
     status = in_running_cell(run_dir, say, work)
     try:
         with interruptible():  # the analysis of what was recorded, also after an interrupt
-            return _analyse(bag, run_dir, status, say)
+            return _analyse(bag, run_dir, status, say, cell, mech,
+                            machine_settings(config).structure)
     except Interrupted:
         say('run_cell: interrupted')
         return Exit.INTERRUPTED
@@ -203,13 +205,15 @@ def _calibrate_positioners(domain: int, cell: CellFile, program: PanelProgram, c
     return Exit.NOT_ACHIEVED if failed else Exit.OK
 
 
-def _analyse(bag: Path, run_dir: Path, status: int, say: Say) -> int:
+def _analyse(bag: Path, run_dir: Path, status: int, say: Say, cell: CellFile, mech: Mechanism,
+             structure: Structure) -> int:
     if not bag.exists():
         say(f'run_cell: no bag was recorded (logs in {run_dir / "logs"})')
         return status or Exit.NOT_THERE
     say(f'analysing {bag}')
     try:
-        figures = panel_figures(read_panel_bag(bag))
+        recording = read_panel_bag(bag, [e.name for e in cell.positioners])
+        figures = panel_figures(recording, cell, mech, structure)
     except PositioningError as err:
         say(f'run_cell: analysis failed: {err}')
         return status or Exit.NOT_ACHIEVED

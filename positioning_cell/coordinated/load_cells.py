@@ -1,0 +1,83 @@
+"""The panel's internal force as the legs' load cells say it (issue 27 item 4: the cross-check
+of what the trackers cannot see).
+
+Each positioner's leg driver reports its axes' efforts (leg forces N, θ torques N·m), the
+``effort`` of its joint states: what holds its platform, its legs and what it carries. A set of
+a coordinated cell carries no payload of its own (:func:`positioning_cell.ros.node_sets.
+carried`), so what its efforts hold beyond its own platform and legs (τ − τ_own) is the panel's
+wrench on its platform: w = J⁻ᵀ·(τ − τ_own) (seed 002 §2,
+:func:`positioning_cell.mechanics.statics.wrench_from_efforts`), at the pose its encoders give
+(the nominal model's forward kinematics: the machine's errors of tenths of a millimetre change
+the Jacobian by parts in 10⁴). Turned into the cell frame, its force is minus the attachment's
+force on the panel. The internal part is what remains once the panel's weight's own share is
+taken away (the same cell with no misfit: :func:`~.internal_forces.wrench_map`'s ``by_load``,
+in the panel frame at home: a panel turned by θ puts its weight's share off by about θ of
+it, ~4 N of 440 N at 10 mrad). The largest over the attachments is comparable with the panel
+simulator's ``largest_n``, the same quantity from its truth.
+
+A strain that is the same at every pose (sockets installed off their file) is invisible to
+the pose measurements a calibration uses; the load cells see it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from positioning_cell.coordinated.cell_file import GRAVITY, CellFile
+from positioning_cell.coordinated.internal_forces import wrench_map
+from positioning_cell.coordinated.panel_motion import bases
+from positioning_cell.core.kinematics import forward
+from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.errors import InputError
+from positioning_cell.mechanics.statics import (
+    Payload,
+    Structure,
+    actuator_efforts,
+    wrench_from_efforts,
+)
+
+FloatArray = NDArray[np.float64]
+
+
+def attachment_forces(cell: CellFile, mech: Mechanism, joints: ArrayLike, efforts: ArrayLike,
+                      structure: Structure | None = None) -> FloatArray:
+    """Each attachment's force on the panel (N_sets, 3) N, cell frame, from each positioner's
+    encoder values ``joints`` (N_sets, 6) (m, rad: leg1_length..leg3_length,
+    leg1_theta..leg3_theta) and load-cell ``efforts`` (N_sets, 6) (N, N·m), in the cell's
+    order; ``structure``: the positioners' own platform and legs (default
+    :class:`~positioning_cell.mechanics.statics.Structure`). InputError for shapes that are
+    not the cell's or a pose the encoders do not give."""
+    n = len(cell.positioners)
+    q = np.asarray(joints, dtype=float)
+    tau = np.asarray(efforts, dtype=float)
+    if q.shape != (n, 6) or tau.shape != (n, 6) or not (np.isfinite(q).all()
+                                                         and np.isfinite(tau).all()):
+        raise InputError(f'joints and efforts: expected ({n}, 6) finite values each, got '
+                         f'{q.shape} and {tau.shape}')
+    fk = forward(mech, q[:, :3], q[:, 3:])
+    if not fk.converged.all():
+        raise InputError('the encoder values give no platform pose for '
+                         + ', '.join(e.name for e, ok in zip(cell.positioners, fk.converged,
+                                                              strict=True) if not ok))
+    out = np.empty((n, 3))
+    for k, base in enumerate(bases(cell)):
+        g = base.R.T @ np.asarray(GRAVITY)
+        own = Payload(mass=0.0, gravity=(float(g[0]), float(g[1]), float(g[2])))
+        held = actuator_efforts(mech, fk.position[k:k + 1], fk.quaternion[k:k + 1], own,
+                                structure)
+        # τ − τ_own = Jᵀ·w, w the platform's wrench on what pushes it: on the panel
+        on_panel = wrench_from_efforts(mech, fk.position[k:k + 1], fk.quaternion[k:k + 1],
+                                       tau[k:k + 1] - held)[0]
+        out[k] = base.R @ on_panel[:3]
+    return out
+
+
+def internal_force_sizes(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> FloatArray:
+    """The internal force at each attachment (N_sets,) N: the size of its force on the panel
+    ``forces`` (N_sets, 3) N (cell frame, :func:`attachment_forces`) less the panel's
+    weight's own share (module docstring)."""
+    share = wrench_map(cell.attachments(mech), cell.panel.stiffness,
+                       cell.panel.weight()).by_load[:, :3]
+    out: FloatArray = np.linalg.norm(np.asarray(forces, dtype=float) - share, axis=1)
+    return out
