@@ -119,3 +119,8 @@ def test_the_panel_analysis_says_what_the_load_cells_read() -> None:
     assert panel_figures(recording).load_cells_n == ()  # without the cell: not figured
     lacking = recording._replace(joints={k: v for k, v in sets.items() if k != 'p2'})
     assert np.isnan(panel_figures(lacking, CELL, MECH).load_cells_n[0])
+    # a driver that reports no efforts (NaN): no figure, the rest of the analysis stands
+    silent = dict(sets, p2=sets['p2']._replace(efforts=np.full((4, 6), np.nan)))
+    figures = panel_figures(recording._replace(joints=silent), CELL, MECH)
+    assert np.isnan(figures.load_cells_n[0]) and figures.same_as_live
+    assert "The legs' load cells gave no figure" in '\n'.join(report_lines(figures))

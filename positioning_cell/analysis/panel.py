@@ -241,15 +241,19 @@ def panel_figures(recording: PanelRecording, cell: CellFile | None = None,
 
 def _load_cells(recording: PanelRecording, cell: CellFile, mech: Mechanism,
                 structure: Structure | None, first: float, last: float) -> float:
-    """The largest internal force (N) the sets' load cells say over [first, last] (NaN when
-    a set's joint states are not in the bag for it)."""
+    """The largest internal force (N) the sets' load cells say over [first, last]; NaN when
+    a set's joint states are not in the bag for it or do not give it (no efforts, no pose):
+    the rest of the analysis stands without it."""
     means = [recording.joints[e.name].mean(first, last) if e.name in recording.joints
              else None for e in cell.positioners]
     if any(m is None for m in means):
         return float('nan')
     joints = np.array([m[0] for m in means if m is not None])
     efforts = np.array([m[1] for m in means if m is not None])
-    forces = attachment_forces(cell, mech, joints, efforts, structure)
+    try:
+        forces = attachment_forces(cell, mech, joints, efforts, structure)
+    except InputError:
+        return float('nan')
     return float(internal_force_sizes(cell, mech, forces).max())
 
 
@@ -341,8 +345,11 @@ def report_lines(figures: PanelFigures) -> list[str]:
               f'{um(_rms(errors))} um RMS from the truth. Largest attachment disagreement '
               f'{um(figures.moving[1])} um and internal force {figures.moving[0]:.0f} N '
               f'while moving; {um(figures.at_rest[1])} um, {figures.at_rest[0]:.0f} N at rest.']
-    if figures.load_cells_n:
-        said = np.array(figures.load_cells_n)
+    said = np.array(figures.load_cells_n)
+    if said.size and np.isnan(said).all():
+        lines.append("The legs' load cells gave no figure (the sets' joint states lack "
+                     'efforts or poses).')
+    elif said.size:
         lines.append(f"The legs' load cells say at most {np.nanmax(said):.0f} N of internal force "
                      f'at rest (median {np.nanmedian(said):.0f} N over the settled moves; the '
                      f'truth at most {figures.at_rest[0]:.0f} N).')
