@@ -224,6 +224,9 @@ COORDINATED_STOP = '/cell_coordinator/stop'
 #: Relax the panel at rest: each positioner moved onto the rigid placement its tracker's
 #: readings imply, all as one, and keeping that correction (std_srvs/srv/Trigger).
 COORDINATED_RELAX = '/cell_coordinator/relax'
+#: Relax the panel at rest from the legs' load cells: each positioner stepped, all as one,
+#: until the internal force they give is within the relax settings (std_srvs/srv/Trigger).
+COORDINATED_RELAX_FORCES = '/cell_coordinator/relax_forces'
 #: The coordinated cell's own frame (the cell file's bases are in it) and the panel's.
 CELL_FRAME = 'cell'
 PANEL_FRAME = 'panel'

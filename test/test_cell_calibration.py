@@ -272,7 +272,7 @@ def test_the_panel_rests_at_the_springs_energy_minimum_with_its_weight(seed: int
     balls = np.array([(base @ Transform.from_pq(*pose)).apply(np.asarray(e.offset))
                       for base, pose, e in zip(installation.true_bases, platforms,
                                                CELL.positioners, strict=True)])
-    k, weight = CELL.panel.stiffness[0], CELL.panel.mass * 9.80665
+    k, weight = installation.true_cell.panel.stiffness[0], CELL.panel.mass * 9.80665
     cog = np.asarray(CELL.panel.centre_of_gravity)
 
     def energy(x: np.ndarray) -> float:
@@ -287,7 +287,9 @@ def test_the_panel_rests_at_the_springs_energy_minimum_with_its_weight(seed: int
     # ~100 J in the springs (kN over mm): 1e-6 of it is a turn of ~1e-8 rad
     assert energy(np.r_[state.panel.p, Rotation.from_matrix(state.panel.R).as_rotvec()]) \
         <= found.fun * (1.0 + 1e-6)
-    assert np.linalg.norm(state.panel.apply(CENTRE) - exact.apply(CENTRE)) < 0.1e-6
+    # the energy's floor is flat (seen: BFGS's pose 0.11 um off the truth's with the truth's
+    # energy the lower, at 0.8 of the file's stiffness)
+    assert np.linalg.norm(state.panel.apply(CENTRE) - exact.apply(CENTRE)) < 0.2e-6
     assert np.max(np.linalg.norm(balls - installation.true_sockets @ state.panel.R.T
                                  - state.panel.p, axis=1)) > 0.5e-3  # millimetres of misfit
 

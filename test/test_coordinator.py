@@ -16,6 +16,7 @@ import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from load_cell_truth import set_readings
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.config import config_path
@@ -38,6 +39,7 @@ from positioning_cell.coordinated.panel_motion import (
 from positioning_cell.coordinated.settings import (
     CellCoordinatorSettings,
     CoordinatorSettings,
+    RelaxSettings,
     replacing,
 )
 from positioning_cell.core.mechanism import Mechanism
@@ -45,6 +47,7 @@ from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.moves.timing import Timing
 from positioning_cell.moves.trajectory import plan_move
+from positioning_cell.sim.panel import PanelTruth
 
 MECH = Mechanism.default()
 CELL = cell_file.load(config_path('three_positioners.yaml'))
@@ -192,6 +195,9 @@ class FakePositioner:
         with self.lock:
             self.stops += 1
 
+    def load_cells(self, seconds: float) -> tuple[np.ndarray, np.ndarray] | None:
+        return None
+
 
 FAST = CoordinatorSettings(start_lead=0.05, poll_period=0.005, end_margin=1.0)
 REQUEST = PanelRequest(np.array([0.0, 0.0, 0.002]), IDENTITY)
@@ -262,6 +268,97 @@ def test_a_positioner_that_never_settles_stops_all_at_the_deadline_naming_it() -
     assert outcome.code is ResultCode.ABORTED_TIMEOUT
     assert outcome.reason.startswith('p2 not settled')
     assert all(f.stops == 1 for f in fakes)
+
+
+# -- the relax from the load cells --------------------------------------------------------------
+class HeldPanel:
+    """The panel as the simulator's truth holds it on fake positioners: each platform where its
+    last move sent it (home at first), the load cells read off the truth."""
+
+    def __init__(self, truth: PanelTruth) -> None:
+        self.truth = truth
+        self.platforms = platform_goals(CELL, MECH, np.zeros(3), IDENTITY)
+
+    def readings(self) -> tuple[np.ndarray, np.ndarray, float]:
+        return set_readings(self.truth, self.platforms)
+
+
+class HoldingFake(FakePositioner):
+    """A fake positioner holding the panel: its platform goes where it is sent, its load cells
+    read the truth's forces (``silent``: it gives none)."""
+
+    def __init__(self, name: str, panel: HeldPanel, silent: bool = False) -> None:
+        super().__init__(name)
+        self.panel, self.silent = panel, silent
+        self.index = [e.name for e in CELL.positioners].index(name)
+
+    def move(self, goal: Pose, request: PanelRequest, timing: Timing, pivot: np.ndarray
+             ) -> Callable[[], Ended | None]:
+        self.panel.platforms[self.index] = goal
+        return super().move(goal, request, timing, pivot)
+
+    def load_cells(self, seconds: float) -> tuple[np.ndarray, np.ndarray] | None:
+        if self.silent:
+            return None
+        joints, efforts, _ = self.panel.readings()
+        return joints[self.index], efforts[self.index]
+
+
+def installed(stiffness: float) -> PanelTruth:
+    """The shipped cell with its balls 0.1-0.2 mm off their sockets' places in the panel file
+    (unseen by the trackers) and a panel ``stiffness`` times its file's (truth)."""
+    off = np.array([[1.5e-4, 0.0, -5e-5], [-1e-4, 1.2e-4, 0.0], [0.0, -1.5e-4, 1e-4]])
+    sockets = CELL.panel_points(MECH) + off
+    entries = tuple(replace(e, in_panel=tuple(float(v) for v in socket))
+                    for e, socket in zip(CELL.positioners, sockets, strict=True))
+    panel = replace(CELL.panel, stiffness=tuple(stiffness * np.asarray(CELL.panel.stiffness)))
+    return PanelTruth(replace(CELL, positioners=entries, panel=panel), MECH)
+
+
+def test_the_load_cells_relax_a_strain_the_trackers_cannot_see() -> None:
+    """Balls off their sockets: every platform where it is sent and the panel strained. The
+    relax from the load cells, on a panel at 0.75 of its file's stiffness, steps until the
+    truth's internal force is at most 20 N (each move leaves about a quarter); the next panel
+    move keeps the load corrections."""
+    panel = HeldPanel(installed(0.75))
+    fakes = [HoldingFake(e.name, panel) for e in CELL.positioners]
+    strained = panel.readings()[2]
+    assert strained > 1000.0
+    coord = Coordinator(CELL, MECH, fakes, FAST,
+                        relax=RelaxSettings(passes=4, enough=20.0, window=0.1))
+    outcome = coord.relax_forces(threading.Event())
+    assert outcome.code is ResultCode.SUCCESS, outcome.reason
+    assert panel.readings()[2] <= 20.0 + 0.02 * strained
+    assert outcome.reason.startswith('relaxed by the load cells: internal force ')
+    moves = len(fakes[0].moved)
+    assert 2 <= moves <= 4 and f'in {moves} moves' in outcome.reason
+    corrections = dict(coord.load_corrections)
+    assert all(np.linalg.norm(c) > 20e-6 for c in corrections.values())
+    # a panel move keeps them: the platforms go to the file's goals plus the corrections
+    assert coord.move(REQUEST, threading.Event()).code is ResultCode.SUCCESS
+    goals = platform_goals(CELL, MECH, REQUEST.position, REQUEST.quaternion)
+    for fake, goal in zip(fakes, goals, strict=True):
+        np.testing.assert_allclose(fake.moved[-1][0][0], goal[0] + corrections[fake.name],
+                                   atol=1e-12)
+    assert panel.readings()[2] <= 20.0 + 0.03 * strained
+
+
+def test_a_relax_short_of_passes_says_the_stiffness_falls_short_and_a_silent_set_refuses(
+        ) -> None:
+    panel = HeldPanel(installed(0.75))
+    fakes = [HoldingFake(e.name, panel) for e in CELL.positioners]
+    coord = Coordinator(CELL, MECH, fakes, FAST,
+                        relax=RelaxSettings(passes=1, enough=20.0, window=0.1))
+    outcome = coord.relax_forces(threading.Event())
+    assert outcome.code is ResultCode.ABORTED_INTERNAL_FORCE
+    assert "in 1 relaxing moves, still over 20 N: the cell file's panel stiffness falls " \
+        'short' in outcome.reason
+    silent = [HoldingFake(e.name, panel, silent=e.name == 'p2') for e in CELL.positioners]
+    coord = Coordinator(CELL, MECH, silent, FAST)
+    outcome = coord.relax_forces(threading.Event())
+    assert outcome.code is ResultCode.REFUSED_DRIVER_SILENT
+    assert outcome.reason == 'refused, nothing moved: no load-cell readings of p2 in 0.5 s'
+    assert not any(f.moved for f in silent)
 
 
 def test_the_positioners_must_be_the_cells() -> None:

@@ -6,10 +6,13 @@ the simulator computed from the misfits."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from load_cell_truth import set_readings
 from scipy.spatial.transform import Rotation
 
 from positioning_cell.analysis.panel import (
@@ -22,16 +25,15 @@ from positioning_cell.analysis.panel import (
 )
 from positioning_cell.config import config_path
 from positioning_cell.coordinated import cell_file
-from positioning_cell.coordinated.cell_file import GRAVITY
-from positioning_cell.coordinated.load_cells import attachment_forces, internal_force_sizes
+from positioning_cell.coordinated.load_cells import (
+    attachment_forces,
+    internal_force_sizes,
+    relaxing_steps,
+)
 from positioning_cell.coordinated.panel_motion import bases, platform_goals
-from positioning_cell.core.kinematics import inverse
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.statics import (
-    Payload,
-    Structure,
-    actuator_efforts,
     efforts_from_wrench,
     wrench_from_efforts,
 )
@@ -56,23 +58,13 @@ def test_the_wrench_comes_back_from_the_efforts(move: list[float], wrench: list[
                                rtol=0, atol=1e-7)
 
 
-def _readings(misfit: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """The sets' encoder values and load-cell efforts, and the truth's largest internal force,
-    with each platform ``misfit`` (N, 3) m off its goal for the panel at home."""
+def _readings(misfit: np.ndarray, truth: PanelTruth = TRUTH
+              ) -> tuple[np.ndarray, np.ndarray, float]:
+    """The sets' encoder values and load-cell efforts, and the ``truth``'s largest internal
+    force, with each platform ``misfit`` (N, 3) m (its base frame) off its goal for the panel
+    at home."""
     goals = platform_goals(CELL, MECH, np.zeros(3), [0.0, 0.0, 0.0, 1.0])
-    platforms = [(p + d, q) for (p, q), d in zip(goals, misfit, strict=True)]
-    state = TRUTH.state(platforms)
-    joints, efforts = [], []
-    for entry, base, (p, q) in zip(CELL.positioners, bases(CELL), platforms, strict=True):
-        ik = inverse(MECH, p, q)
-        joints.append(np.concatenate([ik.lengths[0], ik.thetas[0]]))
-        g = base.R.T @ np.asarray(GRAVITY)
-        own = actuator_efforts(MECH, p[None], q[None], Payload(mass=0.0, gravity=tuple(g)),
-                               Structure())
-        # as the simulated drives read them: their own load, and the panel's push (τ = Jᵀ·−w)
-        pushed = state.on_platforms[entry.name]
-        efforts.append(own[0] + efforts_from_wrench(MECH, p[None], q[None], -pushed[None])[0])
-    return np.array(joints), np.array(efforts), state.largest
+    return set_readings(truth, [(p + d, q) for (p, q), d in zip(goals, misfit, strict=True)])
 
 
 def test_the_load_cells_give_the_truths_internal_force() -> None:
@@ -89,6 +81,48 @@ def test_the_load_cells_give_the_truths_internal_force() -> None:
     # the weight: the attachments' forces on the panel hold it up
     total = attachment_forces(CELL, MECH, joints, efforts).sum(axis=0)
     np.testing.assert_allclose(total, -CELL.panel.weight()[:3], atol=1e-6)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.lists(st.floats(-4e-4, 4e-4), min_size=9, max_size=9))
+def test_a_relaxing_step_takes_the_internal_force_away(misfit: list[float]) -> None:
+    """The steps the load cells give, taken by the platforms, leave the truth's internal force
+    within the load cells' own error (the nominal Jacobian, the weight's share at home): 2 %
+    of what it was, or a newton."""
+    before = np.array(misfit).reshape(3, 3)
+    joints, efforts, largest = _readings(before)
+    steps = relaxing_steps(CELL, MECH, attachment_forces(CELL, MECH, joints, efforts))
+    *_, after = _readings(before + steps)
+    assert after <= 0.02 * largest + 1.0
+    # least-norm: the steps hold no rigid translation of the panel (it loads nothing)
+    in_cell = np.array([b.R @ s for b, s in zip(bases(CELL), steps, strict=True)])
+    assert np.linalg.norm(in_cell.mean(axis=0)) <= 0.02 * np.abs(in_cell).max() + 1e-9
+
+
+def test_a_panel_softer_than_its_file_is_relaxed_step_by_step() -> None:
+    """On a panel at 0.75 of the cell file's stiffness the load cells read 0.75 of the force
+    the file gives the misfit, and a step (the file's) takes 0.75 of the misfit away: it
+    leaves a quarter of the force, each further step a quarter again."""
+    soft = replace(CELL, panel=replace(CELL.panel, stiffness=tuple(
+        0.75 * np.asarray(CELL.panel.stiffness))))
+    truth = PanelTruth(soft, MECH)
+    misfit = np.array([[0.0, 0.0, 0.0], [2e-4, -1e-4, 0.0], [0.0, 1.5e-4, 5e-5]])
+    largest = []
+    for _ in range(3):
+        joints, efforts, force = _readings(misfit, truth)
+        largest.append(force)
+        misfit = misfit + relaxing_steps(CELL, MECH, attachment_forces(CELL, MECH, joints,
+                                                                       efforts))
+    assert largest[0] > 1000.0
+    assert largest[1] == pytest.approx(largest[0] / 4.0, rel=0.05)
+    assert largest[2] == pytest.approx(largest[1] / 4.0, rel=0.1)
+
+
+def test_forces_that_are_not_the_cells_are_refused() -> None:
+    with pytest.raises(InputError, match=r'expected \(3, 3\)'):
+        relaxing_steps(CELL, MECH, np.zeros((2, 3)))
+    with pytest.raises(InputError, match='finite'):
+        relaxing_steps(CELL, MECH, np.full((3, 3), np.inf))
 
 
 def test_readings_that_are_not_the_cells_are_refused() -> None:

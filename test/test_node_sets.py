@@ -18,8 +18,8 @@ from positioning_cell.ros.node_sets import ALL_NODES, remap_arguments, set_param
 #: Wire names no set remaps: ROS's own, the coordinator's and the coordinated run's (the
 #: root's), the live view's Foxglove channels (not ROS topics).
 NOT_REMAPPED = {names.PARAMETER_EVENTS, names.COORDINATED_MOVE_ACTION, names.COORDINATED_STOP,
-                names.COORDINATED_RELAX, names.PANEL_FORCES, names.PANEL_MEASURED_POSE,
-                names.PANEL_TRUE_POSE, names.PANEL_PROGRAM,
+                names.COORDINATED_RELAX, names.COORDINATED_RELAX_FORCES, names.PANEL_FORCES,
+                names.PANEL_MEASURED_POSE, names.PANEL_TRUE_POSE, names.PANEL_PROGRAM,
                 names.LIVE_SCENE, names.LIVE_TRANSFORMS, names.LIVE_DEVIATION,
                 names.LIVE_STATUS}
 

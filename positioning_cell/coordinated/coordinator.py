@@ -38,6 +38,20 @@ correction, added to its goals from then on (and taken off its setpoints by the 
 panel itself stays where it is, within the readings' noise; its internal force goes. The
 watch is off during a relax move: its reference is the commanded panel's placement, which a
 relax move leaves on purpose (the move only lowers the disagreement, by tens of µm).
+
+Relax from the load cells (:meth:`Coordinator.relax_forces`): a strain the trackers cannot
+see (a socket off its place in the panel: every platform where it is sent, the panel pulled
+all the same) is in the legs' forces. At rest, each set's encoders and load cells averaged
+give its attachment's force on the panel (:func:`~.load_cells.attachment_forces`); the cell
+file's stiffness turns what is internal in them into each positioner's relaxing step
+(:func:`~.load_cells.relaxing_steps`), all moved as one, and the steps are kept as its load
+correction, added to its goals from then on. A real panel is not as stiff as its file: a
+step leaves that error's share of the force, and the relax measures again and steps again
+(at most ``passes`` moves) until the largest internal force is at most ``enough`` N; it says
+what the load cells gave before and after each move, and, when ``passes`` were not enough,
+that the cell file's stiffness falls short. The load corrections are not the trackers': the
+watch does not take them off its setpoints (the trackers see the platforms where they are
+sent), and the trackers' relax aims at the rigid placement moved by them.
 """
 
 from __future__ import annotations
@@ -54,6 +68,11 @@ from numpy.typing import NDArray
 
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.force_watch import Excess, ForceWatch
+from positioning_cell.coordinated.load_cells import (
+    attachment_forces,
+    internal_force_sizes,
+    relaxing_steps,
+)
 from positioning_cell.coordinated.panel_motion import (
     PairDisagreement,
     implied_panels,
@@ -63,7 +82,7 @@ from positioning_cell.coordinated.panel_motion import (
     platforms_in_panel,
     rigid_placement,
 )
-from positioning_cell.coordinated.settings import CoordinatorSettings
+from positioning_cell.coordinated.settings import CoordinatorSettings, RelaxSettings
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
@@ -122,6 +141,10 @@ class Positioner(Protocol):
     def stop(self) -> None:
         """Stop whatever the positioner runs, under control."""
 
+    def load_cells(self, seconds: float) -> tuple[FloatArray, FloatArray] | None:
+        """Its encoder values (6,) (m, rad) and load-cell efforts (6,) (N, N·m), each the mean
+        over ``seconds`` s at rest; None when it gave none."""
+
 
 @dataclass(frozen=True)
 class PanelOutcome:
@@ -154,17 +177,20 @@ class Coordinator:
 
     def __init__(self, cell: CellFile, mech: Mechanism, positioners: Sequence[Positioner],
                  settings: CoordinatorSettings | None = None,
-                 clock: Callable[[], float] = time.time, watch: ForceWatch | None = None
-                 ) -> None:
+                 clock: Callable[[], float] = time.time, watch: ForceWatch | None = None,
+                 relax: RelaxSettings | None = None) -> None:
         if [p.name for p in positioners] != [e.name for e in cell.positioners]:
             raise InputError(f'positioners {[p.name for p in positioners]} are not the '
                              f"cell's {[e.name for e in cell.positioners]}")
         self.cell, self.mech, self.positioners = cell, mech, list(positioners)
         self.settings, self.clock = settings or CoordinatorSettings(), clock
-        self.watch = watch
+        self.watch, self.relax_settings = watch, relax or RelaxSettings()
         #: Each positioner's correction (m, its base frame) from :meth:`relax`: added to its
         #: platform goals.
         self.corrections = {e.name: np.zeros(3) for e in cell.positioners}
+        #: Each positioner's load correction (m, its base frame) from :meth:`relax_forces`:
+        #: added to its platform goals too.
+        self.load_corrections = {e.name: np.zeros(3) for e in cell.positioners}
         #: The panel's last goal (cell frame): home until a move settles.
         self.panel_goal = Transform.identity()
         #: Each positioner's pivot (3,) m: the panel's origin in its platform frame, the one
@@ -208,7 +234,7 @@ class Coordinator:
     def _corrected(self, panel: Transform) -> list[Pose]:
         """Each positioner's platform goal for the panel at ``panel``, with its correction."""
         goals = platform_goals(self.cell, self.mech, *panel.to_pq())
-        return [(p + self.corrections[e.name], q)
+        return [(p + self.corrections[e.name] + self.load_corrections[e.name], q)
                 for (p, q), e in zip(goals, self.cell.positioners, strict=True)]
 
     def relax(self, stop: threading.Event, readings: int = 10) -> PanelOutcome:
@@ -227,18 +253,82 @@ class Coordinator:
                                 f'{", ".join(missing)}')
         poses = [pose for pose in measured.values() if pose is not None]
         placed = rigid_placement(self.cell, self.mech, poses)
-        commands = self._corrected(self.panel_goal)
-        steps = [target[0] - pose[0] for target, pose in zip(placed, poses, strict=True)]
-        goals = [(c[0] + d, c[1]) for c, d in zip(commands, steps, strict=True)]
-        outcome = self._run(goals, PanelRequest(*self.panel_goal.to_pq()), stop, None,
-                            watched=False)
+        steps = [target[0] + self.load_corrections[e.name] - pose[0]
+                 for target, pose, e in zip(placed, poses, self.cell.positioners, strict=True)]
+        outcome = self._step(steps, stop, self.corrections)
         if outcome.code is not ResultCode.SUCCESS:
             return outcome
-        for e, d in zip(self.cell.positioners, steps, strict=True):
-            self.corrections[e.name] = self.corrections[e.name] + d
         moved = ', '.join(f'{e.name} {np.linalg.norm(d) * 1e6:.1f} um'
                           for e, d in zip(self.cell.positioners, steps, strict=True))
         return dataclasses.replace(outcome, reason=f'relaxed: moved {moved}; {outcome.reason}')
+
+    def _step(self, steps: Sequence[FloatArray] | FloatArray, stop: threading.Event,
+              kept: dict[str, FloatArray]) -> PanelOutcome:
+        """A relax move: every positioner, at rest, moved as one by its step (``steps``, one
+        (3,) m per positioner, its base frame) from where the panel's goal puts it,
+        unwatched (module docstring); once settled, each step added to its correction in
+        ``kept``."""
+        goals = [(c[0] + d, c[1]) for c, d in zip(self._corrected(self.panel_goal), steps,
+                                                  strict=True)]
+        outcome = self._run(goals, PanelRequest(*self.panel_goal.to_pq()), stop, None,
+                            watched=False)
+        if outcome.code is ResultCode.SUCCESS:
+            for e, d in zip(self.cell.positioners, steps, strict=True):
+                kept[e.name] = kept[e.name] + d
+        return outcome
+
+    def _load_cell_forces(self) -> FloatArray | str:
+        """Each attachment's force on the panel (N_sets, 3) N, cell frame, from the sets' load
+        cells at rest (module docstring); a reason when a set gave none or they give none."""
+        window = self.relax_settings.window
+        readings = [(p.name, p.load_cells(window)) for p in self.positioners]
+        silent = [name for name, r in readings if r is None]
+        if silent:
+            return f'no load-cell readings of {", ".join(silent)} in {window:g} s'
+        joints = np.array([r[0] for _, r in readings if r is not None])
+        efforts = np.array([r[1] for _, r in readings if r is not None])
+        try:
+            return attachment_forces(self.cell, self.mech, joints, efforts)
+        except InputError as err:
+            return f'the load cells give no forces: {err}'
+
+    def _largest(self, forces: FloatArray) -> float:
+        """The largest internal force at one attachment, N, in ``forces`` (N_sets, 3) N."""
+        return float(internal_force_sizes(self.cell, self.mech, forces).max())
+
+    def relax_forces(self, stop: threading.Event) -> PanelOutcome:
+        """Relax the panel from its load cells (module docstring); refused, nothing moved,
+        when a set's load cells are silent. Its reason gives the largest internal force the
+        load cells gave before each move and after the last."""
+        forces = self._load_cell_forces()
+        if isinstance(forces, str):
+            return PanelOutcome(ResultCode.REFUSED_DRIVER_SILENT, f'refused, nothing moved: '
+                                f'{forces}')
+        settings, seen = self.relax_settings, [self._largest(forces)]
+        outcome = PanelOutcome(ResultCode.SUCCESS, 'nothing moved')
+        while seen[-1] > settings.enough and len(seen) <= settings.passes:
+            outcome = self._step(relaxing_steps(self.cell, self.mech, forces), stop,
+                                 self.load_corrections)
+            if outcome.code is not ResultCode.SUCCESS:
+                return outcome
+            forces = self._load_cell_forces()
+            if isinstance(forces, str):
+                return PanelOutcome(ResultCode.ABORTED_DRIVER_LOST, f'after {len(seen)} '
+                                    f'relaxing moves: {forces}')
+            seen.append(self._largest(forces))
+        trail = ' -> '.join(f'{f:.0f}' for f in seen)
+        moves = len(seen) - 1
+        if seen[-1] > settings.enough:
+            return PanelOutcome(ResultCode.ABORTED_INTERNAL_FORCE, f'internal force {trail} N '
+                                f'in {moves} relaxing moves, still over {settings.enough:g} N: '
+                                "the cell file's panel stiffness falls short of the panel's; "
+                                'the corrections are kept', outcome.ends, outcome.timing,
+                                outcome.panel, outcome.pairs)
+        kept = ', '.join(f'{e.name} {np.linalg.norm(self.load_corrections[e.name]) * 1e6:.1f} '
+                         'um' for e in self.cell.positioners)
+        return dataclasses.replace(outcome, reason=f'relaxed by the load cells: internal force '
+                                   f'{trail} N in {moves} moves; load corrections {kept}; '
+                                   f'{outcome.reason}')
 
     def _run(self, goals: list[Pose], request: PanelRequest, stop: threading.Event,
              progress: Callable[[float], None] | None, watched: bool = True) -> PanelOutcome:

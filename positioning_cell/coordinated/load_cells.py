@@ -81,3 +81,28 @@ def internal_force_sizes(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> 
                        cell.panel.weight()).by_load[:, :3]
     out: FloatArray = np.linalg.norm(np.asarray(forces, dtype=float) - share, axis=1)
     return out
+
+
+def relaxing_steps(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> FloatArray:
+    """Each positioner's step (N_sets, 3) m, in its base frame, that takes away the internal
+    force the load cells measure, ``forces`` (N_sets, 3) N (:func:`attachment_forces`): by
+    the cell file's stiffness (seed 002 §3, :func:`~.internal_forces.wrench_map`), the
+    attachments' forces are the weight's share plus A·δ for attachment displacements δ; the
+    least-norm δ that gives the measured forces less that share (least squares: what no
+    displacement gives, e.g. the load cells' own error, is left) is the misfit, and −δ its
+    relaxing step. Least-norm: no rigid motion of the panel (which loads nothing) is in it.
+    A real panel's stiffness is not the file's: a step leaves part of the force (its
+    relative error), which a second one takes away (:meth:`~.coordinator.Coordinator.
+    relax_forces`)."""
+    n = len(cell.positioners)
+    f = np.asarray(forces, dtype=float)
+    if f.shape != (n, 3) or not np.isfinite(f).all():
+        raise InputError(f'forces: expected ({n}, 3) finite values, got {f.shape}')
+    linear = wrench_map(cell.attachments(mech), cell.panel.stiffness, cell.panel.weight())
+    force_rows = (6 * np.arange(n)[:, None] + np.arange(3)).ravel()
+    a = linear.matrix[np.ix_(force_rows, force_rows)]  # forces per attachment translation
+    misfit, *_ = np.linalg.lstsq(a, (f - linear.by_load[:, :3]).ravel(), rcond=None)
+    steps_cell = -misfit.reshape(n, 3)
+    out: FloatArray = np.array([base.R.T @ step
+                                for base, step in zip(bases(cell), steps_cell, strict=True)])
+    return out

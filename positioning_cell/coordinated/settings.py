@@ -42,6 +42,24 @@ class CoordinatorSettings:
         check_fields(self)
 
 
+@dataclass(frozen=True)
+class RelaxSettings:
+    """How the coordinator relaxes the panel from its load cells
+    (:meth:`~positioning_cell.coordinated.coordinator.Coordinator.relax_forces`;
+    ``cell_coordinator`` parameters)."""
+
+    passes: int = setting(3, 'at most this many relaxing moves per command: a real panel is '
+                          "not as stiff as its file, and each move leaves that error's share",
+                          low=1, high=10)
+    enough: float = setting(50.0, 'the relax ends once the largest internal force the load '
+                            'cells give is at most this', 'N', low=0.0, high=1.0e5)
+    window: float = setting(0.5, "each set's load cells and encoders are averaged over this "
+                            'long at rest', 's', low=0.05, high=10.0)
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
 def replacing(current: CellFile, new: CellFile) -> CellFile:
     """``new``, to stand for ``current`` in a running coordinator (a calibrated file of the same
     cell): the same positioners in the same order, as its subscriptions and its ports are
@@ -68,6 +86,8 @@ class CellCoordinatorSettings:
     timing: CoordinatorSettings = group(CoordinatorSettings, "the panel moves' time base")
     answer_timeout: float = setting(10.0, "longest wait for a positioner's answer to a check "
                                     'or a stop', 's', low=0.1, high=120.0)
+    relax: RelaxSettings = group(RelaxSettings, 'the relax from the load cells '
+                                 '(/cell_coordinator/relax_forces)')
 
     def __post_init__(self) -> None:
         check_fields(self)

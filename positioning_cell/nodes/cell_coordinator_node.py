@@ -5,11 +5,12 @@ The cell file (``cell_file``) names the positioners, each a node set under its n
 action /cell_coordinator/move (MoveToPose: the panel frame in the ``cell`` frame, ABSOLUTE)
 runs :meth:`~positioning_cell.coordinated.coordinator.Coordinator.move` on the sets
 (:class:`~positioning_cell.ros.set_port.RosSetPort`, a client node of its own) in a worker
-thread (:func:`positioning_cell.ros.goals.run_goal`), the force watch fed here with each set's
-tracker readings and setpoints. Feedback: the share of the common motion elapsed. One command
-at a time; a cancel, /cell_coordinator/stop or the node's shutdown stops every positioner;
-/cell_coordinator/relax relaxes the panel at rest; state on /diagnostics. ``cell_file`` set
-while it runs (a calibrated file of the same positioners): from the next panel move on."""
+thread (:func:`positioning_cell.ros.goals.run_goal`), the force watch fed with each set's
+tracker readings and setpoints; feedback: the share of the motion elapsed. One command at a
+time; a cancel, /cell_coordinator/stop or a shutdown stops every positioner. At rest,
+/cell_coordinator/relax relaxes the panel from the trackers, .../relax_forces from the load
+cells. State on /diagnostics. ``cell_file`` set while it runs (a calibrated file of the same
+positioners): from the next panel move on, without the relaxes' corrections."""
 
 from __future__ import annotations
 
@@ -41,10 +42,9 @@ from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
 from positioning_cell.ros.set_port import RosSetPort
 from positioning_cell.ros.spin import NodeStart, Spin
 
-#: Longest wait at shutdown for a running panel move to stop every positioner, s.
-CLOSE_WAIT_S = 10.0
-#: The status period, s.
-STATUS_PERIOD_S = 1.0
+#: Longest wait at shutdown for a running panel move to stop every positioner, s; the status
+#: period, s.
+CLOSE_WAIT_S, STATUS_PERIOD_S = 10.0, 1.0
 #: What each set sends the force watch: its tracker's readings and its setpoints.
 FED = (('reading', PoseWithCovarianceStamped, names.MEASURED_POSE),
        ('setpoint', PoseStamped, names.SETPOINT))
@@ -75,7 +75,9 @@ class CellCoordinatorNode(Node):
                                     cancel_callback=lambda _: CancelResponse.ACCEPT,
                                     callback_group=group)
         for name, serve in ((names.COORDINATED_STOP, self._srv_stop),
-                            (names.COORDINATED_RELAX, self._srv_relax)):
+                            (names.COORDINATED_RELAX, partial(self._srv_relax, 'relax')),
+                            (names.COORDINATED_RELAX_FORCES,
+                             partial(self._srv_relax, 'relax_forces'))):
             self.create_service(Trigger, name, serve, callback_group=group)
         self.create_timer(STATUS_PERIOD_S, self._status)
         for entry, (kind, kind_type, topic) in product(self.cell.positioners, FED):
@@ -113,7 +115,8 @@ class CellCoordinatorNode(Node):
                 ports = [RosSetPort(self._client, e.name, settings.answer_timeout)
                          for e in self.cell.positioners]
                 self._coordinator = Coordinator(self.cell, settings.mechanism, ports,
-                                                settings.timing, watch=self._watch)
+                                                settings.timing, watch=self._watch,
+                                                relax=settings.relax)
             return self._coordinator
 
     def _execute(self, goal_handle: Any) -> MoveToPose.Result:
@@ -147,30 +150,25 @@ class CellCoordinatorNode(Node):
         self.last = outcome
         stamp = self.get_clock().now().to_msg()
         result = MoveToPose.Result(outcome=pm.panel_outcome(outcome, (p, q), stamp))
-        if outcome.code is ResultCode.SUCCESS:
-            goal_handle.succeed()
-        elif canceled:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
+        (goal_handle.succeed if outcome.code is ResultCode.SUCCESS
+         else goal_handle.canceled if canceled else goal_handle.abort)()
         self.get_logger().info(f'panel move: {outcome.code.value}: {outcome.reason}')
         return result
 
-    def _srv_relax(self, _request: Any, response: Trigger.Response) -> Trigger.Response:
-        """Relax the panel (:meth:`Coordinator.relax`), one command at a time."""
+    def _srv_relax(self, how: str, _: Any, response: Trigger.Response) -> Trigger.Response:
+        """Relax the panel (:meth:`Coordinator.relax` or ``relax_forces``), one at a time."""
         if self._goal.accept(None) != GoalResponse.ACCEPT:
             response.success, response.message = False, 'refused: a panel move is running'
             return response
         with self._goal.running():
-            self.last = outcome = self.coordinator.relax(self._goal.closing)
+            self.last = outcome = getattr(self.coordinator, how)(self._goal.closing)
         self._status()
         response.success = outcome.code is ResultCode.SUCCESS
         response.message = f'{outcome.code.value}: {outcome.reason}'
         return response
 
     def _srv_stop(self, _request: Any, response: Trigger.Response) -> Trigger.Response:
-        """Stop every positioner (a running panel move then ends, naming the first that
-        stopped)."""
+        """Stop every positioner (a running panel move then ends, naming the first stopped)."""
         try:
             self.coordinator.stop_all()
             response.success, response.message = True, 'every positioner stopping'

@@ -143,6 +143,23 @@ class CellClient:
         self.node.create_subscription(msg_type, topic, received.append, qos)
         return received
 
+    def heard_for(self, msg_type: Any, topic: str, seconds: float, timeout: float,
+                  qos: QoSProfile | int = 100) -> list[Any]:
+        """The messages of ``topic`` heard over ``seconds`` s from the first one (a measuring
+        window), subscribed for that while only; TimeoutError when none comes within
+        ``timeout`` s."""
+        received: list[tuple[float, Any]] = []  # (monotonic s heard, message)
+        subscription = self.node.create_subscription(
+            msg_type, topic, lambda msg: received.append((time.monotonic(), msg)), qos)
+        try:
+            self._wait(lambda: received, timeout, f'a message on {topic}')
+            end = received[0][0] + seconds
+            self._wait(lambda: time.monotonic() >= end, seconds + timeout,
+                       f'{seconds:g} s of {topic}')
+        finally:
+            self.node.destroy_subscription(subscription)
+        return [msg for t, msg in received if t <= end]
+
     def service(self, srv_type: Any, name: str, wait: float = 30.0) -> Any:
         """The client of service ``name`` (one per name, queue sized for bursts of calls:
         SERVICE_QOS), once the service is there (TimeoutError after ``wait`` s)."""

@@ -9,8 +9,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from positioning_cell_interfaces.msg import MoveCommand
 from positioning_cell_interfaces.srv import CheckPose, MoveToPose
+from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
@@ -25,7 +27,8 @@ from positioning_cell.limits.validity import result_code
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.moves.timing import Timing
 from positioning_cell.ros.client import CellClient
-from positioning_cell.ros.messages import pose_arrays, pose_stamped, stamp, vector3
+from positioning_cell.ros.messages import joint_values, pose_arrays, pose_stamped, stamp, vector3
+from positioning_cell.ros.qos import STREAM_QOS
 
 
 class RosSetPort:
@@ -37,6 +40,7 @@ class RosSetPort:
         self._check = names.in_set(names.CHECK_POSE, name)
         self._move = names.in_set(names.MOVE_TO_POSE, name)
         self._stop = names.in_set(names.STOP, name)
+        self._joint_states = names.in_set(names.JOINT_STATES, name)
 
     def _command(self, goal: Pose, request: PanelRequest, timing: Timing,
                  pivot: FloatArray) -> MoveCommand:
@@ -86,6 +90,23 @@ class RosSetPort:
     def stop(self) -> None:
         """Stop (the set's Stop service; TimeoutError when it does not answer)."""
         self.client.trigger(self._stop, self.timeout)
+
+    def load_cells(self, seconds: float) -> tuple[FloatArray, FloatArray] | None:
+        """The mean encoder values and load-cell efforts (JOINT_NAMES order) of the set's
+        joint states heard over ``seconds`` s; None when none come (within the set's answer
+        timeout) or none carry both."""
+        try:
+            heard = self.client.heard_for(JointState, self._joint_states, seconds,
+                                          self.timeout, STREAM_QOS)
+        except TimeoutError:
+            return None
+        pairs = [(joint_values(msg, names.JOINT_NAMES), joint_values(msg, names.JOINT_NAMES,
+                                                                     'effort'))
+                 for msg in heard]
+        both = [(q, tau) for q, tau in pairs if q is not None and tau is not None]
+        if not both:
+            return None
+        return (np.mean([q for q, _ in both], axis=0), np.mean([tau for _, tau in both], axis=0))
 
 
 def ended(outcome: Any) -> Ended:

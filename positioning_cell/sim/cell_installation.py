@@ -5,6 +5,10 @@ simulating the cell's calibration and judging it; the cell's own calibration nev
 - Each positioner's base stands off where the cell file puts it (a seeded installation error:
   ``base_position_sigma`` m per axis, ``base_angle_sigma`` rad about each axis), and its ball
   sits off its nominal place in the panel (``socket_sigma`` m per axis).
+- The panel and the positioners holding it are not as stiff as the cell file says
+  (``stiffness_factor`` of its ``stiffness``): a relax from the load cells, which takes the
+  file's stiffness, leaves that error's share of the force each time it steps
+  (:meth:`~positioning_cell.coordinated.coordinator.Coordinator.relax_forces`).
 - The panel rests where the true platforms put it (:class:`~positioning_cell.sim.panel.
   PanelTruth` of the true cell, :attr:`CellInstallation.true_cell`): the rigid placement
   nearest to them, moved by seed 002's compatibility under its weight (the balls' misfits
@@ -71,6 +75,10 @@ class InstallationSettings:
                                       'axis', 'rad', low=0.0, high=0.05)
     socket_sigma: float = setting(3e-4, "each ball's socket off its nominal place in the "
                                   'panel, per axis', 'm', low=0.0, high=0.01)
+    stiffness_factor: float = setting(0.8, "the attachments' true stiffness over the cell "
+                                      "file's (a design figure: the built panel, its sockets "
+                                      'and the positioners in series are softer)', low=0.1,
+                                      high=10.0)
     tracker: TrackerTruth = group(TrackerTruth, "the cell tracker's true pose in the cell "
                                   'frame and its systematic errors', default=lambda: CELL_TRACKER)
 
@@ -133,7 +141,8 @@ class CellInstallation:
 
     @cached_property
     def true_cell(self) -> CellFile:
-        """The cell file of the installed cell (truth): its true bases and sockets."""
+        """The cell file of the installed cell (truth): its true bases, sockets and
+        stiffness."""
         entries = []
         for entry, base, socket in zip(self.cell.positioners, self.true_bases,
                                        self.true_sockets, strict=True):
@@ -141,7 +150,9 @@ class CellInstallation:
             bx, by, bz = socket.tolist()
             entries.append(replace(entry, base_position=(x, y, z),
                                    base_quaternion=(qx, qy, qz, qw), in_panel=(bx, by, bz)))
-        return replace(self.cell, positioners=tuple(entries))
+        k_force, k_couple = (self.errors.stiffness_factor * k for k in self.cell.panel.stiffness)
+        return replace(self.cell, positioners=tuple(entries),
+                       panel=replace(self.cell.panel, stiffness=(k_force, k_couple)))
 
     @cached_property
     def panel(self) -> PanelTruth:
