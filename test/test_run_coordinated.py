@@ -1,12 +1,14 @@
 """``run_cell --cell`` (issue 27): the coordinated cell run end to end as a command: two
-positioners installed off their cell file, the cell calibrated from the panel's targets, a
-short panel program recorded and analysed into the panel's ISO 9283 figures. Judged by what
-the command wrote (its exit status, the report) and by the simulation's truth the analysis
-carries (the run folder's panel_report.json), and by the legs' load cells against it."""
+positioners installed off their cell file, the cell calibrated from the panel's targets and
+relaxed from the legs' load cells, a short panel program recorded and analysed into the
+panel's ISO 9283 figures. Judged by what the command wrote (its exit status, the report) and
+by the simulation's truth the analysis carries (the run folder's panel_report.json), and by
+the legs' load cells against it."""
 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 from pathlib import Path
 
@@ -68,9 +70,20 @@ def test_the_coordinated_cell_runs_end_to_end(tmp_path: Path) -> None:
     assert max(report['true_error_um']) <= 30.0
     assert report['moving']['largest_stretch_um'] is not None
     # the strain the installation puts in the panel (sockets off their file: ~1.9 kN here,
-    # the same at every pose, which no pose measurement shows): the legs' load cells say it
-    said, truth = max(report['load_cells_internal_n']), report['at_rest']['largest_force_n']
+    # the same at every pose, which no pose measurement shows): the legs' load cells see it,
+    # and the relax from them takes it away before the program, in steps (the panel is 0.8
+    # as stiff as its file: each leaves a fifth)
+    (relaxed,) = [line for line in said if line.startswith('relax from the load cells: ')]
+    trail = re.search(r'internal force ([\d >-]+) N in (\d) moves', relaxed)
+    assert trail is not None, relaxed
+    forces = [float(f) for f in trail.group(1).split(' -> ')]
+    assert forces[0] > 1000.0 and forces[-1] <= 50.0 and int(trail.group(2)) >= 2, relaxed
+    # judged by the truth at every pose of the program after it: what is left is what changes
+    # from pose to pose (seen: 44 N at A, 102 N at B, turned 4 mrad), which a relax at one
+    # pose leaves; and the load cells agree
+    said_n, truth = max(report['load_cells_internal_n']), report['at_rest']['largest_force_n']
+    assert truth <= 0.1 * forces[0], (report['at_rest'], relaxed)
     assert len(report['load_cells_internal_n']) == 4
-    assert abs(said - truth) <= 0.1 * truth, (said, truth)
+    assert abs(said_n - truth) <= 0.1 * truth + 10.0, (said_n, truth)
     table = (run_dir / 'panel_report.md').read_text()
     assert '| A | 2 |' in table and '| B | 2 |' in table

@@ -61,6 +61,9 @@ class PanelProgramSettings:
     readings: int = setting(10, 'tracker readings averaged per pose', low=1, high=1000)
     speed_scale: float = setting(0.25, "the panel's moves, as a share of the positioners' "
                                  'speed limits', low=0.0, low_open=True, high=1.0)
+    relax: bool = setting(True, "relax the panel from the legs' load cells before the poses "
+                          '(run_cell --cell: after the cell calibration; /cell_coordinator/'
+                          'relax_forces)')
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -6,14 +6,16 @@ coordinated cell of the cell file (:func:`positioning_cell.ros.node_sets.start_c
 each positioner's node set, the cell coordinator, the panel simulator); homes every
 positioner; calibrates the cell from the panel's targets (the program file's
 ``panel_calibration``: :mod:`positioning_cell.procedures.panel_calibration`), writes the
-calibrated cell file into the run folder and sets it as the coordinator's ``cell_file``; drives
-the panel program (:mod:`positioning_cell.procedures.panel_program`), each step recorded on
+calibrated cell file into the run folder and sets it as the coordinator's ``cell_file``;
+relaxes the panel from the legs' load cells (the program's ``relax``); drives the panel
+program (:mod:`positioning_cell.procedures.panel_program`), each step recorded on
 ``/cell/panel_program``; stops every process; analyses the bag
 (:mod:`positioning_cell.analysis.panel`: the panel's ISO 9283 figures, judged against the
 simulation's truth) into ``panel_report.md`` and ``panel_report.json``; prints the table. Exit
-status as ``run_cell``'s: 0 done; 1 done but a move failed, the calibration did not hold or the
-analysis differs from the run; 2 a bad file (nothing started); 5 the cell did not come up or
-stopped answering; 130 interrupted (the processes stopped, what was recorded analysed)."""
+status as ``run_cell``'s: 0 done; 1 done but a move failed, the calibration or the relax did
+not hold or the analysis differs from the run; 2 a bad file (nothing started); 5 the cell did
+not come up or stopped answering; 130 interrupted (the processes stopped, what was recorded
+analysed)."""
 
 from __future__ import annotations
 
@@ -155,6 +157,12 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
             say('run_cell: a positioner has more error than its model explains: the program '
                 'runs on the cell file as it was')
             status = Exit.NOT_ACHIEVED
+
+        if program.settings.relax:
+            done, message = client.trigger(names.COORDINATED_RELAX_FORCES, START_TIMEOUT)
+            say(f'relax from the load cells: {message}')
+            if not done:
+                status = Exit.NOT_ACHIEVED
 
         def record(step: PanelStep) -> None:
             client.publish_program(step.to_json(), names.PANEL_PROGRAM)
