@@ -184,3 +184,21 @@ def test_the_tool_reports_the_shipped_cell_and_the_alternatives(
     for exact in ('all ball_in_slot', '3-2-1 coupling (ball, slot, flats)'):
         assert alternatives[exact]['redundant_inputs'] == 0, exact
         assert alternatives[exact]['locked_dof'] == 0, exact
+
+
+def test_the_tool_stacks_the_positioners_errors_up_on_the_panel(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The tolerance engine's figures of the shipped cell (three balls): 10 µm on each
+    positioner moves the centroid by at most 10 µm and by 10/√3 µm RSS per axis, each
+    positioner a third of it; a bad figure is refused (exit 2)."""
+    assert tool.main(['--error-um', '10']) == 0
+    out = capsys.readouterr().out
+    assert 'each positioner off by at most 10 um' in out
+    assert 'test_point.x (um)            10.00      5.77     33%    33%    33%' in out
+    assert tool.main(['--json', '--error-um', '5']) == 0
+    doc = json.loads(capsys.readouterr().out)['tolerance']
+    assert doc['error_m'] == pytest.approx(5e-6) and doc['positioners'] == ['p1', 'p2', 'p3']
+    assert doc['outputs']['test_point.z']['rss'] == pytest.approx(5e-6 / 3**0.5, rel=1e-9)
+    assert set(doc['outputs']) >= {'force p1-p2', 'force p1-p3', 'force p2-p3'}
+    assert tool.main(['--error-um', '-1']) == 2
+    assert 'each must be finite and >= 0' in capsys.readouterr().err

@@ -101,6 +101,12 @@ class CellFile:
     positioners: tuple[PositionerEntry, ...]
     panel: Panel = Panel()
 
+    def test_point(self, mech: Mechanism | None = None) -> FloatArray:
+        """(3,) m: the panel's ISO 9283 test point, its attachment points' centroid in the
+        panel frame (:meth:`panel_points`)."""
+        out: FloatArray = self.panel_points(mech).mean(axis=0)
+        return out
+
     def panel_points(self, mech: Mechanism | None = None) -> FloatArray:
         """(N, 3) m: each attachment's point in the panel frame (the cell frame, the panel at
         home): its ``in_panel``, else where its platform puts it at home (``mech``: the

@@ -85,7 +85,7 @@ class PanelCalibrationSettings:
 def calibration_poses(cell: CellFile, mech: Mechanism,
                       settings: PanelCalibrationSettings) -> list[Transform]:
     """The program's panel poses (T_cell_panel), home first (module docstring)."""
-    centre = cell.panel_points(mech).mean(axis=0)
+    centre = cell.test_point(mech)
     # the sequence's first point is its origin (home, here); the rest fill ±1
     unit = 2.0 * qmc.Halton(d=6, scramble=False).random(settings.poses) - 1.0
     unit[0] = 0.0

@@ -134,7 +134,7 @@ def load_panel_program(path: str | Path) -> PanelProgram:
 def program_poses(cell: CellFile, mech: Mechanism, program: PanelProgram) -> list[Transform]:
     """The program's panel poses T_cell_panel, in its order, about the attachment points'
     centroid of ``cell``."""
-    centre = cell.panel_points(mech).mean(axis=0)
+    centre = cell.test_point(mech)
     return [panel_about(centre, row[:3], row[3:]) for row in program.moves]
 
 
@@ -189,7 +189,7 @@ def run(port: PanelPort, cell: CellFile, mech: Mechanism, program: PanelProgram,
     """The program (module docstring): every step, in order, each also handed to ``record``
     as it ends; a line per step."""
     poses = program_poses(cell, mech, program)
-    centre = cell.panel_points(mech).mean(axis=0)
+    centre = cell.test_point(mech)
     settings = program.settings
     steps = []
     none_p, none_q = (math.nan,) * 3, (math.nan,) * 4

@@ -8,7 +8,11 @@ internal force systems pair by pair; then, for the same attachment points, which
 types make the cell over-constrained (each kind for every positioner, and the 3-2-1 kinematic
 coupling: a ball, a ball in a slot toward it, balls on flats; slots of every positioner
 point at the centroid, Maxwell's coupling). Each analysis is checked by the
-loop velocities (a mismatch exits 1). ``--json`` prints one JSON document instead. Exit
+loop velocities (a mismatch exits 1). Then the tolerance engine on the assembled loops
+(:mod:`positioning_cell.coordinated.panel_tolerance`): how far each positioner's error
+(``--error-um``, a clamp's turn ``--turn-urad``) moves the panel's test point and turns it,
+and loads each pair, worst case and root-sum-square, and each positioner's share. ``--json``
+prints one JSON document instead. Exit
 status (:mod:`positioning_cell.tools.exits`): 0 done, 1 the two analyses disagree, 2 a bad
 cell file.
 """
@@ -27,13 +31,19 @@ from positioning_cell.config import config_path
 from positioning_cell.coordinated.attachments import (
     BALL_IN_SLOT,
     BALL_ON_PLANE,
+    CLAMP,
     KINDS,
     SPHERICAL,
     Attachment,
 )
 from positioning_cell.coordinated.cell_file import load
 from positioning_cell.coordinated.mobility import CellMobility, cell_mobility, loop_mobility
-from positioning_cell.errors import ConfigError
+from positioning_cell.coordinated.panel_tolerance import (
+    panel_sensitivity,
+    panel_stackup,
+    stackup_lines,
+)
+from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.tools.exits import Exit, exit_table
 
 #: The shipped cell file.
@@ -94,12 +104,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--cell', type=Path, help='cell file (default: the shipped '
                         f'config/{DEFAULT_CELL})')
+    parser.add_argument('--error-um', type=float, default=10.0, help="each positioner's "
+                        'attachment off by at most this, um (default 10)')
+    parser.add_argument('--turn-urad', type=float, default=20.0, help="a clamp's turn off "
+                        'by at most this, urad (default 20)')
     parser.add_argument('--json', action='store_true', help='one JSON document')
     args = parser.parse_args(argv)
+    error, turn = args.error_um * 1e-6, args.turn_urad * 1e-6
     try:
         cell = load(args.cell if args.cell is not None else config_path(DEFAULT_CELL))
         attachments = cell.attachments()
     except ConfigError as err:
+        print(f'cell_mobility: {err}', file=sys.stderr)
+        return Exit.USAGE
+    try:
+        stack = panel_stackup(panel_sensitivity(cell, None), error, turn)
+    except InputError as err:
         print(f'cell_mobility: {err}', file=sys.stderr)
         return Exit.USAGE
     try:
@@ -109,9 +129,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'cell_mobility: {err}', file=sys.stderr)
         return Exit.NOT_ACHIEVED
     if args.json:
+        tolerance = {'error_m': error, 'turn_rad': turn, 'positioners': stack.positioners,
+                     'outputs': {o: {'worst': float(stack.worst[k]), 'rss': float(stack.rss[k]),
+                                     'shares': stack.shares[k].tolist()}
+                                 for k, o in enumerate(stack.outputs)}}
         print(json.dumps({'cell': str(cell.path), 'mobility': found.document(),
-                          'alternatives': {k: v.document() for k, v in others.items()}},
-                         indent=2))
+                          'alternatives': {k: v.document() for k, v in others.items()},
+                          'tolerance': tolerance}, indent=2))
         return Exit.OK
     print(f'{cell.path}:')
     print('\n'.join(f'  {line}' for line in found.lines()))
@@ -120,6 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name, m in others.items():
         print(f'  {name:<38} {"yes" if m.locked_dof == 0 else "no":>5} {m.idle_inputs:>5} '
               f'{m.redundant_inputs:>9}  {"yes" if m.over_constrained else "no"}')
+    clamped = any(a.kind == CLAMP for a in attachments)
+    print('\n'.join(stackup_lines(stack, error, turn if clamped else 0.0)))
     return Exit.OK
 
 
