@@ -297,15 +297,22 @@ class Coordinator:
         return float(internal_force_sizes(self.cell, self.mech, forces).max())
 
     def relax_forces(self, stop: threading.Event) -> PanelOutcome:
-        """Relax the panel from its load cells (module docstring); refused, nothing moved,
-        when a set's load cells are silent. Its reason gives the largest internal force the
-        load cells gave before each move and after the last."""
+        """Relax the panel from its load cells (module docstring); refused, no relaxing move,
+        when a set's load cells are silent. The panel is first put at its goal as the cell now
+        commands it (a watched panel move: after a new cell file the platforms still stand
+        where the old one put them, and a relax there would read the strain of a placement
+        the next move leaves). Its reason gives the largest internal force the load cells
+        gave before each relaxing move and after the last."""
+        placed = self._run(self._corrected(self.panel_goal),
+                           PanelRequest(*self.panel_goal.to_pq()), stop, None)
+        if placed.code is not ResultCode.SUCCESS:
+            return placed
         forces = self._load_cell_forces()
         if isinstance(forces, str):
-            return PanelOutcome(ResultCode.REFUSED_DRIVER_SILENT, f'refused, nothing moved: '
+            return PanelOutcome(ResultCode.REFUSED_DRIVER_SILENT, f'refused, no relaxing move: '
                                 f'{forces}')
         settings, seen = self.relax_settings, [self._largest(forces)]
-        outcome = PanelOutcome(ResultCode.SUCCESS, 'nothing moved')
+        outcome = placed
         while seen[-1] > settings.enough and len(seen) <= settings.passes:
             outcome = self._step(relaxing_steps(self.cell, self.mech, forces), stop,
                                  self.load_corrections)
