@@ -15,6 +15,7 @@ from positioning_cell.config import (
     config_path,
     flatten,
     load_parameter_file,
+    merged,
     node_parameters,
     share_directory,
 )
@@ -106,3 +107,19 @@ def test_a_pip_install_finds_its_config_under_the_prefix_without_ros(
     assert share_directory() == share
     monkeypatch.setattr(sys, 'prefix', str(tmp_path / 'elsewhere'))
     assert (share_directory() / 'config' / 'cell.yaml').is_file()  # the source tree
+
+
+def test_the_coordinated_cells_overlay_is_declared_and_parses_after_cell_yaml() -> None:
+    """config/coordinated.yaml (run_cell --cell's nodes after config/cell.yaml): every key
+    declared by its node, and the merged file parses into each node's settings with the
+    overlay's values."""
+    overlay = load_parameter_file(config_path('coordinated.yaml'))
+    both = merged(CELL, overlay)
+    for section, body in overlay.items():
+        keys = flatten(body['ros__parameters'])
+        assert not sorted(set(keys) - declared(section)), section
+        settings = flatten(to_params(parse(NODES[section], {
+            k: v for k, v in flatten(node_parameters(both, section)).items()
+            if k in declared(section)})))
+        for key, value in keys.items():
+            assert settings[key] == pytest.approx(value), f'{section}: {key}'

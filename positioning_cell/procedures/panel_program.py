@@ -61,9 +61,9 @@ class PanelProgramSettings:
     readings: int = setting(10, 'tracker readings averaged per pose', low=1, high=1000)
     speed_scale: float = setting(0.25, "the panel's moves, as a share of the positioners' "
                                  'speed limits', low=0.0, low_open=True, high=1.0)
-    relax: bool = setting(True, "relax the panel from the legs' load cells before the poses "
-                          '(run_cell --cell: after the cell calibration; /cell_coordinator/'
-                          'relax_forces)')
+    relax: bool = setting(True, "relax the panel from the legs' load cells (run_cell --cell: "
+                          'once mounted, before the cell calibration, and again before the '
+                          'poses; /cell_coordinator/relax_forces)')
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -79,6 +79,8 @@ class PositionerCalibrationSettings:
     poses: int = setting(20, 'D-optimal calibration poses', low=8, high=500)
     hold_out: int = setting(6, 'validation poses, never used in the fit', low=0, high=500)
     samples: int = setting(10, 'tracker readings averaged per pose', low=1, high=1000)
+    at_once: bool = setting(True, 'every positioner calibrated at the same time (each its own '
+                            'node set, tracker and client); off: one after the other')
 
     def __post_init__(self) -> None:
         check_fields(self)

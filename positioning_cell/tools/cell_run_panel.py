@@ -3,12 +3,14 @@ the coordinated cell run end to end (issue 27).
 
 Starts, on a private ROS_DOMAIN_ID on this machine's loopback, the recorder and the
 coordinated cell of the cell file (:func:`positioning_cell.ros.node_sets.start_coordinated`:
-each positioner's node set, the cell coordinator, the panel simulator); homes every
-positioner; calibrates the cell from the panel's targets (the program file's
+each positioner's node set, the cell coordinator, the panel simulator; every node on
+``--config`` then ``--cell-config``); homes every positioner and calibrates each on its own
+(the program's ``positioner_calibration``); mounts the panel and relaxes it from the legs'
+load cells (the program's ``relax``); calibrates the cell from the panel's targets (its
 ``panel_calibration``: :mod:`positioning_cell.procedures.panel_calibration`), writes the
-calibrated cell file into the run folder and sets it as the coordinator's ``cell_file``;
-relaxes the panel from the legs' load cells (the program's ``relax``); drives the panel
-program (:mod:`positioning_cell.procedures.panel_program`), each step recorded on
+calibrated cell file into the run folder, sets it as the coordinator's ``cell_file`` and
+relaxes the panel again; drives the panel program
+(:mod:`positioning_cell.procedures.panel_program`), each step recorded on
 ``/cell/panel_program``; stops every process; analyses the bag
 (:mod:`positioning_cell.analysis.panel`: the panel's ISO 9283 figures, judged against the
 simulation's truth) into ``panel_report.md`` and ``panel_report.json``; prints the table. Exit
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -70,9 +73,12 @@ def recorded_topics(cell: CellFile) -> list[str]:
 
 
 def run(cell_path: Path, program_path: Path | None, config: Path | None, runs_dir: Path,
-        say: Say = print) -> int:
-    """The whole run (module docstring); the exit status."""
+        say: Say = print, cell_config: Path | None = None) -> int:
+    """The whole run (module docstring); the exit status. Every node's parameter files:
+    ``config`` (default config/cell.yaml), then ``cell_config`` (default
+    config/coordinated.yaml: liveness and rates for several node sets on one machine)."""
     config = config or config_path('cell.yaml')
+    files = [config, cell_config or config_path('coordinated.yaml')]
     program_path = program_path or config_path('panel_program.yaml')
     try:
         cell = cell_file.load(cell_path)
@@ -89,7 +95,7 @@ def run(cell_path: Path, program_path: Path | None, config: Path | None, runs_di
 
     def work(procs: Processes, client: CellClient) -> int:
         client.advertise_program(names.PANEL_PROGRAM)
-        return _drive(procs, client, cell, mech, program, config, run_dir, say)
+        return _drive(procs, client, cell, mech, program, files, run_dir, say)
 
     status = in_running_cell(run_dir, say, work)
     try:
@@ -102,12 +108,13 @@ def run(cell_path: Path, program_path: Path | None, config: Path | None, runs_di
 
 
 def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism,
-           program: PanelProgram, config: Path, run_dir: Path, say: Say) -> int:
-    """Start, home, calibrate, drive the program; the exit status so far."""
+           program: PanelProgram, files: list[Path], run_dir: Path, say: Say) -> int:
+    """Start (every node on the parameter ``files``), home, calibrate, drive the program; the
+    exit status so far."""
     topics = recorded_topics(cell)
-    procs.start(names.RECORDER.executable, params=[config], overrides={names.NODE_RECORDER: {
+    procs.start(names.RECORDER.executable, params=files, overrides={names.NODE_RECORDER: {
         'output': str(run_dir / 'bag'), 'topics': topics, 'topic_pattern': ''}})
-    start_sets(procs, cell, [config], run_dir / 'params')
+    start_sets(procs, cell, files, run_dir / 'params')
     say(f'started the recorder and {len(cell.positioners)} node sets')
 
     def alive() -> None:
@@ -126,19 +133,31 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
     home_all()
     status: int = Exit.OK
     if program.positioners.enabled:
-        status = _calibrate_positioners(client.context.get_domain_id(), cell, program, config,
-                                        run_dir, say)
+        status = _calibrate_positioners(client.context.get_domain_id(), cell, program,
+                                        files[0], run_dir, say)
         home_all()  # the panel is mounted on the positioners at home
-    start_panel(procs, cell, [config])
+    start_panel(procs, cell, files)
     say('the panel mounted: the cell coordinator and the panel simulator started')
 
     def up() -> bool:
         alive()
         return all(client.subscribed(t, names.NODE_RECORDER) for t in PANEL_TOPICS)
 
+    def relax(when: str) -> bool:
+        """The relax from the load cells (the program's ``relax``); whether it held."""
+        if not program.settings.relax:
+            return True
+        done, message = client.trigger(names.COORDINATED_RELAX_FORCES, START_TIMEOUT)
+        say(f'relax from the load cells ({when}): {message}')
+        return bool(done)
+
     wait_until(up, START_TIMEOUT, 'the recorder to subscribe to the panel topics')
     with RosPanelPort(client, timeout=START_TIMEOUT, move_timeout=START_TIMEOUT) as port:
         port.ready()
+        # mounted on an installation off its file, the panel is strained (kilonewtons); the
+        # calibration's moves start from it relaxed
+        if not relax('mounted'):
+            status = Exit.NOT_ACHIEVED
         calibrated = panel_calibration.run(port, cell, mech, program.calibration, say)
         for line in panel_calibration.summary(calibrated.calibration):
             say(line)
@@ -158,11 +177,8 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
                 'runs on the cell file as it was')
             status = Exit.NOT_ACHIEVED
 
-        if program.settings.relax:
-            done, message = client.trigger(names.COORDINATED_RELAX_FORCES, START_TIMEOUT)
-            say(f'relax from the load cells: {message}')
-            if not done:
-                status = Exit.NOT_ACHIEVED
+        if not relax('calibrated'):  # the calibrated file comes without the corrections
+            status = Exit.NOT_ACHIEVED
 
         def record(step: PanelStep) -> None:
             client.publish_program(step.to_json(), names.PANEL_PROGRAM)
@@ -178,14 +194,15 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
 def _calibrate_positioners(domain: int, cell: CellFile, program: PanelProgram, config: Path,
                            run_dir: Path, say: Say) -> int:
     """Each positioner's own calibration (:func:`positioning_cell.procedures.calibration.
-    calibrate`), one after the other, each through a client of its own, into
+    calibrate`), all at once or one after the other (the program's
+    ``positioner_calibration.at_once``), each through a client of its own, into
     ``run_dir/calibration/<name>``, loaded, and its compensation mode set to ``model``; a
     positioner whose calibration fails keeps its nominal model (said; NOT_ACHIEVED)."""
     settings = program.positioners
     cal = replace(ProgramSettings(), poses=settings.poses, hold_out=settings.hold_out)
-    say(f'calibrating {", ".join(e.name for e in cell.positioners)}, each on its own: '
-        f'{settings.poses} poses + {settings.hold_out} hold-out, {settings.samples} readings '
-        'each')
+    say(f'calibrating {", ".join(e.name for e in cell.positioners)}, each on its own, '
+        f'{"all at once" if settings.at_once else "one after the other"}: {settings.poses} '
+        f'poses + {settings.hold_out} hold-out, {settings.samples} readings each')
 
     def one(k: int) -> str | None:
         name = cell.positioners[k].name
@@ -206,8 +223,12 @@ def _calibrate_positioners(domain: int, cell: CellFile, program: PanelProgram, c
                 return f'{name}: its calibration failed: {err}'
         return None
 
-    # one after the other: all at once, three sets on 2 cores lost their drives' heartbeats
-    failed = [f for f in map(one, range(len(cell.positioners))) if f]
+    indices = range(len(cell.positioners))
+    if settings.at_once:
+        with ThreadPoolExecutor(len(indices)) as pool:
+            failed = [f for f in pool.map(one, indices) if f]
+    else:
+        failed = [f for f in map(one, indices) if f]
     for line in failed:
         say(f'run_cell: {line}; it runs on its nominal model')
     return Exit.NOT_ACHIEVED if failed else Exit.OK

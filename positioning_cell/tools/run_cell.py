@@ -30,7 +30,8 @@ With ``--cell FILE`` (e.g. ``config/three_positioners.yaml``) it runs the coordi
 that file instead: its positioners holding one panel, the cell calibrated from the panel's
 targets, then the panel program of ``--panel-program`` (default ``config/panel_program.yaml``),
 recorded and analysed into the panel's ISO 9283 figures
-(:mod:`positioning_cell.tools.cell_run_panel`).
+(:mod:`positioning_cell.tools.cell_run_panel`); its nodes take ``--cell-config`` (default
+``config/coordinated.yaml``) after ``--config``.
 """
 
 from __future__ import annotations
@@ -71,9 +72,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                         'calibration and the panel program')
     parser.add_argument('--panel-program', type=Path, metavar='FILE', help='with --cell: the '
                         'panel program (default: the shipped config/panel_program.yaml)')
+    parser.add_argument('--cell-config', type=Path, metavar='FILE', help='with --cell: a '
+                        "parameter file after --config for the cell's nodes (default: "
+                        'config/coordinated.yaml, liveness and rates for several node sets '
+                        'on one machine)')
     args = parser.parse_args(argv)
-    if args.cell is None and args.panel_program is not None:
-        parser.error('--panel-program needs --cell')
+    if args.cell is None and (args.panel_program is not None or args.cell_config is not None):
+        parser.error('--panel-program and --cell-config need --cell')
     if args.cell is not None and (args.program is not None or args.axis_test is not None):
         parser.error('--cell runs the panel program: not with --program or --axis-test')
     # the work (numpy, rclpy, the analysis) loads now, not for --help or a usage error
@@ -84,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from positioning_cell.tools import cell_run_panel
 
         return cell_run_panel.run(args.cell, args.panel_program, args.config, args.runs,
-                                  lambda s: print(s, flush=True))
+                                  lambda s: print(s, flush=True), args.cell_config)
 
     axis_file = args.axis_test
     if axis_file == SHIPPED_AXIS_TEST:
