@@ -4,7 +4,6 @@ pair, an excess named and stamped; the coordinator stopping every positioner on 
 
 from __future__ import annotations
 
-import itertools
 import tempfile
 import threading
 from pathlib import Path
@@ -30,9 +29,6 @@ MECH = Mechanism.default()
 CELL = cell_file.load(config_path('three_positioners.yaml'))
 HOME_P, HOME_Q = MECH.home_position, MECH.home_quaternion
 NAMES = ('p1', 'p2', 'p3')
-#: A clock that runs a second per look: every waiting reading has waited long enough
-#: (force_watch.HOLD_S) to be held at the last setpoint.
-LATE = itertools.count(0.0, 1.0).__next__
 
 
 def path(t: float) -> np.ndarray:
@@ -64,7 +60,7 @@ def test_one_positioner_off_by_0_2_mm_along_a_side_is_named_with_its_force() -> 
     case), 343 N in each other pair, against the 500 N limit."""
     points = np.array([a.point for a in CELL.attachments(MECH)])
     side = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
-    watch = ForceWatch(CELL, MECH, clock=LATE)  # at rest: readings held at the last setpoint
+    watch = ForceWatch(CELL, MECH)
     fed(watch, {'p2': 2e-4 * side})
     excess = watch.excess()
     assert excess is not None
@@ -187,44 +183,6 @@ def test_a_lag_every_drive_shares_loads_nothing_while_the_panel_turns() -> None:
     assert sizes is not None and sizes[0][1] < 20.0, sizes
 
 
-@pytest.mark.parametrize('late', [0.06, 0.0])
-def test_readings_wait_for_setpoints_that_come_late_and_are_held_once_they_stop(
-        late: float) -> None:
-    """On a loaded machine the setpoints reach the watch late: here each set's setpoints
-    ``late`` s after the tracker readings of the same instant, the panel turning and rising,
-    every platform exactly where it is sent. Compared with the last setpoint come (held past
-    40 ms of extrapolation) the readings showed each platform's lag, v·Δt, and the watch read
-    hundreds of newtons (seen 185 N at 30 ms late, 325 N at 60 ms, 50 N on time: the
-    extrapolation's error); waiting for the setpoints that cover them, 4 N. Once the
-    setpoints stop (the trajectory has ended, the platforms at rest there), the readings are
-    compared with the last after force_watch.HOLD_S."""
-    clamped = clamped_cell()
-    now = [0.0]
-    watch = ForceWatch(clamped, MECH, clock=lambda: now[0])
-    end = 1.0
-    events = [(stamp + late, 'setpoint', stamp) for stamp in np.arange(0.0, end + 1e-9, 0.02)]
-    events += [(stamp, f'reading{k}', stamp) for k in range(3)
-               for stamp in 0.004 + 0.005 * k + np.arange(0.0, 1.5, 0.05)]
-    worst, known = 0.0, 0
-    for delivered, kind, stamp in sorted(events):
-        now[0] = delivered
-        goals = platform_goals(clamped, MECH, *panel_at(clamped, stamp))
-        if kind == 'setpoint':  # 50 Hz, ``late`` s late
-            for k, name in enumerate(NAMES):
-                watch.setpoint(name, 100.0 + stamp, *goals[k])
-        else:  # 20 Hz, each tracker at its phase
-            k = int(kind[-1])
-            watch.reading(NAMES[k], 100.0 + stamp, *goals[k])
-        sizes = watch.sizes()
-        if sizes:
-            worst, known = max(worst, sizes[0][1]), known + 1
-    assert known > 50 and worst < 30.0, (known, worst)
-    # the readings after the end were compared (held at the last setpoints: at rest there)
-    with watch._lock:
-        newest = min(d[-1][0] for d in watch._deviations.values())
-    assert newest > 100.0 + end + 0.3, newest
-
-
 def clamped_cell() -> cell_file.CellFile:
     """The shipped cell with every positioner clamping the panel."""
     doc = yaml.safe_load(config_path('three_positioners.yaml').read_text())
@@ -239,7 +197,7 @@ def clamped_cell() -> cell_file.CellFile:
 def test_a_turned_clamp_loads_its_pair() -> None:
     """Clamps carry couples: a platform turned 1 mrad off its setpoint loads the panel."""
     clamped = clamped_cell()
-    watch = ForceWatch(clamped, MECH, clock=LATE)  # readings after the last setpoint: held
+    watch = ForceWatch(clamped, MECH)
     turned = Rotation.from_rotvec([1e-3, 0.0, 0.0]).as_quat()
     for name in NAMES:
         watch.setpoint(name, 1.0, HOME_P, HOME_Q)
@@ -285,7 +243,7 @@ def test_relax_moves_each_positioner_onto_the_rigid_placement_and_keeps_the_corr
     corrections, and the watch takes them off the setpoints."""
     points = np.array([a.point for a in CELL.attachments(MECH)])
     side = (points[1] - points[0]) / np.linalg.norm(points[1] - points[0])
-    watch = ForceWatch(CELL, MECH, clock=LATE)  # at rest: readings held at the last setpoint
+    watch = ForceWatch(CELL, MECH)
     fakes = [FakePositioner(n) for n in NAMES]
     coordinator = Coordinator(CELL, MECH, fakes, CoordinatorSettings(
         start_lead=0.05, poll_period=0.005, end_margin=5.0), watch=watch)

@@ -20,21 +20,14 @@ from the linear map of seed 002's deformation compatibility
 the commanded panel's frame (a rigid motion of the panel moved and turned is then a rigid
 motion of the map's geometry, and loads nothing). A pair above the cell's
 ``internal_force_limit`` is an :class:`Excess`, stamped with the newest reading it rests on.
-A reading is compared once a setpoint at or after its instant has come (it waits for it:
-on a loaded machine a positioner's setpoints reach the coordinator late, and a reading
-compared with the last setpoint it has read a moving platform's lag as a deviation, ~v·Δt:
-0.5-1.3 kN at 10 Hz setpoints on the shipped cell); one no setpoint has covered after
-:data:`HOLD_S` is compared with the last setpoints (extrapolated at most
-:data:`EXTRAPOLATION_S`, then held: a trajectory that has ended publishes none).
 Thread-safe: readings and setpoints come in from the node's callbacks, the coordinator asks.
 """
 
 from __future__ import annotations
 
 import threading
-import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import NamedTuple
 
 import numpy as np
@@ -56,11 +49,6 @@ SETPOINTS_KEPT = 1000
 READINGS_KEPT = 100
 #: A setpoint is extrapolated at most this far past the last one, s (two periods at 50 Hz).
 EXTRAPOLATION_S = 0.04
-#: How long a reading waits for a setpoint at or after its instant before it is compared with
-#: the last ones (a trajectory that has ended publishes none), s: five periods at 50 Hz.
-HOLD_S = 0.1
-#: Readings kept waiting per positioner.
-PENDING_KEPT = 50
 #: Deviations kept per positioner, in readings per instant compared: enough that the others'
 #: series cover the oldest positioner's latest instants (the trackers are not synchronised).
 DEVIATIONS_KEPT_PER_INSTANT = 4
@@ -87,8 +75,7 @@ class ForceWatch:
     """The watch of the module docstring over ``cell`` (its panel's stiffness and limit) whose
     positioners' model machine is ``mech``."""
 
-    def __init__(self, cell: CellFile, mech: Mechanism, smoothing: int = 3,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, cell: CellFile, mech: Mechanism, smoothing: int = 3) -> None:
         if smoothing < 1:
             raise InputError(f'smoothing = {smoothing}: at least one reading')
         self.names = [e.name for e in cell.positioners]
@@ -97,9 +84,8 @@ class ForceWatch:
         self._offsets = {e.name: np.asarray(e.offset, dtype=float) for e in cell.positioners}
         self._in_panel = dict(zip(self.names, platforms_in_panel(cell, mech), strict=True))
         self._map = pair_map(cell.attachments(mech), cell.panel.stiffness)
-        self._smoothing, self._clock = smoothing, clock
+        self._smoothing = smoothing
         self._lock = threading.Lock()
-        self._pending: dict[str, deque[tuple[float, FloatArray, FloatArray, float]]] = {}
         self._setpoints: dict[str, deque[tuple[float, FloatArray, FloatArray]]] = {}
         self._deviations: dict[str, deque[tuple[float, FloatArray]]] = {}
         self._recent: dict[str, deque[tuple[FloatArray, FloatArray]]] = {
@@ -115,7 +101,6 @@ class ForceWatch:
             self._setpoints = {n: deque(maxlen=SETPOINTS_KEPT) for n in self.names}
             kept = self._smoothing * DEVIATIONS_KEPT_PER_INSTANT
             self._deviations = {n: deque(maxlen=kept) for n in self.names}
-            self._pending = {n: deque(maxlen=PENDING_KEPT) for n in self.names}
             if corrections is not None:
                 self._corrections = {n: np.asarray(corrections[n], dtype=float)
                                      for n in self.names}
@@ -126,7 +111,6 @@ class ForceWatch:
         with self._lock:
             self._setpoints[name].append((stamp, np.asarray(position, dtype=float),
                                           np.asarray(quaternion, dtype=float)))
-            self._resolve(name)
 
     def _commanded(self, name: str, stamp: float) -> tuple[FloatArray, FloatArray] | None:
         """The setpoint at ``stamp`` (under the lock): linear between the two around it; after
@@ -156,40 +140,22 @@ class ForceWatch:
     def reading(self, name: str, stamp: float, position: ArrayLike,
                 quaternion: ArrayLike) -> None:
         """Positioner ``name``'s tracker reading (platform in its base) at ``stamp`` s; kept
-        as its deviation once a setpoint covers its instant (module docstring)."""
-        p, q = np.asarray(position, dtype=float), np.asarray(quaternion, dtype=float)
+        as its deviation when a setpoint covers its instant."""
         with self._lock:
-            self._recent[name].append((p, q))
-            self._pending[name].append((stamp, p, q, self._clock()))
-            self._resolve(name)
-
-    def _resolve(self, name: str) -> None:
-        """Compare ``name``'s waiting readings (under the lock), oldest first: each once a
-        setpoint at or after its instant has come, or once it has waited :data:`HOLD_S`;
-        one before the first setpoint is dropped."""
-        pending, series = self._pending[name], self._setpoints[name]
-        while pending:
-            stamp, p, q, arrived = pending[0]
-            covered = bool(series) and series[-1][0] >= stamp
-            if not covered and self._clock() - arrived < HOLD_S:
-                return
-            pending.popleft()
+            self._recent[name].append((np.asarray(position, dtype=float),
+                                       np.asarray(quaternion, dtype=float)))
             commanded = self._commanded(name, stamp)
-            if commanded is not None:
-                self._compare(name, stamp, p, q, commanded)
-
-    def _compare(self, name: str, stamp: float, position: FloatArray, quaternion: FloatArray,
-                 commanded: tuple[FloatArray, FloatArray]) -> None:
-        """Keep the deviation of a reading at ``stamp`` from the ``commanded`` pose there."""
-        base, offset = self._bases[name], self._offsets[name]
-        measured = base @ Transform.from_pq(position, quaternion)
-        wanted = base @ Transform.from_pq(commanded[0] - self._corrections[name],
-                                          commanded[1])
-        d_p = measured.apply(offset) - wanted.apply(offset)
-        d_r = scipy_rotation().from_matrix(measured.R @ wanted.R.T).as_rotvec()
-        to_panel = (wanted @ self._in_panel[name].inverse()).R.T  # the commanded panel's
-        self._deviations[name].append((stamp, np.concatenate([to_panel @ d_p,
-                                                              to_panel @ d_r])))
+            if commanded is None:
+                return
+            base, offset = self._bases[name], self._offsets[name]
+            measured = base @ Transform.from_pq(position, quaternion)
+            wanted = base @ Transform.from_pq(commanded[0] - self._corrections[name],
+                                              commanded[1])
+            d_p = measured.apply(offset) - wanted.apply(offset)
+            d_r = scipy_rotation().from_matrix(measured.R @ wanted.R.T).as_rotvec()
+            to_panel = (wanted @ self._in_panel[name].inverse()).R.T  # the commanded panel's
+            self._deviations[name].append((stamp, np.concatenate([to_panel @ d_p,
+                                                                  to_panel @ d_r])))
 
     def rest_pose(self, name: str, count: int) -> tuple[FloatArray, FloatArray] | None:
         """Positioner ``name``'s platform (in its base) as the mean of its last ``count``
@@ -204,8 +170,6 @@ class ForceWatch:
         """Each pair's internal force (N), largest first, from the deviations at the latest
         common instants (module docstring); None until every positioner has one."""
         with self._lock:
-            for name in self.names:  # readings that have waited long enough
-                self._resolve(name)
             if not all(self._deviations.values()):
                 return None
             series = {n: list(self._deviations[n]) for n in self.names}
