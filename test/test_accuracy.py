@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+from collections.abc import Callable
 from dataclasses import astuple
 
 import numpy as np
@@ -16,6 +17,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from positioning_cell import accuracy as acc
+from positioning_cell import names
 from positioning_cell.accuracy.tracker_errors import combined_rows
 from positioning_cell.errors import ConfigError, InputError
 
@@ -715,8 +717,15 @@ def _stated(t: float) -> Arr:
 @functools.cache
 def _one_by_one(seed: int) -> acc.Monitor:
     """The monitor fed :func:`_stream` one message at a time (as the live node)."""
-    events = _stream(seed)
     monitor = acc.Monitor()
+    _feed_live(monitor, _stream(seed))
+    return monitor
+
+
+def _feed_live(monitor: acc.Monitor, events: list[tuple[str, float, str, Arr, Arr]],
+               truth: Callable[[float, str, Arr, Arr], object] | None = None) -> None:
+    """``events`` fed one message at a time, each true pose to ``truth`` (None: the
+    monitor's :meth:`~acc.Monitor.truth`)."""
     for topic, t, frame, p, q in events:
         if topic == 'end':
             monitor.move_end(t)
@@ -724,9 +733,10 @@ def _one_by_one(seed: int) -> acc.Monitor:
             monitor.measurement(t, frame, p, q, _stated(t).ravel())
         elif topic == 'registration':
             monitor.registration(t, frame, p, q, REGISTRATION_COVARIANCE.ravel())
+        elif topic == 'target':
+            monitor.target(t, frame, p, q)
         else:
-            {'target': monitor.target, 'truth': monitor.truth}[topic](t, frame, p, q)
-    return monitor
+            (truth or monitor.truth)(t, frame, p, q)
 
 
 @settings(max_examples=25)
@@ -785,6 +795,42 @@ def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
     assert [i.topic for i in live.ignored].count('/metrology/registration') == 1
     # the visits after the registration took it as the readings' common part
     assert len(live.registrations) == len(grouped.registrations) == 1
+
+
+@settings(max_examples=20)
+@given(st.integers(1, 40), st.integers(0, 2))
+def test_truth_queued_and_fed_in_batches_gives_what_one_at_a_time_gives(
+        every: int, seed: int) -> None:
+    """The live node's way with the truth (queued, fed every ``every`` true poses and before
+    each target and move end): the same report as one message at a time, the tracker's sums to
+    their last bits; and the true poses it ignores are handed out by the flush, with their
+    reasons, once each."""
+    events = _stream(seed)
+    bad = [('truth', events[60][1], 'tracker', HOME, ID),
+           ('truth', events[90][1], 'base', np.array([np.nan, 0.0, 0.2]), ID)]
+    events = events[:61] + [bad[0]] + events[61:91] + [bad[1]] + events[91:]
+
+    one, batched, flushed, queued = acc.Monitor(), acc.Monitor(), list[acc.Ignored](), [0]
+    _feed_live(one, events)
+
+    def queue_and_flush(t: float, frame: str, p: Arr, q: Arr) -> None:
+        batched.queue_truth(t, frame, p, q)
+        queued[0] += 1
+        if queued[0] % every == 0:
+            flushed.extend(batched.flush_truth())
+
+    _feed_live(batched, events, queue_and_flush)
+    flushed.extend(batched.flush_truth())
+    a, b = one.report(), batched.report()
+    tracker_a, tracker_b = a.pop('tracker'), b.pop('tracker')
+    assert a == b and a['truth'] is not None
+    assert tracker_a['samples'] == tracker_b['samples'] > 200
+    np.testing.assert_allclose(_numbers_of(tracker_a), _numbers_of(tracker_b), rtol=1e-12,
+                               atol=1e-20)
+    truth_ignored = [i for i in one.ignored if i.topic == names.TRUE_POSE]
+    assert len(truth_ignored) == 2 and 'frame_id' in truth_ignored[0].reason
+    assert flushed == truth_ignored
+    assert sorted(map(repr, one.ignored)) == sorted(map(repr, batched.ignored))
 
 
 def _numbers_of(doc: dict[str, object]) -> list[float]:

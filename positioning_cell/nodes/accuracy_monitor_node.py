@@ -1,25 +1,19 @@
 """accuracy_monitor_node (node ``accuracy_monitor``): commanded vs measured platform pose, ISO
 9283 figures per commanded pose, a tolerance verdict on /diagnostics for each settled pose (its
 errors with their expanded uncertainty U from the covariances the tracker's readings state, and
-the decision of ``tolerance.decision_rule``: OK conforms, WARN indeterminate, ERROR does not
-conform; docs/howto/verdicts.md); with the simulation truth published, the true pose against
-the target and the tracker against the truth, reported apart. The tracker's registration
-(/metrology/registration, latched) is the part of the readings' covariance averaging does not
-reduce. The rules: :class:`positioning_cell.accuracy.monitor.Monitor`.
-
-It reads the positioner's ``positioner: state`` statuses on /diagnostics: a move end
-(:func:`positioning_cell.accuracy.move_ended`) goes to the monitor, so that each visit is judged
-on its final settled window (a visit whose move reports no end is judged when the next target
-arrives, on its last stable window).
-
-It watches the recorder's status on /diagnostics and tells when recording stopped
+the decision of ``tolerance.decision_rule``: docs/howto/verdicts.md); with the simulation truth
+published (fed in batches every ``TRUTH_BATCH_S``), the true pose against the target and the
+tracker against the truth, reported apart. The tracker's registration (/metrology/registration,
+latched) is the part of the readings' covariance averaging does not reduce. The rules:
+:class:`positioning_cell.accuracy.monitor.Monitor`. A move end (a ``positioner: state``
+status on /diagnostics, :func:`positioning_cell.accuracy.move_ended`) goes to the monitor: each
+visit is judged on its final settled window (without an end, on its last stable window when
+the next target comes). The recorder's status on /diagnostics says when recording stopped
 (:func:`positioning_cell.recording.recording`): ``accuracy_monitor: recording`` every second
 once a recorder was heard of and at once on a change (ERROR ``recording stopped: <reason>``
-when the recorder failed or went silent, WARN when stopped; logged once), in the report too.
-
-/accuracy_monitor/report returns its JSON (:meth:`Monitor.report`, plus the publishers each
-input matched and the recording's state); /accuracy_monitor/reset clears the statistics but
-keeps the current target.
+when the recorder failed or went silent, WARN when stopped; logged once). /accuracy_monitor/
+report returns its JSON (:meth:`Monitor.report`, the publishers each input matched, the
+recording's state); /accuracy_monitor/reset clears the statistics, not the current target.
 """
 
 from __future__ import annotations
@@ -43,6 +37,7 @@ from positioning_cell.accuracy import (
     move_ended,
     stamp_seconds,
 )
+from positioning_cell.accuracy.monitor import TRUTH_BATCH_S
 from positioning_cell.accuracy.verdicts import DECISION_LEVELS, Verdict, verdict_values
 from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recording, recording
 from positioning_cell.ros import messages as m
@@ -93,6 +88,7 @@ class AccuracyMonitorNode(Node):
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
                                  DIAGNOSTICS_QOS)
         self.create_timer(STATUS_PERIOD_S, lambda: self._check_recording(periodic=True))
+        self.create_timer(TRUTH_BATCH_S, self._flush_truth)
 
     def _on_change(self, settings: MonitorSettings, changed: frozenset[str]) -> None:
         self.monitor.tolerances = settings.tolerance
@@ -130,8 +126,12 @@ class AccuracyMonitorNode(Node):
         self._ignored(self.monitor.registration(*_pose(msg.header, msg.pose.pose),
                                                 covariance=msg.pose.covariance), msg.header.stamp)
 
-    def _on_truth(self, msg: PoseStamped) -> None:
-        self._ignored(self.monitor.truth(*_pose(msg.header, msg.pose)), msg.header.stamp)
+    def _on_truth(self, msg: PoseStamped) -> None:  # fed in batches: _flush_truth
+        self.monitor.queue_truth(*_pose(msg.header, msg.pose))
+
+    def _flush_truth(self) -> None:
+        for ignored in self.monitor.flush_truth():
+            self._ignored(ignored, self.get_clock().now().to_msg())
 
     def _verdict(self, visit: Visit, verdict: Verdict, stamp: Any) -> None:
         values = {'pose_key': visit.key, 'cycle': visit.cycle,
