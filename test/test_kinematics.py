@@ -45,7 +45,8 @@ def test_ik_fk_round_trip_property(pose: tuple[np.ndarray, np.ndarray]) -> None:
                 .filter(lambda v: float(np.linalg.norm(v)) > 0.05), min_size=1, max_size=8))
 def test_rotation_matrices_are_scipys(quaternions: list[tuple[float, ...]]) -> None:
     """core.poses' numpy quaternion -> matrix (every node's build uses it instead of scipy,
-    issue 24) against scipy's, for any quaternion, normalised as scipy normalises it."""
+    issue 24) against scipy's, for any quaternion, normalised as scipy normalises it: a batch
+    and one alone (its path in Python floats)."""
     q = np.array(quaternions)
     expected = Rotation.from_quat(q).as_matrix()
     np.testing.assert_allclose(matrix_from_quaternion(q), expected, rtol=0, atol=1e-14)
