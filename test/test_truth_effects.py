@@ -376,3 +376,37 @@ def test_a_fixed_point_started_from_a_nearby_shift_settles_on_the_same_pose() ->
         truth.settle(CMD.lengths, CMD.thetas, shift0=np.full(6, np.nan))
     exact_shift = exact(TRUTH).settle(CMD.lengths, CMD.thetas)[1]
     assert exact_shift.shape == (N, 6) and not exact_shift.any()
+
+
+def test_the_simulators_stream_starts_each_fixed_point_from_the_shifts_trend(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pose_measurement simulator fed a move's joint stream (every effect on, 50 updates):
+    each true pose is the one a start from zero gives (within the fixed point's tolerance), and
+    starting from the previous shifts' trend takes about three rounds an update (four from the
+    previous shift alone, five from zero)."""
+    sim = PoseMeasurementSimulator(SETTINGS)
+    steps = np.linspace(0.0, 1.0, 51)[:, None]
+    moved = inverse(MECH, MECH.home_position + steps * np.array([0.004, 0.003, -0.002]),
+                    np.tile(QUATERNIONS[0], (len(steps), 1)))
+    joints = np.c_[moved.lengths, moved.thetas]
+    rounds = [0]
+    shift = Truth.joint_shift
+
+    def counted(self: Truth, *args: Any) -> Any:
+        rounds[0] += 1
+        return shift(self, *args)
+
+    for k, values in enumerate(joints):
+        sim.joints(values, k, 0.02 * k)
+        if k == 1:
+            monkeypatch.setattr(Truth, 'joint_shift', counted)
+        true = sim.update_truth()
+        assert true is not None
+        if k % 10 == 5:
+            with monkeypatch.context() as m:
+                m.setattr(Truth, 'joint_shift', shift)
+                cold = sim.truth.poses(values[None, :3], values[None, 3:], None,
+                                       sim.history.conditions(0.02 * k))
+            np.testing.assert_allclose(true.position, cold.position[0], rtol=0, atol=1e-11)
+            np.testing.assert_allclose(true.quaternion, cold.quaternion[0], rtol=0, atol=1e-11)
+    assert rounds[0] <= 3.3 * (len(joints) - 1), rounds[0] / (len(joints) - 1)

@@ -158,9 +158,12 @@ class PoseMeasurementSimulator:
         self._latest: tuple[FloatArray, Any, float] | None = None
         self._joints = np.full(6, np.nan)  # joints of the current true pose (NaN: none)
         self._phis: FloatArray | None = None
-        #: The joint shift (6,) m, rad of the current true pose: where the next one's fixed
-        #: point starts (Truth.settle).
+        #: The joint shifts (6,) m, rad of the current true pose and of the one before: the
+        #: next one's fixed point (Truth.settle) starts from their trend, one step on (a move's
+        #: update in three rounds instead of four from the last shift alone; the trend is
+        #: zero once the joints came to rest).
         self._shift: FloatArray | None = None
+        self._shift_prev: FloatArray | None = None
         self.true_pose: TruePose | None = None
         #: The load rig's load cell reading (3,) N, base frame (what it was last commanded).
         self.load: FloatArray = np.zeros(3)
@@ -270,10 +273,14 @@ class PoseMeasurementSimulator:
         if self.true_pose is not None and np.array_equal(joints, self._joints) \
                 and not drifting and not self._loaded:
             self.true_pose = self.true_pose._replace(stamp=stamp)  # the machine has not moved
+            self._shift_prev = self._shift  # (the next move starts from rest)
         else:
             try:
+                start = self._shift
+                if self._shift is not None and self._shift_prev is not None:
+                    start = 2.0 * self._shift - self._shift_prev
                 result, shift = self.truth.settle(joints[:3], joints[3:], self._phis,
-                                                  self.history.conditions(time), self._shift)
+                                                  self.history.conditions(time), start)
                 if not result.converged[0]:
                     raise ConvergenceError('forward kinematics did not converge')
             except (InputError, ConvergenceError) as err:
@@ -281,7 +288,7 @@ class PoseMeasurementSimulator:
                 self.status = ('error', f'no true pose for joints {joints.tolist()}: {err}')
                 return None
             self._joints, self._phis, self._computed_at = joints, result.phis[0], time
-            self._shift = shift[0]
+            self._shift_prev, self._shift = self._shift, shift[0]
             self._loaded = False
             self.true_pose = TruePose(result.position[0], result.quaternion[0], stamp)
         self.stats['truth_updates'] += 1
