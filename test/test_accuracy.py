@@ -805,13 +805,8 @@ def test_truth_queued_and_fed_in_batches_gives_what_one_at_a_time_gives(
     each target and move end): the same report as one message at a time, the tracker's sums to
     their last bits; and the true poses it ignores are handed out by the flush, with their
     reasons, once each."""
-    events = _stream(seed)
-    bad = [('truth', events[60][1], 'tracker', HOME, ID),
-           ('truth', events[90][1], 'base', np.array([np.nan, 0.0, 0.2]), ID)]
-    events = events[:61] + [bad[0]] + events[61:91] + [bad[1]] + events[91:]
-
-    one, batched, flushed, queued = acc.Monitor(), acc.Monitor(), list[acc.Ignored](), [0]
-    _feed_live(one, events)
+    events, one = _one_by_one_with_bad_truth(seed)
+    batched, flushed, queued = acc.Monitor(), list[acc.Ignored](), [0]
 
     def queue_and_flush(t: float, frame: str, p: Arr, q: Arr) -> None:
         batched.queue_truth(t, frame, p, q)
@@ -831,6 +826,20 @@ def test_truth_queued_and_fed_in_batches_gives_what_one_at_a_time_gives(
     assert len(truth_ignored) == 2 and 'frame_id' in truth_ignored[0].reason
     assert flushed == truth_ignored
     assert sorted(map(repr, one.ignored)) == sorted(map(repr, batched.ignored))
+
+
+@functools.cache
+def _one_by_one_with_bad_truth(seed: int) -> tuple[list[tuple[str, float, str, Arr, Arr]],
+                                                   acc.Monitor]:
+    """:func:`_stream` with a true pose in the wrong frame and one with NaN, and the monitor
+    fed it one message at a time (the reference, once per seed)."""
+    events = _stream(seed)
+    bad = [('truth', events[60][1], 'tracker', HOME, ID),
+           ('truth', events[90][1], 'base', np.array([np.nan, 0.0, 0.2]), ID)]
+    events = events[:61] + [bad[0]] + events[61:91] + [bad[1]] + events[91:]
+    one = acc.Monitor()
+    _feed_live(one, events)
+    return events, one
 
 
 def _numbers_of(doc: dict[str, object]) -> list[float]:
