@@ -202,18 +202,27 @@ def interpolated_pose(times: ArrayLike, positions: ArrayLike, quaternions: Array
     (M, 3) m, ``quaternions`` (M, 4) x, y, z, w; held at its ends. The position is linear
     between the two samples around ``t``; the quaternion their normalised linear blend (the
     shorter way round), within 1e-9 rad of the slerp for samples a control period apart."""
+    p, q = interpolated_poses(times, positions, quaternions, [float(t)])
+    return p[0], q[0]
+
+
+def interpolated_poses(times: ArrayLike, positions: ArrayLike, quaternions: ArrayLike,
+                       t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """:func:`interpolated_pose` at each of the times ``t`` (K,) s: positions (K, 3) m and
+    quaternions (K, 4)."""
     stamps = np.asarray(times, dtype=float)
     p_all, q_all = np.asarray(positions, dtype=float), np.asarray(quaternions, dtype=float)
+    at = np.atleast_1d(np.asarray(t, dtype=float))
     if stamps.size == 1:
-        return p_all[0].copy(), q_all[0].copy()
-    t = min(max(float(t), float(stamps[0])), float(stamps[-1]))
-    k = int(np.clip(np.searchsorted(stamps, t, side='right') - 1, 0, stamps.size - 2))
-    span = float(stamps[k + 1] - stamps[k])
-    w = 0.0 if span <= 0.0 else (t - float(stamps[k])) / span
+        return np.tile(p_all[0], (at.size, 1)), np.tile(q_all[0], (at.size, 1))
+    at = np.clip(at, stamps[0], stamps[-1])
+    k = np.clip(np.searchsorted(stamps, at, side='right') - 1, 0, stamps.size - 2)
+    span = stamps[k + 1] - stamps[k]
+    w = np.where(span > 0.0, (at - stamps[k]) / np.where(span > 0.0, span, 1.0), 0.0)[:, None]
     p = (1.0 - w) * p_all[k] + w * p_all[k + 1]
     q0, q1 = q_all[k], q_all[k + 1]
-    q = (1.0 - w) * q0 + w * (q1 if float(np.dot(q0, q1)) >= 0.0 else -q1)
-    return p, q / np.linalg.norm(q)
+    q = (1.0 - w) * q0 + w * np.where((np.sum(q0 * q1, axis=1) >= 0.0)[:, None], q1, -q1)
+    return p, q / np.linalg.norm(q, axis=1)[:, None]
 
 
 def pose_error(position: FloatArray, quaternion: FloatArray, position_ref: FloatArray,
