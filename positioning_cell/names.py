@@ -187,6 +187,10 @@ CHECK_POSE = '/positioner/check_pose'
 HOME = '/positioner/home'
 #: Controlled stop of whatever runs (std_srvs/srv/Trigger).
 STOP = '/positioner/stop'
+#: Stop the running move along its path from a given instant over a given duration
+#: (positioning_cell_interfaces/srv/StopAlongPath): how the coordinated cell stops every
+#: positioner together, the panel kept rigid (moves/stopping.py).
+STOP_ALONG_PATH = '/positioner/stop_along_path'
 SET_COORDINATE_SYSTEMS = '/positioner/set_coordinate_systems'
 GET_COORDINATE_SYSTEMS = '/positioner/get_coordinate_systems'
 DEFINE_COORDINATE_SYSTEM = '/positioner/define_coordinate_system'
@@ -252,8 +256,9 @@ PANEL_PROGRAM = '/cell/panel_program'
 #: name but ROS's own PARAMETER_EVENTS and /rosout.
 SET_TOPICS = (*CELL_TOPICS, HEARTBEAT, SETPOINT, COORDINATE_SYSTEMS, AXIS_RANGES, PANEL_WRENCH)
 SET_SERVICES = (
-    MOVE_TO_POSE, CHECK_POSE, HOME, STOP, SET_COORDINATE_SYSTEMS, GET_COORDINATE_SYSTEMS,
-    DEFINE_COORDINATE_SYSTEM, SELECT_COORDINATE_SYSTEMS, SET_LIMITS, GET_LIMITS, SET_SPEED, JOG,
+    MOVE_TO_POSE, CHECK_POSE, HOME, STOP, STOP_ALONG_PATH, SET_COORDINATE_SYSTEMS,
+    GET_COORDINATE_SYSTEMS, DEFINE_COORDINATE_SYSTEM, SELECT_COORDINATE_SYSTEMS, SET_LIMITS,
+    GET_LIMITS, SET_SPEED, JOG,
     DRIVER_ENABLE, DRIVER_REFERENCE, LOCATE_TRACKER, MONITOR_REPORT, MONITOR_RESET,
     RECORDER_PAUSE, RECORDER_RESUME,
 )

@@ -157,9 +157,12 @@ class FakePositioner:
     (None: runs until stopped), and records what it was asked."""
 
     def __init__(self, name: str, duration: float = 0.1, after: float | None = 0.0,
-                 end: ResultCode = ResultCode.SUCCESS, refuse: str = '') -> None:
+                 end: ResultCode = ResultCode.SUCCESS, refuse: str = '',
+                 along_fails: bool = False) -> None:
         self.name, self.duration, self.after, self.end, self.refuse = (name, duration, after,
                                                                       end, refuse)
+        self.along_fails = along_fails
+        self.along: list[tuple[float, float]] = []  # the stops along the path asked of it
         self.checked: list[Pose] = []
         self.moved: list[tuple[Pose, Timing]] = []
         self.pivots: list[np.ndarray] = []
@@ -193,6 +196,13 @@ class FakePositioner:
 
     def stop(self) -> None:
         with self.lock:
+            self.stops += 1
+
+    def stop_along(self, start: float, duration: float) -> None:
+        if self.along_fails:
+            raise TimeoutError('no answer from /p/positioner/stop_along_path')
+        with self.lock:
+            self.along.append((start, duration))
             self.stops += 1
 
     def load_cells(self, seconds: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -245,7 +255,7 @@ def test_a_fault_of_one_stops_all_at_once_naming_it() -> None:
     assert outcome.code is ResultCode.ABORTED_FAULT
     assert outcome.reason.startswith('p2: drive fault') and 'every positioner stopped' in \
         outcome.reason
-    assert all(f.stops == 1 for f in fakes)
+    assert all(f.stops == 1 and f.along == [] for f in fakes)  # at once: p2 has stopped
     assert outcome.ends['p1'].code is ResultCode.ABORTED_STOP
     # Ended within a few polls of the fault (start lead + 50 ms + polls), not at the deadline.
     assert time.time() - began < FAST.start_lead + 0.05 + FAST.end_margin
@@ -260,6 +270,29 @@ def test_a_stop_asked_of_the_coordinator_stops_every_positioner() -> None:
     assert outcome.code is ResultCode.ABORTED_STOP
     assert all(f.stops == 1 for f in fakes)
     assert shares and all(0.0 <= s <= 1.0 for s in shares)
+
+
+def test_a_running_panel_move_is_stopped_along_its_path_from_one_instant() -> None:
+    """Every positioner asked to stop along its path with one start ``stop_lead`` ahead and
+    one duration (``stop_time``, or the move's ramp, a quarter of its duration, when shorter);
+    one that cannot be asked so is stopped at once; with no panel move running, all at once."""
+    for duration, stop_time in ((2.0, 0.3), (0.4, 0.3)):
+        fakes = [FakePositioner('p1', duration, after=None),
+                 FakePositioner('p2', 0.1, after=None, along_fails=True),
+                 FakePositioner('p3', 0.2, after=None)]
+        settings = replace(FAST, stop_lead=0.2, stop_time=stop_time)
+        stop = threading.Event()
+        threading.Timer(0.1, stop.set).start()
+        asked = time.time()
+        outcome = Coordinator(CELL, MECH, fakes, settings).move(REQUEST, stop)
+        assert outcome.code is ResultCode.ABORTED_STOP
+        (a1,), (a3,) = fakes[0].along, fakes[2].along
+        assert a1 == a3 and a1[1] == pytest.approx(min(stop_time, duration / 4.0))
+        assert asked + 0.1 + 0.2 <= a1[0] <= time.time() + 0.2
+        assert fakes[1].along == [] and fakes[1].stops == 1
+    idle = [FakePositioner(n) for n in ('p1', 'p2', 'p3')]
+    coordinator(*idle).stop_all()
+    assert all(f.stops == 1 and f.along == [] for f in idle)
 
 
 def test_a_positioner_that_never_settles_stops_all_at_the_deadline_naming_it() -> None:

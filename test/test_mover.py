@@ -1327,3 +1327,61 @@ def test_a_lagging_tracker_is_not_motion_at_standstill() -> None:
         m.estimate_pose()
         time.sleep(0.01)
     assert m.state is State.SETTLED, m.reason
+
+
+def test_a_stop_along_the_path_is_sent_for_its_instant_and_ends_the_move_once_at_rest() -> None:
+    """``stop_along`` mid-move (the coordinated cell's stop): the drives are sent the move's stop
+    along its path (moves.stopping) to start at the asked instant, and are not stopped at once;
+    the move runs on until the axes rest at the stop's end, then ends aborted (stopped), naming
+    the stop along the path; meanwhile the published setpoint is the move's, then the stop's."""
+    world = World(follow=False)
+    m = mover(world, **{'arrival.timeout': 5.0})
+    asked: list[tuple[float, str]] = []
+
+    def stop_along() -> None:
+        start = time.time() + 0.1
+        asked.append((start, m.stop_along(start, 0.3)))
+
+    def drives_stop_where_the_stop_ends() -> None:
+        wait_until(lambda: len(world.trajectories) == 2, 10.0, 'the stop to be sent')
+        with world.lock:
+            world.position = np.hstack([world.trajectories[1].lengths[-1],
+                                        world.trajectories[1].thetas[-1]])
+
+    threading.Timer(0.3, stop_along).start()
+    threading.Thread(target=drives_stop_where_the_stop_ends, daemon=True).start()
+    with pytest.raises(MoveAbortedError) as info:
+        m.move('base', GOAL, GOAL_Q)
+    assert info.value.code is ResultCode.ABORTED_STOP
+    assert 'stopped along the path by /positioner/stop_along_path' in str(info.value)
+    move, stop = world.trajectories[:2]
+    assert world.starts[1] == pytest.approx(asked[0][0]) and asked[0][1].startswith(
+        'stopping along the path')
+    assert stop.duration == pytest.approx(0.3) and stop.length_rates[-1] == pytest.approx(0)
+    # the stop starts on the move, at least 0.4 s after it was sent, and ends short of it
+    elapsed = np.interp(stop.lengths[0, 0], move.lengths[:, 0], move.times)
+    assert elapsed > 0.35 and not np.allclose(stop.lengths[-1], move.lengths[-1])
+    assert world.stops == 1  # the abort's stop, once the axes rest (harmless there)
+
+
+def test_a_refused_or_idle_stop_along_the_path_stops_at_once() -> None:
+    """The drives refusing the stop along the path stop the move at once; with no move
+    running or an instant already past, stop_along is a plain stop; a bad duration changes
+    nothing."""
+    world = World(follow=False)
+    m = mover(world, **{'arrival.timeout': 5.0})
+
+    def refused_stop() -> None:
+        world.refuse = 'path refused: acceleration'
+        m.stop_along(time.time() + 0.05, 0.3)
+
+    err, after = abort(m, world, refused_stop, delay=0.3)
+    assert err.code is ResultCode.ABORTED_STOP and 'the drives refused the stop along' in str(err)
+    assert world.stops == 1 and after < 1.0
+    world.refuse = None
+    for bad in (0.0, float('nan')):
+        with pytest.raises(InputError, match='positive number of seconds'):
+            m.stop_along(time.time() + 1.0, bad)
+    assert world.stops == 1
+    assert m.stop_along(time.time() + 1.0, 0.3).startswith('stopping with controlled')
+    assert world.stops == 2

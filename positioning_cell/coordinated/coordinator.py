@@ -24,7 +24,8 @@ A panel move (:meth:`Coordinator.move`):
    over ``end_margin`` s after the common motion's end stops all (ABORTED_TIMEOUT). With a
    :class:`~positioning_cell.coordinated.force_watch.ForceWatch`, an internal force in the
    panel above the cell's limit stops all (ABORTED_INTERNAL_FORCE, naming the pair of
-   attachments that disagree).
+   attachments that disagree). Those three stop every positioner along its path, as one
+   (:meth:`Coordinator.stop_all`); after one positioner has ended, the others stop at once.
 5. Settled: the panel pose each positioner's attained platform implies, their mean, and how
    far each pair of attachment points is pulled apart
    (:func:`~positioning_cell.coordinated.panel_motion.pair_disagreement`).
@@ -141,6 +142,10 @@ class Positioner(Protocol):
     def stop(self) -> None:
         """Stop whatever the positioner runs, under control."""
 
+    def stop_along(self, start: float, duration: float) -> None:
+        """Stop its running move along its path from ``start`` (ROS time s) over ``duration``
+        s (:mod:`positioning_cell.moves.stopping`; nothing running or too late: at once)."""
+
     def load_cells(self, seconds: float) -> tuple[FloatArray, FloatArray] | None:
         """Its encoder values (6,) (m, rad) and load-cell efforts (6,) (N, N·m), each the mean
         over ``seconds`` s at rest; None when it gave none."""
@@ -197,14 +202,32 @@ class Coordinator:
         #: point of the panel every platform's motion carries on a straight line (so that
         #: they move as the rigid panel; moves.trajectory).
         self.pivots = [held.inverse().p for held in platforms_in_panel(cell, mech)]
+        #: The common time base of the panel move running (None: none runs).
+        self._timing: Timing | None = None
 
-    def stop_all(self) -> None:
+    def stop_all(self, along: bool = True) -> None:
         """Stop every positioner: each asked at once, in a thread of its own, whatever the
-        others answer (RuntimeError naming those that could not be asked)."""
+        others answer (RuntimeError naming those that could not be asked). While a panel move
+        runs and ``along``, along its path (:mod:`positioning_cell.moves.stopping`): every
+        positioner from one instant ``stop_lead`` s ahead, at rest within ``stop_time`` s or
+        the move's own ramp (a quarter of its duration) when shorter, so that the platforms
+        stay where the rigid panel puts them (each drive's own stop, from when the stop
+        reaches it, leaves them apart: test_stopping); one that cannot be asked so is stopped
+        at once. Not ``along``: all at once (one positioner has stopped on its own already:
+        the others would run on past it)."""
         errors: list[str] = []
+        timing, s = self._timing if along else None, self.settings
+        start = self.clock() + s.stop_lead
+        duration = min(s.stop_time, timing.duration / 4.0) if timing is not None else 0.0
 
         def stop(p: Positioner) -> None:
             try:
+                if duration > 0.0:
+                    try:
+                        p.stop_along(start, duration)
+                        return
+                    except Exception:  # not asked so: stopped at once instead, below
+                        pass
                 p.stop()
             except Exception as err:  # the others must be stopped all the same
                 errors.append(f'{p.name}: {err}')
@@ -355,13 +378,17 @@ class Coordinator:
             watch.reset(self.corrections)
         polls: list[tuple[str, Callable[[], Ended | None]]] = []
         try:
-            for p, goal, pivot in zip(self.positioners, goals, self.pivots, strict=True):
-                polls.append((p.name, p.move(goal, request, timing, pivot)))
-        except Exception as err:  # whatever failed, the sent ones must stop
-            self.stop_all()
-            return PanelOutcome(ResultCode.ABORTED_FAULT, f'{p.name}: the move could not be '
-                                f'sent ({err}); every positioner stopped', timing=timing)
-        return self._watch(polls, timing, stop, progress, watch)
+            self._timing = timing
+            try:
+                for p, goal, pivot in zip(self.positioners, goals, self.pivots, strict=True):
+                    polls.append((p.name, p.move(goal, request, timing, pivot)))
+            except Exception as err:  # whatever failed, the sent ones must stop
+                self.stop_all(along=False)
+                return PanelOutcome(ResultCode.ABORTED_FAULT, f'{p.name}: the move could not '
+                                    f'be sent ({err}); every positioner stopped', timing=timing)
+            return self._watch(polls, timing, stop, progress, watch)
+        finally:
+            self._timing = None
 
     def _watch(self, polls: list[tuple[str, Callable[[], Ended | None]]], timing: Timing,
                stop: threading.Event, progress: Callable[[float], None] | None,
@@ -378,7 +405,7 @@ class Coordinator:
                         ends[name] = end
             failed = [(n, e) for n, e in ends.items() if e.code is not ResultCode.SUCCESS]
             if failed:
-                self.stop_all()
+                self.stop_all(along=False)
                 name, end = failed[0]
                 return PanelOutcome(end.code, f'{name}: {end.reason}; every positioner '
                                     'stopped', self._drain(polls, ends), timing)

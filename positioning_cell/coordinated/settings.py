@@ -37,6 +37,13 @@ class CoordinatorSettings:
     end_margin: float = setting(60.0, 'a move not over this long after the common motion '
                                 'ends (settling, corrections) stops every positioner', 's',
                                 low=1.0, high=3600.0)
+    stop_lead: float = setting(0.15, 'a stop of a panel move starts this far ahead of the '
+                               'moment it is sent, one instant for every positioner (each '
+                               'hears it within it; a positioner that hears it later stops at '
+                               'once)', 's', low=0.02, high=2.0)
+    stop_time: float = setting(0.3, 'a stopped panel move comes to rest along its path within '
+                               'this long, or within its own ramp when shorter (a quarter of '
+                               'its duration)', 's', low=0.01, high=10.0)
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -65,6 +65,7 @@ from positioning_cell.moves.outcomes import (
     ResultCode,
     State,
 )
+from positioning_cell.moves.stopping import stop_along_path, until_stopped
 from positioning_cell.moves.timing import AT_ONCE, Timing
 from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move, pose_at
 from positioning_cell.names import (
@@ -76,6 +77,7 @@ from positioning_cell.names import (
     MEASURED_POSE,
     NO_CALIBRATION,
     STOP,
+    STOP_ALONG_PATH,
     TRAJECTORY_STATUS,
 )
 
@@ -183,6 +185,9 @@ class Mover:
         self._motion: tuple[float, Trajectory, FreezeWatch] | None = None
         self._silence_stops = '0'
         self.stop_requested = False
+        #: A stop along the path under way (:meth:`stop_along`): the stop trajectory's key, its
+        #: last joints and when it must be over (clock s).
+        self._stopping: tuple[str, FloatArray, float] | None = None
         self._sent: tuple[float, float] | None = None
         #: The stamp from which tracker readings measure the pose the last motion ended at (the
         #: settle dwell's :attr:`RestWatch.still_from`, or the newest encoder reading's stamp
@@ -452,6 +457,36 @@ class Mover:
             self.cond.notify_all()
         return 'stopping with controlled deceleration'
 
+    def stop_along(self, start: float, duration: float) -> str:
+        """Stop the running move along its path (:mod:`positioning_cell.moves.stopping`): from
+        ``start`` (ROS time s, the drives' clock) its time law slows to rest over ``duration``
+        s, sent to the drives as a trajectory starting then; the move ends aborted (stopped)
+        once the axes rest at the stop's end (or at once, the drives stopped as by
+        :meth:`stop`, when they refuse it or it is not over in time). Without a running
+        trajectory, or with ``start`` already past: :meth:`stop`. InputError for a duration
+        that is not a positive number of seconds (nothing changes)."""
+        if not (math.isfinite(duration) and duration > 0.0):
+            raise InputError(f'duration = {duration!r}: a stop needs a positive number of '
+                             'seconds')
+        with self.cond:
+            delay = start - self.machine.wall_clock()
+            if self._motion is None or not delay > 0.0 or self._stopping is not None:
+                return self.stop()
+            sent, traj, _ = self._motion
+            start_at = self.machine.clock() + delay
+            stop = stop_along_path(traj, start_at - sent, duration)
+            joints = np.hstack([stop.lengths, stop.thetas])
+            live = self.settings.liveness
+            counts = np.array([live.linear_count] * 3 + [live.rotary_count] * 3)
+            self._motion = (sent, until_stopped(traj, start_at - sent, stop),
+                            FreezeWatch(live.freeze_window, live.freeze_motion, counts, sent))
+            self._stopping = (fingerprint(stop.times, joints), joints[-1],
+                              start_at + duration + self.settings.arrival.timeout)
+            self.stop_requested = True
+            self.machine.send_trajectory(stop, start)
+            self.cond.notify_all()
+        return f'stopping along the path in {delay + duration:.2f} s'
+
     @property
     def busy(self) -> bool:
         """A command (move, homing, jog) is running."""
@@ -494,7 +529,7 @@ class Mover:
             traj = Trajectory(np.asarray(times, float), p, q, joints[:, :3], joints[:, 3:],
                               rates[:, :3], rates[:, 3:], LimitReport(len(times), (), 0))
             with self.cond:
-                self.stop_requested = False
+                self.stop_requested, self._stopping = False, None
             try:
                 self._drive(traj, None)
             except MoveAbortedError as err:
@@ -722,7 +757,7 @@ class Mover:
         except MoveAbortedError as err:
             raise self.refusal(err.code, str(err)) from err
         with self.cond:
-            self.stop_requested = False
+            self.stop_requested, self._stopping = False, None
             self._path = []
         moved = False
         try:
@@ -1109,7 +1144,7 @@ class Mover:
     def _check_world(self, measuring: bool) -> None:
         """The checks of :meth:`_wait` (called under the lock)."""
         now, live, driver = self.machine.clock(), self.settings.liveness, self.driver
-        if self.stop_requested:
+        if self.stop_requested and self._stopping is None:
             raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
         if driver.get('state') == 'fault':
             raise MoveAbortedError(ResultCode.ABORTED_FAULT,
@@ -1146,6 +1181,27 @@ class Mover:
             raise MoveAbortedError(ResultCode.ABORTED_TRACKER_LOST,
                                    f'laser tracker not responding: no {MEASURED_POSE} for '
                                    f'{tracker_silence:.2f} s')
+        if self._stopping is not None:
+            self._check_stop_along(now)
+
+    def _check_stop_along(self, now: float) -> None:
+        """The end of a stop along the path (under the lock): MoveAbortedError ABORTED_STOP
+        once the axes rest where it ends, or when the drives refused it or it is late (the
+        move's abort then stops the drives at once)."""
+        assert self._stopping is not None
+        key, final, deadline = self._stopping
+        answer = next((a for a in self.answers if a.key == key), None)
+        why = None
+        if answer is not None and not answer.accepted:
+            why = f'the drives refused the stop along the path ({answer.reason}): stopped at once'
+        elif now > deadline:
+            why = 'the stop along the path not over in time: stopped at once'
+        elif self.joints is not None and joints_arrived(
+                self.joints.position, self.joints.velocity, final,
+                self.settings.arrival.position_tolerance, self.settings.arrival.speed_tolerance):
+            why = 'stopped along the path'
+        if why is not None:
+            raise MoveAbortedError(ResultCode.ABORTED_STOP, f'{why} by {STOP_ALONG_PATH}')
 
     # -- state ----------------------------------------------------------------------------------
     def _set_state(self, state: State, reason: str, code: ResultCode | None = None) -> None:

@@ -50,6 +50,7 @@ class OperatorInterface:
         for name, kind, cb in (
                 (names.MOVE_TO_POSE, srv.MoveToPose, self._srv_move),
                 (names.CHECK_POSE, srv.CheckPose, self._srv_check),
+                (names.STOP_ALONG_PATH, srv.StopAlongPath, self._srv_stop_along),
                 (names.SET_COORDINATE_SYSTEMS, srv.SetCoordinateSystems, self._srv_set_systems),
                 (names.GET_COORDINATE_SYSTEMS, srv.GetCoordinateSystems, self._srv_get_systems),
                 (names.DEFINE_COORDINATE_SYSTEM, srv.DefineCoordinateSystem,
@@ -206,6 +207,15 @@ class OperatorInterface:
             response.outcome = self._outcome(None, err, goal)
             return response
         response.outcome = self._outcome(result, None, goal)
+        return response
+
+    def _srv_stop_along(self, request: Any, response: Any) -> Any:
+        try:
+            response.message = self.controller.mover.stop_along(m.seconds(request.start),
+                                                                request.duration)
+            response.success = True
+        except InputError as err:
+            response.success, response.message = False, f'refused, nothing changed: {err}'
         return response
 
     def _srv_check(self, request: Any, response: Any) -> Any:

@@ -1,8 +1,8 @@
 """One positioner's node set as the coordinator drives it
 (:class:`~positioning_cell.coordinated.coordinator.Positioner`), through a
 :class:`~positioning_cell.ros.client.CellClient`: its CheckPose, its MoveToPose (sent with the
-common duration and start, answered when it settles, is refused or aborts) and its Stop, each
-under the set's namespace (names.in_set)."""
+common duration and start, answered when it settles, is refused or aborts), its Stop and its
+StopAlongPath, each under the set's namespace (names.in_set)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 from positioning_cell_interfaces.msg import MoveCommand
-from positioning_cell_interfaces.srv import CheckPose, MoveToPose
+from positioning_cell_interfaces.srv import CheckPose, MoveToPose, StopAlongPath
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
@@ -40,6 +40,7 @@ class RosSetPort:
         self._check = names.in_set(names.CHECK_POSE, name)
         self._move = names.in_set(names.MOVE_TO_POSE, name)
         self._stop = names.in_set(names.STOP, name)
+        self._stop_along = names.in_set(names.STOP_ALONG_PATH, name)
         self._joint_states = names.in_set(names.JOINT_STATES, name)
 
     def _command(self, goal: Pose, request: PanelRequest, timing: Timing,
@@ -63,6 +64,7 @@ class RosSetPort:
                 command=self._command(goal, request, Timing(duration), pivot)), self.timeout)
             self.client.service(MoveToPose, self._move, self.timeout)
             self.client.service(Trigger, self._stop, self.timeout)
+            self.client.service(StopAlongPath, self._stop_along, self.timeout)
         except TimeoutError as err:
             return Checked(ResultCode.REFUSED_DRIVER_SILENT, f'no answer: {err}', 0.0)
         if answer.valid:
@@ -90,6 +92,14 @@ class RosSetPort:
     def stop(self) -> None:
         """Stop (the set's Stop service; TimeoutError when it does not answer)."""
         self.client.trigger(self._stop, self.timeout)
+
+    def stop_along(self, start: float, duration: float) -> None:
+        """Stop along the path from ``start`` (ROS time s) over ``duration`` s (the set's
+        StopAlongPath; TimeoutError when it does not answer, RuntimeError when it refuses)."""
+        answer = self.client.call(StopAlongPath, self._stop_along, StopAlongPath.Request(
+            start=stamp(start), duration=float(duration)), self.timeout)
+        if not answer.success:
+            raise RuntimeError(f'{self.name}: {answer.message}')
 
     def load_cells(self, seconds: float) -> tuple[FloatArray, FloatArray] | None:
         """The mean encoder values and load-cell efforts (JOINT_NAMES order) of the set's
