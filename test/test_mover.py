@@ -1387,3 +1387,33 @@ def test_a_refused_or_idle_stop_along_the_path_stops_at_once() -> None:
     assert world.stops == 1
     assert m.stop_along(time.time() + 1.0, 0.3).startswith('stopping with controlled')
     assert world.stops == 2
+
+
+def test_a_stop_along_the_path_heard_late_rests_sooner_at_the_same_point() -> None:
+    """Asked to stop from an instant already 50 ms past: the stop is sent to start just ahead,
+    shorter by twice its lateness (moves.stopping.joined_late: the same point of the path);
+    asked 0.2 s past a 0.3 s stop, the drives stop at once."""
+    world = World(follow=False)
+    m = mover(world, **{'arrival.timeout': 5.0})
+
+    asked: list[float] = []
+
+    def late_stop() -> None:
+        asked.append(time.time())
+        m.stop_along(asked[0] - 0.05, 0.3)
+        with world.lock:  # the drives at the stop's end
+            stop = world.trajectories[-1]
+            world.position = np.hstack([stop.lengths[-1], stop.thetas[-1]])
+
+    err, _ = abort(m, world, late_stop, delay=0.3)
+    assert err.code is ResultCode.ABORTED_STOP and 'stopped along the path' in str(err)
+    assert len(world.trajectories) == 2
+    stop, start = world.trajectories[1], world.starts[1]
+    assert start is not None and start > asked[0]
+    assert stop.duration == pytest.approx(0.3 - 2 * (start - (asked[0] - 0.05)), abs=1e-9)
+    assert stop.duration < 0.2
+    world2 = World(follow=False)
+    m2 = mover(world2, **{'arrival.timeout': 5.0})
+    err, _ = abort(m2, world2, lambda: m2.stop_along(time.time() - 0.2, 0.3), delay=0.3)
+    assert err.code is ResultCode.ABORTED_STOP and len(world2.trajectories) == 1
+    assert world2.stops >= 1

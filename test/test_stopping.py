@@ -18,7 +18,7 @@ from positioning_cell.core.kinematics import forward
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import interpolated_pose
 from positioning_cell.errors import InputError
-from positioning_cell.moves.stopping import stop_along_path
+from positioning_cell.moves.stopping import SHORTEST, joined_late, stop_along_path
 from positioning_cell.moves.trajectory import Trajectory, plan_move
 from positioning_cell.sim.panel import PanelTruth
 from positioning_cell.sim.paths import JointPath, stop_path
@@ -84,6 +84,25 @@ def test_a_stop_past_the_goal_ends_at_the_goal_and_bad_durations_are_refused() -
             stop_along_path(traj, 0.1, bad)
     with pytest.raises(InputError, match='elapsed'):
         stop_along_path(traj, float('nan'), 0.2)
+
+
+def test_a_positioner_that_hears_the_stop_late_rests_at_the_same_point_of_its_path() -> None:
+    """δ late, from then over T − 2δ: at rest where the stop on time rests (the same joints,
+    to their last bits' scale); T/2 late or more, stopped at once; early, unchanged."""
+    traj = plan_move(MECH, *HOME, MECH.home_position + [0.004, -0.002, 0.003],
+                     Rotation.from_rotvec([0.003, 0.0, -0.004]).as_quat(), period=0.01)
+    elapsed, duration = 0.4 * traj.duration, 0.3
+    on_time = _joints(stop_along_path(traj, elapsed, duration)).final
+    for late in (0.01, 0.05, 0.12):
+        joined = joined_late(100.0, duration, 100.0 + late)
+        assert joined is not None
+        start, remaining = joined
+        assert start == pytest.approx(100.0 + late) and remaining == pytest.approx(
+            duration - 2 * late)
+        stop = _joints(stop_along_path(traj, elapsed + late, remaining))
+        np.testing.assert_allclose(stop.final, on_time, rtol=0, atol=1e-12)
+    assert joined_late(100.0, duration, 100.0 + duration / 2 - SHORTEST / 4) is None
+    assert joined_late(100.0, duration, 99.0) == (100.0, duration)
 
 
 def test_positioners_stopped_along_their_paths_at_once_keep_the_panel_unstrained() -> None:

@@ -65,7 +65,12 @@ from positioning_cell.moves.outcomes import (
     ResultCode,
     State,
 )
-from positioning_cell.moves.stopping import stop_along_path, until_stopped
+from positioning_cell.moves.stopping import (
+    JOIN_LEAD,
+    joined_late,
+    stop_along_path,
+    until_stopped,
+)
 from positioning_cell.moves.timing import AT_ONCE, Timing
 from positioning_cell.moves.trajectory import MotionLimits, Trajectory, plan_move, pose_at
 from positioning_cell.names import (
@@ -462,16 +467,21 @@ class Mover:
         ``start`` (ROS time s, the drives' clock) its time law slows to rest over ``duration``
         s, sent to the drives as a trajectory starting then; the move ends aborted (stopped)
         once the axes rest at the stop's end (or at once, the drives stopped as by
-        :meth:`stop`, when they refuse it or it is not over in time). Without a running
-        trajectory, or with ``start`` already past: :meth:`stop`. InputError for a duration
-        that is not a positive number of seconds (nothing changes)."""
+        :meth:`stop`, when they refuse it or it is not over in time). Heard too late to start
+        then, to the same point of the path, sooner
+        (:func:`~positioning_cell.moves.stopping.joined_late`). Without a running trajectory,
+        or too late for that: :meth:`stop`.
+        InputError for a duration that is not a positive number of seconds (nothing
+        changes)."""
         if not (math.isfinite(duration) and duration > 0.0):
             raise InputError(f'duration = {duration!r}: a stop needs a positive number of '
                              'seconds')
         with self.cond:
-            delay = start - self.machine.wall_clock()
-            if self._motion is None or not delay > 0.0 or self._stopping is not None:
+            joined = joined_late(start, duration, self.machine.wall_clock() + JOIN_LEAD)
+            if self._motion is None or joined is None or self._stopping is not None:
                 return self.stop()
+            start, duration = joined
+            delay = start - self.machine.wall_clock()
             sent, traj, _ = self._motion
             start_at = self.machine.clock() + delay
             stop = stop_along_path(traj, start_at - sent, duration)

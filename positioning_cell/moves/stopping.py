@@ -15,6 +15,12 @@ the move and the setpoints decelerate at their path speed / T (added to what the
 curvature asks). The joints follow the move's points as the drives interpolate them (cubic
 Hermite of positions and rates, :class:`~positioning_cell.sim.paths.JointPath`): the stop
 joins the running motion at t0 in position and velocity.
+
+A positioner that hears of the stop only after t0 (its node held up) cannot slow from t0; it
+stops at the same point of its path instead (:func:`joined_late`), so that once at rest the
+platforms are again where the rigid panel puts them: δ late, its rate falls from 1 to 0 over
+T − 2δ (covering (T − 2δ)/2 = T/2 − δ of path time from τ0 + δ), unless it is T/2 late or
+more (then it has passed that point: it stops at once).
 """
 
 from __future__ import annotations
@@ -29,6 +35,11 @@ from positioning_cell.errors import InputError
 from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.sim.paths import JointPath
 
+#: A late positioner's stop starts at least this far ahead of when it is computed, s: sent
+#: before it starts, the drives join it where it begins.
+JOIN_LEAD = 0.02
+#: The shortest stop worth joining, s (shorter: stopped at once).
+SHORTEST = 0.01
 #: Points of the stop per second of it, at least :data:`MIN_POINTS`: 100 Hz, the moves' own
 #: sample rate order (the drives interpolate between them).
 POINTS_PER_SECOND = 100.0
@@ -74,3 +85,16 @@ def until_stopped(traj: Trajectory, elapsed: float, stop: Trajectory) -> Traject
     return replace(traj, times=np.concatenate([traj.times[before], elapsed + stop.times]),
                    position=joined[0], quaternion=joined[1], lengths=joined[2],
                    thetas=joined[3], length_rates=joined[4], theta_rates=joined[5])
+
+
+def joined_late(start: float, duration: float, earliest: float) -> tuple[float, float] | None:
+    """The stop from ``start`` over ``duration`` s (module docstring) for a positioner that can
+    begin it no earlier than ``earliest`` (the same clock; it has followed its move until
+    then): (start, duration) unchanged when ``earliest`` ≤ ``start``; else from ``earliest``
+    over ``duration`` − 2·(``earliest`` − ``start``), to the same point of the path; None when
+    that leaves less than :data:`SHORTEST` (stop at once)."""
+    late = max(earliest - start, 0.0)
+    remaining = duration - 2.0 * late
+    if remaining < SHORTEST:
+        return None
+    return start + late, remaining
