@@ -98,6 +98,11 @@ TARGET = '/positioner/target'
 #: Where the running trajectory commands the platform now (PoseStamped, base; only while one
 #: runs, at the pose rate): what `cell watch` judges the measured pose against while moving.
 SETPOINT = '/positioner/setpoint'
+#: The plan of every trajectory the positioner sends its drives (nav_msgs/Path, base; latched):
+#: its platform poses, each stamped at its commanded instant (the drives' clock). What the
+#: coordinated cell's force watch judges each tracker reading against, at any instant, however
+#: the positioner's own stream of setpoints is held up.
+PLANNED_PATH = '/positioner/planned_path'
 ESTIMATED_POSE = '/positioner/pose'
 MARKERS = '/positioner/markers'
 #: The user and object coordinate systems in force (latched; positioning_cell_interfaces
@@ -254,7 +259,8 @@ PANEL_PROGRAM = '/cell/panel_program'
 #: What one positioner's node set uses on the wire: under a namespace ``ns`` every one of these
 #: becomes ``/ns<name>`` (:func:`in_set`; positioning_cell.ros.node_sets remaps them), every
 #: name but ROS's own PARAMETER_EVENTS and /rosout.
-SET_TOPICS = (*CELL_TOPICS, HEARTBEAT, SETPOINT, COORDINATE_SYSTEMS, AXIS_RANGES, PANEL_WRENCH)
+SET_TOPICS = (*CELL_TOPICS, HEARTBEAT, SETPOINT, PLANNED_PATH, COORDINATE_SYSTEMS, AXIS_RANGES,
+              PANEL_WRENCH)
 SET_SERVICES = (
     MOVE_TO_POSE, CHECK_POSE, HOME, STOP, STOP_ALONG_PATH, SET_COORDINATE_SYSTEMS,
     GET_COORDINATE_SYSTEMS, DEFINE_COORDINATE_SYSTEM, SELECT_COORDINATE_SYSTEMS, SET_LIMITS,

@@ -28,6 +28,7 @@ from cell_harness import (
 )
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, WrenchStamped
+from nav_msgs.msg import Path as PathMsg
 from positioning_cell_interfaces.action import MoveToPose
 from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
 from rclpy.qos import QoSProfile
@@ -47,6 +48,7 @@ from positioning_cell.polling import wait_until
 from positioning_cell.procedures.port import ProcedureError
 from positioning_cell.ros.client import GoalClient
 from positioning_cell.ros.messages import (
+    path_arrays,
     pose_arrays,
     pose_stamped,
     seconds,
@@ -253,10 +255,19 @@ def _moved_together(cell: CoordinatedCell) -> tuple[JointTrajectory, list[float]
 def test_a_panel_move_sends_both_drives_one_start_and_one_duration(
         cell: CoordinatedCell) -> None:
     """The machines move after the commanded start (sent 2 s ahead: on receipt they would
-    have moved before it) and before its end."""
+    have moved before it) and before its end; each positioner publishes its plan, a pose
+    per trajectory point stamped at its commanded instant (what the force watch judges
+    against)."""
+    plans = cell.stream(PathMsg, names.in_set(names.PLANNED_PATH, 'p1'))
     first, crossings = _moved_together(cell)
     start, end = seconds(first.header.stamp), seconds(first.points[-1].time_from_start)
     assert all(start < c < start + end for c in crossings), (crossings, start)
+    plan = wait_until(lambda: next((p for p in reversed(plans) if seconds(p.header.stamp)
+                                    == pytest.approx(start)), None), 10.0, "p1's plan")
+    stamps, positions, _ = path_arrays(plan)
+    offsets = [seconds(point.time_from_start) for point in first.points]
+    np.testing.assert_allclose(stamps - start, offsets, rtol=0, atol=1e-6)  # float s at 1.8e9
+    assert plan.header.frame_id == names.BASE_FRAME and positions.shape == (len(offsets), 3)
 
 
 @pytest.mark.timing

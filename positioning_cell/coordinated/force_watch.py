@@ -1,12 +1,18 @@
 """The internal force in the panel while it moves, estimated from what the cell measures (issue
-27, item 4): each positioner's tracker readings against where its running trajectory commands
-the platform at the reading's instant.
+27, item 4): each positioner's tracker readings against where its trajectory commands the
+platform at the reading's instant.
 
 For positioner i, a reading at stamp t (its platform pose in its base) puts its attachment
-point at a_i(t) (cell frame); its setpoints (the platform pose its trajectory commands, as it
-publishes them, interpolated at t) put it at c_i(t). The platforms are commanded along the
-rigid panel's motion (:mod:`.panel_motion`), so what a positioner adds to the panel is its
-deviation δ_i = a_i − c_i (with the rotation's, for a clamp). The deviations are compared at
+point at a_i(t) (cell frame); its plan (the platform poses of the trajectory it sent its
+drives, stamped at their commanded instants, as it publishes it on /positioner/planned_path
+with every trajectory; each plan supersedes the earlier ones from its first instant on, and
+holds its last pose after it) interpolated at t puts it at c_i(t). Plans, not the setpoints a
+positioner publishes as it runs: a stalled positioner (its node starved of the CPU) publishes
+no setpoint for 70 ms and more while its drives run on, and the watch held at its last one
+read hundreds of newtons where the panel simulator's truth said tens (the shipped cell's run,
+issue 27: 824 N fed the true platform poses, the truth 61 N). The platforms are commanded
+along the rigid panel's motion (:mod:`.panel_motion`), so what a positioner adds to the panel
+is its deviation δ_i = a_i − c_i (with the rotation's, for a clamp). The deviations are compared at
 common instants: the last ``smoothing`` readings' stamps of the positioner whose latest
 reading is the oldest, every other positioner's deviation interpolated there (linear in time)
 and the ``smoothing`` instants averaged (the tracker's noise, ~10 µm per reading, is ~100 N
@@ -20,7 +26,7 @@ from the linear map of seed 002's deformation compatibility
 the commanded panel's frame (a rigid motion of the panel moved and turned is then a rigid
 motion of the map's geometry, and loads nothing). A pair above the cell's
 ``internal_force_limit`` is an :class:`Excess`, stamped with the newest reading it rests on.
-Thread-safe: readings and setpoints come in from the node's callbacks, the coordinator asks.
+Thread-safe: readings and plans come in from the node's callbacks, the coordinator asks.
 """
 
 from __future__ import annotations
@@ -43,12 +49,10 @@ from positioning_cell.frames.transforms import Transform
 from positioning_cell.moves.correction import mean_pose
 
 FloatArray = NDArray[np.float64]
-#: Setpoints kept per positioner (its pose rate, 50 Hz: 20 s).
-SETPOINTS_KEPT = 1000
+#: Plans kept per positioner (a move, its stop, its corrections: a few a panel move).
+PLANS_KEPT = 16
 #: Tracker readings kept per positioner for its pose at rest (20 Hz: 5 s).
 READINGS_KEPT = 100
-#: A setpoint is extrapolated at most this far past the last one, s (two periods at 50 Hz).
-EXTRAPOLATION_S = 0.04
 #: Deviations kept per positioner, in readings per instant compared: enough that the others'
 #: series cover the oldest positioner's latest instants (the trackers are not synchronised).
 DEVIATIONS_KEPT_PER_INSTANT = 4
@@ -86,7 +90,8 @@ class ForceWatch:
         self._map = pair_map(cell.attachments(mech), cell.panel.stiffness)
         self._smoothing = smoothing
         self._lock = threading.Lock()
-        self._setpoints: dict[str, deque[tuple[float, FloatArray, FloatArray]]] = {}
+        self._plans: dict[str, deque[tuple[FloatArray, FloatArray, FloatArray]]] = {
+            n: deque(maxlen=PLANS_KEPT) for n in self.names}
         self._deviations: dict[str, deque[tuple[float, FloatArray]]] = {}
         self._recent: dict[str, deque[tuple[FloatArray, FloatArray]]] = {
             n: deque(maxlen=READINGS_KEPT) for n in self.names}
@@ -94,53 +99,49 @@ class ForceWatch:
         self.reset()
 
     def reset(self, corrections: Mapping[str, ArrayLike] | None = None) -> None:
-        """Forget every setpoint and deviation (a new panel move); ``corrections`` (m, each
-        positioner's base frame): what the coordinator adds to each one's goals beyond the
-        rigid panel's placement (:meth:`Coordinator.relax`), taken off its setpoints."""
+        """Forget every plan and deviation (a new panel move: its plans come once it is sent;
+        a move stopped at once leaves its platforms short of its plan); ``corrections`` (m,
+        each positioner's base frame): what the coordinator adds to each one's goals beyond
+        the rigid panel's placement (:meth:`Coordinator.relax`), taken off its plans."""
         with self._lock:
-            self._setpoints = {n: deque(maxlen=SETPOINTS_KEPT) for n in self.names}
+            for plans in self._plans.values():
+                plans.clear()
             kept = self._smoothing * DEVIATIONS_KEPT_PER_INSTANT
             self._deviations = {n: deque(maxlen=kept) for n in self.names}
             if corrections is not None:
                 self._corrections = {n: np.asarray(corrections[n], dtype=float)
                                      for n in self.names}
 
-    def setpoint(self, name: str, stamp: float, position: ArrayLike,
-                 quaternion: ArrayLike) -> None:
-        """Positioner ``name``'s commanded platform pose (in its base) at ``stamp`` s."""
+    def plan(self, name: str, stamps: ArrayLike, positions: ArrayLike,
+             quaternions: ArrayLike) -> None:
+        """Positioner ``name``'s plan: its platform poses (in its base; positions (K, 3) m,
+        quaternions (K, 4)) commanded at ``stamps`` (K,) s, increasing (module docstring).
+        InputError for one that is not (nothing changes)."""
+        t = np.asarray(stamps, dtype=float)
+        p, q = np.asarray(positions, dtype=float), np.asarray(quaternions, dtype=float)
+        if (t.ndim != 1 or t.size == 0 or p.shape != (t.size, 3) or q.shape != (t.size, 4)
+                or not (np.isfinite(t).all() and np.isfinite(p).all()
+                        and np.isfinite(q).all()) or (np.diff(t) <= 0.0).any()):
+            raise InputError(f'{name}: a plan needs K >= 1 increasing finite stamps with a '
+                             f'finite pose each, got stamps {t.shape}, positions {p.shape}, '
+                             f'quaternions {q.shape}')
         with self._lock:
-            self._setpoints[name].append((stamp, np.asarray(position, dtype=float),
-                                          np.asarray(quaternion, dtype=float)))
+            self._plans[name].append((t, p, q))
 
     def _commanded(self, name: str, stamp: float) -> tuple[FloatArray, FloatArray] | None:
-        """The setpoint at ``stamp`` (under the lock): linear between the two around it; after
-        the last, extrapolated from the last two at their velocity for at most
-        :data:`EXTRAPOLATION_S` (a reading stamped before the next setpoint has come: held at
-        the last one, it read as a deviation of the platform's speed times the gap, different
-        for each platform of a turning panel; a trajectory that has ended stays where it
-        ended, its last two setpoints a standstill apart); None before the first."""
-        series = self._setpoints[name]
-        if not series or stamp < series[0][0]:
+        """The commanded platform pose at ``stamp`` (under the lock): of the latest plan
+        begun by then (the one begun last), interpolated (held after its end); None before
+        every plan."""
+        begun = [plan for plan in self._plans[name] if plan[0][0] <= stamp]
+        if not begun:
             return None
-        last = series[-1]
-        if stamp <= last[0] or len(series) < 2:
-            return interpolated_pose([s[0] for s in series], [s[1] for s in series],
-                                     [s[2] for s in series], stamp)
-        before = series[-2]
-        span = last[0] - before[0]
-        if span <= 0.0:
-            return last[1].copy(), last[2].copy()
-        ahead = min(stamp - last[0], EXTRAPOLATION_S) / span
-        rotation = scipy_rotation()
-        r_last = rotation.from_quat(last[2])
-        turn = (r_last * rotation.from_quat(before[2]).inv()).as_rotvec()
-        return (last[1] + ahead * (last[1] - before[1]),
-                (rotation.from_rotvec(ahead * turn) * r_last).as_quat())
+        times, positions, quaternions = max(begun, key=lambda plan: plan[0][0])
+        return interpolated_pose(times, positions, quaternions, stamp)
 
     def reading(self, name: str, stamp: float, position: ArrayLike,
                 quaternion: ArrayLike) -> None:
         """Positioner ``name``'s tracker reading (platform in its base) at ``stamp`` s; kept
-        as its deviation when a setpoint covers its instant."""
+        as its deviation when a plan has begun by its instant."""
         with self._lock:
             self._recent[name].append((np.asarray(position, dtype=float),
                                        np.asarray(quaternion, dtype=float)))
@@ -175,7 +176,7 @@ class ForceWatch:
             series = {n: list(self._deviations[n]) for n in self.names}
         oldest = min(self.names, key=lambda n: series[n][-1][0])
         # only instants every series covers: held at a series' first deviation (np.interp's
-        # ends), a positioner whose setpoints came later was compared at another instant, a
+        # ends), a positioner whose plan began later was compared at another instant, a
         # following error apart while the drives accelerate
         first = max(series[n][0][0] for n in self.names)
         instants = np.array([t for t, _ in series[oldest][-self._smoothing:] if t >= first])

@@ -1,16 +1,12 @@
-"""cell_coordinator_node (node ``cell_coordinator``): several positioners holding one panel,
-moved as one (issue 27; docs/howto/coordinated.md).
+"""cell_coordinator_node (node ``cell_coordinator``): one panel moved by several (issue 27).
 
-The cell file (``cell_file``) names the positioners, each a node set under its namespace. The
-action /cell_coordinator/move (MoveToPose: the panel frame in the ``cell`` frame, ABSOLUTE)
-runs :meth:`~positioning_cell.coordinated.coordinator.Coordinator.move` on the sets
-(:class:`~positioning_cell.ros.set_port.RosSetPort`, a client node of its own) in a worker
-thread (:func:`positioning_cell.ros.goals.run_goal`), the force watch fed with each set's
-tracker readings and setpoints; feedback: the share of the motion elapsed. One command at a
-time; a cancel, /cell_coordinator/stop or a shutdown stops every positioner. At rest,
-/cell_coordinator/relax relaxes the panel from the trackers, .../relax_forces from the load
-cells. State on /diagnostics. ``cell_file`` set while it runs (a calibrated file of the same
-positioners): from the next panel move on, without the relaxes' corrections."""
+The cell file (``cell_file``) names the positioners, each a node set under its namespace.
+/cell_coordinator/move (MoveToPose: the panel frame in ``cell``) runs
+:meth:`~positioning_cell.coordinated.coordinator.Coordinator.move` on the sets
+(:class:`~positioning_cell.ros.set_port.RosSetPort`) in a worker thread, the force watch fed
+with each set's tracker readings and plans; one command at a time; a cancel, /…/stop or a
+shutdown stops every positioner; /…/relax and /…/relax_forces relax the panel at rest. A new
+``cell_file`` (the same positioners) from the next panel move on, without the corrections."""
 
 from __future__ import annotations
 
@@ -20,7 +16,8 @@ from itertools import product
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Path
 from positioning_cell_interfaces.action import MoveToPose
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -31,23 +28,23 @@ from positioning_cell import names
 from positioning_cell.coordinated.coordinator import Coordinator, PanelOutcome
 from positioning_cell.coordinated.force_watch import force_watch
 from positioning_cell.coordinated.settings import CellCoordinatorSettings, replacing
-from positioning_cell.errors import ConfigError
+from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import panel_messages as pm
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.goals import OneGoal, Ran, run_goal
 from positioning_cell.ros.parameters import NodeParameters
-from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
 from positioning_cell.ros.set_port import RosSetPort
 from positioning_cell.ros.spin import NodeStart, Spin
 
 #: Longest wait at shutdown for a running panel move to stop every positioner, s; the status
 #: period, s.
 CLOSE_WAIT_S, STATUS_PERIOD_S = 10.0, 1.0
-#: What each set sends the force watch: its tracker's readings and its setpoints.
-FED = (('reading', PoseWithCovarianceStamped, names.MEASURED_POSE),
-       ('setpoint', PoseStamped, names.SETPOINT))
+#: What each set sends the force watch: its tracker's readings and its plans (QoS).
+FED = (('reading', PoseWithCovarianceStamped, names.MEASURED_POSE, STREAM_QOS),
+       ('plan', Path, names.PLANNED_PATH, LATCHED_QOS))
 
 
 class CellCoordinatorNode(Node):
@@ -80,9 +77,9 @@ class CellCoordinatorNode(Node):
                              partial(self._srv_relax, 'relax_forces'))):
             self.create_service(Trigger, name, serve, callback_group=group)
         self.create_timer(STATUS_PERIOD_S, self._status)
-        for entry, (kind, kind_type, topic) in product(self.cell.positioners, FED):
+        for entry, (kind, kind_type, topic, qos) in product(self.cell.positioners, FED):
             self.create_subscription(kind_type, names.in_set(topic, entry.name), partial(
-                self._feed, entry.name, kind), STREAM_QOS, callback_group=group)
+                self._feed, entry.name, kind), qos, callback_group=group)
 
     def _check_cell(self, settings: CellCoordinatorSettings, changed: frozenset[str]) -> None:
         """A new ``cell_file``: refused during a move, or unless of the same positioners."""
@@ -99,9 +96,14 @@ class CellCoordinatorNode(Node):
             self.get_logger().info(f'cell_file: {settings.cell_file} from the next panel move')
 
     def _feed(self, name: str, kind: str, msg: Any) -> None:
-        """A tracker reading or a setpoint of positioner ``name``, to the force watch."""
-        pose = msg.pose.pose if kind == 'reading' else msg.pose
-        getattr(self._watch, kind)(name, m.seconds(msg.header.stamp), *m.pose_arrays(pose))
+        """A tracker reading or a plan of positioner ``name`` to the watch (a bad plan: logged)."""
+        if kind == 'reading':
+            self._watch.reading(name, m.seconds(msg.header.stamp), *m.pose_arrays(msg.pose.pose))
+            return
+        try:
+            self._watch.plan(name, *m.path_arrays(msg))
+        except InputError as err:
+            self.get_logger().error(f'plan ignored: {err}')
 
     @property
     def coordinator(self) -> Coordinator:

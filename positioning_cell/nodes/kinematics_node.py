@@ -1,10 +1,6 @@
-"""kinematics_node (node ``positioner``): pose commands by action or service → the operator's
-surface (:mod:`positioning_cell.motion.controller`: coordinate systems, limit layers, speeds,
-jog) → the move state machine (:mod:`positioning_cell.motion.mover`) → joint trajectories for
-the leg driver; the pose estimated from the encoders on /positioner/pose, and the machine for
-ROS tools at it (/robot_description, /joint_states, /tf, markers:
-:mod:`positioning_cell.ros.robot_state`); the state, refusals, result codes and the operator's
-settings on /diagnostics."""
+"""kinematics_node (node ``positioner``): pose commands → :mod:`positioning_cell.motion.controller`
+→ :mod:`positioning_cell.motion.mover` → joint trajectories for the leg driver and their plans;
+the pose estimated from the encoders, the machine for ROS tools, the state on /diagnostics."""
 
 from __future__ import annotations
 
@@ -73,7 +69,7 @@ class PositionerNode(Node):
         self._reference = self.create_client(Trigger, names.DRIVER_REFERENCE,
                                              callback_group=topics)
         self.mover = Mover(settings, Machine(
-            send_trajectory=lambda t, at: self.pub_traj.publish(m.joint_trajectory(t, at)),
+            send_trajectory=self._send,
             stop_drives=lambda: self.pub_traj.publish(m.stop_trajectory()),
             publish_target=lambda p, q: self.pub_target.publish(m.pose_stamped(p, q,
                                                                                self._now())),
@@ -109,6 +105,10 @@ class PositionerNode(Node):
         self.create_timer(settings.liveness.heartbeat_period,
                           lambda: beat.publish(Header(stamp=self._now())),
                           callback_group=MutuallyExclusiveCallbackGroup())
+
+    def _send(self, traj: Any, start: float | None) -> None:
+        self.pub_traj.publish(m.joint_trajectory(traj, start))
+        self.operator.publish_plan(traj, start)
 
     def _reference_drives(self) -> bool:
         """Ask the drives to reference (False: the service is not there, nothing sent)."""

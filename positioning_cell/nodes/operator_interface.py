@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
 from positioning_cell_interfaces import action as act
 from positioning_cell_interfaces import srv
 from positioning_cell_interfaces.msg import AxisRanges as AxisRangesMsg
@@ -27,6 +28,7 @@ from positioning_cell.motion.controller import Controller, MoveCommand
 from positioning_cell.motion.mover import MoveAbortedError, MoveResult, ResultCode, State
 from positioning_cell.moves.correction import deviation
 from positioning_cell.moves.outcomes import Attained
+from positioning_cell.moves.trajectory import Trajectory
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import operator_messages as om
 from positioning_cell.ros.goals import run_goal
@@ -70,6 +72,7 @@ class OperatorInterface:
         self._pub_systems = node.create_publisher(CoordinateSystemsMsg, names.COORDINATE_SYSTEMS,
                                                   LATCHED_QOS)
         self._pub_setpoint = node.create_publisher(PoseStamped, names.SETPOINT, STREAM_QOS)
+        self._pub_plan = node.create_publisher(Path, names.PLANNED_PATH, LATCHED_QOS)
         self._publish_systems()
         # The axis ranges: searched by a worker process (numba never loaded here), started by
         # the first search; latched: a one-shot reader (cell status) has the last ranges at
@@ -96,6 +99,12 @@ class OperatorInterface:
         the topic has a reader."""
         if self._pub_ranges.get_subscription_count() > 0:
             self._pub_ranges.publish(self._ranges_msg(self.controller.current_axis_ranges()))
+
+    def publish_plan(self, traj: Trajectory, start: float | None) -> None:
+        """The plan of a trajectory sent to start at ``start`` (ROS time s; None: on receipt,
+        now) on /positioner/planned_path."""
+        now = self.node.get_clock().now().nanoseconds * 1e-9
+        self._pub_plan.publish(m.planned_path(traj, now if start is None else start))
 
     def publish_setpoint(self, stamp: Any) -> None:
         """The running trajectory's setpoint on /positioner/setpoint (nothing when none runs)."""

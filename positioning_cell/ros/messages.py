@@ -21,6 +21,7 @@ from geometry_msgs.msg import (
     Vector3Stamped,
     WrenchStamped,
 )
+from nav_msgs.msg import Path
 from numpy.typing import ArrayLike
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
@@ -181,6 +182,25 @@ def joint_trajectory(traj: Trajectory, start: float | None = None) -> JointTraje
                                        time_from_start=duration(float(t)))
                   for i, t in enumerate(traj.times)]
     return msg
+
+
+def planned_path(traj: Trajectory, start: float) -> Path:
+    """nav_msgs/Path of a planned move sent to start at ``start`` (ROS time s): its platform
+    poses in base, each stamped at its commanded instant (``start`` + its sample time)."""
+    msg = Path()
+    msg.header.stamp, msg.header.frame_id = stamp(start), BASE_FRAME
+    msg.poses = [pose_stamped(p, q, stamp(start + float(t)))
+                 for t, p, q in zip(traj.times, traj.position, traj.quaternion, strict=True)]
+    return msg
+
+
+def path_arrays(msg: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A nav_msgs/Path's stamps (K,) s, positions (K, 3) m and quaternions (K, 4) (not
+    validated)."""
+    stamps = np.array([seconds(p.header.stamp) for p in msg.poses], dtype=float)
+    poses = [pose_arrays(p.pose) for p in msg.poses]
+    return (stamps, np.array([p for p, _ in poses], dtype=float).reshape(-1, 3),
+            np.array([q for _, q in poses], dtype=float).reshape(-1, 4))
 
 
 def stop_trajectory() -> JointTrajectory:

@@ -66,11 +66,11 @@ START_TIMEOUT = 120.0
 
 def recorded_topics(cell: CellFile) -> list[str]:
     """What the run records: the panel's topics (:data:`PANEL_TOPICS`), /diagnostics, and each
-    positioner's encoders, goals, setpoints, measured and true platform and calibration
-    markers (the setpoints and readings are what the coordinator's force watch judges from, the
-    true platform what it judges: a stop can be replayed from the bag)."""
-    per_set = (names.JOINT_STATES, names.TARGET, names.SETPOINT, names.MEASURED_POSE,
-               names.TRUE_POSE, names.CALIBRATION)
+    positioner's encoders, goals, plans, setpoints, measured and true platform and
+    calibration markers (the plans and readings are what the coordinator's force watch judges
+    from, the true platform what it judges: a stop can be replayed from the bag)."""
+    per_set = (names.JOINT_STATES, names.TARGET, names.PLANNED_PATH, names.SETPOINT,
+               names.MEASURED_POSE, names.TRUE_POSE, names.CALIBRATION)
     return [*PANEL_TOPICS, names.DIAGNOSTICS,
             *(names.in_set(t, e.name) for e in cell.positioners for t in per_set)]
 
