@@ -55,7 +55,7 @@ class RelaxSettings:
     (:meth:`~positioning_cell.coordinated.coordinator.Coordinator.relax_forces`;
     ``cell_coordinator`` parameters)."""
 
-    passes: int = setting(4, 'at most this many relaxing moves per command: a real panel is '
+    passes: int = setting(3, 'at most this many relaxing moves per command: a real panel is '
                           "not as stiff as its file, and each move leaves that error's share",
                           low=1, high=10)
     enough: float = setting(50.0, 'the relax ends once the largest internal force the load '
