@@ -1389,6 +1389,21 @@ def test_a_refused_or_idle_stop_along_the_path_stops_at_once() -> None:
     assert world.stops == 2
 
 
+def test_a_stop_now_during_a_stop_along_the_path_ends_the_move_at_once() -> None:
+    """/positioner/stop while the drives slow along the path: they stop at once, and the move
+    ends then (not once the stop along the path would have been over)."""
+    world = World(follow=False)
+    m = mover(world, **{'arrival.timeout': 5.0})
+
+    def both() -> None:
+        m.stop_along(time.time() + 0.1, 0.3)
+        m.stop()
+
+    err, after = abort(m, world, both, delay=0.3)
+    assert err.code is ResultCode.ABORTED_STOP and 'stopped by /positioner/stop' in str(err)
+    assert after < 1.0 and world.stops >= 1
+
+
 def test_a_stop_along_the_path_heard_late_rests_sooner_at_the_same_point() -> None:
     """Asked to stop from an instant already 50 ms past: the stop is sent to start just ahead,
     shorter by twice its lateness (moves.stopping.joined_late: the same point of the path);

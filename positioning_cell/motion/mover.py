@@ -455,9 +455,10 @@ class Mover:
                                  self.settings.goal_tolerance, None, None)
 
     def stop(self) -> str:
-        """Stop now: the drives decelerate under control; a running move ends aborted."""
+        """Stop now: the drives decelerate under control; a running move ends aborted (also
+        one stopping along its path: it no longer waits for that stop's end)."""
         with self.cond:
-            self.stop_requested = True
+            self.stop_requested, self._stopping = True, None
             self.machine.stop_drives()
             self.cond.notify_all()
         return 'stopping with controlled deceleration'
