@@ -17,7 +17,7 @@ ROS.
 - :mod:`.coordinator`: a panel move with every positioner as one (checked by all first, one
   time base, a fault or stop of one stops all);
 - :mod:`.force_watch`: the panel's internal force while it moves, from the trackers' readings
-  against the setpoints of their instant;
+  against the positioners' plans at their instant;
 - :mod:`.settings`: the coordinator's and its node's settings;
 - :mod:`.cell_file`: the cell configuration (positioners, their bases and attachments).
 """

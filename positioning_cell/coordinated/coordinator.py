@@ -35,7 +35,7 @@ each positioner's platform as its tracker measures it (the watch's recent readin
 implies a panel pose; their mean is the rigid placement nearest to where the panel is. Each
 positioner is moved, all as one, by what separates its measured platform from that placement
 (the non-rigid part of their disagreement: what loads the panel), and keeps that as its
-correction, added to its goals from then on (and taken off its setpoints by the watch). The
+correction, added to its goals from then on (and taken off its plans by the watch). The
 panel itself stays where it is, within the readings' noise; its internal force goes. The
 watch is off during a relax move: its reference is the commanded panel's placement, which a
 relax move leaves on purpose (the move only lowers the disagreement, by tens of µm).
@@ -51,7 +51,7 @@ step leaves that error's share of the force, and the relax measures again and st
 (at most ``passes`` moves) until the largest internal force is at most ``enough`` N; it says
 what the load cells gave before and after each move, and, when ``passes`` were not enough,
 that the cell file's stiffness falls short. The load corrections are not the trackers': the
-watch does not take them off its setpoints (the trackers see the platforms where they are
+watch does not take them off its plans (the trackers see the platforms where they are
 sent), and the trackers' relax aims at the rigid placement moved by them.
 """
 
