@@ -484,6 +484,25 @@ def test_busy_is_refused_without_touching_the_running_move_then_stop_aborts() ->
     assert world.stops >= 1 and m.state is State.ABORTED
 
 
+def test_a_stop_heard_while_the_move_is_planned_ends_it_before_anything_moves() -> None:
+    """The stop lands after the move was accepted, while it checks its path (the path
+    check is the planning's last step): the move ends aborted, nothing is sent. (Cleared once
+    the plan was made, that stop was lost and the move ran to its goal.)"""
+    world = World()
+    m = mover(world)
+
+    def stop_while_planning(p: np.ndarray, q: np.ndarray) -> list[str]:
+        m.stop()
+        return []
+
+    with pytest.raises(MoveAbortedError, match='stopped by /positioner/stop') as info:
+        m.move('base', GOAL, GOAL_Q, path_check=stop_while_planning)
+    assert info.value.code is ResultCode.ABORTED_STOP and m.state is State.ABORTED
+    assert not world.trajectories
+    m.move('base', GOAL, GOAL_Q)  # the next command is not held by that stop
+    assert m.state is State.SETTLED and len(world.trajectories) >= 1
+
+
 def test_a_stop_before_the_send_sends_nothing() -> None:
     world = World()
     m = mover(world)

@@ -539,8 +539,6 @@ class Mover:
                                 (len(times), 4))
             traj = Trajectory(np.asarray(times, float), p, q, joints[:, :3], joints[:, 3:],
                               rates[:, :3], rates[:, 3:], LimitReport(len(times), (), 0))
-            with self.cond:
-                self.stop_requested, self._stopping = False, None
             try:
                 self._drive(traj, None)
             except MoveAbortedError as err:
@@ -768,7 +766,6 @@ class Mover:
         except MoveAbortedError as err:
             raise self.refusal(err.code, str(err)) from err
         with self.cond:
-            self.stop_requested, self._stopping = False, None
             self._path = []
         moved = False
         try:
@@ -1228,7 +1225,9 @@ class Mover:
 class _Exclusive:
     """One command at a time: a second one while busy is refused and changes nothing. While
     it runs the standstill watch is not fed; a command that moved the axes arms it again at
-    its end."""
+    its end. A stop heard before it began is forgotten; one heard from then on, while it
+    checks and plans too, ends it (cleared only once the plan was made, a stop during the
+    planning was lost and the move ran on)."""
 
     def __init__(self, mover: Mover) -> None:
         self.mover = mover
@@ -1239,6 +1238,7 @@ class _Exclusive:
             raise m.refusal(ResultCode.REFUSED_BUSY, 'busy: a move is in progress')
         with m.cond:
             m._commanding, m._moved = True, False
+            m.stop_requested, m._stopping = False, None
 
     def __exit__(self, *exc: object) -> None:
         m = self.mover
