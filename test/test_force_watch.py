@@ -38,19 +38,21 @@ def path(t: float) -> np.ndarray:
 
 
 def planned(watch: ForceWatch, name: str, times: np.ndarray,
-            pose: Callable[[float], tuple[np.ndarray, np.ndarray]]) -> None:
-    """Positioner ``name``'s plan: ``pose(t)`` at 100 s + ``times``."""
+            pose: Callable[[float], tuple[np.ndarray, np.ndarray]], t0: float = 100.0) -> None:
+    """Positioner ``name``'s plan: ``pose(t)`` at ``t0`` s + ``times``."""
     poses = [pose(float(t)) for t in times]
-    watch.plan(name, 100.0 + times, [p for p, _ in poses], [q for _, q in poses])
+    watch.plan(name, t0 + times, [p for p, _ in poses], [q for _, q in poses])
 
 
-def fed(watch: ForceWatch, off: dict[str, np.ndarray], readings: int = 5) -> None:
-    """A plan sampled every 20 ms along :func:`path` for 1 s; readings every 50 ms in between
-    (not at a sample's instant), each positioner's ``off`` its true offset from its plan."""
+def fed(watch: ForceWatch, off: dict[str, np.ndarray], readings: int = 5,
+        t0: float = 100.0) -> None:
+    """A plan sampled every 20 ms along :func:`path` for 1 s from ``t0`` s; readings every
+    50 ms in between (not at a sample's instant), each positioner's ``off`` its true offset
+    from its plan."""
     for name in NAMES:
-        planned(watch, name, np.arange(0.0, 1.0, 0.02), lambda t: (path(t), HOME_Q))
+        planned(watch, name, np.arange(0.0, 1.0, 0.02), lambda t: (path(t), HOME_Q), t0)
         for t in 0.013 + 0.05 * np.arange(readings):
-            watch.reading(name, 100.0 + t, path(t) + off.get(name, 0.0), HOME_Q)
+            watch.reading(name, t0 + t, path(t) + off.get(name, 0.0), HOME_Q)
 
 
 def test_positioners_that_follow_their_plans_load_nothing() -> None:
@@ -88,6 +90,29 @@ def test_readings_before_the_first_plan_are_not_compared_and_a_reset_forgets() -
     assert watch.excess() is not None
     watch.reset()
     assert watch.sizes() is None
+
+
+def test_a_plan_of_an_earlier_command_delivered_after_the_reset_is_not_taken() -> None:
+    """The latched plans topic hands a subscriber the last plan whenever discovery matches
+    it: a homing's plan arriving after the move's reset. Taken, p1 (not yet sent its move)
+    was judged against where it rested and p2, 0.2 mm off, read as an excess before p1 had
+    moved; not taken, nothing is judged until each positioner's plan of the move begins."""
+    watch = ForceWatch(CELL, MECH)
+    watch.reset(since=100.0)  # the move starts at 100 s
+    for name in NAMES:  # the homings' plans, ended at rest long before
+        watch.plan(name, [50.0, 51.0], [HOME_P, HOME_P], [HOME_Q, HOME_Q])
+    off = {'p2': np.array([2e-4, 0.0, 0.0])}
+    for t in 99.80 + 0.05 * np.arange(4):  # at rest before the start
+        for name in NAMES:
+            watch.reading(name, t, HOME_P + off.get(name, 0.0), HOME_Q)
+    assert watch.sizes() is None
+    fed(watch, off)  # the move's plans (from 100 s) and its readings: judged
+    excess = watch.excess()
+    assert excess is not None and excess.pair == ('p1', 'p2') and excess.stamp > 100.0
+    watch.reset()  # no start given: every plan taken, as before
+    watch.plan('p1', [50.0, 51.0], [HOME_P, HOME_P], [HOME_Q, HOME_Q])
+    watch.reading('p1', 60.0, HOME_P, HOME_Q)
+    assert watch.sizes() is None  # (p2 and p3 not yet)
 
 
 def test_one_stray_reading_among_three_does_not_trip_the_watch() -> None:
@@ -246,7 +271,9 @@ def test_the_coordinator_stops_every_positioner_on_an_excess_naming_the_pair() -
     coordinator = Coordinator(CELL, MECH, fakes, settings, watch=watch)
     points = np.array([a.point for a in CELL.attachments(MECH)])
     side = (points[2] - points[1]) / np.linalg.norm(points[2] - points[1])
-    threading.Timer(0.2, fed, (watch, {'p3': 3e-4 * side})).start()
+    # the move's plans, from its start (the watch takes no plan begun before it)
+    threading.Timer(0.2, lambda: fed(watch, {'p3': 3e-4 * side},
+                                     t0=fakes[0].moved[-1][1].start)).start()
     outcome = coordinator.move(PanelRequest(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
                                threading.Event())
     assert outcome.code is ResultCode.ABORTED_INTERNAL_FORCE
@@ -295,10 +322,11 @@ def test_relax_moves_each_positioner_onto_the_rigid_placement_and_keeps_the_corr
     for fake in fakes:
         np.testing.assert_allclose(fake.moved[-1][0][0], HOME_P + steps[fake.name],
                                    atol=1e-12)
+    start = fakes[0].moved[-1][1].start
     for name in NAMES:
-        watch.plan(name, [60.0], [HOME_P + steps[name]], [HOME_Q])
+        watch.plan(name, [start], [HOME_P + steps[name]], [HOME_Q])
         for k in range(3):
-            watch.reading(name, 60.1 + 0.05 * k, HOME_P + off.get(name, 0.0) + steps[name],
-                          HOME_Q)
+            watch.reading(name, start + 0.1 + 0.05 * k,
+                          HOME_P + off.get(name, 0.0) + steps[name], HOME_Q)
     sizes = watch.sizes()
     assert sizes is not None and sizes[0][1] < 1e-3

@@ -371,11 +371,11 @@ class Coordinator:
         if refusing:
             return PanelOutcome(refusing[0][1].code, 'refused, nothing moved: ' + '; '.join(
                 f'{name}: {c.reason}' for name, c in refusing))
-        timing = Timing(max(c.duration for c in checks),
-                        self.clock() + self.settings.start_lead)
+        start = self.clock() + self.settings.start_lead
+        timing = Timing(max(c.duration for c in checks), start)
         watch = self.watch if watched else None
         if watch is not None:
-            watch.reset(self.corrections)
+            watch.reset(self.corrections, since=start)
         polls: list[tuple[str, Callable[[], Ended | None]]] = []
         try:
             self._timing = timing

@@ -31,6 +31,7 @@ Thread-safe: readings and plans come in from the node's callbacks, the coordinat
 
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
 from collections.abc import Mapping
@@ -56,6 +57,9 @@ READINGS_KEPT = 100
 #: Deviations kept per positioner, in readings per instant compared: enough that the others'
 #: series cover the oldest positioner's latest instants (the trackers are not synchronised).
 DEVIATIONS_KEPT_PER_INSTANT = 4
+#: A plan is the move's when it begins at most this long before the move's start, s (its
+#: first stamp is that start, to the nanosecond of a ROS time).
+PLAN_START_TOLERANCE = 1e-3
 
 
 class Excess(NamedTuple):
@@ -96,14 +100,22 @@ class ForceWatch:
         self._recent: dict[str, deque[tuple[FloatArray, FloatArray]]] = {
             n: deque(maxlen=READINGS_KEPT) for n in self.names}
         self._corrections = {n: np.zeros(3) for n in self.names}
+        self._since = -math.inf
         self.reset()
 
-    def reset(self, corrections: Mapping[str, ArrayLike] | None = None) -> None:
+    def reset(self, corrections: Mapping[str, ArrayLike] | None = None,
+              since: float = -math.inf) -> None:
         """Forget every plan and deviation (a new panel move: its plans come once it is sent;
         a move stopped at once leaves its platforms short of its plan); ``corrections`` (m,
         each positioner's base frame): what the coordinator adds to each one's goals beyond
-        the rigid panel's placement (:meth:`Coordinator.relax`), taken off its plans."""
+        the rigid panel's placement (:meth:`Coordinator.relax`), taken off its plans;
+        ``since``: the move's start (ROS time s), before which no plan of it begins: a plan
+        that does is an earlier command's delivered late, and is not taken (the latched
+        topic hands its last plan to a subscriber whenever discovery matches it: a homing's,
+        taken for a move's, had the watch judge a positioner that had not yet sent its move
+        against where it rested)."""
         with self._lock:
+            self._since = since
             for plans in self._plans.values():
                 plans.clear()
             kept = self._smoothing * DEVIATIONS_KEPT_PER_INSTANT
@@ -115,7 +127,8 @@ class ForceWatch:
     def plan(self, name: str, stamps: ArrayLike, positions: ArrayLike,
              quaternions: ArrayLike) -> None:
         """Positioner ``name``'s plan: its platform poses (in its base; positions (K, 3) m,
-        quaternions (K, 4)) commanded at ``stamps`` (K,) s, increasing (module docstring).
+        quaternions (K, 4)) commanded at ``stamps`` (K,) s, increasing (module docstring);
+        not kept when it begins before the move's start (:meth:`reset`).
         InputError for one that is not (nothing changes)."""
         t = np.asarray(stamps, dtype=float)
         p, q = np.asarray(positions, dtype=float), np.asarray(quaternions, dtype=float)
@@ -126,7 +139,8 @@ class ForceWatch:
                              f'finite pose each, got stamps {t.shape}, positions {p.shape}, '
                              f'quaternions {q.shape}')
         with self._lock:
-            self._plans[name].append((t, p, q))
+            if t[0] >= self._since - PLAN_START_TOLERANCE:
+                self._plans[name].append((t, p, q))
 
     def _commanded(self, name: str, stamp: float) -> tuple[FloatArray, FloatArray] | None:
         """The commanded platform pose at ``stamp`` (under the lock): of the latest plan
