@@ -477,7 +477,16 @@ def _stopped_by_force(cell: CoordinatedCell) -> tuple[dict[str, float], float]:
         return {ns: t for ns, t in found.items() if t is not None} if all(
             t is not None for t in found.values()) else None
 
-    stops: dict[str, float] = wait_until(both, 10.0, 'both positioners aborted')
+    try:
+        stops: dict[str, float] = wait_until(both, 10.0, 'both positioners aborted')
+    except TimeoutError as err:  # what each set was sent and said, for the next reader
+        def seen(ns: str) -> str:
+            sent = [(len(t.points), round(seconds(t.header.stamp) - exceeded, 3))
+                    for t in cell.sent[ns][before[ns]:]]
+            states = [status_values(s).get('state') for array in diagnostics[ns]
+                      for s in array.status if s.name == names.STATUS_POSITIONER]
+            return f'{ns}: sent (points, stamp - exceeded) {sent}, states {states[-5:]}'
+        raise AssertionError(f'{err}: ' + '; '.join(map(seen, SETS))) from err
     print(f'exceeded {exceeded:.3f}: seen +{seen - exceeded:.3f} s, stopped +'
           + ', '.join(f'{ns} {stops[ns] - exceeded:.3f} s' for ns in SETS))
     return stops, exceeded
