@@ -282,8 +282,8 @@ def test_a_running_panel_move_is_stopped_along_its_path_from_one_instant() -> No
                  FakePositioner('p3', 0.2, after=None)]
         settings = replace(FAST, stop_lead=0.2, stop_time=stop_time)
         stop = threading.Event()
+        asked = time.time()  # before the timer starts: it cannot fire before asked + 0.1
         threading.Timer(0.1, stop.set).start()
-        asked = time.time()
         outcome = Coordinator(CELL, MECH, fakes, settings).move(REQUEST, stop)
         assert outcome.code is ResultCode.ABORTED_STOP
         (a1,), (a3,) = fakes[0].along, fakes[2].along
