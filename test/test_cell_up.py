@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 
 from positioning_cell import names
 from positioning_cell.bag.description import bag_description
-from positioning_cell.ros.processes import cell_environment
+from positioning_cell.ros.processes import OWN_PROCESS_GROUP, cell_environment
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow, pytest.mark.timing]
 
@@ -27,7 +27,7 @@ def test_cell_up_then_cell_home_then_ctrl_c_stops_everything(tmp_path: Path) -> 
         with out.open('wb') as log:
             cell_up = subprocess.Popen([executable('cell'), 'up', '--domain', str(domain)],
                                        cwd=tmp_path, env=env, stdout=log,
-                                       stderr=subprocess.STDOUT, start_new_session=True)
+                                       stderr=subprocess.STDOUT, **OWN_PROCESS_GROUP)
         try:
             wait_until(lambda: 'cell up: ready' in out.read_text() or cell_up.poll() is not None,
                        90.0, 'cell up to say ready')

@@ -11,6 +11,7 @@ benchmarks/idle_cpu.py --one-process measures what it costs)."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import time
@@ -52,6 +53,10 @@ def test_container_hosts_the_cell_moves_and_stops_on_sigterm(tmp_path: Path) -> 
             return hosted <= set(client.node.get_node_names()) and bool(poses)
 
         wait_until(all_up, START_TIMEOUT_S, f'nodes {sorted(hosted)} and {names.ESTIMATED_POSE}')
+        # its own process group, in this test's session: not an autogroup of its own, whose
+        # threads the kernel let go without CPU for 0.5-1.7 s beside the others' (processes.py)
+        assert os.getpgid(container.pid) == container.pid
+        assert os.getsid(container.pid) == os.getsid(0)
         for name, lax in LAX_LIVENESS.items():
             assert client.set_parameter(names.NODE_POSITIONER, f'liveness.{name}',
                                         float(lax)).successful, name

@@ -19,6 +19,7 @@ from cell_harness import REPO, Client, isolated_domain, wait_until
 from installed import check_installed_copy
 
 from positioning_cell import names
+from positioning_cell.ros.processes import OWN_PROCESS_GROUP
 
 #: The installed executables start nodes.
 pytestmark = pytest.mark.nodes
@@ -147,7 +148,7 @@ def test_every_executable_is_where_ros2_run_looks_and_starts(colcon_install: Pat
                     [str(lib / name), '--ros-args', '--params-file',
                      str(REPO / 'config' / 'cell.yaml'), *node_args.get(name, [])],
                     stdout=log, stderr=subprocess.STDOUT, env=env,
-                    cwd=tmp_path, start_new_session=True), log)
+                    cwd=tmp_path, **OWN_PROCESS_GROUP), log)
             expected = {NODE_NAMES.get(n, n) for n in nodes}
             with Client(domain, 'package_test_client') as client:
                 def all_up() -> bool:

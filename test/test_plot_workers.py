@@ -35,6 +35,7 @@ from positioning_cell.analysis.summary import RunAnalysis
 from positioning_cell.config import config_path
 from positioning_cell.plotting import figure, log_scale
 from positioning_cell.polling import wait_until
+from positioning_cell.ros.processes import OWN_PROCESS_GROUP
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 
 POSITIONS = np.array([[0.0, 0.0, 0.196], [0.004, 0.004, 0.2], [-0.004, -0.004, 0.192]])
@@ -139,7 +140,7 @@ def test_an_analysis_that_fails_ends_its_workers_at_once() -> None:
     ones still warming up: here a warm-up that never ends, which a shutdown waiting for the
     workers would wait on for ever (the interpreter would not exit: the timeout fails it)."""
     child = subprocess.Popen([sys.executable, '-c', _FAILED_ANALYSIS], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, start_new_session=True)
+                             stderr=subprocess.PIPE, text=True, **OWN_PROCESS_GROUP)
     try:
         out, err = child.communicate(timeout=60)
     finally:  # its workers too, should it hang

@@ -37,7 +37,7 @@ from positioning_cell.calibration.calibrated import LOAD_TIMEOUT_S
 from positioning_cell.calibration.parameters import PARAMETER_NAMES
 from positioning_cell.motion.settings import CALIBRATION_FILE, COMPENSATION_MODE
 from positioning_cell.nodes.kinematics_node import PositionerNode
-from positioning_cell.ros.processes import cell_environment
+from positioning_cell.ros.processes import OWN_PROCESS_GROUP, cell_environment
 from positioning_cell.testing.stops import CRASH_SIGNS
 
 pytestmark = [pytest.mark.nodes, pytest.mark.timing]
@@ -192,7 +192,7 @@ def _start(exe_args: list[str], env: dict[str, str], log: Path,
     args = [*exe_args, '--ros-args', '--params-file', str(CELL_YAML), '--params-file', str(extra)]
     with log.open('wb') as out:
         return subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, env=env,
-                                start_new_session=True)
+                                **OWN_PROCESS_GROUP)
 
 
 def _stop(proc: subprocess.Popen[bytes], sig: int, log: Path) -> float:

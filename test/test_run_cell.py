@@ -42,6 +42,7 @@ from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.parameters import parse
 from positioning_cell.robot.tree import RobotTree
 from positioning_cell.robot.urdf import MOVING_JOINT_NAMES
+from positioning_cell.ros.processes import OWN_PROCESS_GROUP
 from positioning_cell.sim.pose_measurement import PoseMeasurementSettings
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
@@ -94,7 +95,7 @@ def _start(program: Path, runs: Path, *options: str
     proc = subprocess.Popen([executable('run_cell'), '--program', str(program), '--runs',
                              str(runs), '--config', str(_fast_config(program.parent)),
                              *options], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
+                            text=True, **OWN_PROCESS_GROUP)
     lines: list[str] = []
 
     def read() -> None:

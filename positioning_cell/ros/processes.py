@@ -68,6 +68,22 @@ def use_loopback() -> None:
     os.environ.update(env)
 
 
+#: How the cell starts each of its processes: in a process group of its own (a signal to the
+#: group reaches the node and whatever it started; a terminal's Ctrl-C reaches only the command
+#: that started them, which stops them in order), but in the starter's session. A session of
+#: its own (``start_new_session``) is a scheduling group of its own where the kernel groups
+#: processes by session (``kernel.sched_autogroup_enabled``, on by default). Measured on the
+#: 2-core VM (Linux 6.18), `run_cell --cell config/three_positioners.yaml` with a session per
+#: process: in each of six runs one set's container went 0.5-1.7 s without any CPU while its
+#: threads were runnable and the other sets ran, its drives stopped for a positioner gone
+#: silent, and moves failed. In one session (or with the autogroups off): no gap of 0.4 s in
+#: two whole runs, all 15 moves done (docs/howto/coordinated.md). Python 3.10's subprocess
+#: cannot start a child in a group of its own but by a ``preexec_fn`` (unsafe beside
+#: threads): there, a session of its own, as before.
+OWN_PROCESS_GROUP: dict[str, Any] = (
+    {'process_group': 0} if sys.version_info >= (3, 11) else {'start_new_session': True})
+
+
 def executable(name: str) -> str:
     """Path of one of the package's console scripts: beside this interpreter first (a venv),
     else on PATH; FileNotFoundError if it is not installed."""
@@ -108,7 +124,7 @@ class Processes:
         log = (self.log_dir / f'{label}.log').open('wb')
         self._logs[label] = log
         self.procs[label] = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
-                                             env=self.env, start_new_session=True)
+                                             env=self.env, **OWN_PROCESS_GROUP)
         return self.procs[label]
 
     def log(self, label: str) -> str:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from positioning_cell import names
 from positioning_cell.config import config_path
-from positioning_cell.ros.processes import executable
+from positioning_cell.ros.processes import OWN_PROCESS_GROUP, executable
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 
 #: What an unclean stop prints.
@@ -81,7 +81,7 @@ def stop_after(commands: Mapping[str, Sequence[str]], env: Mapping[str, str], lo
     for label, argv in commands.items():
         with (log_dir / f'{label}.log').open('wb') as log:
             procs[label] = subprocess.Popen(list(argv), stdout=log, stderr=subprocess.STDOUT,
-                                            env=dict(env), start_new_session=True)
+                                            env=dict(env), **OWN_PROCESS_GROUP)
     stops: dict[str, Stop] = {}
 
     def stop(label: str, proc: subprocess.Popen[bytes]) -> None:
