@@ -54,6 +54,7 @@ from positioning_cell.moves.correction import (
     unread_sigma,
     verdict,
 )
+from positioning_cell.moves.drive_stops import SILENCE_STOPS, drives_stopped
 from positioning_cell.moves.fingerprint import fingerprint
 from positioning_cell.moves.machine import Answer, JointReading, Machine, Measurement
 from positioning_cell.moves.outcomes import (
@@ -997,7 +998,7 @@ class Mover:
             start_at = self.machine.clock() + delay
             self._motion = (start_at, traj, FreezeWatch(live.freeze_window, live.freeze_motion,
                                                         counts, start_at))
-            self._silence_stops = self.driver.get('silence_stops', '0')
+            self._silence_stops = self.driver.get(SILENCE_STOPS, '0')
             self._sent = (self._motion[0], traj.duration)
             self.machine.send_trajectory(traj, start)
         measuring = self.mode is CompensationMode.MEASURED  # the tracker must stay live
@@ -1154,16 +1155,9 @@ class Mover:
         now, live, driver = self.machine.clock(), self.settings.liveness, self.driver
         if self.stop_requested and self._stopping is None:
             raise MoveAbortedError(ResultCode.ABORTED_STOP, f'stopped by {STOP}')
-        if driver.get('state') == 'fault':
-            raise MoveAbortedError(ResultCode.ABORTED_FAULT,
-                                   f'drive fault: {driver.get("message", "")}')
-        if driver.get('enabled', 'true').lower() == 'false':
-            raise MoveAbortedError(ResultCode.ABORTED_DRIVES_OFF, 'drives disabled during the '
-                                   f'move: {driver.get("message", "")}')
-        if self._motion is not None and driver.get('silence_stops', '0') != self._silence_stops:
-            raise MoveAbortedError(ResultCode.ABORTED_DRIVER_LOST,
-                                   'the drives stopped the move: they heard no heartbeat from '
-                                   f'this positioner in time ({driver.get("last_event", "")})')
+        stopped = drives_stopped(driver, None if self._motion is None else self._silence_stops)
+        if stopped is not None:
+            raise MoveAbortedError(*stopped)
         silence = self.joints_heard.silence()
         if silence > live.joint_silence:
             raise MoveAbortedError(ResultCode.ABORTED_DRIVER_LOST,
