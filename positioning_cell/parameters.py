@@ -346,8 +346,10 @@ def check_fields(obj: Any) -> None:
 
 def block(params: Mapping[str, Any], prefix: str) -> dict[str, Any]:
     """The parameters under ``prefix`` (nested ``{prefix: {...}}`` or dotted ``prefix.key``),
-    as dotted keys relative to it."""
+    as dotted keys relative to it; all of them for an empty ``prefix``."""
     flat = flatten(params)
+    if not prefix:
+        return flat
     start = prefix + '.'
     return {k[len(start):]: v for k, v in flat.items() if k.startswith(start)}
 

@@ -74,7 +74,8 @@ class RemoteParameters:
         self._requests = 0
         self._period = ASK_PERIOD
         self._timer = node.create_timer(ASK_PERIOD, self._ask)
-        node.create_subscription(ParameterEvent, names.PARAMETER_EVENTS, self._on_event, 100)
+        self._events = node.create_subscription(ParameterEvent, names.PARAMETER_EVENTS,
+                                                self._on_event, 100)
         self._ask()
 
     def _ask(self) -> None:
@@ -97,11 +98,15 @@ class RemoteParameters:
             self._timer.reset()  # the new period from now (rcl would apply it after a tick)
 
     def close(self) -> None:
-        """Stop asking (before the node is destroyed)."""
+        """Stop asking and following: its timer, client and subscription leave the node
+        (which may go on without them)."""
         self._timer.cancel()
         if self._pending is not None:
             self._client.remove_pending_request(self._pending)
             self._pending = None
+        self.node.destroy_subscription(self._events)
+        self.node.destroy_client(self._client)
+        self.node.destroy_timer(self._timer)
 
     def _on_answer(self, future: Any) -> None:
         if future is self._pending:

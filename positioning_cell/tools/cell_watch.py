@@ -75,7 +75,7 @@ class Keys:
         return os.read(self.fd, 1).decode(errors='replace') if ready else None
 
 
-def _status_text(label: str, status: Status | None, missing: str) -> Text:
+def status_text(label: str, status: Status | None, missing: str) -> Text:
     line = Text(f'{label}: ', style='bold')
     if status is None:
         return line.append(missing, style='dim')
@@ -114,10 +114,10 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
                           time.strftime('%H:%M:%S', time.localtime(now)))
     record = snapshot.recording(now)
     parts: list[Any] = [
-        title, _status_text('positioner', snapshot.positioner, 'no status yet'),
+        title, status_text('positioner', snapshot.positioner, 'no status yet'),
         motion_line(snapshot, now),
-        _status_text('last verdict', snapshot.verdict, 'none since the watch started'),
-        _status_text('recording', None if record is None else
+        status_text('last verdict', snapshot.verdict, 'none since the watch started'),
+        status_text('recording', None if record is None else
                      Status(record.level, record.message, now), 'no recorder seen')]
     waiting = snapshot.waiting_for()
     if frame != names.BASE_FRAME and not snapshot.systems_known:
@@ -155,19 +155,31 @@ def watch(snapshot: Callable[[], Snapshot], frame: str, rate: float, stop: Calla
     :class:`positioning_cell.ros.operator_client.WatchSource`) ``rate`` times a second until
     ``q`` is pressed or ``stop()`` (Ctrl-C / SIGTERM counted by the caller) is true; every
     :data:`FIRST_PERIOD` s until the deviation can first be drawn."""
+    def draw(now: float) -> tuple[Group, bool]:
+        state = snapshot()
+        return render(state, frame, now), state.deviation(frame) is not None
+
+    run_window(draw, rate, stop, console, keys)
+
+
+def run_window(draw: Callable[[float], tuple[Group, bool]], rate: float,
+               stop: Callable[[], bool], console: Console | None = None,
+               keys: Keys | None = None) -> None:
+    """A live terminal window: ``draw(now)`` (wall time s) gives what to show and whether
+    its main content is there yet; redrawn ``rate`` times a second once it is (every
+    :data:`FIRST_PERIOD` s until then) until ``q`` is pressed or ``stop()`` is true."""
     console = console or Console()
     period, shown = 1.0 / rate, False
     with contextlib.ExitStack() as stack:
         pressed = stack.enter_context(keys or Keys())
-        live = stack.enter_context(Live(render(snapshot(), frame, time.time()),
-                                        console=console, auto_refresh=False,
-                                        screen=console.is_terminal))
+        live = stack.enter_context(Live(draw(time.time())[0], console=console,
+                                        auto_refresh=False, screen=console.is_terminal))
         while not stop():
-            now = snapshot()
-            live.update(render(now, frame, time.time()), refresh=True)
-            shown = shown or now.deviation(frame) is not None
+            view, ready = draw(time.time())
+            live.update(view, refresh=True)
+            shown = shown or ready
             if pressed.wait(period if shown else min(period, FIRST_PERIOD)) in QUIT_KEYS:
                 return
 
 
-__all__ = ['Keys', 'render', 'watch']
+__all__ = ['Keys', 'render', 'run_window', 'status_text', 'watch']
