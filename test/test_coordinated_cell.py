@@ -7,6 +7,8 @@ positioner and a cancel are seen to stop both."""
 from __future__ import annotations
 
 import json
+import shlex
+import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,6 +25,7 @@ from cell_harness import (
     LOADED_LIVENESS,
     Client,
     ProcessGroup,
+    executable,
     isolated_domain,
     stop_cleanly,
 )
@@ -32,10 +35,12 @@ from nav_msgs.msg import Path as PathMsg
 from positioning_cell_interfaces.action import MoveToPose
 from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome
 from rclpy.qos import QoSProfile
+from rich.console import Console
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
+from tmux_pane import TmuxPane
 from trajectory_msgs.msg import JointTrajectory
 
 from positioning_cell import names
@@ -56,8 +61,12 @@ from positioning_cell.ros.messages import (
     wrench_of,
 )
 from positioning_cell.ros.node_sets import start_coordinated
+from positioning_cell.ros.panel_watch_inputs import PanelWatchSource
 from positioning_cell.ros.port import RosCellPort
+from positioning_cell.ros.processes import cell_environment
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, STREAM_QOS
+from positioning_cell.tools.cell_watch_panel import render_panel
+from positioning_cell.watch.panel import PanelSnapshot
 
 pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 
@@ -114,6 +123,7 @@ class CoordinatedCell:
         self._streams: dict[str, list[Any]] = {}
         self.goals = GoalClient(client, MoveToPose, names.COORDINATED_MOVE_ACTION)
         self.up = False  # the panel 4 mm up (_moved_together)
+        self.domain = -1  # its ROS domain
 
     def stream(self, msg_type: Any, topic: str) -> list[Any]:
         """The messages on ``topic`` since its first call (an absolute name)."""
@@ -160,6 +170,7 @@ def _running(tmp: Path, per_set: Any = None) -> Iterator[CoordinatedCell]:
         start_coordinated(procs, cell_file.load(path), [CELL_YAML], tmp / 'params', OVERRIDES,
                           per_set)
         cell = CoordinatedCell(client, procs)
+        cell.domain = domain
         try:
             for ns in SETS:
                 done, message = client.home(namespace=ns)
@@ -420,6 +431,56 @@ def test_the_node_sets_keep_to_their_namespaces(cell: CoordinatedCell) -> None:
         for i in [*node.get_publishers_info_by_topic(t), *node.get_subscriptions_info_by_topic(t)]
         if i.node_namespace.strip('/') in SETS)
     assert stray == [], stray
+
+
+def test_the_panel_watch_shows_the_running_cell(cell: CoordinatedCell) -> None:
+    """``cell watch --panel``'s inputs on the running cell (issue 27 item 6): the coordinator's
+    status and cell file, the panel's tracker, both sets' positioner and drives, and an
+    internal force from their load cells; drawn naming both. Its subscriptions go with it."""
+    subscribed = len(list(cell.client.node.subscriptions))
+    source = PanelWatchSource(cell.client)
+    try:
+        def complete() -> PanelSnapshot | None:
+            s = source.snapshot()
+            ready = (s.coordinator is not None and s.names == SETS and s.panel is not None
+                     and set(s.positioners) == set(s.drives) == set(SETS)
+                     and not isinstance(s.internal_force(), str))
+            return s if ready else None
+
+        snapshot = wait_until(complete, 30.0, 'every input of the panel watch')
+    finally:
+        source.close()
+    force = snapshot.internal_force()
+    assert isinstance(force, float) and 0.0 <= force < 1e4, force
+    assert snapshot.coordinator is not None
+    assert snapshot.coordinator.values['positioners'] == ' '.join(SETS)
+    console = Console(record=True, width=160, color_system=None)
+    console.print(render_panel(snapshot, time.time()))
+    text = console.export_text()
+    assert all(f' {ns} ' in text for ns in SETS) and 'N at most at one attachment' in text
+    assert len(list(cell.client.node.subscriptions)) == subscribed  # none of its own left
+
+
+@pytest.mark.skipif(shutil.which('tmux') is None, reason='needs tmux')
+def test_cell_watch_panel_draws_the_running_cell_and_q_quits(cell: CoordinatedCell,
+                                                             tmp_path: Path) -> None:
+    """``cell watch --panel`` in a terminal (a tmux pane): the coordinator, the panel, the
+    internal force and both positioners' rows; q quits, exit 0."""
+    command = f'{shlex.quote(executable("cell"))} watch --panel --domain {cell.domain}'
+    with TmuxPane(f'pc_panel_{cell.domain}', command, cell_environment(cell.domain),
+                  tmp_path) as pane:
+        def drawn() -> str | None:
+            screen = pane.screen()
+            rows = [line for line in screen.splitlines() if line.strip()[:4] in ('│ p1', '│ p2')]
+            known = len(rows) == 2 and not any('│ ?' in row for row in rows)  # states, drives
+            return screen if known and 'N at most at one attachment' in screen \
+                and 'mrad' in screen and 'coordinator: OK' in screen else None
+
+        screen = wait_until(drawn, 90.0, 'the panel watch window')
+        assert 'cell watch: the panel' in screen
+        pane.keys('q')
+        wait_until(lambda: 'exited' in pane.screen(), 30.0, 'the watch to quit on q')
+        assert 'exited 0' in pane.screen()
 
 
 def test_a_set_is_reached_through_a_port_of_its_own(cell: CoordinatedCell) -> None:

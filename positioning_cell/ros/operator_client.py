@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -50,6 +50,9 @@ from positioning_cell.ros.qos import LATCHED_QOS, LATEST_QOS, STREAM_QOS
 from positioning_cell.ros.watch_inputs import RemoteParameters, WatchInputs
 from positioning_cell.tools import cell_format as cf
 from positioning_cell.watch.state import Snapshot, WatchState
+
+if TYPE_CHECKING:
+    from positioning_cell.ros.panel_watch_inputs import PanelWatchSource
 
 #: Longest wait for a service or an action server to appear (s; at most the timeout).
 SERVER_WAIT = 30.0
@@ -277,6 +280,13 @@ class OperatorClient:
     def watch_inputs(self) -> WatchSource:
         """The watch window's inputs on this client's node (:class:`WatchSource`)."""
         return WatchSource(self.cell)
+
+    def panel_watch_inputs(self) -> PanelWatchSource:
+        """The coordinated cell's watch window's inputs on this client's node
+        (:class:`~positioning_cell.ros.panel_watch_inputs.PanelWatchSource`; imported here:
+        the coordinated cell's statics are not for every ``cell`` command to load)."""
+        from positioning_cell.ros.panel_watch_inputs import PanelWatchSource
+        return PanelWatchSource(self.cell)
 
 
 class WatchSource:

@@ -24,11 +24,13 @@ from positioning_cell.limits.speed import Speeds as LibrarySpeeds
 from positioning_cell.polling import wait_until
 from positioning_cell.tools import cell_format as cf
 from positioning_cell.tools.cell_parser import default_timeout, human_pose
-from positioning_cell.tools.cell_watch import watch
+from positioning_cell.tools.cell_watch import run_window, watch
 from positioning_cell.tools.exits import Exit
 from positioning_cell.tools.interruption import Interrupted, Signals, interruptible
 
 if TYPE_CHECKING:
+    from rich.console import Group
+
     from positioning_cell.ros.early import ClientNode
     from positioning_cell.ros.operator_client import Limits, OperatorClient
 
@@ -325,9 +327,21 @@ def cmd_stop(session: Session, args: Any) -> Report:
 
 def cmd_watch(session: Session, args: Any) -> Report:
     """The live watch window (:mod:`positioning_cell.tools.cell_watch`) until q or Ctrl-C."""
+    def stop() -> bool:
+        return session.signals.count > 0
+
     with session.signals.deferred():
-        watch(session.client.watch_inputs().snapshot, args.frame, args.rate,
-              lambda: session.signals.count > 0)
+        if args.panel:  # the coordinated cell's window (imported here, as it is used)
+            from positioning_cell.tools.cell_watch_panel import render_panel
+            source = session.client.panel_watch_inputs()
+
+            def draw(now: float) -> tuple[Group, bool]:
+                state = source.snapshot()
+                return render_panel(state, now), state.coordinator is not None
+
+            run_window(draw, args.rate, stop)
+        else:
+            watch(session.client.watch_inputs().snapshot, args.frame, args.rate, stop)
     return Report(Exit.OK)
 
 

@@ -226,6 +226,10 @@ def build_parser(description: str = '') -> argparse.ArgumentParser:
     watch.add_argument('--frame', choices=WATCH_FRAMES, default=USER_FRAME,
                        help='the frame of the deviation (default: user, the object in the '
                        'user CS; base: the platform in base)')
+    watch.add_argument('--panel', action='store_true',
+                       help='the coordinated cell instead (run_cell --cell): the coordinator, '
+                       'the panel as its tracker measures it, the internal force by the load '
+                       'cells, each positioner\'s state and drives')
     watch.add_argument('--rate', type=_watch_rate, default=WATCH_RATE, metavar='HZ',
                        help=f'redraws per second (default {WATCH_RATE:g}, at most '
                        f'{WATCH_RATE_MAX:g})')
