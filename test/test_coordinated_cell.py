@@ -473,10 +473,14 @@ def test_cell_watch_panel_draws_the_running_cell_and_q_quits(cell: CoordinatedCe
             screen = pane.screen()
             rows = [line for line in screen.splitlines() if line.strip()[:4] in ('│ p1', '│ p2')]
             known = len(rows) == 2 and not any('│ ?' in row for row in rows)  # states, drives
+            # the coordinator's level is the module's last panel move's (a stop: WARN)
             return screen if known and 'N at most at one attachment' in screen \
-                and 'mrad' in screen and 'coordinator: OK' in screen else None
+                and 'mrad' in screen and 'coordinator: ' in screen else None
 
-        screen = wait_until(drawn, 90.0, 'the panel watch window')
+        try:
+            screen = wait_until(drawn, 90.0, 'the panel watch window')
+        except TimeoutError as err:
+            raise AssertionError(f'{err}; the pane shows:\n{pane.screen()}') from err
         assert 'cell watch: the panel' in screen
         pane.keys('q')
         wait_until(lambda: 'exited' in pane.screen(), 30.0, 'the watch to quit on q')
