@@ -83,14 +83,21 @@ def status_text(label: str, status: Status | None, missing: str) -> Text:
         status.level, '')).append(status.message)
 
 
+def drives_text(driver: Status | None) -> str:
+    """The drives' state for people, from the leg driver's status: ``on (holding)``,
+    ``OFF (fault)``; ``?`` while none came."""
+    if driver is None:
+        return '?'
+    on = driver.values.get('enabled', '').lower() == 'true'
+    return f'{"on" if on else "OFF"} ({driver.values.get("state", "?")})'
+
+
 def motion_line(snapshot: Snapshot, now: float) -> Text:
     """Phase and progress, mode, the drives' state, and what the deviation is against: the
     moving setpoint while a trajectory runs, else the goal."""
     v = {} if snapshot.positioner is None else snapshot.positioner.values
     phase = snapshot.phase(now)
-    drives = '?' if snapshot.driver is None else (
-        ('on' if snapshot.driver.values.get('enabled', '').lower() == 'true' else 'OFF')
-        + f' ({snapshot.driver.values.get("state", "?")})')
+    drives = drives_text(snapshot.driver)
     against = snapshot.reference[0]
     return Text.assemble(('motion: ', 'bold'), f'{phase}  mode {v.get("mode", "?")}  '
                          f'drives {drives}  ', ('vs the moving setpoint' if against ==
@@ -182,4 +189,4 @@ def run_window(draw: Callable[[float], tuple[Group, bool]], rate: float,
                 return
 
 
-__all__ = ['Keys', 'render', 'run_window', 'status_text', 'watch']
+__all__ = ['Keys', 'drives_text', 'render', 'run_window', 'status_text', 'watch']

@@ -17,7 +17,7 @@ from rich.text import Text
 
 from positioning_cell import names
 from positioning_cell.core.poses import scipy_rotation
-from positioning_cell.tools.cell_watch import STALE_AFTER, status_text
+from positioning_cell.tools.cell_watch import STALE_AFTER, drives_text, status_text
 from positioning_cell.watch.panel import PanelSnapshot
 
 #: The table's columns.
@@ -66,10 +66,7 @@ def render_panel(snapshot: PanelSnapshot, now: float) -> Group:
         for name in snapshot.names:
             pos, drv = snapshot.positioners.get(name), snapshot.drives.get(name)
             state = '?' if pos is None else pos.values.get('state', pos.message)
-            drives = '?' if drv is None else (
-                ('on' if drv.values.get('enabled', '').lower() == 'true' else 'OFF')
-                + f' ({drv.values.get("state", "?")})')
-            table.add_row(name, state, drives, '' if pos is None else pos.message)
+            table.add_row(name, state, drives_text(drv), '' if pos is None else pos.message)
         parts.append(table)
     parts.append(Text('q or Ctrl-C quits', style='dim'))
     return Group(*parts)

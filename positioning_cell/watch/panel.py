@@ -12,7 +12,7 @@ from __future__ import annotations
 import threading
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -90,29 +90,29 @@ class PanelWatchState:
         with self._lock:
             readings = {n: (np.array([q for q, _ in r]), np.array([t for _, t in r]))
                         for n, r in self._readings.items() if r}
-            return PanelSnapshot(**{**self._snapshot.__dict__, 'readings': readings})
+            return replace(self._snapshot, readings=readings)
 
     def coordinator_settings(self, settings: CellCoordinatorSettings) -> None:
         """The coordinator's parameters (as answered, and after each change)."""
         with self._lock:
-            self._snapshot = _replaced(self._snapshot, settings=settings)
+            self._snapshot = replace(self._snapshot, settings=settings)
 
     def coordinator(self, status: Status) -> None:
         """The coordinator's status."""
         with self._lock:
-            self._snapshot = _replaced(self._snapshot, coordinator=status)
+            self._snapshot = replace(self._snapshot, coordinator=status)
 
     def panel(self, pose: Pose, stamp: float) -> None:
         """The panel's measured pose (cell frame) and its stamp (s)."""
         with self._lock:
-            self._snapshot = _replaced(self._snapshot, panel=pose, panel_stamp=stamp)
+            self._snapshot = replace(self._snapshot, panel=pose, panel_stamp=stamp)
 
     def set_status(self, name: str, positioner: Status | None = None,
                    drives: Status | None = None) -> None:
         """Positioner ``name``'s positioner status and / or its drives' status."""
         with self._lock:
             s = self._snapshot
-            self._snapshot = _replaced(
+            self._snapshot = replace(
                 s, positioners={**s.positioners, **({name: positioner} if positioner else {})},
                 drives={**s.drives, **({name: drives} if drives else {})})
 
@@ -121,7 +121,3 @@ class PanelWatchState:
         with self._lock:
             self._readings.setdefault(name, deque(maxlen=LOAD_CELL_READINGS)).append(
                 (np.asarray(joints, float), np.asarray(efforts, float)))
-
-
-def _replaced(snapshot: PanelSnapshot, **changes: object) -> PanelSnapshot:
-    return PanelSnapshot(**{**snapshot.__dict__, **changes})
