@@ -33,6 +33,7 @@ from positioning_cell.coordinated.panel_motion import (
     implied_panels,
     mean_panel,
     pair_disagreement,
+    panel_about,
     platform_goals,
     platforms_in_panel,
 )
@@ -42,11 +43,13 @@ from positioning_cell.coordinated.settings import (
     RelaxSettings,
     replacing,
 )
+from positioning_cell.coordinated.strain_map import StrainMap
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.moves.timing import Timing
 from positioning_cell.moves.trajectory import plan_move
+from positioning_cell.polling import wait_until
 from positioning_cell.sim.panel import PanelTruth
 
 MECH = Mechanism.default()
@@ -392,6 +395,59 @@ def test_a_relax_short_of_passes_says_the_stiffness_falls_short_and_a_silent_set
     assert outcome.code is ResultCode.REFUSED_DRIVER_SILENT
     assert outcome.reason == 'refused, no relaxing move: no load-cell readings of p2 in 0.5 s'
     assert all(len(f.moved) == 1 for f in silent)  # put at its goal, then nothing
+
+
+def built(stiffness: float) -> PanelTruth:
+    """:func:`installed`'s panel on bases turned by up to 2 mrad from the file (unseen by the
+    cell): a strain that changes with the pose."""
+    truth = installed(stiffness)
+    rng = np.random.default_rng(11)
+    entries = []
+    for e in truth.cell.positioners:
+        q = (Rotation.from_rotvec(rng.uniform(-2e-3, 2e-3, 3))
+             * Rotation.from_quat(e.base_quaternion)).as_quat()
+        entries.append(replace(e, base_quaternion=(q[0], q[1], q[2], q[3])))
+    return PanelTruth(replace(truth.cell, positioners=tuple(entries)), MECH)
+
+
+def test_the_load_corrections_follow_the_panel_once_the_map_spans_the_pose() -> None:
+    """On bases the file has turned: relaxed at home, then eight panel moves over ±6 mm and
+    ±6 mrad (each rest's load cells read in the background, a sample each), relaxed at home
+    again; at four other poses the truth's internal force is a fraction of what the home
+    correction alone leaves (the same relax, without the map)."""
+    centre = CELL.test_point(MECH)
+    rng = np.random.default_rng(2)
+    learning = [panel_about(centre, rng.uniform(-6e-3, 6e-3, 3), rng.uniform(-6e-3, 6e-3, 3))
+                for _ in range(8)]
+    checks = [panel_about(centre, rng.uniform(-5e-3, 5e-3, 3), rng.uniform(-5e-3, 5e-3, 3))
+              for _ in range(4)]
+    relax = RelaxSettings(passes=6, enough=5.0, window=0.1)
+    left: dict[bool, list[float]] = {}
+    for follow in (False, True):
+        panel = HeldPanel(built(0.75))
+        fakes = [HoldingFake(e.name, panel) for e in CELL.positioners]
+        strain = StrainMap() if follow else None
+        coord = Coordinator(CELL, MECH, fakes, FAST, relax=relax, strain=strain)
+        assert coord.relax_forces(threading.Event()).code is ResultCode.SUCCESS
+        for pose in learning:
+            before = len(strain) if strain is not None else 0
+            assert coord.move(PanelRequest(pose.p, pose.q),
+                              threading.Event()).code is ResultCode.SUCCESS
+            if strain is not None:  # each rest's sample comes in the background
+                wait_until(lambda m=strain, n=before: len(m) > n, 5.0, 'the rest sampled')
+        back = coord.move(PanelRequest(np.zeros(3), IDENTITY), threading.Event())
+        assert back.code is ResultCode.SUCCESS
+        relaxed = coord.relax_forces(threading.Event())
+        assert relaxed.code is ResultCode.SUCCESS, relaxed.reason
+        assert ('strain map from' in relaxed.reason) is follow
+        left[follow] = []
+        for pose in checks:
+            assert coord.move(PanelRequest(pose.p, pose.q),
+                              threading.Event()).code is ResultCode.SUCCESS
+            left[follow].append(panel.readings()[2])
+    assert max(left[False]) > 50.0  # the premise: the home correction alone falls short
+    assert max(left[True]) < 0.25 * max(left[False]), left
+    assert sum(left[True]) < 0.3 * sum(left[False]), left
 
 
 def test_the_positioners_must_be_the_cells() -> None:

@@ -53,6 +53,12 @@ what the load cells gave before and after each move, and, when ``passes`` were n
 that the cell file's stiffness falls short. The load corrections are not the trackers': the
 watch does not take them off its plans (the trackers see the platforms where they are
 sent), and the trackers' relax aims at the rigid placement moved by them.
+
+The strain as the pose changes (:mod:`~.strain_map`): with a
+:class:`~.strain_map.StrainMap`, every rest at which the load cells are read (each pass of a
+relax, and after every settled panel move, in the background while the panel rests) adds a
+sample; once the samples span the pose, each positioner's load correction follows the panel:
+the relax's corrections where they were found, plus the map's change from there to the goal.
 """
 
 from __future__ import annotations
@@ -84,6 +90,7 @@ from positioning_cell.coordinated.panel_motion import (
     rigid_placement,
 )
 from positioning_cell.coordinated.settings import CoordinatorSettings, RelaxSettings
+from positioning_cell.coordinated.strain_map import StrainMap, balls_in_base
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
@@ -178,12 +185,14 @@ class PanelOutcome:
 class Coordinator:
     """The coordinator's rules (module docstring) over ``positioners`` (one per positioner of
     ``cell``, in its order) whose model machine is ``mech``; ``clock()`` is ROS time, s;
-    ``watch``: the internal force watch its caller feeds (None: not watched)."""
+    ``watch``: the internal force watch its caller feeds (None: not watched); ``strain``: the
+    strain map (module docstring; kept by the caller across cell files, as its samples are the
+    machine's, not the file's)."""
 
     def __init__(self, cell: CellFile, mech: Mechanism, positioners: Sequence[Positioner],
                  settings: CoordinatorSettings | None = None,
                  clock: Callable[[], float] = time.time, watch: ForceWatch | None = None,
-                 relax: RelaxSettings | None = None) -> None:
+                 relax: RelaxSettings | None = None, strain: StrainMap | None = None) -> None:
         if [p.name for p in positioners] != [e.name for e in cell.positioners]:
             raise InputError(f'positioners {[p.name for p in positioners]} are not the '
                              f"cell's {[e.name for e in cell.positioners]}")
@@ -198,6 +207,14 @@ class Coordinator:
         self.load_corrections = {e.name: np.zeros(3) for e in cell.positioners}
         #: The panel's last goal (cell frame): home until a move settles.
         self.panel_goal = Transform.identity()
+        #: The strain map its rests feed (module docstring; None: the load corrections are one
+        #: for every pose), and the panel pose at which the load corrections were found.
+        self.strain, self.load_pose = strain, Transform.identity()
+        #: The platform goals last sent and settled (each in its base), and the common start
+        #: of the last panel move (ROS time s): a rest's reading is a sample only if no
+        #: motion began before it ended.
+        self._sent: list[Pose] | None = None
+        self._last_start = float('-inf')
         #: Each positioner's pivot (3,) m: the panel's origin in its platform frame, the one
         #: point of the panel every platform's motion carries on a straight line (so that
         #: they move as the rigid panel; moves.trajectory).
@@ -232,14 +249,19 @@ class Coordinator:
             except Exception as err:  # the others must be stopped all the same
                 errors.append(f'{p.name}: {err}')
 
-        threads = [threading.Thread(target=stop, args=(p,), daemon=True)
+        self._each(stop)
+        if errors:
+            raise RuntimeError('stop not delivered to ' + '; '.join(errors))
+
+    def _each(self, work: Callable[[Positioner], None]) -> None:
+        """``work`` done for every positioner at once, each in a thread of its own; returns
+        when all are done."""
+        threads = [threading.Thread(target=work, args=(p,), daemon=True)
                    for p in self.positioners]
         for thread in threads:
             thread.start()
         for thread in threads:
             thread.join()
-        if errors:
-            raise RuntimeError('stop not delivered to ' + '; '.join(errors))
 
     def move(self, request: PanelRequest, stop: threading.Event,
              progress: Callable[[float], None] | None = None) -> PanelOutcome:
@@ -252,13 +274,42 @@ class Coordinator:
         outcome = self._run(goals, request, stop, progress)
         if outcome.code is ResultCode.SUCCESS:
             self.panel_goal = Transform.from_pq(request.position, request.quaternion)
+            if self.strain is not None:  # read while the panel rests, taking no time here
+                threading.Thread(target=self._sample_rest, daemon=True).start()
         return outcome
 
     def _corrected(self, panel: Transform) -> list[Pose]:
-        """Each positioner's platform goal for the panel at ``panel``, with its correction."""
+        """Each positioner's platform goal for the panel at ``panel``, with its corrections."""
         goals = platform_goals(self.cell, self.mech, *panel.to_pq())
-        return [(p + self.corrections[e.name] + self.load_corrections[e.name], q)
-                for (p, q), e in zip(goals, self.cell.positioners, strict=True)]
+        return [(p + self.corrections[e.name] + load, q) for (p, q), e, load
+                in zip(goals, self.cell.positioners, self._load_side(panel), strict=True)]
+
+    def _load_side(self, panel: Transform) -> list[FloatArray]:
+        """Each positioner's load correction (3,) m, its base frame, for the panel at
+        ``panel``: as the relax found it, moved by the strain map from where it was found
+        when the map spans the pose (module docstring)."""
+        fit = self.strain.fit(self.cell, self.mech) if self.strain is not None else None
+        follow = fit.changes(panel, self.load_pose) if fit is not None \
+            else np.zeros((len(self.cell.positioners), 3))
+        return [self.load_corrections[e.name] + f
+                for e, f in zip(self.cell.positioners, follow, strict=True)]
+
+    def _learn(self, forces: FloatArray, sent: list[Pose] | None) -> None:
+        """A sample of the strain map from the load cells' ``forces`` (N_sets, 3) N at rest
+        with the platforms at the goals ``sent``."""
+        if self.strain is None or sent is None:
+            return
+        steps = relaxing_steps(self.cell, self.mech, forces)
+        self.strain.add(balls_in_base(self.cell, sent, steps), steps)
+
+    def _sample_rest(self) -> None:
+        """After a settled panel move: the load cells read at rest, a sample unless a set gave
+        none, or another move was sent since or its motion began before the reading ended."""
+        sent, start_before = self._sent, self._last_start
+        forces = self._load_cell_forces()
+        moved = self._last_start != start_before and self._last_start <= self.clock()
+        if not isinstance(forces, str) and sent is self._sent and not moved:
+            self._learn(forces, sent)
 
     def relax(self, stop: threading.Event, readings: int = 10) -> PanelOutcome:
         """Relax the panel (module docstring) from the mean of each positioner's last
@@ -276,8 +327,8 @@ class Coordinator:
                                 f'{", ".join(missing)}')
         poses = [pose for pose in measured.values() if pose is not None]
         placed = rigid_placement(self.cell, self.mech, poses)
-        steps = [target[0] + self.load_corrections[e.name] - pose[0]
-                 for target, pose, e in zip(placed, poses, self.cell.positioners, strict=True)]
+        steps = [target[0] + load - pose[0] for target, pose, load
+                 in zip(placed, poses, self._load_side(self.panel_goal), strict=True)]
         outcome = self._step(steps, stop, self.corrections)
         if outcome.code is not ResultCode.SUCCESS:
             return outcome
@@ -304,7 +355,14 @@ class Coordinator:
         """Each attachment's force on the panel (N_sets, 3) N, cell frame, from the sets' load
         cells at rest (module docstring); a reason when a set gave none or they give none."""
         window = self.relax_settings.window
-        readings = [(p.name, p.load_cells(window)) for p in self.positioners]
+        # every set read over the same window, each in a thread of its own
+        heard: dict[str, tuple[FloatArray, FloatArray] | None] = {}
+
+        def read(p: Positioner) -> None:
+            heard[p.name] = p.load_cells(window)
+
+        self._each(read)
+        readings = [(p.name, heard.get(p.name)) for p in self.positioners]
         silent = [name for name, r in readings if r is None]
         if silent:
             return f'no load-cell readings of {", ".join(silent)} in {window:g} s'
@@ -326,6 +384,12 @@ class Coordinator:
         where the old one put them, and a relax there would read the strain of a placement
         the next move leaves). Its reason gives the largest internal force the load cells
         gave before each relaxing move and after the last."""
+        # the load corrections from here on are found at this pose (what the map moved them
+        # by on the way here, kept)
+        here = self._load_side(self.panel_goal)
+        self.load_corrections = {e.name: c for e, c in zip(self.cell.positioners, here,
+                                                            strict=True)}
+        self.load_pose = self.panel_goal
         placed = self._run(self._corrected(self.panel_goal),
                            PanelRequest(*self.panel_goal.to_pq()), stop, None)
         if placed.code is not ResultCode.SUCCESS:
@@ -334,6 +398,7 @@ class Coordinator:
         if isinstance(forces, str):
             return PanelOutcome(ResultCode.REFUSED_DRIVER_SILENT, f'refused, no relaxing move: '
                                 f'{forces}')
+        self._learn(forces, self._sent)
         settings, seen = self.relax_settings, [self._largest(forces)]
         outcome = placed
         while seen[-1] > settings.enough and len(seen) <= settings.passes:
@@ -345,6 +410,7 @@ class Coordinator:
             if isinstance(forces, str):
                 return PanelOutcome(ResultCode.ABORTED_DRIVER_LOST, f'after {len(seen)} '
                                     f'relaxing moves: {forces}')
+            self._learn(forces, self._sent)
             seen.append(self._largest(forces))
         trail = ' -> '.join(f'{f:.0f}' for f in seen)
         moves = len(seen) - 1
@@ -356,9 +422,11 @@ class Coordinator:
                                 outcome.panel, outcome.pairs)
         kept = ', '.join(f'{e.name} {np.linalg.norm(self.load_corrections[e.name]) * 1e6:.1f} '
                          'um' for e in self.cell.positioners)
+        fit = self.strain.fit(self.cell, self.mech) if self.strain is not None else None
+        mapped = f'; {fit.words()}' if fit is not None else ''
         return dataclasses.replace(outcome, reason=f'relaxed by the load cells: internal force '
-                                   f'{trail} N in {moves} moves; load corrections {kept}; '
-                                   f'{outcome.reason}')
+                                   f'{trail} N in {moves} moves; load corrections {kept}'
+                                   f'{mapped}; {outcome.reason}')
 
     def _run(self, goals: list[Pose], request: PanelRequest, stop: threading.Event,
              progress: Callable[[float], None] | None, watched: bool = True) -> PanelOutcome:
@@ -373,6 +441,7 @@ class Coordinator:
                 f'{name}: {c.reason}' for name, c in refusing))
         start = self.clock() + self.settings.start_lead
         timing = Timing(max(c.duration for c in checks), start)
+        self._last_start, self._sent = start, None  # where the platforms rest: not known
         watch = self.watch if watched else None
         if watch is not None:
             watch.reset(self.corrections, since=start)
@@ -386,7 +455,10 @@ class Coordinator:
                 self.stop_all(along=False)
                 return PanelOutcome(ResultCode.ABORTED_FAULT, f'{p.name}: the move could not '
                                     f'be sent ({err}); every positioner stopped', timing=timing)
-            return self._watch(polls, timing, stop, progress, watch)
+            outcome = self._watch(polls, timing, stop, progress, watch)
+            if outcome.code is ResultCode.SUCCESS:
+                self._sent = goals
+            return outcome
         finally:
             self._timing = None
 

@@ -10,6 +10,7 @@ from positioning_cell import names
 from positioning_cell.config import config_path, load_parameter_file, node_parameters
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.cell_file import load as load_cell
+from positioning_cell.coordinated.strain_map import StrainMap
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import ConfigError
 from positioning_cell.parameters import check_fields, group, parse, setting
@@ -62,9 +63,19 @@ class RelaxSettings:
                             'cells give is at most this', 'N', low=0.0, high=1.0e5)
     window: float = setting(0.5, "each set's load cells and encoders are averaged over this "
                             'long at rest', 's', low=0.05, high=10.0)
+    follow_pose: bool = setting(True, 'the load corrections follow the panel: the load cells '
+                                'read at every rest (each relaxing move, and after each '
+                                'settled panel move) feed an affine map of the strain over the '
+                                'pose, used once it spans the six coordinates '
+                                '(positioning_cell.coordinated.strain_map; false: one '
+                                'correction for every pose)')
 
     def __post_init__(self) -> None:
         check_fields(self)
+
+    def strain_map(self) -> StrainMap | None:
+        """An empty strain map when the load corrections follow the pose, else None."""
+        return StrainMap() if self.follow_pose else None
 
 
 def replacing(current: CellFile, new: CellFile) -> CellFile:

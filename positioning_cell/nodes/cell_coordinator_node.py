@@ -57,7 +57,7 @@ class CellCoordinatorNode(Node):
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS, self._new_cell, self._check_cell)
         settings = self.params.settings
-        self.cell = settings.cell()  # ConfigError: no start
+        self.cell, self._strain = settings.cell(), settings.relax.strain_map()  # kept over files
         self._watch = force_watch(self.cell, settings.mechanism)  # ConfigError: not held
         self._client: CellClient | None = None
         self._coordinator: Coordinator | None = None
@@ -118,7 +118,7 @@ class CellCoordinatorNode(Node):
                          for e in self.cell.positioners]
                 self._coordinator = Coordinator(self.cell, settings.mechanism, ports,
                                                 settings.timing, watch=self._watch,
-                                                relax=settings.relax)
+                                                relax=settings.relax, strain=self._strain)
             return self._coordinator
 
     def _execute(self, goal_handle: Any) -> MoveToPose.Result:
