@@ -42,11 +42,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.panel_motion import bases
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import scipy_rotation
 from positioning_cell.errors import InputError
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.metrology.fit import weighted_kabsch
@@ -75,7 +75,8 @@ class StrainSample:
 def pose_coordinates(panel: Transform) -> FloatArray:
     """(6,) the panel pose T_cell_panel as the map's coordinates: position m, rotation vector
     rad (home: zeros)."""
-    out: FloatArray = np.concatenate([panel.p, Rotation.from_matrix(panel.R).as_rotvec()])
+    out: FloatArray = np.concatenate([panel.p,
+                                         scipy_rotation().from_matrix(panel.R).as_rotvec()])
     return out
 
 
@@ -187,7 +188,7 @@ def fit_strain(cell: CellFile, mech: Mechanism, samples: Sequence[StrainSample]
     body = cell.panel_points(mech)
     rot, pos = weighted_kabsch(body, balls_cell, np.ones(balls_cell.shape[:2]))
     misfit = balls_cell - pos[:, None] - body @ np.swapaxes(rot, 1, 2)  # (K, N, 3)
-    v = np.hstack([pos, Rotation.from_matrix(rot).as_rotvec()])
+    v = np.hstack([pos, scipy_rotation().from_matrix(rot).as_rotvec()])
     design = np.hstack([np.ones((len(usable), 1)), v * POSE_SCALE])
     weight = 1.0 / np.array([s.sigma for s in usable])
     scaled = design * weight[:, None]
