@@ -127,3 +127,13 @@ def _decoder(channel: dict[str, Any]) -> Any:
     return lambda payload: MessageToDict(cls.FromString(payload),
                                          preserving_proto_field_name=True,
                                          always_print_fields_with_no_presence=True)
+
+
+def as_dict(message: Any) -> dict[str, Any]:
+    """A foxglove-sdk typed message (SceneUpdate, FrameTransforms, ...) as the dict a client
+    decodes it to: encoded and decoded again through its own protobuf schema."""
+    schema = message.get_schema()
+    decode = _decoder({'encoding': schema.encoding, 'schemaName': schema.name,
+                       'schema': base64.b64encode(schema.data).decode(), 'topic': schema.name})
+    decoded: dict[str, Any] = decode(message.encode())
+    return decoded

@@ -24,12 +24,14 @@ from cell_harness import (
     LOADED_COMMAND,
     LOADED_LIVENESS,
     Client,
+    InProcess,
     ProcessGroup,
     executable,
     isolated_domain,
     stop_cleanly,
 )
 from diagnostic_msgs.msg import DiagnosticArray
+from foxglove_ws import FoxgloveClient
 from geometry_msgs.msg import PoseStamped, WrenchStamped
 from nav_msgs.msg import Path as PathMsg
 from positioning_cell_interfaces.action import MoveToPose
@@ -49,6 +51,8 @@ from positioning_cell.coordinated.panel_motion import pair_disagreement
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.mechanics.statics import Payload, actuator_efforts
 from positioning_cell.motion.settings import COMPENSATION_MODE
+from positioning_cell.nodes.live_view_node import LiveViewNode
+from positioning_cell.nodes.live_view_panel import PANEL_STATUS_SCHEMA, base_frame
 from positioning_cell.polling import wait_until
 from positioning_cell.procedures.port import ProcedureError
 from positioning_cell.ros.client import GoalClient
@@ -438,7 +442,7 @@ def test_the_panel_watch_shows_the_running_cell(cell: CoordinatedCell) -> None:
     status and cell file, the panel's tracker, both sets' positioner and drives, and an
     internal force from their load cells; drawn naming both. Its subscriptions go with it."""
     subscribed = len(list(cell.client.node.subscriptions))
-    source = PanelWatchSource(cell.client)
+    source = PanelWatchSource(cell.client.node)
     try:
         def complete() -> PanelSnapshot | None:
             s = source.snapshot()
@@ -485,6 +489,49 @@ def test_cell_watch_panel_draws_the_running_cell_and_q_quits(cell: CoordinatedCe
         pane.keys('q')
         wait_until(lambda: 'exited' in pane.screen(), 30.0, 'the watch to quit on q')
         assert 'exited 0' in pane.screen()
+
+
+def test_the_live_view_shows_the_panel_its_forces_and_every_positioner(
+        cell: CoordinatedCell) -> None:
+    """``live_view`` with ``view: panel`` on the running cell (issue 27 item 6), watched by a
+    Foxglove client: its status channel gives the coordinator, both positioners and an
+    internal force from their load cells; its scene draws both bases, the panel and a force
+    arrow at each ball; its transforms put the panel and both bases in the cell frame."""
+    ros = InProcess(cell.domain)
+    try:
+        live = ros.start(LiveViewNode, view='panel', port=0)
+        channels = [names.LIVE_SCENE, names.LIVE_TRANSFORMS, names.LIVE_STATUS]
+        seen: dict[str, Any] = {'entities': {}}
+        with FoxgloveClient(live.url) as ws:
+            ws.wait_channels(channels, 30.0)
+            assert ws.channels[names.LIVE_STATUS]['schemaName'] == PANEL_STATUS_SCHEMA
+            ws.subscribe(channels)
+
+            def complete() -> bool:
+                got = ws.receive(0.1)
+                while got is not None:
+                    if got.topic == names.LIVE_SCENE:
+                        seen['entities'].update({e['id']: e for e in got.message['entities']})
+                    else:
+                        seen[got.topic] = got.message
+                    got = ws.receive(0.0)
+                status = seen.get(names.LIVE_STATUS)
+                return status is not None and status['internal_force_n'] is not None \
+                    and all(p['positioner'] is not None for p in status['positioners']) \
+                    and {'bases', 'panel', 'forces'} <= set(seen['entities'])
+
+            wait_until(complete, 60.0, 'the panel view complete')
+    finally:
+        ros.close()
+    status = seen[names.LIVE_STATUS]
+    assert status['coordinator'] is not None and status['panel_stale'] is False
+    assert [p['name'] for p in status['positioners']] == list(SETS)
+    assert [a['name'] for a in status['attachments']] == list(SETS)
+    assert 0.0 <= status['internal_force_n'] < 1e4
+    assert len(seen['entities']['forces']['arrows']) == len(SETS)
+    assert len(seen['entities']['bases']['lines']) == len(SETS)
+    frames = {t['child_frame_id'] for t in seen[names.LIVE_TRANSFORMS]['transforms']}
+    assert frames == {names.PANEL_FRAME, *(base_frame(ns) for ns in SETS)}
 
 
 def test_a_set_is_reached_through_a_port_of_its_own(cell: CoordinatedCell) -> None:

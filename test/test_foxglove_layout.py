@@ -48,3 +48,28 @@ def test_every_path_of_the_layout_is_sent() -> None:
     scene = next(p for p in panels if p['panelType'] == 'ThreeDee')
     assert set(scene['config']['topics']) == {names.LIVE_SCENE}
     assert scene['config']['followTf'] == names.BASE_FRAME
+
+
+def test_the_shipped_panel_layout_is_the_generated_one_and_plots_what_is_sent() -> None:
+    """config/foxglove_panel_layout.json (the panel view's): generated; its 3-D panel follows
+    the cell frame, and its plots and table read fields of the panel view's status."""
+    from test_live_view_panel import _state
+
+    from positioning_cell.nodes.live_view_panel import panel_status_document
+    from positioning_cell.tools.foxglove_layout import PANEL_LAYOUT_FILE
+
+    shipped = config_path(PANEL_LAYOUT_FILE).read_text(encoding='utf-8')
+    assert shipped == layout_text(panel=True), \
+        'regenerate: python -m positioning_cell.tools.foxglove_layout --panel'
+    panels = _panels(json.loads(shipped)['content'])
+    scene = next(p for p in panels if p['panelType'] == 'ThreeDee')
+    assert scene['config']['followTf'] == names.CELL_FRAME
+    doc = panel_status_document(_state().snapshot(), 0.0)
+    plotted = [s['value'] for p in panels if p['panelType'] == 'Plot'
+               for s in p['config']['paths']]
+    assert plotted
+    for path in plotted:
+        topic, field = path.rsplit('.', 1)
+        assert topic == names.LIVE_STATUS and doc[field] is not None, path
+    assert {p['config']['topicPath'] for p in panels if p['panelType'] == 'Table'} == {
+        names.LIVE_STATUS}

@@ -73,13 +73,20 @@ def attachment_forces(cell: CellFile, mech: Mechanism, joints: ArrayLike, effort
     return out
 
 
-def internal_force_sizes(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> FloatArray:
-    """The internal force at each attachment (N_sets,) N: the size of its force on the panel
-    ``forces`` (N_sets, 3) N (cell frame, :func:`attachment_forces`) less the panel's
-    weight's own share (module docstring)."""
+def internal_forces(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> FloatArray:
+    """The internal force at each attachment (N_sets, 3) N, cell frame: its force on the
+    panel ``forces`` (N_sets, 3) N (:func:`attachment_forces`) less the panel's weight's own
+    share (module docstring)."""
     share = wrench_map(cell.attachments(mech), cell.panel.stiffness,
                        cell.panel.weight()).by_load[:, :3]
-    out: FloatArray = np.linalg.norm(np.asarray(forces, dtype=float) - share, axis=1)
+    out: FloatArray = np.asarray(forces, dtype=float) - share
+    return out
+
+
+def internal_force_sizes(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> FloatArray:
+    """The internal force at each attachment (N_sets,) N: the size of
+    :func:`internal_forces`."""
+    out: FloatArray = np.linalg.norm(internal_forces(cell, mech, forces), axis=1)
     return out
 
 

@@ -57,24 +57,24 @@ def _floats(values: ArrayLike, n: int) -> list[float]:
     return [float(x) for x in np.asarray(values, dtype=float).reshape(n)]
 
 
-def _colour(rgba: ArrayLike) -> Color:
+def colour(rgba: ArrayLike) -> Color:
     r, g, b, a = _floats(rgba, 4)
     return Color(r=r, g=g, b=b, a=a)
 
 
-def _vector3(v: ArrayLike) -> Vector3:
+def vector3(v: ArrayLike) -> Vector3:
     x, y, z = _floats(v, 3)
     return Vector3(x=x, y=y, z=z)
 
 
-def _quaternion(q: ArrayLike) -> Quaternion:
+def quaternion(q: ArrayLike) -> Quaternion:
     x, y, z, w = _floats(q, 4)
     return Quaternion(x=x, y=y, z=z, w=w)
 
 
-def _pose(position: ArrayLike = (0.0, 0.0, 0.0),
-          quaternion: ArrayLike = (0.0, 0.0, 0.0, 1.0)) -> Pose:
-    return Pose(position=_vector3(position), orientation=_quaternion(quaternion))
+def pose(position: ArrayLike = (0.0, 0.0, 0.0),
+         orientation: ArrayLike = (0.0, 0.0, 0.0, 1.0)) -> Pose:
+    return Pose(position=vector3(position), orientation=quaternion(orientation))
 
 
 def _point3s(rows: Any) -> list[Point3]:
@@ -82,10 +82,10 @@ def _point3s(rows: Any) -> list[Point3]:
             for r in np.reshape(rows, (-1, 3))]
 
 
-def _triangle(points: Any, rgba: ArrayLike, thickness: float) -> LinePrimitive:
+def triangle(points: Any, rgba: ArrayLike, thickness: float) -> LinePrimitive:
     closed = np.vstack([points, points[:1]])
-    return LinePrimitive(type=LinePrimitiveLineType.LineStrip, pose=_pose(),
-                         thickness=thickness, points=_point3s(closed), color=_colour(rgba))
+    return LinePrimitive(type=LinePrimitiveLineType.LineStrip, pose=pose(),
+                         thickness=thickness, points=_point3s(closed), color=colour(rgba))
 
 
 def scene_update(scene: Scene, stamp: float, static: bool = True) -> SceneUpdate:
@@ -97,25 +97,25 @@ def scene_update(scene: Scene, stamp: float, static: bool = True) -> SceneUpdate
     entities = []
     if static:
         entities.append(SceneEntity(timestamp=ts, frame_id=names.BASE_FRAME, id='base',
-                                    lines=[_triangle(scene.base_joints, BASE_COLOUR, 0.004)]))
+                                    lines=[triangle(scene.base_joints, BASE_COLOUR, 0.004)]))
     if scene.platform_joints is not None and scene.leg_colours is not None:
         legs = np.stack([scene.base_joints, scene.platform_joints], axis=1).reshape(-1, 3)
-        colours = [_colour(c) for c in np.repeat(scene.leg_colours, 2, axis=0)]
+        colours = [colour(c) for c in np.repeat(scene.leg_colours, 2, axis=0)]
         entities += [
             SceneEntity(timestamp=ts, frame_id=names.BASE_FRAME, id='legs',
                         lines=[LinePrimitive(
-                            type=LinePrimitiveLineType.LineList, pose=_pose(),
+                            type=LinePrimitiveLineType.LineList, pose=pose(),
                             thickness=LEG_THICKNESS, points=_point3s(legs), colors=colours)]),
             SceneEntity(timestamp=ts, frame_id=names.BASE_FRAME, id='platform',
-                        lines=[_triangle(scene.platform_joints, PLATFORM_COLOUR, 0.004)])]
+                        lines=[triangle(scene.platform_joints, PLATFORM_COLOUR, 0.004)])]
     if static and scene.ghost_joints is not None:
         entities.append(SceneEntity(timestamp=ts, frame_id=names.BASE_FRAME, id='commanded',
-                                    lines=[_triangle(scene.ghost_joints, GHOST_COLOUR, 0.004)]))
+                                    lines=[triangle(scene.ghost_joints, GHOST_COLOUR, 0.004)]))
     if scene.targets is not None:
         size = Vector3(x=TARGET_DIAMETER, y=TARGET_DIAMETER, z=TARGET_DIAMETER)
         entities.append(SceneEntity(timestamp=ts, frame_id=names.BASE_FRAME, id='targets',
-                                    spheres=[SpherePrimitive(pose=_pose(t), size=size,
-                                                             color=_colour(TARGET_COLOUR))
+                                    spheres=[SpherePrimitive(pose=pose(t), size=size,
+                                                             color=colour(TARGET_COLOUR))
                                              for t in scene.targets]))
     if scene.tolerance_centre is not None:
         d = 2.0 * scene.tolerance_radius
@@ -124,14 +124,14 @@ def scene_update(scene: Scene, stamp: float, static: bool = True) -> SceneUpdate
             start, vector = scene.arrow
             length = float(np.linalg.norm(vector))
             arrows.append(ArrowPrimitive(
-                pose=_pose(start, arrow_quaternion(vector)), shaft_length=0.8 * length,
+                pose=pose(start, arrow_quaternion(vector)), shaft_length=0.8 * length,
                 shaft_diameter=0.002, head_length=0.2 * length, head_diameter=0.006,
-                color=_colour(ARROW_COLOUR)))
+                color=colour(ARROW_COLOUR)))
         entities.append(SceneEntity(
             timestamp=ts, frame_id=names.BASE_FRAME, id='error', arrows=arrows,
-            spheres=[SpherePrimitive(pose=_pose(scene.tolerance_centre),
+            spheres=[SpherePrimitive(pose=pose(scene.tolerance_centre),
                                      size=Vector3(x=d, y=d, z=d),
-                                     color=_colour(TOLERANCE_COLOUR))]))
+                                     color=colour(TOLERANCE_COLOUR))]))
     return SceneUpdate(entities=entities)
 
 
@@ -141,7 +141,7 @@ def frame_transforms(snapshot: Snapshot, stamp: float) -> FrameTransforms:
     input has come (user and object once the positioner has published them)."""
     ts = timestamp(stamp)
     out = [FrameTransform(timestamp=ts, parent_frame_id=parent, child_frame_id=child,
-                          translation=_vector3(pose[0]), rotation=_quaternion(pose[1]))
+                          translation=vector3(pose[0]), rotation=quaternion(pose[1]))
            for parent, child, pose in (
                (names.BASE_FRAME, names.PLATFORM_FRAME, snapshot.estimated),
                (names.BASE_FRAME, names.PLATFORM_COMMANDED_FRAME, snapshot.commanded),
@@ -179,7 +179,7 @@ def deviation_document(dev: Deviation, stamp: float) -> dict[str, Any]:
     return doc
 
 
-def _status(status: Status | None) -> dict[str, Any] | None:
+def status_value(status: Status | None) -> dict[str, Any] | None:
     return None if status is None else {'level': status.level, 'message': status.message}
 
 
@@ -189,7 +189,8 @@ def status_document(snapshot: Snapshot, now: float) -> dict[str, Any]:
     null while no recorder was heard of), what has not come yet, and whether the monitor's
     tolerances and the coordinate systems are known."""
     record = snapshot.recording(now)
-    return {'positioner': _status(snapshot.positioner), 'verdict': _status(snapshot.verdict),
+    return {'positioner': status_value(snapshot.positioner),
+            'verdict': status_value(snapshot.verdict),
             'recording': None if record is None else record.to_dict(),
             'waiting_for': snapshot.waiting_for(),
             'tolerances_known': snapshot.tolerances is not None,

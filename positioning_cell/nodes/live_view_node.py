@@ -4,13 +4,19 @@ the 3-D scene, the frame transforms, the 6-D deviation and the status
 (:class:`~positioning_cell.nodes.live_view_messages.LiveChannels`), sent after each tracker
 measurement up to ``rate_hz`` and at least once a second. Read-only: it subscribes to the
 cell (:class:`~positioning_cell.ros.watch_inputs.WatchInputs`) and never commands it. Open
-config/foxglove_layout.json in Foxglove (docs/howto/watch.md)."""
+config/foxglove_layout.json in Foxglove (docs/howto/watch.md).
+
+``view: panel``, a coordinated cell instead: the panel as its tracker measures it, each
+positioner's base, the internal forces from the legs' load cells and the coordinator's and
+sets' status (:mod:`~positioning_cell.nodes.live_view_panel`, from
+:class:`~positioning_cell.ros.panel_watch_inputs.PanelWatchSource`), sent after each panel
+measurement up to ``rate_hz``; config/foxglove_panel_layout.json."""
 
 from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import foxglove
 from diagnostic_msgs.msg import DiagnosticArray
@@ -28,6 +34,10 @@ from positioning_cell.watch.settings import LiveViewSettings
 from positioning_cell.watch.state import WatchState
 from positioning_cell.watch.throttle import Throttle
 
+if TYPE_CHECKING:
+    from positioning_cell.nodes.live_view_panel import PanelChannels
+    from positioning_cell.ros.panel_watch_inputs import PanelWatchSource
+
 #: Longest time between two sends while no measurement comes, s; the node's status period.
 IDLE_PERIOD = 1.0
 
@@ -42,9 +52,7 @@ class LiveViewNode(Node):
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS)
         settings = self.params.settings
-        self.state = WatchState(settings.mechanism)
         self.foxglove = foxglove.Context()
-        self.channels = LiveChannels(self.foxglove)
         try:
             self.server = foxglove.start_server(name='positioning_cell', host=settings.host,
                                                 port=settings.port, context=self.foxglove)
@@ -58,7 +66,16 @@ class LiveViewNode(Node):
         self.sent = 0
         self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
                                               DIAGNOSTICS_QOS)
-        self.inputs = WatchInputs(self, self.state, on_measurement=self._on_measurement)
+        self.panel: tuple[PanelWatchSource, PanelChannels] | None = None
+        if settings.view == 'panel':  # imported only here: the coordinated cell's statics
+            from positioning_cell.nodes.live_view_panel import PanelChannels
+            from positioning_cell.ros.panel_watch_inputs import PanelWatchSource
+            self.panel = (PanelWatchSource(self, on_panel=self._on_measurement),
+                          PanelChannels(self.foxglove, settings.force_scale))
+        else:
+            self.state = WatchState(settings.mechanism)
+            self.channels = LiveChannels(self.foxglove)
+            self.inputs = WatchInputs(self, self.state, on_measurement=self._on_measurement)
         self.create_timer(IDLE_PERIOD, self._idle)
         self.get_logger().info(f'Foxglove live view on {self.url}')
 
@@ -78,25 +95,31 @@ class LiveViewNode(Node):
             self._last_send = now
             self._last_full = now if full else self._last_full
             self.sent += 1
-        self.channels.send(self.inputs.snapshot(), settings.frame, settings.magnification,
-                           time.time(), full=full)
+        if self.panel is not None:
+            source, channels = self.panel
+            channels.send(source.snapshot(), time.time())
+        else:
+            self.channels.send(self.inputs.snapshot(), settings.frame, settings.magnification,
+                               time.time(), full=full)
 
     def _on_measurement(self) -> None:
         self._send(idle=False)
 
     def _idle(self) -> None:
         self._send(idle=True)
-        waiting = self.inputs.snapshot().waiting_for()
+        waiting = (self.panel[0] if self.panel is not None else self.inputs).snapshot(
+            ).waiting_for()
         message = f'serving {self.url}' + (f', waiting for {", ".join(waiting)}'
                                            if waiting else '')
         self.pub_diag.publish(m.diagnostic(
             names.STATUS_LIVE_VIEW, 'ok', message,
             {'url': self.url, 'port': self.server.port, 'sent': self.sent,
-             'rejected': self.inputs.rejected}, self.get_clock().now().to_msg()))
+             'rejected': 0 if self.panel is not None else self.inputs.rejected},
+            self.get_clock().now().to_msg()))
 
     def close(self) -> None:
         """Stop asking for parameters, stop the WebSocket server (clients are disconnected)."""
-        self.inputs.close()
+        (self.panel[0] if self.panel is not None else self.inputs).close()
         self.server.stop()
 
 

@@ -286,7 +286,7 @@ class OperatorClient:
         (:class:`~positioning_cell.ros.panel_watch_inputs.PanelWatchSource`; imported here:
         the coordinated cell's statics are not for every ``cell`` command to load)."""
         from positioning_cell.ros.panel_watch_inputs import PanelWatchSource
-        return PanelWatchSource(self.cell)
+        return PanelWatchSource(self.cell.node)
 
 
 class WatchSource:

@@ -3,11 +3,13 @@
 file and nominal machine, asked for until it answers and followed on /parameter_events) and
 its status on /diagnostics, the panel's tracker, and per positioner of the cell file its set's
 /diagnostics (positioner and drives) and joint states (encoders and load cells). Read-only:
-nothing here publishes to the cell or sets anything. Used by ``cell watch --panel``."""
+nothing here publishes to the cell or sets anything. Used by ``cell watch --panel`` and the
+live view's panel view."""
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from functools import partial
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -20,7 +22,6 @@ from positioning_cell import names
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
 from positioning_cell.errors import PositioningError
 from positioning_cell.ros import messages as m
-from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS
 from positioning_cell.ros.watch_inputs import WATCH_QOS, RemoteParameters
 from positioning_cell.watch.panel import PanelSnapshot, PanelWatchState
@@ -33,12 +34,13 @@ def _status(node: Node, status: DiagnosticStatus) -> Status:
 
 
 class PanelWatchSource:
-    """The panel watch's inputs on ``client``'s node. The sets are subscribed to once the
+    """The panel watch's inputs on ``node`` (``on_panel()`` after each panel measurement,
+    in the subscription's callback). The sets are subscribed to once the
     coordinator has said its cell file (a calibrated file it takes later has the same
     positioners: :func:`~positioning_cell.coordinated.settings.replacing`)."""
 
-    def __init__(self, client: CellClient) -> None:
-        self.node = client.node
+    def __init__(self, node: Node, on_panel: Callable[[], None] | None = None) -> None:
+        self.node, self._on_panel = node, on_panel
         self.state = PanelWatchState()
         self._lock = threading.Lock()
         self._sets: tuple[str, ...] = ()
@@ -91,6 +93,8 @@ class PanelWatchSource:
     def _panel(self, msg: PoseWithCovarianceStamped) -> None:
         reading = m.measurement(msg)
         self.state.panel((reading.position, reading.quaternion), reading.stamp)
+        if self._on_panel is not None:
+            self._on_panel()
 
     def _set_diagnostics(self, name: str, msg: DiagnosticArray) -> None:
         for status in msg.status:

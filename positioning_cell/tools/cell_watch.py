@@ -11,7 +11,6 @@ subscribes and reads parameters, it never commands the cell."""
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import select
 import sys
@@ -29,15 +28,13 @@ from rich.text import Text
 from positioning_cell import names
 from positioning_cell.accuracy.verdicts import DECISION_LEVELS, RULE_NAMES
 from positioning_cell.tools.cell_format import AXIS_RANGES_TITLE
-from positioning_cell.watch.state import Snapshot, Status
+from positioning_cell.watch.state import Snapshot, Status, is_stale
 from positioning_cell.watch.table import DECISION_MARKERS, HEADERS, rows
 
 #: Keys that quit.
 QUIT_KEYS = frozenset('qQ')
 #: Redraw period until the deviation first shows (then 1 / --rate), s.
 FIRST_PERIOD = 0.05
-#: A measurement older than this is shown as stale, s.
-STALE_AFTER = 1.0
 _LEVEL_STYLES = {0: 'green', 1: 'yellow', 2: 'bold red', 3: 'magenta'}
 #: The colour of a table marker by its level (watch.table.Row.level).
 LEVEL_STYLES = {'ok': 'bold green', 'warn': 'bold yellow', 'error': 'bold red'}
@@ -138,7 +135,7 @@ def render(snapshot: Snapshot, frame: str, now: float) -> Group:
                           style='dim'))
     else:
         age = now - snapshot.measured_stamp
-        stale = not math.isfinite(age) or age > STALE_AFTER
+        stale = is_stale(age)
         table = Table(*HEADERS, title_justify='left', expand=False,
                       caption=f'measurement {age:.2f} s old' + (' (STALE)' if stale else ''),
                       caption_style='yellow' if stale else 'dim')

@@ -7,7 +7,6 @@ read-only."""
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -17,8 +16,9 @@ from rich.text import Text
 
 from positioning_cell import names
 from positioning_cell.core.poses import scipy_rotation
-from positioning_cell.tools.cell_watch import STALE_AFTER, drives_text, status_text
+from positioning_cell.tools.cell_watch import drives_text, status_text
 from positioning_cell.watch.panel import PanelSnapshot
+from positioning_cell.watch.state import is_stale
 
 #: The table's columns.
 HEADERS = ('positioner', 'state', 'drives', 'message')
@@ -32,7 +32,7 @@ def panel_line(snapshot: PanelSnapshot, now: float) -> Text:
     p, q = snapshot.panel
     r = scipy_rotation().from_quat(q).as_rotvec()
     age = now - snapshot.panel_stamp
-    stale = not math.isfinite(age) or age > STALE_AFTER
+    stale = is_stale(age)
     return line.append('x y z ' + ' '.join(f'{v:+.4f}' for v in np.asarray(p) * 1e3)
                        + ' mm  rx ry rz ' + ' '.join(f'{v:+.3f}' for v in r * 1e3) + ' mrad  ',
                        ).append(f'measured {age:.2f} s ago' + (' (STALE)' if stale else ''),

@@ -1,8 +1,11 @@
-"""``python -m positioning_cell.tools.foxglove_layout [PATH]``: write the Foxglove layout of
-the live view (config/foxglove_layout.json by default) with foxglove-sdk's layout types: the
-3-D panel on /live/scene and /live/transforms (base fixed), the deviation plots (x, y, z in
-µm; rx, ry, rz and |Δθ| in degrees; |Δp| in µm) and a table of /live/deviation and
-/live/status. test_foxglove_layout.py checks the shipped file is what this writes."""
+"""``python -m positioning_cell.tools.foxglove_layout [--panel] [PATH]``: write the Foxglove
+layout of the live view (config/foxglove_layout.json by default) with foxglove-sdk's layout
+types: the 3-D panel on /live/scene and /live/transforms (base fixed), the deviation plots (x,
+y, z in µm; rx, ry, rz and |Δθ| in degrees; |Δp| in µm) and a table of /live/deviation and
+/live/status. ``--panel``: the panel view's (``view: panel``; config/foxglove_panel_layout.json):
+the 3-D panel following the ``cell`` frame, the largest internal force and its limit over time,
+and a table of the status. test_foxglove_layout.py checks the shipped files are what this
+writes."""
 
 from __future__ import annotations
 
@@ -19,8 +22,9 @@ from positioning_cell.config import share_directory
 from positioning_cell.tools.exits import Exit
 from positioning_cell.watch.deviation import AXES
 
-#: The shipped layout.
+#: The shipped layouts: the positioner's and the panel's.
 LAYOUT_FILE = 'foxglove_layout.json'
+PANEL_LAYOUT_FILE = 'foxglove_panel_layout.json'
 
 
 def _plot(title: str, series: Sequence[tuple[str, str]]) -> fl.PlotPanel:
@@ -51,20 +55,44 @@ def layout() -> fl.Layout:
         fl.SplitItem(proportion=1, content=tables)]))
 
 
-def layout_text() -> str:
-    """The layout as the shipped file holds it (indented JSON, one newline at the end)."""
-    return json.dumps(json.loads(layout().to_json()), indent=2, ensure_ascii=False) + '\n'
+def panel_layout() -> fl.Layout:
+    """The panel view's layout (module docstring)."""
+    scene = fl.ThreeDeePanel(title='coordinated cell', config=fl.ThreeDeeConfig(
+        follow_tf=names.CELL_FRAME,
+        topics={names.LIVE_SCENE: fl.BaseRendererSceneUpdateTopicSettings(visible=True)}))
+    forces = fl.PlotPanel(title='internal force, N (load cells)', config=fl.PlotConfig(
+        paths=[fl.PlotSeries(value=f'{names.LIVE_STATUS}.{field}', label=label, enabled=True)
+               for field, label in (('internal_force_n', 'largest'),
+                                    ('internal_force_limit_n', 'limit'))],
+        show_legend=True))
+    status = fl.TablePanel(title='status', config=fl.TableConfig(topic_path=names.LIVE_STATUS))
+    return fl.Layout(content=fl.SplitContainer(direction='row', items=[
+        fl.SplitItem(proportion=2, content=scene), fl.SplitItem(proportion=1, content=fl.
+                                                                SplitContainer(
+            direction='column', items=[fl.SplitItem(content=forces),
+                                       fl.SplitItem(content=status)]))]))
+
+
+def layout_text(panel: bool = False) -> str:
+    """The layout (``panel``: the panel view's) as the shipped file holds it (indented JSON,
+    one newline at the end)."""
+    made = panel_layout() if panel else layout()
+    return json.dumps(json.loads(made.to_json()), indent=2, ensure_ascii=False) + '\n'
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Write the layout (module docstring)."""
     parser = argparse.ArgumentParser(description=(__doc__ or '').split('\n\n')[0])
+    parser.add_argument('--panel', action='store_true',
+                        help="the panel view's layout (view: panel) instead")
     parser.add_argument('path', nargs='?', type=Path,
-                        default=share_directory() / 'config' / LAYOUT_FILE,
-                        help=f'where to write it (default: config/{LAYOUT_FILE})')
+                        help=f'where to write it (default: config/{LAYOUT_FILE}, or '
+                        f'config/{PANEL_LAYOUT_FILE} with --panel)')
     args = parser.parse_args(argv)
-    args.path.write_text(layout_text(), encoding='utf-8')
-    print(args.path)
+    path = args.path or share_directory() / 'config' / (PANEL_LAYOUT_FILE if args.panel
+                                                         else LAYOUT_FILE)
+    path.write_text(layout_text(args.panel), encoding='utf-8')
+    print(path)
     return Exit.OK
 
 

@@ -13,10 +13,11 @@ import threading
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
-from positioning_cell.coordinated.load_cells import attachment_forces, internal_force_sizes
+from positioning_cell.coordinated.load_cells import attachment_forces, internal_forces
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
 from positioning_cell.core.poses import FloatArray
 from positioning_cell.errors import PositioningError
@@ -25,6 +26,22 @@ from positioning_cell.watch.state import Pose, Status
 #: Joint states of each set averaged for its load cells (at the sets' 50-100 Hz, 0.1-0.2 s:
 #: the coordinator's relax averages 0.5 s at rest).
 LOAD_CELL_READINGS = 10
+
+
+class PanelForces(NamedTuple):
+    """The internal force at each attachment from the load cells: the positioners' ``names``
+    (the cell file's order), ``internal`` (N, 3) N on the panel, cell frame, and the cell
+    file's ``limit`` N."""
+
+    names: tuple[str, ...]
+    internal: FloatArray
+    limit: float
+
+    @property
+    def sizes(self) -> FloatArray:
+        """(N,) N: each attachment's internal force's size."""
+        out: FloatArray = np.linalg.norm(self.internal, axis=1)
+        return out
 
 
 @dataclass(frozen=True)
@@ -54,10 +71,10 @@ class PanelSnapshot:
         except PositioningError:
             return ()
 
-    def internal_force(self) -> float | str:
-        """The largest internal force at one attachment, N, from each set's load cells (the
-        mean of its latest joint states) through the cell file's statics, or why there is
-        none yet (a str)."""
+    def forces(self) -> PanelForces | str:
+        """Each attachment's internal force from each set's load cells (the mean of its
+        latest joint states) through the cell file's statics, or why there is none yet (a
+        str)."""
         if self.settings is None:
             return 'the coordinator\'s cell file not known yet'
         try:
@@ -74,7 +91,22 @@ class PanelSnapshot:
             forces = attachment_forces(cell, self.settings.mechanism, joints, efforts)
         except PositioningError as err:
             return f'the load cells give no forces: {err}'
-        return float(internal_force_sizes(cell, self.settings.mechanism, forces).max())
+        return PanelForces(tuple(names), internal_forces(cell, self.settings.mechanism, forces),
+                           cell.panel.internal_force_limit)
+
+    def internal_force(self) -> float | str:
+        """The largest internal force at one attachment, N (:meth:`forces`), or why there is
+        none yet (a str)."""
+        found = self.forces()
+        return found if isinstance(found, str) else float(found.sizes.max())
+
+    def waiting_for(self) -> list[str]:
+        """What has not come yet, in words (empty: everything)."""
+        waiting = [] if self.settings is not None else ["the coordinator's parameters"]
+        if self.panel is None:
+            waiting.append("the panel's tracker")
+        waiting += [f'{n} load cells' for n in self.names if n not in self.readings]
+        return waiting
 
 
 class PanelWatchState:

@@ -5,6 +5,7 @@ setters. Poses in ``base`` (m, unit quaternions x, y, z, w), times in s."""
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -25,6 +26,13 @@ from positioning_cell.watch.scene import Scene, scene
 Pose = tuple[FloatArray, FloatArray]
 #: The monitor's defaults, judged against until its own tolerances are known.
 DEFAULT_TOLERANCES = Tolerances()
+#: A measurement older than this is shown as stale, s.
+STALE_AFTER = 1.0
+
+
+def is_stale(age: float) -> bool:
+    """Whether a measurement ``age`` s old (inf or NaN: never measured) is stale."""
+    return not math.isfinite(age) or age > STALE_AFTER
 
 
 @dataclass(frozen=True)
