@@ -397,6 +397,22 @@ def test_a_relax_short_of_passes_says_the_stiffness_falls_short_and_a_silent_set
     assert all(len(f.moved) == 1 for f in silent)  # put at its goal, then nothing
 
 
+def test_a_set_whose_load_cells_cannot_be_read_is_silent_and_the_others_are_read() -> None:
+    """A read that fails (a set's port raising: the cell stopping under it) counts as that
+    set giving no readings: the relax is refused naming it, nothing raised past it."""
+    panel = HeldPanel(installed(0.75))
+
+    class Failing(HoldingFake):
+        def load_cells(self, seconds: float) -> tuple[np.ndarray, np.ndarray] | None:
+            raise RuntimeError('context shut down')
+
+    fakes = [Failing(e.name, panel) if e.name == 'p3' else HoldingFake(e.name, panel)
+             for e in CELL.positioners]
+    outcome = Coordinator(CELL, MECH, fakes, FAST).relax_forces(threading.Event())
+    assert outcome.code is ResultCode.REFUSED_DRIVER_SILENT
+    assert outcome.reason.endswith('no load-cell readings of p3 in 0.5 s')
+
+
 def built(stiffness: float) -> PanelTruth:
     """:func:`installed`'s panel on bases turned by up to 2 mrad from the file (unseen by the
     cell): a strain that changes with the pose."""

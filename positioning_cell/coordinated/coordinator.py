@@ -359,7 +359,10 @@ class Coordinator:
         heard: dict[str, tuple[FloatArray, FloatArray] | None] = {}
 
         def read(p: Positioner) -> None:
-            heard[p.name] = p.load_cells(window)
+            try:
+                heard[p.name] = p.load_cells(window)
+            except Exception:  # not read: said below as silent
+                heard[p.name] = None
 
         self._each(read)
         readings = [(p.name, heard.get(p.name)) for p in self.positioners]
