@@ -397,6 +397,7 @@ def test_a_relax_short_of_passes_says_the_stiffness_falls_short_and_a_silent_set
     assert all(len(f.moved) == 1 for f in silent)  # put at its goal, then nothing
 
 
+@pytest.mark.filterwarnings('error::pytest.PytestUnhandledThreadExceptionWarning')
 def test_a_set_whose_load_cells_cannot_be_read_is_silent_and_the_others_are_read() -> None:
     """A read that fails (a set's port raising: the cell stopping under it) counts as that
     set giving no readings: the relax is refused naming it, nothing raised past it."""
