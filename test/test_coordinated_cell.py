@@ -520,7 +520,11 @@ def test_the_live_view_shows_the_panel_its_forces_and_every_positioner(
                     and all(p['positioner'] is not None for p in status['positioners']) \
                     and {'bases', 'panel', 'forces'} <= set(seen['entities'])
 
-            wait_until(complete, 60.0, 'the panel view complete')
+            try:
+                wait_until(complete, 60.0, 'the panel view complete')
+            except TimeoutError as err:
+                raise AssertionError(f"{err}: scene {sorted(seen['entities'])}, status "
+                                     f'{seen.get(names.LIVE_STATUS)}') from err
     finally:
         ros.close()
     status = seen[names.LIVE_STATUS]

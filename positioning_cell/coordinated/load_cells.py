@@ -21,11 +21,13 @@ the pose measurements a calibration uses; the load cells see it.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.coordinated.cell_file import GRAVITY, CellFile
-from positioning_cell.coordinated.internal_forces import wrench_map
+from positioning_cell.coordinated.internal_forces import WrenchMap, wrench_map
 from positioning_cell.coordinated.panel_motion import bases
 from positioning_cell.core.kinematics import forward
 from positioning_cell.core.mechanism import Mechanism
@@ -73,12 +75,20 @@ def attachment_forces(cell: CellFile, mech: Mechanism, joints: ArrayLike, effort
     return out
 
 
+@functools.lru_cache(maxsize=16)
+def cell_statics(cell: CellFile, mech: Mechanism) -> WrenchMap:
+    """The linear statics of ``cell``'s panel under its weight
+    (:func:`~.internal_forces.wrench_map`), once per cell file and machine: its mobility
+    analysis takes tens of ms, and the load cells are read many times a second (the live
+    view) on one file. Read-only: shared by every caller."""
+    return wrench_map(cell.attachments(mech), cell.panel.stiffness, cell.panel.weight())
+
+
 def internal_forces(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> FloatArray:
     """The internal force at each attachment (N_sets, 3) N, cell frame: its force on the
     panel ``forces`` (N_sets, 3) N (:func:`attachment_forces`) less the panel's weight's own
     share (module docstring)."""
-    share = wrench_map(cell.attachments(mech), cell.panel.stiffness,
-                       cell.panel.weight()).by_load[:, :3]
+    share = cell_statics(cell, mech).by_load[:, :3]
     out: FloatArray = np.asarray(forces, dtype=float) - share
     return out
 
@@ -105,7 +115,7 @@ def relaxing_steps(cell: CellFile, mech: Mechanism, forces: ArrayLike) -> FloatA
     f = np.asarray(forces, dtype=float)
     if f.shape != (n, 3) or not np.isfinite(f).all():
         raise InputError(f'forces: expected ({n}, 3) finite values, got {f.shape}')
-    linear = wrench_map(cell.attachments(mech), cell.panel.stiffness, cell.panel.weight())
+    linear = cell_statics(cell, mech)
     force_rows = (6 * np.arange(n)[:, None] + np.arange(3)).ravel()
     a = linear.matrix[np.ix_(force_rows, force_rows)]  # forces per attachment translation
     misfit, *_ = np.linalg.lstsq(a, (f - linear.by_load[:, :3]).ravel(), rcond=None)

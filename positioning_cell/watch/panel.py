@@ -13,6 +13,7 @@ import threading
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -74,7 +75,11 @@ class PanelSnapshot:
     def forces(self) -> PanelForces | str:
         """Each attachment's internal force from each set's load cells (the mean of its
         latest joint states) through the cell file's statics, or why there is none yet (a
-        str)."""
+        str); worked out once per snapshot."""
+        return self._forces
+
+    @cached_property
+    def _forces(self) -> PanelForces | str:
         if self.settings is None:
             return 'the coordinator\'s cell file not known yet'
         try:
