@@ -112,8 +112,8 @@ class CellCoordinatorNode(Node):
         with self._lock:
             if self._coordinator is None:
                 settings = self.params.settings
-                self._client = self._client or CellClient(name=f'{self.NAME}_client',
-                                                          context=self.context)
+                self._client = self._client or CellClient(  # its waits end at a close
+                    name=f'{self.NAME}_client', context=self.context, stop=self._goal.closing)
                 ports = [RosSetPort(self._client, e.name, settings.answer_timeout)
                          for e in self.cell.positioners]
                 self._coordinator = Coordinator(self.cell, settings.mechanism, ports,
