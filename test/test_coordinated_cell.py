@@ -495,8 +495,9 @@ def test_the_live_view_shows_the_panel_its_forces_and_every_positioner(
         cell: CoordinatedCell) -> None:
     """``live_view`` with ``view: panel`` on the running cell (issue 27 item 6), watched by a
     Foxglove client: its status channel gives the coordinator, both positioners and an
-    internal force from their load cells; its scene draws both bases, the panel and a force
-    arrow at each ball; its transforms put the panel and both bases in the cell frame."""
+    internal force from their load cells; its scene draws both bases, both positioners' legs
+    and platforms, the panel and a force arrow at each ball; its transforms put the panel and
+    both bases in the cell frame."""
     ros = InProcess(cell.domain)
     try:
         live = ros.start(LiveViewNode, view='panel', port=0)
@@ -518,7 +519,7 @@ def test_the_live_view_shows_the_panel_its_forces_and_every_positioner(
                 status = seen.get(names.LIVE_STATUS)
                 return status is not None and status['internal_force_n'] is not None \
                     and all(p['positioner'] is not None for p in status['positioners']) \
-                    and {'bases', 'panel', 'forces'} <= set(seen['entities'])
+                    and {'bases', 'positioners', 'panel', 'forces'} <= set(seen['entities'])
 
             try:
                 wait_until(complete, 60.0, 'the panel view complete')
@@ -534,6 +535,7 @@ def test_the_live_view_shows_the_panel_its_forces_and_every_positioner(
     assert 0.0 <= status['internal_force_n'] < 1e4
     assert len(seen['entities']['forces']['arrows']) == len(SETS)
     assert len(seen['entities']['bases']['lines']) == len(SETS)
+    assert len(seen['entities']['positioners']['lines']) == 1 + len(SETS)  # legs, platforms
     frames = {t['child_frame_id'] for t in seen[names.LIVE_TRANSFORMS]['transforms']}
     assert frames == {names.PANEL_FRAME, *(base_frame(ns) for ns in SETS)}
 

@@ -17,6 +17,7 @@ from test_panel_watch import NAMES, NOW, SETTINGS, _strained
 
 from positioning_cell import names
 from positioning_cell.coordinated.panel_motion import bases, platform_goals
+from positioning_cell.core.kinematics import platform_points
 from positioning_cell.nodes.live_view_panel import (
     FORCE_COLOURS,
     base_frame,
@@ -59,11 +60,18 @@ def test_the_force_arrows_are_the_truths_internal_forces() -> None:
     snapshot = _state().snapshot()
     scale = 2e-3
     scene = _entities(panel_scene(snapshot, NOW, scale))
-    assert set(scene) == {'bases', 'panel', 'forces'}
+    assert set(scene) == {'bases', 'positioners', 'panel', 'forces'}
     goals = [(p + d, q) for (p, q), d in zip(
         platform_goals(CELL, MECH, np.zeros(3), [0.0, 0.0, 0.0, 1.0]),
         np.array([[0.0, 0.0, 0.0], [2e-4, 0.0, 0.0], [0.0, 1e-4, 0.0]]), strict=True)]
     truth = PanelTruth(CELL, MECH).state(goals)
+    # each positioner's legs and platform where its encoders put them (the strained platforms)
+    drawn = scene['positioners']['lines']
+    assert len(drawn[0]['points']) == 2 * 3 * len(NAMES)  # a line per leg
+    for (p, q), base, top in zip(goals, bases(CELL), drawn[1:], strict=True):
+        corners = base.apply(platform_points(MECH, p[None], np.asarray(q)[None])[0])
+        got = np.array([[c['x'], c['y'], c['z']] for c in top['points'][:3]])
+        np.testing.assert_allclose(got, corners, atol=1e-9)
     forces = scene['forces']
     balls = Rotation.from_quat(PANEL_Q).apply(CELL.panel_points(MECH)) + PANEL_P
     sizes = []

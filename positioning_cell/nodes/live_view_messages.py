@@ -77,7 +77,7 @@ def pose(position: ArrayLike = (0.0, 0.0, 0.0),
     return Pose(position=vector3(position), orientation=quaternion(orientation))
 
 
-def _point3s(rows: Any) -> list[Point3]:
+def point3s(rows: Any) -> list[Point3]:
     return [Point3(x=float(r[0]), y=float(r[1]), z=float(r[2]))
             for r in np.reshape(rows, (-1, 3))]
 
@@ -85,7 +85,7 @@ def _point3s(rows: Any) -> list[Point3]:
 def triangle(points: Any, rgba: ArrayLike, thickness: float) -> LinePrimitive:
     closed = np.vstack([points, points[:1]])
     return LinePrimitive(type=LinePrimitiveLineType.LineStrip, pose=pose(),
-                         thickness=thickness, points=_point3s(closed), color=colour(rgba))
+                         thickness=thickness, points=point3s(closed), color=colour(rgba))
 
 
 def scene_update(scene: Scene, stamp: float, static: bool = True) -> SceneUpdate:
@@ -105,7 +105,7 @@ def scene_update(scene: Scene, stamp: float, static: bool = True) -> SceneUpdate
             SceneEntity(timestamp=ts, frame_id=names.BASE_FRAME, id='legs',
                         lines=[LinePrimitive(
                             type=LinePrimitiveLineType.LineList, pose=pose(),
-                            thickness=LEG_THICKNESS, points=_point3s(legs), colors=colours)]),
+                            thickness=LEG_THICKNESS, points=point3s(legs), colors=colours)]),
             SceneEntity(timestamp=ts, frame_id=names.BASE_FRAME, id='platform',
                         lines=[triangle(scene.platform_joints, PLATFORM_COLOUR, 0.004)])]
     if static and scene.ghost_joints is not None:

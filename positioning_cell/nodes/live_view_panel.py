@@ -1,12 +1,13 @@
 """The live view of a coordinated cell (``live_view`` with ``view: panel``; issue 27 item 6):
 its Foxglove messages (foxglove-sdk, no rclpy) from a
 :class:`~positioning_cell.watch.panel.PanelSnapshot`, in the ``cell`` frame: each positioner's
-base where the cell file puts it, the panel where its tracker measures it (the triangle of its
-attachment points and a ball at each), and the internal force at each attachment from the
-legs' load cells as an arrow ``force_scale`` m per N long, green below half the cell file's
-limit, yellow below it, red beyond, labelled with its size; the frame transforms (cell →
-panel as measured, cell → ``<name>/base``); the status as JSON. Foxglove's schemas are SI; the
-JSON's names say their units."""
+base where the cell file puts it, its legs (coloured by stroke, as in the positioner's own
+view) and platform where its encoders put them, the panel where its tracker measures it (the
+triangle of its attachment points and a ball at each), and the internal force at each
+attachment from the legs' load cells as an arrow ``force_scale`` m per N long, green below
+half the cell file's limit, yellow below it, red beyond, labelled with its size; the frame
+transforms (cell → panel as measured, cell → ``<name>/base``); the status as JSON. Foxglove's
+schemas are SI; the JSON's names say their units."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ from foxglove.messages import (
     ArrowPrimitive,
     FrameTransform,
     FrameTransforms,
+    LinePrimitive,
+    LinePrimitiveLineType,
     SceneEntity,
     SceneUpdate,
     SpherePrimitive,
@@ -30,12 +33,15 @@ from foxglove.messages import (
 from positioning_cell import names
 from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.panel_motion import bases
+from positioning_cell.core.kinematics import platform_points
 from positioning_cell.errors import PositioningError
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.nodes.live_view_messages import (
     BASE_COLOUR,
+    LEG_THICKNESS,
     PLATFORM_COLOUR,
     colour,
+    point3s,
     pose,
     quaternion,
     status_value,
@@ -44,7 +50,7 @@ from positioning_cell.nodes.live_view_messages import (
     vector3,
 )
 from positioning_cell.watch.panel import PanelForces, PanelSnapshot
-from positioning_cell.watch.scene import arrow_quaternion
+from positioning_cell.watch.scene import arrow_quaternion, leg_colours
 from positioning_cell.watch.state import is_stale
 
 BALL_DIAMETER = 0.03  # m
@@ -75,15 +81,35 @@ def _cell(snapshot: PanelSnapshot) -> CellFile | None:
 
 def panel_scene(snapshot: PanelSnapshot, stamp: float, force_scale: float) -> SceneUpdate:
     """The scene (module docstring): entities ``bases`` once the cell file is known,
-    ``panel`` once the panel is measured, ``forces`` once the load cells give them too."""
+    ``positioners`` (legs and platforms) once encoders are heard, ``panel`` once the panel is
+    measured, ``forces`` once the load cells give them too."""
     ts = timestamp(stamp)
     cell = _cell(snapshot)
     if cell is None or snapshot.settings is None:
         return SceneUpdate(entities=[])
     mech = snapshot.settings.mechanism
     base_joints = np.asarray(mech.base_joints, dtype=float)
+    placed = bases(cell)
     entities = [SceneEntity(timestamp=ts, frame_id=names.CELL_FRAME, id='bases', lines=[
-        triangle(base_joints @ b.R.T + b.p, BASE_COLOUR, 0.004) for b in bases(cell)])]
+        triangle(base_joints @ b.R.T + b.p, BASE_COLOUR, 0.004) for b in placed])]
+    platforms = snapshot.platforms()
+    if platforms:
+        legs, colours, tops = [], [], []
+        for entry, b in zip(cell.positioners, placed, strict=True):
+            if entry.name not in platforms:
+                continue
+            p, q = platforms[entry.name]
+            top = platform_points(mech, p[None], q[None])[0]
+            _, stroke_colours = leg_colours(mech, top)
+            bottom_cell, top_cell = base_joints @ b.R.T + b.p, top @ b.R.T + b.p
+            legs.append(np.stack([bottom_cell, top_cell], axis=1).reshape(-1, 3))
+            colours += [colour(c) for c in np.repeat(stroke_colours, 2, axis=0)]
+            tops.append(triangle(top_cell, PLATFORM_COLOUR, 0.004))
+        entities.append(SceneEntity(
+            timestamp=ts, frame_id=names.CELL_FRAME, id='positioners',
+            lines=[LinePrimitive(type=LinePrimitiveLineType.LineList, pose=pose(),
+                                 thickness=LEG_THICKNESS, points=point3s(np.vstack(legs)),
+                                 colors=colours), *tops]))
     if snapshot.panel is None:
         return SceneUpdate(entities=entities)
     panel = Transform.from_pq(*snapshot.panel)

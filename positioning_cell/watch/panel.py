@@ -20,6 +20,7 @@ import numpy as np
 
 from positioning_cell.coordinated.load_cells import attachment_forces, internal_forces
 from positioning_cell.coordinated.settings import CellCoordinatorSettings
+from positioning_cell.core.kinematics import forward
 from positioning_cell.core.poses import FloatArray
 from positioning_cell.errors import PositioningError
 from positioning_cell.watch.state import Pose, Status
@@ -98,6 +99,25 @@ class PanelSnapshot:
             return f'the load cells give no forces: {err}'
         return PanelForces(tuple(names), internal_forces(cell, self.settings.mechanism, forces),
                            cell.panel.internal_force_limit)
+
+    def platforms(self) -> dict[str, Pose]:
+        """Each positioner's platform pose in its base (position m, quaternion), from the
+        mean of its latest encoder readings through the nominal machine's forward kinematics
+        (those not heard from, or whose encoders give no pose, left out); once per
+        snapshot."""
+        return self._platforms
+
+    @cached_property
+    def _platforms(self) -> dict[str, Pose]:
+        if self.settings is None:
+            return {}
+        heard = [n for n in self.names if n in self.readings]
+        if not heard:
+            return {}
+        q = np.array([self.readings[n][0].mean(axis=0) for n in heard])
+        fk = forward(self.settings.mechanism, q[:, :3], q[:, 3:])
+        return {n: (fk.position[i], fk.quaternion[i]) for i, n in enumerate(heard)
+                if fk.converged[i]}
 
     def internal_force(self) -> float | str:
         """The largest internal force at one attachment, N (:meth:`forces`), or why there is

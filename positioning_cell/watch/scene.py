@@ -58,6 +58,15 @@ def stroke_colour(stroke: FloatArray) -> FloatArray:
     return colours
 
 
+def leg_colours(mech: Mechanism, platform_joints: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each leg's stroke fraction (3,) (0 at ``length_min``, 1 at ``length_max``) and its
+    colour (3, 4) RGBA (:func:`stroke_colour`) with the platform's joint centres at
+    ``platform_joints`` (3, 3) m, base frame."""
+    lengths = np.linalg.norm(platform_joints - mech.base_joints, axis=1)
+    stroke: FloatArray = (lengths - mech.length_min) / (mech.length_max - mech.length_min)
+    return stroke, stroke_colour(stroke)
+
+
 def scene(mech: Mechanism, estimated: Pose | None, commanded: Pose | None,
           measured: Pose | None, targets_platform: FloatArray | None,
           tolerances: Tolerances, magnification: float) -> Scene:
@@ -80,9 +89,7 @@ def scene(mech: Mechanism, estimated: Pose | None, commanded: Pose | None,
     platform = joints.get('shown')
     stroke = colours = None
     if platform is not None:
-        lengths = np.linalg.norm(platform - mech.base_joints, axis=1)
-        stroke = (lengths - mech.length_min) / (mech.length_max - mech.length_min)
-        colours = stroke_colour(stroke)
+        stroke, colours = leg_colours(mech, platform)
     targets = None
     if measured is not None and targets_platform is not None:
         p_meas, q_meas = validated['measured']
