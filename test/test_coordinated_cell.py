@@ -519,6 +519,7 @@ def test_the_live_view_shows_the_panel_its_forces_and_every_positioner(
                     got = ws.receive(0.0)
                 status = seen.get(names.LIVE_STATUS)
                 return status is not None and status['internal_force_n'] is not None \
+                    and status['coordinator'] is not None \
                     and all(p['positioner'] is not None for p in status['positioners']) \
                     and {'bases', 'positioners', 'panel', 'forces'} <= set(seen['entities'])
 
