@@ -30,9 +30,9 @@ def test_a_close_cuts_short_a_load_cell_reading_of_absent_sets(ros: InProcess) -
     subscribed = len(list(client.node.subscriptions))
     reading = threading.Thread(target=coordinator._sample_rest, daemon=True)
     reading.start()
-    # under way: each set's joint states subscribed for the reading (the sets never answer)
-    wait_until(lambda: len(list(client.node.subscriptions)) >= subscribed + 3, 10.0,
-               'the reading to subscribe to the three sets')
+    # under way: the first set's joint states subscribed for the reading (never answered)
+    wait_until(lambda: len(list(client.node.subscriptions)) > subscribed, 10.0,
+               'the reading to subscribe to the first set')
     assert reading.is_alive()
     closed = time.monotonic()
     node.close()

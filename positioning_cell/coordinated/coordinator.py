@@ -215,6 +215,8 @@ class Coordinator:
         #: motion began before it ended.
         self._sent: list[Pose] | None = None
         self._last_start = float('-inf')
+        #: Held while the load cells are read (one reading at a time).
+        self._reading = threading.Lock()
         #: Each positioner's pivot (3,) m: the panel's origin in its platform frame, the one
         #: point of the panel every platform's motion carries on a straight line (so that
         #: they move as the rigid panel; moves.trajectory).
@@ -306,6 +308,8 @@ class Coordinator:
         """After a settled panel move: the load cells read at rest, a sample unless a set gave
         none, or another move was sent since or its motion began before the reading ended."""
         sent, start_before = self._sent, self._last_start
+        if self._reading.locked():  # a reading under way already (a relax's): no sample
+            return
         forces = self._load_cell_forces()
         moved = self._last_start != start_before and self._last_start <= self.clock()
         if not isinstance(forces, str) and sent is self._sent and not moved:
@@ -355,17 +359,11 @@ class Coordinator:
         """Each attachment's force on the panel (N_sets, 3) N, cell frame, from the sets' load
         cells at rest (module docstring); a reason when a set gave none or they give none."""
         window = self.relax_settings.window
-        # every set read over the same window, each in a thread of its own
-        heard: dict[str, tuple[FloatArray, FloatArray] | None] = {}
-
-        def read(p: Positioner) -> None:
-            try:
-                heard[p.name] = p.load_cells(window)
-            except Exception:  # not read: said below as silent
-                heard[p.name] = None
-
-        self._each(read)
-        readings = [(p.name, heard.get(p.name)) for p in self.positioners]
+        # one set after the other, under one lock: reading the sets at once from several
+        # threads (each read subscribes and unsubscribes on the client's node) left the
+        # coordinator's participant unseen by participants that joined later, in two CIs
+        with self._reading:
+            readings = [(p.name, self._read(p, window)) for p in self.positioners]
         silent = [name for name, r in readings if r is None]
         if silent:
             return f'no load-cell readings of {", ".join(silent)} in {window:g} s'
@@ -375,6 +373,15 @@ class Coordinator:
             return attachment_forces(self.cell, self.mech, joints, efforts)
         except InputError as err:
             return f'the load cells give no forces: {err}'
+
+    @staticmethod
+    def _read(p: Positioner, window: float) -> tuple[FloatArray, FloatArray] | None:
+        """``p``'s load cells over ``window`` s; None when it gave none or could not be read
+        (said as silent)."""
+        try:
+            return p.load_cells(window)
+        except Exception:  # not read: silent
+            return None
 
     def _largest(self, forces: FloatArray) -> float:
         """The largest internal force at one attachment, N, in ``forces`` (N_sets, 3) N."""
