@@ -306,13 +306,14 @@ class Coordinator:
 
     def _sample_rest(self) -> None:
         """After a settled panel move: the load cells read at rest, a sample unless a set gave
-        none, or another move was sent since or its motion began before the reading ended."""
+        none or a next move's motion began before the reading ended."""
         sent, start_before = self._sent, self._last_start
         if self._reading.locked():  # a reading under way already (a relax's): no sample
             return
         forces = self._load_cell_forces()
+        # a next goal sent meanwhile is fine: its motion starts start_lead later
         moved = self._last_start != start_before and self._last_start <= self.clock()
-        if not isinstance(forces, str) and sent is self._sent and not moved:
+        if not isinstance(forces, str) and sent is not None and not moved:
             self._learn(forces, sent)
 
     def relax(self, stop: threading.Event, readings: int = 10) -> PanelOutcome:
