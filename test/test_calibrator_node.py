@@ -107,8 +107,10 @@ def cell(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[Cell]:
                                                        'program': {'approach': 0.0}}})
         cell = Cell(client, procs, out)
         try:
-            cell.until(lambda: poses and measured and cell.action.server_is_ready(), 60.0,
-                       f'the cell and the action server {names.CALIBRATE_ACTION}')
+            cell.until(lambda: poses and measured, 60.0, "the cell's poses")
+            # the server known and this client known to it (GoalClient.ready's handshake):
+            # server_is_ready alone let a goal's answer be lost (seen: no answer in 30 s)
+            cell.goals.ready(60.0)
             yield cell
         finally:
             cell.close()
