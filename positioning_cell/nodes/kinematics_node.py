@@ -140,11 +140,12 @@ class PositionerNode(Node):
         self.operator.publish_setpoint(msg.header.stamp)
         self.robot.publish(estimate.position, estimate.quaternion, msg.header.stamp)
 
-    def _status(self, level: str, message: str, code: ResultCode | None) -> None:
-        op = getattr(self, 'controller', None)
-        if level != 'ok' and (code is not None or message != getattr(self, '_warned', '')):
-            self.get_logger().warning(message)  # once per state, not at every 1 Hz status
+    def _status(self, level: str, message: str, code: ResultCode | None, each: bool = False
+                ) -> None:  # a state warned once: not per 1 Hz status, nor per move end report
+        if level != 'ok' and (each or message != getattr(self, '_warned', '')):
+            self.get_logger().warning(message)
         self._warned = message if level != 'ok' else ''
+        op = getattr(self, 'controller', None)
         values = {**self.mover.status_values(code), **(op.status_values() if op else {})}
         self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER, level, message, values,
                                            self._now()))
@@ -160,8 +161,7 @@ class PositionerNode(Node):
                                            *self.mover.compensation_report(), self._now()))
 
     def _publish_inputs(self) -> None:
-        """Who else publishes on the inputs (their messages are ignored): ERROR while any
-        does, logged once per change."""
+        """Who else publishes on the inputs (ignored): ERROR while any does, logged once."""
         level, message, values = inputs_report({r.topic: r.foreign() for r in self._inputs},
                                                [r.source for r in self._inputs])
         if level != 'ok' and message != self._inputs_message:
@@ -171,7 +171,7 @@ class PositionerNode(Node):
                                            values, self._now()))
 
     def _refused(self, code: ResultCode, reason: str) -> None:
-        self._status('warn', f'refused ({code.value}): {reason}', code)
+        self._status('warn', f'refused ({code.value}): {reason}', code, each=True)
 
     # -- services -------------------------------------------------------------------------------
     def _srv_home(self, request: Trigger.Request, response: Trigger.Response) -> Any:
