@@ -102,19 +102,17 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     return True
 
 
-#: Each tier's longest modules, longest first (worker seconds on the 2-core VM, issue 24,
-#: HEAD dc8be6e: the parallel tier's run_coordinated 83, docs 61, run_cell 59,
-#: panel_calibration 54, coordinated_cell 45, calibrator_node 43, bag_layouts 41, fault_trials
-#: 40, bag_corruption 29, recorder_node 27; the timing tier's faults 49, coordinated_cell 21,
-#: cell 18, cli_on_the_cell 17): collected before the others, so that ``make test``'s xdist
-#: workers (``--dist loadscope``: a module to one worker, in collection order) start them
-#: first and the short modules fill in around them, instead of one of them starting last
-#: while the other workers have run out of work.
-LONGEST_FIRST = ('test_faults.py', 'test_run_coordinated.py', 'test_docs.py',
-                 'test_run_cell.py', 'test_panel_calibration.py', 'test_coordinated_cell.py',
-                 'test_calibrator_node.py', 'test_bag_layouts.py', 'test_fault_trials.py',
-                 'test_bag_corruption.py', 'test_recorder_node.py', 'test_cell.py',
-                 'test_cli_on_the_cell.py', 'test_shutdown.py')
+#: The parallel tier's longest modules, longest first (worker seconds on the 2-core VM, issue
+#: 24: run_cell 69, shutdown 47, fault_trials 41, docs 38, calibrator_node 38, package 28,
+#: bag_layouts 24, replay 17; panel_calibration 72 alone, run_coordinated 64 alone, issue
+#: 27): collected before the
+#: others, so that ``make test``'s xdist workers (``--dist loadscope``: a module to one
+#: worker, in collection order) start them first and the short modules fill in around them,
+#: instead of one of them starting last while the other workers have run out of work.
+LONGEST_FIRST = ('test_run_cell.py', 'test_panel_calibration.py', 'test_run_coordinated.py',
+                 'test_shutdown.py', 'test_fault_trials.py', 'test_docs.py',
+                 'test_calibrator_node.py', 'test_package.py', 'test_bag_layouts.py',
+                 'test_replay.py')
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -1,6 +1,5 @@
-"""kinematics_node (node ``positioner``): pose commands → :mod:`positioning_cell.motion.controller`
-→ :mod:`positioning_cell.motion.mover` → joint trajectories for the leg driver and their plans;
-the pose estimated from the encoders, the machine for ROS tools, the state on /diagnostics."""
+"""kinematics_node (node ``positioner``): pose commands → controller → mover → joint trajectories
+and their plans; the pose from the encoders, the machine for ROS tools, /diagnostics."""
 
 from __future__ import annotations
 
@@ -26,6 +25,7 @@ from positioning_cell.motion.mover import (
     ResultCode,
     State,
 )
+from positioning_cell.motion.state_log import StateLog
 from positioning_cell.nodes.operator_interface import OperatorInterface
 from positioning_cell.ros import messages as m
 from positioning_cell.ros import qos
@@ -46,6 +46,7 @@ class PositionerNode(Node):
     SETTINGS = PositionerSettings
 
     def __init__(self, **kwargs: Any) -> None:
+        self._state_log = StateLog()  # before the first state is reported
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS, lambda s, _: self.mover.reconfigure(s),
                                      lambda s, _: self.mover.prepare(s))
@@ -141,10 +142,9 @@ class PositionerNode(Node):
         self.robot.publish(estimate.position, estimate.quaternion, msg.header.stamp)
 
     def _status(self, level: str, message: str, code: ResultCode | None, each: bool = False
-                ) -> None:  # a state warned once: not per 1 Hz status, nor per move end report
-        if level != 'ok' and (each or message != getattr(self, '_warned', '')):
+                ) -> None:
+        if self._state_log.logs(level, message, each):
             self.get_logger().warning(message)
-        self._warned = message if level != 'ok' else ''
         op = getattr(self, 'controller', None)
         values = {**self.mover.status_values(code), **(op.status_values() if op else {})}
         self.pub_diag.publish(m.diagnostic(names.STATUS_POSITIONER, level, message, values,
