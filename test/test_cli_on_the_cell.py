@@ -57,8 +57,16 @@ class Cell:
                  for args in commands]
         out = []
         try:
-            for proc in procs:
-                stdout, stderr = proc.communicate(timeout=timeout)
+            for args, proc in zip(commands, procs, strict=True):
+                try:
+                    stdout, stderr = proc.communicate(timeout=timeout)
+                except subprocess.TimeoutExpired:  # what it and the positioner said, to tell why
+                    proc.kill()
+                    stdout, stderr = proc.communicate()
+                    raise AssertionError(
+                        f'`cell {" ".join(args)}` ended not within {timeout:g} s; its stdout '
+                        f'{stdout[-2000:]!r}, stderr {stderr[-2000:]!r}; the positioner\'s log '
+                        f'{self.procs.log("kinematics_node")[-2000:]!r}') from None
                 assert stdout.strip(), stderr
                 out.append((proc.returncode, json.loads(stdout)))
         finally:
