@@ -1,0 +1,110 @@
+"""Where the test suite's time goes (issue 24: ``make test`` <= 4 min on 2 cores): CPU per test
+module, of the test process and of the processes it started and reaped.
+
+Runs one tier of ``make test`` as the Makefile does (the parallel tier: ``-n 3 --dist
+loadscope -m 'not timing'``; ``--timing``: the timing tier, serially), with this file loaded as
+a pytest plugin in every worker: around each test, the worker's ``getrusage(RUSAGE_SELF)`` and
+``getrusage(RUSAGE_CHILDREN)`` (the nodes and tools a test starts count once they are reaped,
+which every test's ProcessGroup does at its end; a module fixture's cell falls on the module's
+last test). Prints the tier's wall time and CPU (this process's children: the workers and all
+they started), the floor that CPU sets on the cores given (CPU / cores), and each module's CPU
+(test process, started processes) and wall time, costliest first.
+
+Further arguments go to pytest (e.g. a module). Run from the checkout with the venv's python
+and make test's environment, e.g.
+``env $(RUN_ENV) .venv/bin/python benchmarks/suite_cpu.py`` (the Makefile's RUN_ENV).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Where the plugin writes each worker's rows (set by main for the pytest run it starts).
+OUT_ENV = 'SUITE_CPU_OUT'
+_rows: list[tuple[str, float, float, float]] = []
+
+
+def _cpu(who: int) -> float:
+    usage = resource.getrusage(who)
+    return usage.ru_utime + usage.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Iterator[None]:
+    """One row per test: its node id, CPU s of the test process, of reaped children, wall s."""
+    own, kids, wall = (_cpu(resource.RUSAGE_SELF), _cpu(resource.RUSAGE_CHILDREN),
+                       time.monotonic())
+    yield
+    _rows.append((item.nodeid, _cpu(resource.RUSAGE_SELF) - own,
+                  _cpu(resource.RUSAGE_CHILDREN) - kids, time.monotonic() - wall))
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    out = os.environ.get(OUT_ENV)
+    if out:
+        worker = os.environ.get('PYTEST_XDIST_WORKER', 'main')
+        (Path(out) / f'{worker}.json').write_text(json.dumps(_rows))
+
+
+def per_module(rows: list[Any]) -> dict[str, list[float]]:
+    """Module file name → [test-process CPU s, started-processes CPU s, wall s, tests]."""
+    modules: dict[str, list[float]] = collections.defaultdict(lambda: [0.0, 0.0, 0.0, 0.0])
+    for node_id, own, kids, wall in rows:
+        m = modules[node_id.split('::')[0].rsplit('/', 1)[-1]]
+        m[0] += own
+        m[1] += kids
+        m[2] += wall
+        m[3] += 1
+    return modules
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--timing', action='store_true', help='the timing tier (serially)')
+    parser.add_argument('--workers', type=int, default=3, help='the parallel tier\'s workers')
+    parser.add_argument('--cores', type=int, default=os.cpu_count() or 1)
+    parser.add_argument('--top', type=int, default=15, help='modules listed')
+    args, more = parser.parse_known_args()  # the rest goes to pytest (modules, -k ...)
+    tier = (['-m', 'timing'] if args.timing
+            else ['-n', str(args.workers), '--dist', 'loadscope', '-m', 'not timing'])
+    with tempfile.TemporaryDirectory() as out:
+        env = {**os.environ, OUT_ENV: out,
+               'PYTHONPATH': os.pathsep.join(filter(None, [str(ROOT / 'benchmarks'),
+                                                           os.environ.get('PYTHONPATH')]))}
+        before, start = _cpu(resource.RUSAGE_CHILDREN), time.monotonic()
+        command = [sys.executable, '-m', 'pytest', *tier, '-q', '-p', 'suite_cpu', *more]
+        ran = subprocess.run(command, cwd=ROOT, env=env, check=False, capture_output=True,
+                             text=True)
+        wall, cpu = time.monotonic() - start, _cpu(resource.RUSAGE_CHILDREN) - before
+        rows = [row for f in Path(out).glob('*.json') for row in json.loads(f.read_text())]
+    print(ran.stdout.strip().splitlines()[-1] if ran.stdout.strip() else ran.stderr[-2000:])
+    modules = per_module(rows)
+    own, kids = sum(m[0] for m in modules.values()), sum(m[1] for m in modules.values())
+    print(f'tier: {wall:.0f} s wall, {cpu:.0f} s CPU ({cpu / wall:.2f} cores busy); '
+          f'CPU / {args.cores} cores = {cpu / args.cores:.0f} s, the floor on its wall time')
+    print(f'per test, summed: {own + kids:.0f} s CPU: {own:.0f} in the test processes, '
+          f'{kids:.0f} in the processes they started')
+    print(f'{"module":<34} {"CPU s":>7} {"own":>7} {"started":>8} {"wall s":>7} {"n":>5}')
+    for name, (m_own, m_kids, m_wall, n) in sorted(
+            modules.items(), key=lambda kv: -(kv[1][0] + kv[1][1]))[:args.top]:
+        print(f'{name:<34} {m_own + m_kids:7.1f} {m_own:7.1f} {m_kids:8.1f} {m_wall:7.1f} '
+              f'{int(n):5d}')
+    return ran.returncode
+
+
+if __name__ == '__main__':
+    sys.exit(main())
