@@ -518,8 +518,11 @@ def test_the_live_view_shows_the_panel_its_forces_and_every_positioner(
                         seen[got.topic] = got.message
                     got = ws.receive(0.0)
                 status = seen.get(names.LIVE_STATUS)
+                # the scene and the status are published apart: wait for a status that
+                # has heard the panel measured too, not only a scene that draws it
                 return status is not None and status['internal_force_n'] is not None \
                     and status['coordinator'] is not None \
+                    and status['panel_age_s'] is not None \
                     and all(p['positioner'] is not None for p in status['positioners']) \
                     and {'bases', 'positioners', 'panel', 'forces'} <= set(seen['entities'])
 
