@@ -750,6 +750,35 @@ def test_pose_estimate_and_a_fault_without_a_solution() -> None:
     assert m.estimate_pose() is not None and m.state is State.IDLE
 
 
+def test_a_reading_already_solved_is_not_solved_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pose estimate at rest (the pose timer, the same encoder reading again): solved once
+    per reading and model; a new reading is solved, and so is the same one through another
+    model."""
+    from positioning_cell.motion import mover as mover_module
+    world = World()
+    m = Mover(settings(), world.machine())
+    solved: list[object] = []
+
+    def counted(*args: object) -> object:
+        solved.append(args[1])
+        return attained_pose(*args)
+
+    attained_pose = mover_module.attained_pose
+    monkeypatch.setattr(mover_module, 'attained_pose', counted)
+    first = m.estimate_pose()
+    assert first is not None and m.estimate_pose() is first and len(solved) == 1
+    world.position = HOME_JOINTS + np.array([1e-4, 0.0, 0.0, 0.0, 0.0, 0.0])
+    moved = m.estimate_pose()
+    assert moved is not None and len(solved) == 2
+    assert np.linalg.norm(moved.position - first.position) > 1e-6
+    m.reconfigure(settings('model'))
+    m.model = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(4))
+    modelled = m.estimate_pose()
+    assert modelled is not None and len(solved) == 3 and solved[-1] is m.model
+    assert m.estimate_pose() is modelled and len(solved) == 3
+
+
 def test_the_mode_can_change_between_moves() -> None:
     truth = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(4))
     world = World(truth)

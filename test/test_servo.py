@@ -291,6 +291,10 @@ def test_path_sampling_matches_scipy_interpolation(points: int, seed: int,
                                                                times[-1] + 1.0])
     np.testing.assert_allclose(pos, positions[[0, -1]], rtol=0.0, atol=1e-12)
     np.testing.assert_array_equal(vel, 0.0)
+    # only held times (the driver at rest): the last point, as from the interpolant at its end
+    pos, vel = JointPath(times, positions, velocities).sample([times[-1], times[-1] + 2.0])
+    np.testing.assert_allclose(pos, spline([times[-1]] * 2), rtol=0.0, atol=1e-12)
+    np.testing.assert_array_equal(vel, 0.0)
 
 
 def test_path_from_points_reorders_names_and_refuses_bad_trajectories() -> None:

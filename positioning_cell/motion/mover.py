@@ -187,6 +187,8 @@ class Mover:
         #: The goal of the last move (what it was asked to reach; its command may differ).
         self.goal: tuple[FloatArray, FloatArray] | None = None
         self.estimate: Estimate | None = None
+        #: What :attr:`estimate` was solved from: the encoder reading's bytes and the model.
+        self._estimated_from: tuple[bytes, ClearanceModel] | None = None
         self._path: list[tuple[FloatArray, FloatArray]] | None = None
         self._motion: tuple[float, Trajectory, FreezeWatch] | None = None
         self._silence_stops = '0'
@@ -362,7 +364,7 @@ class Mover:
         it is added to the move's executed path."""
         self._refresh()
         with self.cond:
-            joints, previous = self.joints, self.estimate
+            joints, previous, source = self.joints, self.estimate, self._estimated_from
         if joints is None:
             return None
         bad = unreadable_axes(joints.position)
@@ -370,21 +372,26 @@ class Mover:
             self._set_state(State.FAULT, f'encoder reading of {", ".join(bad)} is not a '
                                          'number: no pose estimate', ResultCode.ABORTED_ENCODER)
             return None
-        phi0 = previous.phis if previous is not None else None
-        try:
-            fk = attained_pose(self.mech, self._model(), joints.position[:3],
-                               joints.position[3:], phi0)
-        except PositioningError as err:
-            self._set_state(State.FAULT, f'pose estimate failed: {err}', ResultCode.ABORTED_FAULT)
-            return None
-        if not fk.converged[0]:
-            self._set_state(State.FAULT, 'forward kinematics did not converge for the encoder '
-                                         f'readings {joints.position.tolist()}',
-                            ResultCode.ABORTED_FAULT)
-            return None
-        estimate = Estimate(fk.position[0], fk.quaternion[0], fk.phis[0])
+        model, reading = self._model(), joints.position.tobytes()
+        if previous is not None and source is not None and source[0] == reading \
+                and source[1] is model:
+            estimate = previous  # the same reading through the same model: solved already
+        else:
+            try:
+                fk = attained_pose(self.mech, model, joints.position[:3], joints.position[3:],
+                                   previous.phis if previous is not None else None)
+            except PositioningError as err:
+                self._set_state(State.FAULT, f'pose estimate failed: {err}',
+                                ResultCode.ABORTED_FAULT)
+                return None
+            if not fk.converged[0]:
+                self._set_state(State.FAULT, 'forward kinematics did not converge for the '
+                                             f'encoder readings {joints.position.tolist()}',
+                                ResultCode.ABORTED_FAULT)
+                return None
+            estimate = Estimate(fk.position[0], fk.quaternion[0], fk.phis[0])
         with self.cond:
-            self.estimate = estimate
+            self.estimate, self._estimated_from = estimate, (reading, model)
             if self._path is not None:
                 self._path.append((estimate.position, estimate.quaternion))
         if self.state is State.FAULT and self.reason.startswith(('encoder reading',

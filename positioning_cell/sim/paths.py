@@ -74,8 +74,9 @@ class JointPath:
         the path has no velocities. Plain numpy (scipy.interpolate's CubicHermiteSpline and
         linear spline give the same: test_paths; its import cost the driver ~0.3 s at start)."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        if self.times.size == 1:
-            return np.tile(self.positions[0], (t.size, 1)), np.zeros((t.size, AXES))
+        if self.times.size == 1 or bool(np.all(t >= self.times[-1])):
+            # held: the last position at rest (the driver's every step once a path is over)
+            return np.tile(self.positions[-1], (t.size, 1)), np.zeros((t.size, AXES))
         clipped = np.clip(t, self.times[0], self.times[-1])
         i = np.clip(np.searchsorted(self.times, clipped, side='right') - 1, 0,
                     self.times.size - 2)
