@@ -57,22 +57,17 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 # 2-core VM, issue 24). Each module goes whole to one worker, the longest first
 # (test/conftest.py LONGEST_FIRST): its module fixtures are set up once, and no long module
 # starts last (3:30 twice against 3:35-3:39 handing out single tests, 6:00 of CPU against
-# 7:08-7:35). The timing tier in TIMING_WORKERS of its own, each module whole: its tests
-# mostly wait on a reaction (0.77 cores busy serially). Two took 1:13-1:18 against 2:13 alone
-# (stop 61's VM), but were taken back then: one loop in four failed test_faults' "tracker
-# killed" (the driver's joint states silent 0.99 s after the kill, the shared-memory stall of
-# docs/howto/run.md, gone with shared memory since), and in one fresh-clone CI of two a `cell
-# move` beside test_faults' cell had no answer in 120 s (not understood; test_cli_on_the_cell
-# shows the command's output and the positioner's log if it comes back). Over UDP alone, on a
-# slower VM: 1:42-1:45 in three runs, 2:12 beside a busy loop, all passing, against 2:30-2:49
-# serially in fresh-clone CIs.
+# 7:08-7:35). The timing tier in two workers of its own took 1:13-1:18 against 2:13 alone, but
+# in one fresh-clone CI of two a `cell move` beside test_faults' cell had no answer in 120 s
+# (not understood; test_cli_on_the_cell), and one loop of it in four failed test_faults'
+# "tracker killed": the driver's joint states silent 0.99 s after the kill, the abort blamed
+# on the driver (the shared-memory stall of docs/howto/run.md). Alone until both are solved.
 TEST_WORKERS ?= 3
-TIMING_WORKERS ?= 2
 
 test: $(STAMP)
 	mkdir -p $(TMP)
 	env $(RUN_ENV) $(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope -m 'not timing'
-	env $(RUN_ENV) $(PY) -m pytest -n $(TIMING_WORKERS) --dist loadscope -m timing
+	env $(RUN_ENV) $(PY) -m pytest -m timing
 
 # The library tier alone, without ROS: every test not marked nodes or slow, with rclpy made
 # unimportable (a stand-in package first on the path that raises ImportError), so a test or a

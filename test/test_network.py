@@ -143,22 +143,6 @@ def test_the_profile_parses_and_keeps_discovery_out_of_intra_process_delivery(
     assert result.stdout.strip() == 'found', result.stdout + result.stderr
 
 
-def test_the_profile_carries_user_data_over_loopback_udp_alone() -> None:
-    """One transport, UDPv4 on 127.0.0.1, and no shared memory: a process killed while its
-    listener held a shared-memory port's lock stalls every writer to that port for seconds
-    (the profile's comment; benchmarks/kill_stall.py)."""
-    ns = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
-    root = ET.parse(PROFILE).getroot()
-    descriptors = {d.findtext(f'{ns}transport_id'): d
-                   for d in root.iter(f'{ns}transport_descriptor')}
-    assert {k: d.findtext(f'{ns}type') for k, d in descriptors.items()} \
-        == {'udp_loopback': 'UDPv4'}
-    assert [a.text for a in descriptors['udp_loopback'].iter(f'{ns}address')] == ['127.0.0.1']
-    (participant,) = root.iter(f'{ns}participant')
-    assert [t.text for t in participant.iter(f'{ns}transport_id')] == ['udp_loopback']
-    assert participant.findtext(f'{ns}rtps/{ns}useBuiltinTransports') == 'false'
-
-
 @pytest.mark.skipif(shutil.which('ss') is None, reason='needs ss (iproute2)')
 def test_no_cell_socket_is_bound_to_a_non_loopback_address(tmp_path: Path) -> None:
     if Path(os.environ[PROFILE_VARIABLE]).resolve() != PROFILE.resolve():
