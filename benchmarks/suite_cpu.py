@@ -91,7 +91,11 @@ def main() -> int:
                              text=True)
         wall, cpu = time.monotonic() - start, _cpu(resource.RUSAGE_CHILDREN) - before
         rows = [row for f in Path(out).glob('*.json') for row in json.loads(f.read_text())]
-    print(ran.stdout.strip().splitlines()[-1] if ran.stdout.strip() else ran.stderr[-2000:])
+    said = ran.stdout.strip().splitlines()
+    print(said[-1] if said else ran.stderr[-2000:])
+    for line in said:  # -ra's summary: which tests failed or errored, and why
+        if line.startswith(('FAILED ', 'ERROR ')):
+            print(line)
     modules = per_module(rows)
     own, kids = sum(m[0] for m in modules.values()), sum(m[1] for m in modules.values())
     print(f'tier: {wall:.0f} s wall, {cpu:.0f} s CPU ({cpu / wall:.2f} cores busy); '
