@@ -416,6 +416,49 @@ def test_the_simulators_stream_starts_each_fixed_point_from_the_shifts_trend(
     assert rounds[0] <= 2.3 * (len(joints) - 1), rounds[0] / (len(joints) - 1)
 
 
+def test_the_compliance_and_a_load_driven_clearance_share_one_statics_a_pose(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Truth.joint_shift with the shipped machine (load-driven clearance, compliance on): the
+    statics (actuator efforts, joint forces) once a call, and the shift it gives is the one
+    computing them for each effect apart gives; a clearance of another payload computes its
+    own."""
+    from positioning_cell.clearance.load import LoadAwareClearance
+    from positioning_cell.mechanics import statics
+    from positioning_cell.sim import truth as truth_module
+
+    truth = SETTINGS.true_machine()
+    assert isinstance(truth.clearance, LoadAwareClearance) and truth.effects.compliance
+    air = np.full(N, 21.0)
+    calls = {'actuator_efforts': 0, 'joint_forces': 0}
+
+    def counting(name: str) -> Any:
+        function = getattr(statics, name)
+
+        def counted(*args: Any, **kwargs: Any) -> Any:
+            calls[name] += 1
+            return function(*args, **kwargs)
+        return counted
+
+    for name in calls:
+        counted = counting(name)  # one wrapper of the function, wherever it is imported
+        for module in ('positioning_cell.mechanics.statics', 'positioning_cell.clearance.load',
+                       'positioning_cell.sim.effects.compliance'):
+            monkeypatch.setattr(f'{module}.{name}', counted, raising=False)
+    shared = truth.joint_shift(POSITIONS, QUATERNIONS, air)
+    assert calls == {'actuator_efforts': 1, 'joint_forces': 1}, calls
+    monkeypatch.undo()
+    # each effect its own statics: the clearance not recognised as load-driven
+    monkeypatch.setattr(truth_module, 'LoadAwareClearance', type('Other', (), {}))
+    apart = truth.joint_shift(POSITIONS, QUATERNIONS, air)
+    np.testing.assert_allclose(shared, apart, rtol=0.0, atol=1e-15)
+    assert np.max(np.abs(shared)) > 1e-6  # a real shift
+    # a clearance loaded by another payload than the compliance's: its own statics
+    monkeypatch.undo()
+    other = replace(truth, clearance=replace(truth.clearance,
+                                             payload=replace(PAYLOAD, mass=PAYLOAD.mass * 2)))
+    assert np.max(np.abs(other.joint_shift(POSITIONS, QUATERNIONS, air) - shared)) > 1e-7
+
+
 @pytest.mark.parametrize(('changes', 'settles_at'), [
     ([1e-8, 1e-10], 1),  # rate 1e-2: 1e-12 left after the second round
     ([1e-8, 5e-10, 2.5e-11], 2),  # rate 5e-2: 1.3e-12 left after the third, 2.6e-11 before

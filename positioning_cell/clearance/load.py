@@ -27,7 +27,7 @@ from positioning_cell.core.kinematics import ForwardResult, InverseResult, forwa
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import as_pose_batch, as_vectors, matrix_from_quaternion
 from positioning_cell.errors import ConfigError, ConvergenceError
-from positioning_cell.mechanics.statics import Payload, Structure, joint_forces
+from positioning_cell.mechanics.statics import JointForces, Payload, Structure, joint_forces
 from positioning_cell.parameters import check_fields, setting
 
 FloatArray = NDArray[np.float64]
@@ -58,12 +58,15 @@ class LoadAwareClearance:
             raise ConfigError(
                 f'clearance.seating_force = {self.seating_force!r}: must be a finite force > 0 N')
 
-    def offsets(self, mech: Mechanism, position: ArrayLike,
-                quaternion: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    def offsets(self, mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
+                forces: JointForces | None = None) -> tuple[FloatArray, FloatArray]:
         """Joint-centre offsets at poses (N, 3) m, (N, 4): U centres (N, 3, 3) in the base frame
-        and ball centres (N, 3, 3) in the platform frame, m."""
+        and ball centres (N, 3, 3) in the platform frame, m. ``forces``: the
+        :func:`~positioning_cell.mechanics.statics.joint_forces` of this clearance's payload
+        and structure at these poses when the caller has them (None: computed here)."""
         p, q = as_pose_batch(position, quaternion)
-        forces = joint_forces(mech, p, q, self.payload, self.structure)
+        if forces is None:
+            forces = joint_forces(mech, p, q, self.payload, self.structure)
         rot = matrix_from_quaternion(q)
         u_off = self.r_a * _seated(forces.at_base, self.seating_force)
         s_base = self.r_b * _seated(forces.at_platform, self.seating_force)
@@ -102,12 +105,13 @@ class LoadAwareClearance:
                 return ForwardResult(position, quaternion, result.phis, ok)
         raise ConvergenceError('load-aware clearance fixed point did not converge')
 
-    def compensate(self, mech: Mechanism, position: ArrayLike,
-                   quaternion: ArrayLike) -> InverseResult:
+    def compensate(self, mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
+                   forces: JointForces | None = None) -> InverseResult:
         """Joint commands putting the loaded machine on poses (N, 3) m, (N, 4): IK of the machine
-        with the joint centres displaced by the load at those poses (closed form, exact)."""
+        with the joint centres displaced by the load at those poses (closed form, exact);
+        ``forces`` as :meth:`offsets`."""
         p, q = as_pose_batch(position, quaternion)
-        return inverse_with_offsets(mech, p, q, *self.offsets(mech, p, q))
+        return inverse_with_offsets(mech, p, q, *self.offsets(mech, p, q, forces))
 
 
 def _seated(force: FloatArray, seating_force: float) -> FloatArray:

@@ -297,16 +297,18 @@ class JointForces(NamedTuple):
 
 
 def joint_forces(mech: Mechanism, position: ArrayLike, quaternion: ArrayLike,
-                 payload: Payload, structure: Structure | None = None) -> JointForces:
+                 payload: Payload, structure: Structure | None = None,
+                 efforts: FloatArray | None = None) -> JointForces:
     """Static forces in the S and U joints from the actuator efforts and each leg's equilibrium
     (Newton-Euler, seed 002 eqs. 19-21). With G = Σ (c − A) × m g the legs' weight moment about
     A_i and (u, w = ∂u/∂θ, v = e_t × u / cos θ) orthonormal, the force on the platform is
     F_B = (F_l + m_rod g·u) u + (τ_θ + (u × w)·G)/l w + (e_t·G)/(l cos θ) v
     (axial: the rod's balance; w: the θ drive; v: the passive φ axis carries no moment), and the
-    force on the base F_A = m_leg g − F_B."""
+    force on the base F_A = m_leg g − F_B. ``efforts``: the :func:`actuator_efforts` (N, 6) at
+    these poses when the caller has them already (None: computed here)."""
     s = structure or Structure()
     p, q = as_pose_batch(position, quaternion)
-    tau = actuator_efforts(mech, p, q, payload, s)
+    tau = actuator_efforts(mech, p, q, payload, s) if efforts is None else efforts
     legs = leg_state(mech, p, q)
     g = np.asarray(payload.gravity)
     length, u, w = legs.lengths[..., None], legs.u, legs.w

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from positioning_cell.calibration.conditions import Conditions as ModelConditions
 from positioning_cell.calibration.machine import MachineModel
 from positioning_cell.clearance import ClearanceParameters, build, compensate
-from positioning_cell.clearance.load import inverse_with_offsets
+from positioning_cell.clearance.load import LoadAwareClearance, inverse_with_offsets
 from positioning_cell.config import flatten
 from positioning_cell.core.kinematics import ForwardResult, forward, inverse
 from positioning_cell.core.mechanism import Mechanism
@@ -229,18 +229,23 @@ class Truth(MachineModel):
         """What the clearance, the joint circles expanded at air temperatures (N,) °C and the
         compliance add (N, 6) m, rad to the real joints the rigid machine needs for poses
         (N, 3), (N, 4) (module docstring; first order: the effects are µm against metres)."""
-        mech, fx = self.mechanism, self.effects
+        mech, fx, model = self.mechanism, self.effects, self.clearance
         rigid = inverse(mech, position, quaternion)
-        held = compensate(mech, self.clearance, position, quaternion)
+        yielded = None if fx.compliance is None else yielding(
+            fx.compliance, mech, position, quaternion, fx.payload, fx.structure)
+        if yielded is not None and isinstance(model, LoadAwareClearance) \
+                and model.payload == fx.payload and model.structure == fx.structure:
+            # the same statics close the clearance: computed once a pose
+            held = model.compensate(mech, position, quaternion, yielded.forces)
+        else:
+            held = compensate(mech, model, position, quaternion)
         shift: FloatArray = np.c_[held.lengths - rigid.lengths, held.thetas - rigid.thetas]
         n = len(position)
         u_off, s_off = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
         if fx.thermal is not None:
             du, ds = fx.thermal.joint_offsets(mech.base_joints, mech.platform_joints, air)
             u_off, s_off = u_off + du, s_off + ds
-        if fx.compliance is not None:
-            yielded = yielding(fx.compliance, mech, position, quaternion, fx.payload,
-                               fx.structure)
+        if yielded is not None:
             shift += yielded.joints
             u_off, s_off = u_off + yielded.u_offsets, s_off + yielded.s_offsets
         if fx.thermal is not None or fx.compliance is not None:

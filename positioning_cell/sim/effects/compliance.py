@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import matrix_from_quaternion
 from positioning_cell.mechanics.statics import (
+    JointForces,
     Payload,
     Structure,
     actuator_efforts,
@@ -61,19 +62,22 @@ class Yield(NamedTuple):
     """How the loaded machine yields at N poses: joint deformations (N, 6) m, rad that the
     drives must add to stand where the rigid machine would (F/k_l, τ/k_θ), the U-centre
     offsets (N, 3, 3) m, base frame, and the ball-centre offsets (N, 3, 3) m, platform
-    frame."""
+    frame; ``forces``: the joint forces that load them (the statics, which a load-driven
+    clearance of the same payload closes its joints with too)."""
 
     joints: FloatArray
     u_offsets: FloatArray
     s_offsets: FloatArray
+    forces: JointForces
 
 
 def yielding(params: ComplianceParameters, mech: Mechanism, position: FloatArray,
              quaternion: FloatArray, payload: Payload, structure: Structure) -> Yield:
     """The machine's yield (module docstring) at poses (N, 3) m, (N, 4) x, y, z, w."""
     efforts = actuator_efforts(mech, position, quaternion, payload, structure)
-    forces = joint_forces(mech, position, quaternion, payload, structure)
+    forces = joint_forces(mech, position, quaternion, payload, structure, efforts)
     stiffness = np.r_[[params.leg_stiffness] * 3, [params.theta_stiffness] * 3]
     rot = matrix_from_quaternion(quaternion)
     s_off = np.einsum('nji,nkj->nki', rot, forces.at_platform) / params.s_radial_stiffness
-    return Yield(efforts / stiffness, forces.at_base / params.u_radial_stiffness, s_off)
+    return Yield(efforts / stiffness, forces.at_base / params.u_radial_stiffness, s_off,
+                 forces)
