@@ -126,18 +126,21 @@ def inverse_with_offsets(mech: Mechanism, position: FloatArray, quaternion: Floa
     """Closed-form IK of poses (N, 3), (N, 4) for a machine whose U centres are displaced by
     ``u_offsets`` (N, 3, 3) (base frame) and ball centres by ``s_offsets`` (N, 3, 3) (platform
     frame), different per pose. Leg i only sees its own joints, so it is the nominal IK of the
-    pose shifted by R·e_b,i − e_a,i (:func:`positioning_cell.core.kinematics.inverse`, one batched
-    call per leg)."""
+    pose shifted by R·e_b,i − e_a,i (:func:`positioning_cell.core.kinematics.inverse`: one
+    batched call over the 3N shifted poses, of which leg i of the i-th shift of each pose is
+    kept)."""
+    n = position.shape[0]
     rot = matrix_from_quaternion(quaternion)
-    lengths = np.empty((position.shape[0], 3))
-    thetas = np.empty_like(lengths)
-    phis = np.empty_like(lengths)
-    for i in range(3):
-        shifted = position + np.einsum('nij,nj->ni', rot, s_offsets[:, i]) - u_offsets[:, i]
-        leg = inverse(mech, shifted, quaternion)
-        lengths[:, i], thetas[:, i], phis[:, i] = leg.lengths[:, i], leg.thetas[:, i], \
-            leg.phis[:, i]
-    return InverseResult(lengths, thetas, phis)
+    shifted = (position[:, None, :] + np.einsum('nij,nkj->nki', rot, s_offsets)
+               - u_offsets)  # (N, leg, 3): the pose as leg i sees it
+    legs = inverse(mech, shifted.reshape(3 * n, 3), np.repeat(quaternion, 3, axis=0))
+    own = np.arange(3)
+
+    def kept(values: FloatArray) -> FloatArray:
+        out: FloatArray = values.reshape(n, 3, 3)[:, own, own]
+        return out
+
+    return InverseResult(kept(legs.lengths), kept(legs.thetas), kept(legs.phis))
 
 
 @dataclass(frozen=True)
