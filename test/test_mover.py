@@ -752,9 +752,9 @@ def test_pose_estimate_and_a_fault_without_a_solution() -> None:
 
 def test_a_reading_already_solved_is_not_solved_again(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """The pose estimate at rest (the pose timer, the same encoder reading again): solved once
-    per reading and model; a new reading is solved, and so is the same one through another
-    model."""
+    """The pose estimate at rest (the pose timer, the same encoder readings again): solved once
+    per reading and model while the reading is among the last SOLVED_KEPT; a new reading is
+    solved, and so is the same one through another model."""
     from positioning_cell.motion import mover as mover_module
     world = World()
     m = Mover(settings(), world.machine())
@@ -772,11 +772,26 @@ def test_a_reading_already_solved_is_not_solved_again(
     moved = m.estimate_pose()
     assert moved is not None and len(solved) == 2
     assert np.linalg.norm(moved.position - first.position) > 1e-6
+    # the servos hunting a count about their targets at rest: each reading solved once
+    for _ in range(3):
+        world.position = HOME_JOINTS.copy()
+        assert m.estimate_pose() is first
+        world.position = HOME_JOINTS + np.array([1e-4, 0.0, 0.0, 0.0, 0.0, 0.0])
+        assert m.estimate_pose() is moved
+    assert len(solved) == 2
     m.reconfigure(settings('model'))
     m.model = cl.EffectiveLengthClearance.random(1.6e-4, 1.6e-4, np.random.default_rng(4))
     modelled = m.estimate_pose()
     assert modelled is not None and len(solved) == 3 and solved[-1] is m.model
     assert m.estimate_pose() is modelled and len(solved) == 3
+    # no more than SOLVED_KEPT readings kept: the oldest is solved again
+    for k in range(mover_module.SOLVED_KEPT):
+        world.position = HOME_JOINTS + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1e-6 * (k + 1)])
+        m.estimate_pose()
+    assert len(solved) == 3 + mover_module.SOLVED_KEPT
+    world.position = HOME_JOINTS + np.array([1e-4, 0.0, 0.0, 0.0, 0.0, 0.0])
+    m.estimate_pose()
+    assert len(solved) == 4 + mover_module.SOLVED_KEPT
 
 
 def test_the_mode_can_change_between_moves() -> None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import NamedTuple
@@ -137,6 +138,12 @@ class Estimate(NamedTuple):
 POLL_PERIOD = 0.02
 #: Tracker readings kept for averaging.
 MEASUREMENTS_KEPT = 200
+#: Pose estimates kept by encoder reading: at rest the servos hunt a count about their
+#: targets, so a few dozen readings recur (65 distinct in 500, changing in 471, ad hoc on the
+#: simulated cell); each is solved once while it recurs.
+SOLVED_KEPT = 256
+#: The model of no estimate solved yet (None is a model: nominal kinematics).
+_NOT_SOLVED = object()
 #: Settled moves whose corrections a nearby goal starts with (``measured`` mode).
 CARRIED_MOVES = 6
 
@@ -187,8 +194,10 @@ class Mover:
         #: The goal of the last move (what it was asked to reach; its command may differ).
         self.goal: tuple[FloatArray, FloatArray] | None = None
         self.estimate: Estimate | None = None
-        #: What :attr:`estimate` was solved from: the encoder reading's bytes and the model.
-        self._estimated_from: tuple[bytes, ClearanceModel] | None = None
+        #: Estimates solved through the model :attr:`_solved_model`, by the encoder reading's
+        #: bytes, newest last (at most :data:`SOLVED_KEPT`; emptied when the model changes).
+        self._solved: OrderedDict[bytes, Estimate] = OrderedDict()
+        self._solved_model: ClearanceModel | object = _NOT_SOLVED
         self._path: list[tuple[FloatArray, FloatArray]] | None = None
         self._motion: tuple[float, Trajectory, FreezeWatch] | None = None
         self._silence_stops = '0'
@@ -364,7 +373,7 @@ class Mover:
         it is added to the move's executed path."""
         self._refresh()
         with self.cond:
-            joints, previous, source = self.joints, self.estimate, self._estimated_from
+            joints, previous = self.joints, self.estimate
         if joints is None:
             return None
         bad = unreadable_axes(joints.position)
@@ -373,9 +382,10 @@ class Mover:
                                          'number: no pose estimate', ResultCode.ABORTED_ENCODER)
             return None
         model, reading = self._model(), joints.position.tobytes()
-        if previous is not None and source is not None and source[0] == reading \
-                and source[1] is model:
-            estimate = previous  # the same reading through the same model: solved already
+        with self.cond:
+            solved = self._solved.get(reading) if self._solved_model is model else None
+        if solved is not None:
+            estimate = solved  # a reading seen before through the same model: solved already
         else:
             try:
                 fk = attained_pose(self.mech, model, joints.position[:3], joints.position[3:],
@@ -391,7 +401,14 @@ class Mover:
                 return None
             estimate = Estimate(fk.position[0], fk.quaternion[0], fk.phis[0])
         with self.cond:
-            self.estimate, self._estimated_from = estimate, (reading, model)
+            self.estimate = estimate
+            if self._solved_model is not model:
+                self._solved.clear()
+                self._solved_model = model
+            self._solved[reading] = estimate
+            self._solved.move_to_end(reading)
+            if len(self._solved) > SOLVED_KEPT:
+                self._solved.popitem(last=False)
             if self._path is not None:
                 self._path.append((estimate.position, estimate.quaternion))
         if self.state is State.FAULT and self.reason.startswith(('encoder reading',
