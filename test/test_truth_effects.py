@@ -475,3 +475,4 @@ def test_a_fixed_point_stops_once_its_rate_vouches_for_the_tolerance(
         stops.append(settled(change, previous, 1e-11))
         previous = change
     assert (stops.index(True) if any(stops) else None) == settles_at, stops
+    assert not settled(1e-9, 0.0, 1e-11)  # no rate from a change of 0 (nor a division by it)

@@ -49,8 +49,8 @@ FloatArray = NDArray[np.float64]
 _ZERO = ((0.0, 0.0, 0.0),) * 3
 #: Fixed point of the effects: the largest error of the joint shift (m, rad) it stops at, as
 #: the contraction's rate estimates it (:func:`settled`). 1e-12 sat on the shift's own rounding
-#: (the solvers inside joint_shift): a 5 mm move sampled at the simulator's 50 Hz took 3.9
-#: rounds a pose against 3.0 with 1e-11, for poses 2e-15 m apart (ad hoc; the tracker
+#: (the solvers inside joint_shift). A 5 mm move sampled at the simulator's 50 Hz takes 2.0
+#: rounds a pose, its poses within 3e-13 m of a 1e-14 tolerance's (ad hoc; the tracker
 #: simulator's CPU while the cell moves is mostly these rounds).
 _TOLERANCE = 1e-11
 _MAX_ITERATIONS = 30
@@ -277,11 +277,11 @@ def settled(change: float, previous: float, tolerance: float) -> bool:
     previous < 1, the error r / (1 - r) * change that rate leaves (the Newton iterations' test
     of scipy.integrate's implicit solvers, Hairer & Wanner, Solving ODEs II, IV.8 eq. 8.10).
     The truth's effects move the joints by micrometres over millimetres of pose, so r is about
-    1e-2 and the second round's change, 1e-10 or less, already vouches for 1e-12: one round a
-    pose fewer than waiting for the change itself to fall below the tolerance."""
+    1e-2 and a stream's second round (a change of 1e-10 to 7e-10) leaves 1e-12 to 6e-12: one
+    round a pose fewer than waiting for the change itself to fall below the tolerance."""
     if change <= tolerance:
         return True
-    if not math.isfinite(previous):
+    if not (math.isfinite(previous) and previous > 0.0):
         return False
     rate = change / previous
     return rate < 1.0 and rate / (1.0 - rate) * change <= tolerance
