@@ -61,7 +61,8 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 # in one fresh-clone CI of two a `cell move` beside test_faults' cell had no answer in 120 s
 # (not understood; test_cli_on_the_cell), and one loop of it in four failed test_faults'
 # "tracker killed": the driver's joint states silent 0.99 s after the kill, the abort blamed
-# on the driver (the shared-memory stall of docs/howto/run.md). Alone until both are solved.
+# on the driver (the shared-memory stall of docs/howto/run.md, gone with shared memory since).
+# Alone until the `cell move` is understood too.
 TEST_WORKERS ?= 3
 
 test: $(STAMP)

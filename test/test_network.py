@@ -18,6 +18,7 @@ from cell_harness import Client, ProcessGroup, isolated_domain, wait_until
 from geometry_msgs.msg import PoseStamped
 
 from positioning_cell import names
+from positioning_cell.accuracy.monitor import MonitorSettings
 from positioning_cell.config import config_path
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.ros.qos import STREAM_QOS
@@ -141,6 +142,40 @@ def test_the_profile_parses_and_keeps_discovery_out_of_intra_process_delivery(
     assert 'XMLPARSER' not in result.stdout + result.stderr, result.stderr
     # (a domain may still list a killed process's nodes for the 5 s lease: not an equality)
     assert result.stdout.strip() == 'found', result.stdout + result.stderr
+
+
+def test_the_profile_carries_user_data_over_loopback_udp_alone() -> None:
+    """One transport, UDPv4 on 127.0.0.1, and no shared memory: a process killed while its
+    listener held a shared-memory port's lock stalls every writer to that port for seconds
+    (the profile's comment; benchmarks/kill_stall.py)."""
+    ns = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
+    root = ET.parse(PROFILE).getroot()
+    descriptors = {d.findtext(f'{ns}transport_id'): d
+                   for d in root.iter(f'{ns}transport_descriptor')}
+    assert {k: d.findtext(f'{ns}type') for k, d in descriptors.items()} \
+        == {'udp_loopback': 'UDPv4'}
+    assert [a.text for a in descriptors['udp_loopback'].iter(f'{ns}address')] == ['127.0.0.1']
+    (participant,) = root.iter(f'{ns}participant')
+    assert [t.text for t in participant.iter(f'{ns}transport_id')] == ['udp_loopback']
+    assert participant.findtext(f'{ns}rtps/{ns}useBuiltinTransports') == 'false'
+
+
+def test_the_profile_has_writers_repair_a_dropped_message_within_the_monitors_window() -> None:
+    """The default writer profile sends a heartbeat every 0.1 s while a reader has not
+    acknowledged (Fast DDS: 3 s): a datagram dropped for a full receive buffer is asked for
+    again at the next one, and a message later than the accuracy monitor's settle window or
+    dwell can change which window settles a visit (benchmarks/repair_latency.py: at most
+    0.16 s late with it, 3.0 s without)."""
+    ns = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
+    root = ET.parse(PROFILE).getroot()
+    (writer,) = [w for w in root.iter(f'{ns}data_writer')
+                 if w.get('is_default_profile') == 'true']
+    period = writer.find(f'{ns}times/{ns}heartbeatPeriod')
+    assert period is not None
+    seconds = (int(period.findtext(f'{ns}sec') or 0)
+               + int(period.findtext(f'{ns}nanosec') or 0) * 1e-9)
+    settle = MonitorSettings.from_file(config_path('cell.yaml')).settle
+    assert 0 < seconds <= 0.1 < min(settle.window, settle.dwell)
 
 
 @pytest.mark.skipif(shutil.which('ss') is None, reason='needs ss (iproute2)')
