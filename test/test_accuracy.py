@@ -17,7 +17,6 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from positioning_cell import accuracy as acc
-from positioning_cell import names
 from positioning_cell.accuracy.tracker_errors import combined_rows
 from positioning_cell.errors import ConfigError, InputError
 
@@ -795,51 +794,6 @@ def test_the_monitor_gives_the_same_figures_however_its_messages_are_grouped(
     assert [i.topic for i in live.ignored].count('/metrology/registration') == 1
     # the visits after the registration took it as the readings' common part
     assert len(live.registrations) == len(grouped.registrations) == 1
-
-
-@settings(max_examples=20)
-@given(st.integers(1, 40), st.integers(0, 2))
-def test_truth_queued_and_fed_in_batches_gives_what_one_at_a_time_gives(
-        every: int, seed: int) -> None:
-    """The live node's way with the truth (queued, fed every ``every`` true poses and before
-    each target and move end): the same report as one message at a time, the tracker's sums to
-    their last bits; and the true poses it ignores are handed out by the flush, with their
-    reasons, once each."""
-    events, one = _one_by_one_with_bad_truth(seed)
-    batched, flushed, queued = acc.Monitor(), list[acc.Ignored](), [0]
-
-    def queue_and_flush(t: float, frame: str, p: Arr, q: Arr) -> None:
-        batched.queue_truth(t, frame, p, q)
-        queued[0] += 1
-        if queued[0] % every == 0:
-            flushed.extend(batched.flush_truth())
-
-    _feed_live(batched, events, queue_and_flush)
-    flushed.extend(batched.flush_truth())
-    a, b = one.report(), batched.report()
-    tracker_a, tracker_b = a.pop('tracker'), b.pop('tracker')
-    assert a == b and a['truth'] is not None
-    assert tracker_a['samples'] == tracker_b['samples'] > 200
-    np.testing.assert_allclose(_numbers_of(tracker_a), _numbers_of(tracker_b), rtol=1e-12,
-                               atol=1e-20)
-    truth_ignored = [i for i in one.ignored if i.topic == names.TRUE_POSE]
-    assert len(truth_ignored) == 2 and 'frame_id' in truth_ignored[0].reason
-    assert flushed == truth_ignored
-    assert sorted(map(repr, one.ignored)) == sorted(map(repr, batched.ignored))
-
-
-@functools.cache
-def _one_by_one_with_bad_truth(seed: int) -> tuple[list[tuple[str, float, str, Arr, Arr]],
-                                                   acc.Monitor]:
-    """:func:`_stream` with a true pose in the wrong frame and one with NaN, and the monitor
-    fed it one message at a time (the reference, once per seed)."""
-    events = _stream(seed)
-    bad = [('truth', events[60][1], 'tracker', HOME, ID),
-           ('truth', events[90][1], 'base', np.array([np.nan, 0.0, 0.2]), ID)]
-    events = events[:61] + [bad[0]] + events[61:91] + [bad[1]] + events[91:]
-    one = acc.Monitor()
-    _feed_live(one, events)
-    return events, one
 
 
 def _numbers_of(doc: dict[str, object]) -> list[float]:

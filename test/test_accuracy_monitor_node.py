@@ -337,3 +337,53 @@ def test_the_monitor_tells_when_recording_stopped(ros: InProcess) -> None:
     assert silent['message'].startswith('recording stopped: recorder silent since ')
     wait_until(lambda: any(s.message == silent['message'] for s in told(2)), 10.0,
                "the monitor's status on the silence")
+
+
+def test_a_target_that_comes_after_readings_stamped_after_it_applies_to_them(
+        ros: InProcess) -> None:
+    """Messages of different topics taken in stamp order, not arrival order: a target B
+    published after the tracker's readings stamped 0.02-0.2 s after it (a datagram repaired
+    late, a tracker's latency) still applies to them, as in the offline analysis of the same
+    messages; in arrival order they were errors against the target A before it."""
+    client = ros.client
+    ros.start(AccuracyMonitorNode)
+    cell = Cell(client)
+    inputs = ('/positioner/target', '/metrology/pose')
+    wait_until(lambda: (all(cell.report()['publishers'][t] == 1 for t in inputs)
+                        and cell.pub_meas.get_subscription_count() > 0
+                        and client.node.count_publishers('/accuracy/position_error') > 0), 20.0,
+               'the monitor and this client to match each other')
+    t0 = 1_000_000_000_000
+
+    def target(name: str, ns: int) -> None:
+        p, rv = POSES[name]
+        cell.pub_target.publish(pose_stamped(p, Rotation.from_rotvec(rv).as_quat(),
+                                             stamp(ns)))
+
+    def reading(ns: int, p: Any) -> None:
+        msg = PoseWithCovarianceStamped()
+        msg.header.stamp, msg.header.frame_id = stamp(ns), 'base'
+        msg.pose.pose = pose_msg(p, [0.0, 0.0, 0.0, 1.0])
+        msg.pose.covariance = STATED.ravel().tolist()
+        cell.pub_meas.publish(msg)
+
+    target('A', t0)
+    wait_until(lambda: (cell.report()['target'] or {}).get('key') == 0, 15.0,
+               'the node to take target A')  # (latched, one deep: B would replace it)
+    for k in range(1, 11):  # readings at A, then readings stamped after B's target
+        reading(t0 + k * 20_000_000, POSES['A'][0])
+    target('B', t0 + 180_000_000)  # stamped before the last one, published after it
+    for k in range(11, 80):
+        reading(t0 + k * 20_000_000, POSES['B'][0])
+    got = wait_until(lambda: len(cell.position_errors) >= 79 and list(cell.position_errors),
+                     15.0, 'an error for every reading')
+    by_stamp = {(e.header.stamp.sec, e.header.stamp.nanosec): np.array(
+        [e.vector.x, e.vector.y, e.vector.z]) for e in got}
+    a_to_b = POSES['B'][0] - POSES['A'][0]
+    for k in range(1, 80):
+        ns = t0 + k * 20_000_000
+        error = by_stamp[(ns // 10**9, ns % 10**9)]
+        # against A until B's stamp (0.18 s), then against B
+        expected = np.zeros(3) if k < 9 else (-a_to_b if k < 11 else np.zeros(3))
+        np.testing.assert_allclose(error, expected, atol=1e-9, err_msg=f'reading {k}')
+    assert cell.report()['inputs']['late'] == 0

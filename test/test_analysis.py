@@ -430,12 +430,19 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
     mode, pose, cycle), now judged on their final settled window (after the positioner
     reported the move's end): the truth of the ``model`` and ``measured`` visits is no longer
     that of a pause before the platform had come to rest (µm before, below one µm now), and
-    mode ``none`` (open loop, no correction) keeps its figures within the noise."""
+    mode ``none`` (open loop, no correction) keeps its figures within the noise. And the
+    messages go to the monitor in stamp order (:mod:`positioning_cell.accuracy.stamp_order`):
+    the recorder got the tracker's readings up to 0.68 s after their stamps and the targets
+    within 0.04 s, so in recorded order a reading taken before a target could fall after it.
+    One visit more (pose key 31, outside the program) now closes on its last stable window,
+    ending at the reading stamped 0.024 s before the next target and recorded 0.036 s after
+    it; before, that reading went to the next segment and the window before it was not
+    stable."""
     with gzip.open(MAKE_RUN / 'summary_before_issue15.json.gz', 'rt') as f:
         before = json.load(f)
     analysis = analyse_bag(MAKE_RUN / 'bag', SETTINGS)
     now = json.loads(json.dumps(analysis.to_dict()))
-    assert not analysis.problems and len(analysis.replay.visits) == 65
+    assert not analysis.problems and len(analysis.replay.visits) == 66
     assert now['description'] == {'records': [], 'attachments': []}  # recorded before it
     for key in ('bag', 'plots', 'context', 'axis_tests', 'error_budget', 'compliance',
                 'description'):  # new
@@ -451,6 +458,10 @@ def test_a_make_run_bag_gives_the_figures_it_gave_before() -> None:
     assert differences({k: v for k, v in before.items() if k not in judged},
                        {k: v for k, v in now.items() if k not in judged}) == []
     fields = ('mode', 'pose', 'key', 'cycle', 'target_time', 'commanded_position')
+    (extra,) = [i for i, v in enumerate(now['visits']) if v['key'] == 31]
+    after = now['visits'][extra + 1]['target_time']
+    assert 31 not in [v['key'] for v in before['visits']]
+    assert 0.0 < after - now['visits'].pop(extra)['settle_time'] < 0.03
     for v in before['visits']:  # the label's name since programs mark their end
         v['mode'] = OUTSIDE_PROGRAM if v['mode'] == 'before program' else v['mode']
     assert ([[v[f] for f in fields] for v in before['visits']]

@@ -13,7 +13,8 @@ Pure numpy/scipy over arrays of samples; no ROS.
 - :mod:`.verdicts`: tolerances and verdicts;
 - :mod:`.decisions`: ISO 14253-1 decisions with the measurement's expanded uncertainty;
 - :mod:`.tracker_errors`: measured minus true pose over paired stamps;
-- :mod:`.monitor`: the accuracy monitor's rules (node and offline replay).
+- :mod:`.monitor`: the accuracy monitor's rules (node and offline replay);
+- :mod:`.stamp_order`: the monitor's inputs put back in stamp order before it takes them.
 """
 
 from positioning_cell.accuracy.decisions import (

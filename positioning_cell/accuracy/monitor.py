@@ -1,9 +1,11 @@
-"""The accuracy monitor's rules, the one implementation the live node (one message at a time)
-and the offline replay of a bag (thousands at a time, as arrays) both run.
+"""The accuracy monitor's rules, the one implementation the live node (what came in the last
+0.1 s at a time) and the offline replay of a bag (thousands at a time, as arrays) both run.
 
-Messages go in in the order they arrived (stamp s, frame id, position (3,) m, quaternion (4,)
-x, y, z, w), with the positioner's move ends (the stamp of a ``positioner: state`` status on
-/diagnostics that ends a move: :func:`move_ended`), which go to both accumulators at their place
+Messages go in in the order they are given (stamp s, frame id, position (3,) m, quaternion
+(4,) x, y, z, w; the live node and the offline replay give them in stamp order:
+:mod:`positioning_cell.accuracy.stamp_order`), with the positioner's move ends (the stamp of a
+``positioner: state`` status on /diagnostics that ends a move: :func:`move_ended`), which go to
+both accumulators at their place
 (a visit is judged on its final settled window: :mod:`positioning_cell.accuracy.settle`): a
 pose message not in the ``base`` frame, not finite, with a quaternion off unit
 length or older than the latest taken from its topic is ignored with its reason; a target is
@@ -284,12 +286,6 @@ _NOTHING_CHECKED = CheckedSamples(np.empty(0), _EMPTY, np.empty((0, 4)), np.zero
 #: seconds). What is dropped beyond it leaves a visit of that segment without a stabilisation
 #: figure.
 READINGS_KEPT = 2_400
-#: How often (s) the live node feeds the true poses it queued (:meth:`Monitor.queue_truth`):
-#: one feed of a batch costs about what one of a single message does, and the truth comes at
-#: 50 Hz. A target or a move end feeds the queue first, so it changes no figure.
-TRUTH_BATCH_S = 0.2
-#: At most this many true poses wait in the queue (fed at once when it is full).
-TRUTH_QUEUE_MAX = 100
 
 
 class Readings:
@@ -448,10 +444,6 @@ class Monitor:
         self.registrations: list[Registration] = []
         # The latest stamp taken per source: an older sample is ignored (kept over reset).
         self._latest = {MEASURED_POSE: -math.inf, TRUE_POSE: -math.inf}
-        # True poses queued and not fed yet (queue_truth), and the ignored ones of the queue's
-        # feeds not yet handed out (flush_truth).
-        self._truth_queue: list[tuple[float, str, FloatArray, FloatArray]] = []
-        self._truth_ignored: list[Ignored] = []
 
     def _targets(self, targets: PoseMessages) -> tuple[NDArray[np.intp], Targets,
                                                        list[tuple[int, Ignored]]]:
@@ -574,8 +566,6 @@ class Monitor:
         measurement keeps the registration in force at its place. Each measured visit settled
         (by a measurement after a move end, or closed by the next target) gets a verdict
         against the tolerances in force."""
-        if targets is not None or truth is not None or ends is not None:
-            self._feed_queued()  # what came before them first
         targets = targets or PoseMessages.empty()
         measured = measured or PoseMessages.empty()
         truth = truth or PoseMessages.empty()
@@ -655,45 +645,10 @@ class Monitor:
             return batch.ignored[0][1]
         return batch.samples.update(0)
 
-    def queue_truth(self, stamp: float, frame: str, position: ArrayLike,
-                    quaternion: ArrayLike) -> None:
-        """One /sim/platform/true_pose message kept to be fed with the others later: by
-        :meth:`flush_truth`, before the next target, true pose or move end, and before a report
-        (the same figures as :meth:`truth` at each message: the accumulators take the truth
-        apart from the measurements, and the tracker pairs a measurement only once a later
-        truth came). The live node's way: one feed of :data:`TRUTH_BATCH_S`'s true poses in
-        place of one per message."""
-        try:
-            p = np.asarray(position, dtype=float).reshape(3)
-            q = np.asarray(quaternion, dtype=float).reshape(4)
-        except (TypeError, ValueError) as err:
-            raise InputError(f'expected a position (3,) and a quaternion (4,), got '
-                             f'{position!r}, {quaternion!r}') from err
-        self._truth_queue.append((float(stamp), frame, p, q))
-        if len(self._truth_queue) >= TRUTH_QUEUE_MAX:
-            self._feed_queued()
-
-    def flush_truth(self) -> tuple[Ignored, ...]:
-        """Feed the true poses queued (:meth:`queue_truth`); the ones ignored since the last
-        flush, with their reasons."""
-        self._feed_queued()
-        ignored, self._truth_ignored = tuple(self._truth_ignored), []
-        return ignored
-
-    def _feed_queued(self) -> None:
-        if not self._truth_queue:
-            return
-        queued, self._truth_queue = self._truth_queue, []
-        stamp, frame, p, q = zip(*queued, strict=True)
-        batch = PoseMessages(np.arange(len(queued), dtype=np.intp), np.array(stamp),
-                             np.array(frame, dtype=object), np.stack(p), np.stack(q))
-        self._truth_ignored.extend(x for _, x in self.feed(truth=batch).truth.ignored)
-
     def registration(self, stamp: float, frame: str, position: ArrayLike,
                      quaternion: ArrayLike, covariance: ArrayLike) -> Ignored | None:
         """One /metrology/registration message (the tracker's origin in ``base``, its
         orientation, the 36 values of its covariance); None when it was taken."""
-        self._feed_queued()
         count = len(self.ignored)
         self.feed(registrations=PoseMessages.one(stamp, frame, position, quaternion,
                                                  covariance))
@@ -702,7 +657,6 @@ class Monitor:
     def move_end(self, stamp: float) -> Ignored | None:
         """One move end (the stamp of a ``positioner: state`` status :func:`move_ended`
         accepts); None when it was taken."""
-        self._feed_queued()
         count = len(self.ignored)
         self.feed(ends=MoveEnds.one(stamp))
         return self.ignored[-1] if len(self.ignored) > count else None
@@ -711,7 +665,6 @@ class Monitor:
         """The end of the stream (a bag's end): each accumulator's open segment closed on its
         last stable window as a next target would; the measured visit closed, with its
         verdict."""
-        self._feed_queued()
         self.truth_accumulator.finish()
         visit = self.measured.finish()
         if visit is None:
@@ -757,7 +710,6 @@ class Monitor:
 
     def reset(self) -> None:
         """Forget every sample, visit, pairing and verdict; the current target stays."""
-        self._feed_queued()  # (as if fed when it came)
         self.measured.reset(keep_target=True)
         self.truth_accumulator.reset(keep_target=True)
         self.tracker.reset()
@@ -774,7 +726,6 @@ class Monitor:
         when each was drawn: ``conforms``, ``indeterminate``, ``does_not_conform``),
         ``measured`` and ``truth`` (settled ``visits`` and ISO 9283 ``poses``; truth
         null until a true pose arrives), ``tracker`` (measured − true statistics, or null)."""
-        self._feed_queued()
         target = self.measured.target
         stats = self.tracker.statistics()
         ok = sum(v.ok for v in self.verdicts)

@@ -21,7 +21,8 @@ streaming :class:`AccuracyAccumulator`):
   correction (``measured`` compensation moves, pauses, measures and corrects, then reports
   the move settled): once the positioner has reported the end of the move (a *move end* at
   time E, :func:`positioning_cell.accuracy.monitor.move_ended`), the first stable window that
-  begins after it (t_i − window >= E) of a sample that arrived after the move end settles the
+  begins after it (t_i − window >= E) of a sample that came after the move end (in the order
+  the monitor takes them: stamp order, :mod:`positioning_cell.accuracy.stamp_order`) settles the
   segment. Otherwise (no move end: a bag recorded before the positioner's end reports were
   read, a move that reports none; or the next target came too soon after the end for a whole
   window) the last stable window of the segment settles it when the next target arrives (or

@@ -1,11 +1,13 @@
-"""A recorded run through the monitor's rules in recorded order, batch by batch, with every
-settled visit labelled by the compensation mode and program pose it belongs to.
+"""A recorded run through the monitor's rules, batch by batch, with every settled visit
+labelled by the compensation mode and program pose it belongs to.
 
 The recording arrives as :class:`MessageBatch` es (:mod:`.reading`): the pose messages of each
-topic as arrays, with their place in the recorded order. Between two targets the measured and
-the true poses go to the monitor as arrays (:meth:`Monitor.measurements`, :meth:`Monitor.truths`:
-the one implementation the live node runs one message at a time, giving the same figures for
-any batching); each target goes alone, at its place. The positioner's move ends (its
+topic as arrays, with their place in the recorded order. They go to the monitor as the live
+node gives them: put back in stamp order (:class:`~positioning_cell.accuracy.stamp_order.
+MonitorInputs`, so that the order in which the recorder and the monitor happened to receive
+messages of different topics does not matter), as arrays (:meth:`Monitor.feed`: the one
+implementation the live node runs, giving the same figures for any batching), the targets at
+their places among the samples. The positioner's move ends (its
 ``positioner: state`` statuses on /diagnostics that end a move: :func:`move_ends`) go at their
 places too, so that each visit is judged on its final settled window (after a ``measured``
 mode's correction, not on the pause before it); a bag without them falls back on the last
@@ -56,6 +58,7 @@ from positioning_cell.accuracy.monitor import (
 )
 from positioning_cell.accuracy.path import PathCrossings
 from positioning_cell.accuracy.stabilisation import Stabilisation
+from positioning_cell.accuracy.stamp_order import MonitorInputs, Released
 from positioning_cell.analysis.context import ContextCollector
 from positioning_cell.analysis.program import ProgramStep
 from positioning_cell.analysis.trace import Envelope, ErrorTrace
@@ -263,6 +266,8 @@ class Replayer:
 
     def __init__(self, settings: MonitorSettings | None = None) -> None:
         self.monitor = Monitor(settings, per_segment=True)
+        #: The monitor's inputs, put in stamp order as the live node puts them.
+        self.inputs = MonitorInputs(self.monitor)
         self._steps: list[ProgramStep] = []
         self._modes: list[tuple[float, str]] = []
         self._problems: list[str] = []
@@ -276,7 +281,9 @@ class Replayer:
         self.compliance_test: list[str] = []
 
     def feed(self, batch: MessageBatch) -> None:
-        """The batch's messages, through the monitor in their recorded order."""
+        """The batch's messages, in their recorded order: the monitor's inputs through
+        :class:`~positioning_cell.accuracy.stamp_order.MonitorInputs` (in stamp order, as the
+        live node takes them)."""
         for log_ns, text in batch.program:
             try:
                 self._steps.append(ProgramStep.from_json(text, log_ns * 1e-9))
@@ -294,18 +301,26 @@ class Replayer:
         ranked = (tuple(zip(batch.diagnostic_ranks, (m for _, m in batch.diagnostics),
                             strict=True))
                   if len(batch.diagnostic_ranks) == len(batch.diagnostics) else ())
-        fed = self.monitor.feed(batch.targets, batch.measured, batch.truth, move_ends(ranked),
-                                batch.registrations)
+        self.inputs.arrive(batch.targets, batch.measured, batch.truth, move_ends(ranked),
+                           batch.registrations)
+        self._took(self.inputs.release())
+
+    def _took(self, released: Released | None) -> None:
+        """Keep what the monitor took of the messages it was fed."""
+        if released is None:
+            return
+        fed = released.fed
         for seg in fed.segments:
             self._segments.append((seg.time, seg.truth_time, seg.key, seg.position,
-                                   seg.quaternion, float(batch.targets.stamp[seg.target])))
-        self._measured.took(batch.measured, fed.measured)
-        self._truth.took(batch.truth, fed.truth)
+                                   seg.quaternion, float(released.targets.stamp[seg.target])))
+        self._measured.took(released.measured, fed.measured)
+        self._truth.took(released.truth, fed.truth)
 
     def finish(self) -> Replay:
-        """The replay of everything fed; the end of the recording closes the visit still open
-        (:meth:`Monitor.finish`)."""
+        """The replay of everything fed; the end of the recording releases the messages still
+        held for their stamp order and closes the visit still open (:meth:`Monitor.finish`)."""
         monitor = self.monitor
+        self._took(self.inputs.release(flush=True))
         monitor.finish()
         segments = _label(self._segments, self._steps, self._modes)
         by_time = {s[0]: i for i, s in enumerate(self._segments)}

@@ -2,18 +2,18 @@
 9283 figures per commanded pose, a tolerance verdict on /diagnostics for each settled pose (its
 errors with their expanded uncertainty U from the covariances the tracker's readings state, and
 the decision of ``tolerance.decision_rule``: docs/howto/verdicts.md); with the simulation truth
-published (fed in batches every ``TRUTH_BATCH_S``), the true pose against the target and the
-tracker against the truth, reported apart. The tracker's registration (/metrology/registration,
-latched) is the part of the readings' covariance averaging does not reduce. The rules:
-:class:`positioning_cell.accuracy.monitor.Monitor`. A move end (a ``positioner: state``
-status on /diagnostics, :func:`positioning_cell.accuracy.move_ended`) goes to the monitor: each
-visit is judged on its final settled window (without an end, on its last stable window when
-the next target comes). The recorder's status on /diagnostics says when recording stopped
-(:func:`positioning_cell.recording.recording`): ``accuracy_monitor: recording`` every second
-once a recorder was heard of and at once on a change (ERROR ``recording stopped: <reason>``
-when the recorder failed or went silent, WARN when stopped; logged once). /accuracy_monitor/
-report returns its JSON (:meth:`Monitor.report`, the publishers each input matched, the
-recording's state); /accuracy_monitor/reset clears the statistics, not the current target.
+published, the true pose against the target and the tracker against the truth, reported apart.
+The tracker's registration (/metrology/registration, latched) is the part of the readings'
+covariance averaging does not reduce. The rules: :class:`positioning_cell.accuracy.monitor.
+Monitor`; each visit is judged on its final settled window after the positioner's move end (a
+``positioner: state`` status on /diagnostics, :func:`positioning_cell.accuracy.move_ended`).
+The inputs go to it in stamp order every ``RELEASE_PERIOD_S``, as the offline analysis takes
+a bag (:class:`positioning_cell.accuracy.stamp_order.MonitorInputs`): errors and verdicts come
+about ``HOLD_S`` after their readings. ``accuracy_monitor: recording`` on /diagnostics says
+whether the recorder records (:func:`positioning_cell.recording.recording`: every second once
+one was heard of, and at once on a change; a stop logged once). /accuracy_monitor/report
+returns its JSON (:meth:`Monitor.report`, the publishers each input matched, the recording,
+the ``inputs`` held and late); /accuracy_monitor/reset clears the statistics, not the target.
 """
 
 from __future__ import annotations
@@ -32,12 +32,13 @@ from positioning_cell.accuracy import (
     Ignored,
     Monitor,
     MonitorSettings,
+    MoveEnds,
     PoseMessages,
     Visit,
     move_ended,
     stamp_seconds,
 )
-from positioning_cell.accuracy.monitor import TRUTH_BATCH_S
+from positioning_cell.accuracy.stamp_order import HOLD_S, MonitorInputs
 from positioning_cell.accuracy.verdicts import DECISION_LEVELS, Verdict, verdict_values
 from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recording, recording
 from positioning_cell.ros import messages as m
@@ -46,6 +47,8 @@ from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, 
 from positioning_cell.ros.spin import NodeStart
 
 _LEVELS = ('ok', 'warn', 'error')
+#: How often (s) what is released in stamp order is fed to the monitor (70 messages/s: 10 feeds).
+RELEASE_PERIOD_S = 0.1
 
 
 def _pose(header: Any, pose: Any) -> tuple[float, str, Any, Any]:
@@ -63,23 +66,22 @@ class AccuracyMonitorNode(Node):
         super().__init__(self.NAME, **kwargs)
         self.params = NodeParameters(self, self.SETTINGS, self._on_change)
         self.monitor = Monitor(self.params.settings)
+        self.arrivals = MonitorInputs(self.monitor)
+        self._arrived_at = time.monotonic()  # when the last message arrived
         self.pub_position = self.create_publisher(Vector3Stamped, names.POSITION_ERROR,
                                                   STREAM_QOS)
         self.pub_orientation = self.create_publisher(Vector3Stamped, names.ORIENTATION_ERROR,
                                                      STREAM_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
                                               DIAGNOSTICS_QOS)
-        self.inputs = {
-            names.TARGET: self.create_subscription(PoseStamped, names.TARGET, self._on_target,
-                                                   LATCHED_QOS),
-            names.MEASURED_POSE: self.create_subscription(
-                PoseWithCovarianceStamped, names.MEASURED_POSE, self._on_measured, STREAM_QOS),
-            names.TRUE_POSE: self.create_subscription(PoseStamped, names.TRUE_POSE,
-                                                      self._on_truth, STREAM_QOS),
+        self.inputs = {topic: self.create_subscription(kind, topic, self._input(name), qos)
+                       for topic, kind, name, qos in (
+            (names.TARGET, PoseStamped, 'targets', LATCHED_QOS),
+            (names.MEASURED_POSE, PoseWithCovarianceStamped, 'measured', STREAM_QOS),
+            (names.TRUE_POSE, PoseStamped, 'truth', STREAM_QOS),
             # latched: the tracker publishes where it located itself once, at its start
-            names.TRACKER_REGISTRATION: self.create_subscription(
-                PoseWithCovarianceStamped, names.TRACKER_REGISTRATION, self._on_registration,
-                LATCHED_QOS)}
+            (names.TRACKER_REGISTRATION, PoseWithCovarianceStamped, 'registrations',
+             LATCHED_QOS))}
         self.create_service(Trigger, names.MONITOR_REPORT, self._report, qos_profile=SERVICE_QOS)
         self.create_service(Trigger, names.MONITOR_RESET, self._reset, qos_profile=SERVICE_QOS)
         # The recorder's latest status (received on the wall clock, s) and what was told of it.
@@ -88,50 +90,46 @@ class AccuracyMonitorNode(Node):
         self.create_subscription(DiagnosticArray, names.DIAGNOSTICS, self._on_diagnostics,
                                  DIAGNOSTICS_QOS)
         self.create_timer(STATUS_PERIOD_S, lambda: self._check_recording(periodic=True))
-        self.create_timer(TRUTH_BATCH_S, self._flush_truth)
+        self.create_timer(RELEASE_PERIOD_S, self._release)
 
     def _on_change(self, settings: MonitorSettings, changed: frozenset[str]) -> None:
         self.monitor.tolerances = settings.tolerance
 
-    def _ignored(self, item: object, stamp: Any) -> None:  # warns of an Ignored, else nothing
-        if not isinstance(item, Ignored):
-            return
+    def _ignored(self, item: Ignored) -> None:
         reason = f'{item.topic} message ignored: {item.reason}'
         self.get_logger().warning(reason, throttle_duration_sec=2.0)
         self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_INPUT, 'warn', reason, {},
-                                           stamp))
+                                           m.stamp(item.time)))
 
-    def _on_target(self, msg: PoseStamped) -> None:
-        fed = self.monitor.feed(targets=PoseMessages.one(*_pose(msg.header, msg.pose)))
-        for _, ignored in fed.targets_ignored:
-            self._ignored(ignored, msg.header.stamp)
-        for _, visit, verdict in fed.closed:  # the visit before, on its last stable window
-            self._verdict(visit, verdict, msg.header.stamp)
+    def _arrive(self, stamp: Any, **messages: PoseMessages | MoveEnds) -> None:
+        """A message in, held for its stamp order (:meth:`_release` feeds it)."""
+        self.arrivals.arrive(**messages, tags=(stamp,))  # type: ignore[arg-type]
+        self._arrived_at = time.monotonic()
 
-    def _on_measured(self, msg: PoseWithCovarianceStamped) -> None:
-        result = self.monitor.measurement(*_pose(msg.header, msg.pose.pose),
-                                          covariance=msg.pose.covariance)
-        if isinstance(result, Ignored):
-            self._ignored(result, msg.header.stamp)
+    def _input(self, kind: str) -> Any:
+        """The callback of a pose input (``kind``: a keyword of MonitorInputs.arrive)."""
+        def take(msg: Any) -> None:
+            pose = getattr(msg.pose, 'pose', msg.pose)  # a PoseWithCovariance: its covariance
+            self._arrive(msg.header.stamp, **{kind: PoseMessages.one(
+                *_pose(msg.header, pose), covariance=getattr(msg.pose, 'covariance', None))})
+        return take
+
+    def _release(self, flush: bool = False) -> None:
+        """Feed the monitor what is released (everything held once nothing arrived for
+        HOLD_S, or with ``flush``) and publish what it said, in its order."""
+        quiet = flush or time.monotonic() - self._arrived_at >= HOLD_S
+        released = self.arrivals.release(flush=quiet and self.arrivals.order.held > 0)
+        if released is None:
             return
-        update, stamp = result.update, msg.header.stamp
-        if update.position_error is None or update.orientation_error is None:
-            return  # no target yet
-        self.pub_position.publish(m.vector3_stamped(update.position_error, stamp))
-        self.pub_orientation.publish(m.vector3_stamped(update.orientation_error, stamp))
-        if update.visit is not None and result.verdict is not None:
-            self._verdict(update.visit, result.verdict, stamp)
-
-    def _on_registration(self, msg: PoseWithCovarianceStamped) -> None:
-        self._ignored(self.monitor.registration(*_pose(msg.header, msg.pose.pose),
-                                                covariance=msg.pose.covariance), msg.header.stamp)
-
-    def _on_truth(self, msg: PoseStamped) -> None:  # fed in batches: _flush_truth
-        self.monitor.queue_truth(*_pose(msg.header, msg.pose))
-
-    def _flush_truth(self) -> None:
-        for ignored in self.monitor.flush_truth():
-            self._ignored(ignored, self.get_clock().now().to_msg())
+        for item in released.ignored:
+            self._ignored(item)
+        for said in released.said():  # stamped with the header stamp of what said it
+            if said.position_error is not None and said.orientation_error is not None:
+                self.pub_position.publish(m.vector3_stamped(said.position_error, said.tag))
+                self.pub_orientation.publish(m.vector3_stamped(said.orientation_error,
+                                                               said.tag))
+            if said.visit is not None and said.verdict is not None:
+                self._verdict(said.visit, said.verdict, said.tag)
 
     def _verdict(self, visit: Visit, verdict: Verdict, stamp: Any) -> None:
         values = {'pose_key': visit.key, 'cycle': visit.cycle,
@@ -150,8 +148,8 @@ class AccuracyMonitorNode(Node):
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name == names.STATUS_POSITIONER and move_ended(m.status_values(status)):
-                self._ignored(self.monitor.move_end(stamp_seconds(
-                    msg.header.stamp.sec, msg.header.stamp.nanosec)), msg.header.stamp)
+                self._arrive(msg.header.stamp, ends=MoveEnds.one(stamp_seconds(
+                    msg.header.stamp.sec, msg.header.stamp.nanosec)))
             if status.name == names.STATUS_RECORDER:
                 self.recorder = RecorderReport(m.status_level(status), status.message,
                                                m.status_values(status), time.time())
@@ -182,10 +180,12 @@ class AccuracyMonitorNode(Node):
         doc['publishers'] = {t: sub.get_publisher_count() for t, sub in self.inputs.items()}
         state = recording(self.recorder, time.time())
         doc['recording'] = None if state is None else state.to_dict()
+        doc['inputs'] = self.arrivals.order.to_dict()  # held for their stamp order, late
         response.success, response.message = True, json.dumps(doc)
         return response
 
     def _reset(self, request: Trigger.Request, response: Trigger.Response) -> Any:
+        self._release(flush=True)  # what came before the reset is counted before it
         self.monitor.reset()
         response.success = True
         response.message = 'accuracy statistics cleared (the current target is kept)'
