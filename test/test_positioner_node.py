@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from cell_harness import Client, InProcess, wait_until
+from cell_harness import LOADED_LIVENESS, Client, InProcess, wait_until
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from positioning_cell_interfaces.msg import MoveCommand, MoveOutcome, Validity
@@ -114,14 +114,18 @@ class Positioner:
         self.markers = ros.client.collect(MarkerArray, '/positioner/markers', STREAM_QOS)
         self.targets = ros.client.collect(PoseStamped, '/positioner/target', STREAM_QOS)
         # The fake driver shares this process (and its GIL) with the test: a stall here is
-        # not a lost driver; and its readings jump to a trajectory's end on receipt, so they
-        # stand still while the trajectory runs, which on a busy machine outlasts the frozen-
-        # encoder window. Liveness itself is proven on real processes (test_faults).
+        # not a lost driver (nor a late answer: a home move aborted, "timed out after 0.5 s
+        # waiting for the leg driver to answer", in a CI's parallel tier); and its readings
+        # jump to a trajectory's end on receipt, so they stand still while the trajectory
+        # runs, which on a busy machine outlasts the frozen-encoder window. Liveness itself is
+        # proven on real processes (test_faults).
         self.node = ros.start(PositionerNode, **{COMPENSATION_MODE: 'none',
                                                  'settle_time': 0.0,
                                                  # the test client plays the driver
                                                  'sources.leg_driver': '/test_client',
                                                  'liveness.joint_silence': 1.0,
+                                                 'liveness.answer_timeout':
+                                                     LOADED_LIVENESS['answer_timeout'],
                                                  'liveness.freeze_window': 10.0,
                                                  'operator.coordinate_systems_file':
                                                      str(systems_file)})
