@@ -195,3 +195,18 @@ def test_in_recorded_order_the_same_run_could_give_other_figures() -> None:
         a.pop('tracker'), b.pop('tracker')
         differ += a != b
     assert differ > 0
+
+
+def test_what_waits_is_counted_until_it_is_fed() -> None:
+    """Arrivals wait (counted in ``held``) until a release feeds them; a flush feeds all."""
+    inputs = MonitorInputs(acc.Monitor())
+    events = _clean(_stream(0))[:40]
+    inputs.arrive(**_fed(events, 0))  # type: ignore[arg-type]
+    assert inputs.held == 40 and inputs.to_dict() == {'held': 40, 'late': 0, 'late_by': 0.0}
+    released = inputs.release()
+    assert released is not None and 0 < inputs.held < 40
+    fed = released.targets.count + released.measured.count + released.truth.count \
+        + released.registrations.count + released.ends.count
+    assert fed == 40 - inputs.held
+    inputs.release(flush=True)
+    assert inputs.held == 0 and inputs.release() is None

@@ -277,6 +277,10 @@ class MonitorInputs:
         self._waiting: dict[str, list[PoseMessages]] = {k: [] for k in _KINDS}
         self._ends: list[MoveEnds] = []
         self._tags: dict[int, object] = {}  # by arrival number, until released
+        # Arrivals not yet added to the order (stamps, streams): added at the next release,
+        # one numpy pass for all (the order does not depend on how arrivals are grouped).
+        self._arrivals: list[tuple[FloatArray, IntArray]] = []
+        self._numbered = 0  # arrival numbers given so far
 
     def arrive(self, targets: PoseMessages | None = None, measured: PoseMessages | None = None,
                truth: PoseMessages | None = None, ends: MoveEnds | None = None,
@@ -300,7 +304,9 @@ class MonitorInputs:
                                                    dtype=np.intp)])
         by_rank = np.argsort(rank, kind='stable')
         seq = np.empty(rank.size, dtype=np.intp)
-        seq[by_rank] = self.order.add(stamp[by_rank], stream[by_rank])
+        seq[by_rank] = self._numbered + np.arange(rank.size, dtype=np.intp)
+        self._numbered += rank.size
+        self._arrivals.append((stamp[by_rank], stream[by_rank]))
         start = 0
         for kind, v in parts:
             self._waiting[kind].append(replace(v, rank=seq[start:start + v.count]))
@@ -310,9 +316,22 @@ class MonitorInputs:
         self._tags.update(zip(seq[by_rank].tolist(), tags, strict=False))
         return seq[by_rank]
 
+    @property
+    def held(self) -> int:
+        """How many messages wait (arrived, not fed)."""
+        return self.order.held + self._numbered - self.order.arrived
+
+    def to_dict(self) -> dict[str, float]:
+        """The order's :meth:`StampOrder.to_dict` with every message waiting counted."""
+        return {**self.order.to_dict(), 'held': self.held}
+
     def release(self, *, flush: bool = False) -> Released | None:
         """Feed the messages released since the last call to the monitor (with ``flush``
         every one held first: :meth:`StampOrder.flush`); None when none was."""
+        if self._arrivals:
+            stamps, streams = (np.concatenate(c) for c in zip(*self._arrivals, strict=True))
+            self._arrivals = []
+            self.order.add(stamps, streams)
         if flush:
             self.order.flush()
         taken = self.order.take()

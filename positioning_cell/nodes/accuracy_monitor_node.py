@@ -118,7 +118,7 @@ class AccuracyMonitorNode(Node):
         """Feed the monitor what is released (everything held once nothing arrived for
         HOLD_S, or with ``flush``) and publish what it said, in its order."""
         quiet = flush or time.monotonic() - self._arrived_at >= HOLD_S
-        released = self.arrivals.release(flush=quiet and self.arrivals.order.held > 0)
+        released = self.arrivals.release(flush=quiet and self.arrivals.held > 0)
         if released is None:
             return
         for item in released.ignored:
@@ -180,7 +180,7 @@ class AccuracyMonitorNode(Node):
         doc['publishers'] = {t: sub.get_publisher_count() for t, sub in self.inputs.items()}
         state = recording(self.recorder, time.time())
         doc['recording'] = None if state is None else state.to_dict()
-        doc['inputs'] = self.arrivals.order.to_dict()  # held for their stamp order, late
+        doc['inputs'] = self.arrivals.to_dict()  # held for their stamp order, late
         response.success, response.message = True, json.dumps(doc)
         return response
 
