@@ -62,7 +62,10 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 # (not understood; test_cli_on_the_cell), and one loop of it in four failed test_faults'
 # "tracker killed": the driver's joint states silent 0.99 s after the kill, the abort blamed
 # on the driver (the shared-memory stall of docs/howto/run.md, gone with shared memory since).
-# Alone until the `cell move` is understood too.
+# Tried again over loopback UDP alone with quick repairs (a8cf8e6): the first of five runs
+# failed test_coordinated_cell's stop from speed (the panel's attachments 36 um apart against
+# its 20 um bound: the two simulated drives, whose timers it judges, did not stop as one
+# beside the second worker's cell). So the timing tier runs alone: what it judges is timing.
 TEST_WORKERS ?= 3
 
 test: $(STAMP)
