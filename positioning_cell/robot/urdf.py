@@ -17,8 +17,6 @@ machine's identified geometry). Visuals are primitives (discs, cylinders, sphere
 
 from __future__ import annotations
 
-from xml.sax.saxutils import quoteattr
-
 import numpy as np
 
 from positioning_cell import names
@@ -62,7 +60,7 @@ def _numbers(values: object) -> str:
 
 
 def _visual(geometry: str, xyz: tuple[float, float, float], colour: str) -> str:
-    return (f'    <visual><origin xyz={quoteattr(_numbers(xyz))} rpy="0 0 0"/>'
+    return (f'    <visual><origin xyz="{_numbers(xyz)}" rpy="0 0 0"/>'
             f'<geometry>{geometry}</geometry><material name="{colour}"/></visual>\n')
 
 
@@ -77,9 +75,9 @@ def _joint(name: str, kind: str, parent: str, child: str, *, xyz: object = (0.0,
            limits: tuple[float, float] | None = None) -> str:
     lines = [f'  <joint name="{name}" type="{kind}">',
              f'    <parent link="{parent}"/><child link="{child}"/>',
-             f'    <origin xyz={quoteattr(_numbers(xyz))} rpy={quoteattr(_numbers(rpy))}/>']
+             f'    <origin xyz="{_numbers(xyz)}" rpy="{_numbers(rpy)}"/>']
     if axis is not None:
-        lines.append(f'    <axis xyz={quoteattr(_numbers(axis))}/>')
+        lines.append(f'    <axis xyz="{_numbers(axis)}"/>')
     if limits is not None:  # effort and velocity are not modelled: URDF requires them, 0
         lines.append(f'    <limit lower="{float(limits[0])!r}" upper="{float(limits[1])!r}" '
                      'effort="0" velocity="0"/>')
