@@ -7,6 +7,9 @@ import math
 
 import numpy as np
 import pytest
+import scipy.linalg
+from hypothesis import given
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from workspace import MECH, random_poses
 
@@ -20,6 +23,24 @@ EZ = np.array([0.0, 0.0, 1.0])
 def _parallel(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(np.linalg.norm(np.cross(a[:3], b[:3])) < 1e-9
                 and abs(abs(a @ b) - np.linalg.norm(a) * np.linalg.norm(b)) < 1e-9)
+
+
+@given(rows=st.integers(0, 9), columns=st.integers(1, 9), rank=st.integers(0, 9),
+       seed=st.integers(0, 2**32 - 1), scale=st.sampled_from([1e-3, 1.0, 1e3]))
+def test_null_space_rows_is_scipys_null_space(rows: int, columns: int, rank: int, seed: int,
+                                              scale: float) -> None:
+    """null_space_rows (numpy's SVD) spans what scipy.linalg.null_space spans at the same
+    tolerance, on matrices of every shape and of a rank drawn up to full: as many rows,
+    orthonormal, annihilated by the matrix, and the same projector."""
+    rank = min(rank, rows, columns)
+    rng = np.random.default_rng(seed)
+    a = scale * rng.normal(size=(rows, rank)) @ rng.normal(size=(rank, columns))
+    basis = screw.null_space_rows(a)
+    reference = scipy.linalg.null_space(a, rcond=screw.RANK_TOLERANCE).T
+    assert basis.shape == reference.shape == (columns - rank, columns)
+    np.testing.assert_allclose(basis @ basis.T, np.eye(columns - rank), atol=1e-12)
+    np.testing.assert_allclose(a @ basis.T, 0.0, atol=1e-12 * max(scale, 1.0) * columns)
+    np.testing.assert_allclose(basis.T @ basis, reference.T @ reference, atol=1e-10)
 
 
 @pytest.mark.parametrize(('joint', 'constraints'), [

@@ -102,18 +102,22 @@ def reciprocal_product(twists: ArrayLike, wrenches: ArrayLike) -> FloatArray:
 
 
 def null_space_rows(a: FloatArray) -> FloatArray:
-    """Orthonormal basis (rows) of the null space of ``a`` (scipy.linalg.null_space at
-    RANK_TOLERANCE). scipy.linalg is imported at the first call: ~0.15 s of the start of every
-    node that imports this module (through the clearance model) and never asks (issue 24)."""
-    from scipy.linalg import null_space
-
-    basis: FloatArray = null_space(a, rcond=RANK_TOLERANCE).T
+    """Orthonormal basis (rows) of the null space of ``a``: its right singular vectors whose
+    singular values are at most RANK_TOLERANCE times the largest, which is what
+    ``scipy.linalg.null_space(a, rcond=RANK_TOLERANCE).T`` returns (the same LAPACK SVD,
+    gesdd; test_screw compares the two; on the 190 matrices of the coordinator's start they
+    were equal to the last bit). numpy's SVD rather than scipy's: importing scipy.linalg was
+    0.2-0.3 s of the coordinator's start, which builds its force watch's pair map with it
+    (issue 24)."""
+    _, singular, vh = np.linalg.svd(a, full_matrices=True)
+    independent = int(np.sum(singular > RANK_TOLERANCE * np.amax(singular, initial=0.0)))
+    basis: FloatArray = vh[independent:]
     return basis
 
 
 def reciprocal_screws(screws: ArrayLike) -> FloatArray:
     """Basis (m, 6) of the screws reciprocal to every row of ``screws`` (k, 6) (seed 001
-    eq. 2): orthonormal rows from scipy.linalg.null_space. For a limb's twist system these are
+    eq. 2): orthonormal rows (:func:`null_space_rows`). For a limb's twist system these are
     its constraint wrenches; m = 6 − rank."""
     s = np.atleast_2d(np.asarray(screws, dtype=float))
     if s.size == 0:
