@@ -20,7 +20,12 @@ from geometry_msgs.msg import PoseStamped
 from positioning_cell import names
 from positioning_cell.accuracy.monitor import MonitorSettings
 from positioning_cell.config import config_path
-from positioning_cell.ros.processes import cell_environment
+from positioning_cell.ros.processes import (
+    BOOTSTRAP_MARKER,
+    Processes,
+    bootstrapped_as_this,
+    cell_environment,
+)
 from positioning_cell.ros.qos import STREAM_QOS
 
 pytestmark = pytest.mark.nodes
@@ -105,6 +110,30 @@ def test_cell_environment_uses_the_shipped_profile_unless_the_caller_has_one(
     env = cell_environment(7, {PROFILE_VARIABLE: str(own),
                                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'})
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'  # widened deliberately
+
+
+def test_a_child_of_this_interpreter_is_not_bootstrapped_again(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cell's environment drops the ROS wheels' bootstrap marker (another Python must set
+    its own library path); a process of this interpreter's own venv gets this process's
+    marker and path back, and so does not re-execute itself: a child started by Processes
+    sees the library path exactly as given (the bootstrapper's re-execution would add the
+    venv's lib folder to it)."""
+    monkeypatch.setenv(BOOTSTRAP_MARKER, '1')
+    monkeypatch.setenv('LD_LIBRARY_PATH', str(tmp_path / 'lib'))
+    env = cell_environment(7)
+    assert BOOTSTRAP_MARKER not in env
+    own = bootstrapped_as_this(env, str(Path(sys.executable).parent / 'leg_driver_node'))
+    assert own[BOOTSTRAP_MARKER] == '1' and own['LD_LIBRARY_PATH'] == str(tmp_path / 'lib')
+    assert BOOTSTRAP_MARKER not in bootstrapped_as_this(env, '/usr/bin/python3')
+    with Processes(env, tmp_path) as procs:
+        child = procs.start('python', label='child', extra_args=(
+            '-c', 'import os; print("path", os.environ["LD_LIBRARY_PATH"])'))
+        assert child.wait(timeout=60) == 0
+        assert f'path {tmp_path / "lib"}\n' in procs.log('child')
+    monkeypatch.delenv(BOOTSTRAP_MARKER)  # a process that was not bootstrapped: nothing to give
+    assert BOOTSTRAP_MARKER not in bootstrapped_as_this(
+        env, str(Path(sys.executable).parent / 'python'))
 
 
 #: Two contexts (two participants) in one process, as a test process holds them: they discover
