@@ -8,7 +8,10 @@ from just before the process is spawned to the first answer of its parameter ser
 what any client first sees). The recorder writes into a
 temporary folder, the live view takes any free port, the bag player plays (looping) a bag the
 recorder wrote in its last start. Baseline: a bare rclpy node (no callbacks of its own) started
-and timed the same way, in the same run. Medians are reported.
+and timed the same way, in the same run. Medians are reported. Like every process the cell
+starts (positioning_cell.ros.processes.Processes), each is given this process's ROS-wheels
+bootstrap and so does not re-execute its interpreter; started from a shell, a node pays that
+once more (~0.03-0.05 s here).
 
 Cell ready: the four cell nodes (leg driver, pose measurement, positioner, monitor) started at
 once; homing (/positioner/home, retried while the positioner refuses because the cell is still
