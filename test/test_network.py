@@ -115,17 +115,20 @@ def test_cell_environment_uses_the_shipped_profile_unless_the_caller_has_one(
 def test_a_child_of_this_interpreter_is_not_bootstrapped_again(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The cell's environment drops the ROS wheels' bootstrap marker (another Python must set
-    its own library path); a process of this interpreter's own venv gets this process's
-    marker and path back, and so does not re-execute itself: a child started by Processes
-    sees the library path exactly as given (the bootstrapper's re-execution would add the
-    venv's lib folder to it)."""
+    its own library path); a process of this interpreter's own venv, with this process's
+    library path, gets the marker back and so does not re-execute itself: a child started by
+    Processes sees the library path exactly as given (the bootstrapper's re-execution would
+    add the venv's lib folder to it)."""
     monkeypatch.setenv(BOOTSTRAP_MARKER, '1')
     monkeypatch.setenv('LD_LIBRARY_PATH', str(tmp_path / 'lib'))
     env = cell_environment(7)
     assert BOOTSTRAP_MARKER not in env
-    own = bootstrapped_as_this(env, str(Path(sys.executable).parent / 'leg_driver_node'))
+    node = str(Path(sys.executable).parent / 'leg_driver_node')
+    own = bootstrapped_as_this(env, node)
     assert own[BOOTSTRAP_MARKER] == '1' and own['LD_LIBRARY_PATH'] == str(tmp_path / 'lib')
     assert BOOTSTRAP_MARKER not in bootstrapped_as_this(env, '/usr/bin/python3')
+    # a library path of the caller's own: the child's bootstrap sets it up
+    assert BOOTSTRAP_MARKER not in bootstrapped_as_this(dict(env, LD_LIBRARY_PATH='/x'), node)
     with Processes(env, tmp_path) as procs:
         child = procs.start('python', label='child', extra_args=(
             '-c', 'import os; print("path", os.environ["LD_LIBRARY_PATH"])'))
