@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from positioning_cell.core import kinematics
 from positioning_cell.core.limits import check_poses
 from positioning_cell.core.poses import (
     SMALL_BATCH,
+    euler_xyz_from_quaternion,
     matrix_from_quaternion,
     quaternion_from_euler_xyz,
     quaternion_from_matrix,
@@ -60,6 +62,45 @@ def test_euler_quaternions_are_scipys(angles: list[tuple[float, ...]]) -> None:
     a = np.array(angles)
     np.testing.assert_allclose(quaternion_from_euler_xyz(a),
                                Rotation.from_euler('xyz', a).as_quat(), rtol=0, atol=1e-15)
+
+
+@given(st.lists(st.tuples(*[st.floats(-2.0, 2.0)] * 4)
+                .filter(lambda v: float(np.linalg.norm(v)) > 0.05), min_size=1, max_size=8))
+def test_euler_angles_of_quaternions_are_scipys(quaternions: list[tuple[float, ...]]) -> None:
+    """core.poses' numpy quaternion -> Euler angles (extrinsic x, y, z; the watch window's and
+    the command line's six numbers without scipy.spatial, issue 24) against scipy's, for any
+    quaternion: the same rotation, in scipy's ranges, and scipy's angles (an angle of −π and
+    one of π the same) wherever they are well conditioned (away from gimbal lock, where α and
+    γ are not separable)."""
+    q = np.array(quaternions)
+    angles = euler_xyz_from_quaternion(q)
+    assert np.all(np.abs(angles[:, [0, 2]]) <= np.pi)
+    assert np.all(np.abs(angles[:, 1]) <= np.pi / 2)
+    assert rotation_error(quaternion_from_euler_xyz(angles), q).max() <= 1e-12
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')  # scipy's "Gimbal lock detected"
+        expected = Rotation.from_quat(q).as_euler('xyz')
+    clear = np.cos(expected[:, 1]) > 1e-3
+    apart = (angles[clear] - expected[clear] + np.pi) % (2 * np.pi) - np.pi  # -π is π
+    np.testing.assert_allclose(apart, 0.0, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize('beta', [np.pi / 2, -np.pi / 2, np.pi / 2 - 1e-9, -np.pi / 2 + 5e-8,
+                                  np.pi / 2 - 1e-6, -np.pi / 2 + 1e-5])
+@pytest.mark.parametrize(('alpha', 'gamma'), [(0.3, 0.2), (3.1, -3.0), (-2.5, 2.9)])
+def test_euler_angles_at_gimbal_lock_are_scipys(beta: float, alpha: float,
+                                                gamma: float) -> None:
+    """At and near gimbal lock (β = ±π/2): within 1e-7 rad of it γ = 0 and α takes the whole
+    turn about the locked axis, as scipy does (without its warning); just outside, both give
+    the angles the rotation was made of."""
+    q = Rotation.from_euler('xyz', [alpha, beta, gamma]).as_quat()
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')  # scipy's "Gimbal lock detected"
+        expected = Rotation.from_quat(q).as_euler('xyz')
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')  # none here
+        angles = euler_xyz_from_quaternion(q[None])[0]
+    np.testing.assert_allclose(angles, expected, rtol=0, atol=1e-9)
 
 
 @given(st.lists(st.tuples(*[st.floats(-2.0, 2.0)] * 4)

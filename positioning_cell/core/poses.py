@@ -150,6 +150,39 @@ def quaternion_from_euler_xyz(angles: FloatArray) -> FloatArray:
                      cx * cy * cz + sx * sy * sz], axis=-1)
 
 
+#: How close (rad) the middle angle of :func:`euler_xyz_from_quaternion` may come to ±π/2
+#: before the rotation is taken as gimbal-locked (scipy's threshold).
+GIMBAL_LOCK = 1e-7
+
+
+def euler_xyz_from_quaternion(quaternion: FloatArray) -> FloatArray:
+    """Angles (N, 3) α, β, γ rad of R = Rz(γ)·Ry(β)·Rx(α) (extrinsic x, y, z,
+    :data:`EULER_SEQUENCE`) of quaternions (N, 4) x, y, z, w, any norm or sign: α, γ in
+    [−π, π], β in [−π/2, π/2]. What scipy's ``Rotation.from_quat(q).as_euler('xyz')`` gives
+    (an angle of exactly ±π may come with the other sign), by the same method: Bernardes and
+    Viollet 2022, "Quaternion to Euler angles conversion: a direct, general and
+    computationally efficient method", for a Tait-Bryan sequence. At gimbal lock, β within
+    :data:`GIMBAL_LOCK` of ±π/2, γ = 0 and α takes the whole rotation about the locked axis,
+    without scipy's warning. Elementwise numpy: the inverse of
+    :func:`quaternion_from_euler_xyz` without scipy.spatial, whose import costs a command
+    line ~0.3 s (``cell watch``'s first table, issue 24); test_kinematics checks it against
+    scipy."""
+    q = np.asarray(quaternion, dtype=float)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    # the paper's step 1 for i, j, k = x, y, z (an even permutation: sign +1)
+    a, b, c, d = w - y, x + z, y + w, z - x
+    middle = 2.0 * np.arctan2(np.hypot(c, d), np.hypot(a, b))  # β + π/2, in [0, π]
+    half_sum, half_diff = np.arctan2(b, a), np.arctan2(d, c)
+    at_zero, at_pi = np.abs(middle) <= GIMBAL_LOCK, np.abs(middle - np.pi) <= GIMBAL_LOCK
+    first = np.where(at_zero, 2.0 * half_sum,
+                     np.where(at_pi, -2.0 * half_diff, half_sum - half_diff))
+    third = np.where(at_zero | at_pi, 0.0, half_sum + half_diff)
+    angles = np.stack([first, middle - 0.5 * np.pi, third], axis=-1)
+    wrapped: FloatArray = np.where(angles < -np.pi, angles + 2.0 * np.pi,
+                                   np.where(angles > np.pi, angles - 2.0 * np.pi, angles))
+    return wrapped
+
+
 #: Up to this many matrices built orthonormal, :func:`quaternion_from_matrix` converts in numpy
 #: (a node's build converts one or two: scipy.spatial would cost ~0.2 s of its start); above
 #: it, in scipy (4.5× faster than this numpy form on 10⁵ matrices, ad hoc).

@@ -28,10 +28,16 @@ import numpy as np
 from positioning_cell.accuracy.decisions import norm_expanded_uncertainty
 from positioning_cell.accuracy.verdicts import Tolerances, Verdict, judge
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import FloatArray, as_pose_batch, scipy_rotation
+from positioning_cell.core.poses import (
+    FloatArray,
+    as_pose_batch,
+    euler_xyz_from_quaternion,
+    matrix_from_quaternion,
+    pose_error,
+)
 from positioning_cell.errors import InputError
 from positioning_cell.frames.systems import USER_FRAME, CoordinateSystems
-from positioning_cell.frames.transforms import Transform, euler_angles
+from positioning_cell.frames.transforms import Transform
 from positioning_cell.names import BASE_FRAME, WATCH_FRAMES
 
 #: Monte Carlo draws of U near a zero deviation (the monitor's 10⁵ took ~30 ms a norm, two
@@ -161,11 +167,12 @@ def deviation(commanded: tuple[FloatArray, FloatArray], measured: tuple[FloatArr
     p_base = np.stack([np.asarray(commanded[0], float), np.asarray(measured[0], float)])
     q_base = np.stack([np.asarray(commanded[1], float), np.asarray(measured[1], float)])
     p, q = watched_poses(p_base, q_base, frame, systems, mech)
-    rot = scipy_rotation().from_quat(q)
     dp = p[1] - p[0]
-    dtheta = np.asarray((rot[1] * rot[0].inv()).as_rotvec(), dtype=float)
-    t_object = np.array(systems.object.p)  # scipy takes no read-only array
-    r_object = (scipy_rotation().from_quat(q_base[1]).apply(t_object) if frame == USER_FRAME
+    # The rotation vector of R_m·R_cᵀ (base axes) is R_c times that of R_cᵀ·R_m (pose_error's):
+    # numpy, not scipy.spatial, whose import held ``cell watch``'s first table ~0.3 s back.
+    r_commanded = matrix_from_quaternion(q[:1])[0]
+    dtheta = r_commanded @ pose_error(p[1:], q[1:], p[:1], q[:1])[1][0]
+    r_object = (matrix_from_quaternion(q_base[1:])[0] @ systems.object.p if frame == USER_FRAME
                 else np.zeros(3))
     jac = _frame_jacobian(frame, r_object, systems)
     cov_frame = jac @ cov @ jac.T
@@ -174,7 +181,7 @@ def deviation(commanded: tuple[FloatArray, FloatArray], measured: tuple[FloatArr
     verdict = judge(float(np.linalg.norm(dp)), float(np.linalg.norm(dtheta)), tolerances,
                     *(float(norm_expanded_uncertainty(d[None], c[None], draws=WATCH_DRAWS)[0])
                       for d, c in ((dp, cov_frame[:3, :3]), (dtheta, cov_frame[3:, 3:]))))
-    six = np.concatenate([p, euler_angles(rot)], axis=1)
+    six = np.concatenate([p, euler_xyz_from_quaternion(q)], axis=1)
     return Deviation(frame=frame, commanded=six[0], measured=six[1],
                      deviation=np.concatenate([dp, dtheta]), uncertainty=sigma,
                      position_uncertainty=_along(dp, cov_frame[:3, :3]),
