@@ -33,12 +33,11 @@ pytestmark = pytest.mark.slow
 #: ranges run compiled in a range worker, a process of their own: test_range_worker).
 KERNEL_NODES: set[str] = set()
 #: The nodes whose build needs scipy (its import is ~0.2-0.4 s of a node's start, issue 24):
-#: the simulated tracker locates itself (a matrix to quaternion), the positioner derives its
-#: factory box (Euler angles), the coordinator sizes its panel's internal force systems (a
-#: null space: a cell file whose panel is not held refuses to start), and so does the panel
-#: simulator. Every node's module imports without it.
-SCIPY_AT_BUILD = {'pose_measurement_node', 'kinematics_node', 'cell_coordinator_node',
-                  'panel_simulator_node'}
+#: none. The simulated tracker locates itself (a matrix to quaternion) and the positioner
+#: derives its factory box (Euler angles) in numpy (core.poses); the coordinator sizes its
+#: panel's internal force systems with numpy's SVD (mechanics.screw.null_space_rows; scipy
+#: until 2026-12-07), and so does the panel simulator. Every node's module imports without it.
+SCIPY_AT_BUILD: set[str] = set()
 #: The nodes that plan moves, and load the planner (positioning_cell.moves.trajectory, with
 #: the clearance model and the statics: ~0.1 s of a node's start, issue 24): the positioner,
 #: the calibrator, and the live view, which reads the operator's speed settings (limits.speed,
