@@ -58,8 +58,10 @@ DRIVER = CellNode('leg_driver_node', NODE_DRIVER)
 #: The simulated laser tracker and the positioner (kinematics, limits, compensation).
 MEASUREMENT = CellNode('pose_measurement_node', NODE_MEASUREMENT)
 POSITIONER = CellNode('kinematics_node', NODE_POSITIONER)
+#: The accuracy monitor (commanded against measured poses, ISO 9283 figures, verdicts).
+MONITOR = CellNode('accuracy_monitor_node', NODE_MONITOR)
 #: The cell's nodes in start order: the launch file and the run driver start these.
-CELL_NODES = (DRIVER, MEASUREMENT, POSITIONER, CellNode('accuracy_monitor_node', NODE_MONITOR))
+CELL_NODES = (DRIVER, MEASUREMENT, POSITIONER, MONITOR)
 #: The nodes of one positioner's set in a coordinated cell (positioning_cell.ros.node_sets), in
 #: start order: the drives, the tracker, the positioner (a single cell's accuracy monitor
 #: judges one positioner's moves; the coordinated cell's figures are the panel's).

@@ -207,3 +207,17 @@ def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: A
                'the positioner to accept commands again')
     response, _ = move(client, *GOALS[0])
     assert response.code == MoveOutcome.SUCCESS, response.reason
+
+
+def test_nodes_that_rotate_in_numpy_never_load_scipy(cell: Any, errors_by_mode: Any) -> None:
+    """The nodes that import no scipy as they spin (test_node_start's WITHOUT_SCIPY: the
+    drives, the tracker and the monitor) did not load it while they ran: after the moves of
+    both modes, their settled readings and verdicts, none of their processes maps a scipy
+    library. (One of them importing scipy in a callback would pause it for the whole import:
+    ~0.4 s, the tracker's silence bound is 0.5 s.)"""
+    procs = cell[3]
+    for exe in ('leg_driver_node', 'pose_measurement_node', 'accuracy_monitor_node'):
+        maps = Path(f'/proc/{procs.procs[exe].pid}/maps').read_text()
+        assert '/scipy/' not in maps, f'{exe} loaded scipy'
+    # the check can see it: the positioner imports scipy as it spins
+    assert '/scipy/' in Path(f'/proc/{procs.procs["kinematics_node"].pid}/maps').read_text()

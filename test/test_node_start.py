@@ -92,12 +92,15 @@ def test_an_import_that_fails_ends_the_node_with_its_error(tmp_path: Path) -> No
 
 
 #: Nodes whose work never needs scipy: importing it beside them only competes for the GIL
-#: while they start. The leg driver's 100 Hz encoder stream left a 0.17-0.32 s gap (its
+#: while they start, and costs each start ~0.4 CPU-s (issue 24: every cell the tests start
+#: pays it per node). The leg driver's 100 Hz encoder stream left a 0.17-0.32 s gap (its
 #: positioner calls it lost after 0.2 s) when its first trajectory came while scipy's ~180
 #: modules were being imported aside (test_driver_commands, on a slow 2-core machine); its own
 #: threads never imported scipy in test_cell and the fault matrix (ad hoc, an import hook per
-#: driver process), and :func:`test_the_driver_moves_without_scipy` keeps it so.
-WITHOUT_SCIPY = (names.RECORDER, names.PLAYER, names.DRIVER)
+#: driver process), and :func:`test_the_driver_moves_without_scipy` keeps it so. The tracker
+#: and the monitor rotate in numpy (their fits, means and ISO 9283 angles): the library tests
+#: below and test_cell's look at the running processes keep them so.
+WITHOUT_SCIPY = (names.RECORDER, names.PLAYER, names.DRIVER, names.MEASUREMENT, names.MONITOR)
 
 
 def test_only_nodes_that_need_scipy_import_it_as_they_spin() -> None:
@@ -162,3 +165,96 @@ def test_the_driver_moves_without_scipy() -> None:
                           text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.strip() == '', f'the driver imported scipy: {done.stdout[:300]}'
+
+
+#: The tracker's library as its node drives it, in a fresh interpreter: located at its build,
+#: the truth of a joint stream moving the platform 4 mm in 0.5 s at 50 Hz, readings at 20 Hz
+#: (one with a target dropped out by the fault settings), a load applied and taken off, the
+#: tracker located again, air temperatures and diagnostics; then what it imported of scipy.
+TRACKER_RUN = '''
+import sys
+import numpy as np
+import positioning_cell.nodes.pose_measurement_node
+from positioning_cell import names
+from positioning_cell.config import config_path, load_parameter_file, node_parameters
+from positioning_cell.core.kinematics import inverse
+from positioning_cell.parameters import parse
+from positioning_cell.sim.pose_measurement import PoseMeasurementSettings, PoseMeasurementSimulator
+
+params = node_parameters(load_parameter_file(config_path('cell.yaml')), names.NODE_MEASUREMENT)
+sim = PoseMeasurementSimulator(parse(PoseMeasurementSettings, params))
+mech = sim.truth.mechanism
+steps = 50
+goal = mech.home_position + np.outer(np.minimum(np.linspace(0.0, 2.0, steps), 1.0),
+                                     [0.004, -0.002, 0.003])
+joints = inverse(mech, goal, np.repeat(mech.home_quaternion[None], steps, axis=0))
+stream = np.hstack([joints.lengths, joints.thetas])
+readings = []
+for i, row in enumerate(stream):
+    sim.joints(row, i, 0.02 * i)
+    assert sim.update_truth() is not None, sim.status
+    if i % 5 == 0 and (reading := sim.measure()) is not None:
+        readings.append(reading)
+    sim.air_temperature(0.02 * i)
+    sim.diagnostics()
+assert len(readings) == 10, sim.status
+error = np.linalg.norm(readings[-1].fit.position[0] - sim.true_pose.position)
+assert error < 1e-4, error  # a reading of the true pose, within a tracker's noise
+sim.apply_load([0.0, 0.0, -200.0])
+sim.joints(stream[-1], steps, 0.02 * steps)
+assert sim.update_truth() is not None, sim.status
+sim.apply_load([0.0, 0.0, 0.0])
+assert sim.locate()[0], sim.locate_status
+assert sim.measure() is not None, sim.status
+print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy')))
+'''
+
+
+def test_the_tracker_measures_without_scipy() -> None:
+    """:data:`WITHOUT_SCIPY`: the tracker's truth, readings, fits, load and location need
+    none of scipy, so none is imported beside it."""
+    done = subprocess.run([sys.executable, '-c', TRACKER_RUN], capture_output=True,
+                          text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip() == '', f'the tracker imported scipy: {done.stdout[:300]}'
+
+
+#: The monitor's library as its node drives it, in a fresh interpreter: test_accuracy's short
+#: run (two poses, two cycles, bad messages, readings with and without the tracker's
+#: registration), given on stdin as its messages, fed in groups and released in stamp order,
+#: then its report; then what it imported of scipy.
+MONITOR_RUN = '''
+import pickle
+import sys
+import positioning_cell.nodes.accuracy_monitor_node
+from positioning_cell import accuracy as acc
+from positioning_cell.accuracy.stamp_order import MonitorInputs
+
+groups = pickle.load(sys.stdin.buffer)
+monitor = acc.Monitor()
+inputs = MonitorInputs(monitor)
+for group in groups:
+    inputs.arrive(**group)
+    inputs.release()
+inputs.release(flush=True)
+report = monitor.report()
+print(sum(report['verdicts'].values()), len(report['measured']['poses']))
+print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] == 'scipy')))
+'''
+
+
+def test_the_monitor_judges_without_scipy() -> None:
+    """:data:`WITHOUT_SCIPY`: the monitor's settling, ISO 9283 figures, means of readings
+    (with the registration and without) and verdicts need none of scipy."""
+    import pickle
+
+    from test_accuracy import _fed, _stream
+    events = _stream(0)
+    groups = [_fed(events[k:k + 25], k) for k in range(0, len(events), 25)]
+    done = subprocess.run([sys.executable, '-c', MONITOR_RUN], input=pickle.dumps(groups),
+                          capture_output=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr.decode()[-3000:]
+    counts, imported = (done.stdout.decode() + '\n').split('\n', 1)
+    verdicts, poses = map(int, counts.split())
+    assert verdicts >= 3 and poses == 2, done.stdout  # the run's visits judged
+    assert imported.strip() == '', f'the monitor imported scipy: {imported[:300]}'

@@ -13,14 +13,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.core.poses import (
-    EULER_SEQUENCE,
     Quad,
     Triple,
     as_pose_batch,
     as_unit_quaternions,
     as_vectors,
+    euler_xyz_from_quaternion,
     quad,
-    scipy_rotation,
     triple,
 )
 from positioning_cell.errors import InputError
@@ -33,8 +32,7 @@ def orientation_angles(quaternion: ArrayLike) -> FloatArray:
     """ISO 9283 orientation angles a, b, c (N, 3) rad of unit quaternions (N, 4): roll, pitch,
     yaw about the fixed base axes x, y, z (R = Rz(c)·Ry(b)·Rx(a)); a, c in [−π, π],
     b in [−π/2, π/2]. Near b = ±π/2 (gimbal lock) a and c are not separable."""
-    q = as_unit_quaternions(quaternion)
-    return np.asarray(scipy_rotation().from_quat(q).as_euler(EULER_SEQUENCE))
+    return euler_xyz_from_quaternion(as_unit_quaternions(quaternion))
 
 def wrap_angle(angle: ArrayLike) -> FloatArray:
     """Angles wrapped into [−π, π) rad."""
@@ -44,7 +42,8 @@ def wrap_angle(angle: ArrayLike) -> FloatArray:
 @dataclass(frozen=True)
 class PoseFigures:
     """ISO 9283:1998 pose accuracy (§7.2.1) and repeatability (§7.2.2) of one commanded pose
-    from its n attained poses. SI: m and rad; angles a, b, c per :data:`EULER_SEQUENCE`.
+    from its n attained poses. SI: m and rad; angles a, b, c per
+    :data:`~positioning_cell.core.poses.EULER_SEQUENCE`.
 
     ``barycentre`` (x̄, ȳ, z̄); AP_x = x̄ − x_c, AP_y, AP_z; AP_p = √(AP_x² + AP_y² + AP_z²);
     AP_a = ā − a_c, AP_b, AP_c with each a_j taken as a_c + wrap(a_j − a_c) (no jump at ±π).

@@ -222,11 +222,30 @@ def _quaternion_shepperd(m: FloatArray) -> FloatArray:
     choice = np.argmax(np.stack([m00, m11, m22, trace], -1), -1)
     q: FloatArray = candidates[np.arange(m.shape[0]), choice]
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    # canonical: the first non-zero of w, x, y, z positive
+    return _canonical(q)
+
+
+def mean_quaternion(quaternion: FloatArray) -> FloatArray:
+    """The chordal L2 mean (4,) x, y, z, w of unit quaternions (N, 4), canonical (w > 0; w = 0:
+    the first non-zero component > 0): the eigenvector of the largest eigenvalue of the mean
+    of q·qᵀ (Markley, Cheng, Crassidis and Oshman 2007, "Averaging quaternions"; either sign
+    of each q gives the same mean). What scipy's ``Rotation.mean`` computes, the same way, in
+    numpy: the monitor's means of tracker readings need no scipy.spatial, whose import would
+    pause its callbacks for ~0.4 s (issue 24); test_kinematics checks the two against each
+    other."""
+    q = np.asarray(quaternion, dtype=float)
+    _, vectors = np.linalg.eigh(np.einsum('ni,nj->ij', q, q) / len(q))
+    mean: FloatArray = _canonical(vectors[:, -1][None])[0]
+    return mean
+
+
+def _canonical(q: FloatArray) -> FloatArray:
+    """Quaternions (N, 4) x, y, z, w with the sign scipy's ``as_quat(canonical=True)`` picks:
+    the first non-zero of w, x, y, z positive."""
     ordered = q[:, [3, 0, 1, 2]]
     lead = ordered[np.arange(q.shape[0]), np.argmax(ordered != 0.0, axis=-1)]
-    q *= np.where(lead < 0.0, -1.0, 1.0)[:, None]
-    return q
+    out: FloatArray = q * np.where(lead < 0.0, -1.0, 1.0)[:, None]
+    return out
 
 
 def interpolated_pose(times: ArrayLike, positions: ArrayLike, quaternions: ArrayLike,

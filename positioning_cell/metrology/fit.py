@@ -113,7 +113,7 @@ def fit_pose(tracker: Tracker, layout: TargetLayout, points: ArrayLike, *,
             break
         inliers[drop_rows[found], best[found]] = False
     _require_targets(layout.array, inliers, 'inlier')
-    quaternion = quaternion_from_matrix(rot)
+    quaternion = quaternion_from_matrix(rot, orthonormal=True)  # Kabsch: R = V·D·Uᵀ
     rms = np.sqrt(np.sum(np.where(inliers, error**2, 0.0), axis=1) / inliers.sum(axis=1))
     covariance = pose_covariance(tracker, layout, pos, quaternion, inliers)
     return PoseFit(pos, quaternion, covariance, np.where(visible, error, np.nan), visible,

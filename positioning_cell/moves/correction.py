@@ -11,7 +11,13 @@ from enum import Enum
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from positioning_cell.core.poses import as_pose_batch, pose_error, scipy_rotation
+from positioning_cell.core.poses import (
+    as_pose_batch,
+    matrix_from_quaternion,
+    mean_quaternion,
+    pose_error,
+    scipy_rotation,
+)
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import averaged_covariance
 
@@ -42,9 +48,10 @@ def deviation(measured_p: ArrayLike, measured_q: ArrayLike, desired_p: ArrayLike
     return e_p[0], e_r[0]
 
 def mean_pose(positions: ArrayLike, quaternions: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Mean of k poses: arithmetic mean position (3,) m, chordal L2 mean rotation (4,)."""
+    """Mean of k poses: arithmetic mean position (3,) m, chordal L2 mean rotation (4,)
+    (:func:`~positioning_cell.core.poses.mean_quaternion`)."""
     p, q = as_pose_batch(positions, quaternions)
-    return p.mean(axis=0), np.asarray(scipy_rotation().from_quat(q).mean().as_quat(canonical=True))
+    return p.mean(axis=0), mean_quaternion(q)
 
 
 def mean_reading(positions: ArrayLike, quaternions: ArrayLike, covariances: ArrayLike,
@@ -84,9 +91,9 @@ def mean_reading(positions: ArrayLike, quaternions: ArrayLike, covariances: Arra
     k = len(p)
     if common is not None:
         return position, quaternion, averaged_covariance(mean_cov, common, k)
-    if k > 1:
-        quat = scipy_rotation().from_quat
-        rotvec = (quat(q) * quat(quaternion).inv()).as_rotvec()
+    if k > 1:  # the rotation vectors of R_i·R̄ᵀ: R̄ turns those of R̄ᵀ·R_i into base axes
+        rotvec = pose_error(p, q, position[None], quaternion[None])[1] \
+            @ matrix_from_quaternion(quaternion[None])[0].T
         scatter = np.concatenate([p.var(axis=0, ddof=1), rotvec.var(axis=0, ddof=1)])
     else:
         scatter = np.zeros(6)

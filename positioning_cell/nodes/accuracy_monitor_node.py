@@ -192,8 +192,8 @@ class AccuracyMonitorNode(Node):
         return response
 
 
-#: The entry point of ``accuracy_monitor_node`` (alone; ``cell_container`` hosts it with others).
-main = NodeStart(AccuracyMonitorNode)
+#: The entry point of ``accuracy_monitor_node``; it imports no scipy as it spins (test_node_start).
+main = NodeStart(AccuracyMonitorNode, imports=())
 
 
 if __name__ == '__main__':

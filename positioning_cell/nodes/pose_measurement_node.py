@@ -162,7 +162,8 @@ class PoseMeasurementNode(Node):
 
 
 #: The entry point of ``pose_measurement_node`` (alone; ``cell_container`` hosts it with others).
-main = NodeStart(PoseMeasurementNode)
+#: It imports no scipy as it spins: its truth, readings and fits are numpy (test_node_start).
+main = NodeStart(PoseMeasurementNode, imports=())
 
 
 if __name__ == '__main__':

@@ -83,7 +83,8 @@ class NodeStart:
     only). Each node module's ``main`` is one: called, it runs the node alone (:func:`run`);
     ``cell_container`` runs several together (:func:`run_together`). ``imports``: the modules
     its work imports at their first use, imported in a thread of their own from the moment it
-    spins (:func:`_import_aside`; the recorder and the bag player never rotate: none)."""
+    spins (:func:`_import_aside`; none for the nodes whose work never needs scipy: the
+    recorder, the bag player, the drives, the tracker and the monitor, test_node_start)."""
 
     factory: Callable[[], Node]
     spin: Spin = Spin.EVENTS
