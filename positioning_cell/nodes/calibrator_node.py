@@ -19,7 +19,6 @@ from typing import Any
 from positioning_cell_interfaces.action import Calibrate
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 
 from positioning_cell import names
 from positioning_cell.calibration.settings import CalibratorSettings
@@ -31,6 +30,7 @@ from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.goals import OneGoal, Ran, run_goal
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.port import RosCellPort
+from positioning_cell.ros.qos_watch import QosWatchedNode
 from positioning_cell.ros.spin import NodeStart, Spin
 
 #: Longest wait at shutdown for a running calibration to stop the drives, put the mode back
@@ -38,7 +38,7 @@ from positioning_cell.ros.spin import NodeStart, Spin
 CLOSE_WAIT_S = 10.0
 
 
-class CalibratorNode(Node):
+class CalibratorNode(QosWatchedNode):
     """The ``calibrator`` node (module docstring)."""
 
     NAME = names.NODE_CALIBRATOR

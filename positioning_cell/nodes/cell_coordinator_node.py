@@ -21,7 +21,6 @@ from nav_msgs.msg import Path
 from positioning_cell_interfaces.action import MoveToPose
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from positioning_cell import names
@@ -36,6 +35,7 @@ from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.goals import OneGoal, Ran, run_goal
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, STREAM_QOS
+from positioning_cell.ros.qos_watch import QosWatchedNode
 from positioning_cell.ros.set_port import RosSetPort
 from positioning_cell.ros.spin import NodeStart, Spin
 
@@ -47,7 +47,7 @@ FED = (('reading', PoseWithCovarianceStamped, names.MEASURED_POSE, STREAM_QOS),
        ('plan', Path, names.PLANNED_PATH, LATCHED_QOS))
 
 
-class CellCoordinatorNode(Node):
+class CellCoordinatorNode(QosWatchedNode):
     """The ``cell_coordinator`` node (module docstring)."""
 
     NAME = names.NODE_COORDINATOR

@@ -8,7 +8,6 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.node import Node
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
@@ -31,6 +30,7 @@ from positioning_cell.ros import messages as m
 from positioning_cell.ros import qos
 from positioning_cell.ros.latest import SourceReader
 from positioning_cell.ros.parameters import NodeParameters
+from positioning_cell.ros.qos_watch import QosWatchedNode
 from positioning_cell.ros.registration import RegistrationReader
 from positioning_cell.ros.robot_state import RobotState
 from positioning_cell.ros.senders import own_publisher_ids
@@ -39,7 +39,7 @@ from positioning_cell.ros.spin import NodeStart, Spin
 _LEVELS = {State.FAULT: 'error', State.ABORTED: 'warn'}
 
 
-class PositionerNode(Node):
+class PositionerNode(QosWatchedNode):
     """The ``positioner`` node (docs/conventions/interfaces.md)."""
 
     NAME = names.NODE_POSITIONER
