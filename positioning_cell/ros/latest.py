@@ -18,6 +18,7 @@ from rclpy.serialization import deserialize_message
 
 from positioning_cell.ros.qos import LATEST_QOS
 from positioning_cell.ros.senders import IdentifiedSubscription
+from positioning_cell.ros.unspun import destroy_one, unspun_node
 
 
 class Reader:
@@ -27,9 +28,7 @@ class Reader:
     def __init__(self, node: Node, msg_type: Any, topic: str,
                  qos: QoSProfile = LATEST_QOS) -> None:
         # A node no executor spins: its subscription wakes nobody.
-        self._node = Node(f'_{node.get_name()}_reader_{topic.strip("/").replace("/", "_")}',
-                          context=node.context, start_parameter_services=False,
-                          enable_rosout=False)
+        self._owner, self._node = node, unspun_node(node, 'reader', topic)
         self._sub = self._node.create_subscription(msg_type, topic, lambda _: None, qos)
         self._lock = threading.Lock()
 
@@ -53,7 +52,7 @@ class Reader:
 
     def destroy(self) -> None:
         """Release the subscription and its node."""
-        self._node.destroy_node()
+        destroy_one(self._owner, self._node)
 
 
 class SourceReader:

@@ -26,6 +26,8 @@ from typing import Any, NamedTuple
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
+from positioning_cell.ros.unspun import destroy_one, unspun_node
+
 GID_BYTES = 16  # RMW_GID_STORAGE_SIZE in Jazzy
 #: What the graph names a publisher whose node it does not know yet (rmw_dds_common).
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
@@ -132,9 +134,7 @@ class IdentifiedSubscription:
     with their sender (module docstring). Thread-safe."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: QoSProfile) -> None:
-        self._node = Node(f'_{node.get_name()}_identified_{topic.strip("/").replace("/", "_")}',
-                          context=node.context, start_parameter_services=False,
-                          enable_rosout=False)
+        self._owner, self._node = node, unspun_node(node, 'identified', topic)
         self._sub = self._node.create_subscription(msg_type, topic, lambda _: None, qos)
         #: The topic as the graph lists it: resolved, remapped (a node set's, ros.node_sets).
         self.topic = self._sub.topic_name
@@ -178,6 +178,6 @@ class IdentifiedSubscription:
     def destroy(self) -> None:
         """Release the subscription, its node and the take buffer."""
         with self._lock:
-            self._node.destroy_node()
+            destroy_one(self._owner, self._node)
             _rcl().fini(ctypes.byref(self._buffer))
 

@@ -32,6 +32,7 @@ from positioning_cell import files
 from positioning_cell.core import compiled
 from positioning_cell.errors import PositioningError
 from positioning_cell.ros.entry import hold_stops, stop_requested
+from positioning_cell.ros.unspun import destroy_unspun
 
 STOP_POLL_S = 0.1
 """Longest time from SIGINT / SIGTERM to the executor returning (s), besides a running callback."""
@@ -304,6 +305,7 @@ def _spin(starts: Sequence[NodeStart]) -> int:
         for executor in spinning:
             executor.shutdown(timeout_sec=SHUTDOWN_WAIT_S)
         for node in reversed(nodes):
+            destroy_unspun(node)  # its readers' nodes, not left to the collection below
             node.destroy_node()
     if failures:  # a callback raised in another executor's thread: as if in this one
         raise failures[0]

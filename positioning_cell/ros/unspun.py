@@ -1,0 +1,54 @@
+"""Nodes that no executor spins, beside a node of the cell, for the subscriptions it takes from
+on demand (:class:`positioning_cell.ros.latest.Reader`,
+:class:`positioning_cell.ros.senders.IdentifiedSubscription`): their subscriptions wake nobody,
+and DDS keeps what came until it is taken.
+
+Their owner does not hold them as rclpy entities, so its ``destroy_node`` leaves them. Left to
+the garbage collector, they went in the collection that ``spin.run`` makes after rclpy's
+shutdown, in whatever order it found them; rclpy's maintainers saw Fast DDS hang in such
+collections (ros2/rclpy#456, "haphazardness of Python's garbage collector"), and one tracker
+hung in that collection in CI until its 10 s stop deadline ended it (exit 1; Dec 7, not
+reproduced in 49 stops since). :func:`destroy_unspun` destroys an owner's unspun nodes
+explicitly; ``spin`` calls it for each node it hosts, after the executors have stopped and
+before the node itself is destroyed.
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+
+from rclpy.node import Node
+
+_lock = threading.Lock()
+_unspun: weakref.WeakKeyDictionary[Node, list[Node]] = weakref.WeakKeyDictionary()
+
+
+def unspun_node(owner: Node, role: str, topic: str) -> Node:
+    """A new node in ``owner``'s context named after it, ``role`` and ``topic``, without
+    parameter services or /rosout, that no executor spins; destroyed with
+    :func:`destroy_unspun` (``owner``) or :func:`destroy_one`."""
+    node = Node(f'_{owner.get_name()}_{role}_{topic.strip("/").replace("/", "_")}',
+                context=owner.context, start_parameter_services=False, enable_rosout=False)
+    with _lock:
+        _unspun.setdefault(owner, []).append(node)
+    return node
+
+
+def destroy_one(owner: Node, node: Node) -> None:
+    """Destroy one of ``owner``'s unspun nodes (nothing if it was destroyed already)."""
+    with _lock:
+        mine = _unspun.get(owner, [])
+        if node not in mine:
+            return
+        mine.remove(node)
+    node.destroy_node()
+
+
+def destroy_unspun(owner: Node) -> int:
+    """Destroy every unspun node of ``owner`` (their subscriptions with them): how many."""
+    with _lock:
+        nodes = _unspun.pop(owner, [])
+    for node in nodes:
+        node.destroy_node()
+    return len(nodes)
