@@ -7,8 +7,9 @@ Their owner does not hold them as rclpy entities, so its ``destroy_node`` leaves
 the garbage collector, they went in the collection that ``spin.run`` makes after rclpy's
 shutdown, in whatever order it found them; rclpy's maintainers saw Fast DDS hang in such
 collections (ros2/rclpy#456, "haphazardness of Python's garbage collector"), and one tracker
-hung in that collection in CI until its 10 s stop deadline ended it (exit 1; Dec 7, not
-reproduced in 49 stops since). :func:`destroy_unspun` destroys an owner's unspun nodes
+hung in that collection in CI until its 10 s stop deadline ended it (exit 1; Dec 7; not
+reproduced in 24 repeats of that test and 35 stop cycles of the nodes since, ad hoc).
+:func:`destroy_unspun` destroys an owner's unspun nodes
 explicitly; ``spin`` calls it for each node it hosts, after the executors have stopped and
 before the node itself is destroyed.
 """
