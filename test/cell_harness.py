@@ -62,6 +62,22 @@ class Client(CellClient):
         super().__init__(domain, name, signals=signals, **kwargs)
 
 
+def waiting_for_file(variable: str, reason: str) -> str:
+    """Python source for a child process: wait (polling) until the file named by its
+    environment variable ``variable`` exists, or raise RuntimeError(``reason``) after 60 s.
+    It holds the child at that point until the test lets it go."""
+    return f'''
+import os
+import time
+
+deadline = time.monotonic() + 60.0
+while not os.path.exists(os.environ[{variable!r}]):
+    if time.monotonic() > deadline:
+        raise RuntimeError({reason!r})
+    time.sleep(0.005)
+'''
+
+
 def processes_naming(marker: Path) -> list[int]:
     """PIDs of processes whose command line names ``marker`` (e.g. a run's override file)."""
     found = []

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from cell_harness import isolated_domain
+from cell_harness import isolated_domain, waiting_for_file
 
 from positioning_cell import names
 from positioning_cell.ros.processes import cell_environment
@@ -23,17 +23,8 @@ pytestmark = [pytest.mark.nodes, pytest.mark.slow]
 
 #: A module whose import cannot end before the node it is imported for has run a callback: it
 #: waits for the file that callback writes (and gives up, raising, after 60 s).
-WAITING_MODULE = '''
-import os
-import time
-
-deadline = time.monotonic() + 60.0
-while not os.path.exists(os.environ['PROBE_MARKER']):
-    if time.monotonic() > deadline:
-        raise RuntimeError('no callback ran while this module was being imported')
-    time.sleep(0.005)
-LOADED = True
-'''
+WAITING_MODULE = waiting_for_file(
+    'PROBE_MARKER', 'no callback ran while this module was being imported') + 'LOADED = True\n'
 
 #: A node whose first timer callback writes the marker the waiting module waits for, then,
 #: once that module is imported, reports it and ends the run.

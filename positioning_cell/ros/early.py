@@ -16,6 +16,7 @@ from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from positioning_cell.ros.entry import skip_code_generator
 from positioning_cell.ros.processes import use_loopback
 
 #: What :func:`start_node` gives, named for the command lines' type hints (they import no rclpy).
@@ -29,6 +30,7 @@ def start_node(domain: int | None, prefix: str = 'cell') -> ClientNode:
     down."""
     use_loopback()
     answers_only_on_stdout()
+    skip_code_generator()
     context = Context()
     rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
     return Node(f'{prefix}_{os.getpid()}', context=context)

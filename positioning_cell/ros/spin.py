@@ -31,6 +31,7 @@ from rclpy.utilities import get_default_context
 from positioning_cell import files
 from positioning_cell.core import compiled
 from positioning_cell.errors import PositioningError
+from positioning_cell.ros import participant
 from positioning_cell.ros.entry import hold_stops, stop_requested
 from positioning_cell.ros.unspun import destroy_unspun
 
@@ -210,11 +211,13 @@ def run_together(nodes: Sequence[NodeStart], args: Sequence[str] | None = None) 
     # A stop gives up the loads waited on at once (files.within), even while the node is
     # being built (the positioner loads its calibration file then).
     hold_stops(files.abandon_loads)
-    rclpy.init(args=list(args) if args is not None else None,
-               signal_handler_options=SignalHandlerOptions.NO)
+    if not participant.started():  # (a node's entry point started it before the imports)
+        rclpy.init(args=list(args) if args is not None else None,
+                   signal_handler_options=SignalHandlerOptions.NO)
     try:
         return _spin(nodes)
     finally:
+        participant.end()
         rclpy.try_shutdown()
         # The participant goes now, its shared memory with it, rather than in the interpreter's
         # finalization (which entry.end_process skips): once the node's and the executor's
@@ -264,6 +267,7 @@ def _spin(starts: Sequence[NodeStart]) -> int:
             if stop_requested():
                 return 0
             nodes.append(start.factory())
+        participant.end()  # the context's participant is theirs now
         # All built and their kernels warmed: no kernel is compiled from here on (a pause of an
         # executor), a cold kernel raises instead (positioning_cell.core.compiled).
         compiled.seal()
@@ -332,9 +336,12 @@ def _import_aside(modules: Sequence[str], failures: list[BaseException],
 def _settle_interpreter(hosted: int) -> None:
     """Once the ``hosted`` nodes are built: what exists now (the modules, the models, the
     nodes) leaves the cyclic garbage collector's view (``gc.freeze``: a full collection scans
-    only what came after; before, 30-100 ms pauses of every thread of the composed cell); with
-    several nodes the GIL switches every :data:`SWITCH_INTERVAL_S`."""
+    only what came after; before, 30-100 ms pauses of every thread of the composed cell), and
+    the collector runs from now on (a node's entry point disables it while the node loads,
+    :mod:`positioning_cell.ros.entry`); with several nodes the GIL switches every
+    :data:`SWITCH_INTERVAL_S`."""
     gc.freeze()
+    gc.enable()
     if hosted > 1:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
 
