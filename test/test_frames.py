@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from workspace import MECH, poses
 
 from positioning_cell.core.mechanism import Mechanism
+from positioning_cell.core.poses import SMALL_BATCH
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.frames import (
     ABSOLUTE,
@@ -333,16 +334,20 @@ def test_user_and_object_frames_by_hand() -> None:
 @FEW
 @given(transforms(), transforms())
 def test_batch_user_positions_match_one_by_one(user: Transform, obj: Transform) -> None:
+    """A batch larger than core.poses.SMALL_BATCH too (a move's samples against a user box)."""
     systems = CoordinateSystems(user=user, object=obj)
     rng = np.random.default_rng(5)
-    p = MECH.home_position + rng.uniform(-0.01, 0.01, (4, 3))
-    q = Rotation.from_rotvec(rng.uniform(-0.1, 0.1, (4, 3))).as_quat()
+    n = SMALL_BATCH + 4
+    p = MECH.home_position + rng.uniform(-0.01, 0.01, (n, 3))
+    q = Rotation.from_rotvec(rng.uniform(-0.1, 0.1, (n, 3))).as_quat()
     bp, bq = systems.user_positions(p, q, MECH)
-    for i in range(4):
-        assert_close(Transform.from_pq(bp[i], bq[i]), systems.user_position(p[i], q[i], MECH))
     left = Transform.from_human([1, 2, 3, 4, 5, 6])
     cp, cq = compose_poses(left, p, q, obj)
-    assert_close(Transform.from_pq(cp[0], cq[0]), left @ Transform.from_pq(p[0], q[0]) @ obj)
+    for i in range(n):
+        assert_close(Transform.from_pq(bp[i], bq[i]), systems.user_position(p[i], q[i], MECH))
+        assert_close(Transform.from_pq(cp[i], cq[i]),
+                     left @ Transform.from_pq(p[i], q[i]) @ obj)
+    assert (bq[:, 3] >= 0.0).all() and (cq[:, 3] >= 0.0).all()
 
 
 @FEW

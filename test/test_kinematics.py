@@ -11,18 +11,26 @@ import numpy as np
 import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 from workspace import MECH, poses, random_poses
 
 from positioning_cell.core import kinematics
 from positioning_cell.core.limits import check_poses
 from positioning_cell.core.poses import (
     SMALL_BATCH,
+    canonical_quaternions,
     euler_xyz_from_quaternion,
     matrix_from_quaternion,
     mean_quaternion,
     quaternion_from_euler_xyz,
     quaternion_from_matrix,
+    quaternion_from_rotation_vector,
+    quaternion_inverse,
+    quaternion_product,
+    rotate,
+    rotation_angle,
+    rotation_vector,
+    slerp,
 )
 from positioning_cell.errors import InputError
 from positioning_cell.testing.reference_kinematics import reference_forward
@@ -142,6 +150,54 @@ def test_mean_quaternions_are_scipys(centres: list[tuple[float, ...]], spread: f
     assume(eigenvalues[-1] - eigenvalues[-2] > 1e-3)
     expected = Rotation.from_quat(q).mean().as_quat(canonical=True)
     np.testing.assert_allclose(mean_quaternion(q), expected, rtol=0, atol=1e-12)
+
+
+#: Unit quaternions drawn anywhere (normalised from any direction), as lists for hypothesis.
+UNIT_QUATERNIONS = st.lists(st.tuples(*[st.floats(-2.0, 2.0)] * 4)
+                            .filter(lambda v: float(np.linalg.norm(v)) > 0.05),
+                            min_size=1, max_size=8).map(
+    lambda qs: np.array(qs) / np.linalg.norm(qs, axis=1, keepdims=True))
+
+
+@given(UNIT_QUATERNIONS, UNIT_QUATERNIONS, st.lists(st.floats(-1.0, 1.0), min_size=3,
+                                                    max_size=3))
+def test_numpy_rotations_are_scipys(a: np.ndarray, b: np.ndarray, v: list[float]) -> None:
+    """core.poses' numpy rotations (the positioner's moves, corrections and status without
+    scipy.spatial, issue 24) against scipy's Rotation: products, inverses, rotation vectors
+    both ways, rotated vectors and angles, sign included where scipy keeps it."""
+    n = min(len(a), len(b))
+    a, b = a[:n], b[:n]
+    ra, rb = Rotation.from_quat(a), Rotation.from_quat(b)
+    np.testing.assert_allclose(quaternion_product(a, b), (ra * rb).as_quat(), rtol=0,
+                               atol=1e-15)
+    np.testing.assert_allclose(quaternion_inverse(a), ra.inv().as_quat(), rtol=0, atol=5e-16)
+    np.testing.assert_allclose(rotation_vector(a), ra.as_rotvec(), rtol=0, atol=5e-15)
+    np.testing.assert_allclose(rotation_angle(a), ra.magnitude(), rtol=0, atol=5e-15)
+    turns = ra.as_rotvec() * np.array(v[:1] + [1.0] * (n - 1))[:, None]  # small angles too
+    np.testing.assert_allclose(quaternion_from_rotation_vector(turns),
+                               Rotation.from_rotvec(turns).as_quat(), rtol=0, atol=5e-16)
+    np.testing.assert_allclose(rotate(a, np.array(v)), ra.apply(v), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(canonical_quaternions(-a), ra.as_quat(canonical=True), rtol=0,
+                               atol=5e-16)
+
+
+@given(UNIT_QUATERNIONS, st.lists(st.floats(0.0, 1.0), min_size=1, max_size=20))
+def test_numpy_slerp_is_scipys(q: np.ndarray, fractions: list[float]) -> None:
+    """core.poses.slerp (a move's orientations, moves.trajectory) against scipy's Slerp between
+    two drawn rotations (one and the next; the last and itself), ends included."""
+    start, end = q[0], q[-1] if len(q) > 1 else q[0]
+    s = np.array([0.0, 1.0, *fractions])
+    expected = Slerp([0.0, 1.0], Rotation.from_quat([start, end]))(s).as_quat()
+    np.testing.assert_allclose(slerp(start, end, s), expected, rtol=0, atol=1e-14)
+
+
+@given(st.floats(1e-12, 2e-3))
+def test_small_rotation_vectors_keep_their_bits(angle: float) -> None:
+    """Across scipy's series threshold (1e-3 rad) and far below it, a rotation vector survives
+    the round trip to a quaternion and back to its relative rounding."""
+    v = np.array([0.6, -0.8, 0.0]) * angle
+    np.testing.assert_allclose(rotation_vector(quaternion_from_rotation_vector(v)), v,
+                               rtol=1e-15, atol=0)
 
 
 def test_ik_fk_round_trip_batch() -> None:

@@ -17,7 +17,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import as_pose_batch, scipy_rotation
+from positioning_cell.core.poses import (
+    as_pose_batch,
+    quaternion_inverse,
+    quaternion_product,
+    rotation_angle,
+)
 from positioning_cell.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -31,15 +36,16 @@ ROTATION_MARGIN = 1e-3
 
 def rotation_from_home(mech: Mechanism, quaternion: ArrayLike) -> FloatArray:
     """The angle (N,) rad of each orientation (N, 4) from the home orientation."""
-    rot = scipy_rotation().from_quat(np.atleast_2d(np.asarray(quaternion, dtype=float)))
-    angle: FloatArray = (rot * scipy_rotation().from_quat(mech.home_quaternion).inv()).magnitude()
-    return angle
+    q = np.atleast_2d(np.asarray(quaternion, dtype=float))
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    home = mech.home_quaternion / np.linalg.norm(mech.home_quaternion)
+    return rotation_angle(quaternion_product(q, quaternion_inverse(home)))
 
 
 def _hull(points: FloatArray) -> FloatArray:
     """The vertices of the convex hull of points (N, 3) m; their bounding box's corners when
     they span no volume (fewer than 4 poses, or all in a plane)."""
-    import scipy.spatial  # here: ~0.2 s of the positioner's start, which builds no hull
+    import scipy.spatial  # here: ~0.2 s of a start; a positioner imports it with a calibration
 
     try:
         hull = scipy.spatial.ConvexHull(points)

@@ -282,26 +282,107 @@ def pose_error(position: FloatArray, quaternion: FloatArray, position_ref: Float
     """Pose minus reference: Δp (N, 3) in m, base frame; rotation vector of R_refᵀ·R (N, 3) rad.
 
     Either side may be one pose (1, 3), (1, 4) against N. The rotation is the quaternion
-    product q_ref* ⊗ q (both normalised, x, y, z, w), taken with w >= 0, as the rotation vector
-    2·atan2(|v|, w)·v/|v| (angle in [0, π]; exact to the last bits for small angles, where
-    |v| ≈ angle/2). Elementwise numpy: a row's result does not depend on the batch it is in."""
+    product q_ref* ⊗ q (both normalised, x, y, z, w) as :func:`rotation_vector` takes it
+    (angle in [0, π]; exact to the last bits for small angles, where |v| ≈ angle/2).
+    Elementwise numpy: a row's result does not depend on the batch it is in."""
     q = np.asarray(quaternion, dtype=float)
     r = np.asarray(quaternion_ref, dtype=float)
     q = q / np.sqrt((q * q).sum(axis=-1))[..., np.newaxis]
     r = r / np.sqrt((r * r).sum(axis=-1))[..., np.newaxis]
-    x1, y1, z1, w1 = -r[..., 0], -r[..., 1], -r[..., 2], r[..., 3]
+    return (np.asarray(position, dtype=float) - np.asarray(position_ref, dtype=float),
+            rotation_vector(quaternion_product(quaternion_inverse(r), q)))
+
+
+# -- rotations as quaternions, in numpy ---------------------------------------------------------
+# What scipy's Rotation computes for the positioner's moves, corrections and status, by the same
+# formulas, so that a node rotating poses needs no scipy.spatial (its import: ~0.35 CPU-s and
+# ~30 MB of every start that pays it, issue 24); test_kinematics checks each against scipy.
+
+def quaternion_product(a: ArrayLike, b: ArrayLike) -> FloatArray:
+    """Hamilton products a ⊗ b (..., 4) of quaternions (..., 4) x, y, z, w (broadcast): for
+    unit ones the rotation R_a·R_b (scipy's ``Rotation.__mul__``, the same formula)."""
+    p, q = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    x1, y1, z1, w1 = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     x2, y2, z2, w2 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
-    v = np.stack([w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                  w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                  w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+    return np.stack([w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                     w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+                     w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2], axis=-1)
+
+
+def quaternion_inverse(quaternion: ArrayLike) -> FloatArray:
+    """Conjugates (..., 4) of unit quaternions (..., 4) x, y, z, w: the inverse rotations."""
+    q = np.asarray(quaternion, dtype=float)
+    return np.concatenate([-q[..., :3], q[..., 3:]], axis=-1)
+
+
+def rotation_vector(quaternion: ArrayLike) -> FloatArray:
+    """Rotation vectors (..., 3) rad (angle · unit axis, angle in [0, π]) of unit quaternions
+    (..., 4) x, y, z, w, either sign: 2·atan2(|v|, w)·v/|v| with q of scipy's canonical sign
+    (``as_rotvec``: w > 0; at exactly π, w = 0, the first non-zero of x, y, z positive, which
+    sets the way round a slerp goes; atan2 keeps small angles exact to the last bits, where
+    |v| ≈ angle/2)."""
+    q = np.asarray(quaternion, dtype=float)
+    v, w = q[..., :3], q[..., 3]
     sign = np.where(w < 0.0, -1.0, 1.0)
+    at_pi = w == 0.0
+    if at_pi.any():
+        first = np.take_along_axis(v, np.argmax(v != 0.0, axis=-1)[..., None], axis=-1)[..., 0]
+        sign = np.where(at_pi & (first < 0.0), -1.0, sign)
     w = w * sign
     norm = np.sqrt((v * v).sum(axis=-1))
     safe = np.where(norm > 0.0, norm, 1.0)
     scale = np.where(norm > 0.0, 2.0 * np.arctan2(norm, w) / safe, 0.0) * sign
-    return (np.asarray(position, dtype=float) - np.asarray(position_ref, dtype=float),
-            v * scale[..., np.newaxis])
+    out: FloatArray = v * scale[..., np.newaxis]
+    return out
+
+
+def quaternion_from_rotation_vector(rotvec: ArrayLike) -> FloatArray:
+    """Unit quaternions (..., 4) x, y, z, w (w ≥ 0 for angles up to π) of rotation vectors
+    (..., 3) rad: [sin(θ/2)·v/θ, cos(θ/2)], θ = |v|, with scipy's series for θ ≤ 1e-3
+    (``Rotation.from_rotvec``)."""
+    v = np.asarray(rotvec, dtype=float)
+    angle = np.sqrt((v * v).sum(axis=-1))
+    small = angle <= 1e-3
+    safe = np.where(small, 1.0, angle)
+    scale = np.where(small, 0.5 - angle ** 2 / 48.0 + angle ** 4 / 3840.0,
+                     np.sin(0.5 * safe) / safe)
+    return np.concatenate([v * scale[..., np.newaxis], np.cos(0.5 * angle)[..., np.newaxis]],
+                          axis=-1)
+
+
+def rotate(quaternion: ArrayLike, vectors: ArrayLike) -> FloatArray:
+    """R(q)·v (..., 3) for quaternions (..., 4) x, y, z, w and vectors (..., 3), broadcast
+    (scipy's ``Rotation.apply``: the matrix of :func:`matrix_from_quaternion` times v)."""
+    m = matrix_from_quaternion(np.asarray(quaternion, dtype=float))
+    out: FloatArray = np.einsum('...ij,...j->...i', m, np.asarray(vectors, dtype=float))
+    return out
+
+
+def slerp(start: ArrayLike, end: ArrayLike, fractions: ArrayLike) -> FloatArray:
+    """Quaternions (K, 4) x, y, z, w at ``fractions`` (K,) of the way from the unit quaternion
+    ``start`` (4,) to ``end`` (4,), at constant angular rate about one axis, the shorter way:
+    q₀ ⊗ exp(s·log(q₀* ⊗ q₁)) (scipy's ``Slerp`` between key times 0 and 1, the same
+    formula)."""
+    q0 = np.asarray(start, dtype=float).reshape(4)
+    turn = rotation_vector(quaternion_product(quaternion_inverse(q0), end))
+    s = np.asarray(fractions, dtype=float).reshape(-1, 1)
+    return quaternion_product(q0, quaternion_from_rotation_vector(s * turn))
+
+
+def rotation_angle(quaternion: ArrayLike) -> FloatArray:
+    """Rotation angles (...,) rad in [0, π] of unit quaternions (..., 4) x, y, z, w:
+    2·atan2(|v|, |w|) (scipy's ``Rotation.magnitude``)."""
+    q = np.asarray(quaternion, dtype=float)
+    angle: FloatArray = 2.0 * np.arctan2(np.sqrt((q[..., :3] ** 2).sum(axis=-1)),
+                                         np.abs(q[..., 3]))
+    return angle
+
+
+def canonical_quaternions(quaternion: ArrayLike) -> FloatArray:
+    """Quaternions (N, 4) x, y, z, w with scipy's canonical sign (``as_quat(canonical=True)``:
+    the first non-zero of w, x, y, z positive)."""
+    return _canonical(np.asarray(quaternion, dtype=float).reshape(-1, 4))
 
 
 def triple(v: ArrayLike) -> Triple:

@@ -16,9 +16,7 @@ x, y, z, w and come back with w ≥ 0.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -29,15 +27,15 @@ from positioning_cell.core.poses import (
     as_pose_batch,
     as_unit_quaternions,
     as_vectors,
+    canonical_quaternions,
+    euler_xyz_from_quaternion,
     matrix_from_quaternion,
     quaternion_from_euler_xyz,
     quaternion_from_matrix,
-    scipy_rotation,
+    quaternion_product,
+    rotation_angle,
 )
 from positioning_cell.errors import InputError
-
-if TYPE_CHECKING:
-    from scipy.spatial.transform import Rotation
 
 #: Millimetres per metre: the translation of the human form.
 MM_PER_M = 1000.0
@@ -51,7 +49,6 @@ __all__ = [
     'Transform',
     'compose_poses',
     'distance',
-    'euler_angles',
     'format_human',
     'human_from_pose6',
     'pose6_from_human',
@@ -78,14 +75,6 @@ def _as_quaternions(value: ArrayLike, name: str) -> FloatArray:
     return as_unit_quaternions(arr.reshape(-1, 4), name).reshape(arr.shape)
 
 
-def euler_angles(rotation: Rotation) -> FloatArray:
-    """Rx, Ry, Rz rad (R = Rz·Ry·Rx) of ``rotation`` ((3,) or (N, 3)); at gimbal lock Rz = 0
-    (scipy's choice), silently."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings('ignore', 'Gimbal lock detected', UserWarning)
-        return np.asarray(rotation.as_euler(EULER_SEQUENCE), dtype=float)
-
-
 # -- six numbers ---------------------------------------------------------------------------------
 def pose6_from_pq(position: ArrayLike, quaternion: ArrayLike) -> FloatArray:
     """SI six numbers (..., 6): tx, ty, tz m and rx, ry, rz rad (R = Rz·Ry·Rx) of poses
@@ -94,7 +83,7 @@ def pose6_from_pq(position: ArrayLike, quaternion: ArrayLike) -> FloatArray:
     q = _as_quaternions(quaternion, 'quaternion')
     if p.shape[:-1] != q.shape[:-1]:
         raise InputError(f'position {p.shape} and quaternion {q.shape} differ in batch shape')
-    angles = euler_angles(scipy_rotation().from_quat(q.reshape(-1, 4))).reshape(p.shape)
+    angles = euler_xyz_from_quaternion(q.reshape(-1, 4)).reshape(p.shape)
     return np.concatenate([p, angles], axis=-1)
 
 
@@ -102,9 +91,8 @@ def pq_from_pose6(pose6: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Positions (..., 3) m and unit quaternions (..., 4) x, y, z, w (w ≥ 0) of SI six numbers
     (..., 6): tx, ty, tz m and rx, ry, rz rad (R = Rz·Ry·Rx)."""
     v = _as_last(pose6, 6, 'pose6')
-    rotations = scipy_rotation().from_euler(EULER_SEQUENCE, v.reshape(-1, 6)[:, 3:])
-    q = rotations.as_quat(canonical=True)
-    return v[..., :3].copy(), np.asarray(q, dtype=float).reshape(v.shape[:-1] + (4,))
+    q = canonical_quaternions(quaternion_from_euler_xyz(v.reshape(-1, 6)[:, 3:]))
+    return v[..., :3].copy(), q.reshape(v.shape[:-1] + (4,))
 
 
 def human_from_pose6(pose6: ArrayLike) -> FloatArray:
@@ -201,7 +189,7 @@ class Transform:
 
     def to_pose6(self) -> FloatArray:
         """SI six numbers (6,): tx, ty, tz m, rx, ry, rz rad (R = Rz·Ry·Rx)."""
-        return np.concatenate([self.p, euler_angles(scipy_rotation().from_matrix(self.R))])
+        return np.concatenate([self.p, euler_xyz_from_quaternion(self.q[np.newaxis])[0]])
 
     def to_human(self) -> FloatArray:
         """Human six numbers (6,): Tx, Ty, Tz mm, Rx, Ry, Rz deg (R = Rz·Ry·Rx)."""
@@ -243,13 +231,14 @@ def compose_poses(left: Transform, position: ArrayLike, quaternion: ArrayLike,
     """left · T_i · right for a batch of poses T_i = (``position`` (N, 3) m, unit
     ``quaternion`` (N, 4) x, y, z, w): positions (N, 3) m, quaternions (N, 4) with w ≥ 0."""
     p, q = as_pose_batch(position, quaternion)
-    r = matrix_from_quaternion(q)
-    out_p = (p + r @ right.p) @ left.R.T + left.p
-    out_r = left.R @ r @ right.R
-    return np.asarray(out_p), quaternion_from_matrix(out_r, orthonormal=True)
+    out_p = (p + matrix_from_quaternion(q) @ right.p) @ left.R.T + left.p
+    # as quaternions, in numpy at any batch size (the positioner checks a move's every sample
+    # against a user box through this, and imports no scipy: ros.spin)
+    out_q = quaternion_product(quaternion_product(left.q, q), right.q)
+    return np.asarray(out_p), canonical_quaternions(out_q)
 
 
 def distance(a: Transform, b: Transform) -> tuple[float, float]:
     """How far ``b`` is from ``a``: |p_b − p_a| m and the rotation angle of R_aᵀ·R_b rad."""
-    angle = scipy_rotation().from_matrix(a.R.T @ b.R).magnitude()
+    angle = rotation_angle(quaternion_from_matrix((a.R.T @ b.R)[np.newaxis], orthonormal=True))[0]
     return float(np.linalg.norm(b.p - a.p)), float(angle)

@@ -13,10 +13,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from positioning_cell.core.poses import (
     as_pose_batch,
+    canonical_quaternions,
     matrix_from_quaternion,
     mean_quaternion,
     pose_error,
-    scipy_rotation,
+    quaternion_from_rotation_vector,
+    quaternion_inverse,
+    quaternion_product,
+    rotation_vector,
 )
 from positioning_cell.errors import InputError
 from positioning_cell.metrology.instrument import averaged_covariance
@@ -35,9 +39,8 @@ def corrected_command(command_p: ArrayLike, command_q: ArrayLike, desired_p: Arr
     cp, cq = as_pose_batch(command_p, command_q)
     dp, dq = as_pose_batch(desired_p, desired_q)
     mp, mq = as_pose_batch(measured_p, measured_q)
-    quat = scipy_rotation().from_quat
-    rot = quat(dq) * quat(mq).inv() * quat(cq)
-    return (cp + dp - mp)[0], np.asarray(rot.as_quat(canonical=True))[0]
+    rot = quaternion_product(quaternion_product(dq, quaternion_inverse(mq)), cq)
+    return (cp + dp - mp)[0], canonical_quaternions(rot)[0]
 
 def deviation(measured_p: ArrayLike, measured_q: ArrayLike, desired_p: ArrayLike,
               desired_q: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -167,8 +170,8 @@ def correction_offset(command_p: ArrayLike, command_q: ArrayLike, measured_p: Ar
     :func:`corrected_command` does)."""
     cp, cq = as_pose_batch(command_p, command_q)
     mp, mq = as_pose_batch(measured_p, measured_q)
-    turn = scipy_rotation().from_quat(cq) * scipy_rotation().from_quat(mq).inv()
-    return np.concatenate([(cp - mp)[0], turn.as_rotvec()[0]])
+    turn = quaternion_product(cq, quaternion_inverse(mq))
+    return np.concatenate([(cp - mp)[0], rotation_vector(turn)[0]])
 
 
 def offset_command(goal_p: ArrayLike, goal_q: ArrayLike,
@@ -177,8 +180,8 @@ def offset_command(goal_p: ArrayLike, goal_q: ArrayLike,
     (:func:`correction_offset`): p = p_goal + Δp, R = exp([θ]×)·R_goal (base frame)."""
     gp, gq = as_pose_batch(goal_p, goal_q)
     off = np.asarray(offset, dtype=float).reshape(6)
-    rot = scipy_rotation().from_rotvec(off[3:]) * scipy_rotation().from_quat(gq[0])
-    return gp[0] + off[:3], np.asarray(rot.as_quat(canonical=True))
+    rot = quaternion_product(quaternion_from_rotation_vector(off[3:]), gq[0])
+    return gp[0] + off[:3], canonical_quaternions(rot)[0]
 
 
 def predicted_offset(goals_p: ArrayLike, offsets: ArrayLike, goal_p: ArrayLike,

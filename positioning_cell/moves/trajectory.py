@@ -24,8 +24,11 @@ from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import (
     as_pose_batch,
     interpolated_pose,
-    scipy_rotation,
-    scipy_slerp,
+    quaternion_inverse,
+    quaternion_product,
+    rotate,
+    rotation_vector,
+    slerp,
 )
 from positioning_cell.core.vectors import cross
 from positioning_cell.errors import InputError
@@ -170,7 +173,7 @@ def checked_pivot(pivot: ArrayLike | None) -> FloatArray:
     pivot that is not three finite numbers within :data:`PIVOT_REACH` m."""
     if pivot is None:
         return np.zeros(3)
-    arr = np.array(pivot, dtype=float)  # a copy: scipy's apply takes no read-only array
+    arr = np.array(pivot, dtype=float)  # a copy: not the caller's array
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise InputError(f'pivot = {np.asarray(pivot).tolist()!r}: expected three finite '
                          'coordinates (m, platform frame)')
@@ -210,10 +213,9 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
                                     np.reshape(goal_quaternion, (-1, 4))]))
     if p.shape[0] != 2:
         raise InputError('plan_move takes exactly one start and one goal pose')
-    rotations = scipy_rotation().from_quat(q)
-    ends_c = p + rotations.apply(pivot_platform)  # the pivot at the start and at the goal
+    ends_c = p + rotate(q, pivot_platform)  # the pivot at the start and at the goal
     delta_c = ends_c[1] - ends_c[0]
-    rotvec = (rotations[0].inv() * rotations[1]).as_rotvec()
+    rotvec = rotation_vector(quaternion_product(quaternion_inverse(q[0]), q[1]))
     angle = float(np.linalg.norm(rotvec))
     distance = float(np.linalg.norm(delta_c)) + angle * float(np.linalg.norm(pivot_platform))
     ta, peak, total = plan_profile(distance, angle, limits, duration)
@@ -224,14 +226,13 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
         s, sd = np.ones(n + 1), np.zeros(n + 1)
     else:
         s, sd = time_law(ta, peak, total, times)
-    turned = scipy_slerp()([0.0, 1.0], rotations)(s)
-    quaternion = turned.as_quat()
-    lever = turned.apply(pivot_platform)  # R(s)·pivot, base frame
+    quaternion = slerp(q[0], q[1], s)
+    lever = rotate(quaternion, pivot_platform)  # R(s)·pivot, base frame
     position = ends_c[0] + s[:, None] * delta_c - lever
     position[-1] = p[1]  # the goal exactly, not within rounding of it
     joints = compensate(mech, clearance, position, quaternion)
     # Platform twist in base: ω = ṡ · (R_start · rotvec); v = ṡ · Δc − ω × R(s)·pivot.
-    omega_axis = rotations[0].apply(rotvec)
+    omega_axis = rotate(q[0], rotvec)
     omega = sd[:, None] * omega_axis
     twist = np.hstack([sd[:, None] * delta_c - cross(omega, lever), omega])
     rates = np.einsum('nij,nj->ni', _inverse_jacobian(mech, position, quaternion), twist)
