@@ -211,13 +211,16 @@ def test_driver_fault_mid_move_aborts_then_reenable(cell: Any, errors_by_mode: A
 
 def test_nodes_that_rotate_in_numpy_never_load_scipy(cell: Any, errors_by_mode: Any) -> None:
     """The nodes that import no scipy as they spin (test_node_start's WITHOUT_SCIPY: the
-    drives, the tracker and the monitor) did not load it while they ran: after the moves of
-    both modes, their settled readings and verdicts, none of their processes maps a scipy
-    library. (One of them importing scipy in a callback would pause it for the whole import:
-    ~0.4 s, the tracker's silence bound is 0.5 s.)"""
+    drives, the tracker, the monitor and the positioner without a calibration) did not load
+    it while they ran: after homing, the moves of both modes (the measured mode's
+    corrections), their settled readings and verdicts, the positioner's status and checks, none
+    of their processes maps a scipy library. (One of them importing scipy in a callback would
+    pause it for the whole import: ~0.4 s, the tracker's silence bound is 0.5 s, the
+    positioner's joint-silence watch 0.2 s.)"""
     procs = cell[3]
-    for exe in ('leg_driver_node', 'pose_measurement_node', 'accuracy_monitor_node'):
+    for exe in ('leg_driver_node', 'pose_measurement_node', 'accuracy_monitor_node',
+                'kinematics_node'):
         maps = Path(f'/proc/{procs.procs[exe].pid}/maps').read_text()
         assert '/scipy/' not in maps, f'{exe} loaded scipy'
-    # the check can see it: the positioner imports scipy as it spins
-    assert '/scipy/' in Path(f'/proc/{procs.procs["kinematics_node"].pid}/maps').read_text()
+    # the check can see it: this process imported scipy (Rotation, above)
+    assert '/scipy/' in Path('/proc/self/maps').read_text()

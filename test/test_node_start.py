@@ -90,8 +90,11 @@ def test_an_import_that_fails_ends_the_node_with_its_error(tmp_path: Path) -> No
 #: threads never imported scipy in test_cell and the fault matrix (ad hoc, an import hook per
 #: driver process), and :func:`test_the_driver_moves_without_scipy` keeps it so. The tracker
 #: and the monitor rotate in numpy (their fits, means and ISO 9283 angles): the library tests
-#: below and test_cell's look at the running processes keep them so.
-WITHOUT_SCIPY = (names.RECORDER, names.PLAYER, names.DRIVER, names.MEASUREMENT, names.MONITOR)
+#: below and test_cell's look at the running processes keep them so. So does the positioner
+#: (its move plans, corrections and status: core.poses' quaternions); a calibration it loads
+#: imports scipy.spatial then, for the envelope's hull (calibration.calibrated).
+WITHOUT_SCIPY = (names.RECORDER, names.PLAYER, names.DRIVER, names.MEASUREMENT, names.MONITOR,
+                 names.POSITIONER)
 
 
 def test_only_nodes_that_need_scipy_import_it_as_they_spin() -> None:

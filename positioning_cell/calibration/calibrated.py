@@ -102,6 +102,11 @@ def calibrated_machine(settings: CalibratedSettings,
     text = files.within(timeout, lambda: read(path), files.describe(files.CALIBRATION_FILE, path),
                         CalibrationFileError)
     calibration = parse(text, path, settings.mechanism)
+    # The envelope's test of every move (Envelope.reasons) takes scipy.spatial's convex hull:
+    # imported with the calibration, while it loads, not in the first move's callback (an
+    # import there pauses that callback's executor thread for 0.2 s or more; the positioner
+    # imports no scipy otherwise, positioning_cell.ros.spin).
+    import scipy.spatial  # noqa: F401
     return Calibrated(calibration.model(settings.mechanism, settings.payload,
                                         settings.structure),
                       calibration.envelope, calibration.lacks, calibration, settings.mechanism)

@@ -193,7 +193,7 @@ class PositionerNode(QosWatchedNode):
 
 
 #: The entry point of ``kinematics_node`` (alone; ``cell_container`` hosts it with others).
-main = NodeStart(PositionerNode, Spin.THREADS, threads=6)
+main = NodeStart(PositionerNode, Spin.THREADS, threads=6, imports=())
 
 
 if __name__ == '__main__':

@@ -86,7 +86,8 @@ class NodeStart:
     ``cell_container`` runs several together (:func:`run_together`). ``imports``: the modules
     its work imports at their first use, imported in a thread of their own from the moment it
     spins (:func:`_import_aside`; none for the nodes whose work never needs scipy: the
-    recorder, the bag player, the drives, the tracker and the monitor, test_node_start)."""
+    recorder, the bag player, the drives, the tracker, the monitor and the positioner, whose
+    calibration imports what it needs as it loads; test_node_start)."""
 
     factory: Callable[[], Node]
     spin: Spin = Spin.EVENTS
