@@ -7,8 +7,9 @@ a pytest plugin in every worker: around each test, the worker's ``getrusage(RUSA
 ``getrusage(RUSAGE_CHILDREN)`` (the nodes and tools a test starts count once they are reaped,
 which every test's ProcessGroup does at its end; a module fixture's cell falls on the module's
 last test). Prints the tier's wall time and CPU (this process's children: the workers and all
-they started), the floor that CPU sets on the cores given (CPU / cores), and each module's CPU
-(test process, started processes) and wall time, costliest first.
+they started), the floor that CPU sets on the cores given (CPU / cores), each worker's busy time
+and last module (their spread: what the modules' order leaves idle at the end), and each
+module's CPU (test process, started processes) and wall time, costliest first.
 
 Further arguments go to pytest (e.g. a module). Run from the checkout with the venv's python
 and make test's environment, e.g.
@@ -72,6 +73,20 @@ def per_module(rows: list[Any]) -> dict[str, list[float]]:
     return modules
 
 
+def report_workers(by_worker: dict[str, list[Any]]) -> None:
+    """Each worker's busy time (its tests' wall times summed, set-up and teardown included) and
+    the module it ran last: the tier's wall time is its busiest worker's, so the spread is what
+    the order of the modules (conftest.LONGEST_FIRST) leaves idle at the end."""
+    busy = {worker: sum(row[3] for row in rows) for worker, rows in by_worker.items()
+            if rows}  # (xdist's controller ran no test)
+    for worker in sorted(busy):
+        last = by_worker[worker][-1][0].split('::')[0].rsplit('/', 1)[-1]
+        print(f'worker {worker}: busy {busy[worker]:.0f} s, last module {last}')
+    if len(busy) > 1:
+        spread = max(busy.values()) - min(busy.values())
+        print(f'spread of the workers\' busy times: {spread:.0f} s')
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--timing', action='store_true', help='the timing tier (serially)')
@@ -90,7 +105,8 @@ def main() -> int:
         ran = subprocess.run(command, cwd=ROOT, env=env, check=False, capture_output=True,
                              text=True)
         wall, cpu = time.monotonic() - start, _cpu(resource.RUSAGE_CHILDREN) - before
-        rows = [row for f in Path(out).glob('*.json') for row in json.loads(f.read_text())]
+        by_worker = {f.stem: json.loads(f.read_text()) for f in Path(out).glob('*.json')}
+        rows = [row for worker_rows in by_worker.values() for row in worker_rows]
     said = ran.stdout.strip().splitlines()
     print(said[-1] if said else ran.stderr[-2000:])
     for line in said:  # -ra's summary: which tests failed or errored, and why
@@ -102,6 +118,7 @@ def main() -> int:
           f'CPU / {args.cores} cores = {cpu / args.cores:.0f} s, the floor on its wall time')
     print(f'per test, summed: {own + kids:.0f} s CPU: {own:.0f} in the test processes, '
           f'{kids:.0f} in the processes they started')
+    report_workers(by_worker)
     print(f'{"module":<34} {"CPU s":>7} {"own":>7} {"started":>8} {"wall s":>7} {"n":>5}')
     for name, (m_own, m_kids, m_wall, n) in sorted(
             modules.items(), key=lambda kv: -(kv[1][0] + kv[1][1]))[:args.top]:
