@@ -8,8 +8,9 @@ came last: a bare rclpy node that imported the recorder's modules before its par
 answered in 0.46-0.70 s (median 0.61), and 0.40-0.45 s (median 0.42) when a first node had
 made the participant before those imports (ad hoc, 8 starts each, alternated; the bare node
 0.29). :func:`start` initialises the default context from the command line and makes its
-participant with a hidden node of no endpoints of its own, from the entry point
-(:mod:`positioning_cell.ros.entry`) right after rclpy is imported; Fast DDS discovers the
+participant with a hidden node (no services, no /rosout; only the /parameter_events
+publisher every rclpy node has), from the entry point (:mod:`positioning_cell.ros.entry`)
+right after rclpy is imported; Fast DDS discovers the
 cell in its own threads while the interpreter imports the node's modules.
 :func:`positioning_cell.ros.spin.run_together` takes that context as it finds it and ends
 the hidden node (:func:`end`) once the process's own nodes are built: the participant is the
@@ -36,7 +37,8 @@ def start(args: Sequence[str] | None = None) -> None:
     as the node's own ``rclpy.init`` would) without rclpy's signal handlers, and make its
     participant: a node named ``_start_<pid>`` (hidden from ``ros2 node list``) that takes no
     remapping or parameter from the command line and has no parameter services, /rosout or
-    type description service."""
+    type description service (only the /parameter_events publisher rclpy gives every
+    node)."""
     rclpy.init(args=list(args) if args is not None else None,
                signal_handler_options=SignalHandlerOptions.NO)
     _starters.append(Node(
