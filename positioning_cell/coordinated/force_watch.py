@@ -44,7 +44,7 @@ from positioning_cell.coordinated.cell_file import CellFile
 from positioning_cell.coordinated.internal_forces import pair_map
 from positioning_cell.coordinated.panel_motion import bases, platforms_in_panel
 from positioning_cell.core.mechanism import Mechanism
-from positioning_cell.core.poses import interpolated_pose, scipy_rotation
+from positioning_cell.core.poses import interpolated_pose, rotation_vector
 from positioning_cell.errors import ConfigError, InputError
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.moves.correction import mean_pose
@@ -167,7 +167,10 @@ class ForceWatch:
             wanted = base @ Transform.from_pq(commanded[0] - self._corrections[name],
                                               commanded[1])
             d_p = measured.apply(offset) - wanted.apply(offset)
-            d_r = scipy_rotation().from_matrix(measured.R @ wanted.R.T).as_rotvec()
+            # numpy, not scipy: a first use of scipy here would import it under the lock
+            # that the coordinator's next move waits for once it has set its start time
+            # (a coordinated relax refused, "the start time was 0.060 s ago", in CI)
+            d_r = rotation_vector((measured @ wanted.inverse()).q)
             to_panel = (wanted @ self._in_panel[name].inverse()).R.T  # the commanded panel's
             self._deviations[name].append((stamp, np.concatenate([to_panel @ d_p,
                                                                   to_panel @ d_r])))
