@@ -226,6 +226,24 @@ def test_zero_move_holds_for_one_period_and_the_drives_take_it() -> None:
     assert outcome.accepted, outcome.message
 
 
+@pytest.mark.parametrize('duration', [0.0, 1e-9])
+def test_a_move_within_one_period_lasts_one_period_and_its_stamps_increase(
+        duration: float) -> None:
+    """A femtometre step (round-off of a move to where the platform stands; the coordinated
+    cell's relaxes sent such, as fastest moves and as coordinated ones asking a least
+    duration of about that) lasts one period: its end stamped on absolute ROS time is after
+    its start's, where it fell on it (0.24 us of float spacing near 1.8e9 s), and every set
+    sent that duration has the same time law."""
+    step = np.array([1e-15, 0.0, 0.0])
+    traj = plan_move(MECH, MECH.home_position, IDENTITY, MECH.home_position + step, IDENTITY,
+                     period=0.01, limits=LIMITS, duration=duration)
+    np.testing.assert_allclose(traj.times, [0.0, 0.01])
+    assert (np.diff(1.8e9 + traj.times) > 0.0).all()
+    np.testing.assert_array_equal(traj.position[-1], MECH.home_position + step)
+    np.testing.assert_allclose(traj.position[0], MECH.home_position, atol=1e-18)
+    assert traj.limits.ok
+
+
 def test_bad_arguments() -> None:
     with pytest.raises(InputError, match='period'):
         plan_move(MECH, MECH.home_position, IDENTITY, MECH.home_position, IDENTITY, period=0.0)

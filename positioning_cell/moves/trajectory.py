@@ -190,7 +190,12 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
               pivot: ArrayLike | None = None) -> Trajectory:
     """Sample the move from start to goal every ``period`` s (the last sample is the goal); with
     ``duration`` > 0 on the coordinated time law lasting at least that long
-    (:func:`plan_profile`; 0: as fast as ``limits`` allow).
+    (:func:`plan_profile`; 0: as fast as ``limits`` allow). A move that would be over within
+    one period (a step of femtometres: what round-off leaves of a move to where the platform
+    already is) lasts one period, on the coordinated time law: its samples are stamped on
+    absolute ROS time, whose float spacing near 1.8e9 s is 0.24 us, so that a shorter move's
+    end fell on its start's stamp and its plan was refused as not increasing (the force
+    watch's, at the coordinated cell's relaxes).
 
     The ``pivot`` (3,) m, platform frame (None: the origin) goes on a straight line and the
     platform turns about it on SLERP (module docstring): p(s) = c₀ + s·(c₁ − c₀) − R(s)·pivot,
@@ -219,6 +224,8 @@ def plan_move(mech: Mechanism, start_position: ArrayLike, start_quaternion: Arra
     angle = float(np.linalg.norm(rotvec))
     distance = float(np.linalg.norm(delta_c)) + angle * float(np.linalg.norm(pivot_platform))
     ta, peak, total = plan_profile(distance, angle, limits, duration)
+    if 0.0 < total < period:
+        ta, peak, total = plan_profile(distance, angle, limits, period)
     n = max(math.ceil(total / period - 1e-9), 1)
     times = np.minimum(np.arange(n + 1) * period, total)
     if total == 0.0:  # already there: hold for one period (times must increase)
