@@ -97,7 +97,9 @@ def main() -> int:
     tier = (['-m', 'timing'] if args.timing
             else ['-n', str(args.workers), '--dist', 'loadscope', '-m', 'not timing'])
     with tempfile.TemporaryDirectory() as out:
-        env = {**os.environ, OUT_ENV: out,
+        # COLUMNS: -ra's summary line keeps each failure's reason (cut to the width, which
+        # pytest takes as 80 without a terminal: a long test id alone fills it)
+        env = {**os.environ, OUT_ENV: out, 'COLUMNS': '400',
                'PYTHONPATH': os.pathsep.join(filter(None, [str(ROOT / 'benchmarks'),
                                                            os.environ.get('PYTHONPATH')]))}
         before, start = _cpu(resource.RUSAGE_CHILDREN), time.monotonic()
