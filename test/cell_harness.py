@@ -93,11 +93,14 @@ def processes_naming(marker: Path) -> list[int]:
 def stop_cleanly(procs: Processes, log_chars: int = 2000) -> None:
     """Stop every process of ``procs`` (:meth:`Processes.stop`) and assert that each exited 0:
     the message names first which did not and with what code (a short summary line shows its
-    start), then the end of their logs."""
+    start), then the end of their logs, and of the native stacks of one that did not stop in
+    time (gdb lists the main thread last)."""
     codes = procs.stop()
     failed = {label: code for label, code in codes.items() if code != 0}
     assert not failed, ', '.join(f'{label} exited {code}' for label, code in failed.items()) \
-        + ''.join(f'\n--- {label}:\n{procs.log(label)[-log_chars:]}' for label in failed)
+        + ''.join(f'\n--- {label}:\n{procs.log(label)[-log_chars:]}'
+                  + (f'\n--- {label}, native stacks:\n{stacks[-2 * log_chars:]}'
+                     if (stacks := procs.stacks(label)) else '') for label in failed)
 
 
 class ProcessGroup(Processes):

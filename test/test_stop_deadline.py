@@ -1,12 +1,19 @@
 """A node whose stop hangs is ended at the stop's deadline (positioning_cell.ros.entry): its
 threads' stacks in its stderr, where it hung named, exit status 1. A stop that completes in
-time keeps its own exit status and prints no stacks."""
+time keeps its own exit status and prints no stacks. And a process a stop waits for long has
+its native stacks written first (positioning_cell.ros.processes)."""
 
 from __future__ import annotations
 
+import shutil
 import signal
 import subprocess
 import sys
+from pathlib import Path
+
+import pytest
+
+from positioning_cell.ros import processes
 
 #: The child: the node entry's stop handling with a given deadline, then a main thread that
 #: never returns (``hang_here``) or one that ends the process once the stop flag is up.
@@ -52,3 +59,35 @@ def test_a_stop_that_ends_in_time_keeps_its_status_and_prints_no_stacks() -> Non
     result = _stopped('end_at_stop', 30.0)
     assert result.returncode == 0, result
     assert 'Timeout' not in result.stderr, result.stderr
+
+
+#: A process that lets a stop wait: SIGINT ignored, then it ends by itself (exit 0) some
+#: seconds later, asleep in the C library meanwhile.
+SLOW_TO_STOP = """
+import signal, time
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+print('ready', flush=True)
+time.sleep({seconds})
+"""
+
+
+@pytest.mark.skipif(shutil.which('gdb') is None, reason='needs gdb')
+def test_a_process_still_stopping_has_its_native_stacks_written_before_its_deadline(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Processes.stop: a process running NATIVE_STACKS_AFTER_S after the signal has its
+    native stacks beside its log (where a stop hung inside a library), then is waited for as
+    before; one that stops at once has none written."""
+    monkeypatch.setattr(processes, 'NATIVE_STACKS_AFTER_S', 0.5)
+    procs = processes.Processes({}, tmp_path)
+    for label, seconds in (('slow', 4.0), ('prompt', 0.0)):
+        code = SLOW_TO_STOP.format(seconds=seconds) if seconds else 'print("ready", flush=True)'
+        procs.procs[label] = subprocess.Popen(
+            [sys.executable, '-c', code + '\nimport time; time.sleep(60)' * (not seconds)],
+            stdout=subprocess.PIPE, text=True, **processes.OWN_PROCESS_GROUP)
+        stdout = procs.procs[label].stdout
+        assert stdout is not None and stdout.readline() == 'ready\n'
+    codes = procs.stop(grace=30.0)
+    assert codes == {'slow': 0, 'prompt': -signal.SIGINT}, codes
+    stacks = procs.stacks('slow')
+    assert 'Thread 1' in stacks and 'sleep' in stacks, stacks
+    assert procs.stacks('prompt') == ''

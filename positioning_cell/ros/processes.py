@@ -11,11 +11,19 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
 import yaml
+
+#: How long after its stop signal a process still running has its native stacks written beside
+#: its log (:func:`native_stacks`, with gdb where it is installed): before the node's own stop
+#: deadline (``positioning_cell.ros.entry.STOP_DEADLINE_S``, 10 s) ends it with its Python
+#: stacks alone, which end at the call into the library where a stop hung (Fast DDS's
+#: destruction, seen in CI once in some ten runs: rclpy's ``destroy_node``).
+NATIVE_STACKS_AFTER_S = 7.0
 
 #: The ROS wheels' bootstrap marker: set in a Python process once its ``.pth`` has re-executed
 #: it with the venv's library path (platform.md).
@@ -106,6 +114,20 @@ OWN_PROCESS_GROUP: dict[str, Any] = (
     {'process_group': 0} if sys.version_info >= (3, 11) else {'start_new_session': True})
 
 
+def native_stacks(pid: int, timeout: float = 20.0) -> str | None:
+    """Every thread's native stack of process ``pid`` as gdb prints it (``thread apply all
+    bt``, attached and detached again), or None without gdb or when it could not attach."""
+    gdb = shutil.which('gdb')
+    if gdb is None:
+        return None
+    try:
+        ran = subprocess.run([gdb, '-p', str(pid), '-batch', '-nx', '-ex', 'thread apply all bt'],
+                             capture_output=True, text=True, timeout=timeout, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return ran.stdout if 'Thread ' in ran.stdout else None
+
+
 def executable(name: str) -> str:
     """Path of one of the package's console scripts: beside this interpreter first (a venv),
     else on PATH; FileNotFoundError if it is not installed."""
@@ -163,18 +185,21 @@ class Processes:
     def stop(self, label: str | None = None, sig: int = signal.SIGINT,
              grace: float = 20.0) -> dict[str, int]:
         """Send ``sig`` to the process group of ``label`` (default: all), wait up to ``grace``
-        s, SIGKILL what is left; the exit codes."""
+        s, SIGKILL what is left; the exit codes. A process still running
+        :data:`NATIVE_STACKS_AFTER_S` after the signal has its native stacks written to
+        ``<label>.stacks.txt`` beside its log (:meth:`stacks`) first."""
         labels = [label] if label else list(self.procs)
         for name in labels:
             proc = self.procs[name]
             if proc.poll() is None:
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, sig)
+        signalled = time.monotonic()
         codes = {}
         for name in labels:
             proc = self.procs[name]
             try:
-                codes[name] = proc.wait(timeout=grace)
+                codes[name] = self._wait(name, proc, signalled, grace)
             except subprocess.TimeoutExpired:
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, signal.SIGKILL)
@@ -185,6 +210,29 @@ class Processes:
             if log is not None:
                 log.close()
         return codes
+
+    def _wait(self, label: str, proc: subprocess.Popen[bytes], signalled: float,
+              grace: float) -> int:
+        """``proc``'s exit code once it ends within ``grace`` s of ``signalled``; its native
+        stacks written when it runs past :data:`NATIVE_STACKS_AFTER_S` (TimeoutExpired)."""
+        end = signalled + grace
+        stacks_at = signalled + NATIVE_STACKS_AFTER_S
+        if stacks_at < end:
+            try:
+                return proc.wait(timeout=max(stacks_at - time.monotonic(), 0.0))
+            except subprocess.TimeoutExpired:
+                stacks = native_stacks(proc.pid)
+                if stacks is not None:
+                    self._stacks_path(label).write_text(stacks)
+        return proc.wait(timeout=max(end - time.monotonic(), 0.0))
+
+    def _stacks_path(self, label: str) -> Path:
+        return self.log_dir / f'{label}.stacks.txt'
+
+    def stacks(self, label: str) -> str:
+        """The native stacks written of ``label`` as it did not stop (:meth:`stop`), or ''."""
+        path = self._stacks_path(label)
+        return path.read_text(errors='replace') if path.exists() else ''
 
     def __enter__(self) -> Processes:
         return self
