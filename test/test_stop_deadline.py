@@ -61,13 +61,14 @@ def test_a_stop_that_ends_in_time_keeps_its_status_and_prints_no_stacks() -> Non
     assert 'Timeout' not in result.stderr, result.stderr
 
 
-#: A process that lets a stop wait: SIGINT ignored, then it ends by itself (exit 0) some
-#: seconds later, asleep in the C library meanwhile.
-SLOW_TO_STOP = """
+#: A process asleep in the C library whose SIGINT is ignored (it ends by itself, exit 0,
+#: ``seconds`` later) or, with no seconds, ends it at once (Python's default action: an
+#: xdist worker leaves SIGINT ignored in its children).
+STOPPED_BY_SIGINT = """
 import signal, time
-signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.signal(signal.SIGINT, signal.SIG_IGN if {seconds} else signal.SIG_DFL)
 print('ready', flush=True)
-time.sleep({seconds})
+time.sleep({seconds} or 60)
 """
 
 
@@ -80,9 +81,8 @@ def test_a_process_still_stopping_has_its_native_stacks_written_before_its_deadl
     monkeypatch.setattr(processes, 'NATIVE_STACKS_AFTER_S', 0.5)
     procs = processes.Processes({}, tmp_path)
     for label, seconds in (('slow', 4.0), ('prompt', 0.0)):
-        code = SLOW_TO_STOP.format(seconds=seconds) if seconds else 'print("ready", flush=True)'
         procs.procs[label] = subprocess.Popen(
-            [sys.executable, '-c', code + '\nimport time; time.sleep(60)' * (not seconds)],
+            [sys.executable, '-c', STOPPED_BY_SIGINT.format(seconds=seconds)],
             stdout=subprocess.PIPE, text=True, **processes.OWN_PROCESS_GROUP)
         stdout = procs.procs[label].stdout
         assert stdout is not None and stdout.readline() == 'ready\n'
