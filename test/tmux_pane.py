@@ -23,7 +23,11 @@ class TmuxPane:
         script = log_dir / f'{socket}.sh'
         exports = ''.join(f'export {k}={shlex.quote(v)}\n' for k, v in env.items()
                           if k.startswith(PASSED))
-        script.write_text(f'{exports}{command}\necho "exited $?"\nsleep 600\n')
+        # the pane's own size, not the test's: a COLUMNS or LINES exported where pytest runs
+        # reaches the pane through the tmux server's environment, and rich draws to it
+        # (COLUMNS=400: every row wrapped, no header within the pane)
+        script.write_text(f'unset COLUMNS LINES\n{exports}{command}\necho "exited $?"\n'
+                          'sleep 600\n')
         self._tmux('new-session', '-d', '-s', 'pane', '-x', '130', '-y', '40',
                    f'bash {shlex.quote(str(script))}')
 
