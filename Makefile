@@ -54,10 +54,10 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 # the suite's own load is not what they measure. Three workers on two cores: the tier's tests
 # wait on their child processes and on discovery, and a third worker fills that time (the
 # tier in 3:39 with 3 workers against 4:28 with 2 and 3:54 with 4, one run each on the same
-# 2-core VM, issue 24). Each module goes whole to one worker, the longest first
-# (test/conftest.py LONGEST_FIRST): its module fixtures are set up once, and no long module
-# starts last (3:30 twice against 3:35-3:39 handing out single tests, 6:00 of CPU against
-# 7:08-7:35). The timing tier in two workers of its own took 1:13-1:18 against 2:13 alone, but
+# 2-core VM, issue 24). Each module goes whole to one worker: its module fixtures are set up
+# once (3:30 twice against 3:35-3:39 handing out single tests, 6:00 of CPU against 7:08-7:35);
+# xdist hands out the modules with the most tests first (test/conftest.py LONGEST_FIRST: the
+# longest first measured no better). The timing tier in two workers of its own took 1:13-1:18 against 2:13 alone, but
 # in one fresh-clone CI of two a `cell move` beside test_faults' cell had no answer in 120 s
 # (not understood; test_cli_on_the_cell), and one loop of it in four failed test_faults'
 # "tracker killed": the driver's joint states silent 0.99 s after the kill, the abort blamed

@@ -105,10 +105,14 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
 #: The parallel tier's longest modules, longest first (worker seconds on the 2-core VM, issue
 #: 24: run_cell 69, shutdown 47, fault_trials 41, docs 38, calibrator_node 38, package 28,
 #: bag_layouts 24, replay 17; panel_calibration 72 alone, run_coordinated 64 alone, issue
-#: 27): collected before the
-#: others, so that ``make test``'s xdist workers (``--dist loadscope``: a module to one
-#: worker, in collection order) start them first and the short modules fill in around them,
-#: instead of one of them starting last while the other workers have run out of work.
+#: 27): collected before the others, so that a serial run (the timing tier) and a worker
+#: given modules in collection order start them first. ``make test``'s parallel tier does
+#: not: pytest-xdist 3.8's ``--dist loadscope`` hands out the modules with the most tests
+#: first (its default ``--loadscope-reorder``), this order breaking only ties, so run_cell,
+#: run_coordinated and panel_calibration (one or two tests each) start late. In this order
+#: (``--no-loadscope-reorder``) the tier took 654 s against 621 s in xdist's (2026-12-07,
+#: one run each on the 2-core VM: its wall time is bound by its CPU, not by the order), so
+#: the Makefile keeps xdist's.
 LONGEST_FIRST = ('test_run_cell.py', 'test_panel_calibration.py', 'test_run_coordinated.py',
                  'test_shutdown.py', 'test_fault_trials.py', 'test_docs.py',
                  'test_calibrator_node.py', 'test_package.py', 'test_bag_layouts.py',
