@@ -22,7 +22,7 @@ import yaml
 #: its log (:func:`native_stacks`, with gdb where it is installed): before the node's own stop
 #: deadline (``positioning_cell.ros.entry.STOP_DEADLINE_S``, 10 s) ends it with its Python
 #: stacks alone, which end at the call into the library where a stop hung (Fast DDS's
-#: destruction, seen in CI once in some ten runs: rclpy's ``destroy_node``).
+#: destruction: rclpy's ``destroy_node`` or a collection, twice in CI, December 2026).
 NATIVE_STACKS_AFTER_S = 7.0
 
 #: The ROS wheels' bootstrap marker: set in a Python process once its ``.pth`` has re-executed
