@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.core.poses import (
     as_pose_batch,
+    as_unit_quaternions,
     quaternion_inverse,
     quaternion_product,
     rotation_angle,
@@ -36,10 +37,9 @@ ROTATION_MARGIN = 1e-3
 
 def rotation_from_home(mech: Mechanism, quaternion: ArrayLike) -> FloatArray:
     """The angle (N,) rad of each orientation (N, 4) from the home orientation."""
-    q = np.atleast_2d(np.asarray(quaternion, dtype=float))
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    home = mech.home_quaternion / np.linalg.norm(mech.home_quaternion)
-    return rotation_angle(quaternion_product(q, quaternion_inverse(home)))
+    home = as_unit_quaternions(mech.home_quaternion, 'home_quaternion')
+    return rotation_angle(quaternion_product(as_unit_quaternions(quaternion),
+                                             quaternion_inverse(home)))
 
 
 def _hull(points: FloatArray) -> FloatArray:

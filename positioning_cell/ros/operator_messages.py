@@ -28,7 +28,11 @@ from positioning_cell_interfaces.msg import (
     Speeds as SpeedsMsg,
 )
 
-from positioning_cell.core.poses import quaternion_from_rotation_vector, quaternion_product
+from positioning_cell.core.poses import (
+    as_unit_quaternions,
+    quaternion_from_rotation_vector,
+    quaternion_product,
+)
 from positioning_cell.frames.systems import ABSOLUTE, RELATIVE_OBJECT, RELATIVE_USER
 from positioning_cell.frames.transforms import Transform
 from positioning_cell.limits.axis_ranges import AxisRange, AxisRanges
@@ -64,7 +68,7 @@ def attained(result: MoveResult, goal: tuple[Any, Any]) -> tuple[Any, Any]:
     """The attained platform pose in base: the goal (p, q) ⊕ the result's error (Δp, and the
     rotation vector of R_goalᵀ·R_attained)."""
     p = np.asarray(goal[0]) + np.asarray(result.position_error)
-    q = quaternion_product(np.asarray(goal[1], dtype=float) / np.linalg.norm(goal[1]),
+    q = quaternion_product(as_unit_quaternions(goal[1], 'goal quaternion')[0],
                            quaternion_from_rotation_vector(result.orientation_error))
     return p, q
 
