@@ -31,13 +31,16 @@ from positioning_cell.coordinated.load_cells import (
     relaxing_steps,
 )
 from positioning_cell.coordinated.panel_motion import bases, platform_goals
+from positioning_cell.core.kinematics import forward
 from positioning_cell.core.mechanism import Mechanism
 from positioning_cell.errors import InputError
 from positioning_cell.mechanics.statics import (
     efforts_from_wrench,
     wrench_from_efforts,
 )
+from positioning_cell.parameters import parse
 from positioning_cell.procedures.panel_program import PanelStep
+from positioning_cell.sim.drives import DriverSettings, LegDriver
 from positioning_cell.sim.panel import PanelTruth
 
 MECH = Mechanism.default()
@@ -116,6 +119,25 @@ def test_a_panel_softer_than_its_file_is_relaxed_step_by_step() -> None:
     assert largest[0] > 1000.0
     assert largest[1] == pytest.approx(largest[0] / 4.0, rel=0.05)
     assert largest[2] == pytest.approx(largest[1] / 4.0, rel=0.1)
+
+
+def test_a_sets_load_cells_read_nothing_before_the_panels_first_push() -> None:
+    """A coordinated cell's set (``panel_pushes``) carries nothing of its own: before the
+    panel simulator's first push its load cells would say an unstrained panel (a relax in a
+    CI read 0 N there and took away nothing), so they read nothing; from the push on, the
+    platform's own statics plus the push's efforts. A set without a panel reads at once."""
+    settings = parse(DriverSettings, {'panel_pushes': True, 'payload': {'mass': 0.0}})
+    driver = LegDriver(settings)
+    assert driver.update_effort() is None and driver.effort is None
+    wrench = np.array([120.0, -80.0, 900.0, 15.0, -4.0, 7.0])
+    driver.push(wrench)
+    own = LegDriver(parse(DriverSettings, {'payload': {'mass': 0.0}})).update_effort()
+    assert own is not None  # a set without a panel reads at once
+    fk = forward(MECH, settings.home_positions()[:3], settings.home_positions()[3:])
+    expected = own + efforts_from_wrench(MECH, fk.position, fk.quaternion, -wrench[None])[0]
+    got = driver.update_effort()
+    assert got is not None
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-6)
 
 
 def test_forces_that_are_not_the_cells_are_refused() -> None:

@@ -14,7 +14,8 @@ arrays and checked on a thread of their own, so a long trajectory never holds up
 publication), integrate, publish. Switched by /leg_driver/enable, referenced by
 /leg_driver/reference; reports on /diagnostics. In a coordinated cell the wrench the panel
 puts on the platform (/sim/platform/panel_wrench, simulation truth from the panel simulator) is
-part of the load the efforts hold: what the legs' load cells read (JointState effort).
+part of the load the efforts hold: what the legs' load cells read (JointState effort; with
+``panel_pushes``, no effort before the first push).
 """
 
 from __future__ import annotations

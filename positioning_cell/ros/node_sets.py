@@ -183,10 +183,13 @@ def start_panel(procs: Processes, cell: CellFile, files: Sequence[Path],
 
 def carried(cell: CellFile, index: int) -> dict[str, dict[str, Any]]:
     """What the ``index``-th positioner of ``cell`` carries, by node: no payload of its own
-    (the panel's weight and internal forces reach its drives through the panel simulator) and
-    gravity in its base frame (the cell frame's, z up, turned into its base)."""
+    (the panel's weight and internal forces reach its drives through the panel simulator:
+    its load cells read nothing before the panel's first push) and gravity in its base frame
+    (the cell frame's, z up, turned into its base)."""
     entry = cell.positioners[index]
     rotation = Transform.from_pq(entry.base_position, entry.base_quaternion).R
     gravity = [float(v) for v in rotation.T @ np.asarray(GRAVITY)]
     payload = {'payload': {'mass': 0.0, 'gravity': gravity}}
-    return {node.name: payload for node in names.SET_NODES}
+    out: dict[str, dict[str, Any]] = {node.name: payload for node in names.SET_NODES}
+    out[names.NODE_DRIVER] = {**payload, 'panel_pushes': True}
+    return out

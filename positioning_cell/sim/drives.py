@@ -103,6 +103,9 @@ class DriverSettings:
     effort_rate: float = setting(20.0, 'largest rate of the payload-effort update (only '
                                  'while the axes move)', 'Hz', low=1.0, high=200.0)
     diagnostics_period: float = setting(1.0, 'periodic /diagnostics', 's', low=0.1, high=60.0)
+    panel_pushes: bool = setting(False, 'a panel simulator pushes on the platform (a set of a '
+                                 'coordinated cell): the load cells read nothing until its '
+                                 'first push has come')
     enabled_at_start: bool = setting(True, 'drives enabled at start')
     referenced_at_start: bool = setting(False, 'drives referenced at start (else every motion '
                                         'is refused until they are referenced)')
@@ -198,8 +201,9 @@ class LegDriver:
         self.effort: FloatArray | None = None
         self._effort_position: FloatArray | None = None
         #: What else pushes on the platform (force N, moment N·m about its origin, base): the
-        #: coordinated cell's panel (simulation truth, :meth:`push`).
-        self.pushed: FloatArray = np.zeros(6)
+        #: coordinated cell's panel (simulation truth, :meth:`push`); None until it first
+        #: pushes.
+        self.pushed: FloatArray | None = None
         self._effort_pose: tuple[FloatArray, FloatArray] = (np.zeros((1, 3)), np.zeros((1, 4)))
         self._payload_effort: FloatArray = np.zeros(6)
         self._phis: FloatArray | None = None
@@ -319,9 +323,13 @@ class LegDriver:
         kinematics, uncompiled in a node) and the payload's share are computed again only when
         the axes have moved; the push's share, τ = Jᵀ·(−push) (seed 002 §2,
         :func:`~positioning_cell.mechanics.statics.efforts_from_wrench`), at every update
-        while there is one."""
+        while there is one. None while ``panel_pushes`` and no push has come: the load is not
+        known, and load cells that read the platform alone would say the panel is not
+        strained (a relax from them would take away nothing)."""
         q = self.servos.state.position
         s = self.settings
+        if s.panel_pushes and self.pushed is None:
+            return None
         if self._effort_position is None or not np.array_equal(q, self._effort_position):
             fk = forward(s.mechanism, q[:3], q[3:], self._phis)
             if not fk.converged[0]:
@@ -332,7 +340,7 @@ class LegDriver:
                                                     s.payload, s.structure)[0]
             self._effort_position = q.copy()
             self.effort = self._payload_effort
-        if self.pushed.any():
+        if self.pushed is not None and self.pushed.any():
             self.effort = self._payload_effort + efforts_from_wrench(
                 s.mechanism, *self._effort_pose, -self.pushed[None])[0]
         return self.effort

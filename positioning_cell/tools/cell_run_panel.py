@@ -55,6 +55,7 @@ from positioning_cell.ros.node_sets import carried, start_panel, start_sets
 from positioning_cell.ros.panel_port import RosPanelPort
 from positioning_cell.ros.port import RosCellPort
 from positioning_cell.ros.processes import Processes
+from positioning_cell.ros.set_port import RosSetPort
 from positioning_cell.tools.cell_run import in_running_cell
 from positioning_cell.tools.exits import Exit
 from positioning_cell.tools.interruption import Interrupted, interruptible
@@ -62,6 +63,8 @@ from positioning_cell.tools.interruption import Interrupted, interruptible
 Say = Callable[[str], None]
 #: The longest wait for the cell to come up, a homing or an answer, s.
 START_TIMEOUT = 120.0
+#: The window a set's load cells are heard over to say they read (s: ten readings).
+LOAD_WINDOW_S = 0.1
 
 
 def recorded_topics(cell: CellFile) -> list[str]:
@@ -140,7 +143,17 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
                                         files[0], run_dir, say)
         home_all()  # the panel is mounted on the positioners at home
     start_panel(procs, cell, files)
-    say('the panel mounted: the cell coordinator and the panel simulator started')
+    # mounted once every set's load cells read it: the drives carry the panel simulator's
+    # push from its first one on (the relax at once after read none of it in a CI)
+    sets = [RosSetPort(client, e.name, START_TIMEOUT) for e in cell.positioners]
+
+    def mounted() -> bool:
+        alive()
+        return all(s.load_cells(LOAD_WINDOW_S) is not None for s in sets)
+
+    wait_until(mounted, START_TIMEOUT, "every set's load cells to read the panel")
+    say('the panel mounted: the cell coordinator and the panel simulator started, every '
+        "set's load cells read it")
 
     def up() -> bool:
         alive()
