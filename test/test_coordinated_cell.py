@@ -224,6 +224,7 @@ def _crossings(states: list[JointState], since: float, shares: list[float]) -> l
     ``since`` crossed each share of its travel. Both machines' servos are the same linear
     system following one time law: they cross a share at the same time after their start, so
     the difference of two machines' crossings is the difference of their starts."""
+    states = list(states)  # one snapshot: a collecting subscription appends to it as we read
     stamps = np.array([seconds(s.header.stamp) for s in states])
     positions = np.array([s.position for s in states])
     keep = stamps >= since
