@@ -254,10 +254,11 @@ def _mypy_run() -> tuple[int, str]:
     """mypy over the whole package, once for both checks below, with the rules of the mypy
     configuration alone (setup.cfg: strict, the ROS layer relaxed: one run applies each
     module's own section): its exit status and output. Its incremental cache is kept in the
-    checkout's .test-tmp (ignored by git), so a second run checks only what changed. One run,
-    not one per layer: the ROS layer's run checked the library it imports all over again (cold,
-    on an idle 2-core VM: 66 s of CPU and 39 s of wall time for the two side by side against
-    37 s and 37 s for one; the parallel tier is bound by its CPU)."""
+    checkout's .test-tmp (ignored by git; ``make setup`` fills it), so a run checks only what
+    changed since. One run, not one per layer: the ROS layer's run checked the library it
+    imports all over again (cold, on an idle 2-core VM: 66 s of CPU and 39 s of wall time for
+    the two side by side against 37 s and 37 s for one; the parallel tier is bound by its
+    CPU)."""
     files = [str(p.relative_to(REPO)) for p in sources()]
     result = subprocess.run([sys.executable, '-m', 'mypy', '--cache-dir',
                              str(REPO / '.test-tmp' / 'mypy_cache' / 'package'), *files],
