@@ -33,7 +33,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 from positioning_cell.accuracy import MonitorSettings
 from positioning_cell.analysis import analyse_bag
-from positioning_cell.analysis.fleet import RunDigest, digest_bag
+from positioning_cell.analysis.fleet import digest
 from positioning_cell.bag import (
     BagReader,
     DamagedBagError,
@@ -72,33 +72,37 @@ SCANNED = {
 PLAY_FROM_S = 100.0  # a playback that starts into the bag
 
 
-class Reference(NamedTuple):
-    """What the readers give on the original bag."""
+class Analysed(NamedTuple):
+    """What analyze_bag and the fleet give for a bag, without its path."""
 
     summary: dict[str, Any]
     digest: dict[str, Any]
+
+
+class Reference(NamedTuple):
+    """What the readers give on the original bag."""
+
+    analysed: Analysed
     topics: dict[str, TopicInfo]
     played: list[RawMessage]
     played_from: list[RawMessage]
 
 
-def _summary(bag: Path, out: Path) -> dict[str, Any]:
-    """analyze_bag's summary.json for ``bag`` (exit status 0), without the bag's path."""
-    assert analyze_bag.main([str(bag), '--out', str(out), '--no-plots']) == Exit.OK
-    doc: dict[str, Any] = json.loads((out / 'summary.json').read_text())
+def _analysed(bag: Path, out: Path) -> Analysed:
+    """analyze_bag's work on ``bag`` (its ``analyze``, no plots; no problem found): its
+    summary.json, and the fleet's digest of the same analysis as JSON, registrations
+    included (the fleet's task, digest_bag, is that digest of analyse_bag's analysis: one
+    analysis serves both, each layout read once for them)."""
+    output = analyze_bag.analyze(bag, out, plots=False)
+    assert not output.analysis.problems, output.analysis.problems
+    summary: dict[str, Any] = json.loads(output.summary.read_text())
+    summary.pop('bag')
+    summary.pop('plots', None)
+    digested = digest(output.analysis)
+    doc = digested.to_dict()
     doc.pop('bag')
-    doc.pop('plots', None)
-    return doc
-
-
-def _digest(bag: Path) -> dict[str, Any]:
-    """The fleet task's digest of ``bag`` as JSON, registrations included, without the path."""
-    digest = digest_bag(bag, SETTINGS)
-    assert isinstance(digest, RunDigest), digest
-    doc = digest.to_dict()
-    doc.pop('bag')
-    doc['registrations'] = [asdict(r) for r in digest.registrations]
-    return json.loads(json.dumps(doc))  # type: ignore[no-any-return]
+    doc['registrations'] = [asdict(r) for r in digested.registrations]
+    return Analysed(summary, json.loads(json.dumps(doc)))
 
 
 def _played(bag: Path, start_offset_s: float = 0.0,
@@ -141,7 +145,7 @@ def original(tmp_path_factory: pytest.TempPathFactory) -> Reference:
     _, played_from = _played(MAKE_RUN, PLAY_FROM_S)
     start = played[0].log_time_ns + round(PLAY_FROM_S * 1e9)
     assert played_from == [m for m in played if m.log_time_ns >= start]
-    return Reference(_summary(MAKE_RUN, out), _digest(MAKE_RUN), topics, played, played_from)
+    return Reference(_analysed(MAKE_RUN, out), topics, played, played_from)
 
 
 @pytest.fixture(scope='module')
@@ -182,13 +186,18 @@ def test_each_layout_is_laid_out_as_named_and_read_the_way_it_allows(variant: Pa
     assert sorted(p.name for p in copy.iterdir()) == sorted(p.name for p in variant.iterdir())
 
 
-def test_analyze_bag_gives_the_same_figures(variant: Path, original: Reference,
-                                            tmp_path: Path) -> None:
-    assert differences(original.summary, _summary(variant, tmp_path / 'out')) == []
+@pytest.fixture(scope='module')
+def analysed(variant: Path, tmp_path_factory: pytest.TempPathFactory) -> Analysed:
+    """The layout analysed (once for the two tests below)."""
+    return _analysed(variant, tmp_path_factory.mktemp('analysed'))
 
 
-def test_the_fleet_digest_is_the_same(variant: Path, original: Reference) -> None:
-    assert differences(original.digest, _digest(variant)) == []
+def test_analyze_bag_gives_the_same_figures(analysed: Analysed, original: Reference) -> None:
+    assert differences(original.analysed.summary, analysed.summary) == []
+
+
+def test_the_fleet_digest_is_the_same(analysed: Analysed, original: Reference) -> None:
+    assert differences(original.analysed.digest, analysed.digest) == []
 
 
 def test_calibrate_from_bag_gets_the_same_data(variant: Path,
