@@ -36,6 +36,14 @@ os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = (
 os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
 os.environ.setdefault('MPLBACKEND', 'Agg')
 os.environ.pop('RMW_IMPLEMENTATION', None)
+# One BLAS thread in every test process and what it starts (set before numpy loads: nothing
+# above imports it): the suite's parallelism is its workers', three on two cores, and
+# OpenBLAS's own threads, one per core in each, only contended with them. With one
+# (benchmarks/suite_cpu.py, 2-core VM, one run each, issue 24): the parallel tier 919 s of
+# CPU and 494 s against 1009 s and 542 s; the library tier alone (make test-library's
+# selection, three workers) 344 s and 178 s against 435 s and 222 s; every test passed each
+# way. Given values are kept.
+os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 
 # Deterministic property tests: the same examples on every run and machine.
 settings.register_profile('ci', derandomize=True, deadline=None, max_examples=150,
