@@ -63,7 +63,7 @@ from positioning_cell.tools.interruption import Interrupted, interruptible
 Say = Callable[[str], None]
 #: The longest wait for the cell to come up, a homing or an answer, s.
 START_TIMEOUT = 120.0
-#: The window a set's load cells are heard over to say they read (s: ten readings).
+#: The window a set's load cells are heard over to say they read, s (5 to 10 readings).
 LOAD_WINDOW_S = 0.1
 
 
@@ -144,7 +144,7 @@ def _drive(procs: Processes, client: CellClient, cell: CellFile, mech: Mechanism
         home_all()  # the panel is mounted on the positioners at home
     start_panel(procs, cell, files)
     # mounted once every set's load cells read it: the drives carry the panel simulator's
-    # push from its first one on (the relax at once after read none of it in a CI)
+    # push from its first one on (a relax begun at once read none of it, in a CI)
     sets = [RosSetPort(client, e.name, START_TIMEOUT) for e in cell.positioners]
 
     def mounted() -> bool:
