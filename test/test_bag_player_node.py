@@ -4,6 +4,7 @@ order, with its timing roughly kept at rates 1 and 2."""
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -89,20 +90,23 @@ def test_plays_every_message_in_order_with_its_timing(tmp_path: Path, rate: floa
         wait_until(lambda: len(joints) == 20 and len(poses) == 10 and target, 30,
                    'every recorded message')
         assert player.wait(timeout=30) == 0  # not looping: exits at the end
-        assert 'played 31 messages' in group.log('player')
+        said = re.search(r'played 31 messages .* the last ([\d.]+) s after the start',
+                         group.log('player'))
+        assert said is not None, group.log('player')
 
     assert [s for _, s in joints] == list(range(20))
     assert [s for _, s in poses] == list(range(10))
     assert [s for _, s in target] == [99]
-    period = JOINTS_PERIOD_NS * 1e-9 / rate
-    arrivals = np.diff([t for t, _ in joints])
-    # Paced at the rate, not dumped at once: the median interval between arrivals is the
-    # period. The median, not the span: the first samples of a reliable stream may arrive
-    # late together (seen in CI: 0.70 s for 0.95 s of messages, the first ones held until
-    # the writer's heartbeat), which a span of all twenty counts against the player. The
-    # upper bound leaves room for VM jitter.
-    assert 0.7 * period <= float(np.median(arrivals)) <= 1.5 * period, arrivals
-    assert joints[-1][0] - joints[0][0] <= 1.5 * 19 * period + 0.3
+    due = 19 * JOINTS_PERIOD_NS * 1e-9 / rate  # the last message after the first
+    # Paced at the rate, not dumped at once, judged by the player's own clock: never early,
+    # so its last message left at least its due time after the start; late ones leave at
+    # once. Not by the arrivals' intervals: on a loaded machine the player, or the first
+    # samples of a reliable stream (held until the writer's heartbeat after matching),
+    # arrive late and together (seen in CI: twenty joint states due over 0.95 s arrived
+    # over 0.70 s; and more than half of them within 1 ms of each other, two workers).
+    # (the log's time in ms, rounded)
+    assert due - 0.0005 <= float(said.group(1)) <= 1.5 * due + 0.3, said.group(0)
+    assert joints[-1][0] - joints[0][0] <= 1.5 * due + 0.3
 
 
 def test_refuses_a_missing_bag(tmp_path: Path) -> None:

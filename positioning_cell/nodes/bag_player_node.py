@@ -7,8 +7,10 @@ Each selected topic gets a publisher of its recorded type with the QoS its publi
 (reliable; transient-local for latched topics such as /positioner/target). Playback waits up
 to ``wait_for_subscribers_s`` for every topic to have a subscriber, then publishes the stored
 CDR bytes at bag time / ``rate`` (a monotonic clock, waiting for each due time), from
-``start_offset_s`` into the bag, looping if asked. At the end of a non-looping playback the
-node waits for the subscribers to acknowledge and exits (status 0).
+``start_offset_s`` into the bag, looping if asked. Each pass logs how many messages it played
+and how long after its start the last one left (never early: late ones leave at once). At the
+end of a non-looping playback the node waits for the subscribers to acknowledge and exits
+(status 0).
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ class BagPlayerNode(Node):
             self._reader.close()
             raise ConfigError(f'{p.bag}: {err}') from err
         self._stop = threading.Event()
+        self._last_publish = 0.0  # time.monotonic() of the last message published
         self._thread = threading.Thread(target=self._playback, name='playback', daemon=True)
         self._thread.start()
 
@@ -75,6 +78,7 @@ class BagPlayerNode(Node):
 
     def _publish(self, message: RawMessage) -> None:
         self._outputs[message.topic].publish(message.data)
+        self._last_publish = time.monotonic()
 
     def _playback(self) -> None:
         log = self.get_logger()
@@ -89,10 +93,14 @@ class BagPlayerNode(Node):
                         f'{", ".join(missing)}: playing anyway')
         try:
             while not self._stop.is_set():
+                # The pacing as played (never early: the last message at least its due
+                # time after the start; late ones are published at once)
+                start = self._last_publish = time.monotonic()
                 count = play(self._reader.raw_messages(self._topics, self._timing.origin_ns),
                              self._timing, self._publish, self._stop.wait)
                 log.info(f'played {count} messages of {self._reader.path} '
-                         f'at rate {self._timing.rate}')
+                         f'at rate {self._timing.rate}, the last '
+                         f'{self._last_publish - start:.3f} s after the start')
                 if not self.settings.loop:
                     break
             for pub in self._outputs.values():
