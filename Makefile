@@ -52,30 +52,41 @@ $(STAMP): setup.py setup.cfg package.xml $(INTERFACE_FILES)
 	-$(PY) -m mypy --cache-dir $(TMP)/mypy_cache/package positioning_cell > /dev/null
 	touch $(STAMP)
 
-# The suite in two tiers: everything but the timing tests in TEST_WORKERS pytest-xdist workers
-# (each node test takes its own ROS domain, so they run side by side), then the tests that judge
-# a reaction time, a stop bound or a rate on real processes (marker `timing`) alone, so that
-# the suite's own load is not what they measure. Three workers on two cores: the tier's tests
-# wait on their child processes and on discovery, and a third worker fills that time (the
-# tier in 3:39 with 3 workers against 4:28 with 2 and 3:54 with 4, one run each on the same
-# 2-core VM, issue 24). Each module goes whole to one worker: its module fixtures are set up
-# once (3:30 twice against 3:35-3:39 handing out single tests, 6:00 of CPU against 7:08-7:35);
-# xdist hands out the modules with the most tests first (test/conftest.py LONGEST_FIRST: the
-# longest first measured no better). The timing tier in two workers of its own took 1:13-1:18 against 2:13 alone, but
-# in one fresh-clone CI of two a `cell move` beside test_faults' cell had no answer in 120 s
-# (not understood; test_cli_on_the_cell), and one loop of it in four failed test_faults'
-# "tracker killed": the driver's joint states silent 0.99 s after the kill, the abort blamed
-# on the driver (the shared-memory stall of docs/howto/run.md, gone with shared memory since).
-# Tried again over loopback UDP alone with quick repairs (a8cf8e6): the first of five runs
-# failed test_coordinated_cell's stop from speed (the panel's attachments 36 um apart against
-# its 20 um bound: the two simulated drives, whose timers it judges, did not stop as one
-# beside the second worker's cell). So the timing tier runs alone: what it judges is timing.
+# The suite in three tiers. First the tests that start nodes or processes or take long (markers
+# nodes or slow, not timing) in TEST_WORKERS pytest-xdist workers (each node test takes its own
+# ROS domain, so they run side by side). Then the tests that judge a reaction time, a stop
+# bound or a rate on real processes (marker timing), one at a time, so that the suite's own
+# load is not what they measure, with the library tier (none of those markers: no node, no
+# process of its own, no clock judged) beside them at idle CPU priority (test/beside.py: Linux
+# SCHED_IDLE, which runs only on a core nothing else wants and yields it at once to any other
+# process that wakes). The timing tier keeps about one core busy; the library tests fill the
+# other, which stood idle while the timing tier ran alone after all the rest (2:10-2:24 of it
+# per run; issue 24). The timing tier took 2:15 with the library tier beside it against
+# 2:10-2:17 alone; an idle-priority probe beside it was kept off the CPU 0.89 s at most.
+# Three workers on two cores for the first tier: its tests wait on their child processes and
+# on discovery, and a third worker fills that time (3:39 with 3 workers against 4:28 with 2
+# and 3:54 with 4, one run each on the same 2-core VM, issue 24). Each module goes whole to
+# one worker: its module fixtures are set up once (3:30 twice against 3:35-3:39 handing out
+# single tests, 6:00 of CPU against 7:08-7:35); xdist hands out the modules with the most
+# tests first (test/conftest.py LONGEST_FIRST, the longest first, took 4:43 against 4:40 for
+# the first tier on Dec 7: its wall time is bound by its CPU). The timing tier in two workers
+# of its own took 1:13-1:18 against 2:13 alone, but in one fresh-clone CI of two a `cell move`
+# beside test_faults' cell had no answer in 120 s (not understood; test_cli_on_the_cell), and
+# one loop of it in four failed test_faults' "tracker killed": the driver's joint states
+# silent 0.99 s after the kill, the abort blamed on the driver (the shared-memory stall of
+# docs/howto/run.md, gone with shared memory since). Tried again over loopback UDP alone with
+# quick repairs (a8cf8e6): the first of five runs failed test_coordinated_cell's stop from
+# speed (the panel's attachments 36 um apart against its 20 um bound: the two simulated drives,
+# whose timers it judges, did not stop as one beside the second worker's cell). So the timing
+# tier has the machine to itself but for what runs at idle priority: what it judges is timing.
 TEST_WORKERS ?= 3
+NODE_TIER := not timing and (nodes or slow)
+LIBRARY_TIER := not timing and not nodes and not slow
 
 test: $(STAMP)
 	mkdir -p $(TMP)
-	env $(RUN_ENV) $(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope -m 'not timing'
-	env $(RUN_ENV) $(PY) -m pytest -m timing
+	env $(RUN_ENV) $(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope -m '$(NODE_TIER)'
+	env $(RUN_ENV) $(PY) test/beside.py -m timing -- -n 2 --dist loadscope -m '$(LIBRARY_TIER)'
 
 # The library tier alone, without ROS: every test not marked nodes or slow, with rclpy made
 # unimportable (a stand-in package first on the path that raises ImportError), so a test or a
@@ -86,7 +97,7 @@ test-library: $(STAMP)
 	mkdir -p $(NO_ROS)/rclpy
 	printf 'raise ImportError("rclpy is not importable in the library tier (make test-library)")\n' \
 		> $(NO_ROS)/rclpy/__init__.py
-	env $(RUN_ENV) PYTHONPATH=$(NO_ROS) $(PY) -m pytest -m 'not nodes and not slow'
+	env $(RUN_ENV) PYTHONPATH=$(NO_ROS) $(PY) -m pytest -m '$(LIBRARY_TIER)'
 
 # The cell's main job: start the nodes, record, drive config/program.yaml once per compensation
 # mode, stop, analyse; results in runs/<timestamp>/. Another program: make run

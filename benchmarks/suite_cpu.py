@@ -1,9 +1,11 @@
 """Where the test suite's time goes (issue 24: ``make test`` <= 4 min on 2 cores): CPU per test
 module, of the test process and of the processes it started and reaped.
 
-Runs one tier of ``make test`` as the Makefile does (the parallel tier: ``-n 3 --dist
-loadscope -m 'not timing'``; ``--timing``: the timing tier, serially), with this file loaded as
-a pytest plugin in every worker: around each test, the worker's ``getrusage(RUSAGE_SELF)`` and
+Runs one tier of ``make test`` as the Makefile does (the node tier: ``-n 3 --dist loadscope`` on
+the Makefile's NODE_TIER expression; ``--timing``: the timing tier, serially; ``--library``: the
+library tier, LIBRARY_TIER in two workers, here alone and at the normal priority, where make
+test runs it beside the timing tier at idle priority), with this file loaded as a pytest plugin
+in every worker: around each test, the worker's ``getrusage(RUSAGE_SELF)`` and
 ``getrusage(RUSAGE_CHILDREN)`` (the nodes and tools a test starts count once they are reaped,
 which every test's ProcessGroup does at its end; a module fixture's cell falls on the module's
 last test). Prints the tier's wall time and CPU (this process's children: the workers and all
@@ -87,15 +89,32 @@ def report_workers(by_worker: dict[str, list[Any]]) -> None:
         print(f'spread of the workers\' busy times: {spread:.0f} s')
 
 
+def makefile_variable(name: str) -> str:
+    """The value of ``name := value`` in the checkout's Makefile (a tier's marker expression,
+    declared there once)."""
+    for line in (ROOT / 'Makefile').read_text().splitlines():
+        key, sep, value = line.partition(':=')
+        if sep and key.strip() == name:
+            return value.strip()
+    raise SystemExit(f'no {name} := ... in the Makefile')
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    parser.add_argument('--timing', action='store_true', help='the timing tier (serially)')
-    parser.add_argument('--workers', type=int, default=3, help='the parallel tier\'s workers')
+    tiers = parser.add_mutually_exclusive_group()
+    tiers.add_argument('--timing', action='store_true', help='the timing tier (serially)')
+    tiers.add_argument('--library', action='store_true', help='the library tier')
+    parser.add_argument('--workers', type=int, help='the tier\'s workers (default: the '
+                        'Makefile\'s, 3 for the node tier, 2 for the library tier)')
     parser.add_argument('--cores', type=int, default=os.cpu_count() or 1)
     parser.add_argument('--top', type=int, default=15, help='modules listed')
     args, more = parser.parse_known_args()  # the rest goes to pytest (modules, -k ...)
-    tier = (['-m', 'timing'] if args.timing
-            else ['-n', str(args.workers), '--dist', 'loadscope', '-m', 'not timing'])
+    if args.timing:
+        tier = ['-m', 'timing']
+    else:
+        workers = args.workers or (2 if args.library else 3)
+        expression = makefile_variable('LIBRARY_TIER' if args.library else 'NODE_TIER')
+        tier = ['-n', str(workers), '--dist', 'loadscope', '-m', expression]
     with tempfile.TemporaryDirectory() as out:
         # COLUMNS: -ra's summary line keeps each failure's reason (cut to the width, which
         # pytest takes as 80 without a terminal: a long test id alone fills it)
