@@ -17,6 +17,7 @@ from positioning_cell.accuracy.figure_uncertainty import (
     MAX_BATCHES,
     adaptive_quantiles,
     distance_figure_uncertainty,
+    drawn_errors,
     euler_rates_from_rotation,
     multidirectional_angle_uncertainty,
     multidirectional_uncertainty,
@@ -322,6 +323,27 @@ def test_the_adaptive_monte_carlo_stops_once_the_quantile_is_settled() -> None:
     asked.clear()
     adaptive_quantiles(narrow, 2.0, visits=4 * BATCH_ERRORS // BATCH)
     assert asked == [BATCH // 4, BATCH // 4]
+
+
+def test_drawn_errors_are_laid_out_by_visit_each_with_its_own_covariance() -> None:
+    """drawn_errors (n, draws, d): row j's draws have covariance cov[j] (three different
+    ones, one exact along an axis), and they are the generator's (draws, n, d) standard
+    normals through each visit's square root, computed here a second way (einsum)."""
+    a = np.array([[[2.0, 0.5, 0.0], [0.0, 1.0, 0.3], [0.0, 0.0, 0.7]],
+                  [[1.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 0.0]],
+                  [[0.5, -0.4, 0.2], [0.1, 0.8, 0.0], [0.3, 0.0, 1.5]]]) * 1e-5
+    cov = a @ np.swapaxes(a, 1, 2)
+    draws = 40_000
+    errors = drawn_errors(cov, np.random.default_rng(5), draws)
+    assert errors.shape == (3, draws, 3)
+    for j in range(3):
+        np.testing.assert_allclose(np.cov(errors[j].T), cov[j], rtol=0.0,
+                                   atol=0.03 * np.abs(cov[j]).max())
+    z = np.random.default_rng(5).standard_normal((draws, 3, 3))
+    w, v = np.linalg.eigh(cov)
+    root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]
+    np.testing.assert_allclose(errors, np.einsum('jab,mjb->jma', root, z), rtol=1e-12,
+                               atol=1e-12 * np.sqrt(np.abs(cov).max()))
 
 
 def test_seeded_draws_are_the_same_in_every_call_read_only_bounded_and_thread_safe(

@@ -158,7 +158,7 @@ def distance_figure_uncertainty(attained_first: ArrayLike, attained_second: Arra
 
     def bounds(draws: int) -> FloatArray:
         difference = drawn_errors(cov[0], source, draws) - drawn_errors(cov[1], source, draws)
-        bound: FloatArray = 3.0 * np.sqrt((difference ** 2).sum(axis=(1, 2)) / (n - 1))
+        bound: FloatArray = 3.0 * np.sqrt((difference ** 2).sum(axis=(0, 2)) / (n - 1))
         return bound[:, None]
 
     return DistanceUncertainty(u_ad, float(adaptive_quantiles(bounds, k, 2 * n)[0]))
@@ -227,16 +227,17 @@ class SeededDraws:
 
 
 def drawn_errors(cov: FloatArray, rng: NormalSource, draws: int) -> FloatArray:
-    """``draws`` draws (draws, n, d) of independent errors, row j ~ N(0, cov[j]) (cov
-    (n, d, d))."""
+    """``draws`` draws of independent errors, row j ~ N(0, cov[j]) (cov (n, d, d)), laid out
+    by visit: (n, draws, d), element [j, m] the m-th draw of row j. The standard normals are
+    drawn (draws, n, d) as ever (the same blocks of :class:`SeededDraws`, so the same
+    errors); each visit's are one batched matmul (a tenth of einsum's time), left in the
+    matmul's own layout: laying them out (draws, n, d) took longer than the matmul itself (a
+    copy of the whole array), and the callers' sums over visits read them as they are."""
     d = cov.shape[-1]
     w, v = np.linalg.eigh(cov)
     root = v * np.sqrt(np.maximum(w, 0.0))[:, None, :]  # (n, d, d): root @ rootᵀ = cov[j]
     z = rng.standard_normal((draws, cov.shape[0], d))
-    # errors[m, j] = root[j] @ z[m, j]: one batched matmul per visit (a tenth of einsum's
-    # time), then laid out (draws, n, d) for the callers' sums over visits
-    errors: FloatArray = np.ascontiguousarray(
-        np.matmul(z.transpose(1, 0, 2), root.transpose(0, 2, 1)).transpose(1, 0, 2))
+    errors: FloatArray = np.matmul(z.transpose(1, 0, 2), root.transpose(0, 2, 1))
     return errors
 
 
@@ -354,14 +355,14 @@ def _spread_quantiles(position_covariance: FloatArray, angle_covariance: FloatAr
     source: NormalSource = rng if rng is not None else SeededDraws()
 
     def bounds(draws: int) -> FloatArray:
-        errors = drawn_errors(cov, source, draws).reshape(draws, g, n, 6)
-        centred = errors - errors.mean(axis=2, keepdims=True)
-        squared = centred ** 2
-        distance2 = squared[..., :3].sum(axis=3)  # (draws, g, n)
+        squared = drawn_errors(cov, source, draws).reshape(g, n, draws, 6)  # its own
+        squared -= squared.mean(axis=1, keepdims=True)  # centred on each pose's mean,
+        np.square(squared, out=squared)  # then squared, in place (no copy of the draws)
+        distance2 = squared[..., 0] + squared[..., 1] + squared[..., 2]  # (g, n, draws)
         out = np.empty((draws, g, 4))
-        out[..., 0] = np.sqrt(distance2).mean(axis=2) + 3.0 * np.sqrt(
-            distance2.sum(axis=2) / (n - 1))
-        out[..., 1:] = 3.0 * np.sqrt(squared[..., 3:].sum(axis=2) / (n - 1))
+        out[..., 0] = (np.sqrt(distance2).mean(axis=1) + 3.0 * np.sqrt(
+            distance2.sum(axis=1) / (n - 1))).T
+        out[..., 1:] = (3.0 * np.sqrt(squared[..., 3:].sum(axis=1) / (n - 1))).transpose(1, 0, 2)
         return out.reshape(draws, g * 4)
 
     return adaptive_quantiles(bounds, k, g * n).reshape(g, 4)

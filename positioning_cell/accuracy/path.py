@@ -218,12 +218,12 @@ def _rt_uncertainty(cov: FloatArray, k: float, rng: NormalSource) -> float:
     n, planes = cov.shape[:2]
 
     def bounds(draws: int) -> FloatArray:
-        errors = drawn_errors(cov.reshape(n * planes, 2, 2), rng, draws).reshape(
-            draws, n, planes, 2)
-        centred = errors - errors.mean(axis=1, keepdims=True)
-        squared = centred[..., 0] ** 2 + centred[..., 1] ** 2  # (draws, n, P)
-        bound = np.sqrt(squared).mean(axis=1) + 3.0 * np.sqrt(squared.sum(axis=1) / (n - 1))
-        out: FloatArray = bound.max(axis=1)[:, None]
+        centred = drawn_errors(cov.reshape(n * planes, 2, 2), rng, draws).reshape(
+            n, planes, draws, 2)
+        centred -= centred.mean(axis=0, keepdims=True)  # in place: the draws are its own
+        squared = centred[..., 0] ** 2 + centred[..., 1] ** 2  # (n, P, draws)
+        bound = np.sqrt(squared).mean(axis=0) + 3.0 * np.sqrt(squared.sum(axis=0) / (n - 1))
+        out: FloatArray = bound.max(axis=0)[:, None]
         return out
 
     return float(adaptive_quantiles(bounds, k, n * planes)[0])
