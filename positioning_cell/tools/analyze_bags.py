@@ -95,8 +95,8 @@ PRE_SPAWN_ENVIRON = 'distributed.nanny.pre-spawn-environ'
 #: mmap threshold at 128 KiB: every array of that size or more is mapped afresh and its pages
 #: zeroed at each use (positioning_cell.analysis.heap). A bag analysed in a worker took
 #: 3.8-4.0 s with it against 2.1-2.3 s without, as in the analysing process itself
-#: (2.0-2.2 s); the worker's peak RSS 217 against 238 MiB (ad hoc, one worker, four bags of
-#: 300 000 messages; benchmarks/fleet.py).
+#: (2.0-2.2 s); the worker's peak RSS 217 against 238 MiB (ad hoc, one worker, four timed
+#: analyses of two bags of 300 000 messages written by benchmarks/fleet.py).
 TRIM_THRESHOLD = 'MALLOC_TRIM_THRESHOLD_'
 
 
