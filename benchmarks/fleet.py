@@ -27,8 +27,10 @@ of the tasks (``thread-cpu``) and their wall seconds not on a CPU (``thread-nonc
 for a core the other processes hold, or I/O); the *cores obtained* (task CPU s / wall s: at
 most 1 per worker; below it the machine was shared); the per-task overhead of the 1-worker
 cluster (the wall time its worker was not computing, per task: dispatch, the digest's
-transfer, the client's loop); and Dask's statistical worker profile of the 2-worker runs
-(where the tasks spent their time, by function).
+transfer, the client's loop); and, from an untimed pass of the largest count's bags on a
+third cluster of 2 workers with Dask's statistical profiler on (off on analyze_bags' local
+clusters: it costs a task about a tenth of its CPU), where the tasks spent their time, by
+function.
 
 The extrapolation to 16 cores assumes 16 uncontended cores, each bag costing the median
 per-task CPU seconds measured here plus the measured per-task overhead, the tasks spread
@@ -216,7 +218,8 @@ def print_profile(profile: dict[str, Any], top: int = 8) -> None:
     own: dict[str, int] = {}
     _profile_counts(profile, cumulative, own, frozenset())
     total = max(int(profile['count']), 1)
-    print(f"Dask's worker profile of the 2-worker runs ({total} samples): on the stack")
+    print(f"Dask's worker profile of an untimed 2-worker pass ({total} samples): on the "
+          'stack')
     tasks = cumulative.get(f'fleet.py:{digest_bag.__name__}', 0)
     for name, count in sorted(cumulative.items(), key=lambda kv: -kv[1])[:top * 2]:
         if name != 'root' and count <= tasks:
@@ -309,7 +312,6 @@ def main() -> int:
         ok = True
         labels = ('serial', '1 worker', '2 workers')
         with clusters(small, settings) as client:
-            profiled_from = time.time()
             for r in range(args.repeats):
                 for n in counts:
                     got: dict[str, Run] = {}
@@ -338,7 +340,9 @@ def main() -> int:
                             print(f'serial tail of {n} bags (trends, plots, report): '
                                   f'{time.perf_counter() - t:.1f} s, {tails[n]:.2f} s CPU',
                                   flush=True)
-            print_profile(client[2].profile(start=profiled_from))
+        with dask_client(None, 2, profile=True) as profiled:
+            digest_bags(profiled, bags[:counts[-1]], settings, say=quiet)
+            print_profile(profiled.profile())
 
         print(f'\nmedians of {args.repeats} rounds (wall s; cores obtained = task CPU s / '
               'wall s; noncpu = Dask\'s thread-noncpu, the tasks\' wall time off a CPU):')
@@ -371,7 +375,7 @@ def main() -> int:
         extra = median([x.workers_cpu / x.cpu - 1 for x in both])
         scheduler = median([x.client_cpu / x.cpu for x in both])
         print('CPU besides the tasks, as a share of the tasks\' CPU (medians over the cluster '
-              f'runs): the worker processes {extra:.1%} (their profiler, heartbeats, comms), '
+              f'runs): the worker processes {extra:.1%} (heartbeats, comms, memory monitor), '
               f'this process (scheduler, client) {scheduler:.1%}')
         big, low = counts[-1], counts[0]
         tail_per_bag = (tails[big] - tails[low]) / (big - low) if big > low else 0.0

@@ -98,6 +98,11 @@ PRE_SPAWN_ENVIRON = 'distributed.nanny.pre-spawn-environ'
 #: (2.0-2.2 s); the worker's peak RSS 217 against 238 MiB (ad hoc, one worker, four timed
 #: analyses of two bags of 300 000 messages written by benchmarks/fleet.py).
 TRIM_THRESHOLD = 'MALLOC_TRIM_THRESHOLD_'
+#: Dask's setting of its statistical profiler on the workers, off on the local cluster unless
+#: asked for: sampling every thread's stack every 10 ms cost a task about 11 % of its CPU
+#: (1.86 against 1.65 s a bag) and two workers' share of two cores fell from 1.74 to 1.63
+#: (benchmarks/fleet.py, one run each way). Dask's fine performance metrics stay on.
+WORKER_PROFILE = 'distributed.worker.profile.enabled'
 
 
 def dask_config() -> Any:
@@ -140,13 +145,15 @@ def _interrupts_ignored() -> Iterator[None]:
 
 
 @contextmanager
-def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+def dask_client(scheduler: str | None = None, workers: int | None = None, *,
+                profile: bool = False) -> Iterator[Any]:
     """A ``dask.distributed.Client``: of the scheduler at ``scheduler`` (``tcp://host:port``),
     else of a new LocalCluster of ``workers`` (default: one per core) single-threaded worker
     processes on 127.0.0.1 without a dashboard, logging errors only, in Dask's worker
-    environment but glibc's trim threshold (:func:`worker_environment`), started with Ctrl-C
-    ignored (:func:`_interrupts_ignored`). Closed (the local cluster stopped) on leaving,
-    however that happens, Ctrl-C included. InputError if the scheduler cannot be reached."""
+    environment but glibc's trim threshold (:func:`worker_environment`), Dask's statistical
+    profiler off unless ``profile`` (:data:`WORKER_PROFILE`), started with Ctrl-C ignored
+    (:func:`_interrupts_ignored`). Closed (the local cluster stopped) on leaving, however
+    that happens, Ctrl-C included. InputError if the scheduler cannot be reached."""
     dd = _distributed()
     if scheduler is not None:
         try:
@@ -160,7 +167,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     cluster = None
     try:
         with _interrupts_ignored(), dask_config().set(
-                {PRE_SPAWN_ENVIRON: worker_environment()}):
+                {PRE_SPAWN_ENVIRON: worker_environment(), WORKER_PROFILE: profile}):
             cluster = dd.LocalCluster(n_workers=workers or cores(), threads_per_worker=1,
                                       processes=True, host='127.0.0.1',
                                       dashboard_address=None, silence_logs=logging.ERROR)
