@@ -65,6 +65,10 @@ def main() -> int:
         if label != BARE:
             all_clean &= clean == len(stops)
             in_time &= max(took) <= STOP_TARGET_S
+    for stops in results.values():
+        for i, s in enumerate(stops):
+            if s.stacks:  # a stop still running NATIVE_STACKS_AFTER_S after its signal
+                print(f'\ntrial {i + 1}, {s.describe()}')
     print(f'\ntargets: every stop of the package\'s nodes clean: '
           f'{"met" if all_clean else "NOT met"}; none longer than {STOP_TARGET_S:g} s: '
           f'{"met" if in_time else "NOT met"} ({BARE}: the baseline, rclpy defaults)')

@@ -43,6 +43,11 @@ def _unclean(stops: list[Stop]) -> list[Stop]:
     return [s for s in stops if not s.clean or s.seconds > STOP_BOUND_S]
 
 
+def _described(stops: list[Stop]) -> str:
+    """The stops that went wrong, each with its native stacks when they were written."""
+    return '\n'.join(s.describe() for s in stops)
+
+
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM, signal.SIGHUP],
                          ids=['SIGINT', 'SIGTERM', 'SIGHUP'])
 def test_every_running_node_stops_cleanly(tmp_path: Path, sig: signal.Signals) -> None:
@@ -54,7 +59,7 @@ def test_every_running_node_stops_cleanly(tmp_path: Path, sig: signal.Signals) -
 
         stops = stop_after(commands, cell_environment(domain), tmp_path, sig, 0.0, answers,
                            timeout=STOP_BOUND_S)
-    assert not _unclean(stops), stops
+    assert not _unclean(stops), _described(_unclean(stops))
     assert (tmp_path / 'bag' / 'metadata.yaml').exists()
     assert 'closed' in (tmp_path / f'{names.RECORDER.executable}.log').read_text()
 
@@ -69,4 +74,4 @@ def test_stops_spread_over_the_start(tmp_path: Path) -> None:
                                k * STEP_S, timeout=STOP_BOUND_S)
         assert len(stops) == len(names.NODE_EXECUTABLES)
         bad += [(k, s) for s in _unclean(stops)]
-    assert not bad, bad
+    assert not bad, '\n'.join(f'stop {k}: {s.describe()}' for k, s in bad)

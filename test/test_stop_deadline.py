@@ -1,10 +1,12 @@
 """A node whose stop hangs is ended at the stop's deadline (positioning_cell.ros.entry): its
 threads' stacks in its stderr, where it hung named, exit status 1. A stop that completes in
 time keeps its own exit status and prints no stacks. And a process a stop waits for long has
-its native stacks written first (positioning_cell.ros.processes)."""
+its native stacks written first (positioning_cell.ros.processes, and the shutdown sweep's
+positioning_cell.testing.stops)."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import subprocess
@@ -14,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from positioning_cell.ros import processes
+from positioning_cell.testing.stops import stop_after
 
 #: The child: the node entry's stop handling with a given deadline, then a main thread that
 #: never returns (``hang_here``) or one that ends the process once the stop flag is up.
@@ -91,3 +94,30 @@ def test_a_process_still_stopping_has_its_native_stacks_written_before_its_deadl
     stacks = procs.stacks('slow')
     assert 'Thread 1' in stacks and 'sleep' in stacks, stacks
     assert procs.stacks('prompt') == ''
+
+
+#: A process that catches SIGTERM (as a node's entry point does) and then ends at once, exit 0,
+#: or with no seconds, ignores it and ends by itself ``seconds`` after its start.
+TERM_CAUGHT = """
+import signal, sys, time
+signal.signal(signal.SIGTERM, (lambda *_: None) if {seconds} else (lambda *_: sys.exit(0)))
+time.sleep({seconds} or 60)
+"""
+
+
+@pytest.mark.skipif(shutil.which('gdb') is None, reason='needs gdb')
+def test_a_stop_sweep_reports_the_native_stacks_of_a_process_still_stopping(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """stops.stop_after (test_shutdown's sweep) as Processes.stop: a process running
+    NATIVE_STACKS_AFTER_S after the signal has its native stacks written beside its log and
+    in its Stop, so that a failed stop says where it hung; one that stops at once has none."""
+    monkeypatch.setattr(processes, 'NATIVE_STACKS_AFTER_S', 0.5)
+    commands = {label: [sys.executable, '-c', TERM_CAUGHT.format(seconds=seconds)]
+                for label, seconds in (('slow', 5.0), ('prompt', 0.0))}
+    stops = {s.label: s for s in stop_after(commands, os.environ, tmp_path, signal.SIGTERM, 0.0,
+                                            timeout=30.0)}
+    assert stops['slow'].clean and stops['prompt'].clean, stops
+    assert 'Thread 1' in stops['slow'].stacks and 'sleep' in stops['slow'].stacks, stops
+    assert stops['slow'].stacks in stops['slow'].describe()
+    assert (tmp_path / 'slow.stacks.txt').read_text() == stops['slow'].stacks
+    assert stops['prompt'].stacks == '' and not (tmp_path / 'prompt.stacks.txt').exists()

@@ -128,6 +128,35 @@ def native_stacks(pid: int, timeout: float = 20.0) -> str | None:
     return ran.stdout if 'Thread ' in ran.stdout else None
 
 
+def stacks_path(log_dir: Path, label: str) -> Path:
+    """Where :func:`wait_writing_stacks` writes the native stacks of process ``label``: beside
+    its log ``log_dir/<label>.log``."""
+    return log_dir / f'{label}.stacks.txt'
+
+
+def written_stacks(path: Path) -> str:
+    """The native stacks written to ``path`` (:func:`wait_writing_stacks`), or ''."""
+    return path.read_text(errors='replace') if path.exists() else ''
+
+
+def wait_writing_stacks(proc: subprocess.Popen[bytes], signalled: float, grace: float,
+                        path: Path) -> int:
+    """``proc``'s exit code once it ends within ``grace`` s of ``signalled`` (a
+    ``time.monotonic()``), TimeoutExpired if it does not. Still running
+    :data:`NATIVE_STACKS_AFTER_S` after ``signalled`` (when that is within ``grace``), it has
+    its native stacks (:func:`native_stacks`) written to ``path`` first."""
+    end = signalled + grace
+    stacks_at = signalled + NATIVE_STACKS_AFTER_S
+    if stacks_at < end:
+        try:
+            return proc.wait(timeout=max(stacks_at - time.monotonic(), 0.0))
+        except subprocess.TimeoutExpired:
+            stacks = native_stacks(proc.pid)
+            if stacks is not None:
+                path.write_text(stacks)
+    return proc.wait(timeout=max(end - time.monotonic(), 0.0))
+
+
 def executable(name: str) -> str:
     """Path of one of the package's console scripts: beside this interpreter first (a venv),
     else on PATH; FileNotFoundError if it is not installed."""
@@ -213,26 +242,12 @@ class Processes:
 
     def _wait(self, label: str, proc: subprocess.Popen[bytes], signalled: float,
               grace: float) -> int:
-        """``proc``'s exit code once it ends within ``grace`` s of ``signalled``; its native
-        stacks written when it runs past :data:`NATIVE_STACKS_AFTER_S` (TimeoutExpired)."""
-        end = signalled + grace
-        stacks_at = signalled + NATIVE_STACKS_AFTER_S
-        if stacks_at < end:
-            try:
-                return proc.wait(timeout=max(stacks_at - time.monotonic(), 0.0))
-            except subprocess.TimeoutExpired:
-                stacks = native_stacks(proc.pid)
-                if stacks is not None:
-                    self._stacks_path(label).write_text(stacks)
-        return proc.wait(timeout=max(end - time.monotonic(), 0.0))
-
-    def _stacks_path(self, label: str) -> Path:
-        return self.log_dir / f'{label}.stacks.txt'
+        """``proc``'s exit code (:func:`wait_writing_stacks` to ``<label>.stacks.txt``)."""
+        return wait_writing_stacks(proc, signalled, grace, stacks_path(self.log_dir, label))
 
     def stacks(self, label: str) -> str:
         """The native stacks written of ``label`` as it did not stop (:meth:`stop`), or ''."""
-        path = self._stacks_path(label)
-        return path.read_text(errors='replace') if path.exists() else ''
+        return written_stacks(stacks_path(self.log_dir, label))
 
     def __enter__(self) -> Processes:
         return self

@@ -6,6 +6,7 @@ test/test_shutdown.py and benchmarks/shutdown.py (plain subprocess and /proc; no
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import signal
 import subprocess
@@ -17,7 +18,13 @@ from pathlib import Path
 
 from positioning_cell import names
 from positioning_cell.config import config_path
-from positioning_cell.ros.processes import OWN_PROCESS_GROUP, executable
+from positioning_cell.ros.processes import (
+    OWN_PROCESS_GROUP,
+    executable,
+    stacks_path,
+    wait_writing_stacks,
+    written_stacks,
+)
 from positioning_cell.testing.synthetic_run import synthetic_run, write_run_bag
 
 #: What an unclean stop prints.
@@ -60,12 +67,22 @@ def stop_commands(run_dir: Path) -> dict[str, list[str]]:
 @dataclass(frozen=True)
 class Stop:
     """How one process took a signal: ``clean`` (exit 0, nothing of :data:`CRASH_SIGNS`
-    printed), the seconds from the signal to its exit, and what was wrong."""
+    printed), the seconds from the signal to its exit, what was wrong, and its native
+    stacks when it was still stopping
+    :data:`~positioning_cell.ros.processes.NATIVE_STACKS_AFTER_S` after the signal ('' else
+    or without gdb)."""
 
     label: str
     clean: bool
     seconds: float
     problem: str
+    stacks: str = ''
+
+    def describe(self) -> str:
+        """One line, and the native stacks below it when they were written."""
+        line = (f'{self.label}: ' + ('clean' if self.clean else self.problem)
+                + f' ({self.seconds:.2f} s)')
+        return line + (f'\n{self.stacks}' if self.stacks else '')
 
 
 def stop_after(commands: Mapping[str, Sequence[str]], env: Mapping[str, str], log_dir: Path,
@@ -75,7 +92,9 @@ def stop_after(commands: Mapping[str, Sequence[str]], env: Mapping[str, str], lo
     catches SIGTERM (its entry point runs) and then ``ready(label, proc)`` if given, then
     ``delay`` s more (the moment of the stop is what the caller varies), send ``sig`` and
     judge the stop. A process still there ``timeout`` s after the signal is killed and
-    counted unclean."""
+    counted unclean; one still there
+    :data:`~positioning_cell.ros.processes.NATIVE_STACKS_AFTER_S` after it has its native
+    stacks written to ``log_dir/<label>.stacks.txt`` first, and in its :class:`Stop`."""
     log_dir.mkdir(parents=True, exist_ok=True)
     procs: dict[str, subprocess.Popen[bytes]] = {}
     for label, argv in commands.items():
@@ -102,7 +121,7 @@ def stop_after(commands: Mapping[str, Sequence[str]], env: Mapping[str, str], lo
             sent = time.monotonic()
             os.killpg(proc.pid, sig)
             try:
-                code = proc.wait(timeout=timeout)
+                code = wait_writing_stacks(proc, sent, timeout, stacks_path(log_dir, label))
                 problem = '' if code == 0 else f'exit {code}'
             except subprocess.TimeoutExpired:
                 problem = f'still running {timeout:.0f} s after {signal.Signals(sig).name}'
@@ -129,5 +148,6 @@ def stop_after(commands: Mapping[str, Sequence[str]], env: Mapping[str, str], lo
         if signs:
             problem = ', '.join(filter(None, [result.problem, f'printed {", ".join(signs)}']))
             result = Stop(label, False, result.seconds, problem)
-        out.append(result)
+        out.append(dataclasses.replace(
+            result, stacks=written_stacks(stacks_path(log_dir, label))))
     return out
