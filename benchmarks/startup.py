@@ -43,7 +43,8 @@ Targets (issue 24): every node answers <= 0.6 s after its start; ``cell --help``
 the other tools' --help likewise; the cell ready (first move accepted) <= 2 s after its spawn;
 ``cell watch`` shows its first table <= 1 s (median). Prints
 what it measured, the baselines and whether each target is met; exits non-zero only if
-something could not start or be measured.
+something could not start or be measured, or a node did not stop cleanly after its SIGINT (its
+log and native stacks printed).
 """
 
 from __future__ import annotations
@@ -132,8 +133,12 @@ class Starter:
             answered = _answered(ping, lambda: self._alive(label))
             return answered - t0
         finally:
-            self.procs.stop(label)
+            code = self.procs.stop(label)[label]
             self.client.node.destroy_client(ping)
+            if code != 0:  # an unclean stop (a SIGKILL leaves its participant to its lease)
+                raise RuntimeError(f'{label} ended with {code} after its SIGINT:\n'
+                                   f'{self.procs.log(label)[-3000:]}\n'
+                                   f'{self.procs.stacks(label)[-6000:]}')
             # the next start begins once this node has left the graph
             wait_until(lambda: node not in self.client.node.get_node_names(), GONE_TIMEOUT,
                        f'{node} to leave the graph')

@@ -268,7 +268,9 @@ def _spin(starts: Sequence[NodeStart]) -> int:
             if stop_requested():
                 return 0
             nodes.append(start.factory())
-        participant.end()  # the context's participant is theirs now
+        # The hidden node that made the participant (positioning_cell.ros.participant) stays
+        # until the end (run_together's finally): destroyed here, just as the nodes' endpoints
+        # went out, a running client sometimes saw those endpoints only ~1 s later.
         # All built and their kernels warmed: no kernel is compiled from here on (a pause of an
         # executor), a cold kernel raises instead (positioning_cell.core.compiled).
         compiled.seal()
