@@ -89,6 +89,13 @@ def _read_frame(fd: int, deadline: float | None) -> Any:
     return pickle.loads(_read_exact(fd, size, None))
 
 
+#: How the answer of a search that came too late, or of a call that found another holding the
+#: worker too long, begins: no ranges this time, the worker still searching (a load on the
+#: machine; a later call may be answered in time).
+LATE_REASON = 'the range search did not answer within'
+BUSY_REASON = 'the range search is busy with another request'
+
+
 class RangeWorker:
     """The search in a child process (module docstring). Thread-safe; :meth:`close` ends it."""
 
@@ -128,8 +135,8 @@ class RangeWorker:
         start = start_pose(user_pose6)
         deadline = time.monotonic() + self.answer_timeout
         if not self._lock.acquire(timeout=self.answer_timeout):  # a caller never queues long
-            return AxisRanges.unknown('the range search is busy with another request for '
-                                      f'longer than {self.answer_timeout:g} s')
+            return AxisRanges.unknown(f'{BUSY_REASON} for longer than '
+                                      f'{self.answer_timeout:g} s')
         try:
             return self._ranges_locked(model, start, deadline)
         finally:
@@ -156,8 +163,7 @@ class RangeWorker:
         except TimeoutError:
             if not self._ready:
                 return AxisRanges.unknown(self._status, pending=True)
-            return AxisRanges.unknown(
-                f'the range search did not answer within {self.answer_timeout:g} s')
+            return AxisRanges.unknown(f'{LATE_REASON} {self.answer_timeout:g} s')
         except (WorkerError, OSError, pickle.UnpicklingError, ValueError) as err:
             code = proc.poll()
             self._status = (f'the range search process ended (exit code {code})'
