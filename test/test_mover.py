@@ -598,6 +598,7 @@ def test_a_driver_that_does_not_answer_aborts() -> None:
     assert 'waiting for the leg driver to answer the trajectory' in str(err) and world.stops == 1
 
 
+@pytest.mark.timing  # a stop bound: not at idle priority beside others
 @pytest.mark.parametrize(('act', 'code', 'words', 'bound'), [
     (lambda w, m: setattr(w, 'silent', True), ResultCode.ABORTED_DRIVER_LOST,
      'leg driver not responding: no /legs/joint_states for', 0.5),
@@ -631,6 +632,7 @@ def test_an_axis_waiting_for_its_start_is_not_frozen() -> None:
     assert watch.frozen(moving, 10.6) == []
 
 
+@pytest.mark.timing  # a stop bound: not at idle priority beside others
 def test_a_frozen_encoder_is_a_fault_naming_the_axis_within_a_second() -> None:
     world = World(follow=False)  # the encoders never change: frozen while commanded to move
     m = mover(world, **{'arrival.timeout': 60.0})
@@ -643,6 +645,7 @@ def test_a_frozen_encoder_is_a_fault_naming_the_axis_within_a_second() -> None:
     assert took < 1.0 + 0.2 and world.stops == 1
 
 
+@pytest.mark.timing  # a stop bound: not at idle priority beside others
 def test_a_tracker_that_falls_silent_mid_move_aborts_a_measured_move_within_a_second() -> None:
     world = World(follow=False)  # the drives take their time: the tracker dies on the way
     m = mover(world, 'measured', **{'measurement_timeout': 30.0, 'arrival.timeout': 60.0,
