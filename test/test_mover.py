@@ -481,6 +481,7 @@ def test_a_tracker_heard_again_within_its_silence_window_lets_a_measured_move_ru
     assert result.reason.startswith('settled') and world.trajectories
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_tracker_still_silent_after_its_window_is_refused() -> None:
     world = World()
     m = mover(world, 'measured', **{'liveness.tracker_silence': 0.2})
@@ -551,6 +552,7 @@ def test_a_stop_before_the_send_sends_nothing() -> None:
     assert not world.trajectories
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_the_drives_refusing_the_trajectory_aborts_at_once() -> None:
     world = World()
     world.refuse = 'point 3: leg1_length 240.0000 mm is above its limit 220.0000 mm'
@@ -598,7 +600,7 @@ def test_a_driver_that_does_not_answer_aborts() -> None:
     assert 'waiting for the leg driver to answer the trajectory' in str(err) and world.stops == 1
 
 
-@pytest.mark.timing  # a stop bound: not at idle priority beside others
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 @pytest.mark.parametrize(('act', 'code', 'words', 'bound'), [
     (lambda w, m: setattr(w, 'silent', True), ResultCode.ABORTED_DRIVER_LOST,
      'leg driver not responding: no /legs/joint_states for', 0.5),
@@ -632,7 +634,7 @@ def test_an_axis_waiting_for_its_start_is_not_frozen() -> None:
     assert watch.frozen(moving, 10.6) == []
 
 
-@pytest.mark.timing  # a stop bound: not at idle priority beside others
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_frozen_encoder_is_a_fault_naming_the_axis_within_a_second() -> None:
     world = World(follow=False)  # the encoders never change: frozen while commanded to move
     m = mover(world, **{'arrival.timeout': 60.0})
@@ -645,7 +647,7 @@ def test_a_frozen_encoder_is_a_fault_naming_the_axis_within_a_second() -> None:
     assert took < 1.0 + 0.2 and world.stops == 1
 
 
-@pytest.mark.timing  # a stop bound: not at idle priority beside others
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_tracker_that_falls_silent_mid_move_aborts_a_measured_move_within_a_second() -> None:
     world = World(follow=False)  # the drives take their time: the tracker dies on the way
     m = mover(world, 'measured', **{'measurement_timeout': 30.0, 'arrival.timeout': 60.0,
@@ -870,6 +872,7 @@ def watch_until_fault(m: Mover, within: float = 0.5) -> float:
     return time.monotonic() - start
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_uncommanded_motion_at_standstill_stops_the_drives_and_the_next_move_re_plans() -> None:
     world = World(samples=0)  # the encoders alone (the tracker has its own test)
     m = mover(world)
@@ -895,6 +898,7 @@ def test_uncommanded_motion_at_standstill_stops_the_drives_and_the_next_move_re_
                                atol=2e-6)
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_the_tracker_sees_the_platform_move_while_the_encoders_stand_still() -> None:
     world = World(samples=1)
     m = mover(world)
@@ -938,6 +942,7 @@ def test_a_stray_reading_among_the_first_at_rest_does_not_become_the_rest_pose()
     assert found is not None and '0.300 mm from where it came to rest' in found.reason
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_axes_still_moving_after_the_command_ended_are_uncommanded_motion() -> None:
     world = World()
     m = mover(world, **{'standstill.rest_timeout': 0.2})
