@@ -379,6 +379,7 @@ def test_a_timed_move_sends_its_start_and_lasts_its_duration() -> None:
     assert m.state is State.SETTLED
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_step_within_the_arrival_tolerance_is_not_arrived_before_its_trajectory_ends(
         ) -> None:
     """A step smaller than the drives' arrival tolerance (here 3 um, against 5 um per leg)
