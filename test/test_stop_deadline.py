@@ -96,8 +96,9 @@ def test_a_process_still_stopping_has_its_native_stacks_written_before_its_deadl
     assert procs.stacks('prompt') == ''
 
 
-#: A process that catches SIGTERM (as a node's entry point does) and then ends at once, exit 0,
-#: or with no seconds, ignores it and ends by itself ``seconds`` after its start.
+#: A process that catches SIGTERM (as a node's entry point does): with ``seconds``, it lets the
+#: signal pass and ends by itself (exit 0) that long after its start; with none, it ends at once,
+#: exit 0.
 TERM_CAUGHT = """
 import signal, sys, time
 signal.signal(signal.SIGTERM, (lambda *_: None) if {seconds} else (lambda *_: sys.exit(0)))
