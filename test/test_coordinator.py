@@ -249,6 +249,7 @@ def test_one_refusal_refuses_the_panel_move_naming_each_and_nothing_moves() -> N
     assert all(f.checked and not f.moved for f in fakes)
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_fault_of_one_stops_all_at_once_naming_it() -> None:
     fakes = [FakePositioner('p1', after=None), FakePositioner('p2', after=0.05,
                                                               end=ResultCode.ABORTED_FAULT),
@@ -275,6 +276,7 @@ def test_a_stop_asked_of_the_coordinator_stops_every_positioner() -> None:
     assert shares and all(0.0 <= s <= 1.0 for s in shares)
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_running_panel_move_is_stopped_along_its_path_from_one_instant() -> None:
     """Every positioner asked to stop along its path with one start ``stop_lead`` ahead and
     one duration (``stop_time``, or the move's ramp, a quarter of its duration, when shorter);

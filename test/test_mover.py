@@ -366,6 +366,7 @@ def test_a_bad_request_tolerance_is_refused(tolerance: float) -> None:
     assert info.value.code is ResultCode.REFUSED_INVALID_GOAL and not world.trajectories
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_timed_move_sends_its_start_and_lasts_its_duration() -> None:
     """The coordinated cell's time base (moves.timing): the first trajectory carries the start
     and lasts the least duration; the move waits out the delay before judging arrival."""
@@ -1047,6 +1048,7 @@ def test_a_driver_that_sees_no_commander_says_so_in_words_the_mover_reads() -> N
     assert "not discovered this positioner's publisher" in str(info.value)
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_drives_that_stopped_the_move_for_a_silent_heartbeat_abort_it_at_once() -> None:
     """A positioner slow enough for the drives to stop its move (no heartbeat in time) learns
     it from their status at once, not after the arrival timeout."""
@@ -1447,6 +1449,7 @@ def test_a_lagging_tracker_is_not_motion_at_standstill() -> None:
     assert m.state is State.SETTLED, m.reason
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_stop_along_the_path_is_sent_for_its_instant_and_ends_the_move_once_at_rest() -> None:
     """``stop_along`` mid-move (the coordinated cell's stop): the drives are sent the move's stop
     along its path (moves.stopping) to start at the asked instant, and are not stopped at once;
@@ -1492,6 +1495,7 @@ def test_a_stop_along_the_path_is_sent_for_its_instant_and_ends_the_move_once_at
     assert world.stops == 1  # the abort's stop, once the axes rest (harmless there)
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_refused_or_idle_stop_along_the_path_stops_at_once() -> None:
     """The drives refusing the stop along the path stop the move at once; with no move
     running or an instant already past, stop_along is a plain stop; a bad duration changes
@@ -1515,6 +1519,7 @@ def test_a_refused_or_idle_stop_along_the_path_stops_at_once() -> None:
     assert world.stops == 2
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_stop_now_during_a_stop_along_the_path_ends_the_move_at_once() -> None:
     """/positioner/stop while the drives slow along the path: they stop at once, and the move
     ends then (not once the stop along the path would have been over)."""
@@ -1530,6 +1535,7 @@ def test_a_stop_now_during_a_stop_along_the_path_ends_the_move_at_once() -> None
     assert after < 1.0 and world.stops >= 1
 
 
+@pytest.mark.timing  # a clock bound: not at idle priority beside others
 def test_a_stop_along_the_path_heard_late_rests_sooner_at_the_same_point() -> None:
     """Asked to stop from an instant already 50 ms past: the stop is sent to start just ahead,
     shorter by twice its lateness (moves.stopping.joined_late: the same point of the path);
