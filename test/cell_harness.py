@@ -22,6 +22,7 @@ from positioning_cell.polling import wait_until
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import free_domain as isolated_domain
 from positioning_cell.ros.processes import Processes, cell_environment, executable
+from positioning_cell.ros.spin import aside_nodes
 
 __all__ = ['CELL_YAML', 'FAST_MOTION', 'LOADED_COMMAND', 'LOADED_LIVENESS', 'REPO', 'Client',
            'InProcess', 'ProcessGroup', 'executable', 'in_process', 'isolated_domain',
@@ -141,7 +142,8 @@ class InProcess:
                           parameter_overrides=[Parameter(k, value=v)
                                                for k, v in overrides.items()])
         self.nodes.append(node)
-        self.executor.add_node(node)
+        for each in (node, *aside_nodes(node)):
+            self.executor.add_node(each)
         return node
 
     def close(self) -> None:
@@ -152,6 +154,8 @@ class InProcess:
             close = getattr(node, 'close', None)
             if callable(close):
                 close()
+            for helper in aside_nodes(node):
+                helper.destroy_node()
             node.destroy_node()
         self.client.close()
         rclpy.try_shutdown(context=self.context)

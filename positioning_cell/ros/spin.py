@@ -7,6 +7,7 @@ import gc
 import importlib
 import sys
 import threading
+import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -193,7 +194,9 @@ def run_together(nodes: Sequence[NodeStart], args: Sequence[str] | None = None) 
     callback than the others, and most of the cell's callbacks are theirs: the driver's
     200 Hz physics timer, its 100 Hz joint states, the tracker's readings), the positioner
     its threads and callback groups (its service callbacks wait for a move to settle while
-    its timers and subscriptions run; its heartbeat alone in a group). What the nodes share is
+    its timers and subscriptions run; its heartbeat alone in a group), its pose and
+    diagnostics timers on a node beside it, on an events executor of their own
+    (:func:`aside_node`). What the nodes share is
     the rest: the context and its DDS participant, the interpreter and one copy of rclpy,
     numpy, scipy and numba (the memory composition saves), and the GIL.
 
@@ -239,6 +242,34 @@ def spin_in_slices(executor: Executor, running: Callable[[], bool]) -> None:
         executor.spin_until_future_complete(Future(), timeout_sec=STOP_POLL_S)
 
 
+#: Each node's nodes spun beside it (:func:`aside_node`; made as the node is built).
+_aside: weakref.WeakKeyDictionary[Node, list[Node]] = weakref.WeakKeyDictionary()
+
+
+def aside_node(owner: Node, role: str) -> Node:
+    """A hidden node of ``owner``'s (``_<owner>_<role>``, in its context; no parameter
+    services, no /rosout) for callbacks that never wait, spun beside ``owner`` on an events
+    executor of its own, in a thread of its own, wherever ``owner`` is spun
+    (:func:`run_together`; a test's executor takes :func:`aside_nodes` too), and destroyed
+    just before it.
+
+    The positioner's periodic outputs (its pose at 50 Hz, its diagnostics) are its timers on
+    one: on its multi-threaded executor (which its service callbacks need: they wait for a
+    move) every timer call cost a rebuild of that executor's wait set over all its entities,
+    most of the positioner's Python at rest. Off it, the positioner took 0.149-0.151 core at
+    rest against 0.179-0.188, and 0.205-0.215 moving against 0.250-0.258
+    (benchmarks/idle_cpu.py, two runs each, alternated, Dec 7)."""
+    node = Node(f'_{owner.get_name()}_{role}', context=owner.context,
+                start_parameter_services=False, enable_rosout=False)
+    _aside.setdefault(owner, []).append(node)
+    return node
+
+
+def aside_nodes(owner: Node) -> tuple[Node, ...]:
+    """The nodes spun beside ``owner`` (:func:`aside_node`), in the order they were made."""
+    return tuple(_aside.get(owner, ()))
+
+
 def _spin(starts: Sequence[NodeStart]) -> int:
     """:func:`run_together` from the nodes' construction to their destruction (the exit
     code)."""
@@ -278,9 +309,15 @@ def _spin(starts: Sequence[NodeStart]) -> int:
         for start, node in zip(starts, nodes, strict=True):
             spinning.append(start.executor())
             spinning[-1].add_node(node)
+        # each node but the first in a thread of its own, and beside each the nodes of its
+        # callbacks that never wait, each on an events executor (aside_node)
+        spun = list(zip(spinning[1:], nodes[1:], strict=True))
+        for helper in (h for node in nodes for h in aside_nodes(node)):
+            spinning.append(EventsExecutor())
+            spinning[-1].add_node(helper)
+            spun.append((spinning[-1], helper))
         workers = [threading.Thread(target=spin_aside, args=(executor,), daemon=True,
-                                    name=f'spin {node.get_name()}')
-                   for executor, node in zip(spinning[1:], nodes[1:], strict=True)]
+                                    name=f'spin {node.get_name()}') for executor, node in spun]
         modules = tuple(dict.fromkeys(m for start in starts for m in start.imports))
         if modules:
             workers.append(threading.Thread(target=_import_aside,
@@ -313,6 +350,8 @@ def _spin(starts: Sequence[NodeStart]) -> int:
             executor.shutdown(timeout_sec=SHUTDOWN_WAIT_S)
         for node in reversed(nodes):
             destroy_unspun(node)  # its readers' nodes, not left to the collection below
+            for helper in aside_nodes(node):
+                helper.destroy_node()
             node.destroy_node()
     if failures:  # a callback raised in another executor's thread: as if in this one
         raise failures[0]
