@@ -13,7 +13,6 @@ from typing import Any
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
@@ -22,7 +21,7 @@ from positioning_cell.polling import wait_until
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import free_domain as isolated_domain
 from positioning_cell.ros.processes import Processes, cell_environment, executable
-from positioning_cell.ros.spin import aside_nodes
+from positioning_cell.ros.spin import JoinedMultiThreadedExecutor, aside_nodes
 
 __all__ = ['CELL_YAML', 'FAST_MOTION', 'LOADED_COMMAND', 'LOADED_LIVENESS', 'REPO', 'Client',
            'InProcess', 'ProcessGroup', 'executable', 'in_process', 'isolated_domain',
@@ -124,7 +123,8 @@ class InProcess:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain,
                    signal_handler_options=SignalHandlerOptions.NO)
-        self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
+        # joined at shutdown: rclpy's own left callbacks running as the nodes were destroyed
+        self.executor = JoinedMultiThreadedExecutor(num_threads=4, context=self.context)
         self.nodes: list[Node] = []
         self.client = Client(name='test_client', context=self.context)
         self._thread = threading.Thread(target=self._spin, daemon=True)

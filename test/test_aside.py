@@ -35,9 +35,8 @@ class Probe(Node):
         super().__init__('aside_probe')
         self.exit_status = None
         self.calls, self.started = 0, None
-        helper = aside_node(self, 'outputs')
+        helper = aside_node(self, 'outputs', [(0.01, self._aside)])
         made.append((helper, helper.get_name()))
-        helper.create_timer(0.01, self._aside)
         self.create_timer(0.01, self._own)
 
     def _own(self):

@@ -99,16 +99,9 @@ class PositionerNode(QosWatchedNode):
                                 callback_group=services)
         self.operator = OperatorInterface(self, self.controller, services,
                                           self._publish_diagnostics)
-        # The periodic outputs (the pose, the diagnostics) on a node beside this one, spun on
-        # an events executor (ros.spin.aside_node): on this node's executor each timer call
-        # cost a rebuild of its wait set. They run one at a time, as in the topics group
-        # before, and beside the callbacks here, which lock the mover as the services do.
-        outputs = aside_node(self, 'outputs')
-        outputs.create_timer(1.0 / settings.pose_rate_hz, self._publish_pose)
-        outputs.create_timer(1.0, self._publish_diagnostics)
-        # The heartbeat on a group of its own: a slow pose estimate never delays it. It stays
-        # on this node's executor, which it so shows alive to the drives (a stalled executor
-        # stops it), rather than on a node beside it.
+        aside_node(self, 'outputs', [(1.0 / settings.pose_rate_hz, self._publish_pose),
+                                     (1.0, self._publish_diagnostics)])  # off this executor
+        # The heartbeat on a group of its own: a slow pose estimate never delays it.
         beat = self.create_publisher(Header, names.HEARTBEAT, qos.HEARTBEAT_QOS)
         self.create_timer(settings.liveness.heartbeat_period,
                           lambda: beat.publish(Header(stamp=self._now())),

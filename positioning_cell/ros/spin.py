@@ -246,21 +246,27 @@ def spin_in_slices(executor: Executor, running: Callable[[], bool]) -> None:
 _aside: weakref.WeakKeyDictionary[Node, list[Node]] = weakref.WeakKeyDictionary()
 
 
-def aside_node(owner: Node, role: str) -> Node:
+def aside_node(owner: Node, role: str,
+               timers: Sequence[tuple[float, Callable[[], None]]] = ()) -> Node:
     """A hidden node of ``owner``'s (``_<owner>_<role>``, in its context; no parameter
-    services, no /rosout) for callbacks that never wait, spun beside ``owner`` on an events
-    executor of its own, in a thread of its own, wherever ``owner`` is spun
-    (:func:`run_together`; a test's executor takes :func:`aside_nodes` too), and destroyed
-    just before it.
+    services, no /rosout) with ``timers`` on it (each its period s and its callback), for
+    callbacks that never wait: spun beside ``owner`` on an events executor of its own, in a
+    thread of its own, wherever ``owner`` is spun (:func:`run_together`; a test's executor
+    takes :func:`aside_nodes` too), and destroyed just before it.
 
     The positioner's periodic outputs (its pose at 50 Hz, its diagnostics) are its timers on
     one: on its multi-threaded executor (which its service callbacks need: they wait for a
     move) every timer call cost a rebuild of that executor's wait set over all its entities,
     most of the positioner's Python at rest. Off it, the positioner took 0.149-0.151 core at
     rest against 0.179-0.188, and 0.205-0.215 moving against 0.250-0.258
-    (benchmarks/idle_cpu.py, two runs each, alternated, Dec 7)."""
+    (benchmarks/idle_cpu.py, two runs each, alternated, Dec 7). The callbacks on one must
+    be safe beside the owner's (the positioner's timers call the mover, which locks). The
+    positioner's heartbeat stays on its own executor: a stalled executor stops it, and the
+    drives see that."""
     node = Node(f'_{owner.get_name()}_{role}', context=owner.context,
                 start_parameter_services=False, enable_rosout=False)
+    for period, callback in timers:
+        node.create_timer(period, callback)
     _aside.setdefault(owner, []).append(node)
     return node
 
