@@ -21,7 +21,7 @@ from positioning_cell.polling import wait_until
 from positioning_cell.ros.client import CellClient
 from positioning_cell.ros.domains import free_domain as isolated_domain
 from positioning_cell.ros.processes import Processes, cell_environment, executable
-from positioning_cell.ros.spin import JoinedMultiThreadedExecutor, aside_nodes
+from positioning_cell.ros.spin import JoinedMultiThreadedExecutor, aside_nodes, spin_in_slices
 
 __all__ = ['CELL_YAML', 'FAST_MOTION', 'LOADED_COMMAND', 'LOADED_LIVENESS', 'REPO', 'Client',
            'InProcess', 'ProcessGroup', 'executable', 'in_process', 'isolated_domain',
@@ -123,16 +123,20 @@ class InProcess:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain,
                    signal_handler_options=SignalHandlerOptions.NO)
-        # joined at shutdown: rclpy's own left callbacks running as the nodes were destroyed
+        # As the cell's nodes spin (ros.spin): the spin ends between two slices, then the
+        # executor's shutdown waits for the callbacks it started (rclpy's own left them
+        # running as the nodes were destroyed).
         self.executor = JoinedMultiThreadedExecutor(num_threads=4, context=self.context)
         self.nodes: list[Node] = []
         self.client = Client(name='test_client', context=self.context)
+        self._spinning = threading.Event()
+        self._spinning.set()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
         with contextlib.suppress(Exception):  # shutdown races end the spin quietly
-            self.executor.spin()
+            spin_in_slices(self.executor, lambda: self._spinning.is_set() and self.context.ok())
 
     def start(self, node_class: Any, **overrides: Any) -> Any:
         """Build ``node_class`` with config/cell.yaml and the ``overrides`` (dotted names →
@@ -148,8 +152,9 @@ class InProcess:
 
     def close(self) -> None:
         """Stop spinning, close and destroy the nodes, shut the context down."""
-        self.executor.shutdown(timeout_sec=5.0)
+        self._spinning.clear()
         self._thread.join(timeout=5.0)
+        self.executor.shutdown(timeout_sec=5.0)
         for node in self.nodes:
             close = getattr(node, 'close', None)
             if callable(close):
