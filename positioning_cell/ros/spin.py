@@ -34,7 +34,7 @@ from positioning_cell.core import compiled
 from positioning_cell.errors import PositioningError
 from positioning_cell.ros import participant
 from positioning_cell.ros.entry import hold_stops, stop_requested
-from positioning_cell.ros.unspun import destroy_unspun
+from positioning_cell.ros.unspun import destroy_unspun, helper_node
 
 STOP_POLL_S = 0.1
 """Longest time from SIGINT / SIGTERM to the executor returning (s), besides a running callback."""
@@ -196,9 +196,9 @@ def run_together(nodes: Sequence[NodeStart], args: Sequence[str] | None = None) 
     its threads and callback groups (its service callbacks wait for a move to settle while
     its timers and subscriptions run; its heartbeat alone in a group), its pose and
     diagnostics timers on a node beside it, on an events executor of their own
-    (:func:`aside_node`). What the nodes share is
-    the rest: the context and its DDS participant, the interpreter and one copy of rclpy,
-    numpy, scipy and numba (the memory composition saves), and the GIL.
+    (:func:`aside_node`). What the nodes share is the rest: the context and its DDS
+    participant, the interpreter and one copy of rclpy, numpy, scipy and numba (the memory
+    composition saves), and the GIL.
 
     Not one executor for all. Measured with the cell's four nodes at rest, as
     benchmarks/idle_cpu.py measures (CPU from /proc, the driver's rate from its stamps; 2
@@ -248,11 +248,11 @@ _aside: weakref.WeakKeyDictionary[Node, list[Node]] = weakref.WeakKeyDictionary(
 
 def aside_node(owner: Node, role: str,
                timers: Sequence[tuple[float, Callable[[], None]]] = ()) -> Node:
-    """A hidden node of ``owner``'s (``_<owner>_<role>``, in its context; no parameter
-    services, no /rosout) with ``timers`` on it (each its period s and its callback), for
-    callbacks that never wait: spun beside ``owner`` on an events executor of its own, in a
-    thread of its own, wherever ``owner`` is spun (:func:`run_together`; a test's executor
-    takes :func:`aside_nodes` too), and destroyed just before it.
+    """A :func:`~positioning_cell.ros.unspun.helper_node` of ``owner``'s (``_<owner>_<role>``)
+    with ``timers`` on it (each its period s and its callback), for callbacks that never wait:
+    spun beside ``owner`` on an events executor of its own, in a thread of its own, wherever
+    ``owner`` is spun (:func:`run_together`; a test's executor takes :func:`aside_nodes` too),
+    and destroyed just before it.
 
     The positioner's periodic outputs (its pose at 50 Hz, its diagnostics) are its timers on
     one: on its multi-threaded executor (which its service callbacks need: they wait for a
@@ -263,8 +263,7 @@ def aside_node(owner: Node, role: str,
     be safe beside the owner's (the positioner's timers call the mover, which locks). The
     positioner's heartbeat stays on its own executor: a stalled executor stops it, and the
     drives see that."""
-    node = Node(f'_{owner.get_name()}_{role}', context=owner.context,
-                start_parameter_services=False, enable_rosout=False)
+    node = helper_node(owner, role)
     for period, callback in timers:
         node.create_timer(period, callback)
     _aside.setdefault(owner, []).append(node)

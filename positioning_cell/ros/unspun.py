@@ -25,12 +25,18 @@ _lock = threading.Lock()
 _unspun: weakref.WeakKeyDictionary[Node, list[Node]] = weakref.WeakKeyDictionary()
 
 
+def helper_node(owner: Node, suffix: str) -> Node:
+    """A hidden node ``_<owner>_<suffix>`` in ``owner``'s context, without parameter services
+    or /rosout: what a node of the cell keeps beside it (its unspun readers' nodes here, the
+    nodes :func:`positioning_cell.ros.spin.aside_node` spins beside it)."""
+    return Node(f'_{owner.get_name()}_{suffix}', context=owner.context,
+                start_parameter_services=False, enable_rosout=False)
+
+
 def unspun_node(owner: Node, role: str, topic: str) -> Node:
-    """A new node in ``owner``'s context named after it, ``role`` and ``topic``, without
-    parameter services or /rosout, that no executor spins; destroyed with
-    :func:`destroy_unspun` (``owner``) or :func:`destroy_one`."""
-    node = Node(f'_{owner.get_name()}_{role}_{topic.strip("/").replace("/", "_")}',
-                context=owner.context, start_parameter_services=False, enable_rosout=False)
+    """A new :func:`helper_node` of ``owner``'s named after ``role`` and ``topic``, that no
+    executor spins; destroyed with :func:`destroy_unspun` (``owner``) or :func:`destroy_one`."""
+    node = helper_node(owner, f'{role}_{topic.strip("/").replace("/", "_")}')
     with _lock:
         _unspun.setdefault(owner, []).append(node)
     return node
