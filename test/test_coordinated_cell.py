@@ -288,10 +288,11 @@ def test_a_panel_move_sends_both_drives_one_start_and_one_duration(
 
 
 @pytest.mark.timing
-def test_the_two_machines_cross_mid_travel_within_one_drive_period(
+def test_the_two_machines_cross_mid_travel_within_half_a_drive_period(
         cell: CoordinatedCell) -> None:
-    """The two machines move as one: their true legs cross half their travel within one
-    driver period (5 ms, the drives' 200 Hz physics) of each other. Half way the legs move at
+    """The two machines move as one: their true legs cross half their travel within 5 ms of
+    each other (half a period of the drives' 100 Hz physics: each starts its trajectory at its
+    stamp's instant within a tick, not at the tick). Half way the legs move at
     their peak speed, so a late reading does not bend the interpolation (in the ramps, a
     50 ms gap did: a skew that was not). Timed: alone, after the parallel tier."""
     _, (one, two) = _moved_together(cell)

@@ -96,9 +96,9 @@ class DriverSettings:
     fault: DriveFaults = group(DriveFaults, 'injected faults (dynamic)')
     command: CommandSettings = group(CommandSettings, 'whom the drives obey, and the bounds of '
                                      'a command')
-    physics_rate: float = setting(200.0, 'servo integration timer', 'Hz', low=10.0,
+    physics_rate: float = setting(100.0, 'servo integration timer', 'Hz', low=10.0,
                                   high=2000.0)
-    publish_every: int = setting(2, 'joint states are published every this many physics '
+    publish_every: int = setting(1, 'joint states are published every this many physics '
                                  'steps', low=1, high=1000)
     effort_rate: float = setting(20.0, 'largest rate of the payload-effort update (only '
                                  'while the axes move)', 'Hz', low=1.0, high=200.0)
