@@ -8,8 +8,17 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 
+from positioning_cell.accuracy import stamp_seconds
 from positioning_cell.errors import InputError
-from positioning_cell.ros.messages import published_monotonic, registration, registration_msg
+from positioning_cell.ros.messages import (
+    pose_arrays,
+    pose_batches,
+    pose_stamped,
+    pose_with_covariance,
+    published_monotonic,
+    registration,
+    registration_msg,
+)
 
 
 def test_publication_time_is_the_receipt_less_the_message_age() -> None:
@@ -43,3 +52,41 @@ def test_the_registration_survives_its_message_and_a_bad_one_is_refused() -> Non
                 cov - np.diag([1.0] + [0.0] * 5)):
         with pytest.raises(InputError, match='tracker registration'):
             registration(registration_msg(position, [0.0, 0.0, 0.0, 1.0], bad, Time()))
+
+
+def test_pose_batches_keep_every_field_rank_across_topics_and_stamp_in_rank_order() -> None:
+    """The accuracy monitor's streams taken together: each topic's messages in their order,
+    ranked after the topic before, each field as the message holds it (the per-message
+    conversions as reference), the covariance only where the message states one."""
+    rng = np.random.default_rng(5)
+
+    def values(k: int) -> tuple[np.ndarray, np.ndarray, Time]:
+        q = rng.standard_normal(4)
+        return (rng.standard_normal(3), q / np.linalg.norm(q),
+                Time(sec=100 + k, nanosec=int(rng.integers(0, 10**9))))
+
+    readings = []
+    for k in range(3):
+        position, quaternion, stamp = values(k)
+        readings.append(pose_with_covariance(position, quaternion,
+                                             rng.standard_normal(36), stamp))
+    truths = [pose_stamped(*values(k)) for k in range(4)]
+    batches, stamps = pose_batches({'measured': readings, 'truth': truths, 'targets': []})
+    assert [b.count for b in batches.values()] == [3, 4, 0]
+    assert batches['measured'].rank.tolist() == [0, 1, 2]
+    assert batches['truth'].rank.tolist() == [3, 4, 5, 6]
+    assert stamps == [msg.header.stamp for msg in readings + truths]
+    for key, msgs in (('measured', readings), ('truth', truths)):
+        got = batches[key]
+        for row, msg in enumerate(msgs):
+            pose = getattr(msg.pose, 'pose', msg.pose)
+            position, quaternion = pose_arrays(pose)
+            np.testing.assert_array_equal(got.position[row], position)
+            np.testing.assert_array_equal(got.quaternion[row], quaternion)
+            assert got.stamp[row] == stamp_seconds(msg.header.stamp.sec,
+                                                   msg.header.stamp.nanosec)
+            assert got.frame[row] == msg.header.frame_id
+    np.testing.assert_array_equal(batches['measured'].covariance,
+                                  np.array([msg.pose.covariance for msg in readings]
+                                           ).reshape(3, 6, 6))
+    assert batches['truth'].covariance is None

@@ -7,13 +7,15 @@ The tracker's registration (/metrology/registration, latched) is the part of the
 covariance averaging does not reduce. The rules: :class:`positioning_cell.accuracy.monitor.
 Monitor`; each visit is judged on its final settled window after the positioner's move end (a
 ``positioner: state`` status on /diagnostics, :func:`positioning_cell.accuracy.move_ended`).
-The inputs go to it in stamp order every ``RELEASE_PERIOD_S``, as the offline analysis takes
-a bag (:class:`positioning_cell.accuracy.stamp_order.MonitorInputs`): errors and verdicts come
-about ``HOLD_S`` after their readings. ``accuracy_monitor: recording`` on /diagnostics says
-whether the recorder records (:func:`positioning_cell.recording.recording`: every second once
-one was heard of, and at once on a change; a stop logged once). /accuracy_monitor/report
-returns its JSON (:meth:`Monitor.report`, the publishers each input matched, the recording,
-the ``inputs`` held and late); /accuracy_monitor/reset clears the statistics, not the target.
+Every ``RELEASE_PERIOD_S`` the streams (readings, true poses) are taken as they came since
+(:class:`positioning_cell.ros.latest.Reader`: no wake-up per message) and the inputs go to it
+in stamp order, as the offline analysis takes a bag (:class:`positioning_cell.accuracy.
+stamp_order.MonitorInputs`): errors and verdicts come about ``HOLD_S`` after their readings.
+``accuracy_monitor: recording`` on /diagnostics says whether the recorder records
+(:func:`positioning_cell.recording.recording`: every second once one was heard of, and at once
+on a change; a stop logged once). /accuracy_monitor/report returns its JSON
+(:meth:`Monitor.report`, the publishers each input matched, the recording, the ``inputs`` held
+and late); /accuracy_monitor/reset clears the statistics, not the target.
 """
 
 from __future__ import annotations
@@ -33,7 +35,6 @@ from positioning_cell.accuracy import (
     Monitor,
     MonitorSettings,
     MoveEnds,
-    PoseMessages,
     Visit,
     move_ended,
     stamp_seconds,
@@ -42,18 +43,20 @@ from positioning_cell.accuracy.stamp_order import HOLD_S, MonitorInputs
 from positioning_cell.accuracy.verdicts import DECISION_LEVELS, Verdict, verdict_values
 from positioning_cell.recording import STATUS_PERIOD_S, RecorderReport, Recording, recording
 from positioning_cell.ros import messages as m
+from positioning_cell.ros.latest import Reader
 from positioning_cell.ros.parameters import NodeParameters
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS, STREAM_QOS
 from positioning_cell.ros.spin import NodeStart
 
 _LEVELS = ('ok', 'warn', 'error')
-#: How often (s) what is released in stamp order is fed to the monitor (70 messages/s: 10 feeds).
+#: How often (s) the streams are taken and the monitor fed (70 messages/s: 10 feeds).
 RELEASE_PERIOD_S = 0.1
-
-
-def _pose(header: Any, pose: Any) -> tuple[float, str, Any, Any]:
-    return (stamp_seconds(header.stamp.sec, header.stamp.nanosec), header.frame_id,
-            *m.pose_arrays(pose))
+#: The inputs taken as they come (latched: the tracker locates itself once, at its start) and
+#: the streams: each its topic, type and input (a keyword of MonitorInputs.arrive).
+EVENTS = ((names.TARGET, PoseStamped, 'targets'),
+          (names.TRACKER_REGISTRATION, PoseWithCovarianceStamped, 'registrations'))
+STREAMS = ((names.MEASURED_POSE, PoseWithCovarianceStamped, 'measured'),
+           (names.TRUE_POSE, PoseStamped, 'truth'))
 
 
 class AccuracyMonitorNode(Node):
@@ -68,20 +71,14 @@ class AccuracyMonitorNode(Node):
         self.monitor = Monitor(self.params.settings)
         self.arrivals = MonitorInputs(self.monitor)
         self._arrived_at = time.monotonic()  # when the last message arrived
-        self.pub_position = self.create_publisher(Vector3Stamped, names.POSITION_ERROR,
-                                                  STREAM_QOS)
+        self.pub_position = self.create_publisher(Vector3Stamped, names.POSITION_ERROR, STREAM_QOS)
         self.pub_orientation = self.create_publisher(Vector3Stamped, names.ORIENTATION_ERROR,
                                                      STREAM_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS,
-                                              DIAGNOSTICS_QOS)
-        self.inputs = {topic: self.create_subscription(kind, topic, self._input(name), qos)
-                       for topic, kind, name, qos in (
-            (names.TARGET, PoseStamped, 'targets', LATCHED_QOS),
-            (names.MEASURED_POSE, PoseWithCovarianceStamped, 'measured', STREAM_QOS),
-            (names.TRUE_POSE, PoseStamped, 'truth', STREAM_QOS),
-            # latched: the tracker publishes where it located itself once, at its start
-            (names.TRACKER_REGISTRATION, PoseWithCovarianceStamped, 'registrations',
-             LATCHED_QOS))}
+        self.pub_diag = self.create_publisher(DiagnosticArray, names.DIAGNOSTICS, DIAGNOSTICS_QOS)
+        self.inputs = {topic: self.create_subscription(kind, topic, self._input(name), LATCHED_QOS)
+                       for topic, kind, name in EVENTS}
+        self.streams = {topic: (name, Reader(self, kind, topic, STREAM_QOS))
+                        for topic, kind, name in STREAMS}
         self.create_service(Trigger, names.MONITOR_REPORT, self._report, qos_profile=SERVICE_QOS)
         self.create_service(Trigger, names.MONITOR_RESET, self._reset, qos_profile=SERVICE_QOS)
         # The recorder's latest status (received on the wall clock, s) and what was told of it.
@@ -101,22 +98,25 @@ class AccuracyMonitorNode(Node):
         self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_INPUT, 'warn', reason, {},
                                            m.stamp(item.time)))
 
-    def _arrive(self, stamp: Any, **messages: PoseMessages | MoveEnds) -> None:
-        """A message in, held for its stamp order (:meth:`_release` feeds it)."""
-        self.arrivals.arrive(**messages, tags=(stamp,))  # type: ignore[arg-type]
+    def _arrive(self, stamps: list[Any], **messages: Any) -> None:
+        """Messages in (header ``stamps`` in rank order), held for :meth:`_release`."""
+        self.arrivals.arrive(**messages, tags=stamps)
         self._arrived_at = time.monotonic()
 
     def _input(self, kind: str) -> Any:
         """The callback of a pose input (``kind``: a keyword of MonitorInputs.arrive)."""
-        def take(msg: Any) -> None:
-            pose = getattr(msg.pose, 'pose', msg.pose)  # a PoseWithCovariance: its covariance
-            self._arrive(msg.header.stamp, **{kind: PoseMessages.one(
-                *_pose(msg.header, pose), covariance=getattr(msg.pose, 'covariance', None))})
-        return take
+        return lambda msg: self._arrive([msg.header.stamp], **{kind: m.pose_messages([msg])})
+
+    def _take_streams(self) -> None:
+        """The streams' messages since the last call, in together (:func:`m.pose_batches`)."""
+        batches, stamps = m.pose_batches({kind: r.take() for kind, r in self.streams.values()})
+        if stamps:
+            self._arrive(stamps, **batches)
 
     def _release(self, flush: bool = False) -> None:
         """Feed the monitor what is released (everything held once nothing arrived for
         HOLD_S, or with ``flush``) and publish what it said, in its order."""
+        self._take_streams()
         quiet = flush or time.monotonic() - self._arrived_at >= HOLD_S
         released = self.arrivals.release(flush=quiet and self.arrivals.held > 0)
         if released is None:
@@ -148,7 +148,7 @@ class AccuracyMonitorNode(Node):
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name == names.STATUS_POSITIONER and move_ended(m.status_values(status)):
-                self._arrive(msg.header.stamp, ends=MoveEnds.one(stamp_seconds(
+                self._arrive([msg.header.stamp], ends=MoveEnds.one(stamp_seconds(
                     msg.header.stamp.sec, msg.header.stamp.nanosec)))
             if status.name == names.STATUS_RECORDER:
                 self.recorder = RecorderReport(m.status_level(status), status.message,
@@ -166,18 +166,17 @@ class AccuracyMonitorNode(Node):
         self.pub_diag.publish(m.diagnostic(names.STATUS_MONITOR_RECORDING, _LEVELS[state.level],
                                            state.message, {'stopped': state.stopped},
                                            self.get_clock().now().to_msg()))
-        if not changed:
-            return
-        if state.level >= 2:  # rclpy ties one severity to each logging call site
+        if changed and state.level >= 2:  # rclpy ties one severity to each logging call site
             self.get_logger().error(state.message)
-        elif state.stopped:
+        elif changed and state.stopped:
             self.get_logger().warning(state.message)
 
     def _report(self, request: Trigger.Request, response: Trigger.Response) -> Any:
         doc = self.monitor.report()
         # Publishers each input subscription has matched: a driver waits for these before the
         # first command, so that no early message reaches the monitor out of order.
-        doc['publishers'] = {t: sub.get_publisher_count() for t, sub in self.inputs.items()}
+        doc['publishers'] = {**{t: sub.get_publisher_count() for t, sub in self.inputs.items()},
+                             **{t: r.publisher_count() for t, (_, r) in self.streams.items()}}
         state = recording(self.recorder, time.time())
         doc['recording'] = None if state is None else state.to_dict()
         doc['inputs'] = self.arrivals.to_dict()  # held for their stamp order, late

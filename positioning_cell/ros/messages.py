@@ -28,6 +28,7 @@ from std_msgs.msg import Header
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
+from positioning_cell.accuracy.monitor import PoseMessages
 from positioning_cell.core.kinematics import platform_points
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
@@ -245,6 +246,39 @@ def measurement(msg: PoseWithCovarianceStamped) -> Measurement:
     return Measurement(*pose_arrays(msg.pose.pose),
                        np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6),
                        _stamp_seconds(msg.header.stamp))
+
+
+def pose_messages(msgs: Sequence[PoseStamped | PoseWithCovarianceStamped],
+                  first: int = 0) -> PoseMessages:
+    """N messages of one pose topic, in arrival order, as the accuracy monitor takes them
+    (:class:`~positioning_cell.accuracy.monitor.PoseMessages`, ranked ``first`` on): header
+    stamps s (:func:`~positioning_cell.accuracy.settle.stamp_seconds`), frame ids, positions
+    (N, 3) m, quaternions (N, 4) x, y, z, w and, of PoseWithCovarianceStamped, the covariances
+    (N, 6, 6) they state (not validated: the monitor checks them)."""
+    poses = [getattr(msg.pose, 'pose', msg.pose) for msg in msgs]
+    values = np.array([(p.position.x, p.position.y, p.position.z, p.orientation.x,
+                        p.orientation.y, p.orientation.z, p.orientation.w) for p in poses],
+                      dtype=float).reshape(-1, 7)
+    stamps = np.array([(msg.header.stamp.sec, msg.header.stamp.nanosec) for msg in msgs],
+                      dtype=float).reshape(-1, 2)
+    covariance = (np.array([msg.pose.covariance for msg in msgs], dtype=float).reshape(-1, 6, 6)
+                  if msgs and hasattr(msgs[0].pose, 'covariance') else None)
+    return PoseMessages(np.arange(first, first + len(msgs), dtype=np.intp),
+                        stamps[:, 0] + stamps[:, 1] * 1e-9,
+                        np.array([msg.header.frame_id for msg in msgs], dtype=object),
+                        values[:, :3], values[:, 3:], covariance)
+
+
+def pose_batches(taken: Mapping[str, Sequence[PoseStamped | PoseWithCovarianceStamped]]
+                 ) -> tuple[dict[str, PoseMessages], list[Time]]:
+    """Messages of several pose topics taken together (each a list in arrival order, keyed by
+    what it is to the monitor): each as :func:`pose_messages`, ranked after the one before
+    (their order across topics is their stamps', which the monitor sorts by), and their header
+    stamps in rank order."""
+    batches, first = {}, 0
+    for key, msgs in taken.items():
+        batches[key], first = pose_messages(msgs, first), first + len(msgs)
+    return batches, [msg.header.stamp for msgs in taken.values() for msg in msgs]
 
 
 def _stamp_seconds(stamp: Time) -> float:
