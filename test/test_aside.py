@@ -66,8 +66,8 @@ def test_a_nodes_beside_node_spins_in_a_thread_of_its_own_and_goes_with_it() -> 
                               capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr[-3000:]
     status, name, aside_threads, own, timers_left = done.stdout.strip().split(';')
-    assert status == '0' and name == '_aside_probe_outputs'
+    assert status == '0' and name == '_aside_probe__outputs'
     # the beside node's timer in its own executor's thread, not in the owner's executor
-    assert aside_threads == 'spin _aside_probe_outputs', done.stdout
+    assert aside_threads == 'spin _aside_probe__outputs', done.stdout
     assert own == 'pool'  # the owner's timer in its multi-threaded executor's pool
     assert timers_left == '0'  # destroyed at the end of the run, with its owner

@@ -16,10 +16,11 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
+from positioning_cell.polling import wait_until
 from positioning_cell.ros.latest import Reader, SourceReader
 from positioning_cell.ros.processes import cell_environment
 from positioning_cell.ros.senders import IdentifiedSubscription
-from positioning_cell.ros.unspun import destroy_unspun
+from positioning_cell.ros.unspun import acts_for, destroy_unspun
 
 pytestmark = pytest.mark.nodes
 
@@ -52,6 +53,24 @@ def test_an_owners_unspun_nodes_go_with_destroy_unspun(context: Context) -> None
         assert destroy_unspun(other) == 1  # another owner's, apart
     finally:
         other.destroy_node()
+        owner.destroy_node()
+
+
+def test_a_readers_subscription_is_its_owners_in_the_graph(context: Context) -> None:
+    """What the graph shows of a reader: a subscription of a node that acts for its owner (a
+    tool waiting for a node to subscribe counts it), and for no other node."""
+    owner, client = Node('acts_owner', context=context), Node('acts_client', context=context)
+    try:
+        Reader(owner, JointState, '/unspun/acts')
+        infos = wait_until(lambda: client.get_subscriptions_info_by_topic('/unspun/acts'), 10.0,
+                           'the reader in the graph')
+        assert [acts_for(i.node_name, 'acts_owner') for i in infos] == [True]
+        assert not any(acts_for(i.node_name, n) for i in infos for n in ('acts', 'owner',
+                                                                           'acts_client'))
+        assert acts_for('acts_owner', 'acts_owner')
+    finally:
+        destroy_unspun(owner)
+        client.destroy_node()
         owner.destroy_node()
 
 

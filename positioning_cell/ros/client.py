@@ -44,6 +44,7 @@ from positioning_cell.moves.outcomes import ResultCode
 from positioning_cell.polling import backoff, wait_until
 from positioning_cell.ros.messages import pose_stamped, status_values
 from positioning_cell.ros.qos import DIAGNOSTICS_QOS, LATCHED_QOS, SERVICE_QOS
+from positioning_cell.ros.unspun import acts_for
 
 T = TypeVar('T')
 
@@ -290,8 +291,10 @@ class CellClient:
         return True
 
     def subscribed(self, topic: str, node: str) -> bool:
-        """Has node ``node`` a subscription on ``topic``?"""
-        return any(i.node_name == node for i in self.node.get_subscriptions_info_by_topic(topic))
+        """Has node ``node`` a subscription on ``topic``, itself or through a node it keeps
+        beside it (:func:`~positioning_cell.ros.unspun.acts_for`: its readers')?"""
+        return any(acts_for(i.node_name, node)
+                   for i in self.node.get_subscriptions_info_by_topic(topic))
 
     def get_parameter(self, node: str, name: str) -> Any:
         """The value of one parameter of ``node`` (:meth:`parameters`; TimeoutError after

@@ -26,11 +26,18 @@ _unspun: weakref.WeakKeyDictionary[Node, list[Node]] = weakref.WeakKeyDictionary
 
 
 def helper_node(owner: Node, suffix: str) -> Node:
-    """A hidden node ``_<owner>_<suffix>`` in ``owner``'s context, without parameter services
+    """A hidden node ``_<owner>__<suffix>`` in ``owner``'s context, without parameter services
     or /rosout: what a node of the cell keeps beside it (its unspun readers' nodes here, the
-    nodes :func:`positioning_cell.ros.spin.aside_node` spins beside it)."""
-    return Node(f'_{owner.get_name()}_{suffix}', context=owner.context,
+    nodes :func:`positioning_cell.ros.spin.aside_node` spins beside it). The double underscore,
+    which no name of the cell's has, tells whose it is (:func:`acts_for`)."""
+    return Node(f'_{owner.get_name()}__{suffix}', context=owner.context,
                 start_parameter_services=False, enable_rosout=False)
+
+
+def acts_for(node_name: str, owner: str) -> bool:
+    """Whether the node named ``node_name`` (as the ROS graph gives it) is the node ``owner``
+    or one of its :func:`helper_node` s: a subscription of either is the owner's."""
+    return node_name == owner or node_name.startswith(f'_{owner}__')
 
 
 def unspun_node(owner: Node, role: str, topic: str) -> Node:
