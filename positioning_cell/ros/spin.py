@@ -192,7 +192,7 @@ def run_together(nodes: Sequence[NodeStart], args: Sequence[str] | None = None) 
     thread). Nodes together keep their concurrency exactly: the leg driver, the tracker and
     the monitor one callback at a time each on an events executor (several times cheaper per
     callback than the others, and most of the cell's callbacks are theirs: the driver's
-    200 Hz physics timer, its 100 Hz joint states, the tracker's readings), the positioner
+    100 Hz physics timer, the tracker's truth and readings), the positioner
     its threads and callback groups (its service callbacks wait for a move to settle while
     its timers and subscriptions run; its heartbeat alone in a group), its pose and
     diagnostics timers on a node beside it, on an events executor of their own
