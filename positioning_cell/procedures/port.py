@@ -101,7 +101,8 @@ class CellPort(Protocol):
         """Ask the positioner to load the calibration file ``path``: (taken, its reason)."""
 
     def joints(self) -> FloatArray:
-        """The latest encoder reading (6,) (ProcedureError when none comes)."""
+        """The encoders now (6,): a reading taken at or after the call, never one from
+        before it (ProcedureError when none comes)."""
 
     def readings(self, samples: int, timeout: float) -> Readings:
         """The next ``samples`` tracker readings stamped from now on, with the encoder (and,

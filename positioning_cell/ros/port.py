@@ -201,8 +201,12 @@ class RosCellPort:
 
     # -- readings -------------------------------------------------------------------------------
     def joints(self) -> FloatArray:
+        # The first reading stamped from now on, not the newest one here: under load this
+        # process took the stream 0.3 s late, and an axis test's next jog, planned from a
+        # reading that a jog had left behind, ended its axis 177 um off the target (Dec 8).
+        since = self.now()
         try:
-            wait_until(lambda: self._joints, self.timeout,
+            wait_until(lambda: self._joints and self._joints[-1][0] >= since, self.timeout,
                        f'an encoder reading on {self._wire(names.JOINT_STATES)}')
         except TimeoutError as err:
             raise ProcedureError(str(err)) from err
