@@ -29,6 +29,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
 from positioning_cell.accuracy.monitor import PoseMessages
+from positioning_cell.accuracy.settle import stamp_seconds
 from positioning_cell.core.kinematics import platform_points
 from positioning_cell.core.mechanism import JOINT_NAMES, Mechanism
 from positioning_cell.errors import InputError
@@ -259,12 +260,12 @@ def pose_messages(msgs: Sequence[PoseStamped | PoseWithCovarianceStamped],
     values = np.array([(p.position.x, p.position.y, p.position.z, p.orientation.x,
                         p.orientation.y, p.orientation.z, p.orientation.w) for p in poses],
                       dtype=float).reshape(-1, 7)
-    stamps = np.array([(msg.header.stamp.sec, msg.header.stamp.nanosec) for msg in msgs],
-                      dtype=float).reshape(-1, 2)
+    stamps = np.array([stamp_seconds(msg.header.stamp.sec, msg.header.stamp.nanosec)
+                       for msg in msgs], dtype=float)
     covariance = (np.array([msg.pose.covariance for msg in msgs], dtype=float).reshape(-1, 6, 6)
                   if msgs and hasattr(msgs[0].pose, 'covariance') else None)
     return PoseMessages(np.arange(first, first + len(msgs), dtype=np.intp),
-                        stamps[:, 0] + stamps[:, 1] * 1e-9,
+                        stamps,
                         np.array([msg.header.frame_id for msg in msgs], dtype=object),
                         values[:, :3], values[:, 3:], covariance)
 
